@@ -1,0 +1,74 @@
+//! Library error type. Every variant names the file, key, value or shape involved, and
+//! [`Error::exit_code`] tells the CLI whether it was the user's input (2) or the operation (1).
+
+use std::path::PathBuf;
+
+/// Result alias used throughout the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A file that was expected is not there.
+    #[error("{}: missing ({expected})", path.display())]
+    Missing { path: PathBuf, expected: String },
+
+    /// A file exists but could not be read or written.
+    #[error("{}: {op} failed: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        op: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+
+    /// A file is not a decodable image of the expected kind.
+    #[error("{}: not a readable PNG image ({reason})", path.display())]
+    Decode { path: PathBuf, reason: String },
+
+    /// An image has the wrong dimensions.
+    #[error("{}: image is {}x{}, expected {}x{}{}", path.display(), got.0, got.1, expected.0, expected.1, if why.is_empty() { String::new() } else { format!(" ({why})") })]
+    Size {
+        path: PathBuf,
+        got: (usize, usize),
+        expected: (usize, usize),
+        why: String,
+    },
+
+    /// Bad user input that is not tied to one file (an argument, a folder layout, a value).
+    #[error("{0}")]
+    Input(String),
+
+    /// In-memory data of incompatible shapes was combined (a programming or data error).
+    #[error("shape mismatch: {0}")]
+    Shape(String),
+
+    /// The operation could not be carried out on valid input (e.g. nothing lit in the captures).
+    #[error("{0}")]
+    Failed(String),
+}
+
+impl Error {
+    /// Process exit code for this error: 2 for usage or input errors, 1 for failed operations.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            Error::Missing { .. }
+            | Error::Decode { .. }
+            | Error::Size { .. }
+            | Error::Input(_)
+            | Error::Io { .. } => 2,
+            Error::Shape(_) | Error::Failed(_) => 1,
+        }
+    }
+
+    pub fn io(path: impl Into<PathBuf>, op: &'static str, source: std::io::Error) -> Self {
+        let path = path.into();
+        if source.kind() == std::io::ErrorKind::NotFound {
+            Error::Missing {
+                path,
+                expected: format!("{op}: {source}"),
+            }
+        } else {
+            Error::Io { path, op, source }
+        }
+    }
+}

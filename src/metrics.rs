@@ -1,0 +1,167 @@
+//! Image quality metrics with the paper's conventions (DESIGN.md section 6).
+//!
+//! Over a set of image pairs: MSE is averaged over all pixels, channels and images (pooled);
+//! PSNR = 10·log10(1/MSE) of that pooled mean (peak 1.0); RMSE = √(3·MSE), i.e. the root of the
+//! per-pixel squared RGB error; SSIM uses an 11×11 Gaussian window (σ = 1.5) with replicate
+//! padding, C1 = 0.01², C2 = 0.03² (data range 1), computed per channel on the full-size map and
+//! averaged over pixels, channels and images. Values are compared as they are in memory: no mask,
+//! no clamping, no colour conversion.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::filter::{gaussian_kernel, separable_replicate};
+use crate::raster::{Plane, Rgb, Space};
+
+/// Gaussian window of the SSIM: 11 taps, σ = 1.5 pixels.
+pub const SSIM_RADIUS: usize = 5;
+pub const SSIM_SIGMA: f64 = 1.5;
+pub const SSIM_C1: f64 = 0.01 * 0.01;
+pub const SSIM_C2: f64 = 0.03 * 0.03;
+
+/// Scores of a set of image pairs.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Scores {
+    /// dB; infinite when the images are identical.
+    pub psnr: f64,
+    pub rmse: f64,
+    pub ssim: f64,
+    /// Number of image pairs.
+    pub n: usize,
+}
+
+/// Mean squared error over all pixels and channels of one pair.
+pub fn mse<S: Space>(a: &Rgb<S>, b: &Rgb<S>) -> Result<f64> {
+    check(a, b)?;
+    let sum: f64 = a
+        .data()
+        .iter()
+        .zip(b.data())
+        .map(|(&x, &y)| {
+            let d = x as f64 - y as f64;
+            d * d
+        })
+        .sum();
+    Ok(sum / a.data().len().max(1) as f64)
+}
+
+/// PSNR in dB for a mean squared error with peak value 1.
+pub fn psnr_from_mse(mse: f64) -> f64 {
+    if mse <= 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (1.0 / mse).log10()
+    }
+}
+
+/// RMSE of the RGB error vector: √(3·MSE).
+pub fn rmse_from_mse(mse: f64) -> f64 {
+    (3.0 * mse).sqrt()
+}
+
+/// Mean SSIM of one pair, averaged over the three channels.
+pub fn ssim<S: Space>(a: &Rgb<S>, b: &Rgb<S>) -> Result<f64> {
+    check(a, b)?;
+    let kernel = gaussian_kernel(SSIM_SIGMA, SSIM_RADIUS);
+    let mut total = 0.0;
+    for c in 0..3 {
+        total += ssim_plane(&a.channel(c), &b.channel(c), &kernel);
+    }
+    Ok(total / 3.0)
+}
+
+/// Mean of the SSIM map of two planes.
+fn ssim_plane<S: Space>(x: &Plane<S>, y: &Plane<S>, kernel: &[f64]) -> f64 {
+    let xx = Plane::<S>::from_vec(
+        x.width(),
+        x.height(),
+        x.data().iter().map(|v| v * v).collect(),
+    );
+    let yy = Plane::<S>::from_vec(
+        y.width(),
+        y.height(),
+        y.data().iter().map(|v| v * v).collect(),
+    );
+    let xy = Plane::<S>::from_vec(
+        x.width(),
+        x.height(),
+        x.data().iter().zip(y.data()).map(|(a, b)| a * b).collect(),
+    );
+    let (Ok(xx), Ok(yy), Ok(xy)) = (xx, yy, xy) else {
+        return f64::NAN; // unreachable: sizes come from the inputs
+    };
+    let mx = separable_replicate(x, kernel);
+    let my = separable_replicate(y, kernel);
+    let sxx = separable_replicate(&xx, kernel);
+    let syy = separable_replicate(&yy, kernel);
+    let sxy = separable_replicate(&xy, kernel);
+    let n = x.data().len();
+    let mut sum = 0.0;
+    for i in 0..n {
+        let (mx, my) = (mx.data()[i] as f64, my.data()[i] as f64);
+        let vx = sxx.data()[i] as f64 - mx * mx;
+        let vy = syy.data()[i] as f64 - my * my;
+        let cxy = sxy.data()[i] as f64 - mx * my;
+        sum += ((2.0 * mx * my + SSIM_C1) * (2.0 * cxy + SSIM_C2))
+            / ((mx * mx + my * my + SSIM_C1) * (vx + vy + SSIM_C2));
+    }
+    sum / n.max(1) as f64
+}
+
+/// Scores a set of pairs: pooled MSE for PSNR and RMSE, mean SSIM over images.
+pub fn score_pairs<'a, S: Space + 'a>(
+    pairs: impl IntoIterator<Item = (&'a Rgb<S>, &'a Rgb<S>)>,
+) -> Result<Scores> {
+    let mut acc = Accumulator::default();
+    for (a, b) in pairs {
+        acc.add(a, b)?;
+    }
+    acc.finish()
+}
+
+/// Accumulates scores pair by pair, so a large test set need not be held in memory.
+#[derive(Clone, Debug, Default)]
+pub struct Accumulator {
+    sq_err: f64,
+    values: usize,
+    ssim_sum: f64,
+    n: usize,
+}
+
+impl Accumulator {
+    pub fn add<S: Space>(&mut self, a: &Rgb<S>, b: &Rgb<S>) -> Result<()> {
+        let m = mse(a, b)?;
+        self.sq_err += m * a.data().len() as f64;
+        self.values += a.data().len();
+        self.ssim_sum += ssim(a, b)?;
+        self.n += 1;
+        Ok(())
+    }
+
+    pub fn finish(&self) -> Result<Scores> {
+        if self.n == 0 {
+            return Err(Error::Input("no image pairs to score".into()));
+        }
+        let mse = self.sq_err / self.values.max(1) as f64;
+        Ok(Scores {
+            psnr: psnr_from_mse(mse),
+            rmse: rmse_from_mse(mse),
+            ssim: self.ssim_sum / self.n as f64,
+            n: self.n,
+        })
+    }
+}
+
+fn check<S: Space>(a: &Rgb<S>, b: &Rgb<S>) -> Result<()> {
+    if a.size() != b.size() {
+        return Err(Error::Shape(format!(
+            "cannot compare {}x{} with {}x{} {} images",
+            a.width(),
+            a.height(),
+            b.width(),
+            b.height(),
+            S::NAME
+        )));
+    }
+    Ok(())
+}

@@ -1,0 +1,168 @@
+//! PNG reading and writing. On disk images are 8-bit sRGB-encoded RGB (no colour management);
+//! in memory they are f32 in [0,1]. Writing rounds to the nearest 8-bit level (never truncates).
+//! 16-bit PNGs are read at full precision; grayscale and alpha inputs are converted to RGB.
+
+use std::fs;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+use crate::raster::{Mask, Plane, Rgb, Space};
+
+/// Reads a PNG as an RGB f32 image in space `S`.
+pub fn read_rgb<S: Space>(path: &Path) -> Result<Rgb<S>> {
+    let bytes = fs::read(path).map_err(|e| Error::io(path, "read", e))?;
+    let img =
+        image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
+            Error::Decode {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            }
+        })?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let data: Vec<f32> = match img {
+        image::DynamicImage::ImageLuma16(_)
+        | image::DynamicImage::ImageLumaA16(_)
+        | image::DynamicImage::ImageRgb16(_)
+        | image::DynamicImage::ImageRgba16(_) => img
+            .into_rgb16()
+            .into_raw()
+            .into_iter()
+            .map(|v| v as f32 / 65535.0)
+            .collect(),
+        other => other
+            .into_rgb8()
+            .into_raw()
+            .into_iter()
+            .map(|v| v as f32 / 255.0)
+            .collect(),
+    };
+    Rgb::from_vec(w, h, data)
+}
+
+/// Reads a PNG and checks its size, naming `why` (what the size is required for) on mismatch.
+pub fn read_rgb_sized<S: Space>(
+    path: &Path,
+    expected: (usize, usize),
+    why: &str,
+) -> Result<Rgb<S>> {
+    let img = read_rgb::<S>(path)?;
+    if img.size() != expected {
+        return Err(Error::Size {
+            path: path.to_path_buf(),
+            got: img.size(),
+            expected,
+            why: why.to_string(),
+        });
+    }
+    Ok(img)
+}
+
+/// Only the (width, height) of a PNG, from its header.
+pub fn png_size(path: &Path) -> Result<(usize, usize)> {
+    let reader = image::ImageReader::open(path)
+        .map_err(|e| Error::io(path, "open", e))?
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, "read", e))?;
+    let (w, h) = reader.into_dimensions().map_err(|e| Error::Decode {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    Ok((w as usize, h as usize))
+}
+
+/// Converts a value in [0,1] to 8 bits, rounding to nearest and clamping.
+#[inline]
+pub fn to_u8(v: f32) -> u8 {
+    // NaN maps to 0 through the saturating cast.
+    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
+/// Quantises an image to 8 bits (as saving and reloading it would).
+pub fn quantize<S: Space>(img: &Rgb<S>) -> Rgb<S> {
+    img.map(|v| to_u8(v) as f32 / 255.0)
+}
+
+/// Writes an RGB image as an 8-bit PNG. The file is written to a temporary sibling and renamed,
+/// so a reader never sees a half-written image. Parent folders are created.
+pub fn write_rgb<S: Space>(path: &Path, img: &Rgb<S>) -> Result<()> {
+    let bytes: Vec<u8> = img.data().iter().map(|&v| to_u8(v)).collect();
+    write_png(
+        path,
+        &bytes,
+        img.width(),
+        img.height(),
+        image::ColorType::Rgb8,
+    )
+}
+
+/// Writes a plane as an 8-bit grayscale PNG (values clamped to [0,1]).
+pub fn write_plane<S: Space>(path: &Path, img: &Plane<S>) -> Result<()> {
+    let bytes: Vec<u8> = img.data().iter().map(|&v| to_u8(v)).collect();
+    write_png(
+        path,
+        &bytes,
+        img.width(),
+        img.height(),
+        image::ColorType::L8,
+    )
+}
+
+/// Writes a mask as an 8-bit grayscale PNG (255 inside, 0 outside).
+pub fn write_mask<S: Space>(path: &Path, mask: &Mask<S>) -> Result<()> {
+    let bytes: Vec<u8> = mask
+        .data()
+        .iter()
+        .map(|&b| if b { 255 } else { 0 })
+        .collect();
+    write_png(
+        path,
+        &bytes,
+        mask.width(),
+        mask.height(),
+        image::ColorType::L8,
+    )
+}
+
+/// Reads a mask PNG: a pixel is inside when its luma is at least one half.
+pub fn read_mask<S: Space>(path: &Path) -> Result<Mask<S>> {
+    let img = read_rgb::<S>(path)?;
+    Ok(img.to_gray().threshold(0.5 - 1e-6))
+}
+
+fn write_png(path: &Path, bytes: &[u8], w: usize, h: usize, color: image::ColorType) -> Result<()> {
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        fs::create_dir_all(parent).map_err(|e| Error::io(parent, "create folder", e))?;
+    }
+    let tmp = temp_sibling(path);
+    let result = (|| {
+        let file = fs::File::create(&tmp).map_err(|e| Error::io(&tmp, "create", e))?;
+        let mut out = BufWriter::new(file);
+        let encoder = image::codecs::png::PngEncoder::new_with_quality(
+            &mut out,
+            image::codecs::png::CompressionType::Fast,
+            image::codecs::png::FilterType::Adaptive,
+        );
+        image::ImageEncoder::write_image(encoder, bytes, w as u32, h as u32, color.into())
+            .map_err(|e| Error::Failed(format!("{}: PNG encoding failed: {e}", path.display())))?;
+        out.flush().map_err(|e| Error::io(&tmp, "write", e))?;
+        fs::rename(&tmp, path).map_err(|e| Error::io(path, "rename into place", e))
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result
+}
+
+fn temp_sibling(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// The official dataset file name for a 1-based index: `img_0001.png`.
+pub fn indexed_name(index: usize) -> String {
+    format!("img_{index:04}.png")
+}

@@ -1,0 +1,1 @@
+//! Metrics: checked against values computed independently (see tests/reference/metrics_ref.py).
