@@ -8,5 +8,7 @@ pub mod filter;
 pub mod metrics;
 pub mod pngio;
 pub mod raster;
+pub mod resize;
+pub mod sample;
 
 pub use error::{Error, Result};
