@@ -5,10 +5,12 @@
 
 pub mod error;
 pub mod filter;
+pub mod linear;
 pub mod metrics;
 pub mod pngio;
 pub mod raster;
 pub mod resize;
 pub mod sample;
+pub mod warp;
 
 pub use error::{Error, Result};

@@ -3,4 +3,5 @@
 
 mod common;
 mod image;
+mod linear;
 mod metrics;
