@@ -7,6 +7,7 @@ pub mod error;
 pub mod filter;
 pub mod linear;
 pub mod metrics;
+pub mod modeldir;
 pub mod pngio;
 pub mod raster;
 pub mod resize;

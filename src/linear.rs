@@ -621,3 +621,103 @@ impl Adam {
 pub fn mask_captures(captures: &[CamImage], mask: &Mask<Camera>) -> Result<Vec<CamImage>> {
     captures.iter().map(|c| c.masked(mask)).collect()
 }
+
+/// Method name of this rung.
+pub const METHOD: &str = "linear";
+
+impl LinearModel {
+    /// Numeric state for the model directory: the learnable geometry, the baked grid (what playback
+    /// reads), the curves and the per-pixel coefficients.
+    pub fn to_tensors(&self) -> Result<crate::modeldir::Tensors> {
+        let (w, h) = self.network_size();
+        let mut t = crate::modeldir::Tensors::default();
+        t.insert(
+            "warp.theta",
+            vec![2, 3],
+            self.warp.theta.iter().flatten().copied().collect(),
+        )?;
+        let tps: Vec<f32> = self.warp.tps.iter().flatten().copied().collect();
+        t.insert("warp.tps", vec![2, crate::warp::TPS_PARAMS], tps)?;
+        let grid = TpsBasis::new(w, h).grid(&self.warp);
+        t.insert(
+            "grid",
+            vec![h, w, 2],
+            grid.data().iter().flatten().copied().collect(),
+        )?;
+        t.insert(
+            "curves.camera_gamma",
+            vec![3],
+            self.curves.camera_gamma.to_vec(),
+        )?;
+        t.insert(
+            "curves.projector_gamma",
+            vec![3],
+            self.curves.projector_gamma.to_vec(),
+        )?;
+        t.insert(
+            "colour.coeffs",
+            vec![h, w, 12],
+            self.coeffs.data.iter().flatten().copied().collect(),
+        )?;
+        Ok(t)
+    }
+
+    /// Rebuilds a model from the model directory's tensors; `file` names the weights in errors.
+    pub fn from_tensors(
+        t: &crate::modeldir::Tensors,
+        network_size: (usize, usize),
+        camera_size: (usize, usize),
+        file: &std::path::Path,
+    ) -> Result<Self> {
+        let (w, h) = network_size;
+        let th = t.get("warp.theta", &[2, 3], file)?;
+        let tps = t.get("warp.tps", &[2, crate::warp::TPS_PARAMS], file)?;
+        let cg = t.get("curves.camera_gamma", &[3], file)?;
+        let pg = t.get("curves.projector_gamma", &[3], file)?;
+        let co = t.get("colour.coeffs", &[h, w, 12], file)?;
+        let bad = |name: &str| {
+            Error::Input(format!(
+                "{}: tensor `{name}` holds non-finite or out-of-range values",
+                file.display()
+            ))
+        };
+        if th.iter().chain(tps).chain(co).any(|v| !v.is_finite()) {
+            return Err(bad("warp/colour"));
+        }
+        if cg
+            .iter()
+            .chain(pg)
+            .any(|&g| !(g.is_finite() && g > 0.05 && g < 20.0))
+        {
+            return Err(bad("curves"));
+        }
+        let warp = Warp {
+            theta: [[th[0], th[1], th[2]], [th[3], th[4], th[5]]],
+            tps: [
+                tps[..crate::warp::TPS_PARAMS].to_vec(),
+                tps[crate::warp::TPS_PARAMS..].to_vec(),
+            ],
+        };
+        let data = co
+            .chunks_exact(12)
+            .map(|c| {
+                let mut k = [0f32; 12];
+                k.copy_from_slice(c);
+                k
+            })
+            .collect();
+        Ok(Self {
+            warp,
+            curves: Curves {
+                camera_gamma: [cg[0], cg[1], cg[2]],
+                projector_gamma: [pg[0], pg[1], pg[2]],
+            },
+            coeffs: Coefficients {
+                width: w,
+                height: h,
+                data,
+            },
+            camera_size,
+        })
+    }
+}
