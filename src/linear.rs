@@ -292,12 +292,12 @@ struct Normal {
 impl Normal {
     #[inline]
     fn add(&mut self, a: &[f32; 4], y: &[f32; 3]) {
-        for i in 0..4 {
-            for j in i..4 {
-                self.ata[i][j] += (a[i] * a[j]) as f64;
+        for (i, &ai) in a.iter().enumerate() {
+            for (j, &aj) in a.iter().enumerate().skip(i) {
+                self.ata[i][j] += (ai * aj) as f64;
             }
-            for c in 0..3 {
-                self.aty[i][c] += (a[i] * y[c]) as f64;
+            for (c, &yc) in y.iter().enumerate() {
+                self.aty[i][c] += (ai * yc) as f64;
             }
         }
     }
