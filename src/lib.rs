@@ -3,6 +3,7 @@
 //! The crate is a pure core (image math, geometry, models, the virtual rig) with no device I/O,
 //! and a thin shell on top (CLI, and later camera, window, GPU and service). See `DESIGN.md`.
 
+pub mod dataset;
 pub mod error;
 pub mod filter;
 pub mod linear;

@@ -2,6 +2,7 @@
 //! running the real `compend` binary.
 
 mod common;
+mod dataset;
 mod image;
 mod linear;
 mod metrics;

@@ -1,6 +1,7 @@
 //! Subcommand implementations: argument structs (clap) and `run` functions.
 //! Errors carry context with anyhow; library errors inside decide the exit code.
 
+pub mod inspect;
 pub mod metrics;
 
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
