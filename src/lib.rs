@@ -8,6 +8,7 @@ pub mod error;
 pub mod filter;
 pub mod linear;
 pub mod metrics;
+pub mod model;
 pub mod modeldir;
 pub mod pngio;
 pub mod raster;
