@@ -9,6 +9,7 @@ pub mod filter;
 pub mod linear;
 pub mod metrics;
 pub mod modeldir;
+pub mod patterns;
 pub mod pngio;
 pub mod raster;
 pub mod resize;
