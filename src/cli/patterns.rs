@@ -3,13 +3,13 @@
 //! network size, `sl/` Gray-code structured light at projector resolution.
 
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use compend::patterns::{self, CUBE_COUNT, GRAY_IMAGE_NAME, GrayCode, Set};
-use compend::pngio::{self, indexed_name};
+use compend::dataset::{DataRoot, ProjectorSet};
+use compend::patterns::{self, CUBE_COUNT, GrayCode, Set};
+use rayon::prelude::*;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -93,44 +93,38 @@ fn parse_projector_size(s: &str) -> std::result::Result<Size, String> {
 
 pub fn run(args: Args) -> Result<()> {
     let start = Instant::now();
-    let root = &args.out;
+    let root = DataRoot::create(&args.out)?;
     let net = args.size;
     let (ntrain, ntest) = (args.ntrain as usize, args.ntest as usize);
     eprintln!(
         "patterns: writing to {} (seed {}, network size {net}, projector {})",
-        root.display(),
+        root.path().display(),
         args.seed,
         args.projector
     );
 
     for (set, n) in [(Set::Train, ntrain), (Set::Test, ntest)] {
-        let dir = root.join(set.folder());
         parallel(n, set.folder(), |i| {
             let img = patterns::sampling_image(args.seed, set, i, net.width, net.height);
-            pngio::write_rgb(&dir.join(indexed_name(i + 1)), &img)?;
-            Ok(())
+            root.write(set.projector_set(), i + 1, &img).map(drop)
         })?;
-        warn_extra(&dir, n);
+        warn_extra(&root.dir(set.projector_set()), n);
     }
 
-    let ref_dir = root.join("ref");
     parallel(CUBE_COUNT, "ref", |i| {
         let img = patterns::color_cube(i + 1, net.width, net.height)?;
-        pngio::write_rgb(&ref_dir.join(indexed_name(i + 1)), &img)?;
-        Ok(())
+        root.write(ProjectorSet::Ref, i + 1, &img).map(drop)
     })?;
     let gray = patterns::gray_image(args.gray_level, net.width, net.height);
-    pngio::write_rgb(&ref_dir.join(GRAY_IMAGE_NAME), &gray)?;
-    warn_extra(&ref_dir, CUBE_COUNT);
+    root.write_gray_input(&gray)?;
+    warn_extra(&root.dir(ProjectorSet::Ref), CUBE_COUNT);
 
     let code = GrayCode::new(args.projector.width, args.projector.height)?;
-    let sl_dir = root.join("sl");
     parallel(code.len(), "sl", |i| {
-        let img = code.pattern(i)?;
-        pngio::write_rgb(&sl_dir.join(indexed_name(i + 1)), &img)?;
-        Ok(())
+        root.write(ProjectorSet::Sl, i + 1, &code.pattern(i)?)
+            .map(drop)
     })?;
-    warn_extra(&sl_dir, code.len());
+    warn_extra(&root.dir(ProjectorSet::Sl), code.len());
 
     eprintln!(
         "patterns: wrote {ntrain} train and {ntest} test images ({net}), {CUBE_COUNT} colour cube \
@@ -141,58 +135,34 @@ pub fn run(args: Args) -> Result<()> {
         args.projector,
         code.col_bits(),
         code.row_bits(),
-        root.display(),
+        root.path().display(),
         start.elapsed().as_secs_f64()
     );
     Ok(())
 }
 
-/// Runs `job(0..n)` on a few threads (the images are independent), printing progress for
-/// `label` on stderr. Stops at the first error and returns it.
+/// Runs `job(0..n)` in parallel (the images are independent), printing progress for `label` on
+/// stderr. Returns the first error.
 fn parallel(
     n: usize,
     label: &str,
-    job: impl Fn(usize) -> compend::Result<()> + Sync,
+    job: impl Fn(usize) -> compend::Result<()> + Sync + Send,
 ) -> Result<()> {
-    let threads = std::thread::available_parallelism()
-        .map(|t| t.get())
-        .unwrap_or(1)
-        .clamp(1, 8)
-        .min(n.max(1));
-    let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
-    let failed = AtomicBool::new(false);
-    let first_error: Mutex<Option<compend::Error>> = Mutex::new(None);
     let step = (n / 10).max(50);
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| {
-                while !failed.load(Ordering::Relaxed) {
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    if i >= n {
-                        break;
-                    }
-                    if let Err(e) = job(i) {
-                        failed.store(true, Ordering::Relaxed);
-                        let mut slot = first_error.lock().unwrap_or_else(|p| p.into_inner());
-                        slot.get_or_insert(e);
-                        break;
-                    }
-                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                    if d % step == 0 && d < n {
-                        eprintln!("patterns: {label} {d}/{n}");
-                    }
-                }
-            });
-        }
-    });
-    match first_error.into_inner().unwrap_or_else(|p| p.into_inner()) {
-        Some(e) => Err(e).with_context(|| format!("writing the {label} images")),
-        None => {
-            eprintln!("patterns: {label} {n}/{n}");
-            Ok(())
-        }
-    }
+    (0..n)
+        .into_par_iter()
+        .try_for_each(|i| {
+            job(i)?;
+            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+            if d % step == 0 && d < n {
+                eprintln!("patterns: {label} {d}/{n}");
+            }
+            Ok::<(), compend::Error>(())
+        })
+        .with_context(|| format!("writing the {label} images"))?;
+    eprintln!("patterns: {label} {n}/{n}");
+    Ok(())
 }
 
 /// Warns when `dir` holds numbered images beyond the `n` just written (left from an earlier,

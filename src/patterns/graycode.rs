@@ -241,16 +241,17 @@ pub struct DecodeParams {
     /// Accept one undecided bit per axis where the two codes it leaves open are neighbouring
     /// columns (rows): the pixel straddles the boundary between them, the one place where a Gray
     /// code is legitimately ambiguous. The coordinate is then their midpoint (`n + 0.5`). Without
-    /// this, a camera coarser than the projector (or blur) loses most pixels to the finest bit.
+    /// this, a camera coarser than the projector, or blur, loses many pixels to the finest bits
+    /// (a fifth to most of them in the tests' synthetic rig).
     pub accept_boundary: bool,
 }
 
 impl Default for DecodeParams {
     /// Defaults: lit above max(0.04, 0.1·L) — about 10/255, or a tenth of the lit range, which
     /// keeps dark surface areas while rejecting unlit ones where only noise differs; bits decided
-    /// above max(0.01, 0.05·(white − black)) — a little more than 8-bit camera noise (≈ 2.5/255),
-    /// and well below the half-contrast a pattern bit has away from stripe edges; one boundary
-    /// bit per axis accepted.
+    /// above max(0.01, 0.05·(white − black)) — 0.01 ≈ 2.5/255, about the noise of a difference
+    /// of two 8-bit captures, and far below the contrast a bit has away from stripe edges; one
+    /// boundary bit per axis accepted.
     fn default() -> Self {
         Self {
             lit_abs: 0.04,
@@ -306,10 +307,11 @@ impl Correspondence {
     }
 
     /// The inverse map, projector → camera: for every projector pixel the mean camera position
-    /// (camera pixels, centres at integers) of the valid camera pixels that decoded to it, and a
-    /// mask of projector pixels seen by at least one camera pixel. No hole filling: where the
-    /// camera sees a projector pixel through no camera pixel (e.g. the camera is coarser than
-    /// the projector), the mask is false.
+    /// (camera pixels, centres at integers) of the valid camera pixels that decoded to it (a
+    /// camera pixel on a boundary, at `n + 0.5`, counts for both `n` and `n + 1`), and a mask of
+    /// projector pixels seen by at least one camera pixel. No hole filling: where the camera
+    /// sees a projector pixel through no camera pixel (e.g. the camera is coarser than the
+    /// projector), the mask is false.
     pub fn projector_to_camera(&self) -> (Plane<Projector>, Plane<Projector>, Mask<Projector>) {
         let (pw, ph) = self.projector;
         let mut sx = vec![0f64; pw * ph];
@@ -319,10 +321,20 @@ impl Correspondence {
         for cy in 0..ch {
             for cx in 0..cw {
                 if let Some([px, py]) = self.get(cx, cy) {
-                    let i = py as usize * pw + px as usize;
-                    sx[i] += cx as f64;
-                    sy[i] += cy as f64;
-                    n[i] += 1;
+                    // Coordinates are whole or halves; a half touches both neighbours.
+                    let xs = [px.floor() as usize, (px.ceil() as usize).min(pw - 1)];
+                    let ys = [py.floor() as usize, (py.ceil() as usize).min(ph - 1)];
+                    for (j, &y) in ys.iter().enumerate() {
+                        for (k, &x) in xs.iter().enumerate() {
+                            if (j == 1 && ys[1] == ys[0]) || (k == 1 && xs[1] == xs[0]) {
+                                continue;
+                            }
+                            let i = y * pw + x;
+                            sx[i] += cx as f64;
+                            sy[i] += cy as f64;
+                            n[i] += 1;
+                        }
+                    }
                 }
             }
         }

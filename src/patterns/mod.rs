@@ -20,15 +20,6 @@ use crate::raster::PrjImage;
 pub const CUBE_LEVELS: [u8; 5] = [0, 64, 128, 191, 255];
 /// Number of colour cube images (`ref/img_0001..img_0125`).
 pub const CUBE_COUNT: usize = 125;
-/// 1-based index of the black cube image (`ref/img_0001.png`).
-pub const REF_BLACK: usize = 1;
-/// 1-based index of the white cube image (`ref/img_0125.png`).
-pub const REF_WHITE: usize = 125;
-/// 1-based index of the capture of the gray image among the reference captures
-/// (`cam/raw/ref/img_0126.png`, the surface image s̃).
-pub const REF_GRAY_CAPTURE: usize = 126;
-/// File name of the gray image `x0` in `ref/`.
-pub const GRAY_IMAGE_NAME: &str = "img_gray.png";
 /// Default 8-bit level of the gray image `x0` (the official datasets use about 77/255).
 pub const DEFAULT_GRAY_LEVEL: u8 = 77;
 
@@ -36,7 +27,8 @@ pub const DEFAULT_GRAY_LEVEL: u8 = 77;
 ///
 /// `index = 1 + 25·r + 5·g + b` with `r, g, b ∈ 0..5` indexing [`CUBE_LEVELS`]: blue varies
 /// fastest, red slowest. So `img_0001` is black (0,0,0), `img_0002` is (0,0,64), `img_0006` is
-/// (0,64,0), `img_0026` is (64,0,0) and `img_0125` is white (255,255,255).
+/// (0,64,0), `img_0026` is (64,0,0) and `img_0125` is white (255,255,255) — the indices of the
+/// black and white reference captures ([`crate::dataset::Reference`]).
 pub fn cube_colour(index: usize) -> Result<[u8; 3]> {
     if !(1..=CUBE_COUNT).contains(&index) {
         return Err(Error::Input(format!(
@@ -68,8 +60,12 @@ mod tests {
 
     #[test]
     fn cube_indexing() {
-        assert_eq!(cube_colour(REF_BLACK).unwrap(), [0, 0, 0]);
-        assert_eq!(cube_colour(REF_WHITE).unwrap(), [255, 255, 255]);
+        use crate::dataset::Reference;
+        assert_eq!(cube_colour(Reference::Black.index()).unwrap(), [0, 0, 0]);
+        assert_eq!(
+            cube_colour(Reference::White.index()).unwrap(),
+            [255, 255, 255]
+        );
         assert_eq!(cube_colour(2).unwrap(), [0, 0, 64]);
         assert_eq!(cube_colour(6).unwrap(), [0, 64, 0]);
         assert_eq!(cube_colour(26).unwrap(), [64, 0, 0]);

@@ -7,7 +7,8 @@
 //! beyond the libm functions (`sin`, `exp`, `powf`, `tanh`).
 //!
 //! Content: every image is built in resolution-independent coordinates (the same seed at another
-//! size gives the same picture resampled, up to aliasing of the finest stripes), from scalar
+//! size gives the same picture resampled, up to aliasing of the finest stripes and per-pixel
+//! grain), from scalar
 //! fields — linear and radial gradients, sine/triangle/square stripes at several scales and angles,
 //! rotated checkers, spirals, fractal value noise (plain, ridged, turbulent), Gaussian blobs,
 //! Voronoi cells, products and domain-warped versions of these — turned into colour by one of
@@ -41,6 +42,14 @@ impl Set {
         match self {
             Set::Train => "train",
             Set::Test => "test",
+        }
+    }
+
+    /// The dataset set it is stored in.
+    pub fn projector_set(self) -> crate::dataset::ProjectorSet {
+        match self {
+            Set::Train => crate::dataset::ProjectorSet::Train,
+            Set::Test => crate::dataset::ProjectorSet::Test,
         }
     }
 
