@@ -10,6 +10,7 @@ pub mod linear;
 pub mod metrics;
 pub mod model;
 pub mod modeldir;
+pub mod patterns;
 pub mod pngio;
 pub mod raster;
 pub mod resize;

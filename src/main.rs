@@ -19,6 +19,9 @@ enum Command {
     Inspect(cli::inspect::Args),
     /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
     Metrics(cli::metrics::Args),
+    /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
+    /// gray image (ref/), Gray-code structured light (sl/).
+    Patterns(cli::patterns::Args),
 }
 
 fn main() -> ExitCode {
@@ -26,6 +29,7 @@ fn main() -> ExitCode {
     let result = match args.command {
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Metrics(a) => cli::metrics::run(a),
+        Command::Patterns(a) => cli::patterns::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

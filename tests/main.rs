@@ -6,3 +6,4 @@ mod dataset;
 mod image;
 mod linear;
 mod metrics;
+mod patterns;

@@ -3,6 +3,7 @@
 
 pub mod inspect;
 pub mod metrics;
+pub mod patterns;
 
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
 /// 2 for an I/O error on a user-named path, 1 otherwise.
