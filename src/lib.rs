@@ -15,6 +15,7 @@ pub mod pngio;
 pub mod raster;
 pub mod resize;
 pub mod sample;
+pub mod slgrid;
 pub mod warp;
 
 pub use error::{Error, Result};

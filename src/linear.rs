@@ -73,10 +73,19 @@ pub struct Coefficients {
     pub data: Vec<[f32; 12]>,
 }
 
+/// Where a model's geometry comes from.
+#[derive(Clone, Debug)]
+pub enum Geometry {
+    /// Learned affine + TPS warp (`linear`).
+    Learned(Warp),
+    /// A fixed grid, e.g. from decoded structured light (`linear-sl`).
+    Fixed(Grid<Network, Camera>),
+}
+
 /// A trained `linear` model: geometry, curves and per-pixel colour coefficients.
 #[derive(Clone, Debug)]
 pub struct LinearModel {
-    pub warp: Warp,
+    pub geometry: Geometry,
     pub curves: Curves,
     pub coeffs: Coefficients,
     /// Camera image size the geometry refers to.
@@ -96,11 +105,19 @@ impl LinearModel {
         (self.coeffs.width, self.coeffs.height)
     }
 
+    /// The sampling grid from network pixels into the camera image.
+    pub fn grid(&self) -> Grid<Network, Camera> {
+        let (w, h) = self.network_size();
+        match &self.geometry {
+            Geometry::Learned(warp) => TpsBasis::new(w, h).grid(warp),
+            Geometry::Fixed(grid) => grid.clone(),
+        }
+    }
+
     /// Bakes the geometry into one sampling grid.
     pub fn simplify(&self) -> SimplifiedLinear {
-        let (w, h) = self.network_size();
         SimplifiedLinear {
-            grid: TpsBasis::new(w, h).grid(&self.warp),
+            grid: self.grid(),
             curves: self.curves,
             coeffs: self.coeffs.clone(),
         }
@@ -186,21 +203,8 @@ pub fn fit(
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<(LinearModel, FitReport)> {
     let start = Instant::now();
-    if captures.is_empty() || captures.len() != targets.len() {
-        return Err(Error::Input(format!(
-            "linear fit needs as many captures as projector images, got {} and {}",
-            captures.len(),
-            targets.len()
-        )));
-    }
+    check_pairs(captures, targets)?;
     let cam_size = captures[0].size();
-    if let Some(c) = captures.iter().find(|c| c.size() != cam_size) {
-        return Err(Error::Shape(format!(
-            "captures differ in size: {:?} and {:?}",
-            cam_size,
-            c.size()
-        )));
-    }
     let (nw, nh) = settings.network_size;
     let mut warp = init;
     let mut curves = Curves::default();
@@ -238,19 +242,12 @@ pub fn fit(
             }
         }
     }
-    // Final curves and colour coefficients at full resolution on all images.
-    let basis = TpsBasis::new(nw, nh);
-    let grid = basis.grid(&warp);
-    curves = fit_curves(captures, targets, &grid, curves, settings.ridge);
-    let warped: Vec<NetImage> = captures
-        .par_iter()
-        .map(|c| crate::sample::grid_sample(c, &grid))
-        .collect();
-    let (coeffs, loss) = solve_colour(&warped, targets, &curves, settings.ridge);
+    let grid = TpsBasis::new(nw, nh).grid(&warp);
+    let (curves, coeffs, loss) = fit_colour(captures, targets, &grid, curves, settings.ridge);
     progress("colour", 1, 1);
     Ok((
         LinearModel {
-            warp,
+            geometry: Geometry::Learned(warp),
             curves,
             coeffs,
             camera_size: cam_size,
@@ -261,6 +258,87 @@ pub fn fit(
             seconds: start.elapsed().as_secs_f64(),
         },
     ))
+}
+
+/// Fits only the colour part on a fixed geometry (the two-step `linear-sl` baseline): the grid
+/// maps network pixels to camera positions, e.g. from decoded structured light.
+pub fn fit_on_grid(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    grid: Grid<Network, Camera>,
+    settings: &FitSettings,
+) -> Result<(LinearModel, FitReport)> {
+    let start = Instant::now();
+    check_pairs(captures, targets)?;
+    if grid.size() != targets[0].size() {
+        return Err(Error::Shape(format!(
+            "grid is {}x{}, the projector images {}x{}",
+            grid.width(),
+            grid.height(),
+            targets[0].width(),
+            targets[0].height()
+        )));
+    }
+    let (curves, coeffs, loss) =
+        fit_colour(captures, targets, &grid, Curves::default(), settings.ridge);
+    Ok((
+        LinearModel {
+            geometry: Geometry::Fixed(grid),
+            curves,
+            coeffs,
+            camera_size: captures[0].size(),
+        },
+        FitReport {
+            final_loss: loss,
+            loss_history: Vec::new(),
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    ))
+}
+
+/// Curves and per-pixel coefficients at full resolution on all images, for a fixed grid.
+fn fit_colour(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    grid: &Grid<Network, Camera>,
+    start: Curves,
+    ridge: f32,
+) -> (Curves, Coefficients, f64) {
+    let curves = fit_curves(captures, targets, grid, start, ridge);
+    let warped: Vec<NetImage> = captures
+        .par_iter()
+        .map(|c| crate::sample::grid_sample(c, grid))
+        .collect();
+    let (coeffs, loss) = solve_colour(&warped, targets, &curves, ridge);
+    (curves, coeffs, loss)
+}
+
+/// Checks that captures and projector images pair up and are each of one size.
+fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
+    if captures.is_empty() || captures.len() != targets.len() {
+        return Err(Error::Input(format!(
+            "linear fit needs as many captures as projector images, got {} and {}",
+            captures.len(),
+            targets.len()
+        )));
+    }
+    let cam_size = captures[0].size();
+    if let Some(c) = captures.iter().find(|c| c.size() != cam_size) {
+        return Err(Error::Shape(format!(
+            "captures differ in size: {:?} and {:?}",
+            cam_size,
+            c.size()
+        )));
+    }
+    let net_size = targets[0].size();
+    if let Some(t) = targets.iter().find(|t| t.size() != net_size) {
+        return Err(Error::Shape(format!(
+            "projector images differ in size: {:?} and {:?}",
+            net_size,
+            t.size()
+        )));
+    }
+    Ok(())
 }
 
 /// Network size of a coarse level whose longer side is at most `side`.
@@ -631,14 +709,13 @@ impl LinearModel {
     pub fn to_tensors(&self) -> Result<crate::modeldir::Tensors> {
         let (w, h) = self.network_size();
         let mut t = crate::modeldir::Tensors::default();
-        t.insert(
-            "warp.theta",
-            vec![2, 3],
-            self.warp.theta.iter().flatten().copied().collect(),
-        )?;
-        let tps: Vec<f32> = self.warp.tps.iter().flatten().copied().collect();
-        t.insert("warp.tps", vec![2, crate::warp::TPS_PARAMS], tps)?;
-        let grid = TpsBasis::new(w, h).grid(&self.warp);
+        if let Geometry::Learned(warp) = &self.geometry {
+            let theta = warp.theta.iter().flatten().copied().collect();
+            t.insert("warp.theta", vec![2, 3], theta)?;
+            let tps: Vec<f32> = warp.tps.iter().flatten().copied().collect();
+            t.insert("warp.tps", vec![2, crate::warp::TPS_PARAMS], tps)?;
+        }
+        let grid = self.grid();
         t.insert(
             "grid",
             vec![h, w, 2],
@@ -670,8 +747,6 @@ impl LinearModel {
         file: &std::path::Path,
     ) -> Result<Self> {
         let (w, h) = network_size;
-        let th = t.get("warp.theta", &[2, 3], file)?;
-        let tps = t.get("warp.tps", &[2, crate::warp::TPS_PARAMS], file)?;
         let cg = t.get("curves.camera_gamma", &[3], file)?;
         let pg = t.get("curves.projector_gamma", &[3], file)?;
         let co = t.get("colour.coeffs", &[h, w, 12], file)?;
@@ -681,8 +756,9 @@ impl LinearModel {
                 file.display()
             ))
         };
-        if th.iter().chain(tps).chain(co).any(|v| !v.is_finite()) {
-            return Err(bad("warp/colour"));
+        let grid = t.get("grid", &[h, w, 2], file)?;
+        if grid.iter().chain(co).any(|v| !v.is_finite()) {
+            return Err(bad("grid/colour.coeffs"));
         }
         if cg
             .iter()
@@ -691,12 +767,23 @@ impl LinearModel {
         {
             return Err(bad("curves"));
         }
-        let warp = Warp {
-            theta: [[th[0], th[1], th[2]], [th[3], th[4], th[5]]],
-            tps: [
-                tps[..crate::warp::TPS_PARAMS].to_vec(),
-                tps[crate::warp::TPS_PARAMS..].to_vec(),
-            ],
+        // A learned model carries its warp parameters; a fixed-geometry one only the grid.
+        let geometry = if t.names().any(|n| n == "warp.theta") {
+            let th = t.get("warp.theta", &[2, 3], file)?;
+            let tps = t.get("warp.tps", &[2, crate::warp::TPS_PARAMS], file)?;
+            if th.iter().chain(tps).any(|v| !v.is_finite()) {
+                return Err(bad("warp"));
+            }
+            Geometry::Learned(Warp {
+                theta: [[th[0], th[1], th[2]], [th[3], th[4], th[5]]],
+                tps: [
+                    tps[..crate::warp::TPS_PARAMS].to_vec(),
+                    tps[crate::warp::TPS_PARAMS..].to_vec(),
+                ],
+            })
+        } else {
+            let cells = grid.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+            Geometry::Fixed(Grid::from_vec(w, h, cells)?)
         };
         let data = co
             .chunks_exact(12)
@@ -707,7 +794,7 @@ impl LinearModel {
             })
             .collect();
         Ok(Self {
-            warp,
+            geometry,
             curves: Curves {
                 camera_gamma: [cg[0], cg[1], cg[2]],
                 projector_gamma: [pg[0], pg[1], pg[2]],

@@ -60,7 +60,12 @@ impl Model {
         let fov = Mask::from_vec(cw, ch, fov.iter().map(|&v| v >= 0.5).collect())?;
         match meta.method.as_str() {
             m if m == crate::linear::METHOD || m == "linear-sl" => {
-                let model = LinearModel::from_tensors(&tensors, meta.network_size, meta.camera_size, &file)?;
+                let model = LinearModel::from_tensors(
+                    &tensors,
+                    meta.network_size,
+                    meta.camera_size,
+                    &file,
+                )?;
                 Ok(Self::linear(meta, fov, model))
             }
             other => Err(Error::Input(format!(
@@ -80,7 +85,11 @@ impl Model {
         tensors.insert(
             "fov_mask",
             vec![ch, cw],
-            self.fov.data().iter().map(|&b| if b { 1.0 } else { 0.0 }).collect(),
+            self.fov
+                .data()
+                .iter()
+                .map(|&b| if b { 1.0 } else { 0.0 })
+                .collect(),
         )?;
         modeldir::save(dir, &self.meta, &tensors)
     }

@@ -123,7 +123,7 @@ fn linear_fit_generalises_and_compensates() {
     let learned = score(&model);
     eprintln!(
         "loss {first:.3e} -> {last:.3e}; learned {learned:?}; curves {:?}; warp theta {:?}",
-        model.curves, model.warp.theta
+        model.curves, model.geometry
     );
     let fixed = score(&affine_only);
     eprintln!("affine only {fixed:?}");
@@ -133,5 +133,92 @@ fn linear_fit_generalises_and_compensates() {
         "learned geometry {:.2} dB should beat the initial affine {:.2} dB",
         learned.psnr,
         fixed.psnr
+    );
+}
+
+/// Structured-light geometry: a known affine camera→projector map must come back as its inverse.
+#[test]
+fn sl_grid_inverts_a_known_correspondence() {
+    use compend::patterns::Correspondence;
+    use compend::raster::{Mask, Plane, Rect};
+    use compend::sample::norm_to_pixel;
+    use compend::slgrid::grid_from_correspondence;
+
+    let (cw, ch) = (90usize, 70usize);
+    let (pw, ph) = (64usize, 48usize);
+    // Camera pixel (cx, cy) sees projector (0.8 cx − 0.1 cy − 4, 0.05 cx + 0.75 cy − 3), rounded
+    // to halves as the Gray-code decoder reports them; pixels outside the projector are invalid.
+    let map = |cx: f32, cy: f32| [0.8 * cx - 0.1 * cy - 4.0, 0.05 * cx + 0.75 * cy - 3.0];
+    let half = |v: f32| (v * 2.0).round() / 2.0;
+    let mut x = Plane::<Camera>::new(cw, ch);
+    let mut y = Plane::<Camera>::new(cw, ch);
+    let mut valid = Mask::<Camera>::new(cw, ch);
+    for cy in 0..ch {
+        for cx in 0..cw {
+            let [px, py] = map(cx as f32, cy as f32);
+            let (px, py) = (half(px), half(py));
+            if px >= 0.0 && py >= 0.0 && px <= (pw - 1) as f32 && py <= (ph - 1) as f32 {
+                x.set(cx, cy, px);
+                y.set(cx, cy, py);
+                valid.set(cx, cy, true);
+            }
+        }
+    }
+    let corr = Correspondence {
+        projector: (pw, ph),
+        x,
+        y,
+        lit: valid.clone(),
+        valid,
+        contrast: Plane::new(cw, ch),
+    };
+    let canvas = Rect {
+        x: 0,
+        y: 0,
+        width: pw,
+        height: ph,
+    };
+    let (nw, nh) = (32usize, 24usize);
+    let sl = grid_from_correspondence(&corr, canvas, (nw, nh)).unwrap();
+    assert!(
+        sl.measured.count() > nw * nh * 9 / 10,
+        "most of the canvas is seen"
+    );
+    // Invert the affine map analytically and compare at every measured network pixel.
+    let (a, b, c, d) = (0.8f64, -0.1f64, 0.05f64, 0.75f64);
+    let det = a * d - b * c;
+    let (mut worst_inner, mut worst_border, mut sum, mut n) = (0f64, 0f64, 0f64, 0usize);
+    for j in 0..nh {
+        for i in 0..nw {
+            if !sl.measured.get(i, j) {
+                continue;
+            }
+            let px = i as f64 * (pw - 1) as f64 / (nw - 1) as f64 + 4.0;
+            let py = j as f64 * (ph - 1) as f64 / (nh - 1) as f64 + 3.0;
+            let (ex, ey) = ((d * px - b * py) / det, (-c * px + a * py) / det);
+            let [gx, gy] = sl.grid.get(i, j);
+            let (gx, gy) = (norm_to_pixel(gx, cw) as f64, norm_to_pixel(gy, ch) as f64);
+            let e = (gx - ex).hypot(gy - ey);
+            let border = i == 0 || j == 0 || i == nw - 1 || j == nh - 1;
+            if border {
+                worst_border = worst_border.max(e);
+            } else {
+                worst_inner = worst_inner.max(e);
+            }
+            sum += e;
+            n += 1;
+        }
+    }
+    // Decoded positions are quantised to half projector pixels (~0.6 camera px); the local fit
+    // averages that out, less well on the border where the window is one-sided.
+    let mean = sum / n as f64;
+    assert!(mean < 0.1, "mean error {mean:.3} camera pixels");
+    assert!(
+        worst_inner < 0.3,
+        "worst interior error {worst_inner:.3} camera pixels"
+    );
+    assert!(
+        worst_border < 0.6,
+        "worst border error {worst_border:.3} camera pixels"
     );
 }
