@@ -22,7 +22,8 @@ pub struct Args {
     /// The data root holding train/ and test/ (default: the nearest ancestor of the setup that has them).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Model to fit: `linear` (learned geometry + per-pixel linear colour).
+    /// Model to fit: `linear` (learned geometry + per-pixel linear colour) or `linear-sl`
+    /// (geometry from the setup's structured-light captures cam/raw/sl, then the same colour model).
     #[arg(long)]
     pub method: String,
     /// Number of training pairs to use (the first N). Default: all available, at most 48.
@@ -43,14 +44,46 @@ pub struct Args {
 /// Fewest training pairs the `linear` fit accepts: each network pixel has 12 colour coefficients.
 const MIN_TRAIN: usize = 4;
 const DEFAULT_TRAIN: usize = 48;
+const SL_METHOD: &str = "linear-sl";
+
+/// The network→camera grid from the setup's structured-light captures; the network image is
+/// assumed stretched over the whole projector frame (the size of the root's sl/ patterns).
+fn sl_grid(
+    setup: &Setup,
+    network_size: (usize, usize),
+) -> Result<compend::sample::Grid<compend::raster::Network, compend::raster::Camera>> {
+    let projector = setup.root().projector_size()?;
+    let code = compend::patterns::GrayCode::new(projector.0, projector.1)?;
+    let captures = setup.load_captures(compend::dataset::CaptureSet::Sl, None)?;
+    if captures.len() != code.len() {
+        return Err(InputError(format!(
+            "{}: {} structured-light captures, expected {} for a {}x{} projector",
+            setup.capture_dir(compend::dataset::CaptureSet::Sl).display(),
+            captures.len(),
+            code.len(),
+            projector.0,
+            projector.1
+        ))
+        .into());
+    }
+    let corr = code.decode(&captures)?;
+    let canvas = compend::raster::Rect {
+        x: 0,
+        y: 0,
+        width: projector.0,
+        height: projector.1,
+    };
+    let sl = compend::slgrid::grid_from_correspondence(&corr, canvas, network_size)?;
+    Ok(sl.grid)
+}
 
 pub fn run(args: Args) -> Result<()> {
     let start = Instant::now();
-    if args.method != linear::METHOD {
+    if !compend::model::METHODS.contains(&args.method.as_str()) {
         return Err(InputError(format!(
             "--method {}: not available; methods: {}",
             args.method,
-            linear::METHOD
+            compend::model::METHODS.join(", ")
         ))
         .into());
     }
@@ -89,18 +122,24 @@ pub fn run(args: Args) -> Result<()> {
         ..FitSettings::default()
     };
     let bar = super::progress_bar(args.json);
-    let (fitted, report) = linear::fit(
-        &captures,
-        &targets,
-        compend::warp::Warp::from_affine(theta),
-        &settings,
-        |stage, done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-            bar.set_message(stage.to_string());
-        },
-    )
-    .context("fitting the linear model")?;
+    let (fitted, report) = if args.method == SL_METHOD {
+        bar.set_message("decoding structured light");
+        let grid = sl_grid(&setup, network_size)?;
+        linear::fit_on_grid(&captures, &targets, grid, &settings)
+    } else {
+        linear::fit(
+            &captures,
+            &targets,
+            compend::warp::Warp::from_affine(theta),
+            &settings,
+            |stage, done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+                bar.set_message(stage.to_string());
+            },
+        )
+    }
+    .with_context(|| format!("fitting the {} model", args.method))?;
     bar.finish_and_clear();
 
     let out = args
