@@ -5,7 +5,9 @@
 
 pub mod error;
 pub mod filter;
+pub mod fov;
 pub mod metrics;
+pub mod morph;
 pub mod pngio;
 pub mod raster;
 

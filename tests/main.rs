@@ -2,4 +2,5 @@
 //! running the real `compend` binary.
 
 mod common;
+mod fov;
 mod metrics;
