@@ -6,10 +6,12 @@
 pub mod dataset;
 pub mod error;
 pub mod filter;
+pub mod fov;
 pub mod linear;
 pub mod metrics;
 pub mod model;
 pub mod modeldir;
+pub mod morph;
 pub mod patterns;
 pub mod pngio;
 pub mod raster;

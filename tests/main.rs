@@ -3,6 +3,7 @@
 
 mod common;
 mod dataset;
+mod fov;
 mod image;
 mod linear;
 mod metrics;

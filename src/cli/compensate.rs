@@ -27,7 +27,8 @@ pub fn run(args: Args) -> Result<()> {
     let model = Model::load(&args.model)?;
     let inputs = list_inputs(&args.input)?;
     for path in &inputs {
-        let img = pngio::read_rgb_sized::<Camera>(path, model.camera_size(), "the model's camera size")?;
+        let img =
+            pngio::read_rgb_sized::<Camera>(path, model.camera_size(), "the model's camera size")?;
         let out = model.infer(&img)?;
         let name = path.file_name().context("input has a file name")?;
         let dest = args.out.join(name);

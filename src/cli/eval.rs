@@ -64,7 +64,12 @@ pub fn run(args: Args) -> Result<()> {
         };
         row("uncompensated", &uncomp);
         row(&method, &comp);
-        println!("({} test pairs, network {}x{})", comp.n, model.network_size().0, model.network_size().1);
+        println!(
+            "({} test pairs, network {}x{})",
+            comp.n,
+            model.network_size().0,
+            model.network_size().1
+        );
     }
     Ok(())
 }

@@ -1,9 +1,12 @@
 //! Subcommand implementations: argument structs (clap) and `run` functions.
 //! Errors carry context with anyhow; library errors inside decide the exit code.
 
+pub mod compensate;
+pub mod eval;
 pub mod inspect;
 pub mod metrics;
 pub mod patterns;
+pub mod train;
 
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
 /// 2 for an I/O error on a user-named path, 1 otherwise.

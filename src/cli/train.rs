@@ -58,7 +58,9 @@ fn sl_grid(
     if captures.len() != code.len() {
         return Err(InputError(format!(
             "{}: {} structured-light captures, expected {} for a {}x{} projector",
-            setup.capture_dir(compend::dataset::CaptureSet::Sl).display(),
+            setup
+                .capture_dir(compend::dataset::CaptureSet::Sl)
+                .display(),
             captures.len(),
             code.len(),
             projector.0,
