@@ -8,3 +8,4 @@ mod image;
 mod linear;
 mod metrics;
 mod patterns;
+mod train;
