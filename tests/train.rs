@@ -228,3 +228,37 @@ fn bad_inputs_exit_2_and_keep_the_good_model() {
         stderr(&out)
     );
 }
+
+#[test]
+fn inspect_reports_the_fov_and_display_area() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 4, 1);
+    let out_dir = dir.path().join("inspect");
+    let out = compend(&[
+        "inspect",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--json",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_code(&out, 0);
+    let r: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
+    let fov = &r["fov"];
+    // The simulated projector covers the central ~80% of the 48x40 camera frame.
+    let cov = fov["coverage"].as_f64().unwrap();
+    assert!(cov > 0.5 && cov < 0.9, "coverage {cov}");
+    let area = &fov["displayable_area"];
+    let (w, h) = (
+        area["width"].as_u64().unwrap(),
+        area["height"].as_u64().unwrap(),
+    );
+    assert!(
+        (w as i64 - h as i64).abs() <= 1,
+        "square canvas → square area, got {w}x{h}"
+    );
+    let mask = compend::pngio::read_mask::<compend::raster::Camera>(&out_dir.join("fov_mask.png"))
+        .unwrap();
+    assert_eq!(mask.size(), (48, 40));
+    assert!(out_dir.join("fov_overlay.png").is_file());
+}
