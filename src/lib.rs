@@ -18,6 +18,7 @@ pub mod raster;
 pub mod resize;
 pub mod sample;
 pub mod slgrid;
+pub mod train;
 pub mod warp;
 
 pub use error::{Error, Result};
