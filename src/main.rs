@@ -17,12 +17,15 @@ struct Cli {
 enum Command {
     /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
     Metrics(cli::metrics::Args),
+    /// The virtual rig: simulated projector-camera scenes (list, show, export).
+    Sim(cli::sim::Args),
 }
 
 fn main() -> ExitCode {
     let args = Cli::parse();
     let result = match args.command {
         Command::Metrics(a) => cli::metrics::run(a),
+        Command::Sim(a) => cli::sim::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,6 +2,7 @@
 //! Errors carry context with anyhow; library errors inside decide the exit code.
 
 pub mod metrics;
+pub mod sim;
 
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
 /// 2 for an I/O error on a user-named path, 1 otherwise.
