@@ -4,6 +4,7 @@
 //! and a thin shell on top (CLI, and later camera, window, GPU and service). See `DESIGN.md`.
 
 pub mod dataset;
+pub mod device;
 pub mod error;
 pub mod filter;
 pub mod fov;
@@ -16,6 +17,7 @@ pub mod patterns;
 pub mod pngio;
 pub mod raster;
 pub mod resize;
+pub mod rig;
 pub mod sample;
 pub mod slgrid;
 pub mod train;

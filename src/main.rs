@@ -28,6 +28,8 @@ enum Command {
     Patterns(cli::patterns::Args),
     /// Fit a compensation model on a setup's training pairs and write the model directory.
     Train(cli::train::Args),
+    /// The virtual rig: simulated projector-camera scenes (list, show, export).
+    Sim(cli::sim::Args),
 }
 
 fn main() -> ExitCode {
@@ -39,6 +41,7 @@ fn main() -> ExitCode {
         Command::Metrics(a) => cli::metrics::run(a),
         Command::Patterns(a) => cli::patterns::run(a),
         Command::Train(a) => cli::train::run(a),
+        Command::Sim(a) => cli::sim::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -8,4 +8,5 @@ mod image;
 mod linear;
 mod metrics;
 mod patterns;
+mod rig;
 mod train;

@@ -6,6 +6,7 @@ pub mod eval;
 pub mod inspect;
 pub mod metrics;
 pub mod patterns;
+pub mod sim;
 pub mod train;
 
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),

@@ -1,0 +1,86 @@
+//! Device traits: the two ends of a projector-camera system as seen by calibration, training,
+//! playback and monitoring. Real hardware (the projector window, a V4L2 camera), a recorded
+//! dataset and the virtual rig ([`crate::rig`]) all implement them, so the code above runs
+//! unchanged on any of them.
+//!
+//! The traits are deliberately small and object-safe (`&mut dyn DisplaySink`,
+//! `Box<dyn FrameSource>`). They say nothing about timing beyond what a camera reports: a
+//! sequence number (consecutive frames differ by one; a gap means frames were dropped) and an
+//! exposure timestamp. Synchronising a capture with what is shown (latency, drops) is the job of
+//! the capture protocol built on top, not of the devices.
+
+use std::time::Duration;
+
+use crate::error::Result;
+use crate::raster::{CamImage, PrjImage};
+
+/// Something that shows projector-space frames: the projector window, or the virtual rig's
+/// projector.
+pub trait DisplaySink {
+    /// (width, height) of the projector frame in projector pixels.
+    fn size(&self) -> (usize, usize);
+
+    /// Shows `frame` from now on, replacing what was shown. The frame must be exactly
+    /// [`DisplaySink::size`]; a different size is an error ([`crate::Error::Size`] or
+    /// [`crate::Error::Shape`]). The previous frame may stay visible to a camera for a while
+    /// (display and capture latency).
+    fn show(&mut self, frame: &PrjImage) -> Result<()>;
+}
+
+/// One camera frame with the metadata a camera driver reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// The image, camera space, f32 in [0,1] (8-bit levels for real and simulated cameras).
+    pub image: CamImage,
+    /// Device sequence number. It increases by one per exposure; a jump of more than one
+    /// means the frames in between were dropped.
+    pub seq: u64,
+    /// Start of the exposure on the device's clock (monotonic, arbitrary origin).
+    pub timestamp: Duration,
+}
+
+/// Something that delivers camera frames: a camera, the virtual rig's camera, a recording.
+pub trait FrameSource {
+    /// (width, height) of the frames in camera pixels.
+    fn size(&self) -> (usize, usize);
+
+    /// Waits for the next frame the device delivers and returns it. Frames come in order;
+    /// a frame may have been exposed before the latest [`DisplaySink::show`] (latency).
+    fn grab(&mut self) -> Result<Frame>;
+}
+
+impl<T: DisplaySink + ?Sized> DisplaySink for &mut T {
+    fn size(&self) -> (usize, usize) {
+        (**self).size()
+    }
+    fn show(&mut self, frame: &PrjImage) -> Result<()> {
+        (**self).show(frame)
+    }
+}
+
+impl<T: FrameSource + ?Sized> FrameSource for &mut T {
+    fn size(&self) -> (usize, usize) {
+        (**self).size()
+    }
+    fn grab(&mut self) -> Result<Frame> {
+        (**self).grab()
+    }
+}
+
+impl<T: DisplaySink + ?Sized> DisplaySink for Box<T> {
+    fn size(&self) -> (usize, usize) {
+        (**self).size()
+    }
+    fn show(&mut self, frame: &PrjImage) -> Result<()> {
+        (**self).show(frame)
+    }
+}
+
+impl<T: FrameSource + ?Sized> FrameSource for Box<T> {
+    fn size(&self) -> (usize, usize) {
+        (**self).size()
+    }
+    fn grab(&mut self) -> Result<Frame> {
+        (**self).grab()
+    }
+}

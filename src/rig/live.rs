@@ -1,0 +1,223 @@
+//! The virtual rig as devices: a projector ([`DisplaySink`]) and a camera ([`FrameSource`])
+//! with realistic timing, so the capture protocol's synchronisation is really exercised.
+//!
+//! Timing model (virtual clock, one tick per camera frame period 1/fps):
+//! - the camera exposes frame k at time k/fps and delivers it `delay_frames` periods later;
+//!   each exposure is dropped with probability `drop_rate` (decided by hashing the seed and k,
+//!   so the same seed drops the same frames), and a dropped frame's sequence number is skipped;
+//! - [`FrameSource::grab`] returns the next exposure that was not dropped;
+//! - [`DisplaySink::show`] takes effect for exposures after the moment of the call, which is the
+//!   delivery time of the last grabbed frame: with a delay of d frames, the next d exposures
+//!   were already taken and still show the previous image.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use super::model::{Phase, Simulator, mix64};
+use super::scene::{Latency, Scene};
+use crate::device::{DisplaySink, Frame, FrameSource};
+use crate::error::{Error, Result};
+use crate::raster::PrjImage;
+
+/// A simulated projector-camera pair. Clones share one rig: give one clone to the code that
+/// projects and another to the code that captures.
+#[derive(Clone, Debug)]
+pub struct VirtualRig {
+    inner: Arc<Mutex<State>>,
+}
+
+#[derive(Debug)]
+struct Shown {
+    /// First exposure index that sees this image.
+    from: u64,
+    image: Arc<PrjImage>,
+    /// Noise-free sensor signal, computed on first capture, with the phase it was made for.
+    signal: Option<(Phase, Arc<Vec<f32>>)>,
+}
+
+#[derive(Debug)]
+struct State {
+    scene: Scene,
+    seed: u64,
+    calibrated: Arc<Simulator>,
+    drifted: Option<Arc<Simulator>>,
+    phase: Phase,
+    latency: Latency,
+    shows: VecDeque<Shown>,
+    /// Next exposure index that may be delivered.
+    next: u64,
+}
+
+impl VirtualRig {
+    /// A rig for `scene` with seed `seed` (texture, noise and frame drops), projector at its
+    /// calibration pose, showing black.
+    pub fn new(scene: &Scene, seed: u64) -> Result<Self> {
+        let sim = Simulator::new(scene, seed, Phase::Calibration)?;
+        Ok(Self::from_simulator(sim))
+    }
+
+    /// A rig around a prepared simulator (its phase is the rig's starting phase).
+    pub fn from_simulator(sim: Simulator) -> Self {
+        let (pw, ph) = sim.projector_size();
+        let scene = sim.scene().clone();
+        let phase = sim.phase();
+        let seed = sim.seed();
+        let sim = Arc::new(sim);
+        let (calibrated, drifted) = match phase {
+            Phase::Calibration => (sim, None),
+            Phase::AfterDrift => (sim.clone(), Some(sim)),
+        };
+        let mut shows = VecDeque::new();
+        shows.push_back(Shown {
+            from: 0,
+            image: Arc::new(PrjImage::new(pw, ph)),
+            signal: None,
+        });
+        VirtualRig {
+            inner: Arc::new(Mutex::new(State {
+                latency: scene.latency.clone(),
+                scene,
+                seed,
+                calibrated,
+                drifted,
+                phase,
+                shows,
+                next: 0,
+            })),
+        }
+    }
+
+    fn state(&self) -> MutexGuard<'_, State> {
+        // A panic while holding the lock leaves the state consistent (every update is a
+        // single assignment or push), so a poisoned lock is still usable.
+        self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The simulator of the current phase (for scoring and oracles).
+    pub fn simulator(&self) -> Arc<Simulator> {
+        let st = self.state();
+        st.current()
+    }
+
+    /// Moves the projector to its drifted pose ([`Phase::AfterDrift`], as after a bump) or back.
+    /// Later exposures see the new geometry. Scenes without drift are unchanged by it.
+    pub fn set_phase(&self, phase: Phase) -> Result<()> {
+        let mut st = self.state();
+        if phase == Phase::AfterDrift && st.drifted.is_none() {
+            let sim = Simulator::new(&st.scene, st.seed, Phase::AfterDrift)?;
+            st.drifted = Some(Arc::new(sim));
+        }
+        st.phase = phase;
+        Ok(())
+    }
+
+    /// Changes the camera timing from the next grab on.
+    pub fn set_latency(&self, latency: Latency) -> Result<()> {
+        let ok =
+            latency.fps.is_finite() && latency.fps > 0.0 && (0.0..0.9).contains(&latency.drop_rate);
+        if !ok {
+            return Err(Error::Input(format!(
+                "virtual camera latency needs fps > 0 and drop_rate in [0, 0.9), got {latency:?}"
+            )));
+        }
+        self.state().latency = latency;
+        Ok(())
+    }
+
+    pub fn latency(&self) -> Latency {
+        self.state().latency.clone()
+    }
+}
+
+impl State {
+    fn current(&self) -> Arc<Simulator> {
+        match (self.phase, &self.drifted) {
+            (Phase::AfterDrift, Some(d)) => d.clone(),
+            _ => self.calibrated.clone(),
+        }
+    }
+
+    fn dropped(&self, k: u64) -> bool {
+        let r = self.latency.drop_rate;
+        if r <= 0.0 {
+            return false;
+        }
+        let h = mix64(self.seed ^ mix64(k ^ 0xd409_0000_0000_0001));
+        ((h >> 11) as f64 / (1u64 << 53) as f64) < r
+    }
+}
+
+impl DisplaySink for VirtualRig {
+    fn size(&self) -> (usize, usize) {
+        self.state().calibrated.projector_size()
+    }
+
+    fn show(&mut self, frame: &PrjImage) -> Result<()> {
+        let mut st = self.state();
+        let expected = st.calibrated.projector_size();
+        if frame.size() != expected {
+            return Err(Error::Shape(format!(
+                "virtual projector is {}x{}, got a {}x{} frame",
+                expected.0,
+                expected.1,
+                frame.width(),
+                frame.height()
+            )));
+        }
+        let from = st.next + st.latency.delay_frames as u64;
+        while st.shows.len() > 1 && st.shows.back().is_some_and(|s| s.from >= from) {
+            st.shows.pop_back();
+        }
+        if st.shows.back().is_some_and(|s| s.from >= from) {
+            // Only the initial entry is left and it starts no earlier: replace it.
+            st.shows.clear();
+        }
+        st.shows.push_back(Shown {
+            from,
+            image: Arc::new(frame.clone()),
+            signal: None,
+        });
+        Ok(())
+    }
+}
+
+impl FrameSource for VirtualRig {
+    fn size(&self) -> (usize, usize) {
+        self.state().calibrated.camera_size()
+    }
+
+    fn grab(&mut self) -> Result<Frame> {
+        let mut st = self.state();
+        let mut k = st.next;
+        while st.dropped(k) {
+            k += 1;
+        }
+        st.next = k + 1;
+        // Forget images no exposure from k on can see.
+        while st.shows.len() > 1 && st.shows[1].from <= k {
+            st.shows.pop_front();
+        }
+        let sim = st.current();
+        let phase = st.phase;
+        let shown = st
+            .shows
+            .front_mut()
+            .ok_or_else(|| Error::Failed("virtual projector shows nothing".into()))?;
+        let signal = match &shown.signal {
+            Some((p, s)) if *p == phase => s.clone(),
+            _ => {
+                let s = Arc::new(sim.clean_signal(&shown.image)?);
+                shown.signal = Some((phase, s.clone()));
+                s
+            }
+        };
+        let image = sim.finish(&signal, Some(k));
+        let timestamp = Duration::from_secs_f64(k as f64 / st.latency.fps);
+        Ok(Frame {
+            image,
+            seq: k,
+            timestamp,
+        })
+    }
+}

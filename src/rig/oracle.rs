@@ -1,0 +1,254 @@
+//! Reference projector images that know the scene's true model: the geometry-only warp and the
+//! oracle (the physical ceiling of compensation under input clipping).
+
+use super::model::{Simulator, mat3};
+use crate::error::{Error, Result};
+use crate::raster::{CamImage, Camera, Mask, PrjImage, check_same_size};
+
+/// Settings of the oracle's solver.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OracleOptions {
+    /// Iterations of accelerated projected gradient after the per-pixel start.
+    pub iterations: usize,
+}
+
+impl Default for OracleOptions {
+    fn default() -> Self {
+        OracleOptions { iterations: 60 }
+    }
+}
+
+impl Simulator {
+    /// The desired camera image warped into projector space through the true geometry, with no
+    /// colour correction: each projector pixel shows the desired value at the camera pixel where
+    /// its light lands (bilinear, zeros outside the camera frame; black where no camera pixel
+    /// sees it).
+    pub fn geometry_only(&self, desired: &CamImage) -> Result<PrjImage> {
+        self.check_cam(desired, "the desired image")?;
+        let (pw, ph) = self.projector_size();
+        let coords = self.camera_coords();
+        let mut data = Vec::with_capacity(pw * ph * 3);
+        for xy in coords {
+            data.extend_from_slice(&sample_cam(desired.data(), desired.size(), *xy));
+        }
+        PrjImage::from_vec(pw, ph, data)
+    }
+
+    /// The best projector image for `desired` that the true (noise-free) model allows: it
+    /// minimises the squared error of the camera's encoded output (after clipping and the
+    /// response curve, before quantisation) against `desired` over the camera pixels in `mask`,
+    /// subject to projector inputs in [0,1]. Defocus, inter-reflection, colour mixing and the
+    /// many-to-one mapping between camera and projector pixels are all part of the model it
+    /// inverts.
+    ///
+    /// Method: per-pixel inversion of the local model in camera space, warped to projector
+    /// space through the true geometry, then projected gradient descent on the linear drives
+    /// (the model is linear in them up to the camera's clip and response curve), scaled per
+    /// projector pixel by the diagonal diag(AᵀWA·1) of a Gauss-Newton majoriser (W the squared
+    /// slope of the response at the current output), with step halving whenever the objective
+    /// would rise: the result is never worse than the per-pixel start.
+    pub fn oracle(
+        &self,
+        desired: &CamImage,
+        mask: &Mask<Camera>,
+        opts: OracleOptions,
+    ) -> Result<PrjImage> {
+        self.check_cam(desired, "the desired image")?;
+        check_same_size(desired.size(), mask.size(), "oracle mask")?;
+        let gamma_c = self.scene().camera.gamma as f32;
+        let n = desired.width() * desired.height();
+        let z = desired.data();
+        let inside: Vec<bool> = (0..n * 3).map(|j| mask.data()[j / 3]).collect();
+        let target: Vec<f32> = z.iter().map(|v| v.clamp(0.0, 1.0).powf(gamma_c)).collect();
+
+        // Constant part c = A(black) + ambient + glare.
+        let (pw, ph) = self.projector_size();
+        let zeros = vec![0f32; pw * ph * 3];
+        let mut c = self.sensor(&self.drive_to_emission(&zeros, true));
+        self.add_constant(&mut c);
+        let forward = |d: &[f32]| -> Vec<f32> {
+            let mut s = self.sensor(&self.drive_to_emission(d, false));
+            for (v, k) in s.iter_mut().zip(&c) {
+                *v += k;
+            }
+            s
+        };
+        let adjoint = |g: &[f32]| self.emission_to_drive_adjoint(&self.sensor_adjoint(g));
+        let enc = |s: f32| s.clamp(0.0, 1.0).powf(1.0 / gamma_c);
+        // Slope of the encoding, floored near black (it is infinite at 0) and 0 when clipped.
+        let s_floor = 1e-4f32;
+        let slope = |s: f32| {
+            if s >= 1.0 {
+                0.0
+            } else {
+                s.max(s_floor).powf(1.0 / gamma_c - 1.0) / gamma_c
+            }
+        };
+        let objective = |s: &[f32]| -> f64 {
+            s.iter()
+                .zip(z)
+                .zip(&inside)
+                .filter(|(_, m)| **m)
+                .map(|((&s, &z), _)| {
+                    let e = (enc(s) - z) as f64;
+                    e * e
+                })
+                .sum::<f64>()
+                / 2.0
+        };
+        let ones = vec![1f32; pw * ph * 3];
+        let a1 = self.sensor(&self.drive_to_emission(&ones, false));
+
+        let mut x = self.per_pixel_start(&target, mask)?;
+        let mut s = forward(&x);
+        let mut f = objective(&s);
+        let mut diag = Vec::new();
+        let mut step = 1.0f32;
+        for it in 0..opts.iterations {
+            if it % 8 == 0 {
+                // Gauss-Newton weights at the current output; Jacobi majoriser diag(AᵀWA·1)
+                // (A has non-negative entries).
+                let wa1: Vec<f32> = a1
+                    .iter()
+                    .zip(&s)
+                    .zip(&inside)
+                    .map(|((a, &s), &m)| {
+                        if m {
+                            let k = slope(s);
+                            a * k * k
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
+                diag = adjoint(&wa1);
+            }
+            // Gradient of ½Σ(enc(s) − z)² with respect to the drives.
+            let r: Vec<f32> = s
+                .iter()
+                .zip(z)
+                .zip(&inside)
+                .map(|((&s, &z), &m)| if m { (enc(s) - z) * slope(s) } else { 0.0 })
+                .collect();
+            let grad = adjoint(&r);
+            let mut accepted = false;
+            for _ in 0..4 {
+                let mut next = x.clone();
+                for j in 0..next.len() {
+                    if diag[j] > 1e-12 {
+                        next[j] = (x[j] - step * grad[j] / diag[j]).clamp(0.0, 1.0);
+                    }
+                }
+                let s_next = forward(&next);
+                let f_next = objective(&s_next);
+                if f_next <= f {
+                    x = next;
+                    s = s_next;
+                    f = f_next;
+                    step = (step * 1.25).min(2.0);
+                    accepted = true;
+                    break;
+                }
+                step *= 0.5;
+            }
+            if !accepted {
+                break;
+            }
+        }
+
+        // Drives back to projector input levels.
+        let gp = self.scene().projector.gamma;
+        let mut data = x;
+        for px in data.chunks_exact_mut(3) {
+            for c in 0..3 {
+                px[c] = px[c].clamp(0.0, 1.0).powf(1.0 / gp[c] as f32);
+            }
+        }
+        PrjImage::from_vec(pw, ph, data)
+    }
+
+    /// Starting drives: invert each camera pixel's local model (direct light only), clip to
+    /// [0,1], and warp the result to projector space through the true geometry.
+    fn per_pixel_start(&self, target: &[f32], mask: &Mask<Camera>) -> Result<Vec<f32>> {
+        let inv_cam = invert3(self.cam_mix())?;
+        let inv_prj = invert3(self.prj_mix())?;
+        let black = self.prj_black();
+        let (cw, ch) = self.camera_size();
+        let mut want = vec![0f32; cw * ch * 3];
+        for i in 0..cw * ch {
+            if !mask.data()[i] {
+                continue;
+            }
+            let (a, gain, konst) = self.pixel_terms(i);
+            if gain <= 0.0 {
+                continue;
+            }
+            let s = [0, 1, 2].map(|c| (target[i * 3 + c] - konst[c]) / gain);
+            let r = mat3(&inv_cam, s);
+            let e = [0, 1, 2].map(|c| {
+                if a[c] > 1e-4 {
+                    r[c] / a[c] - black[c]
+                } else {
+                    0.0
+                }
+            });
+            let d = mat3(&inv_prj, e);
+            for c in 0..3 {
+                want[i * 3 + c] = d[c].clamp(0.0, 1.0);
+            }
+        }
+        let mut out = Vec::with_capacity(self.projector_size().0 * self.projector_size().1 * 3);
+        for xy in self.camera_coords() {
+            out.extend_from_slice(&sample_cam(&want, (cw, ch), *xy));
+        }
+        Ok(out)
+    }
+
+    fn check_cam(&self, img: &CamImage, what: &str) -> Result<()> {
+        if img.size() != self.camera_size() {
+            return Err(Error::Shape(format!(
+                "{what} is {}x{}, the virtual camera of scene {:?} is {}x{}",
+                img.width(),
+                img.height(),
+                self.scene().name,
+                self.camera_size().0,
+                self.camera_size().1
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Bilinear sample of an interleaved RGB camera image at pixel coordinate `xy` (centres at
+/// integers), zeros outside and for NaN coordinates.
+fn sample_cam(data: &[f32], (w, h): (usize, usize), xy: [f32; 2]) -> [f32; 3] {
+    let [x, y] = xy;
+    if !(x > -1.0 && y > -1.0 && x < w as f32 && y < h as f32) {
+        return [0.0; 3];
+    }
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let (x0, y0) = (x0 as isize, y0 as isize);
+    let mut out = [0f32; 3];
+    for (dy, wy) in [(0, 1.0 - fy), (1, fy)] {
+        for (dx, wx) in [(0, 1.0 - fx), (1, fx)] {
+            let (xx, yy) = (x0 + dx, y0 + dy);
+            if xx < 0 || yy < 0 || xx >= w as isize || yy >= h as isize {
+                continue;
+            }
+            let i = (yy as usize * w + xx as usize) * 3;
+            for c in 0..3 {
+                out[c] += wx * wy * data[i + c];
+            }
+        }
+    }
+    out
+}
+
+fn invert3(m: &[[f32; 3]; 3]) -> Result<[[f32; 3]; 3]> {
+    let a = nalgebra::Matrix3::from_fn(|r, c| m[r][c] as f64);
+    let inv = a
+        .try_inverse()
+        .ok_or_else(|| Error::Failed("colour mixing matrix is singular".into()))?;
+    Ok([0, 1, 2].map(|r| [0, 1, 2].map(|c| inv[(r, c)] as f32)))
+}

@@ -1,0 +1,78 @@
+//! Closed-loop scoring on the rig: project, capture, compare with the desired image inside the
+//! displayable area (DESIGN.md section 6 metrics on the cropped area), and the three reference
+//! rows every method is compared with.
+
+use serde::{Deserialize, Serialize};
+
+use super::model::Simulator;
+use super::oracle::OracleOptions;
+use crate::error::{Error, Result};
+use crate::metrics::{Accumulator, Scores};
+use crate::raster::{CamImage, Camera, Mask, PrjImage, Rect};
+
+/// Captures each projector image (frame indices `first_frame`, `first_frame + 1`, …) and scores
+/// the captures against the desired camera images inside `area` (camera pixels).
+pub fn closed_loop(
+    sim: &Simulator,
+    shown: &[PrjImage],
+    desired: &[CamImage],
+    area: Rect,
+    first_frame: u64,
+) -> Result<Scores> {
+    if shown.len() != desired.len() {
+        return Err(Error::Input(format!(
+            "closed-loop scoring needs one desired image per projected image, got {} and {}",
+            desired.len(),
+            shown.len()
+        )));
+    }
+    let mut acc = Accumulator::default();
+    for (k, (p, z)) in shown.iter().zip(desired).enumerate() {
+        let cap = sim.capture(p, first_frame + k as u64)?;
+        acc.add(&cap.crop(area)?, &z.crop(area)?)?;
+    }
+    acc.finish()
+}
+
+/// The reference rows of a scene: what the viewer sees without compensation, with the true
+/// geometry but no colour correction, and with the oracle (the physical ceiling).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ReferenceScores {
+    pub uncompensated: Scores,
+    pub geometry_only: Scores,
+    pub oracle: Scores,
+}
+
+/// The pixels of `area` as a camera-space mask of the simulator's camera size.
+pub fn area_mask(sim: &Simulator, area: Rect) -> Mask<Camera> {
+    let (w, h) = sim.camera_size();
+    Mask::from_fn(w, h, |x, y| area.contains(x, y))
+}
+
+/// Scores the three reference rows on a test set. `uncompensated[k]` is test image k placed on
+/// the canvas as is (projector space); `desired[k]` is the same image placed in the displayable
+/// area `area` (camera space, black elsewhere). All three rows use the same frame indices, so
+/// they see the same noise.
+pub fn reference_scores(
+    sim: &Simulator,
+    uncompensated: &[PrjImage],
+    desired: &[CamImage],
+    area: Rect,
+    opts: OracleOptions,
+    first_frame: u64,
+) -> Result<ReferenceScores> {
+    let mask = area_mask(sim, area);
+    let geometry: Vec<PrjImage> = desired
+        .iter()
+        .map(|z| sim.geometry_only(z))
+        .collect::<Result<_>>()?;
+    let oracle: Vec<PrjImage> = desired
+        .iter()
+        .map(|z| sim.oracle(z, &mask, opts))
+        .collect::<Result<_>>()?;
+    Ok(ReferenceScores {
+        uncompensated: closed_loop(sim, uncompensated, desired, area, first_frame)?,
+        geometry_only: closed_loop(sim, &geometry, desired, area, first_frame)?,
+        oracle: closed_loop(sim, &oracle, desired, area, first_frame)?,
+    })
+}
