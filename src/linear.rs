@@ -51,11 +51,6 @@ impl Curves {
         v.max(0.0).powf(self.camera_gamma[c])
     }
     #[inline]
-    fn camera_linear_deriv(&self, c: usize, v: f32) -> f32 {
-        let g = self.camera_gamma[c];
-        if v <= 0.0 { 0.0 } else { g * v.powf(g - 1.0) }
-    }
-    #[inline]
     pub fn projector_linear(&self, c: usize, x: f32) -> f32 {
         x.max(0.0).powf(self.projector_gamma[c])
     }
@@ -215,7 +210,7 @@ pub fn fit(
         let total: usize = settings.levels.iter().map(|l| l.1).sum();
         let mut done = 0;
         let mut adam = Adam::new(warp.param_count(), settings.learning_rate);
-        for &(side, iters, sigma) in &settings.levels {
+        for (level, &(side, iters, sigma)) in settings.levels.iter().enumerate() {
             let (lw, lh) = level_size((nw, nh), side);
             let caps: Vec<CamImage> = captures[..ng]
                 .par_iter()
@@ -226,10 +221,27 @@ pub fn fit(
                 .map(|t| resize_area(t, lw, lh))
                 .collect();
             let basis = TpsBasis::new(lw, lh);
-            curves = fit_curves(&caps, &tgts, &basis.grid(&warp), curves, settings.ridge);
+            if level == 0 {
+                // The curves are global: a coarse fit here, refined once at the end.
+                curves = fit_curves(&caps, &tgts, &basis.grid(&warp), curves, settings.ridge, 2);
+            }
+            let lut = PowLut::new(curves.camera_gamma);
+            let ylin = linear_targets(&tgts, &curves);
+            let values = ng * lw * lh;
+            let (_, _, global) = geometry_step(
+                &caps,
+                &ylin,
+                &basis.grid(&warp),
+                &lut,
+                &IDENTITY,
+                settings.ridge,
+            );
+            let mut prior = global_solution(&global, values);
             for it in 0..iters {
                 let grid = basis.grid(&warp);
-                let (loss, dl_dg) = loss_and_grad(&caps, &tgts, &grid, &curves, settings.ridge);
+                let (loss, dl_dg, global) =
+                    geometry_step(&caps, &ylin, &grid, &lut, &prior, settings.ridge);
+                prior = global_solution(&global, values);
                 history.push(loss);
                 let grad = basis.backward(&warp, &dl_dg);
                 let mut params = warp.to_params();
@@ -304,7 +316,7 @@ fn fit_colour(
     start: Curves,
     ridge: f32,
 ) -> (Curves, Coefficients, f64) {
-    let curves = fit_curves(captures, targets, grid, start, ridge);
+    let curves = fit_curves(captures, targets, grid, start, ridge, CURVE_STRIDE);
     let warped: Vec<NetImage> = captures
         .par_iter()
         .map(|c| crate::sample::grid_sample(c, grid))
@@ -472,8 +484,7 @@ fn solve_colour(
     for ne in &normals {
         global.merge(ne);
     }
-    let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
-    let global_beta = global.solve(1e-6 * (n * w * h) as f64, &identity);
+    let global_beta = global_solution(&global, n * w * h);
     let lambda = ridge as f64 * n as f64;
     let data: Vec<[f32; 12]> = normals
         .par_iter()
@@ -504,74 +515,173 @@ fn solve_colour(
     (coeffs, sse / (n * w * h * 3) as f64)
 }
 
-/// Loss (mean squared linear-light residual at the per-pixel optimum) and its gradient w.r.t. the
-/// normalised camera position of every network pixel.
-fn loss_and_grad(
+/// Pixel stride of the final curve fit.
+const CURVE_STRIDE: usize = 4;
+
+const IDENTITY: [f32; 12] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+
+/// Targets in linear projector light, laid out `[p * n + i]` (pixel-major) for the fused step.
+fn linear_targets(tgts: &[NetImage], curves: &Curves) -> Vec<[f32; 3]> {
+    let n = tgts.len();
+    let px = tgts[0].width() * tgts[0].height();
+    let mut out = vec![[0f32; 3]; px * n];
+    for (i, t) in tgts.iter().enumerate() {
+        for (p, x) in t.data().chunks_exact(3).enumerate() {
+            out[p * n + i] = targets_linear(curves, x);
+        }
+    }
+    out
+}
+
+/// Lookup tables of `v^γ` and its derivative on [0, 1] per channel, for the training loops
+/// (about 20× cheaper than `powf`; the fitted model is applied with exact `powf`).
+struct PowLut {
+    value: [Vec<f32>; 3],
+    slope: [Vec<f32>; 3],
+}
+
+const LUT_SIZE: usize = 4096;
+
+impl PowLut {
+    fn new(gamma: [f32; 3]) -> Self {
+        let table = |g: f32, d: bool| -> Vec<f32> {
+            (0..LUT_SIZE)
+                .map(|i| {
+                    let v = i as f32 / (LUT_SIZE - 1) as f32;
+                    if d {
+                        if v <= 0.0 { 0.0 } else { g * v.powf(g - 1.0) }
+                    } else {
+                        v.powf(g)
+                    }
+                })
+                .collect()
+        };
+        Self {
+            value: gamma.map(|g| table(g, false)),
+            slope: gamma.map(|g| table(g, true)),
+        }
+    }
+
+    /// (v^γ, d/dv v^γ) for channel `c`, `v` clamped to [0, 1], linear interpolation between entries.
+    #[inline]
+    fn eval(&self, c: usize, v: f32) -> (f32, f32) {
+        let x = v.clamp(0.0, 1.0) * (LUT_SIZE - 1) as f32;
+        let i = (x as usize).min(LUT_SIZE - 2);
+        let f = x - i as f32;
+        let (t, d) = (&self.value[c], &self.slope[c]);
+        (t[i] + f * (t[i + 1] - t[i]), d[i] + f * (d[i + 1] - d[i]))
+    }
+}
+
+/// One image's contribution at one pixel: features a = [f_c(w), 1], the slope f_c'(w), and the
+/// derivatives of the warped value w.r.t. the normalised grid position.
+#[derive(Clone, Copy, Default)]
+struct Sample {
+    a: [f32; 4],
+    slope: [f32; 3],
+    dgx: [f32; 3],
+    dgy: [f32; 3],
+}
+
+/// One geometry step, fused per pixel: sample every capture with its spatial derivative, solve the
+/// pixel's coefficients against `prior` (the previous step's global model), and accumulate the
+/// residual and the loss gradient w.r.t. the pixel's normalised camera position. Returns the mean
+/// squared residual (linear light), the gradient per pixel, and the global normal equations for
+/// the next step's prior. `ylin[p * n + i]` are the targets in linear projector light.
+fn geometry_step(
     caps: &[CamImage],
-    tgts: &[NetImage],
+    ylin: &[[f32; 3]],
     grid: &Grid<Network, Camera>,
-    curves: &Curves,
+    lut: &PowLut,
+    prior: &[f32; 12],
     ridge: f32,
-) -> (f64, Vec<[f32; 2]>) {
-    let warped: Vec<NetImage> = caps
-        .par_iter()
-        .map(|c| crate::sample::grid_sample(c, grid))
-        .collect();
-    let (coeffs, loss) = solve_colour(&warped, tgts, curves, ridge);
+) -> (f64, Vec<[f32; 2]>, Normal) {
+    let n = caps.len();
     let (cw, ch) = caps[0].size();
     let (sx, sy) = (0.5 * (cw.max(2) - 1) as f32, 0.5 * (ch.max(2) - 1) as f32);
-    let count = (caps.len() * grid.data().len() * 3) as f32;
-    let dl_dg: Vec<[f32; 2]> = grid
+    let lambda = ridge as f64 * n as f64;
+    let count = (n * grid.data().len() * 3) as f32;
+    let results: Vec<(f64, [f32; 2], Normal)> = grid
         .data()
         .par_iter()
         .enumerate()
-        .map(|(p, &[gx, gy])| {
-            let k = &coeffs.data[p];
-            let mut g = [0f32; 2];
-            for (cap, (wi, ti)) in caps.iter().zip(warped.iter().zip(tgts)) {
-                let wv = &wi.data()[p * 3..p * 3 + 3];
-                let a = features(curves, wv);
-                let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
-                // dL/dw_c = Σ_o 2 r_o M[o][c] f_c'(w_c)
-                let mut dw = [0f32; 3];
-                for o in 0..3 {
-                    let r = k[o * 3] * a[0] + k[o * 3 + 1] * a[1] + k[o * 3 + 2] * a[2] + k[9 + o]
-                        - y[o];
-                    for (c, d) in dw.iter_mut().enumerate() {
-                        *d += 2.0 * r * k[o * 3 + c];
+        .map_init(
+            || vec![Sample::default(); n],
+            |buf, (p, &[gx, gy])| {
+                let mut ne = Normal::default();
+                for (i, cap) in caps.iter().enumerate() {
+                    let (w, [du, dv]) = sample_with_gradient(cap, gx, gy);
+                    let s = &mut buf[i];
+                    for c in 0..3 {
+                        let (v, d) = lut.eval(c, w[c]);
+                        s.a[c] = v;
+                        s.slope[c] = d;
+                        s.dgx[c] = du[c] * sx;
+                        s.dgy[c] = dv[c] * sy;
+                    }
+                    s.a[3] = 1.0;
+                    ne.add(&s.a, &ylin[p * n + i]);
+                }
+                let k = ne.solve(lambda, prior);
+                let (mut loss, mut g) = (0f64, [0f32; 2]);
+                for (i, s) in buf.iter().enumerate() {
+                    let y = &ylin[p * n + i];
+                    let mut dw = [0f32; 3];
+                    for o in 0..3 {
+                        let r = k[o * 3] * s.a[0]
+                            + k[o * 3 + 1] * s.a[1]
+                            + k[o * 3 + 2] * s.a[2]
+                            + k[9 + o]
+                            - y[o];
+                        loss += (r * r) as f64;
+                        for (c, d) in dw.iter_mut().enumerate() {
+                            *d += 2.0 * r * k[o * 3 + c];
+                        }
+                    }
+                    for (c, &dwc) in dw.iter().enumerate() {
+                        let d = dwc * s.slope[c];
+                        g[0] += d * s.dgx[c];
+                        g[1] += d * s.dgy[c];
                     }
                 }
-                for (c, d) in dw.iter_mut().enumerate() {
-                    *d *= curves.camera_linear_deriv(c, wv[c]);
-                }
-                let [du, dv] = sample_gradient(cap, gx, gy);
-                for c in 0..3 {
-                    g[0] += dw[c] * du[c] * sx;
-                    g[1] += dw[c] * dv[c] * sy;
-                }
-            }
-            [g[0] / count, g[1] / count]
-        })
+                (loss, [g[0] / count, g[1] / count], ne)
+            },
+        )
         .collect();
-    (loss, dl_dg)
+    let mut global = Normal::default();
+    let mut loss = 0f64;
+    let mut grad = Vec::with_capacity(results.len());
+    for (l, g, ne) in &results {
+        loss += l;
+        grad.push(*g);
+        global.merge(ne);
+    }
+    (loss / count as f64, grad, global)
 }
 
-/// Derivatives of the bilinear sample of `img` at normalised (gx, gy) w.r.t. the pixel coordinates
-/// (u, v), per channel, with zero padding (as [`crate::sample::grid_sample`]).
-fn sample_gradient(img: &CamImage, gx: f32, gy: f32) -> [[f32; 3]; 2] {
+/// The global (one model for all pixels) solution of accumulated normal equations.
+fn global_solution(global: &Normal, values: usize) -> [f32; 12] {
+    global.solve(1e-6 * values as f64, &IDENTITY)
+}
+
+/// The bilinear sample of `img` at normalised (gx, gy) and its derivatives w.r.t. the pixel
+/// coordinates (u, v), per channel, zero padding (as [`crate::sample::grid_sample`]).
+fn sample_with_gradient(img: &CamImage, gx: f32, gy: f32) -> ([f32; 3], [[f32; 3]; 2]) {
     let (w, h) = img.size();
     let (u, v) = (norm_to_pixel(gx, w), norm_to_pixel(gy, h));
     if !u.is_finite() || !v.is_finite() {
-        return [[0.0; 3]; 2];
+        return ([0.0; 3], [[0.0; 3]; 2]);
     }
     let (x0, y0) = (u.floor(), v.floor());
     let (fx, fy) = (u - x0, v - y0);
     let (x0, y0) = (x0 as i64, y0 as i64);
+    let data = img.data();
     let px = |x: i64, y: i64| -> [f32; 3] {
         if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
             [0.0; 3]
         } else {
-            img.get(x as usize, y as usize)
+            let i = (y as usize * w + x as usize) * 3;
+            [data[i], data[i + 1], data[i + 2]]
         }
     };
     let (p00, p10, p01, p11) = (
@@ -580,13 +690,17 @@ fn sample_gradient(img: &CamImage, gx: f32, gy: f32) -> [[f32; 3]; 2] {
         px(x0, y0 + 1),
         px(x0 + 1, y0 + 1),
     );
+    let mut val = [0f32; 3];
     let mut du = [0f32; 3];
     let mut dv = [0f32; 3];
     for c in 0..3 {
+        let top = p00[c] + fx * (p10[c] - p00[c]);
+        let bottom = p01[c] + fx * (p11[c] - p01[c]);
+        val[c] = top + fy * (bottom - top);
         du[c] = (1.0 - fy) * (p10[c] - p00[c]) + fy * (p11[c] - p01[c]);
-        dv[c] = (1.0 - fx) * (p01[c] - p00[c]) + fx * (p11[c] - p10[c]);
+        dv[c] = bottom - top;
     }
-    [du, dv]
+    (val, [du, dv])
 }
 
 /// Fits the six curve exponents by golden-section search, one at a time, two sweeps, minimising
@@ -598,15 +712,24 @@ fn fit_curves(
     grid: &Grid<Network, Camera>,
     start: Curves,
     ridge: f32,
+    stride: usize,
 ) -> Curves {
+    // The curves are global: every `stride`-th pixel in each direction is plenty.
+    let (w, h) = grid.size();
+    let (sw, sh) = (w.div_ceil(stride), h.div_ceil(stride));
+    let grid = Grid::<Network, Camera>::from_fn(sw, sh, |x, y| grid.get(x * stride, y * stride));
+    let tgts: Vec<NetImage> = tgts
+        .iter()
+        .map(|t| NetImage::from_fn(sw, sh, |x, y| t.get(x * stride, y * stride)))
+        .collect();
     let warped: Vec<NetImage> = caps
         .par_iter()
-        .map(|c| crate::sample::grid_sample(c, grid))
+        .map(|c| crate::sample::grid_sample(c, &grid))
         .collect();
     let cost = |cv: &Curves| -> f64 {
-        let (coeffs, _) = solve_colour(&warped, tgts, cv, ridge);
+        let (coeffs, _) = solve_colour(&warped, &tgts, cv, ridge);
         let mut s = 0f64;
-        for (wi, ti) in warped.iter().zip(tgts) {
+        for (wi, ti) in warped.iter().zip(&tgts) {
             let pred = apply_colour(wi, cv, &coeffs);
             s += pred
                 .data()
