@@ -65,7 +65,7 @@ impl Error {
         if source.kind() == std::io::ErrorKind::NotFound {
             Error::Missing {
                 path,
-                expected: format!("{op}: {source}"),
+                expected: format!("no such file or folder; needed to {op}"),
             }
         } else {
             Error::Io { path, op, source }

@@ -15,17 +15,33 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Compensation images for desired camera-view images, with a trained model.
+    Compensate(cli::compensate::Args),
+    /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row.
+    Eval(cli::eval::Args),
+    /// Check a dataset setup (every image of every set) and print its summary.
+    Inspect(cli::inspect::Args),
     /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
     Metrics(cli::metrics::Args),
+    /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
+    /// gray image (ref/), Gray-code structured light (sl/).
+    Patterns(cli::patterns::Args),
     /// The virtual rig: simulated projector-camera scenes (list, show, export).
     Sim(cli::sim::Args),
+    /// Fit a compensation model on a setup's training pairs and write the model directory.
+    Train(cli::train::Args),
 }
 
 fn main() -> ExitCode {
     let args = Cli::parse();
     let result = match args.command {
+        Command::Compensate(a) => cli::compensate::run(a),
+        Command::Eval(a) => cli::eval::run(a),
+        Command::Inspect(a) => cli::inspect::run(a),
         Command::Metrics(a) => cli::metrics::run(a),
+        Command::Patterns(a) => cli::patterns::run(a),
         Command::Sim(a) => cli::sim::run(a),
+        Command::Train(a) => cli::train::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,5 +2,10 @@
 //! running the real `compend` binary.
 
 mod common;
+mod dataset;
+mod fov;
+mod image;
+mod linear;
 mod metrics;
+mod patterns;
 mod rig;

@@ -1,0 +1,75 @@
+//! `compend eval`: the paper protocol on a setup's validation pairs, with the uncompensated row.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use compend::dataset::Setup;
+use compend::metrics::{Accumulator, Scores};
+use compend::model::Model;
+use compend::raster::NetImage;
+use serde_json::json;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The model directory.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// The setup folder whose cam/raw/test captures are scored.
+    #[arg(long)]
+    pub setup: PathBuf,
+    /// The data root (default: the nearest ancestor of the setup with train/ and test/).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let model = Model::load(&args.model)?;
+    let setup = Setup::open(&args.setup, args.data.as_deref())?;
+    let pairs = setup.load_test(None)?;
+    let camera = setup.camera_size()?;
+    if camera != model.camera_size() {
+        return Err(compend::Error::Input(format!(
+            "{}: camera images are {}x{}, the model {} was trained on {}x{}",
+            setup.path().display(),
+            camera.0,
+            camera.1,
+            args.model.display(),
+            model.camera_size().0,
+            model.camera_size().1
+        ))
+        .into());
+    }
+    let (mut comp, mut uncomp) = (Accumulator::default(), Accumulator::default());
+    for (cap, input) in pairs.captures.iter().zip(&pairs.inputs) {
+        let target: NetImage = input.clone().into_space();
+        comp.add(&model.infer(cap)?, &target)?;
+        uncomp.add(&model.warp_only(cap)?, &target)?;
+    }
+    let comp = comp.finish().context("no test pairs in the setup")?;
+    let uncomp = uncomp.finish()?;
+    let method = model.meta.method.clone();
+    if args.json {
+        println!(
+            "{}",
+            json!({ "method": method, "model": args.model, "setup": setup.path(),
+                    "n": comp.n, "compensated": comp, "uncompensated": uncomp })
+        );
+    } else {
+        println!("{:<16} {:>9} {:>9} {:>9}", "row", "PSNR", "RMSE", "SSIM");
+        let row = |name: &str, s: &Scores| {
+            println!("{name:<16} {:>9.4} {:>9.4} {:>9.4}", s.psnr, s.rmse, s.ssim);
+        };
+        row("uncompensated", &uncomp);
+        row(&method, &comp);
+        println!(
+            "({} test pairs, network {}x{})",
+            comp.n,
+            model.network_size().0,
+            model.network_size().1
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,810 @@
+//! The `linear` rung of the model ladder (DESIGN.md section 5.4): learned geometry (affine + TPS,
+//! [`crate::warp`]) and a per-pixel linear colour model in a linearised space.
+//!
+//! For network pixel `p`, the warped capture `w = x̃(g_p)` (camera values, sRGB-encoded as
+//! captured) is linearised per channel by the camera curve `f_c(v) = v^γc`; the model predicts the
+//! projector's linear light `ℓ = M_p f_c(w) + b_p` (3×3 matrix + offset per pixel) and the projector
+//! input value through the inverse projector curve `x̂ = f_p⁻¹(ℓ) = clamp(ℓ, 0, 1)^(1/γp)`. Physically,
+//! a projector pixel's light reaches its camera pixel scaled by surface reflectance and mixed by the
+//! projector and camera primaries, plus ambient light: affine in linear light, which is what the
+//! per-pixel model inverts; the global curves stand in for the devices' response curves.
+//!
+//! Fitting: for fixed geometry and curves the per-pixel coefficients have a closed form (least
+//! squares in linear projector space, ridge-regularised towards one global model so pixels that
+//! never see the projector stay sane). The geometry is optimised coarse to fine with Adam on the
+//! same residual; by the envelope theorem its gradient at the per-pixel optimum needs no
+//! differentiation through the solve. The curves are fitted by a 1-D search per channel.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::filter::gaussian_blur;
+use crate::raster::{CamImage, Camera, Mask, NetImage, Network, Rgb};
+use crate::resize::resize_area;
+use crate::sample::{Grid, norm_to_pixel};
+use crate::warp::{TpsBasis, Warp};
+
+/// Global per-channel response curves (gamma exponents).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Curves {
+    /// Camera linearisation exponent per channel: linear = captured^γ.
+    pub camera_gamma: [f32; 3],
+    /// Projector response exponent per channel: linear light = input^γ.
+    pub projector_gamma: [f32; 3],
+}
+
+impl Default for Curves {
+    fn default() -> Self {
+        Self {
+            camera_gamma: [2.2; 3],
+            projector_gamma: [2.2; 3],
+        }
+    }
+}
+
+impl Curves {
+    #[inline]
+    pub fn camera_linear(&self, c: usize, v: f32) -> f32 {
+        v.max(0.0).powf(self.camera_gamma[c])
+    }
+    #[inline]
+    fn camera_linear_deriv(&self, c: usize, v: f32) -> f32 {
+        let g = self.camera_gamma[c];
+        if v <= 0.0 { 0.0 } else { g * v.powf(g - 1.0) }
+    }
+    #[inline]
+    pub fn projector_linear(&self, c: usize, x: f32) -> f32 {
+        x.max(0.0).powf(self.projector_gamma[c])
+    }
+    #[inline]
+    pub fn projector_input(&self, c: usize, l: f32) -> f32 {
+        l.clamp(0.0, 1.0).powf(1.0 / self.projector_gamma[c])
+    }
+}
+
+/// Per-pixel coefficients on the network lattice: `[M (3×3 row-major), b (3)]` per pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Coefficients {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<[f32; 12]>,
+}
+
+/// Where a model's geometry comes from.
+#[derive(Clone, Debug)]
+pub enum Geometry {
+    /// Learned affine + TPS warp (`linear`).
+    Learned(Warp),
+    /// A fixed grid, e.g. from decoded structured light (`linear-sl`).
+    Fixed(Grid<Network, Camera>),
+}
+
+/// A trained `linear` model: geometry, curves and per-pixel colour coefficients.
+#[derive(Clone, Debug)]
+pub struct LinearModel {
+    pub geometry: Geometry,
+    pub curves: Curves,
+    pub coeffs: Coefficients,
+    /// Camera image size the geometry refers to.
+    pub camera_size: (usize, usize),
+}
+
+/// The simplified form used for playback: one baked grid, the curves and the coefficients.
+#[derive(Clone, Debug)]
+pub struct SimplifiedLinear {
+    pub grid: Grid<Network, Camera>,
+    pub curves: Curves,
+    pub coeffs: Coefficients,
+}
+
+impl LinearModel {
+    pub fn network_size(&self) -> (usize, usize) {
+        (self.coeffs.width, self.coeffs.height)
+    }
+
+    /// The sampling grid from network pixels into the camera image.
+    pub fn grid(&self) -> Grid<Network, Camera> {
+        let (w, h) = self.network_size();
+        match &self.geometry {
+            Geometry::Learned(warp) => TpsBasis::new(w, h).grid(warp),
+            Geometry::Fixed(grid) => grid.clone(),
+        }
+    }
+
+    /// Bakes the geometry into one sampling grid.
+    pub fn simplify(&self) -> SimplifiedLinear {
+        SimplifiedLinear {
+            grid: self.grid(),
+            curves: self.curves,
+            coeffs: self.coeffs.clone(),
+        }
+    }
+}
+
+impl SimplifiedLinear {
+    /// The CPU reference of the `linear` compensation pass: sample the camera-view image through
+    /// the baked grid (bilinear, align-corners, zero outside), apply the per-pixel affine colour
+    /// model in linear light, map back through the inverse projector curve and clamp to [0, 1].
+    /// Input: a camera-space image (a capture x̃, or a desired viewer image z'); output: the
+    /// network-space projector image.
+    pub fn apply(&self, input: &CamImage) -> NetImage {
+        let warped = crate::sample::grid_sample(input, &self.grid);
+        apply_colour(&warped, &self.curves, &self.coeffs)
+    }
+}
+
+/// Applies curves and per-pixel coefficients to an already warped image.
+pub fn apply_colour(warped: &NetImage, curves: &Curves, coeffs: &Coefficients) -> NetImage {
+    let mut out = warped.clone();
+    for (px, k) in out.data_mut().chunks_exact_mut(3).zip(&coeffs.data) {
+        let a = [
+            curves.camera_linear(0, px[0]),
+            curves.camera_linear(1, px[1]),
+            curves.camera_linear(2, px[2]),
+        ];
+        for c in 0..3 {
+            let l = k[c * 3] * a[0] + k[c * 3 + 1] * a[1] + k[c * 3 + 2] * a[2] + k[9 + c];
+            px[c] = curves.projector_input(c, l);
+        }
+    }
+    out
+}
+
+/// Training settings.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FitSettings {
+    /// Network (output) size.
+    pub network_size: (usize, usize),
+    /// Optimise the warp (false keeps the initial affine, e.g. for geometry from structured light).
+    pub learn_geometry: bool,
+    /// (network side, Adam iterations, capture blur σ in camera pixels) per coarse-to-fine level.
+    pub levels: Vec<(usize, usize, f32)>,
+    /// Adam step size for the parameters (normalised coordinates).
+    pub learning_rate: f32,
+    /// Ridge weight towards the global model, per training image.
+    pub ridge: f32,
+    /// Images used for the geometry (the colour fit always uses all of them).
+    pub geometry_images: usize,
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        Self {
+            network_size: (256, 256),
+            learn_geometry: true,
+            levels: vec![(64, 120, 2.0), (128, 60, 1.0), (256, 30, 0.0)],
+            learning_rate: 2e-3,
+            ridge: 1e-2,
+            geometry_images: 24,
+        }
+    }
+}
+
+/// What the fit reports.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FitReport {
+    /// Mean squared residual in linear projector light at the end, per value.
+    pub final_loss: f64,
+    /// Loss after each geometry iteration (all levels in order).
+    pub loss_history: Vec<f64>,
+    pub seconds: f64,
+}
+
+/// Fits a `linear` model on training pairs: captures `x̃_i` (camera space, already masked by the
+/// FOV mask if desired) and projector inputs `x_i` (network space).
+pub fn fit(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+    mut progress: impl FnMut(&str, usize, usize),
+) -> Result<(LinearModel, FitReport)> {
+    let start = Instant::now();
+    check_pairs(captures, targets)?;
+    let cam_size = captures[0].size();
+    let (nw, nh) = settings.network_size;
+    let mut warp = init;
+    let mut curves = Curves::default();
+    let mut history = Vec::new();
+
+    if settings.learn_geometry {
+        let ng = settings.geometry_images.clamp(1, captures.len());
+        let total: usize = settings.levels.iter().map(|l| l.1).sum();
+        let mut done = 0;
+        let mut adam = Adam::new(warp.param_count(), settings.learning_rate);
+        for &(side, iters, sigma) in &settings.levels {
+            let (lw, lh) = level_size((nw, nh), side);
+            let caps: Vec<CamImage> = captures[..ng]
+                .par_iter()
+                .map(|c| blur_rgb(c, sigma))
+                .collect();
+            let tgts: Vec<NetImage> = targets[..ng]
+                .iter()
+                .map(|t| resize_area(t, lw, lh))
+                .collect();
+            let basis = TpsBasis::new(lw, lh);
+            curves = fit_curves(&caps, &tgts, &basis.grid(&warp), curves, settings.ridge);
+            for it in 0..iters {
+                let grid = basis.grid(&warp);
+                let (loss, dl_dg) = loss_and_grad(&caps, &tgts, &grid, &curves, settings.ridge);
+                history.push(loss);
+                let grad = basis.backward(&warp, &dl_dg);
+                let mut params = warp.to_params();
+                // Step size decays within a level so each level settles.
+                let lr = settings.learning_rate * (1.0 - 0.7 * it as f32 / iters.max(1) as f32);
+                adam.step(&mut params, &grad, lr);
+                warp.set_params(&params);
+                done += 1;
+                progress("geometry", done, total);
+            }
+        }
+    }
+    let grid = TpsBasis::new(nw, nh).grid(&warp);
+    let (curves, coeffs, loss) = fit_colour(captures, targets, &grid, curves, settings.ridge);
+    progress("colour", 1, 1);
+    Ok((
+        LinearModel {
+            geometry: Geometry::Learned(warp),
+            curves,
+            coeffs,
+            camera_size: cam_size,
+        },
+        FitReport {
+            final_loss: loss,
+            loss_history: history,
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    ))
+}
+
+/// Fits only the colour part on a fixed geometry (the two-step `linear-sl` baseline): the grid
+/// maps network pixels to camera positions, e.g. from decoded structured light.
+pub fn fit_on_grid(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    grid: Grid<Network, Camera>,
+    settings: &FitSettings,
+) -> Result<(LinearModel, FitReport)> {
+    let start = Instant::now();
+    check_pairs(captures, targets)?;
+    if grid.size() != targets[0].size() {
+        return Err(Error::Shape(format!(
+            "grid is {}x{}, the projector images {}x{}",
+            grid.width(),
+            grid.height(),
+            targets[0].width(),
+            targets[0].height()
+        )));
+    }
+    let (curves, coeffs, loss) =
+        fit_colour(captures, targets, &grid, Curves::default(), settings.ridge);
+    Ok((
+        LinearModel {
+            geometry: Geometry::Fixed(grid),
+            curves,
+            coeffs,
+            camera_size: captures[0].size(),
+        },
+        FitReport {
+            final_loss: loss,
+            loss_history: Vec::new(),
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    ))
+}
+
+/// Curves and per-pixel coefficients at full resolution on all images, for a fixed grid.
+fn fit_colour(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    grid: &Grid<Network, Camera>,
+    start: Curves,
+    ridge: f32,
+) -> (Curves, Coefficients, f64) {
+    let curves = fit_curves(captures, targets, grid, start, ridge);
+    let warped: Vec<NetImage> = captures
+        .par_iter()
+        .map(|c| crate::sample::grid_sample(c, grid))
+        .collect();
+    let (coeffs, loss) = solve_colour(&warped, targets, &curves, ridge);
+    (curves, coeffs, loss)
+}
+
+/// Checks that captures and projector images pair up and are each of one size.
+fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
+    if captures.is_empty() || captures.len() != targets.len() {
+        return Err(Error::Input(format!(
+            "linear fit needs as many captures as projector images, got {} and {}",
+            captures.len(),
+            targets.len()
+        )));
+    }
+    let cam_size = captures[0].size();
+    if let Some(c) = captures.iter().find(|c| c.size() != cam_size) {
+        return Err(Error::Shape(format!(
+            "captures differ in size: {:?} and {:?}",
+            cam_size,
+            c.size()
+        )));
+    }
+    let net_size = targets[0].size();
+    if let Some(t) = targets.iter().find(|t| t.size() != net_size) {
+        return Err(Error::Shape(format!(
+            "projector images differ in size: {:?} and {:?}",
+            net_size,
+            t.size()
+        )));
+    }
+    Ok(())
+}
+
+/// Network size of a coarse level whose longer side is at most `side`.
+fn level_size((w, h): (usize, usize), side: usize) -> (usize, usize) {
+    let s = (side as f64 / w.max(h) as f64).min(1.0);
+    (
+        ((w as f64 * s).round() as usize).max(4),
+        ((h as f64 * s).round() as usize).max(4),
+    )
+}
+
+fn blur_rgb(img: &CamImage, sigma: f32) -> CamImage {
+    if sigma <= 0.0 {
+        return img.clone();
+    }
+    let ch: Vec<_> = (0..3)
+        .map(|c| gaussian_blur(&img.channel(c), sigma as f64))
+        .collect();
+    Rgb::from_channels(&ch[0], &ch[1], &ch[2]).expect("blurred channels keep the size")
+}
+
+/// Normal equations of one pixel: features a = [f_c(w), 1], targets y = f_p(x).
+#[derive(Clone, Copy, Default)]
+struct Normal {
+    ata: [[f64; 4]; 4],
+    aty: [[f64; 3]; 4],
+}
+
+impl Normal {
+    #[inline]
+    fn add(&mut self, a: &[f32; 4], y: &[f32; 3]) {
+        for (i, &ai) in a.iter().enumerate() {
+            for (j, &aj) in a.iter().enumerate().skip(i) {
+                self.ata[i][j] += (ai * aj) as f64;
+            }
+            for (c, &yc) in y.iter().enumerate() {
+                self.aty[i][c] += (ai * yc) as f64;
+            }
+        }
+    }
+    fn merge(&mut self, o: &Normal) {
+        for i in 0..4 {
+            for j in 0..4 {
+                self.ata[i][j] += o.ata[i][j];
+            }
+            for c in 0..3 {
+                self.aty[i][c] += o.aty[i][c];
+            }
+        }
+    }
+    /// Solves (AᵀA + λI)β = Aᵀy + λβ₀ for β (4×3); returns coefficients as [M row-major, b].
+    fn solve(&self, lambda: f64, prior: &[f32; 12]) -> [f32; 12] {
+        let mut m = nalgebra::Matrix4::<f64>::zeros();
+        for i in 0..4 {
+            for j in 0..4 {
+                m[(i, j)] = if j >= i {
+                    self.ata[i][j]
+                } else {
+                    self.ata[j][i]
+                };
+            }
+            m[(i, i)] += lambda;
+        }
+        // Prior β₀ in the same 4×3 layout: rows = features (3 colours, 1), columns = outputs.
+        let mut rhs = nalgebra::Matrix4x3::<f64>::zeros();
+        for i in 0..4 {
+            for c in 0..3 {
+                let p = if i < 3 {
+                    prior[c * 3 + i]
+                } else {
+                    prior[9 + c]
+                };
+                rhs[(i, c)] = self.aty[i][c] + lambda * p as f64;
+            }
+        }
+        let Some(beta) = m.cholesky().map(|ch| ch.solve(&rhs)) else {
+            return *prior;
+        };
+        let mut out = [0f32; 12];
+        for c in 0..3 {
+            for i in 0..3 {
+                out[c * 3 + i] = beta[(i, c)] as f32;
+            }
+            out[9 + c] = beta[(3, c)] as f32;
+        }
+        out
+    }
+}
+
+#[inline]
+fn features(curves: &Curves, w: &[f32]) -> [f32; 4] {
+    [
+        curves.camera_linear(0, w[0]),
+        curves.camera_linear(1, w[1]),
+        curves.camera_linear(2, w[2]),
+        1.0,
+    ]
+}
+
+#[inline]
+fn targets_linear(curves: &Curves, x: &[f32]) -> [f32; 3] {
+    [
+        curves.projector_linear(0, x[0]),
+        curves.projector_linear(1, x[1]),
+        curves.projector_linear(2, x[2]),
+    ]
+}
+
+/// Solves the per-pixel coefficients; returns them and the mean squared residual (linear light).
+fn solve_colour(
+    warped: &[NetImage],
+    targets: &[NetImage],
+    curves: &Curves,
+    ridge: f32,
+) -> (Coefficients, f64) {
+    let (w, h) = targets[0].size();
+    let n = warped.len();
+    let normals: Vec<Normal> = (0..w * h)
+        .into_par_iter()
+        .map(|p| {
+            let mut ne = Normal::default();
+            for (wi, ti) in warped.iter().zip(targets) {
+                let a = features(curves, &wi.data()[p * 3..p * 3 + 3]);
+                let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
+                ne.add(&a, &y);
+            }
+            ne
+        })
+        .collect();
+    let mut global = Normal::default();
+    for ne in &normals {
+        global.merge(ne);
+    }
+    let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+    let global_beta = global.solve(1e-6 * (n * w * h) as f64, &identity);
+    let lambda = ridge as f64 * n as f64;
+    let data: Vec<[f32; 12]> = normals
+        .par_iter()
+        .map(|ne| ne.solve(lambda, &global_beta))
+        .collect();
+    let coeffs = Coefficients {
+        width: w,
+        height: h,
+        data,
+    };
+    let sse: f64 = (0..w * h)
+        .into_par_iter()
+        .map(|p| {
+            let k = &coeffs.data[p];
+            let mut s = 0f64;
+            for (wi, ti) in warped.iter().zip(targets) {
+                let a = features(curves, &wi.data()[p * 3..p * 3 + 3]);
+                let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
+                for c in 0..3 {
+                    let r = k[c * 3] * a[0] + k[c * 3 + 1] * a[1] + k[c * 3 + 2] * a[2] + k[9 + c]
+                        - y[c];
+                    s += (r * r) as f64;
+                }
+            }
+            s
+        })
+        .sum();
+    (coeffs, sse / (n * w * h * 3) as f64)
+}
+
+/// Loss (mean squared linear-light residual at the per-pixel optimum) and its gradient w.r.t. the
+/// normalised camera position of every network pixel.
+fn loss_and_grad(
+    caps: &[CamImage],
+    tgts: &[NetImage],
+    grid: &Grid<Network, Camera>,
+    curves: &Curves,
+    ridge: f32,
+) -> (f64, Vec<[f32; 2]>) {
+    let warped: Vec<NetImage> = caps
+        .par_iter()
+        .map(|c| crate::sample::grid_sample(c, grid))
+        .collect();
+    let (coeffs, loss) = solve_colour(&warped, tgts, curves, ridge);
+    let (cw, ch) = caps[0].size();
+    let (sx, sy) = (0.5 * (cw.max(2) - 1) as f32, 0.5 * (ch.max(2) - 1) as f32);
+    let count = (caps.len() * grid.data().len() * 3) as f32;
+    let dl_dg: Vec<[f32; 2]> = grid
+        .data()
+        .par_iter()
+        .enumerate()
+        .map(|(p, &[gx, gy])| {
+            let k = &coeffs.data[p];
+            let mut g = [0f32; 2];
+            for (cap, (wi, ti)) in caps.iter().zip(warped.iter().zip(tgts)) {
+                let wv = &wi.data()[p * 3..p * 3 + 3];
+                let a = features(curves, wv);
+                let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
+                // dL/dw_c = Σ_o 2 r_o M[o][c] f_c'(w_c)
+                let mut dw = [0f32; 3];
+                for o in 0..3 {
+                    let r = k[o * 3] * a[0] + k[o * 3 + 1] * a[1] + k[o * 3 + 2] * a[2] + k[9 + o]
+                        - y[o];
+                    for (c, d) in dw.iter_mut().enumerate() {
+                        *d += 2.0 * r * k[o * 3 + c];
+                    }
+                }
+                for (c, d) in dw.iter_mut().enumerate() {
+                    *d *= curves.camera_linear_deriv(c, wv[c]);
+                }
+                let [du, dv] = sample_gradient(cap, gx, gy);
+                for c in 0..3 {
+                    g[0] += dw[c] * du[c] * sx;
+                    g[1] += dw[c] * dv[c] * sy;
+                }
+            }
+            [g[0] / count, g[1] / count]
+        })
+        .collect();
+    (loss, dl_dg)
+}
+
+/// Derivatives of the bilinear sample of `img` at normalised (gx, gy) w.r.t. the pixel coordinates
+/// (u, v), per channel, with zero padding (as [`crate::sample::grid_sample`]).
+fn sample_gradient(img: &CamImage, gx: f32, gy: f32) -> [[f32; 3]; 2] {
+    let (w, h) = img.size();
+    let (u, v) = (norm_to_pixel(gx, w), norm_to_pixel(gy, h));
+    if !u.is_finite() || !v.is_finite() {
+        return [[0.0; 3]; 2];
+    }
+    let (x0, y0) = (u.floor(), v.floor());
+    let (fx, fy) = (u - x0, v - y0);
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let px = |x: i64, y: i64| -> [f32; 3] {
+        if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+            [0.0; 3]
+        } else {
+            img.get(x as usize, y as usize)
+        }
+    };
+    let (p00, p10, p01, p11) = (
+        px(x0, y0),
+        px(x0 + 1, y0),
+        px(x0, y0 + 1),
+        px(x0 + 1, y0 + 1),
+    );
+    let mut du = [0f32; 3];
+    let mut dv = [0f32; 3];
+    for c in 0..3 {
+        du[c] = (1.0 - fy) * (p10[c] - p00[c]) + fy * (p11[c] - p01[c]);
+        dv[c] = (1.0 - fx) * (p01[c] - p00[c]) + fx * (p11[c] - p10[c]);
+    }
+    [du, dv]
+}
+
+/// Fits the six curve exponents by golden-section search, one at a time, two sweeps, minimising
+/// the per-pixel fit residual measured on the projector-input scale (so that the exponents are
+/// comparable across candidates).
+fn fit_curves(
+    caps: &[CamImage],
+    tgts: &[NetImage],
+    grid: &Grid<Network, Camera>,
+    start: Curves,
+    ridge: f32,
+) -> Curves {
+    let warped: Vec<NetImage> = caps
+        .par_iter()
+        .map(|c| crate::sample::grid_sample(c, grid))
+        .collect();
+    let cost = |cv: &Curves| -> f64 {
+        let (coeffs, _) = solve_colour(&warped, tgts, cv, ridge);
+        let mut s = 0f64;
+        for (wi, ti) in warped.iter().zip(tgts) {
+            let pred = apply_colour(wi, cv, &coeffs);
+            s += pred
+                .data()
+                .iter()
+                .zip(ti.data())
+                .map(|(a, b)| ((a - b) as f64).powi(2))
+                .sum::<f64>();
+        }
+        s
+    };
+    let mut best = start;
+    for _sweep in 0..2 {
+        for which in 0..6 {
+            let get = |c: &Curves| {
+                if which < 3 {
+                    c.camera_gamma[which]
+                } else {
+                    c.projector_gamma[which - 3]
+                }
+            };
+            let set = |c: &mut Curves, v: f32| {
+                if which < 3 {
+                    c.camera_gamma[which] = v
+                } else {
+                    c.projector_gamma[which - 3] = v
+                }
+            };
+            let centre = get(&best);
+            let (mut lo, mut hi) = ((centre * 0.6).max(0.3), (centre * 1.6).min(4.0));
+            let phi = 0.618_034_f32;
+            let eval = |v: f32| {
+                let mut c = best;
+                set(&mut c, v);
+                cost(&c)
+            };
+            let (mut a, mut b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
+            let (mut fa, mut fb) = (eval(a), eval(b));
+            for _ in 0..8 {
+                if fa < fb {
+                    hi = b;
+                    b = a;
+                    fb = fa;
+                    a = hi - phi * (hi - lo);
+                    fa = eval(a);
+                } else {
+                    lo = a;
+                    a = b;
+                    fa = fb;
+                    b = lo + phi * (hi - lo);
+                    fb = eval(b);
+                }
+            }
+            let v = if fa < fb { a } else { b };
+            if fa.min(fb) < cost(&best) {
+                set(&mut best, v);
+            }
+        }
+    }
+    best
+}
+
+/// Adam (Kingma & Ba) over a flat parameter vector.
+struct Adam {
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: i32,
+}
+
+impl Adam {
+    fn new(n: usize, _lr: f32) -> Self {
+        Self {
+            m: vec![0.0; n],
+            v: vec![0.0; n],
+            t: 0,
+        }
+    }
+    fn step(&mut self, params: &mut [f32], grad: &[f32], lr: f32) {
+        let (b1, b2, eps) = (0.9f32, 0.999f32, 1e-12f32);
+        self.t += 1;
+        let (c1, c2) = (1.0 - b1.powi(self.t), 1.0 - b2.powi(self.t));
+        for i in 0..params.len() {
+            self.m[i] = b1 * self.m[i] + (1.0 - b1) * grad[i];
+            self.v[i] = b2 * self.v[i] + (1.0 - b2) * grad[i] * grad[i];
+            params[i] -= lr * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + eps);
+        }
+    }
+}
+
+/// Masks every capture by the FOV mask (pixels outside read black), as the models expect.
+pub fn mask_captures(captures: &[CamImage], mask: &Mask<Camera>) -> Result<Vec<CamImage>> {
+    captures.iter().map(|c| c.masked(mask)).collect()
+}
+
+/// Method name of this rung.
+pub const METHOD: &str = "linear";
+
+impl LinearModel {
+    /// Numeric state for the model directory: the learnable geometry, the baked grid (what playback
+    /// reads), the curves and the per-pixel coefficients.
+    pub fn to_tensors(&self) -> Result<crate::modeldir::Tensors> {
+        let (w, h) = self.network_size();
+        let mut t = crate::modeldir::Tensors::default();
+        if let Geometry::Learned(warp) = &self.geometry {
+            let theta = warp.theta.iter().flatten().copied().collect();
+            t.insert("warp.theta", vec![2, 3], theta)?;
+            let tps: Vec<f32> = warp.tps.iter().flatten().copied().collect();
+            t.insert("warp.tps", vec![2, crate::warp::TPS_PARAMS], tps)?;
+        }
+        let grid = self.grid();
+        t.insert(
+            "grid",
+            vec![h, w, 2],
+            grid.data().iter().flatten().copied().collect(),
+        )?;
+        t.insert(
+            "curves.camera_gamma",
+            vec![3],
+            self.curves.camera_gamma.to_vec(),
+        )?;
+        t.insert(
+            "curves.projector_gamma",
+            vec![3],
+            self.curves.projector_gamma.to_vec(),
+        )?;
+        t.insert(
+            "colour.coeffs",
+            vec![h, w, 12],
+            self.coeffs.data.iter().flatten().copied().collect(),
+        )?;
+        Ok(t)
+    }
+
+    /// Rebuilds a model from the model directory's tensors; `file` names the weights in errors.
+    pub fn from_tensors(
+        t: &crate::modeldir::Tensors,
+        network_size: (usize, usize),
+        camera_size: (usize, usize),
+        file: &std::path::Path,
+    ) -> Result<Self> {
+        let (w, h) = network_size;
+        let cg = t.get("curves.camera_gamma", &[3], file)?;
+        let pg = t.get("curves.projector_gamma", &[3], file)?;
+        let co = t.get("colour.coeffs", &[h, w, 12], file)?;
+        let bad = |name: &str| {
+            Error::Input(format!(
+                "{}: tensor `{name}` holds non-finite or out-of-range values",
+                file.display()
+            ))
+        };
+        let grid = t.get("grid", &[h, w, 2], file)?;
+        if grid.iter().chain(co).any(|v| !v.is_finite()) {
+            return Err(bad("grid/colour.coeffs"));
+        }
+        if cg
+            .iter()
+            .chain(pg)
+            .any(|&g| !(g.is_finite() && g > 0.05 && g < 20.0))
+        {
+            return Err(bad("curves"));
+        }
+        // A learned model carries its warp parameters; a fixed-geometry one only the grid.
+        let geometry = if t.names().any(|n| n == "warp.theta") {
+            let th = t.get("warp.theta", &[2, 3], file)?;
+            let tps = t.get("warp.tps", &[2, crate::warp::TPS_PARAMS], file)?;
+            if th.iter().chain(tps).any(|v| !v.is_finite()) {
+                return Err(bad("warp"));
+            }
+            Geometry::Learned(Warp {
+                theta: [[th[0], th[1], th[2]], [th[3], th[4], th[5]]],
+                tps: [
+                    tps[..crate::warp::TPS_PARAMS].to_vec(),
+                    tps[crate::warp::TPS_PARAMS..].to_vec(),
+                ],
+            })
+        } else {
+            let cells = grid.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+            Geometry::Fixed(Grid::from_vec(w, h, cells)?)
+        };
+        let data = co
+            .chunks_exact(12)
+            .map(|c| {
+                let mut k = [0f32; 12];
+                k.copy_from_slice(c);
+                k
+            })
+            .collect();
+        Ok(Self {
+            geometry,
+            curves: Curves {
+                camera_gamma: [cg[0], cg[1], cg[2]],
+                projector_gamma: [pg[0], pg[1], pg[2]],
+            },
+            coeffs: Coefficients {
+                width: w,
+                height: h,
+                data,
+            },
+            camera_size,
+        })
+    }
+}

@@ -1,0 +1,153 @@
+//! Resizing. Both methods keep the pixel space and change only the resolution.
+//!
+//! - Bilinear uses half-pixel centres (the convention of OpenCV's INTER_LINEAR and PyTorch's
+//!   `interpolate(..., align_corners=False)` without antialiasing): output pixel `x` samples source
+//!   coordinate `(x + 0.5) · src_w / dst_w − 0.5`, clamped to the first and last pixel centres.
+//! - Area is an exact box filter: each output pixel is the mean of the source area it covers,
+//!   fractional pixels weighted by their covered fraction. Use it to shrink; when enlarging it
+//!   reduces to nearest-neighbour replication.
+
+use crate::raster::{Plane, Rgb, Space};
+
+/// Per-axis bilinear taps: (lower index, upper index, weight of the upper one).
+fn bilinear_taps(src: usize, dst: usize) -> Vec<(usize, usize, f32)> {
+    let scale = src as f64 / dst as f64;
+    (0..dst)
+        .map(|i| {
+            let s = ((i as f64 + 0.5) * scale - 0.5).clamp(0.0, (src - 1) as f64);
+            let i0 = s.floor() as usize;
+            let i1 = (i0 + 1).min(src - 1);
+            (i0, i1, (s - i0 as f64) as f32)
+        })
+        .collect()
+}
+
+/// Per-axis box taps: for each output pixel, the (source index, weight) pairs, weights summing to 1.
+fn area_taps(src: usize, dst: usize) -> Vec<Vec<(usize, f32)>> {
+    let scale = src as f64 / dst as f64;
+    (0..dst)
+        .map(|i| {
+            let (a, b) = (i as f64 * scale, (i + 1) as f64 * scale);
+            let mut taps = Vec::new();
+            let mut j = a.floor() as usize;
+            while (j as f64) < b && j < src {
+                let cover = (b.min(j as f64 + 1.0) - a.max(j as f64)).max(0.0);
+                if cover > 1e-12 {
+                    taps.push((j, (cover / scale) as f32));
+                }
+                j += 1;
+            }
+            taps
+        })
+        .collect()
+}
+
+/// Resizes interleaved data with `ch` channels through separable taps given as sparse rows.
+fn resample(
+    src: &[f32],
+    (sw, sh): (usize, usize),
+    ch: usize,
+    xt: &[Vec<(usize, f32)>],
+    yt: &[Vec<(usize, f32)>],
+) -> Vec<f32> {
+    let dw = xt.len();
+    // Horizontal pass: sh rows of dw pixels.
+    let mut tmp = vec![0f32; sh * dw * ch];
+    for y in 0..sh {
+        for (x, taps) in xt.iter().enumerate() {
+            for c in 0..ch {
+                let mut acc = 0f32;
+                for &(j, w) in taps {
+                    acc += w * src[(y * sw + j) * ch + c];
+                }
+                tmp[(y * dw + x) * ch + c] = acc;
+            }
+        }
+    }
+    let mut out = vec![0f32; yt.len() * dw * ch];
+    for (y, taps) in yt.iter().enumerate() {
+        for x in 0..dw {
+            for c in 0..ch {
+                let mut acc = 0f32;
+                for &(j, w) in taps {
+                    acc += w * tmp[(j * dw + x) * ch + c];
+                }
+                out[(y * dw + x) * ch + c] = acc;
+            }
+        }
+    }
+    out
+}
+
+fn bilinear_sparse(src: usize, dst: usize) -> Vec<Vec<(usize, f32)>> {
+    bilinear_taps(src, dst)
+        .into_iter()
+        .map(|(i0, i1, w)| vec![(i0, 1.0 - w), (i1, w)])
+        .collect()
+}
+
+/// Which resampling filter to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Filter {
+    Bilinear,
+    Area,
+}
+
+fn taps(filter: Filter, src: usize, dst: usize) -> Vec<Vec<(usize, f32)>> {
+    match filter {
+        Filter::Bilinear => bilinear_sparse(src, dst),
+        Filter::Area => area_taps(src, dst),
+    }
+}
+
+/// Resizes an RGB image to `width`×`height`. A zero-sized source or target gives a black image
+/// of the target size.
+pub fn resize<S: Space>(img: &Rgb<S>, width: usize, height: usize, filter: Filter) -> Rgb<S> {
+    if img.size() == (width, height) {
+        return img.clone();
+    }
+    if img.width() == 0 || img.height() == 0 || width == 0 || height == 0 {
+        return Rgb::new(width, height);
+    }
+    let data = resample(
+        img.data(),
+        img.size(),
+        3,
+        &taps(filter, img.width(), width),
+        &taps(filter, img.height(), height),
+    );
+    Rgb::from_vec(width, height, data).expect("resample yields width*height*3 values")
+}
+
+/// Resizes a single-channel plane to `width`×`height`.
+pub fn resize_plane<S: Space>(
+    img: &Plane<S>,
+    width: usize,
+    height: usize,
+    filter: Filter,
+) -> Plane<S> {
+    if img.size() == (width, height) {
+        return img.clone();
+    }
+    if img.width() == 0 || img.height() == 0 || width == 0 || height == 0 {
+        return Plane::new(width, height);
+    }
+    let data = resample(
+        img.data(),
+        img.size(),
+        1,
+        &taps(filter, img.width(), width),
+        &taps(filter, img.height(), height),
+    );
+    Plane::from_vec(width, height, data).expect("resample yields width*height values")
+}
+
+/// Bilinear resize (half-pixel centres).
+pub fn resize_bilinear<S: Space>(img: &Rgb<S>, width: usize, height: usize) -> Rgb<S> {
+    resize(img, width, height, Filter::Bilinear)
+}
+
+/// Area (box-filter) resize.
+pub fn resize_area<S: Space>(img: &Rgb<S>, width: usize, height: usize) -> Rgb<S> {
+    resize(img, width, height, Filter::Area)
+}

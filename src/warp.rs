@@ -1,0 +1,198 @@
+//! The geometric part of the models (`T⁻¹`, DESIGN.md section 5.1): a thin-plate-spline warp of the
+//! network lattice composed with a 2×3 affine map into camera space.
+//!
+//! Coordinates:
+//! - network pixel `p = (x, y)` has unit coordinates `(u, v) = (x / (W−1), y / (H−1))` in [0,1]²;
+//! - the TPS adds a displacement `z(u, v)` in unit coordinates and maps to normalised network
+//!   coordinates `t = 2·((u, v) + z) − 1` (align_corners = true, so `z = 0` is the identity);
+//! - the affine θ maps normalised network coordinates to normalised camera coordinates:
+//!   `g = θ · [t, 1]`. Composing in coordinate space (the affine grid sampled at the TPS positions)
+//!   equals this product for an affine grid, so the camera image is sampled once, at `g`.
+//!
+//! TPS: 6×6 control points `c_k` evenly spaced on [0,1]², kernel `U(r) = r² log r`,
+//! `z(u, v) = a0 + a1·u + a2·v + Σ_k w_k U(‖(u, v) − c_k‖)` per axis, in reduced form: the first
+//! weight is `w_0 = −Σ_{k≥1} w_k`, leaving 35 weights + 3 affine terms = 38 parameters per axis,
+//! 76 in all. Parameter layout per axis: `[w_1 … w_35, a0, a1, a2]`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::raster::{Camera, Network};
+use crate::sample::{Grid, pixel_to_norm};
+
+/// Control points per side.
+pub const TPS_SIDE: usize = 6;
+/// Control points in all.
+pub const TPS_POINTS: usize = TPS_SIDE * TPS_SIDE;
+/// Parameters per axis in reduced form.
+pub const TPS_PARAMS: usize = TPS_POINTS - 1 + 3;
+
+/// TPS kernel U(r) = r² log r, with U(0) = 0.
+#[inline]
+pub fn tps_kernel(r2: f64) -> f64 {
+    if r2 <= 0.0 { 0.0 } else { 0.5 * r2 * r2.ln() }
+}
+
+/// The geometry of a model: affine θ and TPS parameters (both learnable).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Warp {
+    /// 2×3 matrix from normalised network to normalised camera coordinates.
+    pub theta: [[f32; 3]; 2],
+    /// TPS parameters, `[x axis, y axis]`, each `[w_1 … w_35, a0, a1, a2]` in unit coordinates.
+    pub tps: [Vec<f32>; 2],
+}
+
+impl Warp {
+    /// A warp that is exactly the affine θ (TPS displacement zero).
+    pub fn from_affine(theta: [[f32; 3]; 2]) -> Self {
+        Self {
+            theta,
+            tps: [vec![0.0; TPS_PARAMS], vec![0.0; TPS_PARAMS]],
+        }
+    }
+
+    /// Number of parameters (6 affine + 76 TPS).
+    pub fn param_count(&self) -> usize {
+        6 + 2 * TPS_PARAMS
+    }
+
+    /// All parameters as one vector: θ row-major, then TPS x, then TPS y.
+    pub fn to_params(&self) -> Vec<f32> {
+        let mut p: Vec<f32> = self.theta.iter().flatten().copied().collect();
+        p.extend_from_slice(&self.tps[0]);
+        p.extend_from_slice(&self.tps[1]);
+        p
+    }
+
+    /// Sets all parameters from a vector laid out as [`Warp::to_params`].
+    pub fn set_params(&mut self, p: &[f32]) {
+        for r in 0..2 {
+            for c in 0..3 {
+                self.theta[r][c] = p[r * 3 + c];
+            }
+        }
+        self.tps[0].copy_from_slice(&p[6..6 + TPS_PARAMS]);
+        self.tps[1].copy_from_slice(&p[6 + TPS_PARAMS..6 + 2 * TPS_PARAMS]);
+    }
+}
+
+/// The TPS basis evaluated on a network lattice of `width`×`height`: one row of 38 values per pixel
+/// such that the unit displacement of pixel `p` on an axis is `basis(p) · params(axis)`.
+#[derive(Clone, Debug)]
+pub struct TpsBasis {
+    width: usize,
+    height: usize,
+    rows: Vec<[f32; TPS_PARAMS]>,
+}
+
+impl TpsBasis {
+    pub fn new(width: usize, height: usize) -> Self {
+        let ctrl: Vec<(f64, f64)> = (0..TPS_POINTS)
+            .map(|k| {
+                let (i, j) = (k % TPS_SIDE, k / TPS_SIDE);
+                (
+                    i as f64 / (TPS_SIDE - 1) as f64,
+                    j as f64 / (TPS_SIDE - 1) as f64,
+                )
+            })
+            .collect();
+        let unit = |i: usize, n: usize| {
+            if n <= 1 {
+                0.0
+            } else {
+                i as f64 / (n - 1) as f64
+            }
+        };
+        let mut rows = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                let (u, v) = (unit(x, width), unit(y, height));
+                let k: Vec<f64> = ctrl
+                    .iter()
+                    .map(|&(cu, cv)| tps_kernel((u - cu).powi(2) + (v - cv).powi(2)))
+                    .collect();
+                let mut row = [0f32; TPS_PARAMS];
+                for t in 1..TPS_POINTS {
+                    row[t - 1] = (k[t] - k[0]) as f32;
+                }
+                row[TPS_POINTS - 1] = 1.0;
+                row[TPS_POINTS] = u as f32;
+                row[TPS_POINTS + 1] = v as f32;
+                rows.push(row);
+            }
+        }
+        Self {
+            width,
+            height,
+            rows,
+        }
+    }
+
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    pub fn rows(&self) -> &[[f32; TPS_PARAMS]] {
+        &self.rows
+    }
+
+    /// Normalised network coordinates `t` of every pixel after the TPS displacement.
+    pub fn tps_positions(&self, warp: &Warp) -> Vec<[f32; 2]> {
+        let (w, h) = (self.width, self.height);
+        self.rows
+            .iter()
+            .enumerate()
+            .map(|(i, row)| {
+                let (x, y) = (i % w, i / w);
+                let dx: f32 = row.iter().zip(&warp.tps[0]).map(|(a, b)| a * b).sum();
+                let dy: f32 = row.iter().zip(&warp.tps[1]).map(|(a, b)| a * b).sum();
+                [
+                    pixel_to_norm(x as f32, w) + 2.0 * dx,
+                    pixel_to_norm(y as f32, h) + 2.0 * dy,
+                ]
+            })
+            .collect()
+    }
+
+    /// The sampling grid from network pixels into the camera image.
+    pub fn grid(&self, warp: &Warp) -> Grid<Network, Camera> {
+        let th = &warp.theta;
+        let data = self
+            .tps_positions(warp)
+            .into_iter()
+            .map(|[tx, ty]| {
+                [
+                    th[0][0] * tx + th[0][1] * ty + th[0][2],
+                    th[1][0] * tx + th[1][1] * ty + th[1][2],
+                ]
+            })
+            .collect();
+        Grid::from_vec(self.width, self.height, data).expect("one position per pixel")
+    }
+
+    /// Back-propagates `dl_dg` (per pixel, the loss gradient w.r.t. the normalised camera position
+    /// `g`) to the warp parameters, laid out as [`Warp::to_params`].
+    pub fn backward(&self, warp: &Warp, dl_dg: &[[f32; 2]]) -> Vec<f32> {
+        let th = &warp.theta;
+        let t = self.tps_positions(warp);
+        let mut grad = vec![0f64; 6 + 2 * TPS_PARAMS];
+        for (i, (&[gx, gy], row)) in dl_dg.iter().zip(&self.rows).enumerate() {
+            let [tx, ty] = t[i];
+            let (gx, gy) = (gx as f64, gy as f64);
+            // g = θ [t, 1]
+            grad[0] += gx * tx as f64;
+            grad[1] += gx * ty as f64;
+            grad[2] += gx;
+            grad[3] += gy * tx as f64;
+            grad[4] += gy * ty as f64;
+            grad[5] += gy;
+            // dL/dt = θ₂ₓ₂ᵀ dL/dg; t = … + 2·row·params
+            let dtx = th[0][0] as f64 * gx + th[1][0] as f64 * gy;
+            let dty = th[0][1] as f64 * gx + th[1][1] as f64 * gy;
+            for (k, &b) in row.iter().enumerate() {
+                grad[6 + k] += 2.0 * dtx * b as f64;
+                grad[6 + TPS_PARAMS + k] += 2.0 * dty * b as f64;
+            }
+        }
+        grad.into_iter().map(|g| g as f32).collect()
+    }
+}

@@ -1,0 +1,224 @@
+//! The `linear` model on a synthetic projector-camera system with a known answer.
+
+use compend::linear::{FitSettings, fit};
+use compend::metrics;
+use compend::raster::{CamImage, Camera, NetImage, Network, Rgb};
+use compend::sample::{Grid, grid_sample, pixel_to_norm};
+use compend::warp::Warp;
+use rand::rngs::ChaCha8Rng;
+use rand::{RngExt, SeedableRng};
+
+const NET: usize = 32;
+const CAM: (usize, usize) = (48, 40);
+
+/// A smooth random colour image (sum of a few sinusoids per channel).
+fn texture(rng: &mut ChaCha8Rng) -> NetImage {
+    let params: Vec<[f32; 5]> = (0..9)
+        .map(|_| {
+            [
+                rng.random_range(0.5..4.0),
+                rng.random_range(0.5..4.0),
+                rng.random_range(0.0..6.3),
+                rng.random_range(0.1..0.3),
+                rng.random_range(0.0..1.0),
+            ]
+        })
+        .collect();
+    Rgb::from_fn(NET, NET, |x, y| {
+        let (u, v) = (x as f32 / NET as f32, y as f32 / NET as f32);
+        let mut px = [0.5f32; 3];
+        for (i, p) in params.iter().enumerate() {
+            px[i % 3] += p[3] * (p[0] * u * 6.0 + p[1] * v * 6.0 + p[2]).sin();
+        }
+        px.map(|c| c.clamp(0.0, 1.0))
+    })
+}
+
+/// The simulated system: camera pixel q sees projector (network) position P(q) (a gentle
+/// perspective-like bend), reflectance ρ(q) per channel, ambient a(q); gammas 2.0 / 2.2.
+struct System {
+    to_prj: Grid<Camera, Network>,
+    albedo: CamImage,
+    ambient: CamImage,
+}
+
+impl System {
+    fn new() -> Self {
+        let (cw, ch) = CAM;
+        let to_prj = Grid::from_fn(cw, ch, |x, y| {
+            let (u, v) = (pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch));
+            // The projector covers a central region of the camera view, slightly bent.
+            let px = 1.25 * u + 0.08 * v * v - 0.03;
+            let py = 1.2 * v + 0.06 * u * u + 0.04 * u;
+            [px, py]
+        });
+        let albedo = Rgb::from_fn(cw, ch, |x, y| {
+            let s = ((x / 6 + y / 5) % 2) as f32;
+            [0.55 + 0.3 * s, 0.7 - 0.2 * s, 0.5 + 0.1 * s]
+        });
+        let ambient = Rgb::from_fn(cw, ch, |x, _| {
+            [0.02 + 0.02 * x as f32 / cw as f32, 0.02, 0.03]
+        });
+        Self {
+            to_prj,
+            albedo,
+            ambient,
+        }
+    }
+
+    /// Captures a projector image shown on the system.
+    fn capture(&self, prj: &NetImage) -> CamImage {
+        let lin = prj.map(|v| v.max(0.0).powf(2.2));
+        let seen = grid_sample(&lin, &self.to_prj);
+        let mut out = seen.clone();
+        for (i, v) in out.data_mut().iter_mut().enumerate() {
+            let l = self.albedo.data()[i] * *v + self.ambient.data()[i];
+            *v = (l.clamp(0.0, 1.0)).powf(1.0 / 2.0);
+        }
+        compend::pngio::quantize(&out)
+    }
+}
+
+#[test]
+fn linear_fit_generalises_and_compensates() {
+    let sys = System::new();
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let train: Vec<NetImage> = (0..24).map(|_| texture(&mut rng)).collect();
+    let test: Vec<NetImage> = (0..6).map(|_| texture(&mut rng)).collect();
+    let caps: Vec<CamImage> = train.iter().map(|t| sys.capture(t)).collect();
+    let test_caps: Vec<CamImage> = test.iter().map(|t| sys.capture(t)).collect();
+
+    // Initial affine: the inverse of the linear part of P, roughly (what a bounding box gives).
+    let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
+    let settings = FitSettings {
+        network_size: (NET, NET),
+        levels: vec![(NET, 150, 1.0), (NET, 100, 0.0)],
+        ..FitSettings::default()
+    };
+    let (affine_only, _) = fit(
+        &caps,
+        &train,
+        init.clone(),
+        &FitSettings {
+            learn_geometry: false,
+            ..settings.clone()
+        },
+        |_, _, _| {},
+    )
+    .unwrap();
+    let (model, report) = fit(&caps, &train, init, &settings, |_, _, _| {}).unwrap();
+    let first = report.loss_history[0];
+    let last = *report.loss_history.last().unwrap();
+    assert!(
+        last < 0.5 * first,
+        "geometry optimisation lowers the loss: {first} → {last}"
+    );
+
+    // Paper protocol on held-out pairs: the model maps test captures back to the projector inputs.
+    let score = |m: &compend::linear::LinearModel| {
+        let s = m.simplify();
+        let preds: Vec<NetImage> = test_caps.iter().map(|c| s.apply(c)).collect();
+        metrics::score_pairs(preds.iter().zip(&test)).unwrap()
+    };
+    let learned = score(&model);
+    eprintln!(
+        "loss {first:.3e} -> {last:.3e}; learned {learned:?}; curves {:?}; warp theta {:?}",
+        model.curves, model.geometry
+    );
+    let fixed = score(&affine_only);
+    eprintln!("affine only {fixed:?}");
+    assert!(learned.psnr > 28.0, "held-out PSNR {:.2} dB", learned.psnr);
+    assert!(
+        learned.psnr > fixed.psnr + 3.0,
+        "learned geometry {:.2} dB should beat the initial affine {:.2} dB",
+        learned.psnr,
+        fixed.psnr
+    );
+}
+
+/// Structured-light geometry: a known affine camera→projector map must come back as its inverse.
+#[test]
+fn sl_grid_inverts_a_known_correspondence() {
+    use compend::patterns::Correspondence;
+    use compend::raster::{Mask, Plane, Rect};
+    use compend::sample::norm_to_pixel;
+    use compend::slgrid::grid_from_correspondence;
+
+    let (cw, ch) = (90usize, 70usize);
+    let (pw, ph) = (64usize, 48usize);
+    // Camera pixel (cx, cy) sees projector (0.8 cx − 0.1 cy − 4, 0.05 cx + 0.75 cy − 3), rounded
+    // to halves as the Gray-code decoder reports them; pixels outside the projector are invalid.
+    let map = |cx: f32, cy: f32| [0.8 * cx - 0.1 * cy - 4.0, 0.05 * cx + 0.75 * cy - 3.0];
+    let half = |v: f32| (v * 2.0).round() / 2.0;
+    let mut x = Plane::<Camera>::new(cw, ch);
+    let mut y = Plane::<Camera>::new(cw, ch);
+    let mut valid = Mask::<Camera>::new(cw, ch);
+    for cy in 0..ch {
+        for cx in 0..cw {
+            let [px, py] = map(cx as f32, cy as f32);
+            let (px, py) = (half(px), half(py));
+            if px >= 0.0 && py >= 0.0 && px <= (pw - 1) as f32 && py <= (ph - 1) as f32 {
+                x.set(cx, cy, px);
+                y.set(cx, cy, py);
+                valid.set(cx, cy, true);
+            }
+        }
+    }
+    let corr = Correspondence {
+        projector: (pw, ph),
+        x,
+        y,
+        lit: valid.clone(),
+        valid,
+        contrast: Plane::new(cw, ch),
+    };
+    let canvas = Rect {
+        x: 0,
+        y: 0,
+        width: pw,
+        height: ph,
+    };
+    let (nw, nh) = (32usize, 24usize);
+    let sl = grid_from_correspondence(&corr, canvas, (nw, nh)).unwrap();
+    assert!(
+        sl.measured.count() > nw * nh * 9 / 10,
+        "most of the canvas is seen"
+    );
+    // Invert the affine map analytically and compare at every measured network pixel.
+    let (a, b, c, d) = (0.8f64, -0.1f64, 0.05f64, 0.75f64);
+    let det = a * d - b * c;
+    let (mut worst_inner, mut worst_border, mut sum, mut n) = (0f64, 0f64, 0f64, 0usize);
+    for j in 0..nh {
+        for i in 0..nw {
+            if !sl.measured.get(i, j) {
+                continue;
+            }
+            let px = i as f64 * (pw - 1) as f64 / (nw - 1) as f64 + 4.0;
+            let py = j as f64 * (ph - 1) as f64 / (nh - 1) as f64 + 3.0;
+            let (ex, ey) = ((d * px - b * py) / det, (-c * px + a * py) / det);
+            let [gx, gy] = sl.grid.get(i, j);
+            let (gx, gy) = (norm_to_pixel(gx, cw) as f64, norm_to_pixel(gy, ch) as f64);
+            let e = (gx - ex).hypot(gy - ey);
+            let border = i == 0 || j == 0 || i == nw - 1 || j == nh - 1;
+            if border {
+                worst_border = worst_border.max(e);
+            } else {
+                worst_inner = worst_inner.max(e);
+            }
+            sum += e;
+            n += 1;
+        }
+    }
+    // Decoded positions are quantised to half projector pixels (~0.6 camera px); the local fit
+    // averages that out, less well on the border where the window is one-sided.
+    let mean = sum / n as f64;
+    assert!(mean < 0.1, "mean error {mean:.3} camera pixels");
+    assert!(
+        worst_inner < 0.3,
+        "worst interior error {worst_inner:.3} camera pixels"
+    );
+    assert!(
+        worst_border < 0.6,
+        "worst border error {worst_border:.3} camera pixels"
+    );
+}
