@@ -16,14 +16,17 @@
 //! pixel centres at integer coordinates (align-corners convention). Light inside the model is
 //! linear; images at the interfaces are encoded values in [0,1] like 8-bit PNGs.
 
+pub mod export;
 mod geom;
 pub mod live;
 mod model;
 mod oracle;
 pub mod scene;
 pub mod score;
+pub mod sheet;
 mod texture;
 
+pub use export::{ExportOptions, export_setup, place_on_canvas};
 pub use live::VirtualRig;
 pub use model::{Phase, Simulator};
 pub use oracle::OracleOptions;

@@ -29,7 +29,8 @@ use crate::raster::{CamImage, Camera, Mask, PrjImage};
 
 /// Which projector pose the simulator uses: the one at calibration, or the moved one of
 /// [`Scene::drift`] (identical when the scene has no drift).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Phase {
     Calibration,
     AfterDrift,

@@ -424,6 +424,27 @@ pub const BUILTIN: &[&str] = &[
     "drift",
 ];
 
+/// A built-in scene by name, or a scene description from a JSON file (as `compend sim show`
+/// prints it) when `name_or_path` is a path to a file.
+pub fn load(name_or_path: &str) -> Result<Scene> {
+    if BUILTIN.contains(&name_or_path) {
+        return builtin(name_or_path);
+    }
+    let path = std::path::Path::new(name_or_path);
+    if !path.is_file() {
+        return builtin(name_or_path);
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "read", e))?;
+    let scene: Scene = serde_json::from_str(&text).map_err(|e| {
+        Error::Input(format!(
+            "{}: not a scene description ({e}); `compend sim show NAME` prints one",
+            path.display()
+        ))
+    })?;
+    scene.validate()?;
+    Ok(scene)
+}
+
 /// The built-in scene called `name` (at 640×480 camera, 800×600 projector).
 pub fn builtin(name: &str) -> Result<Scene> {
     let base = base_scene();
@@ -593,7 +614,8 @@ pub fn builtin(name: &str) -> Result<Scene> {
         }
         other => {
             return Err(Error::Input(format!(
-                "unknown scene {other:?}; built-in scenes: {}",
+                "unknown scene {other:?} (neither a built-in scene nor a scene file); built-in \
+                 scenes: {}",
                 BUILTIN.join(", ")
             )));
         }
