@@ -20,6 +20,7 @@ pub mod resize;
 pub mod rig;
 pub mod sample;
 pub mod slgrid;
+pub mod train;
 pub mod warp;
 
 pub use error::{Error, Result};

@@ -26,10 +26,10 @@ enum Command {
     /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
     /// gray image (ref/), Gray-code structured light (sl/).
     Patterns(cli::patterns::Args),
-    /// The virtual rig: simulated projector-camera scenes (list, show, export).
-    Sim(cli::sim::Args),
     /// Fit a compensation model on a setup's training pairs and write the model directory.
     Train(cli::train::Args),
+    /// The virtual rig: simulated projector-camera scenes (list, show, export, sheet, score).
+    Sim(cli::sim::Args),
 }
 
 fn main() -> ExitCode {
@@ -40,8 +40,8 @@ fn main() -> ExitCode {
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Metrics(a) => cli::metrics::run(a),
         Command::Patterns(a) => cli::patterns::run(a),
-        Command::Sim(a) => cli::sim::run(a),
         Command::Train(a) => cli::train::run(a),
+        Command::Sim(a) => cli::sim::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

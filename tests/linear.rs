@@ -8,11 +8,11 @@ use compend::warp::Warp;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
-const NET: usize = 32;
+pub const NET: usize = 32;
 const CAM: (usize, usize) = (48, 40);
 
 /// A smooth random colour image (sum of a few sinusoids per channel).
-fn texture(rng: &mut ChaCha8Rng) -> NetImage {
+pub fn texture(rng: &mut ChaCha8Rng) -> NetImage {
     let params: Vec<[f32; 5]> = (0..9)
         .map(|_| {
             [
@@ -36,14 +36,14 @@ fn texture(rng: &mut ChaCha8Rng) -> NetImage {
 
 /// The simulated system: camera pixel q sees projector (network) position P(q) (a gentle
 /// perspective-like bend), reflectance ρ(q) per channel, ambient a(q); gammas 2.0 / 2.2.
-struct System {
+pub struct System {
     to_prj: Grid<Camera, Network>,
     albedo: CamImage,
     ambient: CamImage,
 }
 
 impl System {
-    fn new() -> Self {
+    pub fn new() -> Self {
         let (cw, ch) = CAM;
         let to_prj = Grid::from_fn(cw, ch, |x, y| {
             let (u, v) = (pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch));
@@ -67,7 +67,7 @@ impl System {
     }
 
     /// Captures a projector image shown on the system.
-    fn capture(&self, prj: &NetImage) -> CamImage {
+    pub fn capture(&self, prj: &NetImage) -> CamImage {
         let lin = prj.map(|v| v.max(0.0).powf(2.2));
         let seen = grid_sample(&lin, &self.to_prj);
         let mut out = seen.clone();

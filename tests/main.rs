@@ -9,3 +9,4 @@ mod linear;
 mod metrics;
 mod patterns;
 mod rig;
+mod train;

@@ -5,7 +5,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use compend::dataset::{ImageSize, SetCounts, Setup, SetupInfo};
+use compend::dataset::{ImageSize, Reference, SetCounts, Setup, SetupInfo};
+use compend::raster::{CamImage, Camera, Mask, Rect};
 use serde::Serialize;
 
 /// At most this many problems are listed (all are counted).
@@ -23,6 +24,27 @@ pub struct Args {
     /// Print one JSON object on stdout instead of the human-readable summary.
     #[arg(long)]
     pub json: bool,
+    /// Write the projector FOV mask (fov_mask.png) and an overlay of the mask, its bounding box
+    /// and the displayable area on the white capture (fov_overlay.png) into this folder.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Canvas aspect ratio (width/height) for the displayable area [default: the network
+    /// image's aspect].
+    #[arg(long)]
+    pub aspect: Option<f64>,
+}
+
+/// The projector's field of view as seen by the camera, from the black and white references.
+#[derive(Debug, Serialize)]
+pub struct FovReport {
+    /// Bounding box of the FOV mask, camera pixels.
+    pub bbox: compend::raster::Rect,
+    /// Fraction of the camera frame inside the mask.
+    pub coverage: f64,
+    /// Largest rectangle of the canvas aspect inside the mask, camera pixels.
+    pub displayable_area: Option<compend::raster::Rect>,
+    pub aspect: f64,
+    pub diagnostics: compend::fov::FovDiagnostics,
 }
 
 /// What `inspect` reports: the setup summary, then the outcome of the full check.
@@ -38,19 +60,97 @@ pub struct Report {
     pub problems: Vec<String>,
     /// Number of problems found, including those not listed.
     pub total_problems: usize,
+    /// The FOV analysis, when the black and white references are readable.
+    pub fov: Option<FovReport>,
 }
 
 /// Opens the setup and checks it fully.
 pub fn report(args: &Args) -> Result<Report> {
     let setup = Setup::open(&args.setup, args.data.as_deref())?;
     let v = setup.validate(MAX_PROBLEMS);
+    let mut problems: Vec<String> = v.problems.iter().map(|e| e.to_string()).collect();
+    let mut total_problems = v.total_problems;
+    let fov = match fov_report(&setup, args) {
+        Ok(f) => f,
+        Err(e) => {
+            // A setup whose projector light cannot be found is not usable: report it as a problem.
+            total_problems += 1;
+            problems.push(format!("{e:#}"));
+            None
+        }
+    };
     Ok(Report {
-        ok: v.is_ok(),
+        ok: total_problems == 0,
         setup: v.info,
         images_checked: v.images_checked,
-        problems: v.problems.iter().map(|e| e.to_string()).collect(),
-        total_problems: v.total_problems,
+        problems,
+        total_problems,
+        fov,
     })
+}
+
+/// FOV mask and displayable area; `None` when a reference is unreadable (already a problem).
+fn fov_report(setup: &Setup, args: &Args) -> Result<Option<FovReport>> {
+    let (Ok(black), Ok(white)) = (
+        setup.load_reference(Reference::Black),
+        setup.load_reference(Reference::White),
+    ) else {
+        return Ok(None);
+    };
+    let label = format!(
+        "{} and {}",
+        setup.reference_path(Reference::Black).display(),
+        setup.reference_path(Reference::White).display()
+    );
+    let fov = compend::fov::fov_mask(&black, &white, &label)?;
+    let aspect = match args.aspect {
+        Some(a) => a,
+        None => setup
+            .root()
+            .network_size()
+            .map(|(w, h)| w as f64 / h as f64)
+            .unwrap_or(1.0),
+    };
+    let area = compend::fov::displayable_area(&fov.mask, aspect).ok();
+    if let Some(dir) = &args.out {
+        compend::pngio::write_mask(&dir.join("fov_mask.png"), &fov.mask)?;
+        let overlay = overlay(&white, &fov.mask, fov.bbox, area);
+        compend::pngio::write_rgb(&dir.join("fov_overlay.png"), &overlay)?;
+    }
+    Ok(Some(FovReport {
+        bbox: fov.bbox,
+        coverage: fov.diagnostics.coverage,
+        displayable_area: area,
+        aspect,
+        diagnostics: fov.diagnostics,
+    }))
+}
+
+/// The white capture dimmed outside the mask, the bounding box in red, the area in green.
+fn overlay(white: &CamImage, mask: &Mask<Camera>, bbox: Rect, area: Option<Rect>) -> CamImage {
+    let mut out = CamImage::from_fn(white.width(), white.height(), |x, y| {
+        let p = white.get(x, y);
+        if mask.get(x, y) {
+            p
+        } else {
+            p.map(|v| 0.3 * v)
+        }
+    });
+    let mut frame = |r: Rect, colour: [f32; 3]| {
+        for x in r.x..r.x + r.width {
+            out.set(x, r.y, colour);
+            out.set(x, r.y + r.height - 1, colour);
+        }
+        for y in r.y..r.y + r.height {
+            out.set(r.x, y, colour);
+            out.set(r.x + r.width - 1, y, colour);
+        }
+    };
+    frame(bbox, [1.0, 0.0, 0.0]);
+    if let Some(a) = area {
+        frame(a, [0.0, 1.0, 0.0]);
+    }
+    out
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -124,6 +224,17 @@ fn print_human(r: &Report) {
         println!("compensated   none");
     } else {
         println!("compensated   {}", s.compensated.join(", "));
+    }
+    if let Some(f) = &r.fov {
+        println!(
+            "projector FOV {:.1}% of the camera frame, bounding box {}",
+            100.0 * f.coverage,
+            f.bbox
+        );
+        match f.displayable_area {
+            Some(a) => println!("display area  {a} (aspect {:.3})", f.aspect),
+            None => println!("display area  none fits (aspect {:.3})", f.aspect),
+        }
     }
     println!(
         "checked       {} images, {}",

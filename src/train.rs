@@ -1,0 +1,165 @@
+//! Training a model on a setup: the shared core of `compend train`, `compend bench` and
+//! calibration. Loads the references and training pairs, finds the projector FOV, fits the
+//! requested rung and returns the model ready to save.
+
+use std::time::Instant;
+
+use serde::Serialize;
+use serde_json::json;
+
+use crate::dataset::{CaptureSet, Reference, Setup};
+use crate::error::{Error, Result};
+use crate::fov;
+use crate::linear::{self, FitSettings};
+use crate::model::Model;
+use crate::modeldir::{FORMAT_VERSION, ModelMeta};
+use crate::raster::{CamImage, Camera, NetImage, Network, Rect};
+use crate::sample::Grid;
+
+/// Fewest training pairs the linear rungs accept.
+pub const MIN_TRAIN: usize = 4;
+/// Training pairs used when the caller does not say.
+pub const DEFAULT_TRAIN: usize = 48;
+
+/// What to train.
+#[derive(Clone, Debug)]
+pub struct Request {
+    /// One of [`crate::model::METHODS`].
+    pub method: String,
+    /// Training pairs to use (the first N); `None` = all available, at most [`DEFAULT_TRAIN`].
+    pub ntrain: Option<usize>,
+    pub seed: u64,
+}
+
+/// What training reports besides the model.
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub method: String,
+    pub ntrain: usize,
+    /// Wall time of the whole training (loading included), seconds.
+    pub seconds: f64,
+    /// Wall time of the fit alone, seconds.
+    pub fit_seconds: f64,
+    pub final_loss: f64,
+}
+
+/// Trains `req.method` on `setup`; `progress(stage, done, total)` reports the fit's progress.
+pub fn train(
+    setup: &Setup,
+    req: &Request,
+    progress: impl FnMut(&str, usize, usize),
+) -> Result<(Model, Summary)> {
+    let start = Instant::now();
+    if !crate::model::METHODS.contains(&req.method.as_str()) {
+        return Err(Error::Input(format!(
+            "--method {}: not available; methods: {}",
+            req.method,
+            crate::model::METHODS.join(", ")
+        )));
+    }
+    let available = setup.count(CaptureSet::Train)?;
+    let ntrain = req.ntrain.unwrap_or(available.min(DEFAULT_TRAIN));
+    if ntrain < MIN_TRAIN {
+        return Err(Error::Input(format!(
+            "--ntrain {ntrain}: the {} method needs at least {MIN_TRAIN} training pairs ({} has {available})",
+            req.method,
+            setup.capture_dir(CaptureSet::Train).display()
+        )));
+    }
+    let black = setup.load_reference(Reference::Black)?;
+    let white = setup.load_reference(Reference::White)?;
+    let label = format!(
+        "{} and {}",
+        setup.reference_path(Reference::Black).display(),
+        setup.reference_path(Reference::White).display()
+    );
+    let fov = fov::fov_mask(&black, &white, &label)?;
+    let cam_size = black.size();
+    let theta = fov::affine_from_box(fov.bbox, cam_size)?;
+    let pairs = setup.load_train(Some(ntrain))?;
+    let network_size = pairs.inputs[0].size();
+    let captures: Vec<CamImage> = pairs
+        .captures
+        .iter()
+        .map(|c| c.masked(&fov.mask))
+        .collect::<Result<_>>()?;
+    let targets: Vec<NetImage> = pairs.inputs.into_iter().map(|p| p.into_space()).collect();
+    let settings = FitSettings {
+        network_size,
+        ..FitSettings::default()
+    };
+    let (fitted, report) = if req.method == "linear-sl" {
+        let grid = sl_grid(setup, network_size)?;
+        linear::fit_on_grid(&captures, &targets, grid, &settings)?
+    } else {
+        linear::fit(
+            &captures,
+            &targets,
+            crate::warp::Warp::from_affine(theta),
+            &settings,
+            progress,
+        )?
+    };
+    if !report.final_loss.is_finite() {
+        return Err(Error::Failed(format!(
+            "training {} diverged (final loss {}); no model produced",
+            req.method, report.final_loss
+        )));
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method: req.method.clone(),
+        network_size,
+        camera_size: cam_size,
+        canvas: None,
+        training: json!({
+            "setup": setup.path(),
+            "data_root": setup.root().path(),
+            "ntrain": ntrain,
+            "seed": req.seed,
+            "fov": fov.diagnostics,
+            "fov_bbox": fov.bbox,
+            "settings": settings,
+            "curves": fitted.curves,
+            "final_loss": report.final_loss,
+        }),
+        metrics: serde_json::Value::Null,
+        timings: json!({ "fit_seconds": report.seconds, "train_seconds": seconds }),
+        written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
+    };
+    let summary = Summary {
+        method: req.method.clone(),
+        ntrain,
+        seconds,
+        fit_seconds: report.seconds,
+        final_loss: report.final_loss,
+    };
+    Ok((Model::linear(meta, fov.mask, fitted), summary))
+}
+
+/// The network→camera grid from the setup's structured-light captures; the network image is
+/// assumed stretched over the whole projector frame (the size of the root's sl/ patterns).
+pub fn sl_grid(setup: &Setup, network_size: (usize, usize)) -> Result<Grid<Network, Camera>> {
+    let projector = setup.root().projector_size()?;
+    let code = crate::patterns::GrayCode::new(projector.0, projector.1)?;
+    let captures = setup.load_captures(CaptureSet::Sl, None)?;
+    if captures.len() != code.len() {
+        return Err(Error::Input(format!(
+            "{}: {} structured-light captures, expected {} for a {}x{} projector",
+            setup.capture_dir(CaptureSet::Sl).display(),
+            captures.len(),
+            code.len(),
+            projector.0,
+            projector.1
+        )));
+    }
+    let corr = code.decode(&captures)?;
+    let canvas = Rect {
+        x: 0,
+        y: 0,
+        width: projector.0,
+        height: projector.1,
+    };
+    Ok(crate::slgrid::grid_from_correspondence(&corr, canvas, network_size)?.grid)
+}

@@ -1,0 +1,264 @@
+//! `compend train`, `eval` and `compensate` through the real binary, on a synthetic setup written
+//! in the dataset layout by the simulated system of `tests/linear.rs`.
+
+use std::path::{Path, PathBuf};
+
+use compend::dataset::{CaptureSet, DataRoot, ProjectorSet, Reference, Setup};
+use compend::patterns::GrayCode;
+use compend::raster::{NetImage, Rgb};
+use rand::SeedableRng;
+use rand::rngs::ChaCha8Rng;
+
+use crate::common::{assert_code, compend, stderr, stdout};
+use crate::linear::{NET, System, texture};
+
+/// Writes ROOT/{train,test,sl} and ROOT/setup/cam/raw/{ref,train,test,sl} + cam/desire/test.
+fn make_setup(dir: &Path, ntrain: usize, ntest: usize) -> PathBuf {
+    let sys = System::new();
+    let root = DataRoot::create(dir).unwrap();
+    let setup = Setup::create(&root, Path::new("lab/pos1")).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for (set, cset, n) in [
+        (ProjectorSet::Train, CaptureSet::Train, ntrain),
+        (ProjectorSet::Test, CaptureSet::Test, ntest),
+    ] {
+        for i in 1..=n {
+            let x = texture(&mut rng);
+            root.write(set, i, &x.clone().into_space()).unwrap();
+            setup.write_capture(cset, i, &sys.capture(&x)).unwrap();
+        }
+    }
+    let flat = |v: f32| NetImage::filled(NET, NET, [v; 3]);
+    setup
+        .write_reference(Reference::Black, &sys.capture(&flat(0.0)))
+        .unwrap();
+    setup
+        .write_reference(Reference::White, &sys.capture(&flat(1.0)))
+        .unwrap();
+    setup
+        .write_reference(Reference::Gray, &sys.capture(&flat(77.0 / 255.0)))
+        .unwrap();
+    // Structured light with the projector frame = the network canvas.
+    let code = GrayCode::new(NET, NET).unwrap();
+    for i in 0..code.len() {
+        let pat = code.pattern(i).unwrap();
+        root.write(ProjectorSet::Sl, i + 1, &pat).unwrap();
+        setup
+            .write_capture(CaptureSet::Sl, i + 1, &sys.capture(&pat.into_space()))
+            .unwrap();
+    }
+    // Desired images: the test images as a camera would ideally see them (a plain placement).
+    for i in 1..=ntest {
+        let x = root
+            .load(ProjectorSet::Test, Some(i))
+            .unwrap()
+            .pop()
+            .unwrap();
+        let z =
+            compend::resize::resize_bilinear(&x.into_space::<compend::raster::Camera>(), 48, 40);
+        setup.write_desired(i, &z).unwrap();
+    }
+    setup.path().to_path_buf()
+}
+
+fn eval_json(model: &Path, setup: &Path) -> serde_json::Value {
+    let out = compend(&[
+        "eval",
+        "--model",
+        model.to_str().unwrap(),
+        "--setup",
+        setup.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_code(&out, 0);
+    serde_json::from_str(stdout(&out).trim()).unwrap()
+}
+
+#[test]
+fn train_eval_compensate_linear_and_linear_sl() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 16, 4);
+    let s = setup.to_str().unwrap();
+    for method in ["linear", "linear-sl"] {
+        let model = dir.path().join(format!("model-{method}"));
+        let m = model.to_str().unwrap();
+        let out = compend(&[
+            "train", "--setup", s, "--method", method, "--out", m, "--json",
+        ]);
+        assert_code(&out, 0);
+        let summary: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
+        assert_eq!(summary["method"], method);
+        assert_eq!(summary["ntrain"], 16);
+        assert!(model.join("model.safetensors").is_file() && model.join("model.json").is_file());
+
+        let ev = eval_json(&model, &setup);
+        let (c, u) = (
+            ev["compensated"]["psnr"].as_f64().unwrap(),
+            ev["uncompensated"]["psnr"].as_f64().unwrap(),
+        );
+        // The two-step baseline's geometry is limited by the 32-pixel Gray code here.
+        let floor = if method == "linear" { 28.0 } else { 22.0 };
+        assert!(
+            c > floor && c > u + 5.0,
+            "{method}: compensated {c:.2} dB vs uncompensated {u:.2} dB"
+        );
+
+        let cmp = setup.join(format!("prj/cmp/test/{method}"));
+        let out = compend(&[
+            "compensate",
+            "--model",
+            m,
+            "--input",
+            setup.join("cam/desire/test").to_str().unwrap(),
+            "--out",
+            cmp.to_str().unwrap(),
+        ]);
+        assert_code(&out, 0);
+        for i in 1..=4 {
+            let p = cmp.join(format!("img_{i:04}.png"));
+            assert_eq!(
+                compend::pngio::png_size(&p).unwrap(),
+                (NET, NET),
+                "{}",
+                p.display()
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_inputs_exit_2_and_keep_the_good_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 8, 2);
+    let s = setup.to_str().unwrap();
+    let model = dir.path().join("model");
+    let m = model.to_str().unwrap();
+    assert_code(
+        &compend(&["train", "--setup", s, "--method", "linear", "--out", m]),
+        0,
+    );
+    let before = std::fs::read(model.join("model.safetensors")).unwrap();
+
+    // More training pairs than exist: exit 2, names the folder and the counts; model untouched.
+    let out = compend(&[
+        "train", "--setup", s, "--method", "linear", "--ntrain", "50", "--out", m,
+    ]);
+    assert_code(&out, 2);
+    assert!(
+        stderr(&out).contains("cam/raw/train") && stderr(&out).contains("50"),
+        "{}",
+        stderr(&out)
+    );
+    assert_eq!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        before
+    );
+
+    // Unknown method.
+    let out = compend(&["train", "--setup", s, "--method", "magic", "--out", m]);
+    assert_code(&out, 2);
+    assert!(stderr(&out).contains("magic"), "{}", stderr(&out));
+
+    // A missing reference capture names the file.
+    let white = setup.join("cam/raw/ref/img_0125.png");
+    std::fs::remove_file(&white).unwrap();
+    let out = compend(&["train", "--setup", s, "--method", "linear", "--out", m]);
+    assert_code(&out, 2);
+    assert!(stderr(&out).contains("img_0125.png"), "{}", stderr(&out));
+    assert_eq!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        before
+    );
+
+    // A corrupt model file, an old format version, a missing model: exit 2 naming the file.
+    let bad = dir.path().join("bad-model");
+    std::fs::create_dir_all(&bad).unwrap();
+    std::fs::copy(model.join("model.json"), bad.join("model.json")).unwrap();
+    std::fs::write(bad.join("model.safetensors"), b"not a tensor file").unwrap();
+    let out = compend(&["eval", "--model", bad.to_str().unwrap(), "--setup", s]);
+    assert_code(&out, 2);
+    assert!(
+        stderr(&out).contains("model.safetensors"),
+        "{}",
+        stderr(&out)
+    );
+
+    let json = std::fs::read_to_string(model.join("model.json")).unwrap();
+    std::fs::write(
+        bad.join("model.json"),
+        json.replace("\"format_version\": 1", "\"format_version\": 0"),
+    )
+    .unwrap();
+    std::fs::copy(
+        model.join("model.safetensors"),
+        bad.join("model.safetensors"),
+    )
+    .unwrap();
+    let out = compend(&["eval", "--model", bad.to_str().unwrap(), "--setup", s]);
+    assert_code(&out, 2);
+    assert!(stderr(&out).contains("version 0"), "{}", stderr(&out));
+
+    let out = compend(&[
+        "compensate",
+        "--model",
+        dir.path().join("nope").to_str().unwrap(),
+        "--input",
+        s,
+        "--out",
+        s,
+    ]);
+    assert_code(&out, 2);
+
+    // A desired image of the wrong size names the file and both sizes.
+    let wrong = dir.path().join("wrong.png");
+    compend::pngio::write_rgb(&wrong, &Rgb::<compend::raster::Camera>::new(10, 10)).unwrap();
+    let out = compend(&[
+        "compensate",
+        "--model",
+        m,
+        "--input",
+        wrong.to_str().unwrap(),
+        "--out",
+        dir.path().join("o").to_str().unwrap(),
+    ]);
+    assert_code(&out, 2);
+    assert!(
+        stderr(&out).contains("wrong.png") && stderr(&out).contains("48x40"),
+        "{}",
+        stderr(&out)
+    );
+}
+
+#[test]
+fn inspect_reports_the_fov_and_display_area() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 4, 1);
+    let out_dir = dir.path().join("inspect");
+    let out = compend(&[
+        "inspect",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--json",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_code(&out, 0);
+    let r: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
+    let fov = &r["fov"];
+    // The simulated projector covers the central ~80% of the 48x40 camera frame.
+    let cov = fov["coverage"].as_f64().unwrap();
+    assert!(cov > 0.5 && cov < 0.9, "coverage {cov}");
+    let area = &fov["displayable_area"];
+    let (w, h) = (
+        area["width"].as_u64().unwrap(),
+        area["height"].as_u64().unwrap(),
+    );
+    assert!(
+        (w as i64 - h as i64).abs() <= 1,
+        "square canvas → square area, got {w}x{h}"
+    );
+    let mask = compend::pngio::read_mask::<compend::raster::Camera>(&out_dir.join("fov_mask.png"))
+        .unwrap();
+    assert_eq!(mask.size(), (48, 40));
+    assert!(out_dir.join("fov_overlay.png").is_file());
+}
