@@ -1,7 +1,7 @@
 //! The simulator: a scene turned into per-pixel maps once, so that a capture is a gather plus
 //! per-pixel colour maths (plus a blur for defocus), noise and quantisation.
 //!
-//! Forward model for a projector input image P (projector space, values in [0,1]):
+//! Forward model for a projector input image P (projector space, values in \[0,1\]):
 //!
 //! 1. projector: input quantised to 8 bits, drive d = level^γ_c per channel, emitted light
 //!    e = M_p·d + black (linear, projector space); optional defocus blurs e (Gaussian, zero
@@ -12,7 +12,7 @@
 //!    g_i = visibility × cos(incidence) × distance fall-off × projector vignetting, spec_i the
 //!    projector highlight, I_i one inter-reflection bounce (strength × wide blur of ρ·g·E),
 //!    A_i ambient irradiance;
-//! 4. camera: sensor s_i = exposure·vignetting_i·M_c·R_i; Poisson-Gaussian noise; clip to [0,1];
+//! 4. camera: sensor s_i = exposure·vignetting_i·M_c·R_i; Poisson-Gaussian noise; clip to \[0,1\];
 //!    encoded value s^(1/γ); 8-bit quantisation (round to nearest level).
 //!
 //! Steps 1 (after the response curve) to the sensor signal are linear in the drive d; the oracle
