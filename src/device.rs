@@ -30,7 +30,7 @@ pub trait DisplaySink {
 /// One camera frame with the metadata a camera driver reports.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Frame {
-    /// The image, camera space, f32 in [0,1] (8-bit levels for real and simulated cameras).
+    /// The image, camera space, f32 in \[0,1\] (8-bit levels for real and simulated cameras).
     pub image: CamImage,
     /// Device sequence number. It increases by one per exposure; a jump of more than one
     /// means the frames in between were dropped.

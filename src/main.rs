@@ -28,7 +28,7 @@ enum Command {
     Patterns(cli::patterns::Args),
     /// Fit a compensation model on a setup's training pairs and write the model directory.
     Train(cli::train::Args),
-    /// The virtual rig: simulated projector-camera scenes (list, show, export).
+    /// The virtual rig: simulated projector-camera scenes (list, show, export, sheet, score).
     Sim(cli::sim::Args),
 }
 

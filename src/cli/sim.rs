@@ -1,11 +1,25 @@
 //! `compend sim ...`: the virtual rig from the command line.
 //!
-//! - `compend sim list`: the built-in scene names, one per line.
-//! - `compend sim show NAME`: the scene's full description as JSON (a starting point for a
-//!   scene of one's own).
+//! - `compend sim list`: the built-in scene names, one per line (easy to impossible).
+//! - `compend sim show NAME`: a scene's full description as JSON (edit it and pass the file as
+//!   `--scene` to simulate a scene of one's own).
+//! - `compend sim export --scene NAME --out ROOT`: a complete setup in the dataset layout:
+//!   projector-side images (as `compend patterns` writes them) and `ROOT/<scene>/` with
+//!   reference, structured-light, training and test captures, desired test images in the
+//!   displayable area, and `rig.json`.
+//! - `compend sim sheet --out DIR`: a contact sheet PNG per scene.
+//! - `compend sim score --setup SETUP`: closed-loop scores on the rig of every model's
+//!   compensation images (`prj/cmp/test/<model>`), next to the uncompensated, geometry-only and
+//!   oracle rows, as gaps to the oracle (the scene's physical ceiling).
 
-use anyhow::Result;
-use compend::rig::scene;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use compend::dataset::DataRoot;
+use compend::patterns::{self, Set};
+use compend::rig::{self, ExportOptions, Phase, Simulator, scene};
+
+use super::patterns::{Size, parse_wxh};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -17,11 +31,124 @@ pub struct Args {
 pub enum SimCommand {
     /// Print the built-in scene names, one per line (easy to impossible).
     List,
-    /// Print a built-in scene's full description as JSON.
+    /// Print a scene's full description as JSON.
     Show {
-        /// Scene name (see `compend sim list`).
+        /// Built-in scene name (see `compend sim list`) or scene JSON file.
         name: String,
     },
+    /// Write a complete simulated setup in the dataset layout.
+    Export(ExportArgs),
+    /// Write a contact sheet PNG per scene: surface, a capture, desired, uncompensated, oracle.
+    Sheet(SheetArgs),
+    /// Closed-loop scores of compensation images on the rig of an exported setup, with the
+    /// uncompensated, geometry-only and oracle rows.
+    Score(ScoreArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ScoreArgs {
+    /// A setup written by `compend sim export` (it holds rig.json).
+    #[arg(long)]
+    pub setup: PathBuf,
+    /// The data root (default: the nearest ancestor of the setup with train/ and test/).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Models to score (folders under SETUP/prj/cmp/test); default: all of them.
+    #[arg(long)]
+    pub model: Vec<String>,
+    /// Score only the first N test images (the oracle costs a few seconds per image at
+    /// 640x480).
+    #[arg(long)]
+    pub ntest: Option<usize>,
+    /// Score with the projector where it was at calibration, even for a scene with drift (by
+    /// default the drift scene is scored after its projector moved).
+    #[arg(long)]
+    pub no_drift: bool,
+    /// Oracle solver iterations.
+    #[arg(long, default_value_t = rig::OracleOptions::default().iterations)]
+    pub oracle_iterations: usize,
+    /// Print one JSON object on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Scene, seed and resolution options shared by `export` and `sheet`.
+#[derive(clap::Args, Debug)]
+pub struct SceneArgs {
+    /// Seed of the scene's texture, the camera noise and the sampling images.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Camera resolution WxH (default: the scene's, 640x480 for built-in scenes).
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    pub camera: Option<Size>,
+    /// Projector resolution WxH (default: the scene's, 800x600 for built-in scenes).
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    pub projector: Option<Size>,
+    /// Network size of the sampling and test images: N (square) or WxH, sides divisible by 4.
+    #[arg(long, default_value = "256", value_name = "N|WxH", value_parser = parse_network)]
+    pub network: Size,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ExportArgs {
+    /// Built-in scene name (see `compend sim list`) or scene JSON file.
+    #[arg(long)]
+    pub scene: String,
+    /// Data root to write (created as needed; files of the same name are replaced).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training images to write and capture.
+    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..=9999))]
+    pub ntrain: u64,
+    /// Test images to write and capture (each with its desired image).
+    #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..=9999))]
+    pub ntest: u64,
+    #[command(flatten)]
+    pub scene_args: SceneArgs,
+    /// Setup folder under the root (default: the scene name).
+    #[arg(long)]
+    pub setup: Option<PathBuf>,
+    /// Capture only black, white and gray references instead of the whole colour cube.
+    #[arg(long)]
+    pub no_cube: bool,
+    /// Capture the setup with the projector moved (the drift scene's pose after calibration).
+    #[arg(long)]
+    pub drifted: bool,
+    /// Print the setup's record (rig.json) on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct SheetArgs {
+    /// Folder for the sheets: DIR/<scene>.png.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Scenes (built-in names or JSON files); default: every built-in scene.
+    #[arg(long)]
+    pub scene: Vec<String>,
+    #[command(flatten)]
+    pub scene_args: SceneArgs,
+    /// Which test image (sampling image of the test set, 1-based) to show.
+    #[arg(long, default_value_t = 1)]
+    pub image: usize,
+    /// Panel width in pixels (panels are the camera frame scaled down).
+    #[arg(long, default_value_t = 320)]
+    pub panel: usize,
+}
+
+fn parse_size(s: &str) -> std::result::Result<Size, String> {
+    parse_wxh(s, false)
+}
+
+fn parse_network(s: &str) -> std::result::Result<Size, String> {
+    let size = parse_wxh(s, true)?;
+    if size.width % 4 != 0 || size.height % 4 != 0 {
+        return Err(format!(
+            "network size {size}: width and height must be divisible by 4"
+        ));
+    }
+    Ok(size)
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -33,9 +160,254 @@ pub fn run(args: Args) -> Result<()> {
             Ok(())
         }
         SimCommand::Show { name } => {
-            let s = scene::builtin(&name)?;
+            let s = scene::load(&name)?;
             println!("{}", serde_json::to_string_pretty(&s)?);
             Ok(())
         }
+        SimCommand::Export(a) => export(a),
+        SimCommand::Sheet(a) => sheet(a),
+        SimCommand::Score(a) => score(a),
     }
+}
+
+/// The scene with the requested resolutions.
+fn resolve(name: &str, a: &SceneArgs) -> Result<scene::Scene> {
+    let s = scene::load(name)?;
+    let cam = a
+        .camera
+        .map_or((s.camera.width, s.camera.height), |c| (c.width, c.height));
+    let prj = a
+        .projector
+        .map_or((s.projector.width, s.projector.height), |p| {
+            (p.width, p.height)
+        });
+    let s = s.with_resolution(cam, prj);
+    s.validate()?;
+    Ok(s)
+}
+
+fn export(a: ExportArgs) -> Result<()> {
+    let scene = resolve(&a.scene, &a.scene_args)?;
+    let sa = &a.scene_args;
+    // Projector-side images exactly as `compend patterns` writes them.
+    super::patterns::run(super::patterns::Args {
+        out: a.out.clone(),
+        ntrain: a.ntrain,
+        ntest: a.ntest,
+        seed: sa.seed,
+        size: sa.network,
+        projector: Size {
+            width: scene.projector.width,
+            height: scene.projector.height,
+        },
+        gray_level: patterns::DEFAULT_GRAY_LEVEL,
+    })?;
+    let phase = if a.drifted {
+        Phase::AfterDrift
+    } else {
+        Phase::Calibration
+    };
+    eprintln!(
+        "sim: preparing scene {:?} (camera {}x{}, projector {}x{}, seed {})",
+        scene.name,
+        scene.camera.width,
+        scene.camera.height,
+        scene.projector.width,
+        scene.projector.height,
+        sa.seed
+    );
+    let sim = Simulator::new(&scene, sa.seed, phase)?;
+    let root = DataRoot::open(&a.out)?;
+    let setup = a
+        .setup
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(&scene.name));
+    let opts = ExportOptions {
+        ntrain: a.ntrain as usize,
+        ntest: a.ntest as usize,
+        full_cube: !a.no_cube,
+        structured_light: true,
+    };
+    let summary = rig::export_setup(&sim, &root, &setup, &opts)
+        .with_context(|| format!("exporting scene {:?} to {}", scene.name, a.out.display()))?;
+    let r = &summary.record;
+    eprintln!(
+        "sim: wrote {} ({} ref, {} sl, {} train, {} test captures; displayable area {}; FOV \
+         {:.1}% of the frame, truly lit {:.1}%) in {:.1} s",
+        summary.setup.display(),
+        r.ref_captures,
+        r.sl_captures,
+        r.train_captures,
+        r.test_captures,
+        r.displayable_area,
+        100.0 * r.fov_coverage,
+        100.0 * r.true_fov_coverage,
+        summary.seconds
+    );
+    if a.json {
+        println!("{}", serde_json::to_string(r)?);
+    }
+    Ok(())
+}
+
+fn sheet(a: SheetArgs) -> Result<()> {
+    let names: Vec<String> = if a.scene.is_empty() {
+        scene::BUILTIN.iter().map(|s| s.to_string()).collect()
+    } else {
+        a.scene.clone()
+    };
+    if a.image == 0 {
+        return Err(super::InputError("--image counts from 1".into()).into());
+    }
+    std::fs::create_dir_all(&a.out).map_err(|e| compend::Error::io(&a.out, "create folder", e))?;
+    let sa = &a.scene_args;
+    let (nw, nh) = (sa.network.width, sa.network.height);
+    let sample = patterns::sampling_image(sa.seed, Set::Train, a.image - 1, nw, nh);
+    let test = patterns::sampling_image(sa.seed, Set::Test, a.image - 1, nw, nh);
+    println!(
+        "{:<16} {:>22} {:>22} {:>22}",
+        "scene", "uncompensated", "geometry-only", "oracle"
+    );
+    for name in &names {
+        let scene = resolve(name, sa)?;
+        let sim = Simulator::new(&scene, sa.seed, Phase::Calibration)?;
+        let area = rig::sheet::displayable_area(&sim)
+            .with_context(|| format!("finding the displayable area of scene {name:?}"))?;
+        let (img, s) = rig::sheet::contact_sheet(&sim, &sample, &test, area, a.panel)?;
+        let path = a.out.join(format!("{}.png", scene.name));
+        compend::pngio::write_rgb(&path, &img)?;
+        let cell = |x: &compend::metrics::Scores| format!("{:.2} dB / {:.3}", x.psnr, x.ssim);
+        println!(
+            "{:<16} {:>22} {:>22} {:>22}",
+            scene.name,
+            cell(&s.uncompensated),
+            cell(&s.geometry_only),
+            cell(&s.oracle)
+        );
+        eprintln!("sim: wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// One row of `sim score`.
+#[derive(serde::Serialize)]
+struct Row {
+    name: String,
+    psnr: f64,
+    rmse: f64,
+    ssim: f64,
+    /// PSNR below the oracle's, dB.
+    gap_db: f64,
+}
+
+/// First frame index of the closed-loop captures (apart from the export's).
+const FRAMES_SCORE: u64 = 2_000_000;
+
+fn score(a: ScoreArgs) -> Result<()> {
+    use compend::dataset::{ProjectorSet, Setup};
+    use compend::raster::PrjImage;
+
+    let setup = Setup::open(&a.setup, a.data.as_deref())?;
+    let record = rig::export::read_record(setup.path())?;
+    let phase = if a.no_drift {
+        Phase::Calibration
+    } else {
+        Phase::AfterDrift
+    };
+    let sim = Simulator::new(&record.scene, record.seed, phase)?;
+    let n_desired = setup.count_desired()?;
+    let n = a.ntest.map_or(n_desired, |k| k.min(n_desired));
+    if n == 0 {
+        return Err(super::InputError(format!(
+            "{}: no desired images in cam/desire/test to score against",
+            setup.path().display()
+        ))
+        .into());
+    }
+    let desired = setup.load_desired(Some(n))?;
+    let area = record.displayable_area;
+    let psize = sim.projector_size();
+    let on_canvas = |imgs: Vec<PrjImage>| -> compend::Result<Vec<PrjImage>> {
+        imgs.iter()
+            .map(|i| rig::place_on_canvas(i, record.canvas, psize))
+            .collect()
+    };
+    let tests = on_canvas(setup.root().load(ProjectorSet::Test, Some(n))?)?;
+    let pose = match (&record.scene.drift, phase) {
+        (Some(_), Phase::AfterDrift) => ", projector moved after calibration",
+        (Some(_), Phase::Calibration) => ", projector where it was at calibration",
+        (None, _) => "",
+    };
+    eprintln!(
+        "sim: scoring {n} test image(s) of scene {:?} on the rig (area {area}{pose})",
+        record.scene.name
+    );
+    let refs = rig::reference_scores(
+        &sim,
+        &tests,
+        &desired,
+        area,
+        rig::OracleOptions {
+            iterations: a.oracle_iterations,
+        },
+        FRAMES_SCORE,
+    )?;
+    let models = if a.model.is_empty() {
+        setup.compensated_models()?
+    } else {
+        a.model.clone()
+    };
+    let ceiling = refs.oracle.psnr;
+    let row = |name: &str, s: &compend::metrics::Scores| Row {
+        name: name.to_string(),
+        psnr: s.psnr,
+        rmse: s.rmse,
+        ssim: s.ssim,
+        gap_db: ceiling - s.psnr,
+    };
+    let mut rows = vec![
+        row("uncompensated", &refs.uncompensated),
+        row("geometry-only", &refs.geometry_only),
+    ];
+    let net = setup.root().network_size()?;
+    for m in &models {
+        let dir = setup.compensation_dir(m)?;
+        let imgs: Vec<PrjImage> = (1..=n)
+            .map(|i| {
+                let p = dir.join(compend::pngio::indexed_name(i));
+                compend::pngio::read_rgb_sized(&p, net, "the network size of the data root")
+            })
+            .collect::<compend::Result<_>>()?;
+        let s = rig::closed_loop(&sim, &on_canvas(imgs)?, &desired, area, FRAMES_SCORE)
+            .with_context(|| format!("scoring model {m:?}"))?;
+        rows.push(row(m, &s));
+    }
+    rows.push(row("oracle", &refs.oracle));
+    if a.json {
+        let out = serde_json::json!({
+            "scene": record.scene.name,
+            "seed": record.seed,
+            "phase": phase,
+            "n": n,
+            "displayable_area": area,
+            "rows": rows,
+        });
+        println!("{out}");
+    } else {
+        println!(
+            "{:<24} {:>9} {:>9} {:>9} {:>12}",
+            "row", "PSNR", "RMSE", "SSIM", "gap (dB)"
+        );
+        for r in &rows {
+            println!(
+                "{:<24} {:>9.4} {:>9.4} {:>9.4} {:>12.2}",
+                r.name, r.psnr, r.rmse, r.ssim, r.gap_db
+            );
+        }
+        println!(
+            "({n} test image(s), closed loop in the {}x{} displayable area)",
+            area.width, area.height
+        );
+    }
+    Ok(())
 }

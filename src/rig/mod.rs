@@ -11,19 +11,25 @@
 //!   [`crate::device::FrameSource`] with frame delay and drops.
 //! - Oracles ([`Simulator::geometry_only`], [`Simulator::oracle`]) and closed-loop scoring
 //!   ([`score`]): every method is reported as a gap to the physical ceiling of its scene.
+//! - [`export`]: a simulated setup written in the dataset layout (`compend sim export`), with
+//!   `rig.json` recording the scene, seed, canvas and displayable area; [`sheet`]: contact
+//!   sheets showing what each scene tests (`compend sim sheet`).
 //!
 //! Spaces: camera pixels for captures and desired images, projector pixels for what is shown;
 //! pixel centres at integer coordinates (align-corners convention). Light inside the model is
-//! linear; images at the interfaces are encoded values in [0,1] like 8-bit PNGs.
+//! linear; images at the interfaces are encoded values in \[0,1\] like 8-bit PNGs.
 
+pub mod export;
 mod geom;
 pub mod live;
 mod model;
 mod oracle;
 pub mod scene;
 pub mod score;
+pub mod sheet;
 mod texture;
 
+pub use export::{ExportOptions, export_setup, place_on_canvas};
 pub use live::VirtualRig;
 pub use model::{Phase, Simulator};
 pub use oracle::OracleOptions;

@@ -1,7 +1,7 @@
 //! The simulator: a scene turned into per-pixel maps once, so that a capture is a gather plus
 //! per-pixel colour maths (plus a blur for defocus), noise and quantisation.
 //!
-//! Forward model for a projector input image P (projector space, values in [0,1]):
+//! Forward model for a projector input image P (projector space, values in \[0,1\]):
 //!
 //! 1. projector: input quantised to 8 bits, drive d = level^γ_c per channel, emitted light
 //!    e = M_p·d + black (linear, projector space); optional defocus blurs e (Gaussian, zero
@@ -12,7 +12,7 @@
 //!    g_i = visibility × cos(incidence) × distance fall-off × projector vignetting, spec_i the
 //!    projector highlight, I_i one inter-reflection bounce (strength × wide blur of ρ·g·E),
 //!    A_i ambient irradiance;
-//! 4. camera: sensor s_i = exposure·vignetting_i·M_c·R_i; Poisson-Gaussian noise; clip to [0,1];
+//! 4. camera: sensor s_i = exposure·vignetting_i·M_c·R_i; Poisson-Gaussian noise; clip to \[0,1\];
 //!    encoded value s^(1/γ); 8-bit quantisation (round to nearest level).
 //!
 //! Steps 1 (after the response curve) to the sensor signal are linear in the drive d; the oracle
@@ -24,12 +24,13 @@ use super::geom::{Pinhole, Shape};
 use super::scene::{Scene, Surface};
 use super::texture::AlbedoField;
 use crate::error::{Error, Result};
-use crate::pngio::to_u8;
 use crate::raster::{CamImage, Camera, Mask, PrjImage};
+use rayon::prelude::*;
 
 /// Which projector pose the simulator uses: the one at calibration, or the moved one of
 /// [`Scene::drift`] (identical when the scene has no drift).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Phase {
     Calibration,
     AfterDrift,
@@ -250,20 +251,23 @@ impl Simulator {
         let (shot, read) = self.noise;
         let key = frame.map(|f| mix64(self.seed ^ mix64(f.wrapping_add(0x5eed_f4a3))));
         let read2 = read * read;
-        let data: Vec<f32> = signal
-            .iter()
+        let mut data = vec![0f32; signal.len()];
+        data.par_chunks_mut(CHUNK)
+            .zip(signal.par_chunks(CHUNK))
             .enumerate()
-            .map(|(i, &s)| {
-                let s = match key {
-                    Some(k) => {
-                        let sd = (shot * s.max(0.0) + read2).sqrt();
-                        s + sd * approx_normal(mix64(k.wrapping_add(i as u64)))
-                    }
-                    None => s,
-                };
-                self.quantise(s) as f32 / 255.0
-            })
-            .collect();
+            .for_each(|(c, (out, sig))| {
+                for (j, (o, &s)) in out.iter_mut().zip(sig).enumerate() {
+                    let s = match key {
+                        Some(k) => {
+                            let i = (c * CHUNK + j) as u64;
+                            let sd = (shot * s.max(0.0) + read2).sqrt();
+                            s + sd * approx_normal(mix64(k.wrapping_add(i)))
+                        }
+                        None => s,
+                    };
+                    *o = self.quantise(s) as f32 / 255.0;
+                }
+            });
         CamImage::from_vec(self.cam.width, self.cam.height, data)
             .expect("the signal has the camera's size")
     }
@@ -349,17 +353,17 @@ impl Simulator {
     /// Emitted light (linear, projector space, interleaved RGB) for an input image: 8-bit input,
     /// response curves, primaries and black level.
     pub(crate) fn emission(&self, prj: &PrjImage) -> Vec<f32> {
-        let mut out = Vec::with_capacity(prj.data().len());
-        for px in prj.data().chunks_exact(3) {
-            let d = [0, 1, 2].map(|c| self.prj_lut[c][to_u8(px[c]) as usize]);
+        let src = prj.data();
+        par_pixels(src.len() / 3, |i| {
+            let px = &src[i * 3..i * 3 + 3];
+            let d = [0, 1, 2].map(|c| self.prj_lut[c][level(px[c])]);
             let e = mat3(&self.prj_mix, d);
-            out.extend_from_slice(&[
+            [
                 e[0] + self.prj_black[0],
                 e[1] + self.prj_black[1],
                 e[2] + self.prj_black[2],
-            ]);
-        }
-        out
+            ]
+        })
     }
 
     /// Emitted light for linear drives `d` (projector space): M_p·d, plus the black level when
@@ -397,41 +401,34 @@ impl Simulator {
             None => emitted,
         };
         let n = self.taps.len();
-        // Gathered projector light E_i and direct radiance R_i.
-        let mut radiance = Vec::with_capacity(n * 3);
-        let mut diffuse_out = if self.bounce.is_some() {
-            Vec::with_capacity(n * 3)
-        } else {
-            Vec::new()
+        let camera = |i: usize, r: [f32; 3]| {
+            let s = mat3(&self.cam_mix, r);
+            let g = self.gain[i];
+            [g * s[0], g * s[1], g * s[2]]
         };
-        for i in 0..n {
+        // Gathered projector light E_i; direct radiance R_i = diffuse_i·E_i + spec_i·E_i.
+        let direct = |i: usize| {
             let ei = gather(e, pw, &self.taps[i]);
             let dg = self.diffuse[i];
             let sp = self.spec[i];
             let d = [dg[0] * ei[0], dg[1] * ei[1], dg[2] * ei[2]];
-            radiance.extend_from_slice(&[d[0] + sp * ei[0], d[1] + sp * ei[1], d[2] + sp * ei[2]]);
-            if self.bounce.is_some() {
-                diffuse_out.extend_from_slice(&d);
-            }
-        }
-        if let Some(b) = &self.bounce {
-            let indirect = b.forward(&diffuse_out);
-            for i in 0..n {
-                let a = self.albedo[i];
-                for c in 0..3 {
-                    radiance[i * 3 + c] += a[c] * indirect[i * 3 + c];
-                }
-            }
-        }
-        // Camera: colour mixing, exposure and vignetting.
-        let mut out = Vec::with_capacity(n * 3);
-        for i in 0..n {
-            let r = [radiance[i * 3], radiance[i * 3 + 1], radiance[i * 3 + 2]];
-            let s = mat3(&self.cam_mix, r);
-            let g = self.gain[i];
-            out.extend_from_slice(&[g * s[0], g * s[1], g * s[2]]);
-        }
-        out
+            (d, [d[0] + sp * ei[0], d[1] + sp * ei[1], d[2] + sp * ei[2]])
+        };
+        let Some(bounce) = &self.bounce else {
+            return par_pixels(n, |i| camera(i, direct(i).1));
+        };
+        // With inter-reflection: the diffuse direct radiance feeds one bounce.
+        let diffuse = par_pixels(n, |i| direct(i).0);
+        let indirect = bounce.forward(&diffuse);
+        par_pixels(n, |i| {
+            let r = direct(i).1;
+            let a = self.albedo[i];
+            let k = &indirect[i * 3..i * 3 + 3];
+            camera(
+                i,
+                [r[0] + a[0] * k[0], r[1] + a[1] * k[1], r[2] + a[2] * k[2]],
+            )
+        })
     }
 
     /// Adjoint of [`Self::sensor`]: a camera-space signal gradient to a projector-space
@@ -517,7 +514,7 @@ impl Simulator {
         if s >= 1.0 {
             return 255;
         }
-        let b = ((s * QUANT_BUCKETS as f32) as usize).min(QUANT_BUCKETS - 1);
+        let b = ((s * QUANT_BUCKETS as f32) as i32 as usize).min(QUANT_BUCKETS - 1);
         let mut q = self.bucket_level[b] as usize;
         while q < 255 && self.thresholds[q] <= s {
             q += 1;
@@ -746,30 +743,29 @@ pub(crate) fn blur_rgb(src: &[f32], w: usize, h: usize, kernel: &[f32]) -> Vec<f
     let row = w * 3;
     // Horizontal: out[i] += k·src[i + 3·(t − r)] over the valid range of each row.
     let mut tmp = vec![0f32; src.len()];
-    for y in 0..h {
-        let s = &src[y * row..(y + 1) * row];
-        let o = &mut tmp[y * row..(y + 1) * row];
-        for (t, &k) in kernel.iter().enumerate() {
-            let off = t as isize - r as isize;
-            let shift = off.unsigned_abs() * 3;
-            if shift >= row {
-                continue;
-            }
-            if off >= 0 {
-                for (a, b) in o[..row - shift].iter_mut().zip(&s[shift..]) {
-                    *a += k * b;
+    tmp.par_chunks_mut(row)
+        .zip(src.par_chunks(row))
+        .for_each(|(o, s)| {
+            for (t, &k) in kernel.iter().enumerate() {
+                let off = t as isize - r as isize;
+                let shift = off.unsigned_abs() * 3;
+                if shift >= row {
+                    continue;
                 }
-            } else {
-                for (a, b) in o[shift..].iter_mut().zip(&s[..row - shift]) {
-                    *a += k * b;
+                if off >= 0 {
+                    for (a, b) in o[..row - shift].iter_mut().zip(&s[shift..]) {
+                        *a += k * b;
+                    }
+                } else {
+                    for (a, b) in o[shift..].iter_mut().zip(&s[..row - shift]) {
+                        *a += k * b;
+                    }
                 }
             }
-        }
-    }
+        });
     // Vertical: output row y += k·tmp row (y + t − r).
     let mut out = vec![0f32; src.len()];
-    for y in 0..h {
-        let o = &mut out[y * row..(y + 1) * row];
+    out.par_chunks_mut(row).enumerate().for_each(|(y, o)| {
         for (t, &k) in kernel.iter().enumerate() {
             let yy = y as isize + t as isize - r as isize;
             if yy < 0 || yy >= h as isize {
@@ -780,8 +776,33 @@ pub(crate) fn blur_rgb(src: &[f32], w: usize, h: usize, kernel: &[f32]) -> Vec<f
                 *a += k * b;
             }
         }
-    }
+    });
     out
+}
+
+/// Pixels per parallel work item.
+const CHUNK: usize = 4096;
+
+/// `f(i)` for every pixel i < n as interleaved RGB, computed in parallel (the result does not
+/// depend on the number of threads).
+fn par_pixels(n: usize, f: impl Fn(usize) -> [f32; 3] + Sync) -> Vec<f32> {
+    let mut out = vec![0f32; n * 3];
+    out.par_chunks_mut(CHUNK * 3)
+        .enumerate()
+        .for_each(|(c, chunk)| {
+            for (j, px) in chunk.chunks_exact_mut(3).enumerate() {
+                px.copy_from_slice(&f(c * CHUNK + j));
+            }
+        });
+    out
+}
+
+/// The 8-bit level a projector shows for input value `v` (round to nearest, clamped; NaN → 0),
+/// as [`crate::pngio::to_u8`] but without a call to `round`.
+#[inline]
+fn level(v: f32) -> usize {
+    // Through i32: the saturating float-to-i32 conversion is much cheaper than to usize.
+    (v.clamp(0.0, 1.0) * 255.0 + 0.5) as i32 as usize
 }
 
 impl Bounce {

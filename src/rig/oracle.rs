@@ -37,7 +37,7 @@ impl Simulator {
     /// The best projector image for `desired` that the true (noise-free) model allows: it
     /// minimises the squared error of the camera's encoded output (after clipping and the
     /// response curve, before quantisation) against `desired` over the camera pixels in `mask`,
-    /// subject to projector inputs in [0,1]. Defocus, inter-reflection, colour mixing and the
+    /// subject to projector inputs in \[0,1\]. Defocus, inter-reflection, colour mixing and the
     /// many-to-one mapping between camera and projector pixels are all part of the model it
     /// inverts.
     ///
@@ -168,7 +168,7 @@ impl Simulator {
     }
 
     /// Starting drives: invert each camera pixel's local model (direct light only), clip to
-    /// [0,1], and warp the result to projector space through the true geometry.
+    /// \[0,1\], and warp the result to projector space through the true geometry.
     fn per_pixel_start(&self, target: &[f32], mask: &Mask<Camera>) -> Result<Vec<f32>> {
         let inv_cam = invert3(self.cam_mix())?;
         let inv_prj = invert3(self.prj_mix())?;

@@ -98,14 +98,14 @@ pub struct CameraModel {
     pub mixing: [[f64; 3]; 3],
     /// Linear gain from radiance to sensor signal (1.0 = full scale at radiance 1).
     pub exposure: f64,
-    /// Response curve: encoded value = signal^(1/gamma) after clipping to [0,1].
+    /// Response curve: encoded value = signal^(1/gamma) after clipping to \[0,1\].
     pub gamma: f64,
     /// Radial fall-off: gain × (1 − vignetting·r²), r = 1 at the frame corners.
     pub vignetting: f64,
     pub noise: Noise,
 }
 
-/// Poisson-Gaussian sensor noise on the linear signal s ∈ [0,1]: variance = shot·s + read².
+/// Poisson-Gaussian sensor noise on the linear signal s ∈ \[0,1\]: variance = shot·s + read².
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Noise {
@@ -123,7 +123,7 @@ pub struct ProjectorModel {
     /// Horizontal field of view in degrees (square pixels, principal point at the centre).
     pub hfov_deg: f64,
     pub pose: Pose,
-    /// Per-channel response: drive = (input level)^gamma[c], input quantised to 8 bits.
+    /// Per-channel response: drive = (input level)^gamma per channel, input quantised to 8 bits.
     pub gamma: [f64; 3],
     /// Primaries: emitted RGB = mixing · drive + black (rows = emitted channels). Non-negative.
     pub mixing: [[f64; 3]; 3],
@@ -177,7 +177,7 @@ pub enum Surface {
 /// is extended by its value at the border.
 pub const SURFACE_EXTENT: f64 = 4.0;
 
-/// Surface reflectance (linear, in [0,1] per channel), fixed to the surface (x, y).
+/// Surface reflectance (linear, in \[0,1\] per channel), fixed to the surface (x, y).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Albedo {
@@ -424,6 +424,27 @@ pub const BUILTIN: &[&str] = &[
     "drift",
 ];
 
+/// A built-in scene by name, or a scene description from a JSON file (as `compend sim show`
+/// prints it) when `name_or_path` is a path to a file.
+pub fn load(name_or_path: &str) -> Result<Scene> {
+    if BUILTIN.contains(&name_or_path) {
+        return builtin(name_or_path);
+    }
+    let path = std::path::Path::new(name_or_path);
+    if !path.is_file() {
+        return builtin(name_or_path);
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "read", e))?;
+    let scene: Scene = serde_json::from_str(&text).map_err(|e| {
+        Error::Input(format!(
+            "{}: not a scene description ({e}); `compend sim show NAME` prints one",
+            path.display()
+        ))
+    })?;
+    scene.validate()?;
+    Ok(scene)
+}
+
 /// The built-in scene called `name` (at 640×480 camera, 800×600 projector).
 pub fn builtin(name: &str) -> Result<Scene> {
     let base = base_scene();
@@ -593,7 +614,8 @@ pub fn builtin(name: &str) -> Result<Scene> {
         }
         other => {
             return Err(Error::Input(format!(
-                "unknown scene {other:?}; built-in scenes: {}",
+                "unknown scene {other:?} (neither a built-in scene nor a scene file); built-in \
+                 scenes: {}",
                 BUILTIN.join(", ")
             )));
         }

@@ -23,7 +23,7 @@ impl ValueNoise {
         ValueNoise { cell, n, values }
     }
 
-    /// Value in [0,1] at (x, y), smoothstep-interpolated between lattice points.
+    /// Value in \[0,1\] at (x, y), smoothstep-interpolated between lattice points.
     fn at(&self, x: f64, y: f64) -> f64 {
         let fx = ((x + SURFACE_EXTENT) / self.cell).clamp(0.0, (self.n - 2) as f64);
         let fy = ((y + SURFACE_EXTENT) / self.cell).clamp(0.0, (self.n - 2) as f64);
@@ -83,7 +83,7 @@ impl AlbedoField {
         }
     }
 
-    /// Linear reflectance in [0,1] per channel at surface position (x, y) metres.
+    /// Linear reflectance in \[0,1\] per channel at surface position (x, y) metres.
     pub fn at(&self, x: f64, y: f64) -> [f64; 3] {
         match self {
             AlbedoField::Uniform(rgb) => *rgb,
@@ -108,7 +108,7 @@ impl AlbedoField {
     }
 }
 
-/// Pushes t ∈ [0,1] towards 0 or 1 with a logistic of slope `s` (s = 1: nearly unchanged).
+/// Pushes t ∈ \[0,1\] towards 0 or 1 with a logistic of slope `s` (s = 1: nearly unchanged).
 fn sharpen(t: f64, s: f64) -> f64 {
     let t = t.clamp(0.0, 1.0);
     if s <= 1.0 {
@@ -118,7 +118,7 @@ fn sharpen(t: f64, s: f64) -> f64 {
     ((f(t) - f(0.0)) / (f(1.0) - f(0.0))).clamp(0.0, 1.0)
 }
 
-/// Piecewise-linear colour along the palette at t ∈ [0,1].
+/// Piecewise-linear colour along the palette at t ∈ \[0,1\].
 fn along_palette(palette: &[[f64; 3]], t: f64) -> [f64; 3] {
     if palette.len() == 1 {
         return palette[0];

@@ -1,0 +1,277 @@
+//! Writing a simulated setup in the dataset layout (DESIGN.md section 3), so the offline
+//! commands and other tools (such as the official PyTorch code) can read it.
+//!
+//! The projector-side images (`ROOT/train`, `test`, `ref`, `sl`) must already exist (`compend
+//! patterns` writes them); this module captures them on the rig exactly as stored (8-bit PNGs),
+//! placing network-size images on the canvas (the full projector frame) with bilinear resizing,
+//! and showing structured light at projector resolution as is. It then finds the projector FOV
+//! from the black and white captures the way a real setup would ([`crate::fov::fov_mask`]),
+//! the optimal displayable area inside it, and writes the desired test images there.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::model::{Phase, Simulator};
+use super::scene::Scene;
+use crate::dataset::{CaptureSet, DataRoot, ProjectorSet, Reference, Setup};
+use crate::error::{Error, Result};
+use crate::fov;
+use crate::patterns::CUBE_COUNT;
+use crate::pngio;
+use crate::raster::{PrjImage, Rect, Rgb, Space};
+use crate::resize::resize_bilinear;
+
+/// Name of the file in the setup folder that records how the setup was simulated.
+pub const RIG_FILE: &str = "rig.json";
+
+/// First frame index of each capture set: noise depends on the frame index, and fixed bases
+/// keep, e.g., the test captures the same whatever the number of training images.
+const FRAMES_REF: u64 = 0;
+const FRAMES_SL: u64 = 10_000;
+const FRAMES_TRAIN: u64 = 100_000;
+const FRAMES_TEST: u64 = 1_000_000;
+
+/// What [`export_setup`] captures.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExportOptions {
+    /// Training images to capture (the first `ntrain` of `ROOT/train`).
+    pub ntrain: usize,
+    /// Test images to capture (the first `ntest` of `ROOT/test`), each with its desired image.
+    pub ntest: usize,
+    /// Capture every colour-cube image of `ROOT/ref` (else only black and white) and the gray
+    /// image.
+    pub full_cube: bool,
+    /// Capture the structured-light patterns of `ROOT/sl` when present.
+    pub structured_light: bool,
+}
+
+/// Record of a simulated setup (`SETUP/rig.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RigRecord {
+    /// The scene as simulated (resolutions included).
+    pub scene: Scene,
+    pub seed: u64,
+    /// Projector pose the captures were taken with.
+    pub phase: Phase,
+    /// The canvas in projector pixels (where network-size images were placed).
+    pub canvas: Rect,
+    /// The displayable area in camera pixels (where `cam/desire/test` images were placed).
+    pub displayable_area: Rect,
+    /// Fraction of the camera frame in the FOV mask found from the captures.
+    pub fov_coverage: f64,
+    /// Fraction of the camera frame truly lit by the projector (the simulator's ground truth).
+    pub true_fov_coverage: f64,
+    /// Counts of captures written.
+    pub ref_captures: usize,
+    pub sl_captures: usize,
+    pub train_captures: usize,
+    pub test_captures: usize,
+}
+
+/// What [`export_setup`] wrote.
+#[derive(Clone, Debug)]
+pub struct ExportSummary {
+    pub setup: PathBuf,
+    pub record: RigRecord,
+    pub seconds: f64,
+}
+
+/// Stretches `img` (e.g. a network-size projector image) over `canvas` of a black projector
+/// frame of `size` (width, height), with bilinear resizing.
+pub fn place_on_canvas<S: Space>(
+    img: &Rgb<S>,
+    canvas: Rect,
+    size: (usize, usize),
+) -> Result<PrjImage> {
+    let (w, h) = size;
+    if canvas.width == 0
+        || canvas.height == 0
+        || canvas.x + canvas.width > w
+        || canvas.y + canvas.height > h
+    {
+        return Err(Error::Shape(format!(
+            "canvas {canvas} is empty or does not fit in the {w}x{h} projector frame"
+        )));
+    }
+    if img.width() == 0 || img.height() == 0 {
+        return Err(Error::Shape(
+            "cannot place an empty image on the canvas".into(),
+        ));
+    }
+    let fitted = resize_bilinear(img, canvas.width, canvas.height);
+    if canvas
+        == (Rect {
+            x: 0,
+            y: 0,
+            width: w,
+            height: h,
+        })
+    {
+        return Ok(fitted.into_space());
+    }
+    let mut out = PrjImage::new(w, h);
+    for y in 0..canvas.height {
+        for x in 0..canvas.width {
+            out.set(canvas.x + x, canvas.y + y, fitted.get(x, y));
+        }
+    }
+    Ok(out)
+}
+
+/// The full projector frame as a canvas.
+pub fn full_canvas(sim: &Simulator) -> Rect {
+    let (w, h) = sim.projector_size();
+    Rect {
+        x: 0,
+        y: 0,
+        width: w,
+        height: h,
+    }
+}
+
+/// Captures a complete setup at `root/<setup>` (created) with the simulator's current phase:
+/// reference captures (black, white, gray surface image, and the colour cube with
+/// `full_cube`), structured light, training and test captures, and the desired test images in
+/// the displayable area; finally `rig.json`. Every file is a pure function of the simulator
+/// (scene and seed) and the projector-side images, so equal inputs give byte-identical files.
+pub fn export_setup(
+    sim: &Simulator,
+    root: &DataRoot,
+    setup: &Path,
+    opts: &ExportOptions,
+) -> Result<ExportSummary> {
+    let start = Instant::now();
+    let net = root.network_size()?;
+    let setup = Setup::create(root, setup)?;
+    let canvas = full_canvas(sim);
+    let psize = sim.projector_size();
+    let cam = sim.camera_size();
+    let net_why = format!("the network size of {}", root.path().display());
+
+    // A projector-side network-size image, as the projector shows it on the canvas.
+    let shown = |set: ProjectorSet, i: usize| -> Result<PrjImage> {
+        let p = root.image_path(set, i);
+        let img = pngio::read_rgb_sized::<crate::raster::Projector>(&p, net, &net_why)?;
+        place_on_canvas(&img, canvas, psize)
+    };
+
+    // References: black (cube 1), white (cube 125), optionally the rest of the cube; gray.
+    let cube: Vec<usize> = if opts.full_cube {
+        (1..=CUBE_COUNT).collect()
+    } else {
+        vec![Reference::Black.index(), Reference::White.index()]
+    };
+    cube.par_iter().try_for_each(|&i| -> Result<()> {
+        let cap = sim.capture(&shown(ProjectorSet::Ref, i)?, FRAMES_REF + i as u64)?;
+        setup.write_capture(CaptureSet::Ref, i, &cap).map(drop)
+    })?;
+    let gray_path = root.gray_input_path();
+    let gray = pngio::read_rgb_sized::<crate::raster::Projector>(&gray_path, net, &net_why)?;
+    let cap = sim.capture(
+        &place_on_canvas(&gray, canvas, psize)?,
+        FRAMES_REF + Reference::Gray.index() as u64,
+    )?;
+    setup.write_reference(Reference::Gray, &cap)?;
+
+    // Structured light at projector resolution, shown as is.
+    let mut nsl = 0;
+    if opts.structured_light && root.image_path(ProjectorSet::Sl, 1).is_file() {
+        nsl = root.count(ProjectorSet::Sl)?;
+        let why = format!("the projector size of scene {:?}", sim.scene().name);
+        (1..=nsl).into_par_iter().try_for_each(|i| -> Result<()> {
+            let p = root.image_path(ProjectorSet::Sl, i);
+            let img = pngio::read_rgb_sized(&p, psize, &why)?;
+            let cap = sim.capture(&img, FRAMES_SL + i as u64)?;
+            setup.write_capture(CaptureSet::Sl, i, &cap).map(drop)
+        })?;
+    }
+
+    // Training and test captures.
+    for (set, cset, n, base) in [
+        (
+            ProjectorSet::Train,
+            CaptureSet::Train,
+            opts.ntrain,
+            FRAMES_TRAIN,
+        ),
+        (
+            ProjectorSet::Test,
+            CaptureSet::Test,
+            opts.ntest,
+            FRAMES_TEST,
+        ),
+    ] {
+        let have = root.count(set)?;
+        if have < n {
+            return Err(Error::Input(format!(
+                "{}: {have} projector images, {n} requested",
+                root.dir(set).display()
+            )));
+        }
+        (1..=n).into_par_iter().try_for_each(|i| -> Result<()> {
+            let cap = sim.capture(&shown(set, i)?, base + i as u64)?;
+            setup.write_capture(cset, i, &cap).map(drop)
+        })?;
+    }
+
+    // FOV and displayable area from the captures, as a real setup finds them.
+    let black = setup.load_reference(Reference::Black)?;
+    let white = setup.load_reference(Reference::White)?;
+    let label = setup.capture_dir(CaptureSet::Ref).display().to_string();
+    let fov = fov::fov_mask(&black, &white, &label)?;
+    let aspect = canvas.width as f64 / canvas.height as f64;
+    let area = fov::displayable_area(&fov.mask, aspect)?;
+    (1..=opts.ntest)
+        .into_par_iter()
+        .try_for_each(|i| -> Result<()> {
+            let p = root.image_path(ProjectorSet::Test, i);
+            let img = pngio::read_rgb_sized::<crate::raster::Projector>(&p, net, &net_why)?;
+            let z = fov::place_in_area(&img, area, cam)?;
+            setup.write_desired(i, &z).map(drop)
+        })?;
+
+    let frame = (cam.0 * cam.1) as f64;
+    let record = RigRecord {
+        scene: sim.scene().clone(),
+        seed: sim.seed(),
+        phase: sim.phase(),
+        canvas,
+        displayable_area: area,
+        fov_coverage: fov.mask.count() as f64 / frame,
+        true_fov_coverage: sim.lit_mask().count() as f64 / frame,
+        ref_captures: cube.len() + 1,
+        sl_captures: nsl,
+        train_captures: opts.ntrain,
+        test_captures: opts.ntest,
+    };
+    let path = setup.path().join(RIG_FILE);
+    let json = serde_json::to_string_pretty(&record)
+        .map_err(|e| Error::Failed(format!("{}: cannot encode the record: {e}", path.display())))?;
+    write_atomic(&path, json.as_bytes())?;
+    Ok(ExportSummary {
+        setup: setup.path().to_path_buf(),
+        record,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// Reads `SETUP/rig.json`.
+pub fn read_record(setup: &Path) -> Result<RigRecord> {
+    let path = setup.join(RIG_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, "read", e))?;
+    serde_json::from_str(&text).map_err(|e| {
+        Error::Input(format!(
+            "{}: not a virtual-rig record ({e})",
+            path.display()
+        ))
+    })
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, "write", e))?;
+    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, "rename into place", e))
+}

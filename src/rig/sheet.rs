@@ -1,0 +1,228 @@
+//! Contact sheets: one PNG per scene showing what it tests — the surface, a capture, the
+//! desired image, what the viewer sees uncompensated, and with the oracle (the scene's ceiling),
+//! with closed-loop scores under the panels.
+
+use super::export::{full_canvas, place_on_canvas};
+use super::model::Simulator;
+use super::oracle::OracleOptions;
+use super::score::{ReferenceScores, area_mask, closed_loop};
+use crate::error::Result;
+use crate::fov;
+use crate::raster::{CamImage, PrjImage, Rect, Rgb, Unspecified};
+use crate::resize::resize_area;
+
+/// Frame indices of the sheet's captures (any fixed values; kept apart from the export's).
+const FRAME_BLACK: u64 = 1;
+const FRAME_WHITE: u64 = 125;
+const FRAME_SHEET: u64 = 5_000_000;
+
+/// The displayable area as a real setup finds it: capture black and white on the canvas, FOV
+/// mask from them ([`fov::fov_mask`]), the largest canvas-shaped rectangle inside
+/// ([`fov::displayable_area`]). Camera pixels.
+pub fn displayable_area(sim: &Simulator) -> Result<Rect> {
+    let (pw, ph) = sim.projector_size();
+    let black = sim.capture(&PrjImage::new(pw, ph), FRAME_BLACK)?;
+    let white = sim.capture(&PrjImage::filled(pw, ph, [1.0; 3]), FRAME_WHITE)?;
+    let label = format!("virtual rig scene {:?}", sim.scene().name);
+    let mask = fov::fov_mask(&black, &white, &label)?;
+    let canvas = full_canvas(sim);
+    fov::displayable_area(&mask.mask, canvas.width as f64 / canvas.height as f64)
+}
+
+/// A contact sheet for one test image `test` and one sampling image `sample` (both network
+/// size, placed on the full-frame canvas), with the reference scores of `test` in `area`.
+/// Panels are the camera frame scaled to at most `panel_width` pixels wide.
+pub fn contact_sheet(
+    sim: &Simulator,
+    sample: &PrjImage,
+    test: &PrjImage,
+    area: Rect,
+    panel_width: usize,
+) -> Result<(Rgb<Unspecified>, ReferenceScores)> {
+    let psize = sim.projector_size();
+    let cam = sim.camera_size();
+    let canvas = full_canvas(sim);
+    let desired = fov::place_in_area(test, area, cam)?;
+    let unc = place_on_canvas(test, canvas, psize)?;
+    let geo = sim.geometry_only(&desired)?;
+    let orc = sim.oracle(&desired, &area_mask(sim, area), OracleOptions::default())?;
+    let frame = FRAME_SHEET;
+    let scores = ReferenceScores {
+        uncompensated: closed_loop(
+            sim,
+            std::slice::from_ref(&unc),
+            std::slice::from_ref(&desired),
+            area,
+            frame,
+        )?,
+        geometry_only: closed_loop(
+            sim,
+            std::slice::from_ref(&geo),
+            std::slice::from_ref(&desired),
+            area,
+            frame,
+        )?,
+        oracle: closed_loop(
+            sim,
+            std::slice::from_ref(&orc),
+            std::slice::from_ref(&desired),
+            area,
+            frame,
+        )?,
+    };
+    let sample_cap = sim.capture(&place_on_canvas(sample, canvas, psize)?, frame + 1)?;
+    let unc_cap = sim.capture(&unc, frame)?;
+    let orc_cap = sim.capture(&orc, frame)?;
+    let db = |s: &crate::metrics::Scores| format!("{:.1} db ssim {:.2}", s.psnr, s.ssim);
+    let panels: Vec<(CamImage, String, String)> = vec![
+        (
+            sim.surface_preview().clone(),
+            "surface".into(),
+            sim.scene().name.clone(),
+        ),
+        (sample_cap, "a capture".into(), "sampling image".into()),
+        (
+            desired,
+            "desired".into(),
+            format!("area {}x{}", area.width, area.height),
+        ),
+        (unc_cap, "uncompensated".into(), db(&scores.uncompensated)),
+        (orc_cap, "oracle".into(), db(&scores.oracle)),
+    ];
+    Ok((compose(&panels, cam, panel_width), scores))
+}
+
+/// Lays panels out in a row with two text lines under each.
+fn compose(
+    panels: &[(CamImage, String, String)],
+    cam: (usize, usize),
+    panel_width: usize,
+) -> Rgb<Unspecified> {
+    let pw = cam.0.min(panel_width.max(16));
+    let ph = ((cam.1 * pw) as f64 / cam.0 as f64).round().max(1.0) as usize;
+    let scale = if pw >= 200 { 2 } else { 1 };
+    let line = (GLYPH_H + 3) * scale;
+    let gap = 6;
+    let width = panels.len() * (pw + gap) + gap;
+    let height = gap + ph + 2 * line + gap;
+    let mut out = Rgb::<Unspecified>::filled(width, height, [0.12; 3]);
+    for (k, (img, top, bottom)) in panels.iter().enumerate() {
+        let x0 = gap + k * (pw + gap);
+        let small = resize_area(img, pw, ph);
+        for y in 0..ph {
+            for x in 0..pw {
+                out.set(x0 + x, gap + y, small.get(x, y));
+            }
+        }
+        draw_text(
+            &mut out,
+            x0,
+            gap + ph + 2 * scale,
+            top,
+            scale,
+            [0.95; 3],
+            pw,
+        );
+        draw_text(
+            &mut out,
+            x0,
+            gap + ph + 2 * scale + line,
+            bottom,
+            scale,
+            [0.7; 3],
+            pw,
+        );
+    }
+    out
+}
+
+const GLYPH_W: usize = 5;
+const GLYPH_H: usize = 7;
+
+/// Draws lower-case text with a built-in 5×7 font (unknown characters are blank), clipped to
+/// `max_width` pixels.
+fn draw_text(
+    img: &mut Rgb<Unspecified>,
+    x0: usize,
+    y0: usize,
+    text: &str,
+    scale: usize,
+    colour: [f32; 3],
+    max_width: usize,
+) {
+    let advance = (GLYPH_W + 1) * scale;
+    for (i, ch) in text.to_lowercase().chars().enumerate() {
+        let gx = x0 + i * advance;
+        if gx + GLYPH_W * scale > x0 + max_width {
+            break;
+        }
+        let Some(rows) = glyph(ch) else { continue };
+        for (r, bits) in rows.iter().enumerate() {
+            for c in 0..GLYPH_W {
+                if bits & (1 << (GLYPH_W - 1 - c)) == 0 {
+                    continue;
+                }
+                for dy in 0..scale {
+                    for dx in 0..scale {
+                        let (x, y) = (gx + c * scale + dx, y0 + r * scale + dy);
+                        if x < img.width() && y < img.height() {
+                            img.set(x, y, colour);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn glyph(ch: char) -> Option<&'static [u8; 7]> {
+    FONT.iter().find(|(c, _)| *c == ch).map(|(_, g)| g)
+}
+
+/// 5×7 glyphs, one row per entry, most significant of the five bits on the left.
+#[rustfmt::skip]
+const FONT: &[(char, [u8; 7])] = &[
+    ('a', [0b00000, 0b00000, 0b01110, 0b00001, 0b01111, 0b10001, 0b01111]),
+    ('b', [0b10000, 0b10000, 0b11110, 0b10001, 0b10001, 0b10001, 0b11110]),
+    ('c', [0b00000, 0b00000, 0b01111, 0b10000, 0b10000, 0b10000, 0b01111]),
+    ('d', [0b00001, 0b00001, 0b01111, 0b10001, 0b10001, 0b10001, 0b01111]),
+    ('e', [0b00000, 0b00000, 0b01110, 0b10001, 0b11111, 0b10000, 0b01110]),
+    ('f', [0b00110, 0b01000, 0b11110, 0b01000, 0b01000, 0b01000, 0b01000]),
+    ('g', [0b00000, 0b00000, 0b01111, 0b10001, 0b01111, 0b00001, 0b01110]),
+    ('h', [0b10000, 0b10000, 0b11110, 0b10001, 0b10001, 0b10001, 0b10001]),
+    ('i', [0b00100, 0b00000, 0b01100, 0b00100, 0b00100, 0b00100, 0b01110]),
+    ('j', [0b00010, 0b00000, 0b00110, 0b00010, 0b00010, 0b10010, 0b01100]),
+    ('k', [0b10000, 0b10000, 0b10010, 0b10100, 0b11000, 0b10100, 0b10010]),
+    ('l', [0b01100, 0b00100, 0b00100, 0b00100, 0b00100, 0b00100, 0b01110]),
+    ('m', [0b00000, 0b00000, 0b11010, 0b10101, 0b10101, 0b10101, 0b10101]),
+    ('n', [0b00000, 0b00000, 0b11110, 0b10001, 0b10001, 0b10001, 0b10001]),
+    ('o', [0b00000, 0b00000, 0b01110, 0b10001, 0b10001, 0b10001, 0b01110]),
+    ('p', [0b00000, 0b00000, 0b11110, 0b10001, 0b11110, 0b10000, 0b10000]),
+    ('q', [0b00000, 0b00000, 0b01111, 0b10001, 0b01111, 0b00001, 0b00001]),
+    ('r', [0b00000, 0b00000, 0b10110, 0b11001, 0b10000, 0b10000, 0b10000]),
+    ('s', [0b00000, 0b00000, 0b01111, 0b10000, 0b01110, 0b00001, 0b11110]),
+    ('t', [0b01000, 0b01000, 0b11110, 0b01000, 0b01000, 0b01001, 0b00110]),
+    ('u', [0b00000, 0b00000, 0b10001, 0b10001, 0b10001, 0b10001, 0b01111]),
+    ('v', [0b00000, 0b00000, 0b10001, 0b10001, 0b10001, 0b01010, 0b00100]),
+    ('w', [0b00000, 0b00000, 0b10001, 0b10001, 0b10101, 0b10101, 0b01010]),
+    ('x', [0b00000, 0b00000, 0b10001, 0b01010, 0b00100, 0b01010, 0b10001]),
+    ('y', [0b00000, 0b00000, 0b10001, 0b10001, 0b01111, 0b00001, 0b01110]),
+    ('z', [0b00000, 0b00000, 0b11111, 0b00010, 0b00100, 0b01000, 0b11111]),
+    ('0', [0b01110, 0b10001, 0b10011, 0b10101, 0b11001, 0b10001, 0b01110]),
+    ('1', [0b00100, 0b01100, 0b00100, 0b00100, 0b00100, 0b00100, 0b01110]),
+    ('2', [0b01110, 0b10001, 0b00001, 0b00010, 0b00100, 0b01000, 0b11111]),
+    ('3', [0b11110, 0b00001, 0b00001, 0b01110, 0b00001, 0b00001, 0b11110]),
+    ('4', [0b00010, 0b00110, 0b01010, 0b10010, 0b11111, 0b00010, 0b00010]),
+    ('5', [0b11111, 0b10000, 0b11110, 0b00001, 0b00001, 0b10001, 0b01110]),
+    ('6', [0b00110, 0b01000, 0b10000, 0b11110, 0b10001, 0b10001, 0b01110]),
+    ('7', [0b11111, 0b00001, 0b00010, 0b00100, 0b01000, 0b01000, 0b01000]),
+    ('8', [0b01110, 0b10001, 0b10001, 0b01110, 0b10001, 0b10001, 0b01110]),
+    ('9', [0b01110, 0b10001, 0b10001, 0b01111, 0b00001, 0b00010, 0b01100]),
+    ('.', [0b00000, 0b00000, 0b00000, 0b00000, 0b00000, 0b01100, 0b01100]),
+    ('-', [0b00000, 0b00000, 0b00000, 0b01110, 0b00000, 0b00000, 0b00000]),
+    (':', [0b00000, 0b01100, 0b01100, 0b00000, 0b01100, 0b01100, 0b00000]),
+    ('/', [0b00000, 0b00001, 0b00010, 0b00100, 0b01000, 0b10000, 0b00000]),
+    ('(', [0b00010, 0b00100, 0b01000, 0b01000, 0b01000, 0b00100, 0b00010]),
+    (')', [0b01000, 0b00100, 0b00010, 0b00010, 0b00010, 0b00100, 0b01000]),
+    (',', [0b00000, 0b00000, 0b00000, 0b00000, 0b01100, 0b00100, 0b01000]),
+];
