@@ -47,7 +47,7 @@ use serde::Serialize;
 use crate::error::{Error, Result};
 use crate::filter::gaussian_blur;
 use crate::morph::{self, Element, IntegralMask};
-use crate::raster::{CamImage, Camera, Mask, Rect, Rgb, Space};
+use crate::raster::{CamImage, Camera, Mask, Rect, Rgb, Space, check_same_size};
 
 // ---------------------------------------------------------------------------------------------
 // FOV mask
@@ -623,4 +623,74 @@ pub fn place_in_area<T: Space>(
         }
     }
     Ok(out)
+}
+
+/// The neutral range of camera values the projector can produce across a displayable area:
+/// desired images mapped into `[low, high]` are physically reachable almost everywhere in it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct DisplayRange {
+    /// Camera value (encoded, [0,1]) the projector's black cannot go below at most pixels.
+    pub low: f32,
+    /// Camera value its white reaches at most pixels.
+    pub high: f32,
+}
+
+impl DisplayRange {
+    /// The whole range, no scaling.
+    pub const FULL: DisplayRange = DisplayRange {
+        low: 0.0,
+        high: 1.0,
+    };
+
+    /// Maps an image's values `v` to `low + (high − low)·v`.
+    pub fn apply<S: Space>(&self, img: &Rgb<S>) -> Rgb<S> {
+        let (lo, span) = (self.low, self.high - self.low);
+        img.map(|v| lo + span * v)
+    }
+}
+
+/// The display range inside `area` from the black and white reference captures (camera space):
+/// `low` is the `1 − q` quantile over the area of each pixel's brightest channel under black,
+/// `high` the `q` quantile of each pixel's darkest channel under white (e.g. `q = 0.05`: 95 % of
+/// the area can show both ends in every channel). Errors name the captures' problem.
+pub fn display_range(
+    black: &CamImage,
+    white: &CamImage,
+    area: Rect,
+    q: f64,
+) -> Result<DisplayRange> {
+    check_same_size(
+        black.size(),
+        white.size(),
+        "display range: black vs white capture",
+    )?;
+    let (w, h) = white.size();
+    if area.width == 0 || area.height == 0 || area.x + area.width > w || area.y + area.height > h {
+        return Err(Error::Shape(format!(
+            "display range: area {area} does not fit in the {w}x{h} camera frame"
+        )));
+    }
+    let mut lows = Vec::with_capacity(area.area());
+    let mut highs = Vec::with_capacity(area.area());
+    for y in area.y..area.y + area.height {
+        for x in area.x..area.x + area.width {
+            let (b, wv) = (black.get(x, y), white.get(x, y));
+            lows.push(b[0].max(b[1]).max(b[2]));
+            highs.push(wv[0].min(wv[1]).min(wv[2]));
+        }
+    }
+    let quantile = |v: &mut Vec<f32>, q: f64| -> f32 {
+        let k = ((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+        let (_, x, _) = v.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+        *x
+    };
+    let low = quantile(&mut lows, 1.0 - q);
+    let high = quantile(&mut highs, q);
+    if !(high > low) {
+        return Err(Error::Failed(format!(
+            "display range: white ({high:.3}) is not brighter than black ({low:.3}) in area {area}; \
+             the projector cannot show any contrast there"
+        )));
+    }
+    Ok(DisplayRange { low, high })
 }

@@ -114,6 +114,11 @@ pub struct ExportArgs {
     /// Capture the setup with the projector moved (the drift scene's pose after calibration).
     #[arg(long)]
     pub drifted: bool,
+    /// Intensity of the desired images: `reachable` scales the test images into the range the
+    /// projector can show across the displayable area (so the oracle measures compensation, not
+    /// clipping); `full` places them unscaled.
+    #[arg(long, value_enum, default_value_t = DesiredRange::Reachable)]
+    pub desired_range: DesiredRange,
     /// Print the setup's record (rig.json) on stdout.
     #[arg(long)]
     pub json: bool,
@@ -227,6 +232,7 @@ fn export(a: ExportArgs) -> Result<()> {
         ntest: a.ntest as usize,
         full_cube: !a.no_cube,
         structured_light: true,
+        reachable_desired: a.desired_range == DesiredRange::Reachable,
     };
     let summary = rig::export_setup(&sim, &root, &setup, &opts)
         .with_context(|| format!("exporting scene {:?} to {}", scene.name, a.out.display()))?;
@@ -271,9 +277,9 @@ fn sheet(a: SheetArgs) -> Result<()> {
     for name in &names {
         let scene = resolve(name, sa)?;
         let sim = Simulator::new(&scene, sa.seed, Phase::Calibration)?;
-        let area = rig::sheet::displayable_area(&sim)
+        let (area, range) = rig::sheet::display_target(&sim)
             .with_context(|| format!("finding the displayable area of scene {name:?}"))?;
-        let (img, s) = rig::sheet::contact_sheet(&sim, &sample, &test, area, a.panel)?;
+        let (img, s) = rig::sheet::contact_sheet(&sim, &sample, &test, area, range, a.panel)?;
         let path = a.out.join(format!("{}.png", scene.name));
         compend::pngio::write_rgb(&path, &img)?;
         let cell = |x: &compend::metrics::Scores| format!("{:.2} dB / {:.3}", x.psnr, x.ssim);
@@ -342,7 +348,7 @@ fn score(a: ScoreArgs) -> Result<()> {
         "sim: scoring {n} test image(s) of scene {:?} on the rig (area {area}{pose})",
         record.scene.name
     );
-    let refs = rig::reference_scores(
+    let (refs, oracle_images) = rig::score::reference_scores_with_oracle(
         &sim,
         &tests,
         &desired,
@@ -382,6 +388,16 @@ fn score(a: ScoreArgs) -> Result<()> {
             .with_context(|| format!("scoring model {m:?}"))?;
         rows.push(row(m, &s));
     }
+    let net_oracle = rig::score::oracle_at_network(
+        &sim,
+        &oracle_images,
+        &desired,
+        area,
+        record.canvas,
+        net,
+        FRAMES_SCORE,
+    )?;
+    rows.push(row(&format!("oracle @ {}x{}", net.0, net.1), &net_oracle));
     rows.push(row("oracle", &refs.oracle));
     if a.json {
         let out = serde_json::json!({
@@ -410,4 +426,11 @@ fn score(a: ScoreArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// How desired images are scaled (see `--desired-range`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DesiredRange {
+    Reachable,
+    Full,
 }

@@ -46,7 +46,14 @@ pub struct ExportOptions {
     pub full_cube: bool,
     /// Capture the structured-light patterns of `ROOT/sl` when present.
     pub structured_light: bool,
+    /// Scale desired images into the range the projector reaches across the displayable area
+    /// ([`fov::display_range`]); `false` places the test images at full range.
+    pub reachable_desired: bool,
 }
+
+/// Quantile for the display range of desired images: 95 % of the displayable area can show both
+/// ends of the range in every channel.
+pub const DESIRED_RANGE_QUANTILE: f64 = 0.05;
 
 /// Record of a simulated setup (`SETUP/rig.json`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -60,6 +67,9 @@ pub struct RigRecord {
     pub canvas: Rect,
     /// The displayable area in camera pixels (where `cam/desire/test` images were placed).
     pub displayable_area: Rect,
+    /// The camera-value range desired images were scaled into (`{low: 0, high: 1}` = unscaled).
+    #[serde(default = "full_range")]
+    pub desired_range: fov::DisplayRange,
     /// Fraction of the camera frame in the FOV mask found from the captures.
     pub fov_coverage: f64,
     /// Fraction of the camera frame truly lit by the projector (the simulator's ground truth).
@@ -224,12 +234,17 @@ pub fn export_setup(
     let fov = fov::fov_mask(&black, &white, &label)?;
     let aspect = canvas.width as f64 / canvas.height as f64;
     let area = fov::displayable_area(&fov.mask, aspect)?;
+    let range = if opts.reachable_desired {
+        fov::display_range(&black, &white, area, DESIRED_RANGE_QUANTILE)?
+    } else {
+        fov::DisplayRange::FULL
+    };
     (1..=opts.ntest)
         .into_par_iter()
         .try_for_each(|i| -> Result<()> {
             let p = root.image_path(ProjectorSet::Test, i);
             let img = pngio::read_rgb_sized::<crate::raster::Projector>(&p, net, &net_why)?;
-            let z = fov::place_in_area(&img, area, cam)?;
+            let z = fov::place_in_area(&range.apply(&img), area, cam)?;
             setup.write_desired(i, &z).map(drop)
         })?;
 
@@ -240,6 +255,7 @@ pub fn export_setup(
         phase: sim.phase(),
         canvas,
         displayable_area: area,
+        desired_range: range,
         fov_coverage: fov.mask.count() as f64 / frame,
         true_fov_coverage: sim.lit_mask().count() as f64 / frame,
         ref_captures: cube.len() + 1,
@@ -274,4 +290,8 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let tmp = path.with_extension("json.tmp");
     std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, "write", e))?;
     std::fs::rename(&tmp, path).map_err(|e| Error::io(path, "rename into place", e))
+}
+
+fn full_range() -> fov::DisplayRange {
+    fov::DisplayRange::FULL
 }

@@ -61,6 +61,19 @@ pub fn reference_scores(
     opts: OracleOptions,
     first_frame: u64,
 ) -> Result<ReferenceScores> {
+    reference_scores_with_oracle(sim, uncompensated, desired, area, opts, first_frame)
+        .map(|(scores, _)| scores)
+}
+
+/// [`reference_scores`], also returning the oracle's projector images (for further rows).
+pub fn reference_scores_with_oracle(
+    sim: &Simulator,
+    uncompensated: &[PrjImage],
+    desired: &[CamImage],
+    area: Rect,
+    opts: OracleOptions,
+    first_frame: u64,
+) -> Result<(ReferenceScores, Vec<PrjImage>)> {
     let mask = area_mask(sim, area);
     let geometry: Vec<PrjImage> = desired
         .iter()
@@ -70,9 +83,35 @@ pub fn reference_scores(
         .iter()
         .map(|z| sim.oracle(z, &mask, opts))
         .collect::<Result<_>>()?;
-    Ok(ReferenceScores {
+    let scores = ReferenceScores {
         uncompensated: closed_loop(sim, uncompensated, desired, area, first_frame)?,
         geometry_only: closed_loop(sim, &geometry, desired, area, first_frame)?,
         oracle: closed_loop(sim, &oracle, desired, area, first_frame)?,
-    })
+    };
+    Ok((scores, oracle))
+}
+
+/// The oracle limited to network resolution: each oracle projector image's canvas region is
+/// area-resized to `network` size and placed back on the canvas as a compensation image would be.
+/// What remains between a network-space model and this row is the model; what lies between this
+/// row and the oracle is the network resolution itself.
+pub fn oracle_at_network(
+    sim: &Simulator,
+    oracle: &[PrjImage],
+    desired: &[CamImage],
+    area: Rect,
+    canvas: Rect,
+    network: (usize, usize),
+    first_frame: u64,
+) -> Result<Scores> {
+    let psize = sim.projector_size();
+    let shown: Vec<PrjImage> = oracle
+        .iter()
+        .map(|o| {
+            let region = o.crop(canvas)?;
+            let small = crate::resize::resize_area(&region, network.0, network.1);
+            super::export::place_on_canvas(&small, canvas, psize)
+        })
+        .collect::<Result<_>>()?;
+    closed_loop(sim, &shown, desired, area, first_frame)
 }

@@ -18,15 +18,18 @@ const FRAME_SHEET: u64 = 5_000_000;
 
 /// The displayable area as a real setup finds it: capture black and white on the canvas, FOV
 /// mask from them ([`fov::fov_mask`]), the largest canvas-shaped rectangle inside
-/// ([`fov::displayable_area`]). Camera pixels.
-pub fn displayable_area(sim: &Simulator) -> Result<Rect> {
+/// ([`fov::displayable_area`]), in camera pixels; and the reachable range of desired images
+/// there ([`fov::display_range`], as `sim export` scales them by default).
+pub fn display_target(sim: &Simulator) -> Result<(Rect, fov::DisplayRange)> {
     let (pw, ph) = sim.projector_size();
     let black = sim.capture(&PrjImage::new(pw, ph), FRAME_BLACK)?;
     let white = sim.capture(&PrjImage::filled(pw, ph, [1.0; 3]), FRAME_WHITE)?;
     let label = format!("virtual rig scene {:?}", sim.scene().name);
     let mask = fov::fov_mask(&black, &white, &label)?;
     let canvas = full_canvas(sim);
-    fov::displayable_area(&mask.mask, canvas.width as f64 / canvas.height as f64)
+    let area = fov::displayable_area(&mask.mask, canvas.width as f64 / canvas.height as f64)?;
+    let range = fov::display_range(&black, &white, area, super::export::DESIRED_RANGE_QUANTILE)?;
+    Ok((area, range))
 }
 
 /// A contact sheet for one test image `test` and one sampling image `sample` (both network
@@ -37,12 +40,13 @@ pub fn contact_sheet(
     sample: &PrjImage,
     test: &PrjImage,
     area: Rect,
+    range: fov::DisplayRange,
     panel_width: usize,
 ) -> Result<(Rgb<Unspecified>, ReferenceScores)> {
     let psize = sim.projector_size();
     let cam = sim.camera_size();
     let canvas = full_canvas(sim);
-    let desired = fov::place_in_area(test, area, cam)?;
+    let desired = fov::place_in_area(&range.apply(test), area, cam)?;
     let unc = place_on_canvas(test, canvas, psize)?;
     let geo = sim.geometry_only(&desired)?;
     let orc = sim.oracle(&desired, &area_mask(sim, area), OracleOptions::default())?;
