@@ -649,10 +649,12 @@ impl DisplayRange {
     }
 }
 
-/// The display range inside `area` from the black and white reference captures (camera space):
-/// `low` is the `1 − q` quantile over the area of each pixel's brightest channel under black,
-/// `high` the `q` quantile of each pixel's darkest channel under white (e.g. `q = 0.05`: 95 % of
-/// the area can show both ends in every channel). Errors name the captures' problem.
+/// The display range inside `area` from the black and white reference captures (camera space).
+/// Only pixels where the projector makes a difference count (white above black by at least
+/// 0.02 in every channel): shadows cannot be compensated at any range and must not set it. Over
+/// those, `low` is the `1 − q` quantile of each pixel's brightest channel under black, `high`
+/// the `q` quantile of each pixel's darkest channel under white (e.g. `q = 0.05`: 95 % of them
+/// can show both ends in every channel). Errors when fewer than half the area responds.
 pub fn display_range(
     black: &CamImage,
     white: &CamImage,
@@ -670,14 +672,27 @@ pub fn display_range(
             "display range: area {area} does not fit in the {w}x{h} camera frame"
         )));
     }
+    const MIN_CONTRAST: f32 = 0.02;
     let mut lows = Vec::with_capacity(area.area());
     let mut highs = Vec::with_capacity(area.area());
     for y in area.y..area.y + area.height {
         for x in area.x..area.x + area.width {
             let (b, wv) = (black.get(x, y), white.get(x, y));
-            lows.push(b[0].max(b[1]).max(b[2]));
-            highs.push(wv[0].min(wv[1]).min(wv[2]));
+            let lo = b[0].max(b[1]).max(b[2]);
+            let hi = wv[0].min(wv[1]).min(wv[2]);
+            if (0..3).all(|c| wv[c] - b[c] >= MIN_CONTRAST) {
+                lows.push(lo);
+                highs.push(hi);
+            }
         }
+    }
+    if lows.len() * 2 < area.area() {
+        return Err(Error::Failed(format!(
+            "display range: only {} of {} pixels in area {area} respond to the projector \
+             (white above black by {MIN_CONTRAST})",
+            lows.len(),
+            area.area()
+        )));
     }
     let quantile = |v: &mut Vec<f32>, q: f64| -> f32 {
         let k = ((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
@@ -686,10 +701,10 @@ pub fn display_range(
     };
     let low = quantile(&mut lows, 1.0 - q);
     let high = quantile(&mut highs, q);
-    if !(high > low) {
+    if high <= low {
         return Err(Error::Failed(format!(
             "display range: white ({high:.3}) is not brighter than black ({low:.3}) in area {area}; \
-             the projector cannot show any contrast there"
+             the projector cannot show a common range there"
         )));
     }
     Ok(DisplayRange { low, high })

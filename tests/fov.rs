@@ -778,3 +778,42 @@ fn place_in_area_fills_the_rectangle_and_leaves_black_around() {
         Err(Error::Shape(_))
     ));
 }
+
+#[test]
+fn display_range_ignores_shadows_and_uses_quantiles() {
+    use compend::fov::{DisplayRange, display_range};
+    // 20x10 area: black level 0.1 + 0.001·x, white 0.8 − 0.002·x; the right 4 columns are shadow
+    // (white = black), which must not pull the range down.
+    let black = CamImage::from_fn(20, 10, |x, _| [0.1 + 0.001 * x as f32; 3]);
+    let white = CamImage::from_fn(20, 10, |x, _| {
+        if x >= 16 {
+            [0.1 + 0.001 * x as f32; 3]
+        } else {
+            [0.8 - 0.002 * x as f32; 3]
+        }
+    });
+    let area = Rect {
+        x: 0,
+        y: 0,
+        width: 20,
+        height: 10,
+    };
+    let r = display_range(&black, &white, area, 0.0).unwrap();
+    // q = 0: the darkest white and brightest black among the 16 lit columns.
+    assert!(
+        (r.low - 0.115).abs() < 1e-6 && (r.high - 0.77).abs() < 1e-6,
+        "{r:?}"
+    );
+    let img = CamImage::filled(2, 2, [0.0, 0.5, 1.0]);
+    let mapped = r.apply(&img);
+    assert!(
+        (mapped.get(0, 0)[0] - r.low).abs() < 1e-6 && (mapped.get(0, 0)[2] - r.high).abs() < 1e-6
+    );
+    assert_eq!(DisplayRange::FULL.apply(&img), img);
+    // Everything in shadow: a clear error.
+    let err = display_range(&black, &black, area, 0.05).unwrap_err();
+    assert!(
+        err.to_string().contains("respond to the projector"),
+        "{err}"
+    );
+}

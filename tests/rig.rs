@@ -597,14 +597,22 @@ fn exported_setup_goes_through_the_offline_commands() {
         .collect();
     assert_eq!(
         names,
-        ["uncompensated", "geometry-only", "linear", "oracle"]
+        [
+            "uncompensated",
+            "geometry-only",
+            "linear",
+            "oracle @ 32x32",
+            "oracle"
+        ]
     );
     let psnr = |k: usize| rows[k]["psnr"].as_f64().expect("psnr");
-    assert_eq!(rows[3]["gap_db"].as_f64(), Some(0.0));
+    assert_eq!(rows[4]["gap_db"].as_f64(), Some(0.0));
     assert!(
-        psnr(3) > psnr(2) && psnr(3) > psnr(1) && psnr(1) > psnr(0),
+        psnr(4) > psnr(2) && psnr(4) > psnr(1) && psnr(1) > psnr(0),
         "{v}"
     );
+    // Limiting the oracle to the network resolution can only cost (up to noise).
+    assert!(psnr(3) <= psnr(4) + 0.1, "{v}");
     assert!(
         psnr(2) > psnr(0),
         "a trained model beats no compensation: {v}"
