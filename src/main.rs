@@ -15,6 +15,8 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Benchmark methods × scenes × training-set sizes × seeds on the virtual rig.
+    Bench(cli::bench::Args),
     /// Compensation images for desired camera-view images, with a trained model.
     Compensate(cli::compensate::Args),
     /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row.
@@ -35,6 +37,7 @@ enum Command {
 fn main() -> ExitCode {
     let args = Cli::parse();
     let result = match args.command {
+        Command::Bench(a) => cli::bench::run(a),
         Command::Compensate(a) => cli::compensate::run(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Inspect(a) => cli::inspect::run(a),

@@ -140,3 +140,22 @@ impl Model {
         Ok(crate::sample::grid_sample(&masked, self.grid()))
     }
 }
+
+/// The paper protocol (DESIGN.md section 6) on test pairs: the model's output for each capture
+/// against the projector input, and the "uncompensated" row (captures warped by the model's own
+/// grid against the inputs). Returns (compensated, uncompensated).
+pub fn paper_protocol(
+    model: &Model,
+    pairs: &crate::dataset::Pairs,
+) -> Result<(crate::metrics::Scores, crate::metrics::Scores)> {
+    let (mut comp, mut uncomp) = (
+        crate::metrics::Accumulator::default(),
+        crate::metrics::Accumulator::default(),
+    );
+    for (cap, input) in pairs.captures.iter().zip(&pairs.inputs) {
+        let target: NetImage = input.clone().into_space();
+        comp.add(&model.infer(cap)?, &target)?;
+        uncomp.add(&model.warp_only(cap)?, &target)?;
+    }
+    Ok((comp.finish()?, uncomp.finish()?))
+}

@@ -4,9 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use compend::dataset::Setup;
-use compend::metrics::{Accumulator, Scores};
+use compend::metrics::Scores;
 use compend::model::Model;
-use compend::raster::NetImage;
 use serde_json::json;
 
 #[derive(clap::Args, Debug)]
@@ -42,14 +41,8 @@ pub fn run(args: Args) -> Result<()> {
         ))
         .into());
     }
-    let (mut comp, mut uncomp) = (Accumulator::default(), Accumulator::default());
-    for (cap, input) in pairs.captures.iter().zip(&pairs.inputs) {
-        let target: NetImage = input.clone().into_space();
-        comp.add(&model.infer(cap)?, &target)?;
-        uncomp.add(&model.warp_only(cap)?, &target)?;
-    }
-    let comp = comp.finish().context("no test pairs in the setup")?;
-    let uncomp = uncomp.finish()?;
+    let (comp, uncomp) = compend::model::paper_protocol(&model, &pairs)
+        .with_context(|| format!("scoring the test pairs of {}", setup.path().display()))?;
     let method = model.meta.method.clone();
     if args.json {
         println!(

@@ -1,6 +1,7 @@
 //! Subcommand implementations: argument structs (clap) and `run` functions.
 //! Errors carry context with anyhow; library errors inside decide the exit code.
 
+pub mod bench;
 pub mod compensate;
 pub mod eval;
 pub mod inspect;

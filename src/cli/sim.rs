@@ -176,7 +176,7 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 /// The scene with the requested resolutions.
-fn resolve(name: &str, a: &SceneArgs) -> Result<scene::Scene> {
+pub fn resolve(name: &str, a: &SceneArgs) -> Result<scene::Scene> {
     let s = scene::load(name)?;
     let cam = a
         .camera

@@ -1,0 +1,330 @@
+//! `compend bench`: methods × scenes × training-set sizes × seeds on the virtual rig (DESIGN.md
+//! section 9). For every scene and seed it exports a setup, scores the reference rows
+//! (uncompensated, geometry-only, the oracle at network resolution and the oracle), then trains
+//! every method at every training-set size and scores it with the paper protocol and closed loop
+//! on the rig. Writes `bench.json` (every row) and `bench.md` (tables); progress on stderr.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use compend::dataset::{DataRoot, ProjectorSet, Setup};
+use compend::metrics::Scores;
+use compend::model::paper_protocol;
+use compend::raster::PrjImage;
+use compend::rig::{self, ExportOptions, OracleOptions, Phase, Simulator};
+use compend::train::{self, Request};
+use serde::Serialize;
+
+use super::InputError;
+use super::sim::SceneArgs;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Folder for bench.json, bench.md and the simulated data (data/).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Scenes, comma-separated [default: every built-in scene].
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<String>,
+    /// Methods, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "linear,linear-sl")]
+    pub methods: Vec<String>,
+    /// Training-set sizes, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "48")]
+    pub ntrain: Vec<usize>,
+    /// Seeds (scene texture, noise and sampling images), comma-separated; several seeds test
+    /// stability.
+    #[arg(long, value_delimiter = ',', default_value = "0")]
+    pub seeds: Vec<u64>,
+    /// Test images per scene.
+    #[arg(long, default_value_t = 10)]
+    pub ntest: usize,
+    /// Camera / projector / network sizes (defaults: the scenes' 640x480 / 800x600, 256).
+    #[command(flatten)]
+    pub scene_args: SceneArgs,
+}
+
+/// One row of the benchmark.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub scene: String,
+    pub seed: u64,
+    /// A method, or a reference row: `uncompensated`, `geometry-only`, `oracle@network`, `oracle`.
+    pub method: String,
+    pub ntrain: Option<usize>,
+    /// Training wall time, seconds (loading and FOV included).
+    pub train_seconds: Option<f64>,
+    /// Captures the method needs: training pairs, references, structured light.
+    pub captures: Option<usize>,
+    /// CPU reference compensation time per frame (camera image → network image), milliseconds.
+    pub frame_ms_cpu: Option<f64>,
+    /// Paper protocol on the test pairs (network space).
+    pub paper: Option<Scores>,
+    /// Closed loop on the rig inside the displayable area.
+    pub closed_loop: Option<Scores>,
+    /// Oracle PSNR minus this row's closed-loop PSNR, dB.
+    pub gap_db: Option<f64>,
+    /// Why the method produced no model (training failed or diverged), if it did not.
+    pub failed: Option<String>,
+}
+
+impl Row {
+    fn reference(scene: &str, seed: u64, method: &str, s: Scores, oracle: f64) -> Self {
+        Row {
+            scene: scene.into(),
+            seed,
+            method: method.into(),
+            ntrain: None,
+            train_seconds: None,
+            captures: None,
+            frame_ms_cpu: None,
+            paper: None,
+            closed_loop: Some(s),
+            gap_db: Some(oracle - s.psnr),
+            failed: None,
+        }
+    }
+}
+
+/// Frame indices of the closed-loop captures (apart from the export's).
+const FRAMES_BENCH: u64 = 3_000_000;
+
+pub fn run(args: Args) -> Result<()> {
+    let start = Instant::now();
+    let scenes: Vec<String> = if args.scenes.is_empty() {
+        rig::BUILTIN.iter().map(|s| s.to_string()).collect()
+    } else {
+        args.scenes.clone()
+    };
+    for m in &args.methods {
+        if !compend::model::METHODS.contains(&m.as_str()) {
+            return Err(InputError(format!(
+                "--methods: `{m}` is not a method; methods: {}",
+                compend::model::METHODS.join(", ")
+            ))
+            .into());
+        }
+    }
+    let max_train = *args
+        .ntrain
+        .iter()
+        .max()
+        .context("--ntrain needs at least one size")?;
+    if max_train < train::MIN_TRAIN || args.ntest == 0 || args.seeds.is_empty() {
+        return Err(InputError(format!(
+            "--ntrain sizes must be at least {}, --ntest at least 1, and --seeds non-empty",
+            train::MIN_TRAIN
+        ))
+        .into());
+    }
+    let mut rows = Vec::new();
+    for &seed in &args.seeds {
+        let sa = SceneArgs {
+            seed,
+            camera: args.scene_args.camera,
+            projector: args.scene_args.projector,
+            network: args.scene_args.network,
+        };
+        for name in &scenes {
+            let scene = super::sim::resolve(name, &sa)?;
+            eprintln!("bench: scene {} seed {seed}", scene.name);
+            let root_dir = args.out.join("data").join(format!("seed{seed}"));
+            super::patterns::run(super::patterns::Args {
+                out: root_dir.clone(),
+                ntrain: max_train as u64,
+                ntest: args.ntest as u64,
+                seed,
+                size: sa.network,
+                projector: super::patterns::Size {
+                    width: scene.projector.width,
+                    height: scene.projector.height,
+                },
+                gray_level: compend::patterns::DEFAULT_GRAY_LEVEL,
+            })?;
+            let root = DataRoot::open(&root_dir)?;
+            let sim = Simulator::new(&scene, seed, Phase::Calibration)?;
+            let opts = ExportOptions {
+                ntrain: max_train,
+                ntest: args.ntest,
+                full_cube: false,
+                structured_light: true,
+                reachable_desired: true,
+            };
+            let exported =
+                rig::export::export_setup(&sim, &root, &PathBuf::from(&scene.name), &opts)
+                    .with_context(|| format!("exporting scene {}", scene.name))?;
+            let setup = Setup::open(&exported.setup, Some(root.path()))?;
+            // Score as the viewer will see it: after the projector moved, for the drift scene.
+            let viewer = Simulator::new(&scene, seed, Phase::AfterDrift)?;
+            rows.extend(bench_scene(
+                &args,
+                &scene.name,
+                seed,
+                &viewer,
+                &setup,
+                &exported.record,
+            )?);
+        }
+    }
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| compend::Error::io(&args.out, "create folder", e))?;
+    let json = serde_json::json!({
+        "compend": env!("CARGO_PKG_VERSION"),
+        "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+        "seconds": start.elapsed().as_secs_f64(),
+        "ntest": args.ntest,
+        "rows": rows,
+    });
+    let jpath = args.out.join("bench.json");
+    std::fs::write(&jpath, serde_json::to_vec_pretty(&json)?)
+        .map_err(|e| compend::Error::io(&jpath, "write", e))?;
+    let mpath = args.out.join("bench.md");
+    std::fs::write(&mpath, markdown(&rows)).map_err(|e| compend::Error::io(&mpath, "write", e))?;
+    eprintln!(
+        "bench: {} rows in {:.0} s; wrote {} and {}",
+        rows.len(),
+        start.elapsed().as_secs_f64(),
+        jpath.display(),
+        mpath.display()
+    );
+    Ok(())
+}
+
+fn bench_scene(
+    args: &Args,
+    scene: &str,
+    seed: u64,
+    sim: &Simulator,
+    setup: &Setup,
+    record: &rig::export::RigRecord,
+) -> Result<Vec<Row>> {
+    let psize = sim.projector_size();
+    let area = record.displayable_area;
+    let desired = setup.load_desired(Some(args.ntest))?;
+    let on_canvas = |imgs: &[PrjImage]| -> compend::Result<Vec<PrjImage>> {
+        imgs.iter()
+            .map(|i| rig::place_on_canvas(i, record.canvas, psize))
+            .collect()
+    };
+    let tests = on_canvas(&setup.root().load(ProjectorSet::Test, Some(args.ntest))?)?;
+    let (refs, oracle_imgs) = rig::score::reference_scores_with_oracle(
+        sim,
+        &tests,
+        &desired,
+        area,
+        OracleOptions::default(),
+        FRAMES_BENCH,
+    )?;
+    let net = setup.root().network_size()?;
+    let net_oracle = rig::score::oracle_at_network(
+        sim,
+        &oracle_imgs,
+        &desired,
+        area,
+        record.canvas,
+        net,
+        FRAMES_BENCH,
+    )?;
+    let ceiling = refs.oracle.psnr;
+    let mut rows = vec![
+        Row::reference(scene, seed, "uncompensated", refs.uncompensated, ceiling),
+        Row::reference(scene, seed, "geometry-only", refs.geometry_only, ceiling),
+        Row::reference(scene, seed, "oracle@network", net_oracle, ceiling),
+        Row::reference(scene, seed, "oracle", refs.oracle, ceiling),
+    ];
+    let test_pairs = setup.load_test(Some(args.ntest))?;
+    for method in &args.methods {
+        for &n in &args.ntrain {
+            let req = Request {
+                method: method.clone(),
+                ntrain: Some(n),
+                seed,
+            };
+            let mut row = Row {
+                scene: scene.into(),
+                seed,
+                method: method.clone(),
+                ntrain: Some(n),
+                train_seconds: None,
+                captures: Some(
+                    n + 3
+                        + if method.ends_with("-sl") {
+                            record.sl_captures
+                        } else {
+                            0
+                        },
+                ),
+                frame_ms_cpu: None,
+                paper: None,
+                closed_loop: None,
+                gap_db: None,
+                failed: None,
+            };
+            match train::train(setup, &req, |_, _, _| {}) {
+                Err(e) => {
+                    eprintln!("bench: {scene} {method} n={n}: training failed: {e}");
+                    row.failed = Some(e.to_string());
+                }
+                Ok((model, summary)) => {
+                    row.train_seconds = Some(summary.seconds);
+                    row.paper = Some(paper_protocol(&model, &test_pairs)?.0);
+                    let t = Instant::now();
+                    let shown: Vec<PrjImage> = desired
+                        .iter()
+                        .map(|z| model.infer(z).map(|x| x.into_space()))
+                        .collect::<compend::Result<_>>()?;
+                    row.frame_ms_cpu = Some(1e3 * t.elapsed().as_secs_f64() / desired.len() as f64);
+                    let s =
+                        rig::closed_loop(sim, &on_canvas(&shown)?, &desired, area, FRAMES_BENCH)?;
+                    row.gap_db = Some(ceiling - s.psnr);
+                    row.closed_loop = Some(s);
+                    eprintln!(
+                        "bench: {scene} {method} n={n}: {:.1} s, closed loop {:.2} dB (gap {:.2} dB)",
+                        summary.seconds,
+                        s.psnr,
+                        ceiling - s.psnr
+                    );
+                }
+            }
+            rows.push(row);
+        }
+    }
+    Ok(rows)
+}
+
+/// Tables: one row per scene × seed × method × ntrain.
+fn markdown(rows: &[Row]) -> String {
+    let mut md = String::from(
+        "# compend bench\n\nClosed loop: PSNR/SSIM of what the rig's camera sees inside the displayable \
+         area against the desired image; gap: oracle PSNR minus the row's. Paper: the model's output \
+         for test captures against the projector inputs (network space).\n\n\
+         | scene | seed | method | #train | train s | captures | ms/frame (CPU) | closed-loop PSNR | SSIM | gap dB | paper PSNR | paper SSIM |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let f = |v: Option<f64>, p: usize| v.map_or("–".to_string(), |x| format!("{x:.p$}"));
+    for r in rows {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.scene,
+            r.seed,
+            if r.failed.is_some() {
+                format!("{} (failed)", r.method)
+            } else {
+                r.method.clone()
+            },
+            r.ntrain.map_or("–".into(), |n| n.to_string()),
+            f(r.train_seconds, 1),
+            r.captures.map_or("–".into(), |n| n.to_string()),
+            f(r.frame_ms_cpu, 1),
+            f(r.closed_loop.map(|s| s.psnr), 2),
+            f(r.closed_loop.map(|s| s.ssim), 3),
+            f(r.gap_db, 2),
+            f(r.paper.map(|s| s.psnr), 2),
+            f(r.paper.map(|s| s.ssim), 3),
+        );
+    }
+    md
+}

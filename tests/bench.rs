@@ -1,0 +1,59 @@
+//! `compend bench` end to end at tiny sizes.
+
+use crate::common::{assert_code, compend, stderr};
+
+#[test]
+fn bench_writes_rows_for_references_and_methods() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    let o = compend(&[
+        "bench",
+        "--out",
+        out.to_str().unwrap(),
+        "--scenes",
+        "textured-plane",
+        "--methods",
+        "linear",
+        "--ntrain",
+        "6",
+        "--ntest",
+        "2",
+        "--camera",
+        "80x60",
+        "--projector",
+        "100x75",
+        "--network",
+        "32",
+    ]);
+    assert_code(&o, 0);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r["method"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "uncompensated",
+            "geometry-only",
+            "oracle@network",
+            "oracle",
+            "linear"
+        ]
+    );
+    let psnr = |k: usize| rows[k]["closed_loop"]["psnr"].as_f64().unwrap();
+    // The oracle is the ceiling; the trained model beats projecting the image as is.
+    assert!(psnr(3) >= psnr(4) && psnr(3) >= psnr(1), "{v}");
+    assert!(psnr(4) > psnr(0), "{v}");
+    let lin = &rows[4];
+    assert_eq!(lin["ntrain"], 6);
+    assert_eq!(lin["captures"], 9);
+    assert!(lin["train_seconds"].as_f64().unwrap() > 0.0);
+    assert!(lin["paper"]["psnr"].as_f64().unwrap() > 10.0);
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    assert!(md.contains("| textured-plane | 0 | linear | 6 |"), "{md}");
+
+    // A method that does not exist is a usage error.
+    let o = compend(&["bench", "--out", out.to_str().unwrap(), "--methods", "nope"]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("nope"));
+}
