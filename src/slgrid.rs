@@ -134,59 +134,46 @@ pub fn grid_from_correspondence(
 fn fill_holes(pos: &[Option<[f64; 2]>], w: usize, h: usize) -> Vec<[f64; 2]> {
     let mut cur: Vec<Option<[f64; 2]>> = pos.to_vec();
     loop {
-        let mut next = cur.clone();
-        let mut missing = 0;
-        for j in 0..h {
-            for i in 0..w {
-                if cur[j * w + i].is_some() {
-                    continue;
-                }
-                let (mut s, mut n) = ([0f64; 2], 0);
-                for (di, dj) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
-                    let (x, y) = (i as i64 + di, j as i64 + dj);
-                    if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
-                        continue;
-                    }
-                    if let Some(v) = cur[y as usize * w + x as usize] {
-                        s[0] += v[0];
-                        s[1] += v[1];
-                        n += 1;
-                    }
-                }
-                if n > 0 {
-                    next[j * w + i] = Some([s[0] / n as f64, s[1] / n as f64]);
-                } else {
-                    missing += 1;
-                }
-            }
-        }
+        let next: Vec<Option<[f64; 2]>> = (0..w * h)
+            .map(|k| cur[k].or_else(|| neighbour_mean(k % w, k / w, w, h, |i| cur[i])))
+            .collect();
+        let done = next.iter().all(Option::is_some);
         cur = next;
-        if missing == 0 {
+        if done {
             break;
         }
     }
     let mut out: Vec<[f64; 2]> = cur.into_iter().map(|v| v.unwrap_or([0.0, 0.0])).collect();
     for _ in 0..50 {
         let prev = out.clone();
-        for j in 0..h {
-            for i in 0..w {
-                if pos[j * w + i].is_some() {
-                    continue;
-                }
-                let (mut s, mut n) = ([0f64; 2], 0);
-                for (di, dj) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
-                    let (x, y) = (i as i64 + di, j as i64 + dj);
-                    if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
-                        continue;
-                    }
-                    let v = prev[y as usize * w + x as usize];
-                    s[0] += v[0];
-                    s[1] += v[1];
-                    n += 1;
-                }
-                out[j * w + i] = [s[0] / n as f64, s[1] / n as f64];
+        for k in (0..w * h).filter(|&k| pos[k].is_none()) {
+            if let Some(v) = neighbour_mean(k % w, k / w, w, h, |i| Some(prev[i])) {
+                out[k] = v;
             }
         }
     }
     out
+}
+
+/// Mean of the defined values among the 4-neighbours of cell (x, y), if any.
+fn neighbour_mean(
+    x: usize,
+    y: usize,
+    w: usize,
+    h: usize,
+    value: impl Fn(usize) -> Option<[f64; 2]>,
+) -> Option<[f64; 2]> {
+    let (mut s, mut n) = ([0f64; 2], 0);
+    for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
+        let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+        if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+            continue;
+        }
+        if let Some(v) = value(ny as usize * w + nx as usize) {
+            s[0] += v[0];
+            s[1] += v[1];
+            n += 1;
+        }
+    }
+    (n > 0).then(|| [s[0] / n as f64, s[1] / n as f64])
 }
