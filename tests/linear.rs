@@ -222,3 +222,31 @@ fn sl_grid_inverts_a_known_correspondence() {
         "worst border error {worst_border:.3} camera pixels"
     );
 }
+
+/// Saturated and black captures (an over-exposed or covered camera for some images) must not
+/// crash the fit or produce non-finite coefficients.
+#[test]
+fn degenerate_captures_give_a_finite_model() {
+    let sys = System::new();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let train: Vec<NetImage> = (0..12).map(|_| texture(&mut rng)).collect();
+    let mut caps: Vec<CamImage> = train.iter().map(|t| sys.capture(t)).collect();
+    caps[0] = CamImage::filled(CAM.0, CAM.1, [1.0; 3]); // saturated
+    caps[1] = CamImage::new(CAM.0, CAM.1); // black
+    caps[2] = caps[2].map(|v| (v * 4.0).min(1.0)); // mostly clipped
+    let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
+    let settings = FitSettings {
+        network_size: (NET, NET),
+        levels: vec![(NET, 20, 1.0)],
+        ..FitSettings::default()
+    };
+    let (model, report) = fit(&caps, &train, init, &settings, |_, _, _| {}).unwrap();
+    assert!(report.final_loss.is_finite());
+    assert!(model.coeffs.data.iter().flatten().all(|v| v.is_finite()));
+    let out = model.simplify().apply(&caps[3]);
+    assert!(
+        out.data()
+            .iter()
+            .all(|v| v.is_finite() && (0.0..=1.0).contains(v))
+    );
+}
