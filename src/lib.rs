@@ -13,6 +13,7 @@ pub mod metrics;
 pub mod model;
 pub mod modeldir;
 pub mod morph;
+pub mod nn;
 pub mod patterns;
 pub mod pngio;
 pub mod raster;

@@ -8,6 +8,7 @@ mod fov;
 mod image;
 mod linear;
 mod metrics;
+mod nn;
 mod patterns;
 mod rig;
 mod train;

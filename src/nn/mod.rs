@@ -1,0 +1,7 @@
+//! Neural-network building blocks in candle for the learned models (CompenNet++ family).
+//!
+//! Tensors are NCHW, f32 (f64 works too, for gradient checks); images in [0,1] as in the core.
+
+pub mod grid_sample;
+
+pub use grid_sample::grid_sample;
