@@ -2,6 +2,11 @@
 //!
 //! Tensors are NCHW, f32 (f64 works too, for gradient checks); images in [0,1] as in the core.
 
+pub mod compennet;
 pub mod grid_sample;
+pub mod layers;
+pub mod warpingnet;
 
+pub use compennet::CompenNet;
 pub use grid_sample::grid_sample;
+pub use warpingnet::WarpingNet;

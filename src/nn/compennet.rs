@@ -1,0 +1,160 @@
+//! CompenNet (the photometric part `F†` of CompenNet++, DESIGN.md section 5.2) in candle.
+//!
+//! Input: the (warped) capture `x` (N, 3, H, W) in network space and the (warped) surface image
+//! `s` (1 or N, 3, H, W); output: the projector image in [0, 1], same size. H and W must be
+//! divisible by 4. The surface branch depends only on `s`: compute it once with
+//! [`CompenNet::surface`] and reuse the features for every batch element ([`CompenNet::forward_with`]).
+
+use candle_core::{Module, Result, Tensor};
+use candle_nn::{Conv2d, ConvTranspose2d, VarBuilder};
+
+use super::layers::{WeightInit, conv, tconv};
+
+/// The surface branch: s̃ → s1 (32, H/2), s2 (64, H/4), s3 (128, H/4), s4 (256, H/4).
+#[derive(Clone, Debug)]
+pub struct SurfaceBranch {
+    conv1: Conv2d,
+    conv2: Conv2d,
+    conv3: Conv2d,
+    conv4: Conv2d,
+}
+
+/// The surface features added into the backbone's pre-activations (constant once trained: the
+/// simplified model stores them as bias maps).
+#[derive(Clone, Debug)]
+pub struct SurfaceFeatures {
+    pub s1: Tensor,
+    pub s2: Tensor,
+    pub s3: Tensor,
+    pub s4: Tensor,
+}
+
+impl SurfaceBranch {
+    pub fn new(vb: VarBuilder) -> Result<Self> {
+        let k = WeightInit::KaimingNormal;
+        Ok(Self {
+            conv1: conv(vb.pp("conv1_s"), 3, 32, 3, 2, 1, k)?,
+            conv2: conv(vb.pp("conv2_s"), 32, 64, 3, 2, 1, k)?,
+            conv3: conv(vb.pp("conv3_s"), 64, 128, 3, 1, 1, k)?,
+            conv4: conv(vb.pp("conv4_s"), 128, 256, 3, 1, 1, k)?,
+        })
+    }
+
+    pub fn forward(&self, s: &Tensor) -> Result<SurfaceFeatures> {
+        let s1 = self.conv1.forward(s)?.relu()?;
+        let s2 = self.conv2.forward(&s1)?.relu()?;
+        let s3 = self.conv3.forward(&s2)?.relu()?;
+        let s4 = self.conv4.forward(&s3)?.relu()?;
+        Ok(SurfaceFeatures { s1, s2, s3, s4 })
+    }
+}
+
+/// The skip path from the input: three 3×3 convolutions 3 → 3, each followed by ReLU.
+#[derive(Clone, Debug)]
+pub struct Skip1 {
+    convs: [Conv2d; 3],
+}
+
+impl Skip1 {
+    pub fn new(vb: VarBuilder) -> Result<Self> {
+        let k = WeightInit::KaimingNormal;
+        Ok(Self {
+            convs: [
+                conv(vb.pp("0"), 3, 3, 3, 1, 1, k)?,
+                conv(vb.pp("1"), 3, 3, 3, 1, 1, k)?,
+                conv(vb.pp("2"), 3, 3, 3, 1, 1, k)?,
+            ],
+        })
+    }
+}
+
+impl Module for Skip1 {
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        let mut r = x.clone();
+        for c in &self.convs {
+            r = c.forward(&r)?.relu()?;
+        }
+        Ok(r)
+    }
+}
+
+/// The backbone: encoder with surface features added, decoder with skips.
+#[derive(Clone, Debug)]
+pub struct Backbone {
+    skip1: Skip1,
+    conv1: Conv2d,
+    skip2: Conv2d,
+    conv2: Conv2d,
+    skip3: Conv2d,
+    conv3: Conv2d,
+    conv4: Conv2d,
+    conv5: Conv2d,
+    tconv1: ConvTranspose2d,
+    tconv2: ConvTranspose2d,
+    conv6: Conv2d,
+}
+
+impl Backbone {
+    pub fn new(vb: VarBuilder) -> Result<Self> {
+        let k = WeightInit::KaimingNormal;
+        Ok(Self {
+            skip1: Skip1::new(vb.pp("skip1"))?,
+            conv1: conv(vb.pp("conv1"), 3, 32, 3, 2, 1, k)?,
+            skip2: conv(vb.pp("skip2"), 32, 64, 1, 1, 0, k)?,
+            conv2: conv(vb.pp("conv2"), 32, 64, 3, 2, 1, k)?,
+            skip3: conv(vb.pp("skip3"), 64, 128, 1, 1, 0, k)?,
+            conv3: conv(vb.pp("conv3"), 64, 128, 3, 1, 1, k)?,
+            conv4: conv(vb.pp("conv4"), 128, 256, 3, 1, 1, k)?,
+            conv5: conv(vb.pp("conv5"), 256, 128, 3, 1, 1, k)?,
+            tconv1: tconv(vb.pp("tconv1"), 128, 64, 2, k)?,
+            tconv2: tconv(vb.pp("tconv2"), 64, 32, 2, k)?,
+            conv6: conv(vb.pp("conv6"), 32, 3, 3, 1, 1, k)?,
+        })
+    }
+
+    /// `x` (N, 3, H, W); the surface features broadcast over the batch.
+    pub fn forward(&self, x: &Tensor, s: &SurfaceFeatures) -> Result<Tensor> {
+        let res1 = self.skip1.forward(x)?;
+        let a1 = self.conv1.forward(x)?.broadcast_add(&s.s1)?.relu()?;
+        let res2 = self.skip2.forward(&a1)?;
+        let a2 = self.conv2.forward(&a1)?.broadcast_add(&s.s2)?.relu()?;
+        let res3 = self.skip3.forward(&a2)?;
+        let a3 = self.conv3.forward(&a2)?.broadcast_add(&s.s3)?.relu()?;
+        let a4 = self.conv4.forward(&a3)?.broadcast_add(&s.s4)?.relu()?;
+        let a5 = (self.conv5.forward(&a4)? + res3)?.relu()?;
+        let a6 = (self.tconv1.forward(&a5)? + res2)?.relu()?;
+        let a7 = self.tconv2.forward(&a6)?.relu()?;
+        (self.conv6.forward(&a7)? + res1)?.relu()?.clamp(0.0, 1.0)
+    }
+}
+
+/// CompenNet: surface branch + backbone.
+#[derive(Clone, Debug)]
+pub struct CompenNet {
+    pub surface: SurfaceBranch,
+    pub backbone: Backbone,
+}
+
+impl CompenNet {
+    /// Variables are created under `vb`'s path: `surface.conv1_s.weight`, `backbone.conv1.bias`, ….
+    pub fn new(vb: VarBuilder) -> Result<Self> {
+        Ok(Self {
+            surface: SurfaceBranch::new(vb.pp("surface"))?,
+            backbone: Backbone::new(vb.pp("backbone"))?,
+        })
+    }
+
+    /// The surface features of `s` (computed once per training step or once after training).
+    pub fn surface(&self, s: &Tensor) -> Result<SurfaceFeatures> {
+        self.surface.forward(s)
+    }
+
+    pub fn forward_with(&self, x: &Tensor, s: &SurfaceFeatures) -> Result<Tensor> {
+        self.backbone.forward(x, s)
+    }
+
+    pub fn forward(&self, x: &Tensor, s: &Tensor) -> Result<Tensor> {
+        let f = self.surface(s)?;
+        self.forward_with(x, &f)
+    }
+}
