@@ -274,3 +274,45 @@ fn warpingnet_grid_equals_the_cpu_warp_and_gradients_flow() {
         assert!(n > 0.0, "zero gradient for {name}");
     }
 }
+
+#[test]
+fn ssim_loss_equals_the_metric_and_has_gradients() {
+    // Two related images: the candle SSIM must equal compend::metrics::ssim (the same definition,
+    // computed independently of candle).
+    let (a, _) = case(5, (23, 17), (1, 1));
+    let b = a.map(|v| (0.7 * v + 0.1).min(1.0));
+    let b = compend::raster::Rgb::<Camera>::from_fn(23, 17, |x, y| {
+        let p = b.get(x, y);
+        [p[0], p[1] * if (x + y) % 3 == 0 { 0.5 } else { 1.0 }, p[2]]
+    });
+    let expected = compend::metrics::ssim(&a, &b).unwrap();
+    let ta = to_tensor(&a, DType::F64);
+    let tb = to_tensor(&b, DType::F64);
+    let got: f64 = compend::nn::loss::ssim(&ta, &tb)
+        .unwrap()
+        .to_scalar()
+        .unwrap();
+    assert!(
+        (got - expected).abs() < 1e-6,
+        "candle SSIM {got} vs metric {expected}"
+    );
+    // L1 + (1 − SSIM) is zero for identical inputs and its gradient is non-zero otherwise.
+    let same: f64 = compend::nn::loss::l1_ssim(&ta, &ta)
+        .unwrap()
+        .to_scalar()
+        .unwrap();
+    assert!(same.abs() < 1e-9);
+    let v = Var::from_tensor(&tb).unwrap();
+    let loss = compend::nn::loss::l1_ssim(v.as_tensor(), &ta).unwrap();
+    let g = loss.backward().unwrap();
+    let n: f64 = g
+        .get(v.as_tensor())
+        .unwrap()
+        .abs()
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .to_scalar()
+        .unwrap();
+    assert!(n > 0.0);
+}

@@ -5,6 +5,7 @@
 pub mod compennet;
 pub mod grid_sample;
 pub mod layers;
+pub mod loss;
 pub mod warpingnet;
 
 pub use compennet::CompenNet;
