@@ -316,3 +316,66 @@ fn ssim_loss_equals_the_metric_and_has_gradients() {
         .unwrap();
     assert!(n > 0.0);
 }
+
+fn stack<S: compend::raster::Space>(imgs: &[compend::raster::Rgb<S>]) -> Tensor {
+    let (w, h) = imgs[0].size();
+    let data: Vec<f32> = imgs.iter().flat_map(|i| i.data().iter().copied()).collect();
+    Tensor::from_vec(data, (imgs.len(), h, w, 3), &Device::Cpu)
+        .unwrap()
+        .permute((0, 3, 1, 2))
+        .unwrap()
+        .contiguous()
+        .unwrap()
+}
+
+#[test]
+fn compennet_training_learns_reproduces_and_cancels() {
+    use compend::nn::train::{Data, Settings, Variant, train};
+    use std::sync::atomic::AtomicBool;
+    let sys = crate::linear::System::new();
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let train_imgs: Vec<_> = (0..12).map(|_| crate::linear::texture(&mut rng)).collect();
+    let caps: Vec<_> = train_imgs.iter().map(|t| sys.capture(t)).collect();
+    let gray = compend::raster::NetImage::filled(32, 32, [77.0 / 255.0; 3]);
+    let data = Data {
+        captures: stack(&caps),
+        surface: stack(&[sys.capture(&gray)]),
+        targets: stack(&train_imgs),
+    };
+    let theta = [[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]];
+    let mut settings = Settings::new(Variant::Faster, 4);
+    settings.iters = Some(40);
+    settings.batch = Some(4);
+    assert_eq!(
+        settings.resolved(),
+        (4, 40, 32),
+        "the lr step scales with --iters (400/500·40)"
+    );
+    let never = AtomicBool::new(false);
+    let (model, report) = train(&data, theta, &settings, &never, |_, _, _| {}).unwrap();
+    let first: f64 = report.losses[..5].iter().sum::<f64>() / 5.0;
+    let last: f64 = report.losses[35..].iter().sum::<f64>() / 5.0;
+    assert!(
+        last < 0.8 * first,
+        "loss should fall: {first:.3} → {last:.3}"
+    );
+    let out = model
+        .forward(&data.captures.narrow(0, 0, 2).unwrap(), &data.surface)
+        .unwrap();
+    assert_eq!(out.dims(), &[2, 3, 32, 32]);
+    // Same seed, same run (a 5-step run: its schedule differs only after its 5th loss).
+    let mut short = settings.clone();
+    short.iters = Some(5);
+    let (_, again) = train(&data, theta, &short, &never, |_, _, _| {}).unwrap();
+    assert_eq!(report.losses[..5], again.losses[..]);
+    let mut other = short.clone();
+    other.seed = 5;
+    let (_, different) = train(&data, theta, &other, &never, |_, _, _| {}).unwrap();
+    assert_ne!(again.losses, different.losses, "another seed draws other weights and batches");
+    // Cancellation before the first step: an error, no model.
+    let stop = AtomicBool::new(true);
+    let err = train(&data, theta, &settings, &stop, |_, _, _| {})
+        .err()
+        .expect("cancelled");
+    assert!(err.to_string().contains("cancelled"), "{err}");
+}

@@ -59,3 +59,46 @@ pub fn tconv(
     };
     Ok(ConvTranspose2d::new(weight, Some(bias), cfg))
 }
+
+/// Redraws every variable of `varmap` from a stream seeded by `seed`, so that training runs are
+/// reproducible (candle's CPU random generator cannot be seeded). The rules are those the layer
+/// constructors state, by variable name: biases zero; `warp.theta` kept (it is set from the FOV);
+/// `warp.tps` and `warp.refine.*.weight` normal with σ 1e-4; every other `*.weight` Kaiming normal,
+/// σ = √(2 / fan_in) with fan_in = dim(1)·k·k (PyTorch's convention, also for transposed
+/// convolutions). Variables are visited in name order, so the draw does not depend on hashing.
+pub fn seeded_init(varmap: &candle_nn::VarMap, seed: u64) -> Result<()> {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| candle_core::Error::Msg("variable map lock poisoned".into()))?;
+    let mut names: Vec<&String> = data.keys().collect();
+    names.sort();
+    let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(seed);
+    for name in names {
+        let var = &data[name];
+        let dims = var.dims().to_vec();
+        let std = if name == "warp.theta" {
+            continue;
+        } else if name.ends_with(".bias") {
+            0.0
+        } else if name == "warp.tps" || name.starts_with("warp.refine.") {
+            super::warpingnet::TPS_INIT_STD.max(super::warpingnet::REFINE_INIT_STD)
+        } else {
+            let fan_in: usize = dims.iter().skip(1).product();
+            (2.0 / fan_in.max(1) as f64).sqrt()
+        };
+        let n: usize = dims.iter().product();
+        let values: Vec<f32> = if std == 0.0 {
+            vec![0.0; n]
+        } else {
+            let normal = Normal::new(0.0, std)
+                .map_err(|e| candle_core::Error::Msg(format!("normal({std}): {e}")))?;
+            (0..n).map(|_| normal.sample(&mut rng) as f32).collect()
+        };
+        let t = candle_core::Tensor::from_vec(values, dims, var.device())?.to_dtype(var.dtype())?;
+        var.set(&t)?;
+    }
+    Ok(())
+}

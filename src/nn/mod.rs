@@ -6,6 +6,7 @@ pub mod compennet;
 pub mod grid_sample;
 pub mod layers;
 pub mod loss;
+pub mod train;
 pub mod warpingnet;
 
 pub use compennet::CompenNet;

@@ -1,0 +1,275 @@
+//! Training CompenNet++ (DESIGN.md section 5.3): WarpingNet then CompenNet, capture and surface
+//! image warped by the same grid, loss `L1 + (1 − SSIM)`, Adam with L2 weight decay 1e-4 (added to
+//! the loss as (wd/2)·Σw², i.e. wd·w on the gradient, as the paper's optimiser does), learning rate
+//! ×0.2 at the variant's step. Batches are drawn without replacement within a batch. The surface
+//! branch runs once per step, not once per batch element.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use candle_core::{DType, Device, Tensor};
+use candle_nn::{Optimizer, VarBuilder, VarMap};
+use rand::SeedableRng;
+use rand::rngs::ChaCha8Rng;
+use rand::seq::SliceRandom;
+use serde::{Deserialize, Serialize};
+
+use super::{CompenNet, WarpingNet, grid_sample, loss};
+use crate::error::{Error, Result};
+
+/// The four variants of the paper's table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Variant {
+    Full,
+    NoRefine,
+    Fast,
+    Faster,
+}
+
+impl Variant {
+    pub const ALL: [Variant; 4] = [
+        Variant::Full,
+        Variant::NoRefine,
+        Variant::Fast,
+        Variant::Faster,
+    ];
+
+    pub fn method(self) -> &'static str {
+        match self {
+            Variant::Full => "compennet++",
+            Variant::NoRefine => "compennet++-norefine",
+            Variant::Fast => "compennet++-fast",
+            Variant::Faster => "compennet++-faster",
+        }
+    }
+
+    pub fn from_method(m: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|v| v.method() == m)
+    }
+
+    /// (#train, batch, iterations, lr step) of DESIGN.md 5.3.
+    pub fn schedule(self) -> (usize, usize, usize, usize) {
+        match self {
+            Variant::Full | Variant::NoRefine => (500, 48, 1500, 1000),
+            Variant::Fast => (48, 24, 1000, 800),
+            Variant::Faster => (48, 16, 500, 400),
+        }
+    }
+
+    pub fn refine(self) -> bool {
+        self != Variant::NoRefine
+    }
+}
+
+/// Settings of one training run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Settings {
+    pub variant: Variant,
+    /// Override of the variant's iterations (the lr step scales with it).
+    pub iters: Option<usize>,
+    /// Override of the variant's batch size.
+    pub batch: Option<usize>,
+    pub learning_rate: f64,
+    pub weight_decay: f64,
+    pub seed: u64,
+}
+
+impl Settings {
+    pub fn new(variant: Variant, seed: u64) -> Self {
+        Self {
+            variant,
+            iters: None,
+            batch: None,
+            learning_rate: 1e-3,
+            weight_decay: 1e-4,
+            seed,
+        }
+    }
+
+    /// (batch, iterations, lr step) after overrides.
+    pub fn resolved(&self) -> (usize, usize, usize) {
+        let (_, b, it, step) = self.variant.schedule();
+        let iters = self.iters.unwrap_or(it).max(1);
+        let step = ((step as f64) * iters as f64 / it as f64).round() as usize;
+        (self.batch.unwrap_or(b).max(1), iters, step)
+    }
+}
+
+/// Training data as tensors: captures (N, 3, Hc, Wc) and the surface image (1, 3, Hc, Wc), both
+/// already masked by the FOV mask; projector inputs (N, 3, Hn, Wn).
+pub struct Data {
+    pub captures: Tensor,
+    pub surface: Tensor,
+    pub targets: Tensor,
+}
+
+/// The trainable model: its variables and the two networks built on them.
+pub struct CompenNetPP {
+    pub varmap: VarMap,
+    pub warp: WarpingNet,
+    pub compen: CompenNet,
+}
+
+impl CompenNetPP {
+    /// A fresh model with the affine initialised to `theta` for a network of `size` (W, H),
+    /// every other weight drawn from `seed` ([`super::layers::seeded_init`]).
+    pub fn new(
+        theta: [[f32; 3]; 2],
+        size: (usize, usize),
+        refine: bool,
+        seed: u64,
+        device: &Device,
+    ) -> candle_core::Result<Self> {
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
+        let warp = WarpingNet::new(vb.pp("warp"), Some(theta), size, refine)?;
+        let compen = CompenNet::new(vb.pp("compen"))?;
+        super::layers::seeded_init(&varmap, seed)?;
+        Ok(Self {
+            varmap,
+            warp,
+            compen,
+        })
+    }
+
+    /// π†: captures (B, 3, Hc, Wc) and surface (1, 3, Hc, Wc) → projector images (B, 3, Hn, Wn).
+    pub fn forward(&self, captures: &Tensor, surface: &Tensor) -> candle_core::Result<Tensor> {
+        let b = captures.dim(0)?;
+        let grid = self.warp.grid()?;
+        let sw = grid_sample(surface, &grid)?;
+        let features = self.compen.surface(&sw)?;
+        let (_, h, w, _) = grid.dims4()?;
+        let gb = grid.broadcast_as((b, h, w, 2))?.contiguous()?;
+        let xw = grid_sample(captures, &gb)?;
+        self.compen.forward_with(&xw, &features)
+    }
+}
+
+/// What training reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub iterations: usize,
+    pub batch: usize,
+    pub lr_step: usize,
+    /// Loss per iteration.
+    pub losses: Vec<f64>,
+    pub seconds: f64,
+    /// Milliseconds per training sample (forward + backward + update).
+    pub ms_per_sample: f64,
+}
+
+/// Trains a fresh model. Stops with an error (and no model) when `cancel` is set, when the loss
+/// becomes non-finite or blows up, or when the output collapses to a flat image.
+pub fn train(
+    data: &Data,
+    theta: [[f32; 3]; 2],
+    settings: &Settings,
+    cancel: &AtomicBool,
+    mut progress: impl FnMut(usize, usize, f64),
+) -> Result<(CompenNetPP, Report)> {
+    let start = Instant::now();
+    let ce = |e: candle_core::Error| Error::Failed(format!("CompenNet++ training: {e}"));
+    let n = data.captures.dim(0).map_err(ce)?;
+    let (_, _, hn, wn) = data.targets.dims4().map_err(ce)?;
+    let (batch, iters, lr_step) = settings.resolved();
+    let batch = batch.min(n);
+    if n == 0 {
+        return Err(Error::Input(
+            "CompenNet++ training needs at least one training pair".into(),
+        ));
+    }
+    let device = data.captures.device().clone();
+    let model = CompenNetPP::new(
+        theta,
+        (wn, hn),
+        settings.variant.refine(),
+        settings.seed,
+        &device,
+    )
+    .map_err(ce)?;
+    let vars = model.varmap.all_vars();
+    let mut opt = candle_nn::AdamW::new(
+        vars.clone(),
+        candle_nn::ParamsAdamW {
+            lr: settings.learning_rate,
+            weight_decay: 0.0,
+            ..Default::default()
+        },
+    )
+    .map_err(ce)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    let mut losses = Vec::with_capacity(iters);
+    for it in 0..iters {
+        if cancel.load(Ordering::Relaxed) {
+            return Err(Error::Failed(format!(
+                "training cancelled at iteration {it} of {iters}"
+            )));
+        }
+        if it == lr_step {
+            opt.set_learning_rate(settings.learning_rate * 0.2);
+        }
+        // A batch of distinct pairs.
+        order.shuffle(&mut rng);
+        let idx = Tensor::from_vec(order[..batch].to_vec(), batch, &device).map_err(ce)?;
+        let x = data.captures.index_select(&idx, 0).map_err(ce)?;
+        let y = data.targets.index_select(&idx, 0).map_err(ce)?;
+        let out = model.forward(&x, &data.surface).map_err(ce)?;
+        let fit = loss::l1_ssim(&out, &y).map_err(ce)?;
+        let l2 = vars
+            .iter()
+            .map(|v| v.as_tensor().sqr().and_then(|t| t.sum_all()))
+            .try_fold(
+                Tensor::zeros((), DType::F32, &device).map_err(ce)?,
+                |acc, t| t.and_then(|t| acc + t),
+            )
+            .map_err(ce)?;
+        let total =
+            (&fit + l2.affine(0.5 * settings.weight_decay, 0.0).map_err(ce)?).map_err(ce)?;
+        let value: f64 = fit
+            .to_dtype(DType::F64)
+            .and_then(|t| t.to_scalar())
+            .map_err(ce)?;
+        if !value.is_finite() {
+            return Err(Error::Failed(format!(
+                "training diverged: loss {value} at iteration {it}"
+            )));
+        }
+        if it >= 10 && value > 10.0 * losses[0] {
+            return Err(Error::Failed(format!(
+                "training diverged: loss {value:.4} at iteration {it}, {:.1}× the first",
+                value / losses[0]
+            )));
+        }
+        losses.push(value);
+        opt.backward_step(&total).map_err(ce)?;
+        progress(it + 1, iters, value);
+    }
+    // Collapse check: a model whose outputs no longer depend on the input is useless.
+    let probe = data.captures.narrow(0, 0, n.min(4)).map_err(ce)?;
+    let out = model.forward(&probe, &data.surface).map_err(ce)?;
+    let spread: f64 = out
+        .flatten_from(1)
+        .and_then(|t| t.var_keepdim(1))
+        .and_then(|t| t.mean_all())
+        .and_then(|t| t.to_dtype(DType::F64))
+        .and_then(|t| t.to_scalar())
+        .map_err(ce)?;
+    if spread.is_nan() || spread <= 1e-6 {
+        return Err(Error::Failed(format!(
+            "training collapsed: the output is flat (variance {spread:e}); no model produced"
+        )));
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    Ok((
+        model,
+        Report {
+            iterations: iters,
+            batch,
+            lr_step,
+            ms_per_sample: 1e3 * seconds / (iters * batch) as f64,
+            losses,
+            seconds,
+        },
+    ))
+}
