@@ -9,11 +9,18 @@ use crate::modeldir::{self, ModelMeta, Tensors};
 use crate::raster::{CamImage, Camera, Mask, NetImage, Network};
 use crate::sample::Grid;
 
-/// The methods this build can load, by rung.
-pub const METHODS: &[&str] = &[crate::linear::METHOD, "linear-sl"];
+/// The methods this build can train and load, by rung.
+pub const METHODS: &[&str] = &[
+    crate::linear::METHOD,
+    "linear-sl",
+    "compennet++-faster",
+    "compennet++-fast",
+    "compennet++-norefine",
+    "compennet++",
+];
 
 /// A loaded model with its metadata and the projector FOV mask its inputs are masked with.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct Model {
     pub meta: ModelMeta,
     /// Projector FOV in camera space; inputs are masked by it, as in training.
@@ -21,13 +28,28 @@ pub struct Model {
     pub kind: Kind,
 }
 
-#[derive(Clone, Debug)]
 pub enum Kind {
     /// `linear` and `linear-sl` share the representation; they differ in how geometry was found.
     Linear {
         model: LinearModel,
         simplified: crate::linear::SimplifiedLinear,
     },
+    /// The CompenNet++ variants: the full network (CPU, candle), the gray surface capture it
+    /// conditions on (camera space, masked), and its grid baked for the geometry-only row.
+    CompenNet {
+        net: Box<crate::nn::train::CompenNetPP>,
+        surface: CamImage,
+        grid: Grid<Network, Camera>,
+    },
+}
+
+impl std::fmt::Debug for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Kind::Linear { .. } => write!(f, "Kind::Linear"),
+            Kind::CompenNet { .. } => write!(f, "Kind::CompenNet"),
+        }
+    }
 }
 
 impl Model {
@@ -38,6 +60,25 @@ impl Model {
             fov,
             kind: Kind::Linear { model, simplified },
         }
+    }
+
+    /// A CompenNet++ model; `surface` is the masked gray surface capture (camera space).
+    pub fn compennet(
+        meta: ModelMeta,
+        fov: Mask<Camera>,
+        net: crate::nn::train::CompenNetPP,
+        surface: CamImage,
+    ) -> Result<Self> {
+        let grid = baked_grid(&net, meta.network_size)?;
+        Ok(Self {
+            meta,
+            fov,
+            kind: Kind::CompenNet {
+                net: Box::new(net),
+                surface,
+                grid,
+            },
+        })
     }
 
     /// Loads a model directory; an unknown method, a version mismatch, a missing or mis-shaped
@@ -68,6 +109,18 @@ impl Model {
                 )?;
                 Ok(Self::linear(meta, fov, model))
             }
+            m if crate::nn::train::Variant::from_method(m).is_some() => {
+                let variant = crate::nn::train::Variant::from_method(m).expect("checked");
+                let surface = tensors.get("surface", &[ch, cw, 3], &file)?;
+                let surface = CamImage::from_vec(cw, ch, surface.to_vec())?;
+                let net = crate::nn::train::CompenNetPP::restore(
+                    meta.network_size,
+                    variant.refine(),
+                    &candle_core::Device::Cpu,
+                    |name, shape| tensors.get(name, shape, &file).map(|v| v.to_vec()),
+                )?;
+                Self::compennet(meta, fov, net, surface)
+            }
             other => Err(Error::Input(format!(
                 "{}: method `{other}` is not one this compend can run (known: {})",
                 dir.join(modeldir::META_FILE).display(),
@@ -80,6 +133,20 @@ impl Model {
     pub fn save(&self, dir: &Path) -> Result<()> {
         let mut tensors: Tensors = match &self.kind {
             Kind::Linear { model, .. } => model.to_tensors()?,
+            Kind::CompenNet { net, surface, .. } => {
+                let mut t = Tensors::default();
+                for (name, value) in net.named_tensors() {
+                    let dims = value.dims().to_vec();
+                    let data: Vec<f32> = value
+                        .flatten_all()
+                        .and_then(|v| v.to_vec1())
+                        .map_err(|e| Error::Failed(format!("tensor {name}: {e}")))?;
+                    t.insert(&name, dims, data)?;
+                }
+                let (w, h) = surface.size();
+                t.insert("surface", vec![h, w, 3], surface.data().to_vec())?;
+                t
+            }
         };
         let (cw, ch) = self.fov.size();
         tensors.insert(
@@ -106,6 +173,7 @@ impl Model {
     pub fn grid(&self) -> &Grid<Network, Camera> {
         match &self.kind {
             Kind::Linear { simplified, .. } => &simplified.grid,
+            Kind::CompenNet { grid, .. } => grid,
         }
     }
 
@@ -127,9 +195,17 @@ impl Model {
     pub fn infer(&self, img: &CamImage) -> Result<NetImage> {
         self.check_input(img)?;
         let masked = img.masked(&self.fov)?;
-        Ok(match &self.kind {
-            Kind::Linear { simplified, .. } => simplified.apply(&masked),
-        })
+        match &self.kind {
+            Kind::Linear { simplified, .. } => Ok(simplified.apply(&masked)),
+            Kind::CompenNet { net, surface, .. } => {
+                let ce =
+                    |e: candle_core::Error| Error::Failed(format!("CompenNet++ inference: {e}"));
+                let x = to_nchw(&masked).map_err(ce)?;
+                let s = to_nchw(surface).map_err(ce)?;
+                let out = net.forward(&x, &s).map_err(ce)?;
+                from_nchw(&out).map_err(ce)
+            }
+        }
     }
 
     /// The geometry alone: the masked camera image warped to network space (the paper's
@@ -158,4 +234,35 @@ pub fn paper_protocol(
         uncomp.add(&model.warp_only(cap)?, &target)?;
     }
     Ok((comp.finish()?, uncomp.finish()?))
+}
+
+/// One image as a (1, 3, H, W) tensor.
+fn to_nchw<S: crate::raster::Space>(
+    img: &crate::raster::Rgb<S>,
+) -> candle_core::Result<candle_core::Tensor> {
+    let (w, h) = img.size();
+    candle_core::Tensor::from_vec(img.data().to_vec(), (1, h, w, 3), &candle_core::Device::Cpu)?
+        .permute((0, 3, 1, 2))?
+        .contiguous()
+}
+
+/// A (1, 3, H, W) tensor as a network image.
+fn from_nchw(t: &candle_core::Tensor) -> candle_core::Result<NetImage> {
+    let (_, _, h, w) = t.dims4()?;
+    let data: Vec<f32> = t.permute((0, 2, 3, 1))?.flatten_all()?.to_vec1()?;
+    NetImage::from_vec(w, h, data).map_err(|e| candle_core::Error::Msg(e.to_string()))
+}
+
+/// The network's current sampling grid as a core grid.
+fn baked_grid(
+    net: &crate::nn::train::CompenNetPP,
+    (w, h): (usize, usize),
+) -> Result<Grid<Network, Camera>> {
+    let g: Vec<f32> = net
+        .warp
+        .grid()
+        .and_then(|g| g.flatten_all())
+        .and_then(|g| g.to_vec1())
+        .map_err(|e| Error::Failed(format!("CompenNet++ grid: {e}")))?;
+    Grid::from_vec(w, h, g.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
 }

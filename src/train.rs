@@ -29,6 +29,9 @@ pub struct Request {
     /// Training pairs to use (the first N); `None` = all available, at most [`DEFAULT_TRAIN`].
     pub ntrain: Option<usize>,
     pub seed: u64,
+    /// CompenNet++ only: override the variant's iterations (the lr step scales) and batch size.
+    pub iters: Option<usize>,
+    pub batch: Option<usize>,
 }
 
 /// What training reports besides the model.
@@ -58,7 +61,9 @@ pub fn train(
         )));
     }
     let available = setup.count(CaptureSet::Train)?;
-    let ntrain = req.ntrain.unwrap_or(available.min(DEFAULT_TRAIN));
+    let variant = crate::nn::train::Variant::from_method(&req.method);
+    let default_train = variant.map_or(DEFAULT_TRAIN, |v| v.schedule().0);
+    let ntrain = req.ntrain.unwrap_or(available.min(default_train));
     if ntrain < MIN_TRAIN {
         return Err(Error::Input(format!(
             "--ntrain {ntrain}: the {} method needs at least {MIN_TRAIN} training pairs ({} has {available})",
@@ -84,6 +89,11 @@ pub fn train(
         .map(|c| c.masked(&fov.mask))
         .collect::<Result<_>>()?;
     let targets: Vec<NetImage> = pairs.inputs.into_iter().map(|p| p.into_space()).collect();
+    if let Some(variant) = variant {
+        return train_compennet(
+            setup, req, variant, fov, theta, captures, targets, start, progress,
+        );
+    }
     let settings = FitSettings {
         network_size,
         ..FitSettings::default()
@@ -162,4 +172,86 @@ pub fn sl_grid(setup: &Setup, network_size: (usize, usize)) -> Result<Grid<Netwo
         height: projector.1,
     };
     Ok(crate::slgrid::grid_from_correspondence(&corr, canvas, network_size)?.grid)
+}
+
+/// Trains a CompenNet++ variant on already masked captures.
+#[allow(clippy::too_many_arguments)]
+fn train_compennet(
+    setup: &Setup,
+    req: &Request,
+    variant: crate::nn::train::Variant,
+    fov: fov::FovMask,
+    theta: [[f32; 3]; 2],
+    captures: Vec<CamImage>,
+    targets: Vec<NetImage>,
+    start: Instant,
+    mut progress: impl FnMut(&str, usize, usize),
+) -> Result<(Model, Summary)> {
+    use crate::nn::train::{Data, Settings};
+    let ce = |e: candle_core::Error| Error::Failed(format!("preparing CompenNet++ data: {e}"));
+    let (nw, nh) = targets[0].size();
+    if nw % 4 != 0 || nh % 4 != 0 {
+        return Err(Error::Input(format!(
+            "CompenNet++ needs network sides divisible by 4, the projector images are {nw}x{nh}"
+        )));
+    }
+    let surface = setup.load_reference(Reference::Gray)?.masked(&fov.mask)?;
+    let data = Data {
+        captures: stack(&captures).map_err(ce)?,
+        surface: stack(std::slice::from_ref(&surface)).map_err(ce)?,
+        targets: stack(&targets).map_err(ce)?,
+    };
+    let mut settings = Settings::new(variant, req.seed);
+    settings.iters = req.iters;
+    settings.batch = req.batch;
+    let never = std::sync::atomic::AtomicBool::new(false);
+    let (net, report) =
+        crate::nn::train::train(&data, theta, &settings, &never, |done, total, _| {
+            progress("training", done, total)
+        })?;
+    let final_loss = report.losses.last().copied().unwrap_or(f64::NAN);
+    let seconds = start.elapsed().as_secs_f64();
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method: req.method.clone(),
+        network_size: (nw, nh),
+        camera_size: surface.size(),
+        canvas: None,
+        training: json!({
+            "setup": setup.path(),
+            "data_root": setup.root().path(),
+            "ntrain": captures.len(),
+            "seed": req.seed,
+            "fov": fov.diagnostics,
+            "fov_bbox": fov.bbox,
+            "settings": settings,
+            "iterations": report.iterations,
+            "batch": report.batch,
+            "lr_step": report.lr_step,
+            "final_loss": final_loss,
+        }),
+        metrics: serde_json::Value::Null,
+        timings: json!({ "fit_seconds": report.seconds, "train_seconds": seconds,
+                         "ms_per_sample": report.ms_per_sample }),
+        written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
+    };
+    let summary = Summary {
+        method: req.method.clone(),
+        ntrain: captures.len(),
+        seconds,
+        fit_seconds: report.seconds,
+        final_loss,
+    };
+    Ok((Model::compennet(meta, fov.mask, net, surface)?, summary))
+}
+
+/// Images as one (N, 3, H, W) tensor on the CPU.
+fn stack<S: crate::raster::Space>(
+    imgs: &[crate::raster::Rgb<S>],
+) -> candle_core::Result<candle_core::Tensor> {
+    let (w, h) = imgs[0].size();
+    let data: Vec<f32> = imgs.iter().flat_map(|i| i.data().iter().copied()).collect();
+    candle_core::Tensor::from_vec(data, (imgs.len(), h, w, 3), &candle_core::Device::Cpu)?
+        .permute((0, 3, 1, 2))?
+        .contiguous()
 }

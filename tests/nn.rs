@@ -371,7 +371,10 @@ fn compennet_training_learns_reproduces_and_cancels() {
     let mut other = short.clone();
     other.seed = 5;
     let (_, different) = train(&data, theta, &other, &never, |_, _, _| {}).unwrap();
-    assert_ne!(again.losses, different.losses, "another seed draws other weights and batches");
+    assert_ne!(
+        again.losses, different.losses,
+        "another seed draws other weights and batches"
+    );
     // Cancellation before the first step: an error, no model.
     let stop = AtomicBool::new(true);
     let err = train(&data, theta, &settings, &stop, |_, _, _| {})

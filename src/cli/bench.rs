@@ -41,6 +41,12 @@ pub struct Args {
     /// Test images per scene.
     #[arg(long, default_value_t = 10)]
     pub ntest: usize,
+    /// CompenNet++ methods: iterations instead of the variant's (the lr step scales with it).
+    #[arg(long)]
+    pub iters: Option<usize>,
+    /// CompenNet++ methods: batch size instead of the variant's.
+    #[arg(long)]
+    pub batch: Option<usize>,
     /// Camera / projector / network sizes (defaults: the scenes' 640x480 / 800x600, 256).
     #[command(flatten)]
     pub scene_args: SceneArgs,
@@ -241,6 +247,8 @@ fn bench_scene(
                 method: method.clone(),
                 ntrain: Some(n),
                 seed,
+                iters: args.iters,
+                batch: args.batch,
             };
             let mut row = Row {
                 scene: scene.into(),

@@ -15,8 +15,11 @@ pub struct Args {
     /// The data root holding train/ and test/ (default: the nearest ancestor of the setup that has them).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Model to fit: `linear` (learned affine+TPS geometry, per-pixel linear colour) or
-    /// `linear-sl` (geometry from the structured-light captures cam/raw/sl, same colour model).
+    /// Model to fit: `linear` (learned affine+TPS geometry, per-pixel linear colour), `linear-sl`
+    /// (geometry from the structured-light captures cam/raw/sl, same colour model), or a
+    /// CompenNet++ variant: `compennet++-faster` (48 pairs, batch 16, 500 iterations),
+    /// `compennet++-fast`, `compennet++-norefine`, `compennet++` (500 pairs, batch 48, 1500).
+    /// CompenNet++ on a CPU takes about a second per sample at 256²: see --iters.
     #[arg(long)]
     pub method: String,
     /// Number of training pairs to use (the first N). Default: all available, at most 48.
@@ -32,6 +35,12 @@ pub struct Args {
     /// Print one JSON summary on stdout.
     #[arg(long)]
     pub json: bool,
+    /// CompenNet++ variants: iterations instead of the variant's (the lr step scales with it).
+    #[arg(long)]
+    pub iters: Option<usize>,
+    /// CompenNet++ variants: batch size instead of the variant's.
+    #[arg(long)]
+    pub batch: Option<usize>,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -40,6 +49,8 @@ pub fn run(args: Args) -> Result<()> {
         method: args.method.clone(),
         ntrain: args.ntrain,
         seed: args.seed,
+        iters: args.iters,
+        batch: args.batch,
     };
     let bar = super::progress_bar(args.json);
     let (model, summary) = train::train(&setup, &req, |stage, done, total| {

@@ -273,3 +273,41 @@ pub fn train(
         },
     ))
 }
+
+impl CompenNetPP {
+    /// Every variable by name (the model directory's tensor names).
+    pub fn named_tensors(&self) -> Vec<(String, Tensor)> {
+        let data = match self.varmap.data().lock() {
+            Ok(d) => d,
+            Err(poisoned) => poisoned.into_inner(),
+        };
+        let mut out: Vec<(String, Tensor)> = data
+            .iter()
+            .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+            .collect();
+        out.sort_by(|a, b| a.0.cmp(&b.0));
+        out
+    }
+
+    /// Rebuilds a model of this shape and fills every variable from `get(name, shape)`, which
+    /// must return the stored values (it reports missing or mis-shaped tensors itself).
+    pub fn restore(
+        size: (usize, usize),
+        refine: bool,
+        device: &Device,
+        mut get: impl FnMut(&str, &[usize]) -> Result<Vec<f32>>,
+    ) -> Result<Self> {
+        let ce = |e: candle_core::Error| Error::Failed(format!("CompenNet++ model: {e}"));
+        let model =
+            Self::new([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], size, refine, 0, device).map_err(ce)?;
+        for (name, t) in model.named_tensors() {
+            let dims = t.dims().to_vec();
+            let values = get(&name, &dims)?;
+            let value = Tensor::from_vec(values, dims, device).map_err(ce)?;
+            candle_core::Var::from_tensor(&t)
+                .and_then(|v| v.set(&value))
+                .map_err(ce)?;
+        }
+        Ok(model)
+    }
+}
