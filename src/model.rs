@@ -200,10 +200,10 @@ impl Model {
             Kind::CompenNet { net, surface, .. } => {
                 let ce =
                     |e: candle_core::Error| Error::Failed(format!("CompenNet++ inference: {e}"));
-                let x = to_nchw(&masked).map_err(ce)?;
-                let s = to_nchw(surface).map_err(ce)?;
+                let x = crate::nn::images_to_tensor(std::slice::from_ref(&masked)).map_err(ce)?;
+                let s = crate::nn::images_to_tensor(std::slice::from_ref(surface)).map_err(ce)?;
                 let out = net.forward(&x, &s).map_err(ce)?;
-                from_nchw(&out).map_err(ce)
+                crate::nn::tensor_to_image(&out, 0).map_err(ce)
             }
         }
     }
@@ -234,23 +234,6 @@ pub fn paper_protocol(
         uncomp.add(&model.warp_only(cap)?, &target)?;
     }
     Ok((comp.finish()?, uncomp.finish()?))
-}
-
-/// One image as a (1, 3, H, W) tensor.
-fn to_nchw<S: crate::raster::Space>(
-    img: &crate::raster::Rgb<S>,
-) -> candle_core::Result<candle_core::Tensor> {
-    let (w, h) = img.size();
-    candle_core::Tensor::from_vec(img.data().to_vec(), (1, h, w, 3), &candle_core::Device::Cpu)?
-        .permute((0, 3, 1, 2))?
-        .contiguous()
-}
-
-/// A (1, 3, H, W) tensor as a network image.
-fn from_nchw(t: &candle_core::Tensor) -> candle_core::Result<NetImage> {
-    let (_, _, h, w) = t.dims4()?;
-    let data: Vec<f32> = t.permute((0, 2, 3, 1))?.flatten_all()?.to_vec1()?;
-    NetImage::from_vec(w, h, data).map_err(|e| candle_core::Error::Msg(e.to_string()))
 }
 
 /// The network's current sampling grid as a core grid.

@@ -197,9 +197,9 @@ fn train_compennet(
     }
     let surface = setup.load_reference(Reference::Gray)?.masked(&fov.mask)?;
     let data = Data {
-        captures: stack(&captures).map_err(ce)?,
-        surface: stack(std::slice::from_ref(&surface)).map_err(ce)?,
-        targets: stack(&targets).map_err(ce)?,
+        captures: crate::nn::images_to_tensor(&captures).map_err(ce)?,
+        surface: crate::nn::images_to_tensor(std::slice::from_ref(&surface)).map_err(ce)?,
+        targets: crate::nn::images_to_tensor(&targets).map_err(ce)?,
     };
     let mut settings = Settings::new(variant, req.seed);
     settings.iters = req.iters;
@@ -243,15 +243,4 @@ fn train_compennet(
         final_loss,
     };
     Ok((Model::compennet(meta, fov.mask, net, surface)?, summary))
-}
-
-/// Images as one (N, 3, H, W) tensor on the CPU.
-fn stack<S: crate::raster::Space>(
-    imgs: &[crate::raster::Rgb<S>],
-) -> candle_core::Result<candle_core::Tensor> {
-    let (w, h) = imgs[0].size();
-    let data: Vec<f32> = imgs.iter().flat_map(|i| i.data().iter().copied()).collect();
-    candle_core::Tensor::from_vec(data, (imgs.len(), h, w, 3), &candle_core::Device::Cpu)?
-        .permute((0, 3, 1, 2))?
-        .contiguous()
 }

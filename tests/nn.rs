@@ -33,14 +33,9 @@ fn case(
 }
 
 fn to_tensor(img: &Rgb<Camera>, dtype: DType) -> Tensor {
-    let (w, h) = img.size();
-    Tensor::from_vec(img.data().to_vec(), (1, h, w, 3), &Device::Cpu)
-        .unwrap()
-        .permute((0, 3, 1, 2))
+    compend::nn::images_to_tensor(std::slice::from_ref(img))
         .unwrap()
         .to_dtype(dtype)
-        .unwrap()
-        .contiguous()
         .unwrap()
 }
 
@@ -318,14 +313,7 @@ fn ssim_loss_equals_the_metric_and_has_gradients() {
 }
 
 fn stack<S: compend::raster::Space>(imgs: &[compend::raster::Rgb<S>]) -> Tensor {
-    let (w, h) = imgs[0].size();
-    let data: Vec<f32> = imgs.iter().flat_map(|i| i.data().iter().copied()).collect();
-    Tensor::from_vec(data, (imgs.len(), h, w, 3), &Device::Cpu)
-        .unwrap()
-        .permute((0, 3, 1, 2))
-        .unwrap()
-        .contiguous()
-        .unwrap()
+    compend::nn::images_to_tensor(imgs).unwrap()
 }
 
 #[test]

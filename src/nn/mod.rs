@@ -12,3 +12,38 @@ pub mod warpingnet;
 pub use compennet::CompenNet;
 pub use grid_sample::grid_sample;
 pub use warpingnet::WarpingNet;
+
+use candle_core::{Device, Result, Tensor};
+
+use crate::raster::{Rgb, Space};
+
+/// Images of one size as an (N, 3, H, W) f32 tensor on the CPU.
+pub fn images_to_tensor<S: Space>(imgs: &[Rgb<S>]) -> Result<Tensor> {
+    let Some(first) = imgs.first() else {
+        candle_core::bail!("images_to_tensor: no images");
+    };
+    let (w, h) = first.size();
+    if let Some(other) = imgs.iter().find(|i| i.size() != (w, h)) {
+        candle_core::bail!(
+            "images_to_tensor: sizes differ, {:?} and {:?}",
+            (w, h),
+            other.size()
+        );
+    }
+    let data: Vec<f32> = imgs.iter().flat_map(|i| i.data().iter().copied()).collect();
+    Tensor::from_vec(data, (imgs.len(), h, w, 3), &Device::Cpu)?
+        .permute((0, 3, 1, 2))?
+        .contiguous()
+}
+
+/// Image `k` of an (N, 3, H, W) tensor.
+pub fn tensor_to_image<S: Space>(t: &Tensor, k: usize) -> Result<Rgb<S>> {
+    let (_, _, h, w) = t.dims4()?;
+    let data: Vec<f32> = t
+        .narrow(0, k, 1)?
+        .permute((0, 2, 3, 1))?
+        .flatten_all()?
+        .to_dtype(candle_core::DType::F32)?
+        .to_vec1()?;
+    Rgb::from_vec(w, h, data).map_err(|e| candle_core::Error::Msg(e.to_string()))
+}
