@@ -40,6 +40,8 @@ pub enum Kind {
         net: Box<crate::nn::train::CompenNetPP>,
         surface: CamImage,
         grid: Grid<Network, Camera>,
+        /// Baked grid and folded surface branch: what runs per frame.
+        simplified: Box<crate::nn::train::SimplifiedCompenNet>,
     },
 }
 
@@ -70,6 +72,9 @@ impl Model {
         surface: CamImage,
     ) -> Result<Self> {
         let grid = baked_grid(&net, meta.network_size)?;
+        let simplified = crate::nn::images_to_tensor(std::slice::from_ref(&surface))
+            .and_then(|s| net.simplify(&s))
+            .map_err(|e| Error::Failed(format!("simplifying CompenNet++: {e}")))?;
         Ok(Self {
             meta,
             fov,
@@ -77,6 +82,7 @@ impl Model {
                 net: Box::new(net),
                 surface,
                 grid,
+                simplified: Box::new(simplified),
             },
         })
     }
@@ -197,12 +203,11 @@ impl Model {
         let masked = img.masked(&self.fov)?;
         match &self.kind {
             Kind::Linear { simplified, .. } => Ok(simplified.apply(&masked)),
-            Kind::CompenNet { net, surface, .. } => {
+            Kind::CompenNet { simplified, .. } => {
                 let ce =
                     |e: candle_core::Error| Error::Failed(format!("CompenNet++ inference: {e}"));
                 let x = crate::nn::images_to_tensor(std::slice::from_ref(&masked)).map_err(ce)?;
-                let s = crate::nn::images_to_tensor(std::slice::from_ref(surface)).map_err(ce)?;
-                let out = net.forward(&x, &s).map_err(ce)?;
+                let out = simplified.forward(&x).map_err(ce)?;
                 crate::nn::tensor_to_image(&out, 0).map_err(ce)
             }
         }

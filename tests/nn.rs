@@ -370,3 +370,42 @@ fn compennet_training_learns_reproduces_and_cancels() {
         .expect("cancelled");
     assert!(err.to_string().contains("cancelled"), "{err}");
 }
+
+#[test]
+fn simplified_compennet_reproduces_the_full_network() {
+    use compend::nn::train::CompenNetPP;
+    let model = CompenNetPP::new(
+        [[0.8, 0.05, 0.0], [0.0, 0.75, 0.02]],
+        (24, 16),
+        true,
+        9,
+        &Device::Cpu,
+    )
+    .unwrap();
+    let surface = Tensor::rand(0f32, 1.0, (1, 3, 30, 40), &Device::Cpu).unwrap();
+    let x = Tensor::rand(0f32, 1.0, (3, 3, 30, 40), &Device::Cpu).unwrap();
+    let full = model.forward(&x, &surface).unwrap();
+    let simple = model.simplify(&surface).unwrap();
+    let fast = simple.forward(&x).unwrap();
+    let diff: f32 = (full - fast)
+        .unwrap()
+        .abs()
+        .unwrap()
+        .max_all()
+        .unwrap()
+        .to_scalar()
+        .unwrap();
+    assert!(
+        diff < 1e-4,
+        "simplified differs from the full network by {diff}"
+    );
+    // What remains per frame: the backbone's 736 063 parameters (the surface branch is folded).
+    let backbone_params: usize = model
+        .named_tensors()
+        .iter()
+        .filter(|(k, _)| k.starts_with("compen.backbone."))
+        .map(|(_, t)| t.elem_count())
+        .sum();
+    assert_eq!(backbone_params, 736_063);
+    assert_eq!(simple.bias.s4.dims(), &[1, 256, 4, 6]);
+}

@@ -311,3 +311,46 @@ impl CompenNetPP {
         Ok(model)
     }
 }
+
+/// The playback form of a trained CompenNet++ (DESIGN.md 5.3): the grid baked once, the surface
+/// branch run once on the warped surface image and kept as constant bias maps s1..s4; only the
+/// backbone runs per frame.
+#[derive(Clone, Debug)]
+pub struct SimplifiedCompenNet {
+    /// (1, H, W, 2) network → camera sampling grid.
+    pub grid: Tensor,
+    /// Constant maps added at conv1..conv4.
+    pub bias: super::compennet::SurfaceFeatures,
+    pub backbone: super::compennet::Backbone,
+}
+
+impl CompenNetPP {
+    /// Bakes the geometry and folds the surface branch for the camera-space surface image
+    /// `surface` (1, 3, Hc, Wc), masked as in training.
+    pub fn simplify(&self, surface: &Tensor) -> candle_core::Result<SimplifiedCompenNet> {
+        let grid = self.warp.grid()?.detach();
+        let sw = grid_sample(surface, &grid)?;
+        let f = self.compen.surface(&sw)?;
+        let bias = super::compennet::SurfaceFeatures {
+            s1: f.s1.detach(),
+            s2: f.s2.detach(),
+            s3: f.s3.detach(),
+            s4: f.s4.detach(),
+        };
+        Ok(SimplifiedCompenNet {
+            grid,
+            bias,
+            backbone: self.compen.backbone.clone(),
+        })
+    }
+}
+
+impl SimplifiedCompenNet {
+    /// π† per frame: captures or desired images (B, 3, Hc, Wc) → projector images (B, 3, Hn, Wn).
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let b = x.dim(0)?;
+        let (_, h, w, _) = self.grid.dims4()?;
+        let g = self.grid.broadcast_as((b, h, w, 2))?.contiguous()?;
+        self.backbone.forward(&grid_sample(x, &g)?, &self.bias)
+    }
+}
