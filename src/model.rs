@@ -17,6 +17,7 @@ pub const METHODS: &[&str] = &[
     "compennet++-fast",
     "compennet++-norefine",
     "compennet++",
+    "compennet-sl",
 ];
 
 /// A loaded model with its metadata and the projector FOV mask its inputs are masked with.
@@ -121,7 +122,7 @@ impl Model {
                 let surface = CamImage::from_vec(cw, ch, surface.to_vec())?;
                 let net = crate::nn::train::CompenNetPP::restore(
                     meta.network_size,
-                    variant.refine(),
+                    variant,
                     &candle_core::Device::Cpu,
                     |name, shape| tensors.get(name, shape, &file).map(|v| v.to_vec()),
                 )?;

@@ -187,7 +187,7 @@ fn train_compennet(
     start: Instant,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<(Model, Summary)> {
-    use crate::nn::train::{Data, Settings};
+    use crate::nn::train::{Data, GeometryInit, Settings};
     let ce = |e: candle_core::Error| Error::Failed(format!("preparing CompenNet++ data: {e}"));
     let (nw, nh) = targets[0].size();
     if nw % 4 != 0 || nh % 4 != 0 {
@@ -205,8 +205,18 @@ fn train_compennet(
     settings.iters = req.iters;
     settings.batch = req.batch;
     let never = std::sync::atomic::AtomicBool::new(false);
+    let init = if variant.fixed_geometry() {
+        let grid = sl_grid(setup, (nw, nh))?;
+        let flat: Vec<f32> = grid.data().iter().flatten().copied().collect();
+        GeometryInit::Fixed(
+            candle_core::Tensor::from_vec(flat, (1, nh, nw, 2), &candle_core::Device::Cpu)
+                .map_err(ce)?,
+        )
+    } else {
+        GeometryInit::Affine(theta)
+    };
     let (net, report) =
-        crate::nn::train::train(&data, theta, &settings, &never, |done, total, _| {
+        crate::nn::train::train(&data, init, &settings, &never, |done, total, _| {
             progress("training", done, total)
         })?;
     let final_loss = report.losses.last().copied().unwrap_or(f64::NAN);

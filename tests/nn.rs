@@ -340,7 +340,8 @@ fn compennet_training_learns_reproduces_and_cancels() {
         "the lr step scales with --iters (400/500·40)"
     );
     let never = AtomicBool::new(false);
-    let (model, report) = train(&data, theta, &settings, &never, |_, _, _| {}).unwrap();
+    let aff = || compend::nn::train::GeometryInit::Affine(theta);
+    let (model, report) = train(&data, aff(), &settings, &never, |_, _, _| {}).unwrap();
     let first: f64 = report.losses[..5].iter().sum::<f64>() / 5.0;
     let last: f64 = report.losses[35..].iter().sum::<f64>() / 5.0;
     assert!(
@@ -354,18 +355,18 @@ fn compennet_training_learns_reproduces_and_cancels() {
     // Same seed, same run (a 5-step run: its schedule differs only after its 5th loss).
     let mut short = settings.clone();
     short.iters = Some(5);
-    let (_, again) = train(&data, theta, &short, &never, |_, _, _| {}).unwrap();
+    let (_, again) = train(&data, aff(), &short, &never, |_, _, _| {}).unwrap();
     assert_eq!(report.losses[..5], again.losses[..]);
     let mut other = short.clone();
     other.seed = 5;
-    let (_, different) = train(&data, theta, &other, &never, |_, _, _| {}).unwrap();
+    let (_, different) = train(&data, aff(), &other, &never, |_, _, _| {}).unwrap();
     assert_ne!(
         again.losses, different.losses,
         "another seed draws other weights and batches"
     );
     // Cancellation before the first step: an error, no model.
     let stop = AtomicBool::new(true);
-    let err = train(&data, theta, &settings, &stop, |_, _, _| {})
+    let err = train(&data, aff(), &settings, &stop, |_, _, _| {})
         .err()
         .expect("cancelled");
     assert!(err.to_string().contains("cancelled"), "{err}");
@@ -375,7 +376,7 @@ fn compennet_training_learns_reproduces_and_cancels() {
 fn simplified_compennet_reproduces_the_full_network() {
     use compend::nn::train::CompenNetPP;
     let model = CompenNetPP::new(
-        [[0.8, 0.05, 0.0], [0.0, 0.75, 0.02]],
+        compend::nn::train::GeometryInit::Affine([[0.8, 0.05, 0.0], [0.0, 0.75, 0.02]]),
         (24, 16),
         true,
         9,

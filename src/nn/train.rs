@@ -24,14 +24,17 @@ pub enum Variant {
     NoRefine,
     Fast,
     Faster,
+    /// The two-step baseline: CompenNet on images registered by structured light (fixed grid).
+    Sl,
 }
 
 impl Variant {
-    pub const ALL: [Variant; 4] = [
+    pub const ALL: [Variant; 5] = [
         Variant::Full,
         Variant::NoRefine,
         Variant::Fast,
         Variant::Faster,
+        Variant::Sl,
     ];
 
     pub fn method(self) -> &'static str {
@@ -40,6 +43,7 @@ impl Variant {
             Variant::NoRefine => "compennet++-norefine",
             Variant::Fast => "compennet++-fast",
             Variant::Faster => "compennet++-faster",
+            Variant::Sl => "compennet-sl",
         }
     }
 
@@ -47,17 +51,23 @@ impl Variant {
         Self::ALL.into_iter().find(|v| v.method() == m)
     }
 
-    /// (#train, batch, iterations, lr step) of DESIGN.md 5.3.
+    /// (#train, batch, iterations, lr step) of DESIGN.md 5.3; `compennet-sl` uses the `faster`
+    /// schedule (the paper's table has no row for it; this keeps it comparable on a CPU).
     pub fn schedule(self) -> (usize, usize, usize, usize) {
         match self {
             Variant::Full | Variant::NoRefine => (500, 48, 1500, 1000),
             Variant::Fast => (48, 24, 1000, 800),
-            Variant::Faster => (48, 16, 500, 400),
+            Variant::Faster | Variant::Sl => (48, 16, 500, 400),
         }
     }
 
     pub fn refine(self) -> bool {
-        self != Variant::NoRefine
+        !matches!(self, Variant::NoRefine | Variant::Sl)
+    }
+
+    /// Whether the geometry is a fixed grid (from structured light) rather than learned.
+    pub fn fixed_geometry(self) -> bool {
+        self == Variant::Sl
     }
 }
 
@@ -103,18 +113,44 @@ pub struct Data {
     pub targets: Tensor,
 }
 
-/// The trainable model: its variables and the two networks built on them.
+/// Where the sampling grid comes from.
+pub enum Geometry {
+    /// WarpingNet, trained end to end (the CompenNet++ variants).
+    Learned(WarpingNet),
+    /// A fixed (1, H, W, 2) grid, e.g. from decoded structured light (`compennet-sl`).
+    Fixed(Tensor),
+}
+
+impl Geometry {
+    /// The (1, H, W, 2) grid from network pixels into the camera image.
+    pub fn grid(&self) -> candle_core::Result<Tensor> {
+        match self {
+            Geometry::Learned(w) => w.grid(),
+            Geometry::Fixed(g) => Ok(g.clone()),
+        }
+    }
+}
+
+/// How a fresh model's geometry starts.
+pub enum GeometryInit {
+    /// WarpingNet with this affine (e.g. from the FOV bounding box).
+    Affine([[f32; 3]; 2]),
+    /// A fixed grid (1, H, W, 2).
+    Fixed(Tensor),
+}
+
+/// The trainable model: its variables and the networks built on them.
 pub struct CompenNetPP {
     pub varmap: VarMap,
-    pub warp: WarpingNet,
+    pub warp: Geometry,
     pub compen: CompenNet,
 }
 
 impl CompenNetPP {
-    /// A fresh model with the affine initialised to `theta` for a network of `size` (W, H),
-    /// every other weight drawn from `seed` ([`super::layers::seeded_init`]).
+    /// A fresh model for a network of `size` (W, H) with geometry `init`, every other weight
+    /// drawn from `seed` ([`super::layers::seeded_init`]).
     pub fn new(
-        theta: [[f32; 3]; 2],
+        init: GeometryInit,
         size: (usize, usize),
         refine: bool,
         seed: u64,
@@ -122,7 +158,18 @@ impl CompenNetPP {
     ) -> candle_core::Result<Self> {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
-        let warp = WarpingNet::new(vb.pp("warp"), Some(theta), size, refine)?;
+        let warp = match init {
+            GeometryInit::Affine(theta) => {
+                Geometry::Learned(WarpingNet::new(vb.pp("warp"), Some(theta), size, refine)?)
+            }
+            GeometryInit::Fixed(grid) => {
+                let (_, h, w, _) = grid.dims4()?;
+                if (w, h) != size {
+                    candle_core::bail!("fixed grid is {w}x{h}, the network {}x{}", size.0, size.1);
+                }
+                Geometry::Fixed(grid.to_dtype(DType::F32)?.detach())
+            }
+        };
         let compen = CompenNet::new(vb.pp("compen"))?;
         super::layers::seeded_init(&varmap, seed)?;
         Ok(Self {
@@ -162,7 +209,7 @@ pub struct Report {
 /// becomes non-finite or blows up, or when the output collapses to a flat image.
 pub fn train(
     data: &Data,
-    theta: [[f32; 3]; 2],
+    init: GeometryInit,
     settings: &Settings,
     cancel: &AtomicBool,
     mut progress: impl FnMut(usize, usize, f64),
@@ -180,7 +227,7 @@ pub fn train(
     }
     let device = data.captures.device().clone();
     let model = CompenNetPP::new(
-        theta,
+        init,
         (wn, hn),
         settings.variant.refine(),
         settings.seed,
@@ -285,6 +332,9 @@ impl CompenNetPP {
             .iter()
             .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
             .collect();
+        if let Geometry::Fixed(g) = &self.warp {
+            out.push((FIXED_GRID.to_string(), g.clone()));
+        }
         out.sort_by(|a, b| a.0.cmp(&b.0));
         out
     }
@@ -293,14 +343,23 @@ impl CompenNetPP {
     /// must return the stored values (it reports missing or mis-shaped tensors itself).
     pub fn restore(
         size: (usize, usize),
-        refine: bool,
+        variant: Variant,
         device: &Device,
         mut get: impl FnMut(&str, &[usize]) -> Result<Vec<f32>>,
     ) -> Result<Self> {
         let ce = |e: candle_core::Error| Error::Failed(format!("CompenNet++ model: {e}"));
-        let model =
-            Self::new([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], size, refine, 0, device).map_err(ce)?;
+        let init = if variant.fixed_geometry() {
+            let dims = [1, size.1, size.0, 2];
+            let g = get(FIXED_GRID, &dims)?;
+            GeometryInit::Fixed(Tensor::from_vec(g, dims.to_vec(), device).map_err(ce)?)
+        } else {
+            GeometryInit::Affine([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        };
+        let model = Self::new(init, size, variant.refine(), 0, device).map_err(ce)?;
         for (name, t) in model.named_tensors() {
+            if !t.is_variable() {
+                continue; // constants (the fixed grid) were set above
+            }
             let dims = t.dims().to_vec();
             let values = get(&name, &dims)?;
             let value = Tensor::from_vec(values, dims, device).map_err(ce)?;
@@ -311,6 +370,9 @@ impl CompenNetPP {
         Ok(model)
     }
 }
+
+/// Tensor name of a fixed geometry's grid in the model directory.
+pub const FIXED_GRID: &str = "warp.grid";
 
 /// The playback form of a trained CompenNet++ (DESIGN.md 5.3): the grid baked once, the surface
 /// branch run once on the warped surface image and kept as constant bias maps s1..s4; only the
