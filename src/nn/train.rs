@@ -116,7 +116,7 @@ pub struct Data {
 /// Where the sampling grid comes from.
 pub enum Geometry {
     /// WarpingNet, trained end to end (the CompenNet++ variants).
-    Learned(WarpingNet),
+    Learned(Box<WarpingNet>),
     /// A fixed (1, H, W, 2) grid, e.g. from decoded structured light (`compennet-sl`).
     Fixed(Tensor),
 }
@@ -159,9 +159,12 @@ impl CompenNetPP {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
         let warp = match init {
-            GeometryInit::Affine(theta) => {
-                Geometry::Learned(WarpingNet::new(vb.pp("warp"), Some(theta), size, refine)?)
-            }
+            GeometryInit::Affine(theta) => Geometry::Learned(Box::new(WarpingNet::new(
+                vb.pp("warp"),
+                Some(theta),
+                size,
+                refine,
+            )?)),
             GeometryInit::Fixed(grid) => {
                 let (_, h, w, _) = grid.dims4()?;
                 if (w, h) != size {
