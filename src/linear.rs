@@ -209,7 +209,7 @@ pub fn fit(
         let ng = settings.geometry_images.clamp(1, captures.len());
         let total: usize = settings.levels.iter().map(|l| l.1).sum();
         let mut done = 0;
-        let mut adam = Adam::new(warp.param_count(), settings.learning_rate);
+        let mut adam = Adam::new(warp.param_count());
         for (level, &(side, iters, sigma)) in settings.levels.iter().enumerate() {
             let (lw, lh) = level_size((nw, nh), side);
             let caps: Vec<CamImage> = captures[..ng]
@@ -799,7 +799,7 @@ struct Adam {
 }
 
 impl Adam {
-    fn new(n: usize, _lr: f32) -> Self {
+    fn new(n: usize) -> Self {
         Self {
             m: vec![0.0; n],
             v: vec![0.0; n],

@@ -17,7 +17,6 @@ use compend::rig::{self, ExportOptions, OracleOptions, Phase, Simulator};
 use compend::train::{self, Request};
 use serde::Serialize;
 
-use super::InputError;
 use super::sim::SceneArgs;
 
 #[derive(clap::Args, Debug)]
@@ -106,7 +105,7 @@ pub fn run(args: Args) -> Result<()> {
     };
     for m in &args.methods {
         if !compend::model::METHODS.contains(&m.as_str()) {
-            return Err(InputError(format!(
+            return Err(compend::Error::Input(format!(
                 "--methods: `{m}` is not a method; methods: {}",
                 compend::model::METHODS.join(", ")
             ))
@@ -119,7 +118,7 @@ pub fn run(args: Args) -> Result<()> {
         .max()
         .context("--ntrain needs at least one size")?;
     if max_train < train::MIN_TRAIN || args.ntest == 0 || args.seeds.is_empty() {
-        return Err(InputError(format!(
+        return Err(compend::Error::Input(format!(
             "--ntrain sizes must be at least {}, --ntest at least 1, and --seeds non-empty",
             train::MIN_TRAIN
         ))

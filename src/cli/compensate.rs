@@ -7,8 +7,6 @@ use compend::model::Model;
 use compend::pngio;
 use compend::raster::Camera;
 
-use super::InputError;
-
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The model directory.
@@ -60,7 +58,11 @@ fn list_inputs(input: &Path) -> Result<Vec<PathBuf>> {
         .collect();
     out.sort();
     if out.is_empty() {
-        return Err(InputError(format!("{}: no PNG files in this folder", input.display())).into());
+        return Err(compend::Error::Input(format!(
+            "{}: no PNG files in this folder",
+            input.display()
+        ))
+        .into());
     }
     Ok(out)
 }

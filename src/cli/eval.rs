@@ -3,7 +3,6 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use compend::dataset::Setup;
 use compend::metrics::Scores;
 use compend::model::Model;
 use serde_json::json;
@@ -13,12 +12,8 @@ pub struct Args {
     /// The model directory.
     #[arg(long)]
     pub model: PathBuf,
-    /// The setup folder whose cam/raw/test captures are scored.
-    #[arg(long)]
-    pub setup: PathBuf,
-    /// The data root (default: the nearest ancestor of the setup with train/ and test/).
-    #[arg(long)]
-    pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub setup: super::SetupArgs,
     /// Print one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
@@ -26,7 +21,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     let model = Model::load(&args.model)?;
-    let setup = Setup::open(&args.setup, args.data.as_deref())?;
+    let setup = args.setup.open()?;
     let pairs = setup.load_test(None)?;
     let camera = setup.camera_size()?;
     if camera != model.camera_size() {

@@ -14,13 +14,8 @@ pub const MAX_PROBLEMS: usize = 50;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The setup folder, holding cam/raw/{ref,train,test,sl} (e.g. ROOT/light2/pos1/curves_np).
-    #[arg(long)]
-    pub setup: PathBuf,
-    /// The data root holding train/ and test/ [default: the nearest ancestor of the setup that
-    /// holds both].
-    #[arg(long)]
-    pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub setup: super::SetupArgs,
     /// Print one JSON object on stdout instead of the human-readable summary.
     #[arg(long)]
     pub json: bool,
@@ -66,7 +61,7 @@ pub struct Report {
 
 /// Opens the setup and checks it fully.
 pub fn report(args: &Args) -> Result<Report> {
-    let setup = Setup::open(&args.setup, args.data.as_deref())?;
+    let setup = args.setup.open()?;
     let v = setup.validate(MAX_PROBLEMS);
     let mut problems: Vec<String> = v.problems.iter().map(|e| e.to_string()).collect();
     let mut total_problems = v.total_problems;
@@ -174,7 +169,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     Err(compend::Error::Input(format!(
         "{}: {} problem{} found in the setup or its data root",
-        args.setup.display(),
+        args.setup.setup.display(),
         r.total_problems,
         if r.total_problems == 1 { "" } else { "s" }
     ))

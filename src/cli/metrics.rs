@@ -7,8 +7,6 @@ use compend::metrics::Accumulator;
 use compend::pngio;
 use compend::raster::Unspecified;
 
-use super::InputError;
-
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// First image, or a folder of PNGs (e.g. the captured or compensated results).
@@ -57,9 +55,11 @@ fn pair_paths(a: &Path, b: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
         (true, true) => {
             let names = png_names(a)?;
             if names.is_empty() {
-                return Err(
-                    InputError(format!("{}: no PNG files in this folder", a.display())).into(),
-                );
+                return Err(compend::Error::Input(format!(
+                    "{}: no PNG files in this folder",
+                    a.display()
+                ))
+                .into());
             }
             names
                 .into_iter()
@@ -77,7 +77,7 @@ fn pair_paths(a: &Path, b: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
                 })
                 .collect()
         }
-        _ => Err(InputError(format!(
+        _ => Err(compend::Error::Input(format!(
             "{} and {} must both be PNG files or both be folders",
             a.display(),
             b.display()

@@ -11,23 +11,15 @@ pub mod sim;
 pub mod train;
 
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
-/// 2 for an I/O error on a user-named path, 1 otherwise.
+/// 1 when there is none.
 pub fn exit_code(err: &anyhow::Error) -> u8 {
     for cause in err.chain() {
         if let Some(e) = cause.downcast_ref::<compend::Error>() {
             return e.exit_code() as u8;
         }
-        if cause.downcast_ref::<InputError>().is_some() {
-            return 2;
-        }
     }
     1
 }
-
-/// A usage error found by a subcommand after parsing (e.g. two arguments that do not fit).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct InputError(pub String);
 
 /// A progress bar on stderr, hidden when stderr is not a terminal or JSON output was asked for.
 pub fn progress_bar(quiet: bool) -> indicatif::ProgressBar {
@@ -41,4 +33,22 @@ pub fn progress_bar(quiet: bool) -> indicatif::ProgressBar {
             .progress_chars("=> "),
     );
     bar
+}
+
+/// The setup a command works on: `--setup PATH [--data ROOT]`.
+#[derive(clap::Args, Debug)]
+pub struct SetupArgs {
+    /// The setup folder, holding cam/raw/{ref,train,test,sl} (e.g. ROOT/light2/pos1/curves_np).
+    #[arg(long)]
+    pub setup: std::path::PathBuf,
+    /// The data root holding train/ and test/ [default: the nearest ancestor of the setup that
+    /// holds both].
+    #[arg(long)]
+    pub data: Option<std::path::PathBuf>,
+}
+
+impl SetupArgs {
+    pub fn open(&self) -> compend::Result<compend::dataset::Setup> {
+        compend::dataset::Setup::open(&self.setup, self.data.as_deref())
+    }
 }

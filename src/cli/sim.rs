@@ -47,12 +47,8 @@ pub enum SimCommand {
 
 #[derive(clap::Args, Debug)]
 pub struct ScoreArgs {
-    /// A setup written by `compend sim export` (it holds rig.json).
-    #[arg(long)]
-    pub setup: PathBuf,
-    /// The data root (default: the nearest ancestor of the setup with train/ and test/).
-    #[arg(long)]
-    pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub setup: super::SetupArgs,
     /// Models to score (folders under SETUP/prj/cmp/test); default: all of them.
     #[arg(long)]
     pub model: Vec<String>,
@@ -263,7 +259,7 @@ fn sheet(a: SheetArgs) -> Result<()> {
         a.scene.clone()
     };
     if a.image == 0 {
-        return Err(super::InputError("--image counts from 1".into()).into());
+        return Err(compend::Error::Input("--image counts from 1".into()).into());
     }
     std::fs::create_dir_all(&a.out).map_err(|e| compend::Error::io(&a.out, "create folder", e))?;
     let sa = &a.scene_args;
@@ -310,10 +306,10 @@ struct Row {
 const FRAMES_SCORE: u64 = 2_000_000;
 
 fn score(a: ScoreArgs) -> Result<()> {
-    use compend::dataset::{ProjectorSet, Setup};
+    use compend::dataset::ProjectorSet;
     use compend::raster::PrjImage;
 
-    let setup = Setup::open(&a.setup, a.data.as_deref())?;
+    let setup = a.setup.open()?;
     let record = rig::export::read_record(setup.path())?;
     let phase = if a.no_drift {
         Phase::Calibration
@@ -324,7 +320,7 @@ fn score(a: ScoreArgs) -> Result<()> {
     let n_desired = setup.count_desired()?;
     let n = a.ntest.map_or(n_desired, |k| k.min(n_desired));
     if n == 0 {
-        return Err(super::InputError(format!(
+        return Err(compend::Error::Input(format!(
             "{}: no desired images in cam/desire/test to score against",
             setup.path().display()
         ))

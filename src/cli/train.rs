@@ -3,18 +3,13 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use compend::dataset::Setup;
 use compend::train::{self, Request};
 use serde_json::json;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The setup folder (holding cam/raw/...).
-    #[arg(long)]
-    pub setup: PathBuf,
-    /// The data root holding train/ and test/ (default: the nearest ancestor of the setup that has them).
-    #[arg(long)]
-    pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub setup: super::SetupArgs,
     /// Model to fit: `linear` (learned affine+TPS geometry, per-pixel linear colour), `linear-sl`
     /// (geometry from the structured-light captures cam/raw/sl, same colour model), or a
     /// CompenNet++ variant: `compennet++-faster` (48 pairs, batch 16, 500 iterations),
@@ -44,7 +39,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let setup = Setup::open(&args.setup, args.data.as_deref())?;
+    let setup = args.setup.open()?;
     let req = Request {
         method: args.method.clone(),
         ntrain: args.ntrain,

@@ -83,8 +83,10 @@ pub fn seeded_init(varmap: &candle_nn::VarMap, seed: u64) -> Result<()> {
             continue;
         } else if name.ends_with(".bias") {
             0.0
-        } else if name == "warp.tps" || name.starts_with("warp.refine.") {
-            super::warpingnet::TPS_INIT_STD.max(super::warpingnet::REFINE_INIT_STD)
+        } else if name == "warp.tps" {
+            super::warpingnet::TPS_INIT_STD
+        } else if name.starts_with("warp.refine.") {
+            super::warpingnet::REFINE_INIT_STD
         } else {
             let fan_in: usize = dims.iter().skip(1).product();
             (2.0 / fan_in.max(1) as f64).sqrt()
