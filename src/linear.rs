@@ -325,6 +325,87 @@ fn fit_colour(
     (curves, coeffs, loss)
 }
 
+/// Weighted normal equations of one pixel for the forward model, one set per camera channel:
+/// features `[f_p(x), 1]` (projector linear light), target `f_c(w)_c` (camera linear light).
+#[derive(Clone, Copy, Default)]
+struct ForwardNormal {
+    ata: [[[f64; 4]; 4]; 3],
+    aty: [[f64; 4]; 3],
+}
+
+impl ForwardNormal {
+    #[inline]
+    fn add(&mut self, f: &[f32; 4], a: &[f32; 3], wt: &[f32; 3]) {
+        for c in 0..3 {
+            let w = wt[c] as f64;
+            if w == 0.0 {
+                continue;
+            }
+            for i in 0..4 {
+                let fi = f[i] as f64 * w;
+                for (j, &fj) in f.iter().enumerate().skip(i) {
+                    self.ata[c][i][j] += fi * fj as f64;
+                }
+                self.aty[c][i] += fi * a[c] as f64;
+            }
+        }
+    }
+    fn merge(&mut self, o: &ForwardNormal) {
+        for c in 0..3 {
+            for i in 0..4 {
+                for j in 0..4 {
+                    self.ata[c][i][j] += o.ata[c][i][j];
+                }
+                self.aty[c][i] += o.aty[c][i];
+            }
+        }
+    }
+    /// Per channel, solves (AᵀWA + λI)β = AᵀWa + λβ₀; returns the forward model as
+    /// `[F (3×3 row-major: camera channel × projector channel), g (3)]`.
+    fn solve(&self, lambda: f64, prior: &[f32; 12]) -> Option<[f32; 12]> {
+        let mut out = [0f32; 12];
+        for c in 0..3 {
+            let mut m = nalgebra::Matrix4::<f64>::zeros();
+            let mut r = nalgebra::Vector4::<f64>::zeros();
+            for i in 0..4 {
+                for j in 0..4 {
+                    m[(i, j)] = if j >= i {
+                        self.ata[c][i][j]
+                    } else {
+                        self.ata[c][j][i]
+                    };
+                }
+                m[(i, i)] += lambda;
+                let p = if i < 3 {
+                    prior[c * 3 + i]
+                } else {
+                    prior[9 + c]
+                };
+                r[i] = self.aty[c][i] + lambda * p as f64;
+            }
+            let beta = m.cholesky()?.solve(&r);
+            for i in 0..3 {
+                out[c * 3 + i] = beta[i] as f32;
+            }
+            out[9 + c] = beta[3] as f32;
+        }
+        Some(out)
+    }
+}
+
+/// Weight of a camera value in the forward fit: the squared slope of the camera encoding at the
+/// captured value (so residuals count as they do in the sRGB-encoded metrics), zero where the
+/// camera clipped.
+#[inline]
+fn encoding_weight(enc: f32, gamma: f32) -> f32 {
+    if enc >= 0.995 {
+        return 0.0;
+    }
+    let e = enc.max(0.04);
+    let s = e.powf(1.0 - gamma) / gamma;
+    s * s
+}
+
 /// Checks that captures and projector images pair up and are each of one size.
 fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
     if captures.is_empty() || captures.len() != targets.len() {
@@ -703,9 +784,16 @@ fn sample_with_gradient(img: &CamImage, gx: f32, gy: f32) -> ([f32; 3], [[f32; 3
     (val, [du, dv])
 }
 
-/// Fits the six curve exponents by golden-section search, one at a time, two sweeps, minimising
-/// the per-pixel fit residual measured on the projector-input scale (so that the exponents are
-/// comparable across candidates).
+/// Fits the response curves by golden-section search on the residual of the forward model
+/// ([`forward_residual`]: projector light predicting the captures, in camera-encoded values).
+///
+/// Parametrisation: one camera exponent `γc` shared by the channels, and per channel the ratio
+/// `γp/γc`. A per-channel tone curve only fixes that ratio well (`v^γp` seen through `(·)^(1/γc)`);
+/// the absolute exponent shows only through offsets and channel mixing, so searching the six
+/// exponents one at a time crawls along a narrow valley. In these coordinates the valley is
+/// axis-aligned. The inverse model's own residual (on the projector-input scale) is not used:
+/// near black it amplifies camera noise, and minimising it drives both exponents towards 1,
+/// which cost 1–1.5 dB closed loop on the rig.
 fn fit_curves(
     caps: &[CamImage],
     tgts: &[NetImage],
@@ -726,44 +814,29 @@ fn fit_curves(
         .par_iter()
         .map(|c| crate::sample::grid_sample(c, &grid))
         .collect();
-    let cost = |cv: &Curves| -> f64 {
-        let (coeffs, _) = solve_colour(&warped, &tgts, cv, ridge);
-        let mut s = 0f64;
-        for (wi, ti) in warped.iter().zip(&tgts) {
-            let pred = apply_colour(wi, cv, &coeffs);
-            s += pred
-                .data()
-                .iter()
-                .zip(ti.data())
-                .map(|(a, b)| ((a - b) as f64).powi(2))
-                .sum::<f64>();
-        }
-        s
+    let cost = |cv: &Curves| forward_residual(&warped, &tgts, cv, ridge);
+    // Coordinates: [γc, γp0/γc, γp1/γc, γp2/γc] (the camera exponent of channel 0 speaks for all).
+    let to_curves = |q: &[f32; 4]| Curves {
+        camera_gamma: [q[0]; 3],
+        projector_gamma: [q[0] * q[1], q[0] * q[2], q[0] * q[3]],
     };
-    let mut best = start;
+    let g0 = start.camera_gamma[0];
+    let mut best = [
+        g0,
+        start.projector_gamma[0] / g0,
+        start.projector_gamma[1] / g0,
+        start.projector_gamma[2] / g0,
+    ];
+    let mut best_cost = cost(&to_curves(&best));
+    let phi = 0.618_034_f32;
     for _sweep in 0..2 {
-        for which in 0..6 {
-            let get = |c: &Curves| {
-                if which < 3 {
-                    c.camera_gamma[which]
-                } else {
-                    c.projector_gamma[which - 3]
-                }
-            };
-            let set = |c: &mut Curves, v: f32| {
-                if which < 3 {
-                    c.camera_gamma[which] = v
-                } else {
-                    c.projector_gamma[which - 3] = v
-                }
-            };
-            let centre = get(&best);
+        for which in 0..4 {
+            let centre = best[which];
             let (mut lo, mut hi) = ((centre * 0.6).max(0.3), (centre * 1.6).min(4.0));
-            let phi = 0.618_034_f32;
             let eval = |v: f32| {
-                let mut c = best;
-                set(&mut c, v);
-                cost(&c)
+                let mut q = best;
+                q[which] = v;
+                cost(&to_curves(&q))
             };
             let (mut a, mut b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
             let (mut fa, mut fb) = (eval(a), eval(b));
@@ -782,13 +855,68 @@ fn fit_curves(
                     fb = eval(b);
                 }
             }
-            let v = if fa < fb { a } else { b };
-            if fa.min(fb) < cost(&best) {
-                set(&mut best, v);
+            let (v, f) = if fa < fb { (a, fa) } else { (b, fb) };
+            if f < best_cost {
+                best[which] = v;
+                best_cost = f;
             }
         }
     }
-    best
+    to_curves(&best)
+}
+
+/// Fits the weighted forward model per pixel and returns the summed squared residual of its
+/// prediction of the captures in camera-encoded values (clipped captures left out).
+fn forward_residual(warped: &[NetImage], targets: &[NetImage], curves: &Curves, ridge: f32) -> f64 {
+    let (w, h) = targets[0].size();
+    let n = warped.len();
+    let sample = |wi: &NetImage, ti: &NetImage, p: usize| {
+        let x = &wi.data()[p * 3..p * 3 + 3];
+        let a = features(curves, x);
+        let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
+        let wt = [0, 1, 2].map(|c| encoding_weight(x[c], curves.camera_gamma[c]));
+        ([y[0], y[1], y[2], 1.0], [a[0], a[1], a[2]], wt)
+    };
+    let normals: Vec<ForwardNormal> = (0..w * h)
+        .into_par_iter()
+        .map(|p| {
+            let mut ne = ForwardNormal::default();
+            for (wi, ti) in warped.iter().zip(targets) {
+                let (f, a, wt) = sample(wi, ti, p);
+                ne.add(&f, &a, &wt);
+            }
+            ne
+        })
+        .collect();
+    let mut global = ForwardNormal::default();
+    for ne in &normals {
+        global.merge(ne);
+    }
+    let total_w: f64 = (0..3).map(|c| global.ata[c][3][3]).sum::<f64>() / 3.0;
+    let mean_w = total_w / (n * w * h) as f64;
+    let prior: [f32; 12] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+    let global_fwd = global.solve(1e-6 * total_w, &prior).unwrap_or(prior);
+    let lambda = ridge as f64 * n as f64 * mean_w;
+    (0..w * h)
+        .into_par_iter()
+        .map(|p| {
+            let k = normals[p].solve(lambda, &global_fwd).unwrap_or(global_fwd);
+            let mut s = 0f64;
+            for (wi, ti) in warped.iter().zip(targets) {
+                let x = &wi.data()[p * 3..p * 3 + 3];
+                let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
+                for c in 0..3 {
+                    if x[c] >= 0.995 {
+                        continue;
+                    }
+                    let l = k[c * 3] * y[0] + k[c * 3 + 1] * y[1] + k[c * 3 + 2] * y[2] + k[9 + c];
+                    let e = l.clamp(0.0, 1.0).powf(1.0 / curves.camera_gamma[c]) - x[c];
+                    s += (e * e) as f64;
+                }
+            }
+            s
+        })
+        .sum()
 }
 
 /// Adam (Kingma & Ba) over a flat parameter vector.

@@ -66,6 +66,10 @@ pub struct ScoreArgs {
     /// Print one JSON object on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
+    /// Write what the camera sees in the displayable area for every row, next to the desired
+    /// image: OUT/desired/img_NNNN.png and OUT/<row>/img_NNNN.png (camera pixels, 8-bit sRGB).
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
 }
 
 /// Scene, seed and resolution options shared by `export` and `sheet`.
@@ -380,9 +384,23 @@ fn score(a: ScoreArgs) -> Result<()> {
                 compend::pngio::read_rgb_sized(&p, net, "the network size of the data root")
             })
             .collect::<compend::Result<_>>()?;
-        let s = rig::closed_loop(&sim, &on_canvas(imgs)?, &desired, area, FRAMES_SCORE)
+        let shown = on_canvas(imgs)?;
+        let s = rig::closed_loop(&sim, &shown, &desired, area, FRAMES_SCORE)
             .with_context(|| format!("scoring model {m:?}"))?;
         rows.push(row(m, &s));
+        if let Some(out) = &a.out {
+            write_views(&sim, &shown, area, &out.join(m))?;
+        }
+    }
+    if let Some(out) = &a.out {
+        let crops: Vec<_> = desired
+            .iter()
+            .map(|z| z.crop(area))
+            .collect::<compend::Result<_>>()?;
+        write_images(&crops, &out.join("desired"))?;
+        write_views(&sim, &tests, area, &out.join("uncompensated"))?;
+        write_views(&sim, &oracle_images, area, &out.join("oracle"))?;
+        eprintln!("sim: wrote the camera views to {}", out.display());
     }
     let net_oracle = rig::score::oracle_at_network(
         &sim,
@@ -420,6 +438,32 @@ fn score(a: ScoreArgs) -> Result<()> {
             "({n} test image(s), closed loop in the {}x{} displayable area)",
             area.width, area.height
         );
+    }
+    Ok(())
+}
+
+/// Captures each projector image as `score` does and writes the displayable area of each.
+fn write_views(
+    sim: &Simulator,
+    shown: &[compend::raster::PrjImage],
+    area: compend::raster::Rect,
+    dir: &std::path::Path,
+) -> Result<()> {
+    let views: Vec<_> = shown
+        .iter()
+        .enumerate()
+        .map(|(k, p)| sim.capture(p, FRAMES_SCORE + k as u64)?.crop(area))
+        .collect::<compend::Result<_>>()?;
+    write_images(&views, dir)
+}
+
+fn write_images<S: compend::raster::Space>(
+    imgs: &[compend::raster::Rgb<S>],
+    dir: &std::path::Path,
+) -> Result<()> {
+    for (k, img) in imgs.iter().enumerate() {
+        let p = dir.join(compend::pngio::indexed_name(k + 1));
+        compend::pngio::write_rgb(&p, img).with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
 }
