@@ -159,7 +159,12 @@ pub struct FitSettings {
     pub levels: Vec<(usize, usize, f32)>,
     /// Adam step size for the parameters (normalised coordinates).
     pub learning_rate: f32,
-    /// Ridge weight towards the global model, per training image.
+    /// Ridge weight pulling each pixel's coefficients towards the global model: a fixed prior
+    /// strength in squared linear light, so the data outweighs it more as images are added.
+    /// Measured closed loop on the rig with 48 images: 1e-2 per image (the earlier rule) cost
+    /// 0.65 dB on the curved scene because dark, textured pixels were pulled to the global
+    /// model. With 12 images the result moves by about ±0.4 dB with this weight, through the
+    /// geometry's convergence rather than the colour fit.
     pub ridge: f32,
     /// Images used for the geometry (the colour fit always uses all of them).
     pub geometry_images: usize,
@@ -172,7 +177,7 @@ impl Default for FitSettings {
             learn_geometry: true,
             levels: vec![(64, 120, 2.0), (128, 60, 1.0), (256, 30, 0.0)],
             learning_rate: 2e-3,
-            ridge: 1e-2,
+            ridge: 0.012,
             geometry_images: 24,
         }
     }
@@ -566,7 +571,7 @@ fn solve_colour(
         global.merge(ne);
     }
     let global_beta = global_solution(&global, n * w * h);
-    let lambda = ridge as f64 * n as f64;
+    let lambda = ridge as f64;
     let data: Vec<[f32; 12]> = normals
         .par_iter()
         .map(|ne| ne.solve(lambda, &global_beta))
@@ -680,7 +685,7 @@ fn geometry_step(
     let n = caps.len();
     let (cw, ch) = caps[0].size();
     let (sx, sy) = (0.5 * (cw.max(2) - 1) as f32, 0.5 * (ch.max(2) - 1) as f32);
-    let lambda = ridge as f64 * n as f64;
+    let lambda = ridge as f64;
     let count = (n * grid.data().len() * 3) as f32;
     let results: Vec<(f64, [f32; 2], Normal)> = grid
         .data()
@@ -896,7 +901,7 @@ fn forward_residual(warped: &[NetImage], targets: &[NetImage], curves: &Curves, 
     let mean_w = total_w / (n * w * h) as f64;
     let prior: [f32; 12] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
     let global_fwd = global.solve(1e-6 * total_w, &prior).unwrap_or(prior);
-    let lambda = ridge as f64 * n as f64 * mean_w;
+    let lambda = ridge as f64 * mean_w;
     (0..w * h)
         .into_par_iter()
         .map(|p| {
