@@ -5,6 +5,7 @@ mod bench;
 mod common;
 mod dataset;
 mod fov;
+mod gpu;
 mod image;
 mod linear;
 mod metrics;
