@@ -17,13 +17,16 @@ pub mod morph;
 pub mod nn;
 pub mod patterns;
 pub mod playback;
+pub mod player;
 pub mod pngio;
 pub mod raster;
 pub mod resize;
 pub mod rig;
 pub mod sample;
 pub mod slgrid;
+pub mod source;
 pub mod train;
 pub mod warp;
+pub mod window;
 
 pub use error::{Error, Result};

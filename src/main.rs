@@ -25,6 +25,8 @@ enum Command {
     Inspect(cli::inspect::Args),
     /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
     Metrics(cli::metrics::Args),
+    /// Live compensation of a video source on the projector window or the virtual rig.
+    Play(cli::play::Args),
     /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
     /// gray image (ref/), Gray-code structured light (sl/).
     Patterns(cli::patterns::Args),
@@ -43,6 +45,7 @@ fn main() -> ExitCode {
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Metrics(a) => cli::metrics::run(a),
         Command::Patterns(a) => cli::patterns::run(a),
+        Command::Play(a) => cli::play::run(a),
         Command::Train(a) => cli::train::run(a),
         Command::Sim(a) => cli::sim::run(a),
     };

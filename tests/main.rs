@@ -11,5 +11,6 @@ mod linear;
 mod metrics;
 mod nn;
 mod patterns;
+mod play;
 mod rig;
 mod train;

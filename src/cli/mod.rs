@@ -7,6 +7,7 @@ pub mod eval;
 pub mod inspect;
 pub mod metrics;
 pub mod patterns;
+pub mod play;
 pub mod sim;
 pub mod train;
 
