@@ -32,6 +32,8 @@ enum Command {
     Patterns(cli::patterns::Args),
     /// Fit a compensation model on a setup's training pairs and write the model directory.
     Train(cli::train::Args),
+    /// Show a projector-space PNG on the projector window.
+    Show(cli::show::Args),
     /// The virtual rig: simulated projector-camera scenes (list, show, export, sheet, score).
     Sim(cli::sim::Args),
 }
@@ -47,6 +49,7 @@ fn main() -> ExitCode {
         Command::Patterns(a) => cli::patterns::run(a),
         Command::Play(a) => cli::play::run(a),
         Command::Train(a) => cli::train::run(a),
+        Command::Show(a) => cli::show::run(a),
         Command::Sim(a) => cli::sim::run(a),
     };
     match result {

@@ -488,6 +488,9 @@ pub fn play(
             Step::New(_) => {
                 win.present(player.pass.output())?;
                 player.record_pipeline(t.elapsed().as_secs_f64());
+                if player.stats.shown == 1 {
+                    eprintln!("play: first frame presented");
+                }
             }
             Step::Held if player.stats.shown > 0 => {
                 win.present(player.pass.output())?;
@@ -508,9 +511,6 @@ pub fn play(
             if mode == FeedMode::Latest && periods > 1.5 {
                 player.stats.dropped_pipeline += (periods.round() as u64).saturating_sub(1);
             }
-        }
-        if player.stats.shown == 1 && player.stats.refreshes == 1 {
-            eprintln!("play: first frame presented");
         }
     }
     let fs = player.feed.stats();

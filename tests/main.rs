@@ -14,3 +14,4 @@ mod patterns;
 mod play;
 mod rig;
 mod train;
+mod window;

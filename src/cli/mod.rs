@@ -8,6 +8,7 @@ pub mod inspect;
 pub mod metrics;
 pub mod patterns;
 pub mod play;
+pub mod show;
 pub mod sim;
 pub mod train;
 
