@@ -17,6 +17,9 @@ struct Cli {
 enum Command {
     /// Benchmark methods × scenes × training-set sizes × seeds on the virtual rig.
     Bench(cli::bench::Args),
+    /// Per-frame GPU time of the compensation pass against a plain texture copy, and frames
+    /// dropped at 60 Hz on the virtual rig.
+    BenchGpu(cli::bench_gpu::Args),
     /// Compensation images for desired camera-view images, with a trained model.
     Compensate(cli::compensate::Args),
     /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row.
@@ -42,6 +45,7 @@ fn main() -> ExitCode {
     let args = Cli::parse();
     let result = match args.command {
         Command::Bench(a) => cli::bench::run(a),
+        Command::BenchGpu(a) => cli::bench_gpu::run(a),
         Command::Compensate(a) => cli::compensate::run(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Inspect(a) => cli::inspect::run(a),

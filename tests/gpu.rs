@@ -186,3 +186,48 @@ fn pass_is_reused_across_frames() {
     pass.run(&ctx, &a).unwrap();
     assert_eq!(pass.read_output(&ctx).unwrap(), first);
 }
+
+/// `compend bench-gpu` at tiny sizes: one row per projector size with the copy, the pass, their
+/// ratio and the virtual-rig counts, in JSON and markdown.
+#[test]
+fn bench_gpu_writes_ratios() {
+    if gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bg");
+    let o = crate::common::compend(&[
+        "bench-gpu",
+        "--out",
+        out.to_str().unwrap(),
+        "--sizes",
+        "64x48,100x75",
+        "--iters",
+        "3",
+        "--seconds",
+        "0.25",
+        "--camera",
+        "80x60",
+        "--network",
+        "32x32",
+        "--content",
+        "64x36",
+    ]);
+    crate::common::assert_code(&o, 0);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench-gpu.json")).unwrap()).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    for r in rows {
+        assert!(r["copy"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["linear_over_copy"].as_f64().unwrap() > 0.0, "{r}");
+        let rig = &r["virtual_rig"];
+        assert!(rig["refreshes"].as_u64().unwrap() == 15, "{r}");
+        assert!(rig["shown"].as_u64().unwrap() >= 1, "{r}");
+    }
+    let md = std::fs::read_to_string(out.join("bench-gpu.md")).unwrap();
+    assert!(
+        md.contains("| 64x48 |") && md.contains("| 100x75 |"),
+        "{md}"
+    );
+}

@@ -2,6 +2,7 @@
 //! Errors carry context with anyhow; library errors inside decide the exit code.
 
 pub mod bench;
+pub mod bench_gpu;
 pub mod compensate;
 pub mod eval;
 pub mod inspect;

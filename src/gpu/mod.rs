@@ -8,6 +8,7 @@
 //!
 //! Every stage has a CPU reference in the core ([`crate::playback`]), and tests compare them.
 
+pub mod bench;
 pub mod context;
 mod kernel;
 pub mod linear;
