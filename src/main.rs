@@ -17,6 +17,9 @@ struct Cli {
 enum Command {
     /// Benchmark methods × scenes × training-set sizes × seeds on the virtual rig.
     Bench(cli::bench::Args),
+    /// Per-frame GPU time of the compensation pass against a plain texture copy, and frames
+    /// dropped at 60 Hz on the virtual rig.
+    BenchGpu(cli::bench_gpu::Args),
     /// Compensation images for desired camera-view images, with a trained model.
     Compensate(cli::compensate::Args),
     /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row.
@@ -25,11 +28,15 @@ enum Command {
     Inspect(cli::inspect::Args),
     /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
     Metrics(cli::metrics::Args),
+    /// Live compensation of a video source on the projector window or the virtual rig.
+    Play(cli::play::Args),
     /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
     /// gray image (ref/), Gray-code structured light (sl/).
     Patterns(cli::patterns::Args),
     /// Fit a compensation model on a setup's training pairs and write the model directory.
     Train(cli::train::Args),
+    /// Show a projector-space PNG on the projector window.
+    Show(cli::show::Args),
     /// The virtual rig: simulated projector-camera scenes (list, show, export, sheet, score).
     Sim(cli::sim::Args),
 }
@@ -38,12 +45,15 @@ fn main() -> ExitCode {
     let args = Cli::parse();
     let result = match args.command {
         Command::Bench(a) => cli::bench::run(a),
+        Command::BenchGpu(a) => cli::bench_gpu::run(a),
         Command::Compensate(a) => cli::compensate::run(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Metrics(a) => cli::metrics::run(a),
         Command::Patterns(a) => cli::patterns::run(a),
+        Command::Play(a) => cli::play::run(a),
         Command::Train(a) => cli::train::run(a),
+        Command::Show(a) => cli::show::run(a),
         Command::Sim(a) => cli::sim::run(a),
     };
     match result {

@@ -2,11 +2,14 @@
 //! Errors carry context with anyhow; library errors inside decide the exit code.
 
 pub mod bench;
+pub mod bench_gpu;
 pub mod compensate;
 pub mod eval;
 pub mod inspect;
 pub mod metrics;
 pub mod patterns;
+pub mod play;
+pub mod show;
 pub mod sim;
 pub mod train;
 

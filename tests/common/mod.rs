@@ -40,3 +40,33 @@ pub fn assert_code(o: &Output, code: i32) {
         stderr(o)
     );
 }
+
+/// The variable that turns a missing GPU adapter or Xvfb from a skip into a failure (CI sets it).
+pub const REQUIRE_GPU: &str = "COMPEND_REQUIRE_GPU_ADAPTER";
+
+fn gpu_required() -> bool {
+    std::env::var(REQUIRE_GPU).is_ok_and(|v| !v.is_empty() && v != "0")
+}
+
+/// Skips a test with a printed reason, or fails it when `COMPEND_REQUIRE_GPU_ADAPTER=1`.
+pub fn skip_or_fail(reason: &str) {
+    if gpu_required() {
+        panic!("{reason}, and {REQUIRE_GPU}=1 requires it");
+    }
+    eprintln!("skipping: {reason} (set {REQUIRE_GPU}=1 to make this a failure)");
+}
+
+/// The GPU context, or `None` after printing why the test is skipped (a panic instead when
+/// `COMPEND_REQUIRE_GPU_ADAPTER=1`).
+pub fn gpu() -> Option<compend::gpu::GpuContext> {
+    match compend::gpu::GpuContext::new().expect("a GPU adapter that exists opens a device") {
+        Ok(ctx) => {
+            eprintln!("GPU adapter: {}", ctx.describe());
+            Some(ctx)
+        }
+        Err(why) => {
+            skip_or_fail(&format!("no GPU adapter ({why})"));
+            None
+        }
+    }
+}

@@ -1,0 +1,238 @@
+//! `compend play`: live compensation of a video source on the projector window, or on the
+//! virtual rig (`--rig virtual[:SCENE]`), which replaces the window by the rig's projector and
+//! writes what its camera sees.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use compend::fov::DisplayRange;
+use compend::gpu::{CompensationPass, GpuContext};
+use compend::model::Model;
+use compend::playback::Placement;
+use compend::player::{self, Player, VirtualOptions};
+use compend::rig::{self, Phase, Simulator, VirtualRig, scene};
+use compend::source::{self, Feed, FeedMode, SourceSpec};
+
+#[derive(clap::Args, Debug)]
+#[command(after_help = compend::source::HELP)]
+pub struct Args {
+    /// The model directory (linear or linear-sl; the CompenNet++ family has no GPU pass yet).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// What to play (spellings below).
+    #[arg(long, value_name = "SRC")]
+    pub source: String,
+    /// Stop after N display refreshes [default: when the source ends; on the window, still
+    /// images and slideshows play until the window is closed or Escape is pressed].
+    #[arg(long, value_name = "N")]
+    pub frames: Option<u64>,
+    /// Play on the virtual rig instead of the projector window: `virtual` (the rig the model was
+    /// calibrated on, from its setup's rig.json) or `virtual:SCENE` (a built-in scene or scene
+    /// JSON file, at the model's camera size).
+    #[arg(long, value_name = "virtual[:SCENE]")]
+    pub rig: Option<String>,
+    /// Folder for the virtual camera's views (cam_NNNNNN.png, one per shown frame, numbered by
+    /// source frame) and play.json (the frame counts).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Display refresh rate of the virtual rig, Hz (the window follows the monitor's vsync).
+    #[arg(long, default_value_t = 60.0)]
+    pub fps: f64,
+    /// `display`: real time at the refresh rate, the newest frame wins and dropped frames are
+    /// counted; `source`: every source frame is shown once, as fast as the pipeline goes
+    /// (offline rendering on the virtual rig).
+    #[arg(long, value_enum, default_value_t = Pace::Display)]
+    pub pace: Pace,
+    /// The projector's monitor for the window: its name or index (the error for an unknown one
+    /// lists them) [default: the primary monitor].
+    #[arg(long)]
+    pub monitor: Option<String>,
+    /// Seed of the virtual rig's texture and noise [default: the calibration record's, else 0].
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Print the frame counts as one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Pace {
+    Display,
+    Source,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    if !(args.fps.is_finite() && args.fps > 0.0) {
+        return Err(
+            compend::Error::Input(format!("--fps must be positive, got {}", args.fps)).into(),
+        );
+    }
+    let spec = SourceSpec::parse(&args.source)?;
+    let model = Model::load(&args.model)?;
+    let rig = args.rig.as_deref().map(parse_rig).transpose()?;
+    // Open the source before the GPU so a bad source fails fast.
+    let source = source::open(&spec)?;
+    let mode = match args.pace {
+        Pace::Display => FeedMode::Latest,
+        Pace::Source => FeedMode::Queue,
+    };
+    let stats = match rig {
+        Some(scene_name) => {
+            let (rig, range) = virtual_rig(&model, scene_name.as_deref(), args.seed)?;
+            let ctx = gpu()?;
+            let sim = rig.simulator();
+            let placement = Placement::for_model(&model, sim.projector_size(), range)?;
+            eprintln!(
+                "play: {} on the virtual rig (scene {:?}, camera {}x{}, projector {}x{}; area {}, \
+                 canvas {}) with {}",
+                args.source,
+                sim.scene().name,
+                sim.camera_size().0,
+                sim.camera_size().1,
+                placement.projector_size.0,
+                placement.projector_size.1,
+                placement.area,
+                placement.canvas,
+                ctx.describe()
+            );
+            let pass = CompensationPass::new(&ctx, &model, placement)?;
+            let mut player = Player::new(pass, Feed::spawn(source, mode)?);
+            let views: player::ViewSink = match &args.out {
+                Some(dir) => {
+                    std::fs::create_dir_all(dir)
+                        .map_err(|e| compend::Error::io(dir, "create folder", e))?;
+                    let dir = dir.clone();
+                    Box::new(move |seq, _, img| {
+                        compend::pngio::write_rgb(&dir.join(format!("cam_{seq:06}.png")), img)
+                    })
+                }
+                None => Box::new(|_, _, _| Ok(())),
+            };
+            player::play_virtual(
+                &ctx,
+                &mut player,
+                &rig,
+                VirtualOptions {
+                    fps: args.fps,
+                    refreshes: args.frames,
+                    mode,
+                },
+                views,
+            )?
+        }
+        None => compend::window::play(
+            &model,
+            source,
+            mode,
+            compend::window::WindowOptions {
+                monitor: args.monitor.clone(),
+                refreshes: args.frames,
+            },
+        )?,
+    };
+    eprintln!(
+        "play: {} refreshes, {} frames shown, {} held, {} dropped (source faster), {} dropped by \
+         the pipeline; pipeline {:.2} ms mean, {:.2} ms worst",
+        stats.refreshes,
+        stats.shown,
+        stats.held,
+        stats.dropped_source,
+        stats.dropped_pipeline,
+        stats.pipeline_ms_mean,
+        stats.pipeline_ms_max
+    );
+    let json = serde_json::to_string(&stats)?;
+    if let Some(dir) = &args.out {
+        let p = dir.join("play.json");
+        std::fs::create_dir_all(dir).map_err(|e| compend::Error::io(dir, "create folder", e))?;
+        std::fs::write(&p, format!("{json}\n")).map_err(|e| compend::Error::io(&p, "write", e))?;
+    }
+    if args.json {
+        println!("{json}");
+    }
+    Ok(())
+}
+
+/// `virtual` → None, `virtual:SCENE` → Some(SCENE).
+fn parse_rig(s: &str) -> compend::Result<Option<String>> {
+    match s.split_once(':') {
+        None if s == "virtual" => Ok(None),
+        Some(("virtual", scene)) if !scene.is_empty() => Ok(Some(scene.to_string())),
+        _ => Err(compend::Error::Input(format!(
+            "--rig {s:?}: expected `virtual` or `virtual:SCENE` (scenes: {})",
+            rig::BUILTIN.join(", ")
+        ))),
+    }
+}
+
+pub fn gpu() -> Result<GpuContext> {
+    GpuContext::new()?.map_err(|why| {
+        compend::Error::Failed(format!(
+            "{why}; live compensation needs a GPU or a software Vulkan driver (Mesa lavapipe)"
+        ))
+        .into()
+    })
+}
+
+/// The rig the model was calibrated on (its setup's rig.json), or `scene` at the model's camera
+/// size; with the display range desired images were scaled into there.
+fn virtual_rig(
+    model: &Model,
+    scene_name: Option<&str>,
+    seed: Option<u64>,
+) -> Result<(VirtualRig, DisplayRange)> {
+    let record = model
+        .meta
+        .training
+        .get("setup")
+        .and_then(|s| s.as_str())
+        .map(Path::new)
+        .and_then(|setup| rig::export::read_record(setup).ok());
+    let (cw, ch) = model.camera_size();
+    let (scene, record_seed, range) = match (scene_name, &record) {
+        (None, Some(r)) => (r.scene.clone(), r.seed, r.desired_range),
+        (None, None) => {
+            return Err(compend::Error::Input(format!(
+                "--rig virtual: model {} was not calibrated on the virtual rig (no rig.json in its \
+                 setup); name a scene: --rig virtual:SCENE ({})",
+                model.meta.method,
+                rig::BUILTIN.join(", ")
+            ))
+            .into());
+        }
+        (Some(name), r) => {
+            let s = scene::load(name)?;
+            // The record's projector resolution when it is the same scene, else the scene's.
+            let prj = match r {
+                Some(r) if r.scene.name == s.name => {
+                    (r.scene.projector.width, r.scene.projector.height)
+                }
+                _ => (s.projector.width, s.projector.height),
+            };
+            let same = r.as_ref().filter(|r| r.scene.name == s.name);
+            (
+                s.with_resolution((cw, ch), prj),
+                same.map_or(0, |r| r.seed),
+                same.map_or(DisplayRange::FULL, |r| r.desired_range),
+            )
+        }
+    };
+    scene.validate()?;
+    if (scene.camera.width, scene.camera.height) != (cw, ch) {
+        return Err(compend::Error::Input(format!(
+            "the model expects {cw}x{ch} camera images, the virtual rig's camera is {}x{}",
+            scene.camera.width, scene.camera.height
+        ))
+        .into());
+    }
+    let sim = Simulator::new(&scene, seed.unwrap_or(record_seed), Phase::Calibration)
+        .with_context(|| format!("preparing virtual rig scene {:?}", scene.name))?;
+    let rig = VirtualRig::from_simulator(sim);
+    // An ideal camera for playback: no delay, no drops, one exposure per shown frame.
+    rig.set_latency(rig::scene::Latency {
+        fps: 60.0,
+        delay_frames: 0,
+        drop_rate: 0.0,
+    })?;
+    Ok((rig, range))
+}

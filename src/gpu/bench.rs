@@ -1,0 +1,229 @@
+//! Per-frame GPU time of the compensation pass against a plain texture copy of the projector
+//! frame's size measured in the same run (the memory-bandwidth floor of anything that writes a
+//! projector frame).
+//!
+//! Each measurement encodes one frame's work, submits it and waits for the GPU; the median over
+//! `iters` runs (after warm-up runs, which also JIT-compile shaders on software drivers) is
+//! reported. Where the adapter has timestamp queries inside encoders, the GPU's own timestamps
+//! around the work are reported too. Content upload is not part of the pass time (it is a queue
+//! write that overlaps with the previous frame).
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::GpuContext;
+use super::pass::CompensationPass;
+use crate::error::{Error, Result};
+use crate::playback::ContentFrame;
+
+/// Medians of one measurement, milliseconds.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Timing {
+    /// Submit to GPU idle, wall clock.
+    pub wall_ms: f64,
+    /// Between GPU timestamps before and after the work, when the adapter has them.
+    pub gpu_ms: Option<f64>,
+}
+
+impl Timing {
+    /// The GPU time where measured, else the wall time.
+    pub fn best_ms(&self) -> f64 {
+        self.gpu_ms.unwrap_or(self.wall_ms)
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Times `record` (which encodes one frame's work): `warmup` untimed runs, then `iters` timed.
+pub fn time_work(
+    ctx: &GpuContext,
+    warmup: usize,
+    iters: usize,
+    mut record: impl FnMut(&mut wgpu::CommandEncoder) -> Result<()>,
+) -> Result<Timing> {
+    let stamps = ctx.device.features().contains(
+        wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS,
+    );
+    let query = stamps.then(|| {
+        let set = ctx.device.create_query_set(&wgpu::QuerySetDescriptor {
+            label: Some("bench"),
+            ty: wgpu::QueryType::Timestamp,
+            count: 2,
+        });
+        let resolve = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bench resolve"),
+            size: 16,
+            usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let read = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bench read"),
+            size: 16,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        (set, resolve, read)
+    });
+    let period_ns = ctx.queue.get_timestamp_period() as f64;
+    let (mut walls, mut gpus) = (Vec::new(), Vec::new());
+    for i in 0..warmup + iters {
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("bench"),
+            });
+        if let Some((set, _, _)) = &query {
+            enc.write_timestamp(set, 0);
+        }
+        record(&mut enc)?;
+        if let Some((set, resolve, read)) = &query {
+            enc.write_timestamp(set, 1);
+            enc.resolve_query_set(set, 0..2, resolve, 0);
+            enc.copy_buffer_to_buffer(resolve, 0, read, 0, 16);
+        }
+        let t = Instant::now();
+        ctx.queue.submit([enc.finish()]);
+        ctx.wait()?;
+        let wall = t.elapsed().as_secs_f64() * 1e3;
+        let gpu = match &query {
+            Some((_, _, read)) => {
+                let (tx, rx) = std::sync::mpsc::channel();
+                read.map_async(wgpu::MapMode::Read, .., move |r| {
+                    let _ = tx.send(r);
+                });
+                ctx.wait()?;
+                rx.recv()
+                    .map_err(|_| Error::Failed("timestamp read-back cancelled".into()))?
+                    .map_err(|e| Error::Failed(format!("timestamp read-back: {e}")))?;
+                let ticks: [u64; 2] = {
+                    let view = read
+                        .get_mapped_range(..)
+                        .map_err(|e| Error::Failed(format!("timestamp mapping: {e}")))?;
+                    let v: &[u64] = bytemuck::cast_slice(&view);
+                    [v[0], v[1]]
+                };
+                read.unmap();
+                Some(ticks[1].saturating_sub(ticks[0]) as f64 * period_ns / 1e6)
+            }
+            None => None,
+        };
+        if i >= warmup {
+            walls.push(wall);
+            if let Some(g) = gpu {
+                gpus.push(g);
+            }
+        }
+    }
+    Ok(Timing {
+        wall_ms: median(walls),
+        gpu_ms: (!gpus.is_empty()).then(|| median(gpus)),
+    })
+}
+
+/// A plain copy of a projector-sized rgba8 texture into another (the bandwidth floor).
+pub fn time_copy(
+    ctx: &GpuContext,
+    (w, h): (usize, usize),
+    warmup: usize,
+    iters: usize,
+) -> Result<Timing> {
+    let make = |label| {
+        ctx.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width: w as u32,
+                height: h as u32,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: super::FRAME_FORMAT,
+            usage: wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        })
+    };
+    let (src, dst) = (make("copy source"), make("copy target"));
+    time_work(ctx, warmup, iters, |enc| {
+        enc.copy_texture_to_texture(src.as_image_copy(), dst.as_image_copy(), src.size());
+        Ok(())
+    })
+}
+
+/// The compensation pass on `content` (uploaded once).
+pub fn time_pass(
+    ctx: &GpuContext,
+    pass: &mut CompensationPass,
+    content: &ContentFrame,
+    warmup: usize,
+    iters: usize,
+) -> Result<Timing> {
+    pass.upload(ctx, content)?;
+    let pass = &*pass;
+    time_work(ctx, warmup, iters, |enc| pass.encode(enc, None))
+}
+
+/// A `linear` model with random per-pixel coefficients, a gently bent grid and a full FOV, for
+/// timing (its numbers do not matter, its shapes do): camera `camera`, network `network`.
+pub fn synthetic_linear_model(
+    camera: (usize, usize),
+    network: (usize, usize),
+    seed: u64,
+) -> crate::model::Model {
+    use rand::{RngExt, SeedableRng};
+
+    use crate::linear::{Coefficients, Curves, Geometry, LinearModel};
+    use crate::modeldir::{FORMAT_VERSION, ModelMeta};
+    use crate::raster::Mask;
+    use crate::sample::{Grid, pixel_to_norm};
+
+    let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(seed);
+    let (nw, nh) = network;
+    let grid = Grid::from_fn(nw, nh, |x, y| {
+        let (u, v) = (pixel_to_norm(x as f32, nw), pixel_to_norm(y as f32, nh));
+        [0.8 * u + 0.05 * v * v, 0.8 * v + 0.05 * u * u]
+    });
+    let data = (0..nw * nh)
+        .map(|_| {
+            let mut k = [0f32; 12];
+            for (i, v) in k.iter_mut().enumerate() {
+                *v = if i % 4 == 0 && i < 9 { 1.0 } else { 0.0 } + rng.random_range(-0.1..0.1);
+            }
+            k
+        })
+        .collect();
+    let model = LinearModel {
+        geometry: Geometry::Fixed(grid),
+        curves: Curves::default(),
+        coeffs: Coefficients {
+            width: nw,
+            height: nh,
+            data,
+        },
+        camera_size: camera,
+    };
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method: crate::linear::METHOD.into(),
+        network_size: network,
+        camera_size: camera,
+        canvas: None,
+        training: serde_json::Value::Null,
+        metrics: serde_json::Value::Null,
+        timings: serde_json::Value::Null,
+        written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
+    };
+    crate::model::Model::linear(meta, Mask::full(camera.0, camera.1), model)
+}

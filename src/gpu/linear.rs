@@ -1,0 +1,107 @@
+//! The `linear` model's photometric stage on the GPU (`shaders/linear.wgsl`): the desired camera
+//! view sampled through the baked grid, then the per-pixel affine colour model in linear light.
+//! CPU reference: [`crate::linear::SimplifiedLinear::apply`].
+
+use bytemuck::{Pod, Zeroable};
+
+use super::GpuContext;
+use super::kernel::{Slot, Stage, storage, uniform};
+use crate::error::{Error, Result};
+use crate::linear::SimplifiedLinear;
+
+const SHADER: &str = include_str!("../../shaders/linear.wgsl");
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Params {
+    camera: [u32; 2],
+    network: [u32; 2],
+    camera_gamma: [f32; 4],
+    projector_inv_gamma: [f32; 4],
+}
+
+/// The model's constants on the GPU and the compiled stage.
+pub struct LinearStage {
+    stage: Stage,
+    params: wgpu::Buffer,
+    grid: wgpu::Buffer,
+    coeffs: wgpu::Buffer,
+    network_size: (u32, u32),
+}
+
+impl LinearStage {
+    /// Uploads the grid (network pixels → normalised camera positions) and the per-pixel
+    /// coefficients once; `camera_size` is the desired view's size in camera pixels.
+    pub fn new(
+        ctx: &GpuContext,
+        model: &SimplifiedLinear,
+        camera_size: (usize, usize),
+    ) -> Result<Self> {
+        let (nw, nh) = model.grid.size();
+        if (model.coeffs.width, model.coeffs.height) != (nw, nh) {
+            return Err(Error::Shape(format!(
+                "linear model: grid {nw}x{nh} but coefficients {}x{}",
+                model.coeffs.width, model.coeffs.height
+            )));
+        }
+        let c = &model.curves;
+        // 1/γ in f32, exactly as Curves::projector_input computes it.
+        let inv = |g: f32| 1.0 / g;
+        let params = Params {
+            camera: [camera_size.0 as u32, camera_size.1 as u32],
+            network: [nw as u32, nh as u32],
+            camera_gamma: [c.camera_gamma[0], c.camera_gamma[1], c.camera_gamma[2], 0.0],
+            projector_inv_gamma: [
+                inv(c.projector_gamma[0]),
+                inv(c.projector_gamma[1]),
+                inv(c.projector_gamma[2]),
+                0.0,
+            ],
+        };
+        let grid: Vec<f32> = model.grid.data().iter().flatten().copied().collect();
+        let coeffs: Vec<f32> = model.coeffs.data.iter().flatten().copied().collect();
+        Ok(Self {
+            stage: Stage::new(
+                ctx,
+                "linear",
+                SHADER,
+                "linear",
+                &[
+                    Slot::Uniform,
+                    Slot::Texture,
+                    Slot::Storage,
+                    Slot::Storage,
+                    Slot::Output(wgpu::TextureFormat::Rgba32Float),
+                ],
+            )?,
+            params: uniform(ctx, "linear params", &params),
+            grid: storage(ctx, "linear grid", &grid),
+            coeffs: storage(ctx, "linear coefficients", &coeffs),
+            network_size: (nw as u32, nh as u32),
+        })
+    }
+
+    /// The bind group reading the desired view `desired` and writing the network image `network`.
+    pub fn bind(
+        &self,
+        ctx: &GpuContext,
+        desired: &wgpu::TextureView,
+        network: &wgpu::TextureView,
+    ) -> wgpu::BindGroup {
+        self.stage.bind(
+            ctx,
+            "linear",
+            &[
+                self.params.as_entire_binding(),
+                wgpu::BindingResource::TextureView(desired),
+                self.grid.as_entire_binding(),
+                self.coeffs.as_entire_binding(),
+                wgpu::BindingResource::TextureView(network),
+            ],
+        )
+    }
+
+    pub fn dispatch(&self, pass: &mut wgpu::ComputePass<'_>, group: &wgpu::BindGroup) {
+        self.stage.dispatch(pass, group, self.network_size);
+    }
+}

@@ -1,0 +1,368 @@
+//! The compensation pass: content frame → projector frame, all on the GPU, built once per model
+//! and display and reused per frame (only the content upload and three dispatches per frame).
+//!
+//! Stages (see [`crate::playback`] for the chain and its CPU reference):
+//! 1. `shaders/place.wgsl`: content (rgba8unorm, content pixels) → desired camera view
+//!    (rgba32float, camera pixels), FOV mask applied;
+//! 2. the model's photometric stage ([`Photometric`]): desired view → compensation image
+//!    (rgba32float, network pixels);
+//! 3. `shaders/canvas.wgsl`: compensation image → projector frame (rgba8unorm, projector pixels,
+//!    native resolution), ready to present or read back.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::GpuContext;
+use super::kernel::{Slot, Stage, image_texture, storage, uniform, view};
+use super::linear::LinearStage;
+use crate::error::{Error, Result};
+use crate::model::{Kind, Model};
+use crate::playback::{ContentFrame, Placement};
+use crate::raster::{NetImage, PrjImage, Rgb, Space};
+
+const PLACE: &str = include_str!("../../shaders/place.wgsl");
+const CANVAS: &str = include_str!("../../shaders/canvas.wgsl");
+
+/// Format of the projector frame: 8-bit, values as the projector takes them (no sRGB re-encoding
+/// by the GPU: the model's outputs already are projector input values).
+pub const FRAME_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+
+/// The model's photometric part on the GPU: one variant per model family.
+pub enum Photometric {
+    /// `linear`, `linear-sl`: grid sample + per-pixel affine colour.
+    Linear(LinearStage),
+    // The simplified CompenNet backbone (CompenNet++ family) goes here.
+}
+
+impl Photometric {
+    /// The stage for `model`, or an input error naming what is not available on the GPU yet.
+    pub fn for_model(ctx: &GpuContext, model: &Model) -> Result<Self> {
+        match &model.kind {
+            Kind::Linear { simplified, .. } => Ok(Self::Linear(LinearStage::new(
+                ctx,
+                simplified,
+                model.camera_size(),
+            )?)),
+            Kind::CompenNet { .. } => Err(Error::Input(format!(
+                "method `{}`: the CompenNet backbone has no GPU pass yet (only linear and \
+                 linear-sl play live)",
+                model.meta.method
+            ))),
+        }
+    }
+
+    fn bind(
+        &self,
+        ctx: &GpuContext,
+        desired: &wgpu::TextureView,
+        network: &wgpu::TextureView,
+    ) -> wgpu::BindGroup {
+        match self {
+            Self::Linear(s) => s.bind(ctx, desired, network),
+        }
+    }
+
+    fn dispatch(&self, pass: &mut wgpu::ComputePass<'_>, group: &wgpu::BindGroup) {
+        match self {
+            Self::Linear(s) => s.dispatch(pass, group),
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PlaceParams {
+    camera: [u32; 2],
+    content: [u32; 2],
+    area_origin: [u32; 2],
+    area_size: [u32; 2],
+    range: [f32; 2],
+    _pad: [f32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct CanvasParams {
+    projector: [u32; 2],
+    network: [u32; 2],
+    origin: [u32; 2],
+    size: [u32; 2],
+}
+
+fn u2((a, b): (usize, usize)) -> [u32; 2] {
+    [a as u32, b as u32]
+}
+
+/// The content texture and the bind group of stage 1, rebuilt when the content size changes.
+struct Content {
+    size: (usize, usize),
+    texture: wgpu::Texture,
+    group: wgpu::BindGroup,
+}
+
+/// The compensation pass for one model and one display.
+pub struct CompensationPass {
+    placement: Placement,
+    place: Stage,
+    place_params: wgpu::Buffer,
+    fov: wgpu::Buffer,
+    photometric: Photometric,
+    canvas: Stage,
+    desired: wgpu::Texture,
+    network: wgpu::Texture,
+    output: wgpu::Texture,
+    photometric_group: wgpu::BindGroup,
+    canvas_group: wgpu::BindGroup,
+    content: Option<Content>,
+}
+
+impl CompensationPass {
+    /// Compiles the stages and uploads the model's constants once.
+    pub fn new(ctx: &GpuContext, model: &Model, placement: Placement) -> Result<Self> {
+        placement.validate()?;
+        if placement.camera_size != model.camera_size()
+            || placement.network_size != model.network_size()
+        {
+            return Err(Error::Shape(format!(
+                "placement is for camera {:?} / network {:?}, the model for {:?} / {:?}",
+                placement.camera_size,
+                placement.network_size,
+                model.camera_size(),
+                model.network_size()
+            )));
+        }
+        let photometric = Photometric::for_model(ctx, model)?;
+        let place = Stage::new(
+            ctx,
+            "place",
+            PLACE,
+            "place",
+            &[
+                Slot::Uniform,
+                Slot::Texture,
+                Slot::Storage,
+                Slot::Output(wgpu::TextureFormat::Rgba32Float),
+            ],
+        )?;
+        let canvas = Stage::new(
+            ctx,
+            "canvas",
+            CANVAS,
+            "canvas",
+            &[Slot::Uniform, Slot::Texture, Slot::Output(FRAME_FORMAT)],
+        )?;
+        let p = &placement;
+        let st = wgpu::TextureUsages::STORAGE_BINDING;
+        let desired = image_texture(
+            ctx,
+            "desired view",
+            (p.camera_size.0 as u32, p.camera_size.1 as u32),
+            wgpu::TextureFormat::Rgba32Float,
+            st,
+        );
+        let network = image_texture(
+            ctx,
+            "compensation image",
+            (p.network_size.0 as u32, p.network_size.1 as u32),
+            wgpu::TextureFormat::Rgba32Float,
+            st,
+        );
+        let output = image_texture(
+            ctx,
+            "projector frame",
+            (p.projector_size.0 as u32, p.projector_size.1 as u32),
+            FRAME_FORMAT,
+            st,
+        );
+        let fov: Vec<f32> = model
+            .fov
+            .data()
+            .iter()
+            .map(|&b| if b { 1.0 } else { 0.0 })
+            .collect();
+        let fov = storage(ctx, "fov mask", &fov);
+        let place_params = uniform(ctx, "place params", &PlaceParams::zeroed());
+        let canvas_params = uniform(
+            ctx,
+            "canvas params",
+            &CanvasParams {
+                projector: u2(p.projector_size),
+                network: u2(p.network_size),
+                origin: [p.canvas.x as u32, p.canvas.y as u32],
+                size: [p.canvas.width as u32, p.canvas.height as u32],
+            },
+        );
+        let photometric_group = photometric.bind(ctx, &view(&desired), &view(&network));
+        let canvas_group = canvas.bind(
+            ctx,
+            "canvas",
+            &[
+                canvas_params.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&view(&network)),
+                wgpu::BindingResource::TextureView(&view(&output)),
+            ],
+        );
+        Ok(Self {
+            placement,
+            place,
+            place_params,
+            fov,
+            photometric,
+            canvas,
+            desired,
+            network,
+            output,
+            photometric_group,
+            canvas_group,
+            content: None,
+        })
+    }
+
+    pub fn placement(&self) -> &Placement {
+        &self.placement
+    }
+
+    /// The projector frame (rgba8unorm, projector pixels) the last dispatch wrote.
+    pub fn output(&self) -> &wgpu::Texture {
+        &self.output
+    }
+
+    /// Uploads a content frame (the only per-frame transfer to the GPU).
+    pub fn upload(&mut self, ctx: &GpuContext, frame: &ContentFrame) -> Result<()> {
+        if frame.width == 0 || frame.height == 0 {
+            return Err(Error::Shape("empty content frame".into()));
+        }
+        if self.content.as_ref().is_none_or(|c| c.size != frame.size()) {
+            self.content = Some(self.make_content(ctx, frame.size()));
+        }
+        let c = self.content.as_ref().expect("just made");
+        ctx.queue.write_texture(
+            c.texture.as_image_copy(),
+            &frame.rgba,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(frame.width as u32 * 4),
+                rows_per_image: Some(frame.height as u32),
+            },
+            c.texture.size(),
+        );
+        Ok(())
+    }
+
+    fn make_content(&self, ctx: &GpuContext, size: (usize, usize)) -> Content {
+        let p = &self.placement;
+        ctx.queue.write_buffer(
+            &self.place_params,
+            0,
+            bytemuck::bytes_of(&PlaceParams {
+                camera: u2(p.camera_size),
+                content: u2(size),
+                area_origin: [p.area.x as u32, p.area.y as u32],
+                area_size: [p.area.width as u32, p.area.height as u32],
+                range: [p.range.low, p.range.high],
+                _pad: [0.0; 2],
+            }),
+        );
+        let texture = image_texture(
+            ctx,
+            "content frame",
+            (size.0 as u32, size.1 as u32),
+            wgpu::TextureFormat::Rgba8Unorm,
+            wgpu::TextureUsages::COPY_DST,
+        );
+        let group = self.place.bind(
+            ctx,
+            "place",
+            &[
+                self.place_params.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&view(&texture)),
+                self.fov.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&view(&self.desired)),
+            ],
+        );
+        Content {
+            size,
+            texture,
+            group,
+        }
+    }
+
+    /// Records the three stages for the last uploaded frame (an error before any upload).
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) -> Result<()> {
+        let content = self
+            .content
+            .as_ref()
+            .ok_or_else(|| Error::Failed("compensation pass: no content frame uploaded".into()))?;
+        let p = &self.placement;
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("compensation"),
+            timestamp_writes: timestamps,
+        });
+        self.place.dispatch(
+            &mut pass,
+            &content.group,
+            (p.camera_size.0 as u32, p.camera_size.1 as u32),
+        );
+        self.photometric
+            .dispatch(&mut pass, &self.photometric_group);
+        self.canvas.dispatch(
+            &mut pass,
+            &self.canvas_group,
+            (p.projector_size.0 as u32, p.projector_size.1 as u32),
+        );
+        Ok(())
+    }
+
+    /// Uploads `frame`, runs the pass and submits it (no wait).
+    pub fn run(&mut self, ctx: &GpuContext, frame: &ContentFrame) -> Result<()> {
+        self.upload(ctx, frame)?;
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("compensation"),
+            });
+        self.encode(&mut enc, None)?;
+        ctx.queue.submit([enc.finish()]);
+        Ok(())
+    }
+
+    /// The projector frame read back (values v/255), for the virtual rig and tests.
+    pub fn read_output(&self, ctx: &GpuContext) -> Result<PrjImage> {
+        read_rgba8(ctx, &self.output)
+    }
+
+    /// The compensation image (network pixels, f32) read back, for tests.
+    pub fn read_network(&self, ctx: &GpuContext) -> Result<NetImage> {
+        read_rgba32f(ctx, &self.network)
+    }
+
+    /// The desired camera view (camera pixels, f32, FOV-masked) read back, for tests.
+    pub fn read_desired(&self, ctx: &GpuContext) -> Result<crate::raster::CamImage> {
+        read_rgba32f(ctx, &self.desired)
+    }
+}
+
+/// An rgba8unorm texture as an f32 image (v/255, alpha dropped).
+pub fn read_rgba8<S: Space>(ctx: &GpuContext, t: &wgpu::Texture) -> Result<Rgb<S>> {
+    let bytes = ctx.read_texture(t, 4)?;
+    let data = bytes
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]].map(|v| v as f32 / 255.0))
+        .collect();
+    Rgb::from_vec(t.width() as usize, t.height() as usize, data)
+}
+
+/// An rgba32float texture as an f32 image (alpha dropped).
+pub fn read_rgba32f<S: Space>(ctx: &GpuContext, t: &wgpu::Texture) -> Result<Rgb<S>> {
+    let bytes = ctx.read_texture(t, 16)?;
+    let floats: &[f32] = bytemuck::try_cast_slice(&bytes)
+        .map_err(|e| Error::Failed(format!("GPU read-back layout: {e}")))?;
+    let data = floats
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
+    Rgb::from_vec(t.width() as usize, t.height() as usize, data)
+}

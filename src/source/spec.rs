@@ -1,0 +1,332 @@
+//! Source specifications: the `--source` spellings, parsed without touching any device.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use crate::error::{Error, Result};
+
+/// The spellings, as `compend play --help` shows them.
+pub const HELP: &str = "\
+Video sources (SRC):
+  PATH                     a still image (PNG or JPEG) or a folder of them (slideshow)
+  image:PATH               a still image, held until playback stops
+  folder:DIR[?period=S]    a slideshow of the folder's images in name order, S seconds each
+                           (default 5), looping
+  raw:-?size=WxH[&format=rgb24|rgba]
+                           raw 8-bit frames on standard input, e.g.
+                           ffmpeg -i in.mp4 -f rawvideo -pix_fmt rgb24 - | compend play ... \\
+                             --source 'raw:-?size=1280x720&format=rgb24'
+  raw:PATH?size=WxH[&format=..]
+                           raw frames from a FIFO (or a file)
+  v4l2:DEVICE[?size=WxH]   a V4L2 capture device, e.g. v4l2:/dev/video2 (YUYV, RGB3 or MJPEG)
+  pattern:NAME[?size=WxH&fps=F&frames=N]
+                           a generated test pattern: bars, ramp, checker, gray, moving
+                           (default 1280x720 at 60 fps, endless)";
+
+/// Pixel layout of raw frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RawFormat {
+    Rgb24,
+    Rgba,
+}
+
+impl RawFormat {
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            RawFormat::Rgb24 => 3,
+            RawFormat::Rgba => 4,
+        }
+    }
+}
+
+/// Test patterns.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pattern {
+    /// Colour bars (white, yellow, cyan, green, magenta, red, blue, black).
+    Bars,
+    /// Horizontal gray ramp, 0 to 255.
+    Ramp,
+    /// 8×8-cell black and white checkerboard.
+    Checker,
+    /// Mid gray (128).
+    Gray,
+    /// Colour bars with a white square moving one step per frame (shows dropped frames).
+    Moving,
+}
+
+pub const PATTERNS: &[&str] = &["bars", "ramp", "checker", "gray", "moving"];
+
+/// A parsed `--source`.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SourceSpec {
+    Image(PathBuf),
+    Folder {
+        dir: PathBuf,
+        period: Duration,
+    },
+    /// `path` None = standard input.
+    Raw {
+        path: Option<PathBuf>,
+        size: (usize, usize),
+        format: RawFormat,
+    },
+    V4l2 {
+        device: PathBuf,
+        size: Option<(usize, usize)>,
+    },
+    Pattern {
+        pattern: Pattern,
+        size: (usize, usize),
+        fps: f64,
+        frames: Option<u64>,
+    },
+}
+
+fn bad(spec: &str, why: impl std::fmt::Display) -> Error {
+    Error::Input(format!(
+        "--source {spec:?}: {why} (see `compend play --help` for the spellings)"
+    ))
+}
+
+fn parse_size(spec: &str, v: &str) -> Result<(usize, usize)> {
+    let (w, h) = v
+        .split_once(['x', 'X'])
+        .ok_or_else(|| bad(spec, format!("size {v:?} is not WxH")))?;
+    let (w, h) = (
+        w.parse::<usize>()
+            .map_err(|_| bad(spec, format!("size {v:?} is not WxH")))?,
+        h.parse::<usize>()
+            .map_err(|_| bad(spec, format!("size {v:?} is not WxH")))?,
+    );
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        return Err(bad(
+            spec,
+            format!("size {v:?} must be 1..16384 on each side"),
+        ));
+    }
+    Ok((w, h))
+}
+
+/// `key=value&...` after the `?`; unknown keys are an error.
+fn options<'a>(
+    spec: &str,
+    query: Option<&'a str>,
+    known: &[&str],
+) -> Result<Vec<(&'a str, &'a str)>> {
+    let mut out = Vec::new();
+    for kv in query
+        .into_iter()
+        .flat_map(|q| q.split('&'))
+        .filter(|s| !s.is_empty())
+    {
+        let (k, v) = kv
+            .split_once('=')
+            .ok_or_else(|| bad(spec, format!("option {kv:?} is not key=value")))?;
+        if !known.contains(&k) {
+            return Err(bad(
+                spec,
+                format!("unknown option {k:?} (known: {})", known.join(", ")),
+            ));
+        }
+        out.push((k, v));
+    }
+    Ok(out)
+}
+
+impl SourceSpec {
+    /// Parses a `--source` value. A bare path is an image or a folder, decided by what is there
+    /// (a missing path is an error naming it).
+    pub fn parse(spec: &str) -> Result<Self> {
+        let (scheme, rest) = match spec.split_once(':') {
+            Some((s, r)) if ["image", "folder", "raw", "v4l2", "pattern"].contains(&s) => {
+                (Some(s), r)
+            }
+            _ => (None, spec),
+        };
+        let (body, query) = match rest.split_once('?') {
+            Some((b, q)) => (b, Some(q)),
+            None => (rest, None),
+        };
+        match scheme {
+            None => {
+                let path = PathBuf::from(spec);
+                if path.is_dir() {
+                    Ok(Self::Folder {
+                        dir: path,
+                        period: Duration::from_secs(5),
+                    })
+                } else if path.is_file() {
+                    Ok(Self::Image(path))
+                } else {
+                    Err(Error::Missing {
+                        path,
+                        expected: "an image or a folder of images to play (or a source spelled \
+                             raw:, v4l2:, pattern:; see `compend play --help`)"
+                            .into(),
+                    })
+                }
+            }
+            Some("image") => {
+                options(spec, query, &[])?;
+                Ok(Self::Image(PathBuf::from(body)))
+            }
+            Some("folder") => {
+                let mut period = Duration::from_secs(5);
+                for (k, v) in options(spec, query, &["period"])? {
+                    if k == "period" {
+                        let s: f64 = v.parse().map_err(|_| {
+                            bad(spec, format!("period {v:?} is not a number of seconds"))
+                        })?;
+                        if !(s.is_finite() && s > 0.0) {
+                            return Err(bad(spec, "period must be positive"));
+                        }
+                        period = Duration::from_secs_f64(s);
+                    }
+                }
+                Ok(Self::Folder {
+                    dir: PathBuf::from(body),
+                    period,
+                })
+            }
+            Some("raw") => {
+                let (mut size, mut format) = (None, RawFormat::Rgb24);
+                for (k, v) in options(spec, query, &["size", "format"])? {
+                    match k {
+                        "size" => size = Some(parse_size(spec, v)?),
+                        _ => {
+                            format = match v {
+                                "rgb24" | "rgb" => RawFormat::Rgb24,
+                                "rgba" | "rgba32" => RawFormat::Rgba,
+                                _ => {
+                                    return Err(bad(
+                                        spec,
+                                        format!("format {v:?} is not rgb24 or rgba"),
+                                    ));
+                                }
+                            }
+                        }
+                    }
+                }
+                let size = size.ok_or_else(|| bad(spec, "raw frames need ?size=WxH"))?;
+                if body.is_empty() {
+                    return Err(bad(spec, "raw needs - (standard input) or a path"));
+                }
+                Ok(Self::Raw {
+                    path: (body != "-").then(|| PathBuf::from(body)),
+                    size,
+                    format,
+                })
+            }
+            Some("v4l2") => {
+                let mut size = None;
+                for (_, v) in options(spec, query, &["size"])? {
+                    size = Some(parse_size(spec, v)?);
+                }
+                if body.is_empty() {
+                    return Err(bad(spec, "v4l2 needs a device path, e.g. v4l2:/dev/video0"));
+                }
+                Ok(Self::V4l2 {
+                    device: PathBuf::from(body),
+                    size,
+                })
+            }
+            _ => {
+                let pattern = match body {
+                    "bars" => Pattern::Bars,
+                    "ramp" => Pattern::Ramp,
+                    "checker" => Pattern::Checker,
+                    "gray" | "grey" => Pattern::Gray,
+                    "moving" => Pattern::Moving,
+                    _ => {
+                        return Err(bad(
+                            spec,
+                            format!("unknown pattern {body:?} (known: {})", PATTERNS.join(", ")),
+                        ));
+                    }
+                };
+                let (mut size, mut fps, mut frames) = ((1280, 720), 60.0f64, None);
+                for (k, v) in options(spec, query, &["size", "fps", "frames"])? {
+                    match k {
+                        "size" => size = parse_size(spec, v)?,
+                        "fps" => {
+                            fps = v
+                                .parse()
+                                .map_err(|_| bad(spec, format!("fps {v:?} is not a number")))?;
+                            if !(fps.is_finite() && fps > 0.0) {
+                                return Err(bad(spec, "fps must be positive"));
+                            }
+                        }
+                        _ => {
+                            frames =
+                                Some(v.parse().map_err(|_| {
+                                    bad(spec, format!("frames {v:?} is not a count"))
+                                })?)
+                        }
+                    }
+                }
+                Ok(Self::Pattern {
+                    pattern,
+                    size,
+                    fps,
+                    frames,
+                })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spellings() {
+        assert_eq!(
+            SourceSpec::parse("raw:-?size=1280x720&format=rgb24").unwrap(),
+            SourceSpec::Raw {
+                path: None,
+                size: (1280, 720),
+                format: RawFormat::Rgb24
+            }
+        );
+        assert_eq!(
+            SourceSpec::parse("raw:/tmp/f?size=4x2&format=rgba").unwrap(),
+            SourceSpec::Raw {
+                path: Some("/tmp/f".into()),
+                size: (4, 2),
+                format: RawFormat::Rgba
+            }
+        );
+        assert_eq!(
+            SourceSpec::parse("v4l2:/dev/video2").unwrap(),
+            SourceSpec::V4l2 {
+                device: "/dev/video2".into(),
+                size: None
+            }
+        );
+        assert!(matches!(
+            SourceSpec::parse("pattern:moving?size=64x48&fps=30&frames=10").unwrap(),
+            SourceSpec::Pattern {
+                pattern: Pattern::Moving,
+                size: (64, 48),
+                frames: Some(10),
+                ..
+            }
+        ));
+        assert!(matches!(
+            SourceSpec::parse("folder:/x?period=0.5").unwrap(),
+            SourceSpec::Folder { .. }
+        ));
+        for bad in [
+            "raw:-",
+            "raw:-?size=12",
+            "raw:-?size=4x4&format=yuv",
+            "raw:-?size=4x4&fps=3",
+            "pattern:nope",
+            "/definitely/not/here.png",
+        ] {
+            let e = SourceSpec::parse(bad).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}: {e}");
+        }
+    }
+}

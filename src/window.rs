@@ -1,0 +1,521 @@
+//! The projector window: borderless fullscreen on the projector's monitor, cursor hidden, vsync
+//! (FIFO presentation), showing projector frames pixel for pixel.
+//!
+//! Frames reach the screen without a CPU round trip: the compensation pass writes its projector
+//! frame into a GPU texture and [`ProjectorWindow::present`] draws that texture onto the
+//! window's surface (one fullscreen triangle, `shaders/blit.wgsl`, textureLoad per pixel, a
+//! non-sRGB surface format, so the bytes on screen are the frame's bytes). The window is also a
+//! [`DisplaySink`] (for the capture protocol): `show` uploads a CPU image and presents it.
+//!
+//! The event loop is pumped by the caller ([`ProjectorWindow::pump`]), so playback is a plain
+//! loop. Under Xvfb (no window manager) a fullscreen request keeps the default size, so the
+//! window is also placed at the monitor's origin and sized to the monitor explicitly.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use winit::application::ApplicationHandler;
+use winit::event::{ElementState, KeyEvent, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, EventLoop};
+use winit::keyboard::{Key, NamedKey};
+use winit::monitor::MonitorHandle;
+use winit::platform::pump_events::{EventLoopExtPumpEvents, PumpStatus};
+use winit::window::{Fullscreen, Window, WindowId};
+
+use crate::device::DisplaySink;
+use crate::error::{Error, Result};
+use crate::gpu::{CompensationPass, FRAME_FORMAT, GpuContext};
+use crate::model::Model;
+use crate::playback::Placement;
+use crate::player::{PlayStats, Player, Step};
+use crate::raster::PrjImage;
+use crate::source::{Feed, FeedMode, VideoSource};
+
+const BLIT: &str = include_str!("../shaders/blit.wgsl");
+
+/// Where and how long the window plays.
+#[derive(Clone, Debug, Default)]
+pub struct WindowOptions {
+    /// Monitor name or index; None = the primary monitor.
+    pub monitor: Option<String>,
+    /// Stop after this many refreshes.
+    pub refreshes: Option<u64>,
+}
+
+#[derive(Default)]
+struct App {
+    monitor: Option<String>,
+    window: Option<Arc<Window>>,
+    chosen: Option<MonitorHandle>,
+    error: Option<Error>,
+    closed: bool,
+}
+
+fn describe_monitor(i: usize, m: &MonitorHandle) -> String {
+    let (s, p) = (m.size(), m.position());
+    format!(
+        "{i}: {} {}x{}+{}+{}",
+        m.name().unwrap_or_else(|| "(unnamed)".into()),
+        s.width,
+        s.height,
+        p.x,
+        p.y
+    )
+}
+
+fn pick_monitor(el: &ActiveEventLoop, wanted: Option<&str>) -> Result<MonitorHandle> {
+    let all: Vec<MonitorHandle> = el.available_monitors().collect();
+    let found = match wanted {
+        None => el.primary_monitor().or_else(|| all.first().cloned()),
+        Some(w) => match w.parse::<usize>() {
+            Ok(i) => all.get(i).cloned(),
+            Err(_) => all
+                .iter()
+                .find(|m| m.name().is_some_and(|n| n.eq_ignore_ascii_case(w)))
+                .cloned(),
+        },
+    };
+    found.ok_or_else(|| {
+        let list: Vec<String> = all
+            .iter()
+            .enumerate()
+            .map(|(i, m)| describe_monitor(i, m))
+            .collect();
+        Error::Input(format!(
+            "--monitor {}: no such monitor (monitors: {})",
+            wanted.unwrap_or("(primary)"),
+            if list.is_empty() {
+                "none".into()
+            } else {
+                list.join("; ")
+            }
+        ))
+    })
+}
+
+impl ApplicationHandler for App {
+    fn resumed(&mut self, el: &ActiveEventLoop) {
+        if self.window.is_some() || self.error.is_some() {
+            return;
+        }
+        let monitor = match pick_monitor(el, self.monitor.as_deref()) {
+            Ok(m) => m,
+            Err(e) => {
+                self.error = Some(e);
+                return;
+            }
+        };
+        let attrs = Window::default_attributes()
+            .with_title("compend")
+            .with_decorations(false)
+            .with_position(monitor.position())
+            .with_inner_size(monitor.size())
+            .with_fullscreen(Some(Fullscreen::Borderless(Some(monitor.clone()))));
+        match el.create_window(attrs) {
+            Ok(w) => {
+                w.set_cursor_visible(false);
+                self.window = Some(Arc::new(w));
+                self.chosen = Some(monitor);
+            }
+            Err(e) => {
+                self.error = Some(Error::Failed(format!(
+                    "cannot open the projector window: {e}"
+                )))
+            }
+        }
+    }
+
+    fn window_event(&mut self, _el: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        match event {
+            WindowEvent::CloseRequested => self.closed = true,
+            WindowEvent::KeyboardInput {
+                event:
+                    KeyEvent {
+                        logical_key: Key::Named(NamedKey::Escape),
+                        state: ElementState::Pressed,
+                        ..
+                    },
+                ..
+            } => self.closed = true,
+            _ => {}
+        }
+    }
+}
+
+/// The projector window with its GPU context.
+pub struct ProjectorWindow {
+    event_loop: EventLoop<()>,
+    app: App,
+    window: Arc<Window>,
+    surface: wgpu::Surface<'static>,
+    config: wgpu::SurfaceConfiguration,
+    ctx: GpuContext,
+    blit: wgpu::RenderPipeline,
+    blit_layout: wgpu::BindGroupLayout,
+    /// Bind group of the texture presented last (the pass output, reused every frame).
+    bound: Option<(wgpu::Texture, wgpu::BindGroup)>,
+    /// Texture for [`DisplaySink::show`].
+    upload: Option<wgpu::Texture>,
+    refresh_hz: f64,
+}
+
+impl ProjectorWindow {
+    /// Opens the window on `monitor` (name or index; None = primary) and a GPU device that can
+    /// present to it.
+    pub fn open(monitor: Option<&str>) -> Result<Self> {
+        let mut builder = EventLoop::builder();
+        #[cfg(all(unix, not(target_os = "macos"), not(target_os = "android")))]
+        {
+            use winit::platform::x11::EventLoopBuilderExtX11;
+            builder.with_any_thread(true);
+        }
+        let mut event_loop = builder
+            .build()
+            .map_err(|e| Error::Failed(format!("no display for the projector window: {e}")))?;
+        let mut app = App {
+            monitor: monitor.map(str::to_string),
+            ..App::default()
+        };
+        let start = Instant::now();
+        while app.window.is_none() && app.error.is_none() {
+            if let PumpStatus::Exit(code) =
+                event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app)
+            {
+                return Err(Error::Failed(format!(
+                    "the window system closed the event loop ({code})"
+                )));
+            }
+            if start.elapsed() > Duration::from_secs(10) {
+                return Err(Error::Failed(
+                    "the projector window did not open within 10 s".into(),
+                ));
+            }
+        }
+        if let Some(e) = app.error.take() {
+            return Err(e);
+        }
+        let window = app.window.clone().expect("checked");
+        let monitor = app.chosen.clone().expect("set with the window");
+        // Wait (briefly) for the window to take the monitor's size.
+        let target = monitor.size();
+        let start = Instant::now();
+        while window.inner_size() != target && start.elapsed() < Duration::from_secs(2) {
+            let _ = event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app);
+        }
+        let size = window.inner_size();
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let surface = instance
+            .create_surface(window.clone())
+            .map_err(|e| Error::Failed(format!("cannot draw into the projector window: {e}")))?;
+        let ctx = GpuContext::with_instance(instance, Some(&surface))?.map_err(|why| {
+            Error::Failed(format!("{why} that can present to the projector window"))
+        })?;
+        let caps = surface.get_capabilities(&ctx.adapter);
+        // Exact bytes: a non-sRGB 8-bit format (the frame holds projector input values already).
+        let format = [
+            wgpu::TextureFormat::Bgra8Unorm,
+            wgpu::TextureFormat::Rgba8Unorm,
+        ]
+        .into_iter()
+        .find(|f| caps.formats.contains(f))
+        .or_else(|| caps.formats.iter().copied().find(|f| !f.is_srgb()))
+        .or_else(|| caps.formats.first().copied())
+        .ok_or_else(|| Error::Failed("the projector window's surface has no formats".into()))?;
+        let config = wgpu::SurfaceConfiguration {
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            format,
+            width: size.width.max(1),
+            height: size.height.max(1),
+            present_mode: wgpu::PresentMode::Fifo,
+            desired_maximum_frame_latency: 2,
+            alpha_mode: caps
+                .alpha_modes
+                .first()
+                .copied()
+                .unwrap_or(wgpu::CompositeAlphaMode::Auto),
+            view_formats: vec![],
+            color_space: wgpu::SurfaceColorSpace::Auto,
+        };
+        surface.configure(&ctx.device, &config);
+        let module = ctx.shader("blit", BLIT)?;
+        let blit_layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("blit"),
+                entries: &[wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                }],
+            });
+        let layout = ctx
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("blit"),
+                bind_group_layouts: &[Some(&blit_layout)],
+                immediate_size: 0,
+            });
+        let blit = ctx
+            .device
+            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("blit"),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
+                },
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: None,
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some("fs"),
+                    compilation_options: Default::default(),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            });
+        let refresh_hz = monitor
+            .refresh_rate_millihertz()
+            .filter(|&m| m > 0)
+            .map_or(60.0, |m| m as f64 / 1000.0);
+        Ok(Self {
+            event_loop,
+            app,
+            window,
+            surface,
+            config,
+            ctx,
+            blit,
+            blit_layout,
+            bound: None,
+            upload: None,
+            refresh_hz,
+        })
+    }
+
+    pub fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    /// The monitor's refresh rate, Hz (60 when it does not say).
+    pub fn refresh_hz(&self) -> f64 {
+        self.refresh_hz
+    }
+
+    /// Handles pending window events; false once the window was closed or Escape pressed.
+    pub fn pump(&mut self) -> bool {
+        if let PumpStatus::Exit(_) = self
+            .event_loop
+            .pump_app_events(Some(Duration::ZERO), &mut self.app)
+        {
+            self.app.closed = true;
+        }
+        !self.app.closed
+    }
+
+    /// Presents `frame` (a projector frame texture, e.g. [`CompensationPass::output`]) at the
+    /// next vsync; blocks while the presentation queue is full. Returns false when the frame was
+    /// skipped (window occluded, surface timed out).
+    pub fn present(&mut self, frame: &wgpu::Texture) -> Result<bool> {
+        let target = match self.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(t)
+            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => {
+                return Ok(false);
+            }
+            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
+                let size = self.window.inner_size();
+                self.config.width = size.width.max(1);
+                self.config.height = size.height.max(1);
+                self.surface.configure(&self.ctx.device, &self.config);
+                return Ok(false);
+            }
+            wgpu::CurrentSurfaceTexture::Validation => {
+                return Err(Error::Failed(
+                    "presenting to the projector window failed validation".into(),
+                ));
+            }
+        };
+        if self.bound.as_ref().is_none_or(|(t, _)| t != frame) {
+            let view = frame.create_view(&wgpu::TextureViewDescriptor::default());
+            let group = self
+                .ctx
+                .device
+                .create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("blit"),
+                    layout: &self.blit_layout,
+                    entries: &[wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: wgpu::BindingResource::TextureView(&view),
+                    }],
+                });
+            self.bound = Some((frame.clone(), group));
+        }
+        let group = &self.bound.as_ref().expect("just bound").1;
+        let view = target
+            .texture
+            .create_view(&wgpu::TextureViewDescriptor::default());
+        let mut enc = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("present"),
+            });
+        {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("present"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                ..Default::default()
+            });
+            pass.set_pipeline(&self.blit);
+            pass.set_bind_group(0, group, &[]);
+            pass.draw(0..3, 0..1);
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        self.window.pre_present_notify();
+        self.ctx.queue.present(target);
+        Ok(true)
+    }
+}
+
+impl DisplaySink for ProjectorWindow {
+    fn size(&self) -> (usize, usize) {
+        (self.config.width as usize, self.config.height as usize)
+    }
+
+    fn show(&mut self, frame: &PrjImage) -> Result<()> {
+        let (w, h) = DisplaySink::size(self);
+        if frame.size() != (w, h) {
+            return Err(Error::Shape(format!(
+                "projector window is {w}x{h}, got a {}x{} frame",
+                frame.width(),
+                frame.height()
+            )));
+        }
+        if self.upload.is_none() {
+            self.upload = Some(self.ctx.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("shown frame"),
+                size: wgpu::Extent3d {
+                    width: w as u32,
+                    height: h as u32,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: FRAME_FORMAT,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            }));
+        }
+        let tex = self.upload.clone().expect("just made");
+        let mut rgba = Vec::with_capacity(w * h * 4);
+        for px in frame.data().chunks_exact(3) {
+            rgba.extend(px.iter().map(|&v| crate::pngio::to_u8(v)));
+            rgba.push(255);
+        }
+        self.ctx.queue.write_texture(
+            tex.as_image_copy(),
+            &rgba,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(w as u32 * 4),
+                rows_per_image: Some(h as u32),
+            },
+            tex.size(),
+        );
+        self.pump();
+        self.present(&tex)?;
+        Ok(())
+    }
+}
+
+/// Plays `source` through `model`'s compensation pass on the projector window until the source
+/// ends (streams), `refreshes` is reached, or the window is closed.
+pub fn play(
+    model: &Model,
+    source: Box<dyn VideoSource>,
+    mode: FeedMode,
+    opts: WindowOptions,
+) -> Result<PlayStats> {
+    let start = Instant::now();
+    let mut win = ProjectorWindow::open(opts.monitor.as_deref())?;
+    let size = DisplaySink::size(&win);
+    let placement = Placement::for_model(model, size, crate::fov::DisplayRange::FULL)?;
+    let pass = CompensationPass::new(win.context(), model, placement)?;
+    let mut player = Player::new(pass, Feed::spawn(source, mode)?);
+    player.stats.refresh_hz = win.refresh_hz();
+    let period = 1.0 / win.refresh_hz();
+    eprintln!(
+        "play: {} on the projector window {}x{} at {:.1} Hz ({})",
+        player.feed.describe(),
+        size.0,
+        size.1,
+        win.refresh_hz(),
+        win.context().describe()
+    );
+    let mut last_present: Option<Instant> = None;
+    let wait = if mode == FeedMode::Queue {
+        Duration::from_millis(100)
+    } else {
+        Duration::ZERO
+    };
+    while win.pump() && opts.refreshes.is_none_or(|n| player.stats.refreshes < n) {
+        let t = Instant::now();
+        match player.step(win.context(), wait)? {
+            Step::New(_) => {
+                win.present(player.pass.output())?;
+                player.record_pipeline(t.elapsed().as_secs_f64());
+                if player.stats.shown == 1 {
+                    eprintln!("play: first frame presented");
+                }
+            }
+            Step::Held if player.stats.shown > 0 => {
+                win.present(player.pass.output())?;
+            }
+            Step::Held => std::thread::sleep(Duration::from_secs_f64(period)),
+            Step::Ended if player.feed.ends_playback() => break,
+            Step::Ended => {
+                // A still image: keep it on screen.
+                player.stats.refreshes += 1;
+                player.stats.held += 1;
+                win.present(player.pass.output())?;
+            }
+        }
+        // Refreshes longer than 1.5 periods: the display repeated a frame.
+        let now = Instant::now();
+        if let Some(prev) = last_present.replace(now) {
+            let periods = (now - prev).as_secs_f64() / period;
+            if mode == FeedMode::Latest && periods > 1.5 {
+                player.stats.dropped_pipeline += (periods.round() as u64).saturating_sub(1);
+            }
+        }
+    }
+    let fs = player.feed.stats();
+    player.stats.received = fs.received;
+    player.stats.dropped_source = fs.dropped;
+    player.stats.seconds = start.elapsed().as_secs_f64();
+    Ok(player.stats.clone())
+}

@@ -1,0 +1,233 @@
+//! The GPU compensation pass against its CPU reference (`compend::playback::reference_frame`),
+//! on whatever adapter wgpu finds (lavapipe in CI). Skipped with a printed reason where there is
+//! no adapter, unless COMPEND_REQUIRE_GPU_ADAPTER=1.
+
+use compend::fov::DisplayRange;
+use compend::gpu::CompensationPass;
+use compend::linear::{Coefficients, Curves, Geometry, LinearModel};
+use compend::model::Model;
+use compend::modeldir::{FORMAT_VERSION, ModelMeta};
+use compend::playback::{self, ContentFrame, Placement};
+use compend::raster::{Camera, Mask, Network, Rect, Rgb};
+use compend::sample::{Grid, pixel_to_norm};
+use rand::rngs::ChaCha8Rng;
+use rand::{RngExt, SeedableRng};
+
+use crate::common::gpu;
+
+const CAM: (usize, usize) = (48, 40);
+const NET: (usize, usize) = (32, 24);
+
+/// A `linear` model with everything the pass must get right: a bent grid that leaves the camera
+/// frame in places (zero padding), per-channel curves, per-pixel coefficients that push some
+/// values below 0 and above 1 (clamping), and an elliptic FOV mask.
+pub fn test_model(seed: u64) -> Model {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let (nw, nh) = NET;
+    let grid: Grid<Network, Camera> = Grid::from_fn(nw, nh, |x, y| {
+        let (u, v) = (pixel_to_norm(x as f32, nw), pixel_to_norm(y as f32, nh));
+        [
+            1.08 * u + 0.1 * v * v - 0.02,
+            0.95 * v + 0.12 * u * u + 0.03 * u,
+        ]
+    });
+    let data = (0..nw * nh)
+        .map(|_| {
+            let mut k = [0f32; 12];
+            for (i, v) in k.iter_mut().enumerate() {
+                *v = if i < 9 {
+                    let diag = if i % 4 == 0 { 1.3 } else { 0.0 };
+                    diag + rng.random_range(-0.25..0.25)
+                } else {
+                    rng.random_range(-0.15..0.1)
+                };
+            }
+            k
+        })
+        .collect();
+    let linear = LinearModel {
+        geometry: Geometry::Fixed(grid),
+        curves: Curves {
+            camera_gamma: [2.0, 2.3, 1.8],
+            projector_gamma: [2.2, 1.9, 2.6],
+        },
+        coeffs: Coefficients {
+            width: nw,
+            height: nh,
+            data,
+        },
+        camera_size: CAM,
+    };
+    let (cw, ch) = CAM;
+    let fov = Mask::from_fn(cw, ch, |x, y| {
+        let (u, v) = (pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch));
+        u * u / 0.9 + v * v / 0.85 < 1.0
+    });
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method: "linear".into(),
+        network_size: NET,
+        camera_size: CAM,
+        canvas: None,
+        training: serde_json::Value::Null,
+        metrics: serde_json::Value::Null,
+        timings: serde_json::Value::Null,
+        written_by: "test".into(),
+    };
+    Model::linear(meta, fov, linear)
+}
+
+fn random_content(seed: u64, w: usize, h: usize) -> ContentFrame {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let rgba = (0..w * h * 4)
+        .map(|_| rng.random_range(0..=255u8))
+        .collect();
+    ContentFrame::from_rgba(w, h, rgba).unwrap()
+}
+
+fn max_abs<S: compend::raster::Space>(a: &Rgb<S>, b: &Rgb<S>) -> f32 {
+    assert_eq!(a.size(), b.size());
+    a.data()
+        .iter()
+        .zip(b.data())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+/// Tolerances: the desired view and the compensation image are f32 on both sides (differences
+/// come only from operation order and the GPU's pow); the projector frame is 8-bit on the GPU and
+/// must equal the CPU reference rounded to 8 bits within one step on every pixel.
+#[test]
+fn linear_pass_matches_the_cpu_reference() {
+    let Some(ctx) = gpu() else { return };
+    let model = test_model(1);
+    let placements = [
+        // A canvas inside the projector frame, a content frame resized into the area, a range.
+        Placement {
+            camera_size: CAM,
+            area: Rect {
+                x: 5,
+                y: 6,
+                width: 36,
+                height: 27,
+            },
+            range: DisplayRange {
+                low: 0.1,
+                high: 0.85,
+            },
+            network_size: NET,
+            projector_size: (80, 60),
+            canvas: Rect {
+                x: 10,
+                y: 12,
+                width: 61,
+                height: 41,
+            },
+        },
+        // The model's own placement on a full-frame canvas at full range.
+        Placement::for_model(&model, (72, 50), DisplayRange::FULL).unwrap(),
+    ];
+    for (k, p) in placements.iter().enumerate() {
+        let mut pass = CompensationPass::new(&ctx, &model, *p).unwrap();
+        // Two frames of different sizes through the same pass (the content texture is rebuilt).
+        for (f, (w, h)) in [(37usize, 29usize), (p.area.width, p.area.height)]
+            .into_iter()
+            .enumerate()
+        {
+            let content = random_content(10 * k as u64 + f as u64, w, h);
+            pass.run(&ctx, &content).unwrap();
+            let desired_cpu = playback::desired_view(&content, p)
+                .unwrap()
+                .masked(&model.fov)
+                .unwrap();
+            let desired_gpu = pass.read_desired(&ctx).unwrap();
+            let net_cpu = playback::reference_network(&model, &content, p).unwrap();
+            let net_gpu = pass.read_network(&ctx).unwrap();
+            let frame_cpu = playback::reference_frame(&model, &content, p).unwrap();
+            let frame_gpu = pass.read_output(&ctx).unwrap();
+            let (e_desired, e_net) = (
+                max_abs(&desired_cpu, &desired_gpu),
+                max_abs(&net_cpu, &net_gpu),
+            );
+            let steps: Vec<i32> = frame_cpu
+                .data()
+                .iter()
+                .zip(frame_gpu.data())
+                .map(|(c, g)| compend::pngio::to_u8(*c) as i32 - (g * 255.0).round() as i32)
+                .collect();
+            let worst = steps.iter().map(|d| d.abs()).max().unwrap();
+            let off = steps.iter().filter(|d| **d != 0).count();
+            eprintln!(
+                "placement {k} content {w}x{h}: desired max |Δ| {e_desired:.2e}, network max |Δ| \
+                 {e_net:.2e}, frame: {off} of {} values one step off, worst {worst} step(s)",
+                steps.len()
+            );
+            assert!(e_desired <= 1e-5, "desired view differs by {e_desired}");
+            assert!(e_net <= 2e-4, "compensation image differs by {e_net}");
+            assert!(worst <= 1, "projector frame differs by {worst} 8-bit steps");
+            assert_eq!(frame_gpu.size(), p.projector_size);
+        }
+    }
+}
+
+/// The pass is built once; each frame is only an upload and a dispatch, and frames do not leak
+/// into each other.
+#[test]
+fn pass_is_reused_across_frames() {
+    let Some(ctx) = gpu() else { return };
+    let model = test_model(2);
+    let p = Placement::for_model(&model, (64, 48), DisplayRange::FULL).unwrap();
+    let mut pass = CompensationPass::new(&ctx, &model, p).unwrap();
+    let a = random_content(5, 20, 15);
+    let b = random_content(6, 20, 15);
+    pass.run(&ctx, &a).unwrap();
+    let first = pass.read_output(&ctx).unwrap();
+    pass.run(&ctx, &b).unwrap();
+    pass.run(&ctx, &a).unwrap();
+    assert_eq!(pass.read_output(&ctx).unwrap(), first);
+}
+
+/// `compend bench-gpu` at tiny sizes: one row per projector size with the copy, the pass, their
+/// ratio and the virtual-rig counts, in JSON and markdown.
+#[test]
+fn bench_gpu_writes_ratios() {
+    if gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bg");
+    let o = crate::common::compend(&[
+        "bench-gpu",
+        "--out",
+        out.to_str().unwrap(),
+        "--sizes",
+        "64x48,100x75",
+        "--iters",
+        "3",
+        "--seconds",
+        "0.25",
+        "--camera",
+        "80x60",
+        "--network",
+        "32x32",
+        "--content",
+        "64x36",
+    ]);
+    crate::common::assert_code(&o, 0);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench-gpu.json")).unwrap()).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    for r in rows {
+        assert!(r["copy"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["linear_over_copy"].as_f64().unwrap() > 0.0, "{r}");
+        let rig = &r["virtual_rig"];
+        assert!(rig["refreshes"].as_u64().unwrap() == 15, "{r}");
+        assert!(rig["shown"].as_u64().unwrap() >= 1, "{r}");
+    }
+    let md = std::fs::read_to_string(out.join("bench-gpu.md")).unwrap();
+    assert!(
+        md.contains("| 64x48 |") && md.contains("| 100x75 |"),
+        "{md}"
+    );
+}
