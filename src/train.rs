@@ -32,6 +32,53 @@ pub struct Request {
     /// CompenNet++ only: override the variant's iterations (the lr step scales) and batch size.
     pub iters: Option<usize>,
     pub batch: Option<usize>,
+    /// Where the CompenNet++ variants train (the `linear` rungs are closed-form CPU fits).
+    pub device: TrainDevice,
+}
+
+/// The device CompenNet++ training runs on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub enum TrainDevice {
+    #[default]
+    Cpu,
+    /// An NVIDIA GPU by CUDA ordinal; needs a build with the `cuda` cargo feature.
+    Cuda(usize),
+}
+
+impl std::str::FromStr for TrainDevice {
+    type Err = Error;
+    /// `cpu`, `cuda` (ordinal 0) or `cuda:N`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "cpu" => Ok(Self::Cpu),
+            "cuda" => Ok(Self::Cuda(0)),
+            _ => s
+                .strip_prefix("cuda:")
+                .and_then(|n| n.parse().ok())
+                .map(Self::Cuda)
+                .ok_or_else(|| {
+                    Error::Input(format!(
+                        "device `{s}`: expected `cpu`, `cuda` or `cuda:N` (N a GPU ordinal)"
+                    ))
+                }),
+        }
+    }
+}
+
+impl TrainDevice {
+    /// The candle device; an input error when this build has no CUDA or the GPU cannot be opened.
+    pub fn candle(self) -> Result<candle_core::Device> {
+        match self {
+            Self::Cpu => Ok(candle_core::Device::Cpu),
+            Self::Cuda(_) if !cfg!(feature = "cuda") => Err(Error::Input(
+                "--device cuda: this compend was built without CUDA; rebuild with \
+                 `cargo build --release --features cuda` (needs the CUDA toolkit's nvcc)"
+                    .into(),
+            )),
+            Self::Cuda(n) => candle_core::Device::new_cuda(n)
+                .map_err(|e| Error::Input(format!("--device cuda:{n}: cannot open the GPU: {e}"))),
+        }
+    }
 }
 
 /// What training reports besides the model.
@@ -60,8 +107,12 @@ pub fn train(
             crate::model::METHODS.join(", ")
         )));
     }
-    let available = setup.count(CaptureSet::Train)?;
     let variant = crate::nn::train::Variant::from_method(&req.method);
+    if variant.is_some() {
+        // Fail before loading anything when the device is unusable.
+        req.device.candle()?;
+    }
+    let available = setup.count(CaptureSet::Train)?;
     let default_train = variant.map_or(DEFAULT_TRAIN, |v| v.schedule().0);
     let ntrain = req.ntrain.unwrap_or(available.min(default_train));
     if ntrain < MIN_TRAIN {
@@ -195,11 +246,19 @@ fn train_compennet(
             "CompenNet++ needs network sides divisible by 4, the projector images are {nw}x{nh}"
         )));
     }
+    let device = req.device.candle()?;
     let surface = setup.load_reference(Reference::Gray)?.masked(&fov.mask)?;
+    let on_device = |t: candle_core::Tensor| t.to_device(&device);
     let data = Data {
-        captures: crate::nn::images_to_tensor(&captures).map_err(ce)?,
-        surface: crate::nn::images_to_tensor(std::slice::from_ref(&surface)).map_err(ce)?,
-        targets: crate::nn::images_to_tensor(&targets).map_err(ce)?,
+        captures: crate::nn::images_to_tensor(&captures)
+            .and_then(on_device)
+            .map_err(ce)?,
+        surface: crate::nn::images_to_tensor(std::slice::from_ref(&surface))
+            .and_then(on_device)
+            .map_err(ce)?,
+        targets: crate::nn::images_to_tensor(&targets)
+            .and_then(on_device)
+            .map_err(ce)?,
     };
     let mut settings = Settings::new(variant, req.seed);
     settings.iters = req.iters;
@@ -209,8 +268,7 @@ fn train_compennet(
         let grid = sl_grid(setup, (nw, nh))?;
         let flat: Vec<f32> = grid.data().iter().flatten().copied().collect();
         GeometryInit::Fixed(
-            candle_core::Tensor::from_vec(flat, (1, nh, nw, 2), &candle_core::Device::Cpu)
-                .map_err(ce)?,
+            candle_core::Tensor::from_vec(flat, (1, nh, nw, 2), &device).map_err(ce)?,
         )
     } else {
         GeometryInit::Affine(theta)
@@ -219,6 +277,23 @@ fn train_compennet(
         crate::nn::train::train(&data, init, &settings, &never, |done, total, _| {
             progress("training", done, total)
         })?;
+    // Inference, simplification and saving run on the CPU: bring the weights over.
+    let net = if device.is_cpu() {
+        net
+    } else {
+        let values: std::collections::HashMap<String, candle_core::Tensor> =
+            net.named_tensors().into_iter().collect();
+        crate::nn::train::CompenNetPP::restore((nw, nh), variant, &candle_core::Device::Cpu, {
+            |name, _shape| {
+                values
+                    .get(name)
+                    .ok_or_else(|| Error::Failed(format!("trained network lacks `{name}`")))?
+                    .flatten_all()
+                    .and_then(|t| t.to_vec1::<f32>())
+                    .map_err(|e| Error::Failed(format!("copying `{name}` from the GPU: {e}")))
+            }
+        })?
+    };
     let final_loss = report.losses.last().copied().unwrap_or(f64::NAN);
     let seconds = start.elapsed().as_secs_f64();
     let meta = ModelMeta {
@@ -239,6 +314,7 @@ fn train_compennet(
             "batch": report.batch,
             "lr_step": report.lr_step,
             "final_loss": final_loss,
+            "device": req.device,
         }),
         metrics: serde_json::Value::Null,
         timings: json!({ "fit_seconds": report.seconds, "train_seconds": seconds,

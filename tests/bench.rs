@@ -51,6 +51,13 @@ fn bench_writes_rows_for_references_and_methods() {
     assert!(lin["paper"]["psnr"].as_f64().unwrap() > 10.0);
     let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
     assert!(md.contains("| textured-plane | 0 | linear | 6 |"), "{md}");
+    // Both charts are drawn: real PNGs of the chart size with more than the white background.
+    for chart in ["accuracy-vs-training.png", "accuracy-vs-frame.png"] {
+        let img = image::open(out.join(chart)).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (900, 600), "{chart}");
+        let inked = img.pixels().filter(|p| p.0 != [255, 255, 255]).count();
+        assert!(inked > 2000, "{chart}: only {inked} non-white pixels");
+    }
 
     // A method that does not exist is a usage error.
     let o = compend(&["bench", "--out", out.to_str().unwrap(), "--methods", "nope"]);

@@ -362,3 +362,53 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
         stderr(&out)
     );
 }
+
+#[test]
+fn train_device_is_checked_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 6, 1);
+    let s = setup.to_str().unwrap();
+    let model = dir.path().join("m");
+    // A spelling that is no device is a usage error naming the accepted ones.
+    let out = compend(&[
+        "train",
+        "--setup",
+        s,
+        "--method",
+        "compennet++-faster",
+        "--device",
+        "gpu",
+    ]);
+    assert_code(&out, 2);
+    assert!(stderr(&out).contains("cuda:N"), "{}", stderr(&out));
+    // This build has no CUDA (CI never enables the feature): a clear input error, no model.
+    if !cfg!(feature = "cuda") {
+        let out = compend(&[
+            "train",
+            "--setup",
+            s,
+            "--method",
+            "compennet++-faster",
+            "--device",
+            "cuda",
+            "--out",
+            model.to_str().unwrap(),
+        ]);
+        assert_code(&out, 2);
+        assert!(stderr(&out).contains("--features cuda"), "{}", stderr(&out));
+        assert!(!model.exists());
+    }
+    // `--device cpu` is accepted by every method (the linear rungs always fit on the CPU).
+    let out = compend(&[
+        "train",
+        "--setup",
+        s,
+        "--method",
+        "linear",
+        "--device",
+        "cpu",
+        "--out",
+        model.to_str().unwrap(),
+    ]);
+    assert_code(&out, 0);
+}

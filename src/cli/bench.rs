@@ -2,7 +2,8 @@
 //! section 9). For every scene and seed it exports a setup, scores the reference rows
 //! (uncompensated, geometry-only, the oracle at network resolution and the oracle), then trains
 //! every method at every training-set size and scores it with the paper protocol and closed loop
-//! on the rig. Writes `bench.json` (every row) and `bench.md` (tables); progress on stderr.
+//! on the rig. Writes `bench.json` (every row), `bench.md` (tables) and two PNG charts (accuracy
+//! against training time and against per-frame time); progress on stderr.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -21,7 +22,8 @@ use super::sim::SceneArgs;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Folder for bench.json, bench.md and the simulated data (data/).
+    /// Folder for bench.json, bench.md, the charts (accuracy-vs-training.png,
+    /// accuracy-vs-frame.png) and the simulated data (data/).
     #[arg(long)]
     pub out: PathBuf,
     /// Scenes, comma-separated [default: every built-in scene].
@@ -187,12 +189,14 @@ pub fn run(args: Args) -> Result<()> {
         .map_err(|e| compend::Error::io(&jpath, "write", e))?;
     let mpath = args.out.join("bench.md");
     std::fs::write(&mpath, markdown(&rows)).map_err(|e| compend::Error::io(&mpath, "write", e))?;
+    let charts = super::chart::write_charts(&rows, &args.out)?;
     eprintln!(
-        "bench: {} rows in {:.0} s; wrote {} and {}",
+        "bench: {} rows in {:.0} s; wrote {}, {} and {} chart(s)",
         rows.len(),
         start.elapsed().as_secs_f64(),
         jpath.display(),
-        mpath.display()
+        mpath.display(),
+        charts.len()
     );
     Ok(())
 }
@@ -248,6 +252,7 @@ fn bench_scene(
                 seed,
                 iters: args.iters,
                 batch: args.batch,
+                device: Default::default(),
             };
             let mut row = Row {
                 scene: scene.into(),

@@ -36,6 +36,10 @@ pub struct Args {
     /// CompenNet++ variants: batch size instead of the variant's.
     #[arg(long)]
     pub batch: Option<usize>,
+    /// CompenNet++ variants: where to train, `cpu`, `cuda` or `cuda:N` (an NVIDIA GPU; needs a
+    /// build with `--features cuda`). The `linear` rungs always fit on the CPU.
+    #[arg(long, default_value = "cpu")]
+    pub device: compend::train::TrainDevice,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -46,6 +50,7 @@ pub fn run(args: Args) -> Result<()> {
         seed: args.seed,
         iters: args.iters,
         batch: args.batch,
+        device: args.device,
     };
     let bar = super::progress_bar(args.json);
     let (model, summary) = train::train(&setup, &req, |stage, done, total| {
