@@ -13,6 +13,8 @@ pub enum Slot {
     Uniform,
     /// Read-only storage buffer.
     Storage,
+    /// Read-write storage buffer (intermediate activations).
+    StorageRw,
     /// A texture read with textureLoad (`texture_2d<f32>`, not filtered).
     Texture,
     /// A write-only storage texture of this format.
@@ -50,6 +52,11 @@ impl Stage {
                     },
                     Slot::Storage => wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    Slot::StorageRw => wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: false },
                         has_dynamic_offset: false,
                         min_binding_size: None,
                     },
@@ -138,6 +145,18 @@ impl Stage {
             1,
         );
     }
+
+    /// Records one dispatch of `groups` workgroups (x, y, z).
+    pub fn dispatch_groups(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        group: &wgpu::BindGroup,
+        (x, y, z): (u32, u32, u32),
+    ) {
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, group, &[]);
+        pass.dispatch_workgroups(x, y, z);
+    }
 }
 
 /// A 2-D texture of `format` usable as a stage input and output (and copied from).
@@ -175,6 +194,17 @@ pub fn uniform<T: bytemuck::Pod>(ctx: &GpuContext, label: &str, value: &T) -> wg
             contents: bytemuck::bytes_of(value),
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         })
+}
+
+/// A zero-filled read-write storage buffer of `len` f32 values (at least one), also copyable
+/// from (tests read intermediate activations back).
+pub fn scratch(ctx: &GpuContext, label: &str, len: usize) -> wgpu::Buffer {
+    ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: 4 * len.max(1) as u64,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    })
 }
 
 pub fn storage(ctx: &GpuContext, label: &str, data: &[f32]) -> wgpu::Buffer {

@@ -1,0 +1,137 @@
+// Convolution layers of the simplified CompenNet backbone (CompenNet++ family), one pipeline per
+// kernel kind (`conv`, `tconv`) shared by every layer; per-layer sizes come from the uniform.
+//
+// Activations: f32 storage buffers, one image per channel, channel-major (C, H, W) row-major,
+// network-space pixels at the layer's resolution (the network size, /2 or /4). Values are whatever
+// the layer computes (the backbone's input is the sampled desired view, sRGB-encoded camera
+// values in [0,1]; its output the projector input values in [0,1]).
+// Weights: repacked on the CPU as [ci][ky][kx][co] with co padded to a multiple of 4, read as
+// vec4 (4 output channels); bias likewise (co padded).
+// CPU reference: compend::nn::compennet::Backbone::forward (candle conv2d / conv_transpose2d,
+// PyTorch semantics, dilation 1, no output padding), then `+ add`, ReLU, `min(., 1)` as flagged.
+//
+// Each invocation computes 4 output channels of one output pixel: x, y = output pixel,
+// z = output channel block. A workgroup is 8×8 pixels of one channel block, so its weight reads
+// are the same for every invocation (broadcast).
+
+struct Conv {
+    cin: u32,             // input channels
+    cout: u32,            // output channels
+    k: u32,               // kernel size (square)
+    stride: u32,
+    in_size: vec2<u32>,   // input (width, height)
+    out_size: vec2<u32>,  // output (width, height)
+    pad: u32,             // zero padding (conv), cropping (tconv), pixels
+    flags: u32,           // 1: add the `add` map; 2: ReLU; 4: min(., 1) after the ReLU
+    cout4: u32,           // ceil(cout / 4): channel blocks
+    _pad: u32,
+}
+
+const ADD: u32 = 1u;
+const RELU: u32 = 2u;
+const CLAMP1: u32 = 4u;
+
+@group(0) @binding(0) var<uniform> p: Conv;
+@group(0) @binding(1) var<storage, read> src: array<f32>;
+@group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> bias: array<vec4<f32>>;
+// Same shape as dst (a surface-bias map or a skip activation); a 1-element dummy when unused.
+@group(0) @binding(4) var<storage, read> add: array<f32>;
+@group(0) @binding(5) var<storage, read_write> dst: array<f32>;
+
+// Bias already in `acc`; adds the map, activates and stores up to 4 channels.
+fn finish(acc_in: vec4<f32>, id: vec3<u32>) {
+    var acc = acc_in;
+    let plane = p.out_size.x * p.out_size.y;
+    let pix = id.y * p.out_size.x + id.x;
+    for (var j = 0u; j < 4u; j++) {
+        let co = id.z * 4u + j;
+        if (co >= p.cout) {
+            break;
+        }
+        let o = co * plane + pix;
+        var v = acc[j];
+        if ((p.flags & ADD) != 0u) {
+            v += add[o];
+        }
+        if ((p.flags & RELU) != 0u) {
+            v = max(v, 0.0);
+        }
+        if ((p.flags & CLAMP1) != 0u) {
+            v = min(v, 1.0);
+        }
+        dst[o] = v;
+    }
+}
+
+// out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, oy·s + ky − pad, ox·s + kx − pad] · w[co, ci, ky, kx]
+// (zero outside the input).
+@compute @workgroup_size(8, 8, 1)
+fn conv(@builtin(global_invocation_id) id: vec3<u32>) {
+    if (id.x >= p.out_size.x || id.y >= p.out_size.y || id.z >= p.cout4) {
+        return;
+    }
+    let w_in = i32(p.in_size.x);
+    let h_in = i32(p.in_size.y);
+    let plane = p.in_size.x * p.in_size.y;
+    let k = i32(p.k);
+    let y0 = i32(id.y * p.stride) - i32(p.pad);
+    let x0 = i32(id.x * p.stride) - i32(p.pad);
+    var acc = bias[id.z];
+    for (var ci = 0u; ci < p.cin; ci++) {
+        let base = ci * plane;
+        let wbase = ci * p.k * p.k;
+        for (var ky = 0; ky < k; ky++) {
+            let iy = y0 + ky;
+            if (iy < 0 || iy >= h_in) {
+                continue;
+            }
+            let row = base + u32(iy * w_in);
+            let wrow = (wbase + u32(ky) * p.k) * p.cout4 + id.z;
+            for (var kx = 0; kx < k; kx++) {
+                let ix = x0 + kx;
+                if (ix < 0 || ix >= w_in) {
+                    continue;
+                }
+                acc += src[row + u32(ix)] * weight[wrow + u32(kx) * p.cout4];
+            }
+        }
+    }
+    finish(acc, id);
+}
+
+// Transposed convolution: out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, iy, ix] · w[ci, co, ky, kx]
+// over the input pixels with iy·s + ky − pad = oy and ix·s + kx − pad = ox.
+@compute @workgroup_size(8, 8, 1)
+fn tconv(@builtin(global_invocation_id) id: vec3<u32>) {
+    if (id.x >= p.out_size.x || id.y >= p.out_size.y || id.z >= p.cout4) {
+        return;
+    }
+    let w_in = i32(p.in_size.x);
+    let h_in = i32(p.in_size.y);
+    let s = i32(p.stride);
+    let plane = p.in_size.x * p.in_size.y;
+    let k = i32(p.k);
+    let oy = i32(id.y) + i32(p.pad);
+    let ox = i32(id.x) + i32(p.pad);
+    var acc = bias[id.z];
+    for (var ky = 0; ky < k; ky++) {
+        let ty = oy - ky;
+        if (ty < 0 || ty % s != 0 || ty / s >= h_in) {
+            continue;
+        }
+        let iy = ty / s;
+        for (var kx = 0; kx < k; kx++) {
+            let tx = ox - kx;
+            if (tx < 0 || tx % s != 0 || tx / s >= w_in) {
+                continue;
+            }
+            let pix = u32(iy * w_in + tx / s);
+            let wk = u32(ky * k + kx);
+            for (var ci = 0u; ci < p.cin; ci++) {
+                acc += src[ci * plane + pix] * weight[(ci * p.k * p.k + wk) * p.cout4 + id.z];
+            }
+        }
+    }
+    finish(acc, id);
+}
