@@ -5,14 +5,15 @@
 // network-space pixels at the layer's resolution (the network size, /2 or /4). Values are whatever
 // the layer computes (the backbone's input is the sampled desired view, sRGB-encoded camera
 // values in [0,1]; its output the projector input values in [0,1]).
-// Weights: repacked on the CPU as [ci][ky][kx][co] with co padded to a multiple of 4, read as
+// Weights: repacked on the CPU as [ci][ky][kx][co] with co padded to a multiple of 4·B, read as
 // vec4 (4 output channels); bias likewise (co padded).
 // CPU reference: compend::nn::compennet::Backbone::forward (candle conv2d / conv_transpose2d,
 // PyTorch semantics, dilation 1, no output padding), then `+ add`, ReLU, `min(., 1)` as flagged.
 //
-// Each invocation computes 4 output channels of one output pixel: x, y = output pixel,
-// z = output channel block. A workgroup is 8×8 pixels of one channel block, so its weight reads
-// are the same for every invocation (broadcast).
+// Each invocation computes 4·B output channels of one output pixel (B vec4 accumulators; B is a
+// pipeline constant, 1 for layers with few output channels): x, y = output pixel, z = output
+// channel block. A workgroup is 8×8 pixels of one channel block, so its weight reads are the same
+// for every invocation (broadcast), and each input value read serves 4·B multiply-adds.
 
 struct Conv {
     cin: u32,             // input channels
@@ -23,9 +24,13 @@ struct Conv {
     out_size: vec2<u32>,  // output (width, height)
     pad: u32,             // zero padding (conv), cropping (tconv), pixels
     flags: u32,           // 1: add the `add` map; 2: ReLU; 4: min(., 1) after the ReLU
-    cout4: u32,           // ceil(cout / 4): channel blocks
+    cout4: u32,           // vec4s per weight row: ceil(cout / (4·B))·B
     _pad: u32,
 }
+
+// vec4 accumulators per invocation, 1..=MAXB.
+override B: u32 = 1u;
+const MAXB: u32 = 4u;
 
 const ADD: u32 = 1u;
 const RELU: u32 = 2u;
@@ -39,18 +44,17 @@ const CLAMP1: u32 = 4u;
 @group(0) @binding(4) var<storage, read> add: array<f32>;
 @group(0) @binding(5) var<storage, read_write> dst: array<f32>;
 
-// Bias already in `acc`; adds the map, activates and stores up to 4 channels.
-fn finish(acc_in: vec4<f32>, id: vec3<u32>) {
-    var acc = acc_in;
+// Bias already in `acc`; adds the map, activates and stores up to 4·B channels.
+fn finish(acc: ptr<function, array<vec4<f32>, MAXB>>, id: vec3<u32>) {
     let plane = p.out_size.x * p.out_size.y;
     let pix = id.y * p.out_size.x + id.x;
-    for (var j = 0u; j < 4u; j++) {
-        let co = id.z * 4u + j;
+    for (var j = 0u; j < 4u * B; j++) {
+        let co = id.z * 4u * B + j;
         if (co >= p.cout) {
             break;
         }
         let o = co * plane + pix;
-        var v = acc[j];
+        var v = (*acc)[j / 4u][j % 4u];
         if ((p.flags & ADD) != 0u) {
             v += add[o];
         }
@@ -67,9 +71,17 @@ fn finish(acc_in: vec4<f32>, id: vec3<u32>) {
 // out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, oy·s + ky − pad, ox·s + kx − pad] · w[co, ci, ky, kx]
 // (zero outside the input).
 @compute @workgroup_size(8, 8, 1)
-fn conv(@builtin(global_invocation_id) id: vec3<u32>) {
-    if (id.x >= p.out_size.x || id.y >= p.out_size.y || id.z >= p.cout4) {
+fn conv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>) {
+    // The channel block from the workgroup id: uniform over the workgroup, which lets drivers
+    // (llvmpipe included) load each weight once for all invocations.
+    let id = vec3<u32>(gid.xy, wg.z);
+    if (id.x >= p.out_size.x || id.y >= p.out_size.y || id.z * B >= p.cout4) {
         return;
+    }
+    let zb = id.z * B; // first vec4 of this invocation's channels
+    var acc: array<vec4<f32>, MAXB>;
+    for (var j = 0u; j < B; j++) {
+        acc[j] = bias[zb + j];
     }
     let w_in = i32(p.in_size.x);
     let h_in = i32(p.in_size.y);
@@ -77,7 +89,6 @@ fn conv(@builtin(global_invocation_id) id: vec3<u32>) {
     let k = i32(p.k);
     let y0 = i32(id.y * p.stride) - i32(p.pad);
     let x0 = i32(id.x * p.stride) - i32(p.pad);
-    var acc = bias[id.z];
     for (var ci = 0u; ci < p.cin; ci++) {
         let base = ci * plane;
         let wbase = ci * p.k * p.k;
@@ -87,25 +98,35 @@ fn conv(@builtin(global_invocation_id) id: vec3<u32>) {
                 continue;
             }
             let row = base + u32(iy * w_in);
-            let wrow = (wbase + u32(ky) * p.k) * p.cout4 + id.z;
+            let wrow = (wbase + u32(ky) * p.k) * p.cout4 + zb;
             for (var kx = 0; kx < k; kx++) {
                 let ix = x0 + kx;
                 if (ix < 0 || ix >= w_in) {
                     continue;
                 }
-                acc += src[row + u32(ix)] * weight[wrow + u32(kx) * p.cout4];
+                let v = src[row + u32(ix)];
+                let wi = wrow + u32(kx) * p.cout4;
+                for (var j = 0u; j < B; j++) {
+                    acc[j] += v * weight[wi + j];
+                }
             }
         }
     }
-    finish(acc, id);
+    finish(&acc, id);
 }
 
 // Transposed convolution: out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, iy, ix] · w[ci, co, ky, kx]
 // over the input pixels with iy·s + ky − pad = oy and ix·s + kx − pad = ox.
 @compute @workgroup_size(8, 8, 1)
-fn tconv(@builtin(global_invocation_id) id: vec3<u32>) {
-    if (id.x >= p.out_size.x || id.y >= p.out_size.y || id.z >= p.cout4) {
+fn tconv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>) {
+    let id = vec3<u32>(gid.xy, wg.z);
+    if (id.x >= p.out_size.x || id.y >= p.out_size.y || id.z * B >= p.cout4) {
         return;
+    }
+    let zb = id.z * B; // first vec4 of this invocation's channels
+    var acc: array<vec4<f32>, MAXB>;
+    for (var j = 0u; j < B; j++) {
+        acc[j] = bias[zb + j];
     }
     let w_in = i32(p.in_size.x);
     let h_in = i32(p.in_size.y);
@@ -114,7 +135,6 @@ fn tconv(@builtin(global_invocation_id) id: vec3<u32>) {
     let k = i32(p.k);
     let oy = i32(id.y) + i32(p.pad);
     let ox = i32(id.x) + i32(p.pad);
-    var acc = bias[id.z];
     for (var ky = 0; ky < k; ky++) {
         let ty = oy - ky;
         if (ty < 0 || ty % s != 0 || ty / s >= h_in) {
@@ -129,9 +149,13 @@ fn tconv(@builtin(global_invocation_id) id: vec3<u32>) {
             let pix = u32(iy * w_in + tx / s);
             let wk = u32(ky * k + kx);
             for (var ci = 0u; ci < p.cin; ci++) {
-                acc += src[ci * plane + pix] * weight[(ci * p.k * p.k + wk) * p.cout4 + id.z];
+                let v = src[ci * plane + pix];
+                let wi = (ci * p.k * p.k + wk) * p.cout4 + zb;
+                for (var j = 0u; j < B; j++) {
+                    acc[j] += v * weight[wi + j];
+                }
             }
         }
     }
-    finish(acc, id);
+    finish(&acc, id);
 }

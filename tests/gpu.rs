@@ -212,6 +212,8 @@ fn bench_gpu_writes_ratios() {
         "32x32",
         "--content",
         "64x36",
+        "--compennet-iters",
+        "2",
     ]);
     crate::common::assert_code(&o, 0);
     let v: serde_json::Value =
@@ -221,6 +223,8 @@ fn bench_gpu_writes_ratios() {
     for r in rows {
         assert!(r["copy"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
         assert!(r["linear_over_copy"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["compennet"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["compennet_over_copy"].as_f64().unwrap() > 0.0, "{r}");
         let rig = &r["virtual_rig"];
         assert!(rig["refreshes"].as_u64().unwrap() == 15, "{r}");
         assert!(rig["shown"].as_u64().unwrap() >= 1, "{r}");

@@ -26,8 +26,11 @@ use crate::nn::train::SimplifiedCompenNet;
 const SHADER: &str = include_str!("../../shaders/compennet.wgsl");
 const CONV: &str = include_str!("../../shaders/conv.wgsl");
 
-/// Output channels per invocation of the convolution kernels (a vec4).
-const BLOCK: usize = 4;
+/// Output channels per vec4 accumulator of the convolution kernels.
+const LANES: usize = 4;
+/// vec4 accumulators per invocation (the shader's `B`) for layers with at least
+/// `4 * WIDE_BLOCK` output channels; 1 for the others (the 3-channel layers).
+const WIDE_BLOCK: usize = 4;
 /// Workgroup of the convolution kernels: 8×8 output pixels of one channel block.
 const WG: u32 = 8;
 
@@ -69,7 +72,8 @@ struct Act {
 /// One recorded layer: which kernel, its bind group, its workgroup counts.
 struct Layer {
     name: &'static str,
-    transposed: bool,
+    /// Index into [`CompenNetStage::kernels`].
+    kernel: usize,
     group: wgpu::BindGroup,
     groups: (u32, u32, u32),
 }
@@ -78,8 +82,8 @@ struct Layer {
 pub struct CompenNetStage {
     sample: Stage,
     store: Stage,
-    conv: Stage,
-    tconv: Stage,
+    /// One pipeline per kernel kind: (transposed, vec4 accumulators per invocation).
+    kernels: Vec<((bool, usize), Stage)>,
     params: wgpu::Buffer,
     grid: wgpu::Buffer,
     input: Act,
@@ -207,9 +211,24 @@ impl Weights {
         }
     }
 
-    /// Weights as `[ci][ky][kx][co]`, co padded to a multiple of [`BLOCK`]; bias padded likewise.
+    /// vec4 accumulators per invocation for this layer.
+    fn block(&self) -> usize {
+        if self.cout >= LANES * WIDE_BLOCK {
+            WIDE_BLOCK
+        } else {
+            1
+        }
+    }
+
+    /// Padded output channels: a multiple of 4 · [`Self::block`].
+    fn cout_padded(&self) -> usize {
+        let n = LANES * self.block();
+        self.cout.div_ceil(n) * n
+    }
+
+    /// Weights as `[ci][ky][kx][co]`, co padded to [`Self::cout_padded`]; bias padded likewise.
     fn packed(&self) -> (Vec<f32>, Vec<f32>) {
-        let cp = self.cout.div_ceil(BLOCK) * BLOCK;
+        let cp = self.cout_padded();
         let kk = self.k * self.k;
         let mut w = vec![0.0; self.cin * kk * cp];
         for co in 0..self.cout {
@@ -269,8 +288,7 @@ impl CompenNetStage {
             Slot::Storage,
             Slot::StorageRw,
         ];
-        let conv = Stage::new(ctx, "conv", CONV, "conv", &conv_slots)?;
-        let tconv = Stage::new(ctx, "tconv", CONV, "tconv", &conv_slots)?;
+        let mut kernels: Vec<((bool, usize), Stage)> = Vec::new();
         let half = |n: usize| (n.max(1) - 1) as f32 / 2.0;
         let params = uniform(
             ctx,
@@ -452,7 +470,8 @@ impl CompenNetStage {
                 }
             };
             let (wp, bp) = w.packed();
-            let cout4 = w.cout.div_ceil(BLOCK) as u32;
+            let block = w.block();
+            let cout4 = (w.cout_padded() / LANES) as u32;
             let p = ConvParams {
                 cin: w.cin as u32,
                 cout: w.cout as u32,
@@ -465,8 +484,27 @@ impl CompenNetStage {
                 cout4,
                 _pad: 0,
             };
-            let stage = if w.transposed { &tconv } else { &conv };
-            let group = stage.bind(
+            let key = (w.transposed, block);
+            let kernel = match kernels.iter().position(|(k, _)| *k == key) {
+                Some(i) => i,
+                None => {
+                    let entry = if w.transposed { "tconv" } else { "conv" };
+                    let label = format!("{entry} x{}", LANES * block);
+                    kernels.push((
+                        key,
+                        Stage::with_constants(
+                            ctx,
+                            &label,
+                            CONV,
+                            entry,
+                            &conv_slots,
+                            &[("B", block as f64)],
+                        )?,
+                    ));
+                    kernels.len() - 1
+                }
+            };
+            let group = kernels[kernel].1.bind(
                 ctx,
                 name,
                 &[
@@ -480,12 +518,12 @@ impl CompenNetStage {
             );
             layers.push(Layer {
                 name,
-                transposed: w.transposed,
+                kernel,
                 group,
                 groups: (
                     (out_size.0 as u32).div_ceil(WG),
                     (out_size.1 as u32).div_ceil(WG),
-                    cout4,
+                    cout4 / block as u32,
                 ),
             });
             acts.push((name, dst));
@@ -503,8 +541,7 @@ impl CompenNetStage {
         Ok(Self {
             sample,
             store,
-            conv,
-            tconv,
+            kernels,
             params,
             grid,
             input,
@@ -549,14 +586,21 @@ impl CompenNetStage {
         };
         self.sample.dispatch(pass, sample, self.network_size);
         for l in &self.layers {
-            let stage = if l.transposed {
-                &self.tconv
-            } else {
-                &self.conv
-            };
-            stage.dispatch_groups(pass, &l.group, l.groups);
+            if let Some((_, stage)) = self.kernels.get(l.kernel) {
+                stage.dispatch_groups(pass, &l.group, l.groups);
+            }
         }
         self.store.dispatch(pass, store, self.network_size);
+    }
+
+    /// Records layer `i` alone (in [`Self::layer_names`] order), reading the activations the
+    /// last frame left: for per-layer timing.
+    pub fn dispatch_layer(&self, pass: &mut wgpu::ComputePass<'_>, i: usize) {
+        if let Some(l) = self.layers.get(i)
+            && let Some((_, stage)) = self.kernels.get(l.kernel)
+        {
+            stage.dispatch_groups(pass, &l.group, l.groups);
+        }
     }
 
     /// Names of the intermediate activations in order ("x" is the sampled input; the output is

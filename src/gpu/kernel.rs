@@ -37,6 +37,18 @@ impl Stage {
         entry: &str,
         slots: &[Slot],
     ) -> Result<Self> {
+        Self::with_constants(ctx, label, source, entry, slots, &[])
+    }
+
+    /// [`Stage::new`] with values for the shader's pipeline-overridable constants (`override`).
+    pub fn with_constants(
+        ctx: &GpuContext,
+        label: &str,
+        source: &str,
+        entry: &str,
+        slots: &[Slot],
+        constants: &[(&str, f64)],
+    ) -> Result<Self> {
         let module = ctx.shader(label, source)?;
         let entries: Vec<wgpu::BindGroupLayoutEntry> = slots
             .iter()
@@ -95,7 +107,10 @@ impl Stage {
                 layout: Some(&pipeline_layout),
                 module: &module,
                 entry_point: Some(entry),
-                compilation_options: Default::default(),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants,
+                    ..Default::default()
+                },
                 cache: None,
             });
         if let Some(e) = pollster::block_on(scope.pop()) {
