@@ -470,3 +470,54 @@ fn compennet_layers_match_candle() {
         );
     }
 }
+
+/// `compend play` with a CompenNet++ model through the real binary: a tiny simulated setup, two
+/// training iterations (the weights do not matter here, the path does), three raw frames on the
+/// virtual rig, each shown once and seen by the camera.
+#[test]
+fn compennet_model_plays_through_the_virtual_rig() {
+    use crate::play::{count, play_with_stdin, raw_frames, tiny_model_with};
+
+    if gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let model = tiny_model_with(
+        dir.path(),
+        &[
+            "--method",
+            "compennet++-faster",
+            "--iters",
+            "2",
+            "--batch",
+            "2",
+        ],
+    );
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    assert_eq!(meta["method"], "compennet++-faster");
+    let out = dir.path().join("views");
+    let (o, v) = play_with_stdin(
+        &[
+            "--model",
+            model.to_str().unwrap(),
+            "--source",
+            "raw:-?size=40x30&format=rgb24",
+            "--rig",
+            "virtual",
+            "--pace",
+            "source",
+            "--out",
+            out.to_str().unwrap(),
+            "--json",
+        ],
+        &raw_frames(3, 40, 30),
+    );
+    crate::common::assert_code(&o, 0);
+    let v = v.unwrap();
+    eprintln!("{v}");
+    assert_eq!(count(&v, "received"), 3);
+    assert_eq!(count(&v, "shown"), 3);
+    assert_eq!(count(&v, "camera_views"), 3);
+    assert!(out.join("cam_000003.png").is_file());
+}
