@@ -69,50 +69,66 @@ fn finish(acc: ptr<function, array<vec4<f32>, MAXB>>, id: vec3<u32>) {
 }
 
 // out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, oy·s + ky − pad, ox·s + kx − pad] · w[co, ci, ky, kx]
-// (zero outside the input).
+// (zero outside the input). Each invocation computes P consecutive output pixels of a row (x =
+// gid.x·P + i) for its 4·B channels: per input value read, 4·B multiply-adds; per weight read, P.
+// Reads are branch-free (clamped index, zero weight outside) so that all lanes stay converged.
+const P: u32 = 4u;
+
 @compute @workgroup_size(8, 8, 1)
 fn conv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>) {
-    // The channel block from the workgroup id: uniform over the workgroup, which lets drivers
-    // (llvmpipe included) load each weight once for all invocations.
-    let id = vec3<u32>(gid.xy, wg.z);
-    if (id.x >= p.out_size.x || id.y >= p.out_size.y || id.z * B >= p.cout4) {
+    // The channel block from the workgroup id: uniform over the workgroup (weight reads are the
+    // same for all its invocations).
+    let ox0 = gid.x * P;
+    if (ox0 >= p.out_size.x || gid.y >= p.out_size.y || wg.z * B >= p.cout4) {
         return;
     }
-    let zb = id.z * B; // first vec4 of this invocation's channels
-    var acc: array<vec4<f32>, MAXB>;
+    let zb = wg.z * B; // first vec4 of this invocation's channels
+    var acc: array<array<vec4<f32>, MAXB>, P>;
     for (var j = 0u; j < B; j++) {
-        acc[j] = bias[zb + j];
+        let b = bias[zb + j];
+        for (var i = 0u; i < P; i++) {
+            acc[i][j] = b;
+        }
     }
     let w_in = i32(p.in_size.x);
     let h_in = i32(p.in_size.y);
     let plane = p.in_size.x * p.in_size.y;
     let k = i32(p.k);
-    let y0 = i32(id.y * p.stride) - i32(p.pad);
-    let x0 = i32(id.x * p.stride) - i32(p.pad);
+    let s = i32(p.stride);
+    let y0 = i32(gid.y) * s - i32(p.pad);
+    let x0 = i32(ox0) * s - i32(p.pad);
+    var v: array<f32, P>;
     for (var ci = 0u; ci < p.cin; ci++) {
         let base = ci * plane;
         let wbase = ci * p.k * p.k;
         for (var ky = 0; ky < k; ky++) {
             let iy = y0 + ky;
-            if (iy < 0 || iy >= h_in) {
-                continue;
-            }
-            let row = base + u32(iy * w_in);
+            let row_ok = iy >= 0 && iy < h_in;
+            let row = base + u32(clamp(iy, 0, h_in - 1) * w_in);
             let wrow = (wbase + u32(ky) * p.k) * p.cout4 + zb;
             for (var kx = 0; kx < k; kx++) {
-                let ix = x0 + kx;
-                if (ix < 0 || ix >= w_in) {
-                    continue;
+                for (var i = 0u; i < P; i++) {
+                    let ix = x0 + i32(i) * s + kx;
+                    let ok = row_ok && ix >= 0 && ix < w_in;
+                    v[i] = select(0.0, src[row + u32(clamp(ix, 0, w_in - 1))], ok);
                 }
-                let v = src[row + u32(ix)];
                 let wi = wrow + u32(kx) * p.cout4;
                 for (var j = 0u; j < B; j++) {
-                    acc[j] += v * weight[wi + j];
+                    let wv = weight[wi + j];
+                    for (var i = 0u; i < P; i++) {
+                        acc[i][j] += v[i] * wv;
+                    }
                 }
             }
         }
     }
-    finish(&acc, id);
+    for (var i = 0u; i < P; i++) {
+        let ox = ox0 + i;
+        if (ox < p.out_size.x) {
+            var a = acc[i];
+            finish(&a, vec3<u32>(ox, gid.y, wg.z));
+        }
+    }
 }
 
 // Transposed convolution: out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, iy, ix] · w[ci, co, ky, kx]

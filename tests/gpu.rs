@@ -236,6 +236,10 @@ fn bench_gpu_writes_ratios() {
     );
 }
 
+/// Network size of the CompenNet++ tests: the backbone's layer widths 36, 18, 9 are not all
+/// multiples of the kernels' 4 pixels per invocation.
+const CNET: (usize, usize) = (36, 28);
+
 /// A CompenNet++ model (fixed bent grid, as `compennet-sl` stores it) on the same camera and
 /// network sizes, with seeded weights, non-zero biases everywhere (the GPU must add them) and
 /// the output layer shifted so that most outputs land strictly inside (0, 1): the comparison then
@@ -244,7 +248,7 @@ pub fn compennet_test_model(seed: u64) -> Model {
     use candle_core::{Device, Tensor, Var};
     use compend::nn::train::{CompenNetPP, GeometryInit};
 
-    let (nw, nh) = NET;
+    let (nw, nh) = CNET;
     let grid: Vec<f32> = (0..nh)
         .flat_map(|y| (0..nw).map(move |x| (x, y)))
         .flat_map(|(x, y)| {
@@ -256,7 +260,7 @@ pub fn compennet_test_model(seed: u64) -> Model {
         })
         .collect();
     let grid = Tensor::from_vec(grid, (1, nh, nw, 2), &Device::Cpu).unwrap();
-    let net = CompenNetPP::new(GeometryInit::Fixed(grid), NET, false, seed, &Device::Cpu).unwrap();
+    let net = CompenNetPP::new(GeometryInit::Fixed(grid), CNET, false, seed, &Device::Cpu).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
     for (name, t) in net.named_tensors() {
         if !t.is_variable() || !name.ends_with(".bias") {
@@ -294,7 +298,7 @@ pub fn compennet_test_model(seed: u64) -> Model {
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
         method: "compennet-sl".into(),
-        network_size: NET,
+        network_size: CNET,
         camera_size: CAM,
         canvas: None,
         training: serde_json::Value::Null,
@@ -326,7 +330,7 @@ fn compennet_pass_matches_the_cpu_reference() {
                 low: 0.1,
                 high: 0.85,
             },
-            network_size: NET,
+            network_size: CNET,
             projector_size: (80, 60),
             canvas: Rect {
                 x: 10,
@@ -376,7 +380,7 @@ fn compennet_pass_matches_the_cpu_reference() {
                 100.0 * inside,
                 steps.len()
             );
-            assert!(inside > 0.5, "only {inside} of the outputs inside (0,1)");
+            assert!(inside > 0.4, "only {inside} of the outputs inside (0,1)");
             assert!(e_desired <= 1e-5, "desired view differs by {e_desired}");
             assert!(e_net <= 1e-4, "compensation image differs by {e_net}");
             assert!(worst <= 1, "projector frame differs by {worst} 8-bit steps");

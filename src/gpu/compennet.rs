@@ -31,8 +31,10 @@ const LANES: usize = 4;
 /// vec4 accumulators per invocation (the shader's `B`) for layers with at least
 /// `4 * WIDE_BLOCK` output channels; 1 for the others (the 3-channel layers).
 const WIDE_BLOCK: usize = 4;
-/// Workgroup of the convolution kernels: 8×8 output pixels of one channel block.
+/// Workgroup of the convolution kernels: 8×8 invocations of one channel block.
 const WG: u32 = 8;
+/// Output pixels per invocation along x of the `conv` kernel (the shader's `P`).
+const PIXELS: u32 = 4;
 
 const FLAG_ADD: u32 = 1;
 const FLAG_RELU: u32 = 2;
@@ -521,7 +523,9 @@ impl CompenNetStage {
                 kernel,
                 group,
                 groups: (
-                    (out_size.0 as u32).div_ceil(WG),
+                    (out_size.0 as u32)
+                        .div_ceil(if w.transposed { 1 } else { PIXELS })
+                        .div_ceil(WG),
                     (out_size.1 as u32).div_ceil(WG),
                     cout4 / block as u32,
                 ),
