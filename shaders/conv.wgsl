@@ -10,9 +10,9 @@
 // CPU reference: compend::nn::compennet::Backbone::forward (candle conv2d / conv_transpose2d,
 // PyTorch semantics, dilation 1, no output padding), then `+ add`, ReLU, `min(., 1)` as flagged.
 //
-// Each invocation computes 4·B output channels of one output pixel (B vec4 accumulators; B is a
-// pipeline constant, 1 for layers with few output channels): x, y = output pixel, z = output
-// channel block. A workgroup is 8×8 pixels of one channel block, so its weight reads are the same
+// Each invocation computes 4·B output channels (B vec4 accumulators; B is a pipeline constant,
+// 1 for layers with few output channels) of one output pixel (`tconv`) or of P consecutive output
+// pixels of a row (`conv`): x, y = output pixel (or group of P), z = output channel block. A workgroup is 8×8 pixels of one channel block, so its weight reads are the same
 // for every invocation (broadcast), and each input value read serves 4·B multiply-adds.
 
 struct Conv {

@@ -1,5 +1,6 @@
 //! The compensation pass: content frame → projector frame, all on the GPU, built once per model
-//! and display and reused per frame (only the content upload and three dispatches per frame).
+//! and display and reused per frame (only the content upload and the dispatches per frame: three
+//! for `linear`, 17 for the CompenNet backbone).
 //!
 //! Stages (see [`crate::playback`] for the chain and its CPU reference):
 //! 1. `shaders/place.wgsl`: content (rgba8unorm, content pixels) → desired camera view
