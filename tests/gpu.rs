@@ -212,6 +212,8 @@ fn bench_gpu_writes_ratios() {
         "32x32",
         "--content",
         "64x36",
+        "--compennet-iters",
+        "2",
     ]);
     crate::common::assert_code(&o, 0);
     let v: serde_json::Value =
@@ -221,6 +223,8 @@ fn bench_gpu_writes_ratios() {
     for r in rows {
         assert!(r["copy"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
         assert!(r["linear_over_copy"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["compennet"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["compennet_over_copy"].as_f64().unwrap() > 0.0, "{r}");
         let rig = &r["virtual_rig"];
         assert!(rig["refreshes"].as_u64().unwrap() == 15, "{r}");
         assert!(rig["shown"].as_u64().unwrap() >= 1, "{r}");
@@ -230,4 +234,294 @@ fn bench_gpu_writes_ratios() {
         md.contains("| 64x48 |") && md.contains("| 100x75 |"),
         "{md}"
     );
+}
+
+/// Network size of the CompenNet++ tests: the backbone's layer widths 36, 18, 9 are not all
+/// multiples of the kernels' 4 pixels per invocation.
+const CNET: (usize, usize) = (36, 28);
+
+/// A CompenNet++ model (fixed bent grid, as `compennet-sl` stores it) on the same camera and
+/// network sizes, with seeded weights, non-zero biases everywhere (the GPU must add them) and
+/// the output layer shifted so that most outputs land strictly inside (0, 1): the comparison then
+/// sees the network's arithmetic, not just clamps.
+pub fn compennet_test_model(seed: u64) -> Model {
+    use candle_core::{Device, Tensor, Var};
+    use compend::nn::train::{CompenNetPP, GeometryInit};
+
+    let (nw, nh) = CNET;
+    let grid: Vec<f32> = (0..nh)
+        .flat_map(|y| (0..nw).map(move |x| (x, y)))
+        .flat_map(|(x, y)| {
+            let (u, v) = (pixel_to_norm(x as f32, nw), pixel_to_norm(y as f32, nh));
+            [
+                1.08 * u + 0.1 * v * v - 0.02,
+                0.95 * v + 0.12 * u * u + 0.03 * u,
+            ]
+        })
+        .collect();
+    let grid = Tensor::from_vec(grid, (1, nh, nw, 2), &Device::Cpu).unwrap();
+    let net = CompenNetPP::new(GeometryInit::Fixed(grid), CNET, false, seed, &Device::Cpu).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
+    for (name, t) in net.named_tensors() {
+        if !t.is_variable() || !name.ends_with(".bias") {
+            continue;
+        }
+        let n = t.elem_count();
+        let shift = if name == "compen.backbone.conv6.bias" {
+            0.35
+        } else {
+            0.0
+        };
+        let b: Vec<f32> = (0..n)
+            .map(|_| shift + rng.random_range(-0.05..0.05))
+            .collect();
+        Var::from_tensor(&t)
+            .unwrap()
+            .set(&Tensor::from_vec(b, n, &Device::Cpu).unwrap())
+            .unwrap();
+    }
+    let (cw, ch) = CAM;
+    let fov = Mask::from_fn(cw, ch, |x, y| {
+        let (u, v) = (pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch));
+        u * u / 0.9 + v * v / 0.85 < 1.0
+    });
+    let surface: Rgb<Camera> = Rgb::from_vec(
+        cw,
+        ch,
+        (0..cw * ch * 3)
+            .map(|_| rng.random_range(0.1..0.6))
+            .collect(),
+    )
+    .unwrap()
+    .masked(&fov)
+    .unwrap();
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method: "compennet-sl".into(),
+        network_size: CNET,
+        camera_size: CAM,
+        canvas: None,
+        training: serde_json::Value::Null,
+        metrics: serde_json::Value::Null,
+        timings: serde_json::Value::Null,
+        written_by: "test".into(),
+    };
+    Model::compennet(meta, fov, net, surface).unwrap()
+}
+
+/// Tolerances for the CompenNet++ family: the desired view is the same stage as for `linear`
+/// (≤ 1e-5); the compensation image is f32 on both sides through 15 layers (differences from
+/// summation order only): ≤ 1e-4; the projector frame within one 8-bit step of the CPU reference
+/// rounded to 8 bits on every value (a step only where the f32 values straddle a rounding tie).
+#[test]
+fn compennet_pass_matches_the_cpu_reference() {
+    let Some(ctx) = gpu() else { return };
+    let model = compennet_test_model(3);
+    let placements = [
+        Placement {
+            camera_size: CAM,
+            area: Rect {
+                x: 5,
+                y: 6,
+                width: 36,
+                height: 27,
+            },
+            range: DisplayRange {
+                low: 0.1,
+                high: 0.85,
+            },
+            network_size: CNET,
+            projector_size: (80, 60),
+            canvas: Rect {
+                x: 10,
+                y: 12,
+                width: 61,
+                height: 41,
+            },
+        },
+        Placement::for_model(&model, (72, 50), DisplayRange::FULL).unwrap(),
+    ];
+    for (k, p) in placements.iter().enumerate() {
+        let mut pass = CompensationPass::new(&ctx, &model, *p).unwrap();
+        for (f, (w, h)) in [(37usize, 29usize), (p.area.width, p.area.height)]
+            .into_iter()
+            .enumerate()
+        {
+            let content = random_content(20 + 10 * k as u64 + f as u64, w, h);
+            pass.run(&ctx, &content).unwrap();
+            let desired_cpu = playback::desired_view(&content, p)
+                .unwrap()
+                .masked(&model.fov)
+                .unwrap();
+            let e_desired = max_abs(&desired_cpu, &pass.read_desired(&ctx).unwrap());
+            let net_cpu = playback::reference_network(&model, &content, p).unwrap();
+            let net_gpu = pass.read_network(&ctx).unwrap();
+            let e_net = max_abs(&net_cpu, &net_gpu);
+            let inside = net_cpu
+                .data()
+                .iter()
+                .filter(|v| **v > 0.0 && **v < 1.0)
+                .count() as f64
+                / net_cpu.data().len() as f64;
+            let frame_cpu = playback::reference_frame(&model, &content, p).unwrap();
+            let frame_gpu = pass.read_output(&ctx).unwrap();
+            let steps: Vec<i32> = frame_cpu
+                .data()
+                .iter()
+                .zip(frame_gpu.data())
+                .map(|(c, g)| compend::pngio::to_u8(*c) as i32 - (g * 255.0).round() as i32)
+                .collect();
+            let worst = steps.iter().map(|d| d.abs()).max().unwrap();
+            let off = steps.iter().filter(|d| **d != 0).count();
+            eprintln!(
+                "compennet placement {k} content {w}x{h}: desired max |Δ| {e_desired:.2e}, \
+                 network max |Δ| {e_net:.2e} ({:.0}% of values inside (0,1)), frame: {off} of {} \
+                 values off, worst {worst} step(s)",
+                100.0 * inside,
+                steps.len()
+            );
+            assert!(inside > 0.4, "only {inside} of the outputs inside (0,1)");
+            assert!(e_desired <= 1e-5, "desired view differs by {e_desired}");
+            assert!(e_net <= 1e-4, "compensation image differs by {e_net}");
+            assert!(worst <= 1, "projector frame differs by {worst} 8-bit steps");
+            assert_eq!(frame_gpu.size(), p.projector_size);
+        }
+    }
+}
+
+/// Each layer's activation on the GPU against candle's, layer by layer, on one frame (a failure
+/// names the first layer that differs).
+#[test]
+fn compennet_layers_match_candle() {
+    use candle_core::Module;
+    use compend::gpu::Photometric;
+    use compend::model::Kind;
+
+    let Some(ctx) = gpu() else { return };
+    let model = compennet_test_model(4);
+    let p = Placement::for_model(&model, (40, 30), DisplayRange::FULL).unwrap();
+    let mut pass = CompensationPass::new(&ctx, &model, p).unwrap();
+    let content = random_content(7, 30, 20);
+    pass.run(&ctx, &content).unwrap();
+    let Photometric::CompenNet(stage) = pass.photometric() else {
+        panic!("a CompenNet++ model gets the CompenNet stage")
+    };
+    let Kind::CompenNet { simplified, .. } = &model.kind else {
+        unreachable!()
+    };
+    let desired = playback::desired_view(&content, &p)
+        .unwrap()
+        .masked(&model.fov)
+        .unwrap();
+    let x = compend::nn::images_to_tensor(std::slice::from_ref(&desired)).unwrap();
+    let x = compend::nn::grid_sample(&x, &simplified.grid).unwrap();
+    // The forward pass of Backbone, spelled out (compend::nn::compennet::Backbone::forward).
+    let (b, s) = (&simplified.backbone, &simplified.bias);
+    let mut r = x.clone();
+    let mut skip1 = Vec::new();
+    for c in &b.skip1.convs {
+        r = c.forward(&r).unwrap().relu().unwrap();
+        skip1.push(r.clone());
+    }
+    let add_relu = |a: candle_core::Tensor, m: &candle_core::Tensor| {
+        a.broadcast_add(m).unwrap().relu().unwrap()
+    };
+    let a1 = add_relu(b.conv1.forward(&x).unwrap(), &s.s1);
+    let res2 = b.skip2.forward(&a1).unwrap();
+    let a2 = add_relu(b.conv2.forward(&a1).unwrap(), &s.s2);
+    let res3 = b.skip3.forward(&a2).unwrap();
+    let a3 = add_relu(b.conv3.forward(&a2).unwrap(), &s.s3);
+    let a4 = add_relu(b.conv4.forward(&a3).unwrap(), &s.s4);
+    let a5 = add_relu(b.conv5.forward(&a4).unwrap(), &res3);
+    let a6 = add_relu(b.tconv1.forward(&a5).unwrap(), &res2);
+    let a7 = b.tconv2.forward(&a6).unwrap().relu().unwrap();
+    let out = add_relu(b.conv6.forward(&a7).unwrap(), &skip1[2])
+        .clamp(0.0, 1.0)
+        .unwrap();
+    let expected = [
+        ("x", &x),
+        ("skip1.0", &skip1[0]),
+        ("skip1.1", &skip1[1]),
+        ("res1", &skip1[2]),
+        ("a1", &a1),
+        ("res2", &res2),
+        ("a2", &a2),
+        ("res3", &res3),
+        ("a3", &a3),
+        ("a4", &a4),
+        ("a5", &a5),
+        ("a6", &a6),
+        ("a7", &a7),
+        ("out", &out),
+    ];
+    let mut names = vec!["x"];
+    names.extend(stage.layer_names());
+    assert_eq!(names, expected.map(|(n, _)| n));
+    for (name, t) in expected {
+        let (c, h, w, gpu) = stage.read_activation(&ctx, name).unwrap();
+        assert_eq!(t.dims(), &[1, c, h, w], "{name}");
+        let cpu: Vec<f32> = t.flatten_all().unwrap().to_vec1().unwrap();
+        let scale = cpu.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let diff = cpu
+            .iter()
+            .zip(&gpu)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        eprintln!("layer {name} ({c}x{h}x{w}): max |Δ| {diff:.2e}, max |value| {scale:.2}");
+        assert!(
+            diff <= 1e-4 * scale.max(1.0),
+            "layer {name} differs by {diff}"
+        );
+    }
+}
+
+/// `compend play` with a CompenNet++ model through the real binary: a tiny simulated setup, two
+/// training iterations (the weights do not matter here, the path does), three raw frames on the
+/// virtual rig, each shown once and seen by the camera.
+#[test]
+fn compennet_model_plays_through_the_virtual_rig() {
+    use crate::play::{count, play_with_stdin, raw_frames, tiny_model_with};
+
+    if gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let model = tiny_model_with(
+        dir.path(),
+        &[
+            "--method",
+            "compennet++-faster",
+            "--iters",
+            "2",
+            "--batch",
+            "2",
+        ],
+    );
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    assert_eq!(meta["method"], "compennet++-faster");
+    let out = dir.path().join("views");
+    let (o, v) = play_with_stdin(
+        &[
+            "--model",
+            model.to_str().unwrap(),
+            "--source",
+            "raw:-?size=40x30&format=rgb24",
+            "--rig",
+            "virtual",
+            "--pace",
+            "source",
+            "--out",
+            out.to_str().unwrap(),
+            "--json",
+        ],
+        &raw_frames(3, 40, 30),
+    );
+    crate::common::assert_code(&o, 0);
+    let v = v.unwrap();
+    eprintln!("{v}");
+    assert_eq!(count(&v, "received"), 3);
+    assert_eq!(count(&v, "shown"), 3);
+    assert_eq!(count(&v, "camera_views"), 3);
+    assert!(out.join("cam_000003.png").is_file());
 }

@@ -10,6 +10,11 @@ use crate::common::{assert_code, compend, gpu, stderr};
 /// A tiny simulated setup and a `linear` model trained on it (absolute paths, so the model finds
 /// its setup's rig.json from any folder).
 pub fn tiny_model(dir: &Path) -> PathBuf {
+    tiny_model_with(dir, &["--method", "linear"])
+}
+
+/// [`tiny_model`] trained with `train_args` (the method and its settings).
+pub fn tiny_model_with(dir: &Path, train_args: &[&str]) -> PathBuf {
     let root = dir.join("root");
     let o = compend(&[
         "sim",
@@ -32,21 +37,22 @@ pub fn tiny_model(dir: &Path) -> PathBuf {
     ]);
     assert_code(&o, 0);
     let model = dir.join("model");
-    let o = compend(&[
+    let setup = root.join("textured-plane");
+    let mut args = vec![
         "train",
         "--setup",
-        root.join("textured-plane").to_str().unwrap(),
-        "--method",
-        "linear",
+        setup.to_str().unwrap(),
         "--out",
         model.to_str().unwrap(),
-    ]);
+    ];
+    args.extend_from_slice(train_args);
+    let o = compend(&args);
     assert_code(&o, 0);
     model
 }
 
 /// `n` raw rgb24 frames of `w`×`h`, each a different ramp.
-fn raw_frames(n: usize, w: usize, h: usize) -> Vec<u8> {
+pub fn raw_frames(n: usize, w: usize, h: usize) -> Vec<u8> {
     let mut out = Vec::with_capacity(n * w * h * 3);
     for f in 0..n {
         for _y in 0..h {
@@ -60,7 +66,7 @@ fn raw_frames(n: usize, w: usize, h: usize) -> Vec<u8> {
 }
 
 /// Runs `compend play ...` with `stdin` piped in; returns (output, parsed JSON when exit 0).
-fn play_with_stdin(
+pub fn play_with_stdin(
     args: &[&str],
     stdin: &[u8],
 ) -> (std::process::Output, Option<serde_json::Value>) {
@@ -85,7 +91,7 @@ fn play_with_stdin(
     (out, json)
 }
 
-fn count(v: &serde_json::Value, k: &str) -> u64 {
+pub fn count(v: &serde_json::Value, k: &str) -> u64 {
     v[k].as_u64().unwrap_or_else(|| panic!("{k} in {v}"))
 }
 

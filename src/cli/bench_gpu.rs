@@ -1,6 +1,8 @@
-//! `compend bench-gpu`: per-frame GPU time of the compensation pass at projector resolutions,
-//! each next to a plain texture copy of the same size measured in the same run, and frames
-//! dropped at the display rate on the virtual rig. Writes bench-gpu.json and bench-gpu.md.
+//! `compend bench-gpu`: per-frame GPU time of the compensation pass at projector resolutions for
+//! the `linear` model and the simplified CompenNet backbone (synthetic models with seeded
+//! weights), each next to a plain texture copy of the same size measured in the same run, and
+//! frames dropped at the display rate on the virtual rig (`linear`). Writes bench-gpu.json and
+//! bench-gpu.md.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -8,7 +10,9 @@ use std::time::Duration;
 use anyhow::Result;
 use compend::fov::DisplayRange;
 use compend::gpu::CompensationPass;
-use compend::gpu::bench::{Timing, synthetic_linear_model, time_copy, time_pass};
+use compend::gpu::bench::{
+    Timing, synthetic_compennet_model, synthetic_linear_model, time_copy, time_pass,
+};
 use compend::playback::Placement;
 use compend::player::{self, PlayStats, Player, VirtualOptions};
 use compend::rig::{Phase, Simulator, VirtualRig, scene};
@@ -32,15 +36,22 @@ pub struct Args {
     /// Camera resolution of the model.
     #[arg(long, value_parser = parse_size, default_value = "640x480")]
     pub camera: Size,
-    /// Network resolution of the model.
+    /// Network resolution of the models (sides divisible by 4 for CompenNet).
     #[arg(long, value_parser = parse_size, default_value = "256x256")]
     pub network: Size,
+    /// Timed frames per CompenNet measurement (after 2 warm-up frames; 0 = skip CompenNet): its
+    /// backbone is ~3.2 GMAC per 256² frame, slow on software drivers.
+    #[arg(long, default_value_t = 10)]
+    pub compennet_iters: usize,
     /// Content frame resolution.
     #[arg(long, value_parser = parse_size, default_value = "1280x720")]
     pub content: Size,
     /// Seconds of playback at the display rate on the virtual rig per size (0 = skip).
     #[arg(long, default_value_t = 2.0)]
     pub seconds: f64,
+    /// Also time each CompenNet layer alone and print the times (stderr).
+    #[arg(long)]
+    pub layers: bool,
     /// Display rate of the virtual-rig run, Hz (the source runs at the same rate).
     #[arg(long, default_value_t = 60.0)]
     pub fps: f64,
@@ -59,8 +70,12 @@ struct Row {
     linear_over_copy: f64,
     /// linear / copy, wall clock (submit to idle) for both.
     linear_over_copy_wall: f64,
-    /// The CompenNet backbone: not on the GPU yet.
+    /// The simplified CompenNet backbone (CompenNet++ family), when measured.
     compennet: Option<Timing>,
+    /// compennet / copy, GPU timestamps where available.
+    compennet_over_copy: Option<f64>,
+    /// compennet / copy, wall clock for both.
+    compennet_over_copy_wall: Option<f64>,
     virtual_rig: Option<PlayStats>,
 }
 
@@ -71,6 +86,11 @@ pub fn run(args: Args) -> Result<()> {
         (args.network.width, args.network.height),
     );
     let model = synthetic_linear_model(cam, net, 0);
+    let compennet = if args.compennet_iters > 0 {
+        Some(synthetic_compennet_model(cam, net, 0)?)
+    } else {
+        None
+    };
     let content = compend::source::pattern::render(
         Pattern::Bars,
         (args.content.width, args.content.height),
@@ -96,6 +116,37 @@ pub fn run(args: Args) -> Result<()> {
             copy.best_ms(),
             linear.best_ms()
         );
+        let cnn = match &compennet {
+            Some(m) => {
+                let placement = Placement::for_model(m, prj, DisplayRange::FULL)?;
+                let mut pass = CompensationPass::new(&ctx, m, placement)?;
+                let t = time_pass(&ctx, &mut pass, &content, 2, args.compennet_iters)?;
+                if args.layers {
+                    for (name, t) in compend::gpu::bench::time_compennet_layers(
+                        &ctx,
+                        &mut pass,
+                        &content,
+                        1,
+                        args.compennet_iters,
+                    )? {
+                        eprintln!(
+                            "bench-gpu:   layer {name}: {:.3} ms ({:.3} ms wall)",
+                            t.best_ms(),
+                            t.wall_ms
+                        );
+                    }
+                }
+                eprintln!(
+                    "bench-gpu: {}x{}: CompenNet {:.3} ms ({:.2}x the copy)",
+                    prj.0,
+                    prj.1,
+                    t.best_ms(),
+                    t.best_ms() / copy.best_ms()
+                );
+                Some(t)
+            }
+            None => None,
+        };
         let virtual_rig = if args.seconds > 0.0 {
             Some(virtual_run(&ctx, &model, pass, prj, &args)?)
         } else {
@@ -107,7 +158,9 @@ pub fn run(args: Args) -> Result<()> {
             linear,
             linear_over_copy: ratio,
             linear_over_copy_wall: linear.wall_ms / copy.wall_ms,
-            compennet: None,
+            compennet: cnn,
+            compennet_over_copy: cnn.map(|t| t.best_ms() / copy.best_ms()),
+            compennet_over_copy_wall: cnn.map(|t| t.wall_ms / copy.wall_ms),
             virtual_rig,
         });
     }
@@ -124,6 +177,7 @@ pub fn run(args: Args) -> Result<()> {
         "iters": args.iters,
         "camera": cam,
         "network": net,
+        "compennet_iters": args.compennet_iters,
         "content": content.size(),
         "fps": args.fps,
         "rows": rows,
@@ -132,13 +186,15 @@ pub fn run(args: Args) -> Result<()> {
     std::fs::write(&jp, serde_json::to_string_pretty(&json)? + "\n")
         .map_err(|e| compend::Error::io(&jp, "write", e))?;
     let mut md = format!(
-        "# compend bench-gpu\n\nAdapter: {}. Timing: {timing}, median of {} frames. Model: linear, camera \
-         {}x{}, network {}x{}; content {}x{}. Times in ms as GPU timestamps / wall clock (submit to \
+        "# compend bench-gpu\n\nAdapter: {}. Timing: {timing}, median of {} frames ({} for CompenNet). Models \
+         (synthetic, seeded): linear and the simplified CompenNet backbone, camera {}x{}, network {}x{}; \
+         content {}x{}. Times in ms as GPU timestamps / wall clock (submit to \
          idle) where the adapter has timestamps, else wall clock.\n\n| projector | copy | linear | linear / copy | \
-         within 3x | CompenNet | virtual rig @ {} Hz: shown / dropped (source) / dropped (pipeline) | pipeline mean (ms) \
-         |\n|---|---|---|---|---|---|---|---|\n",
+         within 3x | CompenNet | CompenNet / copy | virtual rig @ {} Hz: shown / dropped (source) / dropped (pipeline) | pipeline mean (ms) \
+         |\n|---|---|---|---|---|---|---|---|---|\n",
         ctx.describe(),
         args.iters,
+        args.compennet_iters,
         cam.0,
         cam.1,
         net.0,
@@ -150,7 +206,7 @@ pub fn run(args: Args) -> Result<()> {
     for r in &rows {
         let v = r.virtual_rig.as_ref();
         md += &format!(
-            "| {}x{} | {} | {} | {} | {} | n/a (no GPU pass yet) | {} | {} |\n",
+            "| {}x{} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             r.projector.0,
             r.projector.1,
             both(&r.copy),
@@ -163,6 +219,16 @@ pub fn run(args: Args) -> Result<()> {
                 "yes"
             } else {
                 "no"
+            },
+            r.compennet.as_ref().map_or("-".into(), both),
+            match (
+                r.compennet,
+                r.compennet_over_copy,
+                r.compennet_over_copy_wall
+            ) {
+                (Some(t), Some(g), Some(w)) if t.gpu_ms.is_some() => format!("{g:.1} / {w:.1}"),
+                (Some(_), _, Some(w)) => format!("{w:.1}"),
+                _ => "-".into(),
             },
             v.map_or("-".into(), |v| format!(
                 "{} / {} / {}",

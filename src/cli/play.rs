@@ -16,7 +16,7 @@ use compend::source::{self, Feed, FeedMode, SourceSpec};
 #[derive(clap::Args, Debug)]
 #[command(after_help = compend::source::HELP)]
 pub struct Args {
-    /// The model directory (linear or linear-sl; the CompenNet++ family has no GPU pass yet).
+    /// The model directory (any method: linear, linear-sl, the CompenNet++ family).
     #[arg(long)]
     pub model: PathBuf,
     /// What to play (spellings below).

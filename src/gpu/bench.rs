@@ -175,6 +175,35 @@ pub fn time_pass(
     time_work(ctx, warmup, iters, |enc| pass.encode(enc, None))
 }
 
+/// Per-layer times of a CompenNet pass (after one full frame on `content`): (layer, timing),
+/// each layer dispatched alone; empty for other models.
+pub fn time_compennet_layers(
+    ctx: &GpuContext,
+    pass: &mut CompensationPass,
+    content: &ContentFrame,
+    warmup: usize,
+    iters: usize,
+) -> Result<Vec<(&'static str, Timing)>> {
+    pass.run(ctx, content)?;
+    ctx.wait()?;
+    let super::Photometric::CompenNet(stage) = pass.photometric() else {
+        return Ok(Vec::new());
+    };
+    let mut out = Vec::new();
+    for (i, name) in stage.layer_names().into_iter().enumerate() {
+        let t = time_work(ctx, warmup, iters, |enc| {
+            let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(name),
+                timestamp_writes: None,
+            });
+            stage.dispatch_layer(&mut cp, i);
+            Ok(())
+        })?;
+        out.push((name, t));
+    }
+    Ok(out)
+}
+
 /// A `linear` model with random per-pixel coefficients, a gently bent grid and a full FOV, for
 /// timing (its numbers do not matter, its shapes do): camera `camera`, network `network`.
 pub fn synthetic_linear_model(
@@ -226,4 +255,57 @@ pub fn synthetic_linear_model(
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
     };
     crate::model::Model::linear(meta, Mask::full(camera.0, camera.1), model)
+}
+
+/// A simplified CompenNet++ model with seeded weights (Kaiming normal, zero biases, as a fresh
+/// model starts), an affine geometry covering the middle 80% of the camera frame, a full FOV and
+/// a smooth gray surface image, for timing: camera `camera`, network `network` (sides divisible
+/// by 4). The surface branch is folded once here (on the CPU, candle), as after training.
+pub fn synthetic_compennet_model(
+    camera: (usize, usize),
+    network: (usize, usize),
+    seed: u64,
+) -> Result<crate::model::Model> {
+    use crate::modeldir::{FORMAT_VERSION, ModelMeta};
+    use crate::nn::train::{CompenNetPP, GeometryInit, Variant};
+    use crate::raster::{CamImage, Mask};
+
+    if network.0 % 4 != 0 || network.1 % 4 != 0 || network.0 == 0 || network.1 == 0 {
+        return Err(Error::Input(format!(
+            "CompenNet network size {}x{}: sides must be positive multiples of 4",
+            network.0, network.1
+        )));
+    }
+    let net = CompenNetPP::new(
+        GeometryInit::Affine([[0.8, 0.0, 0.0], [0.0, 0.8, 0.0]]),
+        network,
+        false,
+        seed,
+        &candle_core::Device::Cpu,
+    )
+    .map_err(|e| Error::Failed(format!("synthetic CompenNet++: {e}")))?;
+    let (cw, ch) = camera;
+    // A smooth gray-ish surface capture, camera pixels, values in [0.2, 0.4].
+    let surface = CamImage::from_vec(
+        cw,
+        ch,
+        (0..cw * ch)
+            .flat_map(|i| {
+                let (x, y) = ((i % cw) as f32 / cw as f32, (i / cw) as f32 / ch as f32);
+                [0.3 + 0.1 * x - 0.05 * y, 0.3, 0.3 - 0.1 * x + 0.05 * y]
+            })
+            .collect(),
+    )?;
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method: Variant::NoRefine.method().into(),
+        network_size: network,
+        camera_size: camera,
+        canvas: None,
+        training: serde_json::Value::Null,
+        metrics: serde_json::Value::Null,
+        timings: serde_json::Value::Null,
+        written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
+    };
+    crate::model::Model::compennet(meta, Mask::full(cw, ch), net, surface)
 }

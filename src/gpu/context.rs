@@ -160,4 +160,40 @@ impl GpuContext {
         buffer.unmap();
         Ok(out)
     }
+
+    /// Reads back a storage buffer (created with `COPY_SRC`) of f32 values.
+    pub fn read_buffer(&self, buffer: &wgpu::Buffer) -> Result<Vec<f32>> {
+        let size = buffer.size();
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut enc = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("readback"),
+            });
+        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        self.queue.submit([enc.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|_| Error::Failed("GPU read-back was cancelled".into()))?
+            .map_err(|e| Error::Failed(format!("GPU read-back failed: {e}")))?;
+        let out = {
+            let view = staging
+                .get_mapped_range(..)
+                .map_err(|e| Error::Failed(format!("GPU read-back mapping: {e}")))?;
+            bytemuck::try_cast_slice::<u8, f32>(&view)
+                .map_err(|e| Error::Failed(format!("GPU read-back layout: {e}")))?
+                .to_vec()
+        };
+        staging.unmap();
+        Ok(out)
+    }
 }

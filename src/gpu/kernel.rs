@@ -13,6 +13,8 @@ pub enum Slot {
     Uniform,
     /// Read-only storage buffer.
     Storage,
+    /// Read-write storage buffer (intermediate activations).
+    StorageRw,
     /// A texture read with textureLoad (`texture_2d<f32>`, not filtered).
     Texture,
     /// A write-only storage texture of this format.
@@ -35,6 +37,18 @@ impl Stage {
         entry: &str,
         slots: &[Slot],
     ) -> Result<Self> {
+        Self::with_constants(ctx, label, source, entry, slots, &[])
+    }
+
+    /// [`Stage::new`] with values for the shader's pipeline-overridable constants (`override`).
+    pub fn with_constants(
+        ctx: &GpuContext,
+        label: &str,
+        source: &str,
+        entry: &str,
+        slots: &[Slot],
+        constants: &[(&str, f64)],
+    ) -> Result<Self> {
         let module = ctx.shader(label, source)?;
         let entries: Vec<wgpu::BindGroupLayoutEntry> = slots
             .iter()
@@ -50,6 +64,11 @@ impl Stage {
                     },
                     Slot::Storage => wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    Slot::StorageRw => wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: false },
                         has_dynamic_offset: false,
                         min_binding_size: None,
                     },
@@ -88,7 +107,10 @@ impl Stage {
                 layout: Some(&pipeline_layout),
                 module: &module,
                 entry_point: Some(entry),
-                compilation_options: Default::default(),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants,
+                    ..Default::default()
+                },
                 cache: None,
             });
         if let Some(e) = pollster::block_on(scope.pop()) {
@@ -138,6 +160,18 @@ impl Stage {
             1,
         );
     }
+
+    /// Records one dispatch of `groups` workgroups (x, y, z).
+    pub fn dispatch_groups(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        group: &wgpu::BindGroup,
+        (x, y, z): (u32, u32, u32),
+    ) {
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, group, &[]);
+        pass.dispatch_workgroups(x, y, z);
+    }
 }
 
 /// A 2-D texture of `format` usable as a stage input and output (and copied from).
@@ -175,6 +209,17 @@ pub fn uniform<T: bytemuck::Pod>(ctx: &GpuContext, label: &str, value: &T) -> wg
             contents: bytemuck::bytes_of(value),
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
         })
+}
+
+/// A zero-filled read-write storage buffer of `len` f32 values (at least one), also copyable
+/// from (tests read intermediate activations back).
+pub fn scratch(ctx: &GpuContext, label: &str, len: usize) -> wgpu::Buffer {
+    ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: 4 * len.max(1) as u64,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    })
 }
 
 pub fn storage(ctx: &GpuContext, label: &str, data: &[f32]) -> wgpu::Buffer {

@@ -1,5 +1,6 @@
 //! The compensation pass: content frame → projector frame, all on the GPU, built once per model
-//! and display and reused per frame (only the content upload and three dispatches per frame).
+//! and display and reused per frame (only the content upload and the dispatches per frame: three
+//! for `linear`, 17 for the CompenNet backbone).
 //!
 //! Stages (see [`crate::playback`] for the chain and its CPU reference):
 //! 1. `shaders/place.wgsl`: content (rgba8unorm, content pixels) → desired camera view
@@ -12,6 +13,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use super::GpuContext;
+use super::compennet::CompenNetStage;
 use super::kernel::{Slot, Stage, image_texture, storage, uniform, view};
 use super::linear::LinearStage;
 use crate::error::{Error, Result};
@@ -30,7 +32,9 @@ pub const FRAME_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 pub enum Photometric {
     /// `linear`, `linear-sl`: grid sample + per-pixel affine colour.
     Linear(LinearStage),
-    // The simplified CompenNet backbone (CompenNet++ family) goes here.
+    /// The CompenNet++ family (`compennet++*`, `compennet-sl`): grid sample + the simplified
+    /// CompenNet backbone (surface branch folded into constant bias maps).
+    CompenNet(Box<CompenNetStage>),
 }
 
 impl Photometric {
@@ -42,10 +46,8 @@ impl Photometric {
                 simplified,
                 model.camera_size(),
             )?)),
-            Kind::CompenNet { .. } => Err(Error::Input(format!(
-                "method `{}`: the CompenNet backbone has no GPU pass yet (only linear and \
-                 linear-sl play live)",
-                model.meta.method
+            Kind::CompenNet { simplified, .. } => Ok(Self::CompenNet(Box::new(
+                CompenNetStage::new(ctx, simplified, model.camera_size())?,
             ))),
         }
     }
@@ -55,15 +57,21 @@ impl Photometric {
         ctx: &GpuContext,
         desired: &wgpu::TextureView,
         network: &wgpu::TextureView,
-    ) -> wgpu::BindGroup {
+    ) -> Vec<wgpu::BindGroup> {
         match self {
-            Self::Linear(s) => s.bind(ctx, desired, network),
+            Self::Linear(s) => vec![s.bind(ctx, desired, network)],
+            Self::CompenNet(s) => s.bind(ctx, desired, network),
         }
     }
 
-    fn dispatch(&self, pass: &mut wgpu::ComputePass<'_>, group: &wgpu::BindGroup) {
+    fn dispatch(&self, pass: &mut wgpu::ComputePass<'_>, groups: &[wgpu::BindGroup]) {
         match self {
-            Self::Linear(s) => s.dispatch(pass, group),
+            Self::Linear(s) => {
+                if let Some(g) = groups.first() {
+                    s.dispatch(pass, g)
+                }
+            }
+            Self::CompenNet(s) => s.dispatch(pass, groups),
         }
     }
 }
@@ -110,7 +118,8 @@ pub struct CompensationPass {
     desired: wgpu::Texture,
     network: wgpu::Texture,
     output: wgpu::Texture,
-    photometric_group: wgpu::BindGroup,
+    /// The photometric stage's bind groups (built once with the desired view and network image).
+    photometric_groups: Vec<wgpu::BindGroup>,
     canvas_group: wgpu::BindGroup,
     content: Option<Content>,
 }
@@ -191,7 +200,7 @@ impl CompensationPass {
                 size: [p.canvas.width as u32, p.canvas.height as u32],
             },
         );
-        let photometric_group = photometric.bind(ctx, &view(&desired), &view(&network));
+        let photometric_groups = photometric.bind(ctx, &view(&desired), &view(&network));
         let canvas_group = canvas.bind(
             ctx,
             "canvas",
@@ -211,7 +220,7 @@ impl CompensationPass {
             desired,
             network,
             output,
-            photometric_group,
+            photometric_groups,
             canvas_group,
             content: None,
         })
@@ -219,6 +228,11 @@ impl CompensationPass {
 
     pub fn placement(&self) -> &Placement {
         &self.placement
+    }
+
+    /// The model's photometric stage (tests read its intermediate activations).
+    pub fn photometric(&self) -> &Photometric {
+        &self.photometric
     }
 
     /// The projector frame (rgba8unorm, projector pixels) the last dispatch wrote.
@@ -307,7 +321,7 @@ impl CompensationPass {
             (p.camera_size.0 as u32, p.camera_size.1 as u32),
         );
         self.photometric
-            .dispatch(&mut pass, &self.photometric_group);
+            .dispatch(&mut pass, &self.photometric_groups);
         self.canvas.dispatch(
             &mut pass,
             &self.canvas_group,

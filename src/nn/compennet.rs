@@ -52,7 +52,7 @@ impl SurfaceBranch {
 /// The skip path from the input: three 3×3 convolutions 3 → 3, each followed by ReLU.
 #[derive(Clone, Debug)]
 pub struct Skip1 {
-    convs: [Conv2d; 3],
+    pub convs: [Conv2d; 3],
 }
 
 impl Skip1 {
@@ -78,20 +78,21 @@ impl Module for Skip1 {
     }
 }
 
-/// The backbone: encoder with surface features added, decoder with skips.
+/// The backbone: encoder with surface features added, decoder with skips. Its layers are public
+/// so that other executors (the GPU pass, [`crate::gpu`]) can read the weights.
 #[derive(Clone, Debug)]
 pub struct Backbone {
-    skip1: Skip1,
-    conv1: Conv2d,
-    skip2: Conv2d,
-    conv2: Conv2d,
-    skip3: Conv2d,
-    conv3: Conv2d,
-    conv4: Conv2d,
-    conv5: Conv2d,
-    tconv1: ConvTranspose2d,
-    tconv2: ConvTranspose2d,
-    conv6: Conv2d,
+    pub skip1: Skip1,
+    pub conv1: Conv2d,
+    pub skip2: Conv2d,
+    pub conv2: Conv2d,
+    pub skip3: Conv2d,
+    pub conv3: Conv2d,
+    pub conv4: Conv2d,
+    pub conv5: Conv2d,
+    pub tconv1: ConvTranspose2d,
+    pub tconv2: ConvTranspose2d,
+    pub conv6: Conv2d,
 }
 
 impl Backbone {

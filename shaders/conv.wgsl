@@ -1,0 +1,177 @@
+// Convolution layers of the simplified CompenNet backbone (CompenNet++ family), one pipeline per
+// kernel kind (`conv`, `tconv`) shared by every layer; per-layer sizes come from the uniform.
+//
+// Activations: f32 storage buffers, one image per channel, channel-major (C, H, W) row-major,
+// network-space pixels at the layer's resolution (the network size, /2 or /4). Values are whatever
+// the layer computes (the backbone's input is the sampled desired view, sRGB-encoded camera
+// values in [0,1]; its output the projector input values in [0,1]).
+// Weights: repacked on the CPU as [ci][ky][kx][co] with co padded to a multiple of 4·B, read as
+// vec4 (4 output channels); bias likewise (co padded).
+// CPU reference: compend::nn::compennet::Backbone::forward (candle conv2d / conv_transpose2d,
+// PyTorch semantics, dilation 1, no output padding), then `+ add`, ReLU, `min(., 1)` as flagged.
+//
+// Each invocation computes 4·B output channels (B vec4 accumulators; B is a pipeline constant,
+// 1 for layers with few output channels) of one output pixel (`tconv`) or of P consecutive output
+// pixels of a row (`conv`): x, y = output pixel (or group of P), z = output channel block. A workgroup is 8×8 pixels of one channel block, so its weight reads are the same
+// for every invocation (broadcast), and each input value read serves 4·B multiply-adds.
+
+struct Conv {
+    cin: u32,             // input channels
+    cout: u32,            // output channels
+    k: u32,               // kernel size (square)
+    stride: u32,
+    in_size: vec2<u32>,   // input (width, height)
+    out_size: vec2<u32>,  // output (width, height)
+    pad: u32,             // zero padding (conv), cropping (tconv), pixels
+    flags: u32,           // 1: add the `add` map; 2: ReLU; 4: min(., 1) after the ReLU
+    cout4: u32,           // vec4s per weight row: ceil(cout / (4·B))·B
+    _pad: u32,
+}
+
+// vec4 accumulators per invocation, 1..=MAXB.
+override B: u32 = 1u;
+const MAXB: u32 = 4u;
+
+const ADD: u32 = 1u;
+const RELU: u32 = 2u;
+const CLAMP1: u32 = 4u;
+
+@group(0) @binding(0) var<uniform> p: Conv;
+@group(0) @binding(1) var<storage, read> src: array<f32>;
+@group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> bias: array<vec4<f32>>;
+// Same shape as dst (a surface-bias map or a skip activation); a 1-element dummy when unused.
+@group(0) @binding(4) var<storage, read> add: array<f32>;
+@group(0) @binding(5) var<storage, read_write> dst: array<f32>;
+
+// Bias already in `acc`; adds the map, activates and stores up to 4·B channels.
+fn finish(acc: ptr<function, array<vec4<f32>, MAXB>>, id: vec3<u32>) {
+    let plane = p.out_size.x * p.out_size.y;
+    let pix = id.y * p.out_size.x + id.x;
+    for (var j = 0u; j < 4u * B; j++) {
+        let co = id.z * 4u * B + j;
+        if (co >= p.cout) {
+            break;
+        }
+        let o = co * plane + pix;
+        var v = (*acc)[j / 4u][j % 4u];
+        if ((p.flags & ADD) != 0u) {
+            v += add[o];
+        }
+        if ((p.flags & RELU) != 0u) {
+            v = max(v, 0.0);
+        }
+        if ((p.flags & CLAMP1) != 0u) {
+            v = min(v, 1.0);
+        }
+        dst[o] = v;
+    }
+}
+
+// out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, oy·s + ky − pad, ox·s + kx − pad] · w[co, ci, ky, kx]
+// (zero outside the input). Each invocation computes P consecutive output pixels of a row (x =
+// gid.x·P + i) for its 4·B channels: per input value read, 4·B multiply-adds; per weight read, P.
+// Reads are branch-free (clamped index, zero weight outside) so that all lanes stay converged.
+const P: u32 = 4u;
+
+@compute @workgroup_size(8, 8, 1)
+fn conv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>) {
+    // The channel block from the workgroup id: uniform over the workgroup (weight reads are the
+    // same for all its invocations).
+    let ox0 = gid.x * P;
+    if (ox0 >= p.out_size.x || gid.y >= p.out_size.y || wg.z * B >= p.cout4) {
+        return;
+    }
+    let zb = wg.z * B; // first vec4 of this invocation's channels
+    var acc: array<array<vec4<f32>, MAXB>, P>;
+    for (var j = 0u; j < B; j++) {
+        let b = bias[zb + j];
+        for (var i = 0u; i < P; i++) {
+            acc[i][j] = b;
+        }
+    }
+    let w_in = i32(p.in_size.x);
+    let h_in = i32(p.in_size.y);
+    let plane = p.in_size.x * p.in_size.y;
+    let k = i32(p.k);
+    let s = i32(p.stride);
+    let y0 = i32(gid.y) * s - i32(p.pad);
+    let x0 = i32(ox0) * s - i32(p.pad);
+    var v: array<f32, P>;
+    for (var ci = 0u; ci < p.cin; ci++) {
+        let base = ci * plane;
+        let wbase = ci * p.k * p.k;
+        for (var ky = 0; ky < k; ky++) {
+            let iy = y0 + ky;
+            let row_ok = iy >= 0 && iy < h_in;
+            let row = base + u32(clamp(iy, 0, h_in - 1) * w_in);
+            let wrow = (wbase + u32(ky) * p.k) * p.cout4 + zb;
+            for (var kx = 0; kx < k; kx++) {
+                for (var i = 0u; i < P; i++) {
+                    let ix = x0 + i32(i) * s + kx;
+                    let ok = row_ok && ix >= 0 && ix < w_in;
+                    v[i] = select(0.0, src[row + u32(clamp(ix, 0, w_in - 1))], ok);
+                }
+                let wi = wrow + u32(kx) * p.cout4;
+                for (var j = 0u; j < B; j++) {
+                    let wv = weight[wi + j];
+                    for (var i = 0u; i < P; i++) {
+                        acc[i][j] += v[i] * wv;
+                    }
+                }
+            }
+        }
+    }
+    for (var i = 0u; i < P; i++) {
+        let ox = ox0 + i;
+        if (ox < p.out_size.x) {
+            var a = acc[i];
+            finish(&a, vec3<u32>(ox, gid.y, wg.z));
+        }
+    }
+}
+
+// Transposed convolution: out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, iy, ix] · w[ci, co, ky, kx]
+// over the input pixels with iy·s + ky − pad = oy and ix·s + kx − pad = ox.
+@compute @workgroup_size(8, 8, 1)
+fn tconv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>) {
+    let id = vec3<u32>(gid.xy, wg.z);
+    if (id.x >= p.out_size.x || id.y >= p.out_size.y || id.z * B >= p.cout4) {
+        return;
+    }
+    let zb = id.z * B; // first vec4 of this invocation's channels
+    var acc: array<vec4<f32>, MAXB>;
+    for (var j = 0u; j < B; j++) {
+        acc[j] = bias[zb + j];
+    }
+    let w_in = i32(p.in_size.x);
+    let h_in = i32(p.in_size.y);
+    let s = i32(p.stride);
+    let plane = p.in_size.x * p.in_size.y;
+    let k = i32(p.k);
+    let oy = i32(id.y) + i32(p.pad);
+    let ox = i32(id.x) + i32(p.pad);
+    for (var ky = 0; ky < k; ky++) {
+        let ty = oy - ky;
+        if (ty < 0 || ty % s != 0 || ty / s >= h_in) {
+            continue;
+        }
+        let iy = ty / s;
+        for (var kx = 0; kx < k; kx++) {
+            let tx = ox - kx;
+            if (tx < 0 || tx % s != 0 || tx / s >= w_in) {
+                continue;
+            }
+            let pix = u32(iy * w_in + tx / s);
+            let wk = u32(ky * k + kx);
+            for (var ci = 0u; ci < p.cin; ci++) {
+                let v = src[ci * plane + pix];
+                let wi = (ci * p.k * p.k + wk) * p.cout4 + zb;
+                for (var j = 0u; j < B; j++) {
+                    acc[j] += v * weight[wi + j];
+                }
+            }
+        }
+    }
+    finish(&acc, id);
+}
