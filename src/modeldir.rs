@@ -82,6 +82,11 @@ impl Tensors {
         }
     }
 
+    /// The stored shape of `name`, if present.
+    pub fn shape(&self, name: &str) -> Option<&[usize]> {
+        self.map.get(name).map(|(shape, _)| shape.as_slice())
+    }
+
     pub fn names(&self) -> impl Iterator<Item = &str> {
         self.map.keys().map(|s| s.as_str())
     }

@@ -196,3 +196,135 @@ impl TpsBasis {
         grad.into_iter().map(|g| g as f32).collect()
     }
 }
+
+/// A smooth residual displacement added to a sampling grid: offsets in normalised camera
+/// coordinates on a coarse lattice of `width`×`height` nodes whose corners sit on the corner
+/// pixels of the network image (align-corners), interpolated bilinearly to every network pixel.
+/// It refines the affine + TPS warp where the surface bends or steps more than 6×6 TPS control
+/// points can follow (the `linear` model's optional refinement).
+#[derive(Clone, Debug, PartialEq)]
+pub struct OffsetField {
+    pub width: usize,
+    pub height: usize,
+    /// `[dx, dy]` per node, row-major, normalised camera coordinates.
+    pub offsets: Vec<[f32; 2]>,
+}
+
+impl OffsetField {
+    /// A zero field of `width`×`height` nodes (each at least 2).
+    pub fn zeros(width: usize, height: usize) -> Self {
+        let (width, height) = (width.max(2), height.max(2));
+        Self {
+            width,
+            height,
+            offsets: vec![[0.0; 2]; width * height],
+        }
+    }
+
+    /// The four nodes around network pixel (x, y) of a `nw`×`nh` image and their weights.
+    #[inline]
+    fn taps(&self, x: usize, y: usize, nw: usize, nh: usize) -> [(usize, f32); 4] {
+        let coord = |p: usize, n: usize, nodes: usize| -> (usize, f32) {
+            let u = if n > 1 {
+                p as f32 * (nodes - 1) as f32 / (n - 1) as f32
+            } else {
+                0.0
+            };
+            let i = (u.floor() as usize).min(nodes - 2);
+            (i, u - i as f32)
+        };
+        let (i, fx) = coord(x, nw, self.width);
+        let (j, fy) = coord(y, nh, self.height);
+        let k = j * self.width + i;
+        [
+            (k, (1.0 - fx) * (1.0 - fy)),
+            (k + 1, fx * (1.0 - fy)),
+            (k + self.width, (1.0 - fx) * fy),
+            (k + self.width + 1, fx * fy),
+        ]
+    }
+
+    /// Adds the interpolated offsets to every position of `grid`.
+    pub fn apply(&self, grid: &mut Grid<Network, Camera>) {
+        let (nw, nh) = grid.size();
+        for (p, g) in grid.data_mut().iter_mut().enumerate() {
+            for (k, w) in self.taps(p % nw, p / nw, nw, nh) {
+                g[0] += w * self.offsets[k][0];
+                g[1] += w * self.offsets[k][1];
+            }
+        }
+    }
+
+    /// The loss gradient w.r.t. the node offsets (laid out as [`OffsetField::to_params`]) from
+    /// the gradient w.r.t. each grid position of a `nw`×`nh` grid.
+    pub fn backward(&self, dl_dg: &[[f32; 2]], nw: usize, nh: usize) -> Vec<f32> {
+        let mut grad = vec![0f32; 2 * self.offsets.len()];
+        for (p, d) in dl_dg.iter().enumerate() {
+            for (k, w) in self.taps(p % nw, p / nw, nw, nh) {
+                grad[2 * k] += w * d[0];
+                grad[2 * k + 1] += w * d[1];
+            }
+        }
+        grad
+    }
+
+    pub fn to_params(&self) -> Vec<f32> {
+        self.offsets.iter().flatten().copied().collect()
+    }
+
+    pub fn set_params(&mut self, p: &[f32]) {
+        for (o, v) in self.offsets.iter_mut().zip(p.chunks_exact(2)) {
+            *o = [v[0], v[1]];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `backward` is the adjoint of `apply`: for any field f and grid gradient g,
+    /// ⟨apply(f) − base, g⟩ = ⟨f, backward(g)⟩; and the field interpolates its nodes exactly.
+    #[test]
+    fn offset_field_backward_is_the_adjoint_of_apply() {
+        let (nw, nh) = (13, 9);
+        let mut f = OffsetField::zeros(5, 4);
+        let params: Vec<f32> = (0..40)
+            .map(|i| ((i * 37 % 17) as f32 - 8.0) * 0.01)
+            .collect();
+        f.set_params(&params);
+        let base = Grid::<Network, Camera>::identity(nw, nh);
+        let mut moved = base.clone();
+        f.apply(&mut moved);
+        let g: Vec<[f32; 2]> = (0..nw * nh)
+            .map(|i| {
+                [
+                    ((i * 7 % 11) as f32 - 5.0) * 0.1,
+                    ((i * 5 % 13) as f32 - 6.0) * 0.1,
+                ]
+            })
+            .collect();
+        let lhs: f64 = moved
+            .data()
+            .iter()
+            .zip(base.data())
+            .zip(&g)
+            .map(|((m, b), g)| ((m[0] - b[0]) * g[0] + (m[1] - b[1]) * g[1]) as f64)
+            .sum();
+        let back = f.backward(&g, nw, nh);
+        let rhs: f64 = params.iter().zip(&back).map(|(p, b)| (p * b) as f64).sum();
+        assert!(
+            (lhs - rhs).abs() < 1e-5 * lhs.abs().max(1.0),
+            "{lhs} vs {rhs}"
+        );
+        // Corner pixels sit on corner nodes.
+        let d = |x: usize, y: usize| {
+            let (m, b) = (moved.get(x, y), base.get(x, y));
+            [m[0] - b[0], m[1] - b[1]]
+        };
+        let close =
+            |a: [f32; 2], b: [f32; 2]| (a[0] - b[0]).abs() < 1e-6 && (a[1] - b[1]).abs() < 1e-6;
+        assert!(close(d(0, 0), f.offsets[0]));
+        assert!(close(d(nw - 1, nh - 1), f.offsets[f.offsets.len() - 1]));
+    }
+}
