@@ -220,6 +220,10 @@ fn bench_gpu_writes_ratios() {
         serde_json::from_slice(&std::fs::read(out.join("bench-gpu.json")).unwrap()).unwrap();
     let rows = v["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 2);
+    // The report says whether the adapter is software, and the markdown warns about it then.
+    let software = v["software_adapter"].as_bool().unwrap();
+    let md = std::fs::read_to_string(out.join("bench-gpu.md")).unwrap();
+    assert_eq!(md.contains("renders in software"), software);
     for r in rows {
         assert!(r["copy"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
         assert!(r["linear_over_copy"].as_f64().unwrap() > 0.0, "{r}");
