@@ -100,9 +100,10 @@ pub fn train(
     progress: impl FnMut(&str, usize, usize),
 ) -> Result<(Model, Summary)> {
     let start = Instant::now();
-    if !crate::model::METHODS.contains(&req.method.as_str()) {
+    let auto = req.method == AUTO;
+    if !auto && !crate::model::METHODS.contains(&req.method.as_str()) {
         return Err(Error::Input(format!(
-            "--method {}: not available; methods: {}",
+            "--method {}: not available; methods: {}, {AUTO}",
             req.method,
             crate::model::METHODS.join(", ")
         )));
@@ -149,18 +150,21 @@ pub fn train(
         network_size,
         ..FitSettings::default()
     };
-    let (fitted, report) = if req.method == "linear-sl" {
-        let grid = sl_grid(setup, network_size)?;
-        linear::fit_on_grid(&captures, &targets, grid, &settings)?
+    let mut progress = progress;
+    let (method, evidence) = if auto {
+        choose_linear_rung(setup, &captures, &targets, theta, &settings, &mut progress)?
     } else {
-        linear::fit(
-            &captures,
-            &targets,
-            crate::warp::Warp::from_affine(theta),
-            &settings,
-            progress,
-        )?
+        (req.method.clone(), serde_json::Value::Null)
     };
+    let (fitted, report) = fit_linear_rung(
+        setup,
+        &method,
+        &captures,
+        &targets,
+        theta,
+        &settings,
+        &mut progress,
+    )?;
     if !report.final_loss.is_finite() {
         return Err(Error::Failed(format!(
             "training {} diverged (final loss {}); no model produced",
@@ -170,7 +174,7 @@ pub fn train(
     let seconds = start.elapsed().as_secs_f64();
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
-        method: req.method.clone(),
+        method: method.clone(),
         network_size,
         camera_size: cam_size,
         canvas: None,
@@ -184,19 +188,111 @@ pub fn train(
             "settings": settings,
             "curves": fitted.curves,
             "final_loss": report.final_loss,
+            "auto": evidence,
         }),
         metrics: serde_json::Value::Null,
         timings: json!({ "fit_seconds": report.seconds, "train_seconds": seconds }),
         written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
     };
     let summary = Summary {
-        method: req.method.clone(),
+        method,
         ntrain,
         seconds,
         fit_seconds: report.seconds,
         final_loss: report.final_loss,
     };
     Ok((Model::linear(meta, fov.mask, fitted), summary))
+}
+
+/// `--method auto`: the selection rule of DESIGN.md section 5.4 among the linear rungs.
+pub const AUTO: &str = "auto";
+
+/// Fits one linear rung (`linear` or `linear-sl`) on the given pairs.
+fn fit_linear_rung(
+    setup: &Setup,
+    method: &str,
+    captures: &[CamImage],
+    targets: &[NetImage],
+    theta: [[f32; 3]; 2],
+    settings: &FitSettings,
+    progress: &mut impl FnMut(&str, usize, usize),
+) -> Result<(linear::LinearModel, linear::FitReport)> {
+    if method == "linear-sl" {
+        let grid = sl_grid(setup, settings.network_size)?;
+        linear::fit_on_grid(captures, targets, grid, settings)
+    } else {
+        linear::fit(
+            captures,
+            targets,
+            crate::warp::Warp::from_affine(theta),
+            settings,
+            &mut *progress,
+        )
+    }
+}
+
+/// Picks the linear rung for `auto`: every candidate (`linear`, and `linear-sl` when the setup
+/// has structured-light captures) is fitted on all but the last sixth of the training pairs (at
+/// least 4 held out) and scored with the paper protocol on the held-out pairs; the highest PSNR
+/// wins and is then refitted on every pair by the caller. Returns the choice and the evidence
+/// recorded in the model metadata. With too few pairs to hold any out, `linear` is chosen.
+fn choose_linear_rung(
+    setup: &Setup,
+    captures: &[CamImage],
+    targets: &[NetImage],
+    theta: [[f32; 3]; 2],
+    settings: &FitSettings,
+    progress: &mut impl FnMut(&str, usize, usize),
+) -> Result<(String, serde_json::Value)> {
+    let n = captures.len();
+    let held = (n / 6).max(4);
+    let has_sl = setup.count(CaptureSet::Sl).unwrap_or(0) > 0;
+    let rule = "highest paper-protocol PSNR on held-out training pairs among the linear rungs";
+    if n < held + MIN_TRAIN || !has_sl {
+        let why = if has_sl {
+            format!("{n} training pairs are too few to hold {held} out")
+        } else {
+            "no structured-light captures: `linear` is the only linear rung".into()
+        };
+        return Ok((
+            linear::METHOD.to_string(),
+            json!({ "rule": rule, "chosen": linear::METHOD, "why": why, "candidates": [] }),
+        ));
+    }
+    let (fit_c, fit_t) = (&captures[..n - held], &targets[..n - held]);
+    let mut candidates = Vec::new();
+    let mut best: Option<(String, f64)> = None;
+    for method in [linear::METHOD, "linear-sl"] {
+        let t0 = Instant::now();
+        let (model, _) = fit_linear_rung(setup, method, fit_c, fit_t, theta, settings, progress)?;
+        let seconds = t0.elapsed().as_secs_f64();
+        let simplified = model.simplify();
+        let mut acc = crate::metrics::Accumulator::default();
+        for (c, t) in captures[n - held..].iter().zip(&targets[n - held..]) {
+            acc.add(&simplified.apply(c), t)?;
+        }
+        let scores = acc.finish()?;
+        candidates.push(json!({
+            "method": method,
+            "held_out_psnr": scores.psnr,
+            "held_out_ssim": scores.ssim,
+            "fit_seconds": seconds,
+        }));
+        if best.as_ref().is_none_or(|b| scores.psnr > b.1) {
+            best = Some((method.to_string(), scores.psnr));
+        }
+    }
+    let chosen = best.map_or_else(|| linear::METHOD.to_string(), |b| b.0);
+    Ok((
+        chosen.clone(),
+        json!({
+            "rule": rule,
+            "chosen": chosen,
+            "held_out": held,
+            "fitted_on": n - held,
+            "candidates": candidates,
+        }),
+    ))
 }
 
 /// The network→camera grid from the setup's structured-light captures; the network image is

@@ -412,3 +412,69 @@ fn train_device_is_checked_before_any_work() {
     ]);
     assert_code(&out, 0);
 }
+
+#[test]
+fn auto_picks_the_linear_rung_with_the_best_held_out_score_and_records_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 16, 2);
+    let s = setup.to_str().unwrap();
+    let model = dir.path().join("auto");
+    let out = compend(&[
+        "train",
+        "--setup",
+        s,
+        "--method",
+        "auto",
+        "--out",
+        model.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_code(&out, 0);
+    let summary: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    let auto = &meta["training"]["auto"];
+    let cands = auto["candidates"].as_array().unwrap();
+    let methods: Vec<&str> = cands
+        .iter()
+        .map(|c| c["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(methods, ["linear", "linear-sl"], "{auto}");
+    assert_eq!(auto["held_out"], 4);
+    assert_eq!(auto["fitted_on"], 12);
+    // The choice is the candidate with the highest held-out PSNR, and it is what was saved.
+    let best = cands
+        .iter()
+        .max_by(|a, b| {
+            let p = |c: &serde_json::Value| c["held_out_psnr"].as_f64().unwrap();
+            p(a).total_cmp(&p(b))
+        })
+        .unwrap();
+    assert_eq!(auto["chosen"], best["method"]);
+    assert_eq!(meta["method"], best["method"]);
+    assert_eq!(summary["method"], best["method"]);
+    // The saved model loads and runs like any linear model.
+    let ev = eval_json(&model, &setup);
+    assert!(
+        ev["compensated"]["psnr"].as_f64().unwrap() > ev["uncompensated"]["psnr"].as_f64().unwrap()
+    );
+
+    // Without structured-light captures, `linear` is the only candidate, and the record says so.
+    std::fs::remove_dir_all(setup.join("cam/raw/sl")).unwrap();
+    let out = compend(&[
+        "train",
+        "--setup",
+        s,
+        "--method",
+        "auto",
+        "--out",
+        model.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_code(&out, 0);
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    assert_eq!(meta["method"], "linear");
+    let why = meta["training"]["auto"]["why"].as_str().unwrap();
+    assert!(why.contains("structured-light"), "{why}");
+}

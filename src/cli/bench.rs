@@ -106,10 +106,11 @@ pub fn run(args: Args) -> Result<()> {
         args.scenes.clone()
     };
     for m in &args.methods {
-        if !compend::model::METHODS.contains(&m.as_str()) {
+        if m != compend::train::AUTO && !compend::model::METHODS.contains(&m.as_str()) {
             return Err(compend::Error::Input(format!(
-                "--methods: `{m}` is not a method; methods: {}",
-                compend::model::METHODS.join(", ")
+                "--methods: `{m}` is not a method; methods: {}, {}",
+                compend::model::METHODS.join(", "),
+                compend::train::AUTO
             ))
             .into());
         }

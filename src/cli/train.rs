@@ -15,6 +15,8 @@ pub struct Args {
     /// CompenNet++ variant: `compennet++-faster` (48 pairs, batch 16, 500 iterations),
     /// `compennet++-fast`, `compennet++-norefine`, `compennet++` (500 pairs, batch 48, 1500).
     /// CompenNet++ on a CPU takes about a second per sample at 256²: see --iters.
+    /// `auto` picks between `linear` and `linear-sl` by their paper-protocol PSNR on held-out
+    /// training pairs, refits the winner on all pairs and records the evidence in model.json.
     #[arg(long)]
     pub method: String,
     /// Number of training pairs to use (the first N). Default: all available, at most 48.
