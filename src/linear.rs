@@ -13,7 +13,9 @@
 //! squares in linear projector space, ridge-regularised towards one global model so pixels that
 //! never see the projector stay sane). The geometry is optimised coarse to fine with Adam on the
 //! same residual; by the envelope theorem its gradient at the per-pixel optimum needs no
-//! differentiation through the solve. The curves are fitted by a 1-D search per channel.
+//! differentiation through the solve. A dense offset field then refines the affine + TPS grid
+//! the same way. The curves are fitted by golden-section searches on how well the per-pixel
+//! forward model (projector light → camera light) predicts the captures in camera-encoded values.
 
 use std::time::Instant;
 
