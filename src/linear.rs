@@ -970,8 +970,7 @@ fn forward_residual(warped: &[NetImage], targets: &[NetImage], curves: &Curves, 
     }
     let total_w: f64 = (0..3).map(|c| global.ata[c][3][3]).sum::<f64>() / 3.0;
     let mean_w = total_w / (n * w * h) as f64;
-    let prior: [f32; 12] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
-    let global_fwd = global.solve(1e-6 * total_w, &prior).unwrap_or(prior);
+    let global_fwd = global.solve(1e-6 * total_w, &IDENTITY).unwrap_or(IDENTITY);
     let lambda = ridge as f64 * mean_w;
     (0..w * h)
         .into_par_iter()
