@@ -32,7 +32,7 @@ pub struct Model {
 pub enum Kind {
     /// `linear` and `linear-sl` share the representation; they differ in how geometry was found.
     Linear {
-        model: LinearModel,
+        model: Box<LinearModel>,
         simplified: crate::linear::SimplifiedLinear,
     },
     /// The CompenNet++ variants: the full network (CPU, candle), the gray surface capture it
@@ -61,7 +61,10 @@ impl Model {
         Self {
             meta,
             fov,
-            kind: Kind::Linear { model, simplified },
+            kind: Kind::Linear {
+                model: Box::new(model),
+                simplified,
+            },
         }
     }
 
@@ -236,10 +239,22 @@ pub fn paper_protocol(
     );
     for (cap, input) in pairs.captures.iter().zip(&pairs.inputs) {
         let target: NetImage = input.clone().into_space();
-        comp.add(&model.infer(cap)?, &target)?;
-        uncomp.add(&model.warp_only(cap)?, &target)?;
+        comp.add(&at_size(model.infer(cap)?, target.size()), &target)?;
+        uncomp.add(&at_size(model.warp_only(cap)?, target.size()), &target)?;
     }
     Ok((comp.finish()?, uncomp.finish()?))
+}
+
+/// A model output brought to `size` for scoring against network-space images (a `linear`
+/// model's output lattice can be finer than the network; the paper protocol scores at the
+/// network size): unchanged when it has that size, else the network-size image whose canvas
+/// stretch shows the same ([`crate::resize::unstretch`]).
+pub fn at_size(img: NetImage, size: (usize, usize)) -> NetImage {
+    if img.size() == size {
+        img
+    } else {
+        crate::resize::unstretch(&img, size.0, size.1)
+    }
 }
 
 /// The network's current sampling grid as a core grid.

@@ -119,6 +119,61 @@ pub fn resize<S: Space>(img: &Rgb<S>, width: usize, height: usize, filter: Filte
     Rgb::from_vec(width, height, data).expect("resample yields width*height*3 values")
 }
 
+/// The `width`×`height` image whose bilinear enlargement to `img`'s size is closest to `img` in
+/// least squares, per axis: the smaller image that, stretched the way the canvas stretches, shows
+/// what `img` shows (as nearly as it can). Used to score an image made on a finer lattice against
+/// network-size images; a plain bilinear or area shrink blurs it on top of the stretch it already
+/// carries. When the target is not smaller along an axis, that axis is resized bilinearly.
+pub fn unstretch<S: Space>(img: &Rgb<S>, width: usize, height: usize) -> Rgb<S> {
+    if img.size() == (width, height) {
+        return img.clone();
+    }
+    if img.width() == 0 || img.height() == 0 || width == 0 || height == 0 {
+        return Rgb::new(width, height);
+    }
+    let data = resample(
+        img.data(),
+        img.size(),
+        3,
+        &unstretch_taps(img.width(), width),
+        &unstretch_taps(img.height(), height),
+    );
+    Rgb::from_vec(width, height, data).expect("resample yields width*height*3 values")
+}
+
+/// Per-axis taps of the least-squares inverse of the bilinear enlargement `dst → src`
+/// (`(UᵀU)⁻¹Uᵀ` with `U` the `src×dst` interpolation matrix); bilinear taps when `dst ≥ src`.
+fn unstretch_taps(src: usize, dst: usize) -> Vec<Vec<(usize, f32)>> {
+    if dst >= src {
+        return bilinear_sparse(src, dst);
+    }
+    let mut u = nalgebra::DMatrix::<f64>::zeros(src, dst);
+    for (i, row) in bilinear_sparse(dst, src).iter().enumerate() {
+        for &(j, w) in row {
+            u[(i, j)] += w as f64;
+        }
+    }
+    let normal = u.transpose() * &u;
+    // Bilinear enlargement has full column rank, so the normal matrix is positive definite; a
+    // tiny ridge keeps the factorisation safe at any size.
+    let normal = normal + nalgebra::DMatrix::<f64>::identity(dst, dst) * 1e-9;
+    let p = match normal.cholesky() {
+        Some(ch) => ch.solve(&u.transpose()),
+        None => return area_taps(src, dst),
+    };
+    (0..dst)
+        .map(|i| {
+            let row = p.row(i);
+            let peak = row.iter().fold(0f64, |m, v| m.max(v.abs()));
+            row.iter()
+                .enumerate()
+                .filter(|(_, v)| v.abs() > 1e-6 * peak)
+                .map(|(j, &v)| (j, v as f32))
+                .collect()
+        })
+        .collect()
+}
+
 /// Resizes a single-channel plane to `width`×`height`.
 pub fn resize_plane<S: Space>(
     img: &Plane<S>,

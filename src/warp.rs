@@ -82,10 +82,64 @@ pub struct TpsBasis {
     width: usize,
     height: usize,
     rows: Vec<[f32; TPS_PARAMS]>,
+    /// Normalised network coordinates of the pixel centres, per column and per row.
+    xs: Vec<f32>,
+    ys: Vec<f32>,
+}
+
+/// Unit coordinates (0 and 1 at the first and last pixel centres of an `network`-pixel axis,
+/// the align-corners convention of the warp's domain) of the pixel centres of a `lattice`-pixel
+/// axis covering the same canvas with half-pixel centres, the way the canvas stretches images:
+/// lattice pixel `j` sits at network pixel `(j + 0.5)·network/lattice − 0.5`. Equal sizes give
+/// `j / (network − 1)`; a finer lattice reaches half a lattice pixel beyond the network's edge
+/// centres (slightly outside [0, 1]).
+pub fn lattice_units(network: usize, lattice: usize) -> Vec<f64> {
+    let scale = network as f64 / lattice.max(1) as f64;
+    let last = network.saturating_sub(1).max(1) as f64;
+    (0..lattice)
+        .map(|j| {
+            if network == lattice {
+                j as f64 / last
+            } else {
+                ((j as f64 + 0.5) * scale - 0.5) / last
+            }
+        })
+        .collect()
 }
 
 impl TpsBasis {
     pub fn new(width: usize, height: usize) -> Self {
+        let unit = |n: usize| -> Vec<f64> {
+            (0..n)
+                .map(|i| {
+                    if n <= 1 {
+                        0.0
+                    } else {
+                        i as f64 / (n - 1) as f64
+                    }
+                })
+                .collect()
+        };
+        let norm = |n: usize| -> Vec<f32> { (0..n).map(|i| pixel_to_norm(i as f32, n)).collect() };
+        Self::at_units(&unit(width), &unit(height), norm(width), norm(height))
+    }
+
+    /// The basis at the pixel centres of a `lattice` image stretched over the same canvas as a
+    /// `network` image (see [`lattice_units`]); the warp keeps the network's domain.
+    pub fn on_lattice(network: (usize, usize), lattice: (usize, usize)) -> Self {
+        let (us, vs) = (
+            lattice_units(network.0, lattice.0),
+            lattice_units(network.1, lattice.1),
+        );
+        let norm = |u: &[f64]| -> Vec<f32> { u.iter().map(|&u| (2.0 * u - 1.0) as f32).collect() };
+        let (xs, ys) = (norm(&us), norm(&vs));
+        Self::at_units(&us, &vs, xs, ys)
+    }
+
+    /// The basis at the grid of unit coordinates `us` × `vs` (columns, rows), whose normalised
+    /// coordinates are `xs` × `ys`.
+    fn at_units(us: &[f64], vs: &[f64], xs: Vec<f32>, ys: Vec<f32>) -> Self {
+        let (width, height) = (us.len(), vs.len());
         let ctrl: Vec<(f64, f64)> = (0..TPS_POINTS)
             .map(|k| {
                 let (i, j) = (k % TPS_SIDE, k / TPS_SIDE);
@@ -95,17 +149,9 @@ impl TpsBasis {
                 )
             })
             .collect();
-        let unit = |i: usize, n: usize| {
-            if n <= 1 {
-                0.0
-            } else {
-                i as f64 / (n - 1) as f64
-            }
-        };
         let mut rows = Vec::with_capacity(width * height);
-        for y in 0..height {
-            for x in 0..width {
-                let (u, v) = (unit(x, width), unit(y, height));
+        for &v in vs {
+            for &u in us {
                 let k: Vec<f64> = ctrl
                     .iter()
                     .map(|&(cu, cv)| tps_kernel((u - cu).powi(2) + (v - cv).powi(2)))
@@ -124,6 +170,8 @@ impl TpsBasis {
             width,
             height,
             rows,
+            xs,
+            ys,
         }
     }
 
@@ -137,7 +185,7 @@ impl TpsBasis {
 
     /// Normalised network coordinates `t` of every pixel after the TPS displacement.
     pub fn tps_positions(&self, warp: &Warp) -> Vec<[f32; 2]> {
-        let (w, h) = (self.width, self.height);
+        let w = self.width;
         self.rows
             .iter()
             .enumerate()
@@ -145,10 +193,7 @@ impl TpsBasis {
                 let (x, y) = (i % w, i / w);
                 let dx: f32 = row.iter().zip(&warp.tps[0]).map(|(a, b)| a * b).sum();
                 let dy: f32 = row.iter().zip(&warp.tps[1]).map(|(a, b)| a * b).sum();
-                [
-                    pixel_to_norm(x as f32, w) + 2.0 * dx,
-                    pixel_to_norm(y as f32, h) + 2.0 * dy,
-                ]
+                [self.xs[x] + 2.0 * dx, self.ys[y] + 2.0 * dy]
             })
             .collect()
     }
@@ -249,6 +294,39 @@ impl OffsetField {
         let (nw, nh) = grid.size();
         for (p, g) in grid.data_mut().iter_mut().enumerate() {
             for (k, w) in self.taps(p % nw, p / nw, nw, nh) {
+                g[0] += w * self.offsets[k][0];
+                g[1] += w * self.offsets[k][1];
+            }
+        }
+    }
+
+    /// Adds the interpolated offsets to a grid on a `lattice` stretched over the same canvas as
+    /// the `network` image the field was fitted on (see [`lattice_units`]); positions beyond the
+    /// outer nodes take the outer nodes' offsets.
+    pub fn apply_on_lattice(&self, grid: &mut Grid<Network, Camera>, network: (usize, usize)) {
+        let (lw, lh) = grid.size();
+        let node = |u: f64, nodes: usize| -> (usize, f32) {
+            let t = (u * (nodes - 1) as f64).clamp(0.0, (nodes - 1) as f64);
+            let i = (t.floor() as usize).min(nodes - 2);
+            (i, (t - i as f64) as f32)
+        };
+        let xs: Vec<_> = lattice_units(network.0, lw)
+            .into_iter()
+            .map(|u| node(u, self.width))
+            .collect();
+        let ys: Vec<_> = lattice_units(network.1, lh)
+            .into_iter()
+            .map(|v| node(v, self.height))
+            .collect();
+        for (p, g) in grid.data_mut().iter_mut().enumerate() {
+            let ((i, fx), (j, fy)) = (xs[p % lw], ys[p / lw]);
+            let k = j * self.width + i;
+            for (k, w) in [
+                (k, (1.0 - fx) * (1.0 - fy)),
+                (k + 1, fx * (1.0 - fy)),
+                (k + self.width, (1.0 - fx) * fy),
+                (k + self.width + 1, fx * fy),
+            ] {
                 g[0] += w * self.offsets[k][0];
                 g[1] += w * self.offsets[k][1];
             }

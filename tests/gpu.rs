@@ -57,6 +57,7 @@ pub fn test_model(seed: u64) -> Model {
             data,
         },
         camera_size: CAM,
+        geometry_size: (nw, nh),
     };
     let (cw, ch) = CAM;
     let fov = Mask::from_fn(cw, ch, |x, y| {

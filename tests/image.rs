@@ -2,7 +2,7 @@
 
 use compend::pngio;
 use compend::raster::{Camera, Mask, Network, Rgb};
-use compend::resize::{resize_area, resize_bilinear};
+use compend::resize::{resize_area, resize_bilinear, unstretch};
 use compend::sample::{Grid, grid_sample, norm_to_pixel, pixel_to_norm};
 
 fn ramp(w: usize, h: usize) -> Rgb<Camera> {
@@ -101,6 +101,34 @@ fn bilinear_resize_half_pixel_centres() {
     for px in resize_bilinear(&c, 13, 3).data().chunks(3) {
         assert!((px[0] - 0.3).abs() < 1e-6 && (px[2] - 0.9).abs() < 1e-6);
     }
+}
+
+#[test]
+fn unstretch_inverts_the_canvas_stretch() {
+    // A small image stretched bilinearly to a finer size comes back exactly (least squares of a
+    // full-rank enlargement), where a bilinear or area shrink blurs it.
+    let img = Rgb::<Camera>::from_fn(9, 7, |x, y| {
+        let v = ((x * 7 + y * 13) % 11) as f32 / 10.0;
+        [v, 1.0 - v, (x as f32 / 8.0) * v]
+    });
+    let big = resize_bilinear(&img, 14, 11);
+    let back = unstretch(&big, 9, 7);
+    let worst = |a: &Rgb<Camera>| {
+        a.data()
+            .iter()
+            .zip(img.data())
+            .map(|(p, q)| (p - q).abs())
+            .fold(0f32, f32::max)
+    };
+    assert!(worst(&back) < 1e-4, "unstretch error {}", worst(&back));
+    assert!(worst(&resize_bilinear(&big, 9, 7)) > 0.05);
+    assert!(worst(&resize_area(&big, 9, 7)) > 0.05);
+    // Same size: unchanged; not smaller: a bilinear resize.
+    assert_eq!(unstretch(&img, 9, 7).data(), img.data());
+    assert_eq!(
+        unstretch(&img, 12, 9).data(),
+        resize_bilinear(&img, 12, 9).data()
+    );
 }
 
 #[test]

@@ -82,9 +82,19 @@ fn train_eval_compensate_linear_and_linear_sl() {
     for method in ["linear", "linear-sl"] {
         let model = dir.path().join(format!("model-{method}"));
         let m = model.to_str().unwrap();
-        let out = compend(&[
+        // `linear` on its default lattice (1.5× the network), `linear-sl` on the network's own.
+        let (lattice, side) = if method == "linear" {
+            (None, NET * 3 / 2)
+        } else {
+            (Some(NET.to_string()), NET)
+        };
+        let mut args = vec![
             "train", "--setup", s, "--method", method, "--out", m, "--json",
-        ]);
+        ];
+        if let Some(l) = &lattice {
+            args.extend(["--lattice", l.as_str()]);
+        }
+        let out = compend(&args);
         assert_code(&out, 0);
         let summary: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
         assert_eq!(summary["method"], method);
@@ -118,7 +128,7 @@ fn train_eval_compensate_linear_and_linear_sl() {
             let p = cmp.join(format!("img_{i:04}.png"));
             assert_eq!(
                 compend::pngio::png_size(&p).unwrap(),
-                (NET, NET),
+                (side, side),
                 "{}",
                 p.display()
             );
@@ -158,6 +168,27 @@ fn bad_inputs_exit_2_and_keep_the_good_model() {
     let out = compend(&["train", "--setup", s, "--method", "magic", "--out", m]);
     assert_code(&out, 2);
     assert!(stderr(&out).contains("magic"), "{}", stderr(&out));
+
+    // A lattice too small, or one for a method that has none.
+    for (method, lattice) in [("linear", "4x64"), ("compennet++-faster", "48")] {
+        let out = compend(&[
+            "train",
+            "--setup",
+            s,
+            "--method",
+            method,
+            "--lattice",
+            lattice,
+            "--out",
+            m,
+        ]);
+        assert_code(&out, 2);
+        assert!(stderr(&out).contains("--lattice"), "{}", stderr(&out));
+    }
+    assert_eq!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        before
+    );
 
     // A missing reference capture names the file.
     let white = setup.join("cam/raw/ref/img_0125.png");

@@ -254,6 +254,7 @@ fn bench_scene(
                 iters: args.iters,
                 batch: args.batch,
                 device: Default::default(),
+                lattice: None,
             };
             let mut row = Row {
                 scene: scene.into(),

@@ -52,12 +52,16 @@ pub fn run(args: Args) -> Result<()> {
         };
         row("uncompensated", &uncomp);
         row(&method, &comp);
-        println!(
-            "({} test pairs, network {}x{})",
-            comp.n,
-            model.network_size().0,
-            model.network_size().1
-        );
+        let (ow, oh) = model.network_size();
+        let (nw, nh) = pairs.inputs.first().map_or((ow, oh), |i| i.size());
+        if (ow, oh) == (nw, nh) {
+            println!("({} test pairs, network {nw}x{nh})", comp.n);
+        } else {
+            println!(
+                "({} test pairs; model output {ow}x{oh}, scored at the network size {nw}x{nh})",
+                comp.n
+            );
+        }
     }
     Ok(())
 }

@@ -378,10 +378,15 @@ fn score(a: ScoreArgs) -> Result<()> {
     let net = setup.root().network_size()?;
     for m in &models {
         let dir = setup.compensation_dir(m)?;
+        // Any size is stretched over the canvas (a `linear` model's lattice can be finer than
+        // the network), but one model's images must agree with its first.
+        let first = dir.join(compend::pngio::indexed_name(1));
+        let size = compend::pngio::read_rgb::<compend::raster::Projector>(&first)?.size();
+        let why = format!("the size of {}", first.display());
         let imgs: Vec<PrjImage> = (1..=n)
             .map(|i| {
                 let p = dir.join(compend::pngio::indexed_name(i));
-                compend::pngio::read_rgb_sized(&p, net, "the network size of the data root")
+                compend::pngio::read_rgb_sized(&p, size, &why)
             })
             .collect::<compend::Result<_>>()?;
         let shown = on_canvas(imgs)?;

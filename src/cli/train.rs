@@ -42,6 +42,12 @@ pub struct Args {
     /// build with `--features cuda`). The `linear` rungs always fit on the CPU.
     #[arg(long, default_value = "cpu")]
     pub device: compend::train::TrainDevice,
+    /// The linear rungs: the lattice of the per-pixel colour model and of the compensation
+    /// images, `N` or `WxH` (default: 1.5× the network size, 384 for 256²; the network size
+    /// itself reproduces the paper's 256² output). Live playback stretches any lattice over the
+    /// canvas; offline, `compensate` writes images of this size.
+    #[arg(long, value_name = "N|WxH", value_parser = parse_lattice)]
+    pub lattice: Option<(usize, usize)>,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -53,6 +59,7 @@ pub fn run(args: Args) -> Result<()> {
         iters: args.iters,
         batch: args.batch,
         device: args.device,
+        lattice: args.lattice,
     };
     let bar = super::progress_bar(args.json);
     let (model, summary) = train::train(&setup, &req, |stage, done, total| {
@@ -86,4 +93,9 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+fn parse_lattice(s: &str) -> std::result::Result<(usize, usize), String> {
+    let size = super::patterns::parse_wxh(s, true)?;
+    Ok((size.width, size.height))
 }

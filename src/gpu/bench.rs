@@ -242,6 +242,7 @@ pub fn synthetic_linear_model(
             data,
         },
         camera_size: camera,
+        geometry_size: (nw, nh),
     };
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
