@@ -18,6 +18,7 @@ pub const METHODS: &[&str] = &[
     "compennet++-norefine",
     "compennet++",
     "compennet-sl",
+    "compennet++-cpu",
 ];
 
 /// A loaded model with its metadata and the projector FOV mask its inputs are masked with.

@@ -363,10 +363,26 @@ fn train_compennet(
 ) -> Result<(Model, Summary)> {
     use crate::nn::train::{Data, GeometryInit, Settings};
     let ce = |e: candle_core::Error| Error::Failed(format!("preparing CompenNet++ data: {e}"));
+    // A smaller rung works on a coarser network: the projector images are shrunk onto it (their
+    // canvas stretch shows the same picture, a little blurred).
+    let div = variant.network_divisor();
+    let targets: Vec<NetImage> = if div > 1 {
+        let (w, h) = targets[0].size();
+        targets
+            .iter()
+            .map(|t| crate::resize::resize_area(t, w / div, h / div))
+            .collect()
+    } else {
+        targets
+    };
     let (nw, nh) = targets[0].size();
     if nw % 4 != 0 || nh % 4 != 0 {
         return Err(Error::Input(format!(
-            "CompenNet++ needs network sides divisible by 4, the projector images are {nw}x{nh}"
+            "{} needs network sides divisible by {}, the projector images are {}x{}",
+            req.method,
+            4 * div,
+            nw * div,
+            nh * div
         )));
     }
     let device = req.device.candle()?;

@@ -181,6 +181,19 @@ fn compennet_matches_the_layer_table() {
         v.iter().any(|&p| p > 0.0),
         "a fresh net should not be all black"
     );
+
+    // The CPU rung (`compennet++-cpu`) keeps the design at half the widths: with base width w,
+    // the surface branch has 378·w² + 42·w parameters and the backbone 716·w² + 82·w + 255
+    // (the same sums as above, by layer); w = 16 gives 97 440 and 184 863.
+    let small = VarMap::new();
+    let vb = VarBuilder::from_varmap(&small, DType::F32, &Device::Cpu);
+    let w = compend::nn::train::Variant::Cpu.width();
+    assert_eq!(w, 16);
+    let net = compend::nn::CompenNet::with_width(vb.pp("compen"), w).unwrap();
+    assert_eq!(count(&small, "compen.surface."), 97_440);
+    assert_eq!(count(&small, "compen.backbone."), 184_863);
+    let y = net.forward(&x, &s).unwrap();
+    assert_eq!(y.dims(), &[2, 3, 16, 24]);
 }
 
 #[test]

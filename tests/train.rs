@@ -378,6 +378,51 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
         (NET, NET)
     );
 
+    // The CPU rung: half the network side and half the widths; it loads back at its own size,
+    // is scored at the data's network size and writes images of its own size.
+    let small = dir.path().join("cnn-cpu");
+    let out = compend(&[
+        "train",
+        "--setup",
+        s,
+        "--method",
+        "compennet++-cpu",
+        "--iters",
+        "150",
+        "--batch",
+        "4",
+        "--out",
+        small.to_str().unwrap(),
+    ]);
+    assert_code(&out, 0);
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(small.join("model.json")).unwrap()).unwrap();
+    assert_eq!(meta["network_size"], serde_json::json!([NET / 2, NET / 2]));
+    let ev = eval_json(&small, &setup);
+    let (c, u) = (
+        ev["compensated"]["psnr"].as_f64().unwrap(),
+        ev["uncompensated"]["psnr"].as_f64().unwrap(),
+    );
+    assert!(
+        c > u,
+        "compennet++-cpu {c:.2} dB vs uncompensated {u:.2} dB"
+    );
+    let cmp_small = dir.path().join("cmp-cpu");
+    let out = compend(&[
+        "compensate",
+        "--model",
+        small.to_str().unwrap(),
+        "--input",
+        setup.join("cam/desire/test").to_str().unwrap(),
+        "--out",
+        cmp_small.to_str().unwrap(),
+    ]);
+    assert_code(&out, 0);
+    assert_eq!(
+        compend::pngio::png_size(&cmp_small.join("img_0001.png")).unwrap(),
+        (NET / 2, NET / 2)
+    );
+
     // A tensor of the wrong shape in the weights: exit 2 naming the tensor.
     let (meta, mut tensors) = compend::modeldir::load(&model).unwrap();
     tensors

@@ -10,7 +10,12 @@ use candle_nn::{Conv2d, ConvTranspose2d, VarBuilder};
 
 use super::layers::{WeightInit, conv, tconv};
 
-/// The surface branch: s̃ → s1 (32, H/2), s2 (64, H/4), s3 (128, H/4), s4 (256, H/4).
+/// The channel width of the paper's CompenNet: the first encoder layer's; the others are 2×, 4×
+/// and 8× it. Narrower networks (the CPU rung) keep the same shape with a smaller base.
+pub const PAPER_WIDTH: usize = 32;
+
+/// The surface branch: s̃ → s1 (32, H/2), s2 (64, H/4), s3 (128, H/4), s4 (256, H/4) at the
+/// paper's width.
 #[derive(Clone, Debug)]
 pub struct SurfaceBranch {
     conv1: Conv2d,
@@ -30,13 +35,14 @@ pub struct SurfaceFeatures {
 }
 
 impl SurfaceBranch {
-    pub fn new(vb: VarBuilder) -> Result<Self> {
+    /// `w`: the base channel width ([`PAPER_WIDTH`] for the paper's network).
+    pub fn new(vb: VarBuilder, w: usize) -> Result<Self> {
         let k = WeightInit::KaimingNormal;
         Ok(Self {
-            conv1: conv(vb.pp("conv1_s"), 3, 32, 3, 2, 1, k)?,
-            conv2: conv(vb.pp("conv2_s"), 32, 64, 3, 2, 1, k)?,
-            conv3: conv(vb.pp("conv3_s"), 64, 128, 3, 1, 1, k)?,
-            conv4: conv(vb.pp("conv4_s"), 128, 256, 3, 1, 1, k)?,
+            conv1: conv(vb.pp("conv1_s"), 3, w, 3, 2, 1, k)?,
+            conv2: conv(vb.pp("conv2_s"), w, 2 * w, 3, 2, 1, k)?,
+            conv3: conv(vb.pp("conv3_s"), 2 * w, 4 * w, 3, 1, 1, k)?,
+            conv4: conv(vb.pp("conv4_s"), 4 * w, 8 * w, 3, 1, 1, k)?,
         })
     }
 
@@ -96,20 +102,21 @@ pub struct Backbone {
 }
 
 impl Backbone {
-    pub fn new(vb: VarBuilder) -> Result<Self> {
+    /// `w`: the base channel width ([`PAPER_WIDTH`] for the paper's network).
+    pub fn new(vb: VarBuilder, w: usize) -> Result<Self> {
         let k = WeightInit::KaimingNormal;
         Ok(Self {
             skip1: Skip1::new(vb.pp("skip1"))?,
-            conv1: conv(vb.pp("conv1"), 3, 32, 3, 2, 1, k)?,
-            skip2: conv(vb.pp("skip2"), 32, 64, 1, 1, 0, k)?,
-            conv2: conv(vb.pp("conv2"), 32, 64, 3, 2, 1, k)?,
-            skip3: conv(vb.pp("skip3"), 64, 128, 1, 1, 0, k)?,
-            conv3: conv(vb.pp("conv3"), 64, 128, 3, 1, 1, k)?,
-            conv4: conv(vb.pp("conv4"), 128, 256, 3, 1, 1, k)?,
-            conv5: conv(vb.pp("conv5"), 256, 128, 3, 1, 1, k)?,
-            tconv1: tconv(vb.pp("tconv1"), 128, 64, 2, k)?,
-            tconv2: tconv(vb.pp("tconv2"), 64, 32, 2, k)?,
-            conv6: conv(vb.pp("conv6"), 32, 3, 3, 1, 1, k)?,
+            conv1: conv(vb.pp("conv1"), 3, w, 3, 2, 1, k)?,
+            skip2: conv(vb.pp("skip2"), w, 2 * w, 1, 1, 0, k)?,
+            conv2: conv(vb.pp("conv2"), w, 2 * w, 3, 2, 1, k)?,
+            skip3: conv(vb.pp("skip3"), 2 * w, 4 * w, 1, 1, 0, k)?,
+            conv3: conv(vb.pp("conv3"), 2 * w, 4 * w, 3, 1, 1, k)?,
+            conv4: conv(vb.pp("conv4"), 4 * w, 8 * w, 3, 1, 1, k)?,
+            conv5: conv(vb.pp("conv5"), 8 * w, 4 * w, 3, 1, 1, k)?,
+            tconv1: tconv(vb.pp("tconv1"), 4 * w, 2 * w, 2, k)?,
+            tconv2: tconv(vb.pp("tconv2"), 2 * w, w, 2, k)?,
+            conv6: conv(vb.pp("conv6"), w, 3, 3, 1, 1, k)?,
         })
     }
 
@@ -139,9 +146,14 @@ pub struct CompenNet {
 impl CompenNet {
     /// Variables are created under `vb`'s path: `surface.conv1_s.weight`, `backbone.conv1.bias`, ….
     pub fn new(vb: VarBuilder) -> Result<Self> {
+        Self::with_width(vb, PAPER_WIDTH)
+    }
+
+    /// The same design with base channel width `w` (the paper's is [`PAPER_WIDTH`]).
+    pub fn with_width(vb: VarBuilder, w: usize) -> Result<Self> {
         Ok(Self {
-            surface: SurfaceBranch::new(vb.pp("surface"))?,
-            backbone: Backbone::new(vb.pp("backbone"))?,
+            surface: SurfaceBranch::new(vb.pp("surface"), w)?,
+            backbone: Backbone::new(vb.pp("backbone"), w)?,
         })
     }
 

@@ -26,15 +26,20 @@ pub enum Variant {
     Faster,
     /// The two-step baseline: CompenNet on images registered by structured light (fixed grid).
     Sl,
+    /// The CPU-sized rung: the same design at half the network resolution and half the channel
+    /// widths, for projection PCs without a GPU (its output is stretched over the canvas like
+    /// any network image).
+    Cpu,
 }
 
 impl Variant {
-    pub const ALL: [Variant; 5] = [
+    pub const ALL: [Variant; 6] = [
         Variant::Full,
         Variant::NoRefine,
         Variant::Fast,
         Variant::Faster,
         Variant::Sl,
+        Variant::Cpu,
     ];
 
     pub fn method(self) -> &'static str {
@@ -44,6 +49,23 @@ impl Variant {
             Variant::Fast => "compennet++-fast",
             Variant::Faster => "compennet++-faster",
             Variant::Sl => "compennet-sl",
+            Variant::Cpu => "compennet++-cpu",
+        }
+    }
+
+    /// The base channel width of CompenNet (the paper's: 32).
+    pub fn width(self) -> usize {
+        match self {
+            Variant::Cpu => super::compennet::PAPER_WIDTH / 2,
+            _ => super::compennet::PAPER_WIDTH,
+        }
+    }
+
+    /// The network side is the data root's divided by this.
+    pub fn network_divisor(self) -> usize {
+        match self {
+            Variant::Cpu => 2,
+            _ => 1,
         }
     }
 
@@ -58,6 +80,7 @@ impl Variant {
             Variant::Full | Variant::NoRefine => (500, 48, 1500, 1000),
             Variant::Fast => (48, 24, 1000, 800),
             Variant::Faster | Variant::Sl => (48, 16, 500, 400),
+            Variant::Cpu => (48, 8, 400, 320),
         }
     }
 
@@ -156,6 +179,25 @@ impl CompenNetPP {
         seed: u64,
         device: &Device,
     ) -> candle_core::Result<Self> {
+        Self::with_width(
+            init,
+            size,
+            refine,
+            super::compennet::PAPER_WIDTH,
+            seed,
+            device,
+        )
+    }
+
+    /// [`CompenNetPP::new`] with CompenNet's base channel width `width`.
+    pub fn with_width(
+        init: GeometryInit,
+        size: (usize, usize),
+        refine: bool,
+        width: usize,
+        seed: u64,
+        device: &Device,
+    ) -> candle_core::Result<Self> {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
         let warp = match init {
@@ -173,7 +215,7 @@ impl CompenNetPP {
                 Geometry::Fixed(grid.to_dtype(DType::F32)?.detach())
             }
         };
-        let compen = CompenNet::new(vb.pp("compen"))?;
+        let compen = CompenNet::with_width(vb.pp("compen"), width)?;
         super::layers::seeded_init(&varmap, seed)?;
         Ok(Self {
             varmap,
@@ -229,10 +271,11 @@ pub fn train(
         ));
     }
     let device = data.captures.device().clone();
-    let model = CompenNetPP::new(
+    let model = CompenNetPP::with_width(
         init,
         (wn, hn),
         settings.variant.refine(),
+        settings.variant.width(),
         settings.seed,
         &device,
     )
@@ -358,7 +401,8 @@ impl CompenNetPP {
         } else {
             GeometryInit::Affine([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
         };
-        let model = Self::new(init, size, variant.refine(), 0, device).map_err(ce)?;
+        let model = Self::with_width(init, size, variant.refine(), variant.width(), 0, device)
+            .map_err(ce)?;
         for (name, t) in model.named_tensors() {
             if !t.is_variable() {
                 continue; // constants (the fixed grid) were set above
