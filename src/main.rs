@@ -20,6 +20,9 @@ enum Command {
     /// Per-frame GPU time of the compensation pass against a plain texture copy, and frames
     /// dropped at 60 Hz on the virtual rig.
     BenchGpu(cli::bench_gpu::Args),
+    /// Training and inference cost of the CompenNet++ rungs and `linear` on this CPU, against
+    /// the machine's arithmetic rate measured in the same run.
+    BenchTrain(cli::bench_train::Args),
     /// Compensation images for desired camera-view images, with a trained model.
     Compensate(cli::compensate::Args),
     /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row.
@@ -46,6 +49,7 @@ fn main() -> ExitCode {
     let result = match args.command {
         Command::Bench(a) => cli::bench::run(a),
         Command::BenchGpu(a) => cli::bench_gpu::run(a),
+        Command::BenchTrain(a) => cli::bench_train::run(a),
         Command::Compensate(a) => cli::compensate::run(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Inspect(a) => cli::inspect::run(a),

@@ -366,14 +366,16 @@ fn train_compennet(
     // A smaller rung works on a coarser network: the projector images are shrunk onto it (their
     // canvas stretch shows the same picture, a little blurred).
     let div = variant.network_divisor();
+    let full_size = targets[0].size();
+    let full_targets = targets;
     let targets: Vec<NetImage> = if div > 1 {
-        let (w, h) = targets[0].size();
-        targets
+        let (w, h) = full_size;
+        full_targets
             .iter()
             .map(|t| crate::resize::resize_area(t, w / div, h / div))
             .collect()
     } else {
-        targets
+        full_targets.clone()
     };
     let (nw, nh) = targets[0].size();
     if nw % 4 != 0 || nh % 4 != 0 {
@@ -410,7 +412,31 @@ fn train_compennet(
             candle_core::Tensor::from_vec(flat, (1, nh, nw, 2), &device).map_err(ce)?,
         )
     } else {
-        GeometryInit::Affine(theta)
+        // Climb from the rung below: the `linear` fit's affine + TPS geometry (seconds on a CPU)
+        // starts the WarpingNet, so the network's few samples go into photometry. Fitted at the
+        // data's network size; the warp is resolution independent.
+        progress("geometry (linear rung)", 0, 1);
+        let settings = FitSettings {
+            network_size: full_size,
+            refine: None,
+            ..FitSettings::default()
+        };
+        let (fitted, _) = crate::linear::fit(
+            &captures,
+            &full_targets,
+            crate::warp::Warp::from_affine(theta),
+            &settings,
+            |_, _, _| {},
+        )?;
+        match fitted.geometry {
+            crate::linear::Geometry::Learned(warp, _) => GeometryInit::Warp(warp),
+            crate::linear::Geometry::Fixed(_) => GeometryInit::Affine(theta),
+        }
+    };
+    let geometry_init = match &init {
+        GeometryInit::Fixed(_) => "structured light (fixed)",
+        GeometryInit::Warp(_) => "the linear rung's affine + TPS fit",
+        GeometryInit::Affine(_) => "the FOV bounding box's affine",
     };
     let (net, report) =
         crate::nn::train::train(&data, init, &settings, &never, |done, total, _| {
@@ -454,6 +480,7 @@ fn train_compennet(
             "lr_step": report.lr_step,
             "final_loss": final_loss,
             "device": req.device,
+            "geometry_init": geometry_init,
         }),
         metrics: serde_json::Value::Null,
         timings: json!({ "fit_seconds": report.seconds, "train_seconds": seconds,

@@ -87,7 +87,12 @@ pub fn run(args: Args) -> Result<()> {
     );
     let model = synthetic_linear_model(cam, net, 0);
     let compennet = if args.compennet_iters > 0 {
-        Some(synthetic_compennet_model(cam, net, 0)?)
+        Some(synthetic_compennet_model(
+            cam,
+            net,
+            compend::nn::train::Variant::NoRefine,
+            0,
+        )?)
     } else {
         None
     };

@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod bench_gpu;
+pub mod bench_train;
 pub mod chart;
 pub mod compensate;
 pub mod eval;

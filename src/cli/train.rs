@@ -15,7 +15,7 @@ pub struct Args {
     /// CompenNet++ variant: `compennet++-faster` (48 pairs, batch 16, 500 iterations),
     /// `compennet++-fast`, `compennet++-norefine`, `compennet++` (500 pairs, batch 48, 1500), or
     /// `compennet++-cpu`, the CPU-sized rung (half the network side, half the channel widths;
-    /// 48 pairs, batch 8, 400 iterations).
+    /// 48 pairs, batch 4, 400 iterations: about 8 minutes on 2 cores).
     /// CompenNet++ on a CPU takes about a second per sample at 256²: see --iters.
     /// `auto` picks between `linear` and `linear-sl` by their paper-protocol PSNR on held-out
     /// training pairs, refits the winner on all pairs and records the evidence in model.json.

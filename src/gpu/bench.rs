@@ -261,14 +261,16 @@ pub fn synthetic_linear_model(
 /// A simplified CompenNet++ model with seeded weights (Kaiming normal, zero biases, as a fresh
 /// model starts), an affine geometry covering the middle 80% of the camera frame, a full FOV and
 /// a smooth gray surface image, for timing: camera `camera`, network `network` (sides divisible
-/// by 4). The surface branch is folded once here (on the CPU, candle), as after training.
+/// by 4), the widths and refinement of `variant`. The surface branch is folded once here (on the
+/// CPU, candle), as after training.
 pub fn synthetic_compennet_model(
     camera: (usize, usize),
     network: (usize, usize),
+    variant: crate::nn::train::Variant,
     seed: u64,
 ) -> Result<crate::model::Model> {
     use crate::modeldir::{FORMAT_VERSION, ModelMeta};
-    use crate::nn::train::{CompenNetPP, GeometryInit, Variant};
+    use crate::nn::train::{CompenNetPP, GeometryInit};
     use crate::raster::{CamImage, Mask};
 
     if network.0 % 4 != 0 || network.1 % 4 != 0 || network.0 == 0 || network.1 == 0 {
@@ -277,10 +279,11 @@ pub fn synthetic_compennet_model(
             network.0, network.1
         )));
     }
-    let net = CompenNetPP::new(
+    let net = CompenNetPP::with_width(
         GeometryInit::Affine([[0.8, 0.0, 0.0], [0.0, 0.8, 0.0]]),
         network,
-        false,
+        variant.refine(),
+        variant.width(),
         seed,
         &candle_core::Device::Cpu,
     )
@@ -299,7 +302,7 @@ pub fn synthetic_compennet_model(
     )?;
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
-        method: Variant::NoRefine.method().into(),
+        method: variant.method().into(),
         network_size: network,
         camera_size: camera,
         canvas: None,

@@ -171,3 +171,32 @@ impl CompenNet {
         self.forward_with(x, &f)
     }
 }
+
+/// Multiply-accumulates of one backbone pass (the simplified network's per-frame work) on an
+/// `h`×`w` input with base width `c`, counted layer by layer from the table in DESIGN.md 5.2:
+/// 3.22 GMAC at 256² and the paper's width.
+pub fn backbone_macs(h: usize, w: usize, c: usize) -> f64 {
+    let full = (h * w) as f64;
+    let (half, quarter) = (full / 4.0, full / 16.0);
+    let c = c as f64;
+    let conv = |pixels: f64, cin: f64, cout: f64, k: f64| pixels * cin * cout * k * k;
+    3.0 * conv(full, 3.0, 3.0, 3.0) // skip1
+        + conv(half, 3.0, c, 3.0) // conv1 (stride 2)
+        + conv(half, c, 2.0 * c, 1.0) // skip2
+        + conv(quarter, c, 2.0 * c, 3.0) // conv2 (stride 2)
+        + conv(quarter, 2.0 * c, 4.0 * c, 1.0) // skip3
+        + conv(quarter, 2.0 * c, 4.0 * c, 3.0) // conv3
+        + conv(quarter, 4.0 * c, 8.0 * c, 3.0) // conv4
+        + conv(quarter, 8.0 * c, 4.0 * c, 3.0) // conv5
+        + conv(quarter, 4.0 * c, 2.0 * c, 2.0) // tconv1 (2×2 per input pixel)
+        + conv(half, 2.0 * c, c, 2.0) // tconv2
+        + conv(full, c, 3.0, 3.0) // conv6
+}
+
+/// Multiply-accumulates of one surface-branch pass on an `h`×`w` input with base width `c`.
+pub fn surface_macs(h: usize, w: usize, c: usize) -> f64 {
+    let full = (h * w) as f64;
+    let (half, quarter) = (full / 4.0, full / 16.0);
+    let c = c as f64;
+    half * 3.0 * c * 9.0 + quarter * (c * 2.0 * c + 2.0 * c * 4.0 * c + 4.0 * c * 8.0 * c) * 9.0
+}

@@ -80,7 +80,7 @@ impl Variant {
             Variant::Full | Variant::NoRefine => (500, 48, 1500, 1000),
             Variant::Fast => (48, 24, 1000, 800),
             Variant::Faster | Variant::Sl => (48, 16, 500, 400),
-            Variant::Cpu => (48, 8, 400, 320),
+            Variant::Cpu => (48, 4, 400, 320),
         }
     }
 
@@ -158,6 +158,9 @@ impl Geometry {
 pub enum GeometryInit {
     /// WarpingNet with this affine (e.g. from the FOV bounding box).
     Affine([[f32; 3]; 2]),
+    /// WarpingNet starting from a fitted affine + TPS warp (the `linear` rung's geometry: the
+    /// same parametrisation), its refinement CNN fresh.
+    Warp(crate::warp::Warp),
     /// A fixed grid (1, H, W, 2).
     Fixed(Tensor),
 }
@@ -200,6 +203,7 @@ impl CompenNetPP {
     ) -> candle_core::Result<Self> {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
+        let mut tps_init = None;
         let warp = match init {
             GeometryInit::Affine(theta) => Geometry::Learned(Box::new(WarpingNet::new(
                 vb.pp("warp"),
@@ -207,6 +211,15 @@ impl CompenNetPP {
                 size,
                 refine,
             )?)),
+            GeometryInit::Warp(w) => {
+                tps_init = Some(w.tps.concat());
+                Geometry::Learned(Box::new(WarpingNet::new(
+                    vb.pp("warp"),
+                    Some(w.theta),
+                    size,
+                    refine,
+                )?))
+            }
             GeometryInit::Fixed(grid) => {
                 let (_, h, w, _) = grid.dims4()?;
                 if (w, h) != size {
@@ -217,6 +230,18 @@ impl CompenNetPP {
         };
         let compen = CompenNet::with_width(vb.pp("compen"), width)?;
         super::layers::seeded_init(&varmap, seed)?;
+        // A starting TPS replaces the seeded near-identity one.
+        if let (Some(tps), Geometry::Learned(w)) = (tps_init, &warp) {
+            if tps.len() != 2 * crate::warp::TPS_PARAMS {
+                candle_core::bail!(
+                    "starting warp has {} TPS parameters, expected {}",
+                    tps.len(),
+                    2 * crate::warp::TPS_PARAMS
+                );
+            }
+            let value = Tensor::from_vec(tps, (2, crate::warp::TPS_PARAMS), device)?;
+            candle_core::Var::from_tensor(&w.tps)?.set(&value)?;
+        }
         Ok(Self {
             varmap,
             warp,

@@ -1,0 +1,320 @@
+//! `compend bench-train`: what training and inference cost on this machine's CPU, for the
+//! CompenNet++ rungs (the full network at the network size, the CPU-sized rung at half of it)
+//! and the `linear` rung, each set against the machine's own arithmetic rate measured in the same
+//! run (a candle matrix product and a representative convolution). Synthetic data with seeded
+//! weights: the figures are costs, not accuracies. Writes bench-train.json and bench-train.md.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use candle_core::{Device, Tensor};
+use compend::nn::compennet::{backbone_macs, surface_macs};
+use compend::nn::train::{Data, GeometryInit, Settings, Variant};
+use compend::raster::{CamImage, NetImage};
+use serde::Serialize;
+
+use super::patterns::{Size, parse_wxh};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Folder for bench-train.json and bench-train.md.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training steps timed per CompenNet++ rung (after one untimed step).
+    #[arg(long, default_value_t = 3)]
+    pub steps: usize,
+    /// Batch size of the timed steps.
+    #[arg(long, default_value_t = 4)]
+    pub batch: usize,
+    /// Network side of the full model (a multiple of 8; the CPU rung works at half of it).
+    #[arg(long, default_value_t = 256)]
+    pub network: usize,
+    /// Camera resolution of the synthetic captures.
+    #[arg(long, value_parser = parse_camera, default_value = "640x480")]
+    pub camera: Size,
+    /// Inference frames timed per model (after one untimed frame).
+    #[arg(long, default_value_t = 3)]
+    pub frames: usize,
+    /// Training pairs of the timed `linear` fit (0 = skip it).
+    #[arg(long, default_value_t = 48)]
+    pub linear_pairs: usize,
+}
+
+fn parse_camera(s: &str) -> std::result::Result<Size, String> {
+    parse_wxh(s, false)
+}
+
+/// The machine's arithmetic rate as candle reaches it, GFLOP/s (best of three).
+#[derive(Debug, Serialize)]
+struct Machine {
+    threads: usize,
+    /// f32 matrix product 1024³.
+    matmul_gflops: f64,
+    /// f32 convolution 128→256 channels, 3×3, 64×64, batch 8 (the size of conv4 at 256²).
+    conv_gflops: f64,
+}
+
+/// One model's costs.
+#[derive(Debug, Serialize)]
+struct Row {
+    method: String,
+    /// Network (output) side.
+    network: usize,
+    /// Base channel width (CompenNet++) or `null` (linear).
+    width: Option<usize>,
+    /// Milliseconds per training sample (forward, backward and update; CompenNet++), or the
+    /// whole fit divided by the pairs (linear, a closed-form fit).
+    train_ms_per_sample: Option<f64>,
+    /// Arithmetic per training sample, GFLOP (2 per multiply-accumulate: forward ≈ 1/3 of
+    /// forward + backward; the surface branch runs once per batch).
+    train_gflop_per_sample: Option<f64>,
+    /// Achieved training rate, GFLOP/s, and its fraction of the measured matmul rate.
+    train_gflops: Option<f64>,
+    train_fraction_of_matmul: Option<f64>,
+    /// Milliseconds per inference frame on the CPU (the simplified model: camera image in,
+    /// network image out).
+    frame_ms: f64,
+    /// Arithmetic per inference frame, GMAC (the simplified backbone; `null` for linear).
+    frame_gmac: Option<f64>,
+    error: Option<String>,
+}
+
+fn best_of<F: FnMut() -> Result<()>>(n: usize, mut f: F) -> Result<f64> {
+    f()?; // untimed
+    let mut best = f64::INFINITY;
+    for _ in 0..n {
+        let t = Instant::now();
+        f()?;
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    Ok(best)
+}
+
+fn machine() -> Result<Machine> {
+    let dev = Device::Cpu;
+    let n = 1024usize;
+    let a = Tensor::rand(0f32, 1.0, (n, n), &dev)?;
+    let b = Tensor::rand(0f32, 1.0, (n, n), &dev)?;
+    let t = best_of(3, || {
+        a.matmul(&b)?;
+        Ok(())
+    })?;
+    let matmul_gflops = 2.0 * (n * n * n) as f64 / t / 1e9;
+    let x = Tensor::rand(0f32, 1.0, (8, 128, 64, 64), &dev)?;
+    let w = Tensor::rand(-0.1f32, 0.1, (256, 128, 3, 3), &dev)?;
+    let t = best_of(3, || {
+        x.conv2d(&w, 1, 1, 1, 1)?;
+        Ok(())
+    })?;
+    let conv_gflops = 2.0 * (8u64 * 64 * 64 * 128 * 256 * 9) as f64 / t / 1e9;
+    Ok(Machine {
+        threads: rayon::current_num_threads(),
+        matmul_gflops,
+        conv_gflops,
+    })
+}
+
+/// Milliseconds per training sample of `variant` on random data: `steps` timed steps after one.
+fn compennet_train_ms(
+    variant: Variant,
+    side: usize,
+    camera: (usize, usize),
+    batch: usize,
+    steps: usize,
+) -> compend::Result<f64> {
+    let ce = |e: candle_core::Error| compend::Error::Failed(format!("synthetic data: {e}"));
+    let dev = Device::Cpu;
+    let (cw, ch) = camera;
+    let data = Data {
+        captures: Tensor::rand(0f32, 1.0, (batch, 3, ch, cw), &dev).map_err(ce)?,
+        surface: Tensor::rand(0f32, 1.0, (1, 3, ch, cw), &dev).map_err(ce)?,
+        targets: Tensor::rand(0f32, 1.0, (batch, 3, side, side), &dev).map_err(ce)?,
+    };
+    let mut settings = Settings::new(variant, 0);
+    settings.iters = Some(steps + 1);
+    settings.batch = Some(batch);
+    let never = std::sync::atomic::AtomicBool::new(false);
+    // Time between the end of the first step and the end of the last.
+    let mut marks = Vec::new();
+    let init = GeometryInit::Affine([[0.8, 0.0, 0.0], [0.0, 0.8, 0.0]]);
+    compend::nn::train::train(&data, init, &settings, &never, |_, _, _| {
+        marks.push(Instant::now())
+    })?;
+    match (marks.first(), marks.last()) {
+        (Some(a), Some(b)) if marks.len() > 1 => {
+            Ok(1e3 * (*b - *a).as_secs_f64() / ((marks.len() - 1) * batch) as f64)
+        }
+        _ => Err(compend::Error::Failed("no training step was timed".into())),
+    }
+}
+
+fn frame_ms(model: &compend::model::Model, camera: (usize, usize), frames: usize) -> Result<f64> {
+    let (cw, ch) = camera;
+    let img = CamImage::from_fn(cw, ch, |x, y| {
+        let v = ((x * 7 + y * 3) % 17) as f32 / 16.0;
+        [v, 0.5 * v + 0.25, 1.0 - v]
+    });
+    model.infer(&img)?; // untimed
+    let t = Instant::now();
+    for _ in 0..frames.max(1) {
+        model.infer(&img)?;
+    }
+    Ok(1e3 * t.elapsed().as_secs_f64() / frames.max(1) as f64)
+}
+
+fn compennet_row(
+    a: &Args,
+    variant: Variant,
+    side: usize,
+    camera: (usize, usize),
+    m: &Machine,
+) -> Result<Row> {
+    let width = variant.width();
+    let macs = backbone_macs(side, side, width) + surface_macs(side, side, width) / a.batch as f64;
+    let gflop = 3.0 * 2.0 * macs / 1e9;
+    eprintln!(
+        "bench-train: {} at {side}² (width {width}): {} training steps of batch {}",
+        variant.method(),
+        a.steps,
+        a.batch
+    );
+    let (train_ms, error) = match compennet_train_ms(variant, side, camera, a.batch, a.steps) {
+        Ok(ms) => (Some(ms), None),
+        Err(e) => (None, Some(e.to_string())),
+    };
+    let model = compend::gpu::bench::synthetic_compennet_model(camera, (side, side), variant, 0)?;
+    let frame = frame_ms(&model, camera, a.frames)?;
+    let rate = train_ms.map(|ms| gflop / (ms / 1e3));
+    Ok(Row {
+        method: variant.method().into(),
+        network: side,
+        width: Some(width),
+        train_ms_per_sample: train_ms,
+        train_gflop_per_sample: Some(gflop),
+        train_gflops: rate,
+        train_fraction_of_matmul: rate.map(|r| r / m.matmul_gflops),
+        frame_ms: frame,
+        frame_gmac: Some(backbone_macs(side, side, width) / 1e9),
+        error,
+    })
+}
+
+/// The `linear` fit on smooth synthetic pairs (its cost barely depends on the content) and the
+/// per-frame cost of its simplified form on the default lattice.
+fn linear_row(a: &Args, camera: (usize, usize)) -> Result<Row> {
+    let side = a.network;
+    let lattice = compend::train::default_lattice((side, side));
+    let train_ms = if a.linear_pairs > 0 {
+        eprintln!(
+            "bench-train: linear fit on {} synthetic pairs",
+            a.linear_pairs
+        );
+        let (cw, ch) = camera;
+        let pairs: Vec<(CamImage, NetImage)> = (0..a.linear_pairs)
+            .map(|i| {
+                let f = 1.0 + i as f32 * 0.37;
+                let t = NetImage::from_fn(side, side, |x, y| {
+                    let (u, v) = (x as f32 / side as f32, y as f32 / side as f32);
+                    [
+                        0.5 + 0.4 * (f * 6.0 * u).sin(),
+                        0.5 + 0.4 * (f * 5.0 * v).cos(),
+                        0.5 + 0.4 * (f * 4.0 * (u + v)).sin(),
+                    ]
+                });
+                let c = CamImage::from_fn(cw, ch, |x, y| {
+                    let (sx, sy) = (x * side / cw, y * side / ch);
+                    t.get(sx.min(side - 1), sy.min(side - 1))
+                        .map(|v| 0.1 + 0.8 * v)
+                });
+                (c, t)
+            })
+            .collect();
+        let (caps, tgts): (Vec<_>, Vec<_>) = pairs.into_iter().unzip();
+        let settings = compend::linear::FitSettings {
+            network_size: (side, side),
+            lattice: Some(lattice),
+            ..Default::default()
+        };
+        let init = compend::warp::Warp::from_affine([[0.9, 0.0, 0.0], [0.0, 0.9, 0.0]]);
+        let t = Instant::now();
+        compend::linear::fit(&caps, &tgts, init, &settings, |_, _, _| {})?;
+        Some(1e3 * t.elapsed().as_secs_f64() / a.linear_pairs as f64)
+    } else {
+        None
+    };
+    let model = compend::gpu::bench::synthetic_linear_model(camera, lattice, 0);
+    Ok(Row {
+        method: compend::linear::METHOD.into(),
+        network: lattice.0,
+        width: None,
+        train_ms_per_sample: train_ms,
+        train_gflop_per_sample: None,
+        train_gflops: None,
+        train_fraction_of_matmul: None,
+        frame_ms: frame_ms(&model, camera, a.frames)?,
+        frame_gmac: None,
+        error: None,
+    })
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.network < 8 || a.network % 8 != 0 {
+        return Err(compend::Error::Input(format!(
+            "--network {}: expected a multiple of 8 (the CPU rung works at half of it, which \
+             CompenNet needs divisible by 4)",
+            a.network
+        ))
+        .into());
+    }
+    if a.steps == 0 || a.batch == 0 {
+        return Err(compend::Error::Input("--steps and --batch must be at least 1".into()).into());
+    }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let camera = (a.camera.width, a.camera.height);
+    eprintln!("bench-train: measuring the machine's arithmetic rate");
+    let m = machine()?;
+    let rows = vec![
+        compennet_row(&a, Variant::Full, a.network, camera, &m)?,
+        compennet_row(&a, Variant::Cpu, a.network / 2, camera, &m)?,
+        linear_row(&a, camera)?,
+    ];
+    let json = serde_json::json!({ "machine": m, "rows": rows, "camera": [camera.0, camera.1],
+                                   "steps": a.steps, "batch": a.batch });
+    let opt = |v: Option<f64>, p: usize| v.map_or("–".to_string(), |x| format!("{x:.p$}"));
+    let mut md = format!(
+        "# compend bench-train\n\nMachine ({} threads): candle matmul 1024³ {:.1} GFLOP/s, \
+         conv 128→256 3×3 at 64² batch 8 {:.1} GFLOP/s (best of three, this run).\n\n\
+         | method | network | width | train ms/sample | GFLOP/sample | GFLOP/s | of matmul | frame ms | frame GMAC |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
+        m.threads, m.matmul_gflops, m.conv_gflops
+    );
+    for r in &rows {
+        md += &format!(
+            "| {} | {}² | {} | {} | {} | {} | {} | {:.1} | {} |\n",
+            r.method,
+            r.network,
+            r.width.map_or("–".into(), |w| w.to_string()),
+            opt(r.train_ms_per_sample, 1),
+            opt(r.train_gflop_per_sample, 2),
+            opt(r.train_gflops, 1),
+            r.train_fraction_of_matmul
+                .map_or("–".into(), |f| format!("{:.0} %", 100.0 * f)),
+            r.frame_ms,
+            opt(r.frame_gmac, 2),
+        );
+        if let Some(e) = &r.error {
+            md += &format!("\n{}: {e}\n", r.method);
+        }
+    }
+    md += "\nTraining GFLOP per sample = 3 × 2 × (backbone MACs + surface-branch MACs / batch); \
+           grid sampling and the WarpingNet are left out (small). `linear` trains by a \
+           closed-form fit: its figure is the whole fit divided by the pairs.\n";
+    let jp = a.out.join("bench-train.json");
+    std::fs::write(&jp, serde_json::to_string_pretty(&json)? + "\n")
+        .map_err(|e| compend::Error::io(&jp, "write", e))?;
+    let mp = a.out.join("bench-train.md");
+    std::fs::write(&mp, &md).map_err(|e| compend::Error::io(&mp, "write", e))?;
+    print!("{md}");
+    Ok(())
+}
