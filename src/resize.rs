@@ -103,6 +103,16 @@ fn taps(filter: Filter, src: usize, dst: usize) -> Vec<Vec<(usize, f32)>> {
 /// Resizes an RGB image to `width`×`height`. A zero-sized source or target gives a black image
 /// of the target size.
 pub fn resize<S: Space>(img: &Rgb<S>, width: usize, height: usize, filter: Filter) -> Rgb<S> {
+    resize_with(img, width, height, |src, dst| taps(filter, src, dst))
+}
+
+/// Resizes through separable per-axis taps `axis_taps(source length, target length)`.
+fn resize_with<S: Space>(
+    img: &Rgb<S>,
+    width: usize,
+    height: usize,
+    axis_taps: impl Fn(usize, usize) -> Vec<Vec<(usize, f32)>>,
+) -> Rgb<S> {
     if img.size() == (width, height) {
         return img.clone();
     }
@@ -113,8 +123,8 @@ pub fn resize<S: Space>(img: &Rgb<S>, width: usize, height: usize, filter: Filte
         img.data(),
         img.size(),
         3,
-        &taps(filter, img.width(), width),
-        &taps(filter, img.height(), height),
+        &axis_taps(img.width(), width),
+        &axis_taps(img.height(), height),
     );
     Rgb::from_vec(width, height, data).expect("resample yields width*height*3 values")
 }
@@ -125,20 +135,7 @@ pub fn resize<S: Space>(img: &Rgb<S>, width: usize, height: usize, filter: Filte
 /// network-size images; a plain bilinear or area shrink blurs it on top of the stretch it already
 /// carries. When the target is not smaller along an axis, that axis is resized bilinearly.
 pub fn unstretch<S: Space>(img: &Rgb<S>, width: usize, height: usize) -> Rgb<S> {
-    if img.size() == (width, height) {
-        return img.clone();
-    }
-    if img.width() == 0 || img.height() == 0 || width == 0 || height == 0 {
-        return Rgb::new(width, height);
-    }
-    let data = resample(
-        img.data(),
-        img.size(),
-        3,
-        &unstretch_taps(img.width(), width),
-        &unstretch_taps(img.height(), height),
-    );
-    Rgb::from_vec(width, height, data).expect("resample yields width*height*3 values")
+    resize_with(img, width, height, unstretch_taps)
 }
 
 /// Per-axis taps of the least-squares inverse of the bilinear enlargement `dst → src`

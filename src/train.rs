@@ -368,15 +368,14 @@ fn train_compennet(
     let div = variant.network_divisor();
     let full_size = targets[0].size();
     let full_targets = targets;
-    let targets: Vec<NetImage> = if div > 1 {
+    let shrunk: Option<Vec<NetImage>> = (div > 1).then(|| {
         let (w, h) = full_size;
         full_targets
             .iter()
             .map(|t| crate::resize::resize_area(t, w / div, h / div))
             .collect()
-    } else {
-        full_targets.clone()
-    };
+    });
+    let targets: &[NetImage] = shrunk.as_deref().unwrap_or(&full_targets);
     let (nw, nh) = targets[0].size();
     if nw % 4 != 0 || nh % 4 != 0 {
         return Err(Error::Input(format!(
@@ -397,7 +396,7 @@ fn train_compennet(
         surface: crate::nn::images_to_tensor(std::slice::from_ref(&surface))
             .and_then(on_device)
             .map_err(ce)?,
-        targets: crate::nn::images_to_tensor(&targets)
+        targets: crate::nn::images_to_tensor(targets)
             .and_then(on_device)
             .map_err(ce)?,
     };

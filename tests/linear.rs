@@ -94,22 +94,38 @@ impl System {
     }
 }
 
-#[test]
-fn linear_fit_generalises_and_compensates() {
-    let sys = System::new();
-    let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let train: Vec<NetImage> = (0..24).map(|_| texture(&mut rng)).collect();
-    let test: Vec<NetImage> = (0..6).map(|_| texture(&mut rng)).collect();
-    let caps: Vec<CamImage> = train.iter().map(|t| sys.capture(t)).collect();
-    let test_caps: Vec<CamImage> = test.iter().map(|t| sys.capture(t)).collect();
+/// Seeded training (24) and test (6) textures and their captures on `sys`.
+fn pairs(sys: &System, seed: u64) -> [Vec<(NetImage, CamImage)>; 2] {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    [24, 6].map(|n| {
+        (0..n)
+            .map(|_| {
+                let t = texture(&mut rng);
+                let c = sys.capture(&t);
+                (t, c)
+            })
+            .collect()
+    })
+}
 
-    // Initial affine: the inverse of the linear part of P, roughly (what a bounding box gives).
-    let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
-    let settings = FitSettings {
+/// The fit's settings at the tests' network size: two geometry levels at full resolution.
+fn settings() -> FitSettings {
+    FitSettings {
         network_size: (NET, NET),
         levels: vec![(NET, 150, 1.0), (NET, 100, 0.0)],
         ..FitSettings::default()
-    };
+    }
+}
+
+#[test]
+fn linear_fit_generalises_and_compensates() {
+    let [tr, te] = pairs(&System::new(), 7);
+    let (train, caps): (Vec<NetImage>, Vec<CamImage>) = tr.into_iter().unzip();
+    let (test, test_caps): (Vec<NetImage>, Vec<CamImage>) = te.into_iter().unzip();
+
+    // Initial affine: the inverse of the linear part of P, roughly (what a bounding box gives).
+    let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
+    let settings = settings();
     let (affine_only, _) = fit(
         &caps,
         &train,
@@ -159,20 +175,12 @@ fn linear_fit_generalises_and_compensates() {
 fn linear_fit_on_a_finer_lattice_matches_the_canvas_stretch() {
     // A camera finer than the lattice (as on the rig: 640×480 against a 384² lattice); a
     // lattice finer than the camera only interpolates between camera pixels.
-    let sys = System::with((96, 80), Some(96));
-    let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let train: Vec<NetImage> = (0..24).map(|_| texture(&mut rng)).collect();
-    let test: Vec<NetImage> = (0..6).map(|_| texture(&mut rng)).collect();
-    let caps: Vec<CamImage> = train.iter().map(|t| sys.capture(t)).collect();
-    let test_caps: Vec<CamImage> = test.iter().map(|t| sys.capture(t)).collect();
+    let [tr, te] = pairs(&System::with((96, 80), Some(96)), 11);
+    let (train, caps): (Vec<NetImage>, Vec<CamImage>) = tr.into_iter().unzip();
+    let (test, test_caps): (Vec<NetImage>, Vec<CamImage>) = te.into_iter().unzip();
     let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
-    let settings = FitSettings {
-        network_size: (NET, NET),
-        levels: vec![(NET, 150, 1.0), (NET, 100, 0.0)],
-        ..FitSettings::default()
-    };
-    // Scored at the network size: the lattice output is resampled to it (bilinear), which
-    // itself blurs a little, so the finer lattice has to earn that back.
+    let settings = settings();
+    // Scored at the network size: the lattice output is brought back by `unstretch`.
     let score = |lattice: Option<(usize, usize)>| {
         let s = FitSettings {
             lattice,

@@ -378,17 +378,27 @@ fn score(a: ScoreArgs) -> Result<()> {
     let net = setup.root().network_size()?;
     for m in &models {
         let dir = setup.compensation_dir(m)?;
-        // Any size is stretched over the canvas (a `linear` model's lattice can be finer than
-        // the network), but one model's images must agree with its first.
-        let first = dir.join(compend::pngio::indexed_name(1));
-        let size = compend::pngio::read_rgb::<compend::raster::Projector>(&first)?.size();
-        let why = format!("the size of {}", first.display());
+        // Any size is stretched over the canvas (a `linear` model's lattice can be finer than the
+        // network), but one model's images must all have one size.
         let imgs: Vec<PrjImage> = (1..=n)
-            .map(|i| {
-                let p = dir.join(compend::pngio::indexed_name(i));
-                compend::pngio::read_rgb_sized(&p, size, &why)
-            })
+            .map(|i| compend::pngio::read_rgb(&dir.join(compend::pngio::indexed_name(i))))
             .collect::<compend::Result<_>>()?;
+        if let Some((i, img)) = imgs
+            .iter()
+            .enumerate()
+            .find(|(_, m)| m.size() != imgs[0].size())
+        {
+            return Err(compend::Error::Input(format!(
+                "{}: {}x{}, expected {}x{} like {}",
+                dir.join(compend::pngio::indexed_name(i + 1)).display(),
+                img.width(),
+                img.height(),
+                imgs[0].width(),
+                imgs[0].height(),
+                compend::pngio::indexed_name(1)
+            ))
+            .into());
+        }
         let shown = on_canvas(imgs)?;
         let s = rig::closed_loop(&sim, &shown, &desired, area, FRAMES_SCORE)
             .with_context(|| format!("scoring model {m:?}"))?;
