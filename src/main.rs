@@ -36,6 +36,9 @@ enum Command {
     /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
     /// gray image (ref/), Gray-code structured light (sl/).
     Patterns(cli::patterns::Args),
+    /// Pre-train CompenNet's photometric weights on synthetic pairs (no setup, no projection):
+    /// how the shipped `weights/compennet-pretrain-w*.safetensors` were made.
+    Pretrain(cli::pretrain::Args),
     /// Fit a compensation model on a setup's training pairs and write the model directory.
     Train(cli::train::Args),
     /// Show a projector-space PNG on the projector window.
@@ -56,6 +59,7 @@ fn main() -> ExitCode {
         Command::Metrics(a) => cli::metrics::run(a),
         Command::Patterns(a) => cli::patterns::run(a),
         Command::Play(a) => cli::play::run(a),
+        Command::Pretrain(a) => cli::pretrain::run(a),
         Command::Train(a) => cli::train::run(a),
         Command::Show(a) => cli::show::run(a),
         Command::Sim(a) => cli::sim::run(a),

@@ -91,7 +91,8 @@ impl Tensors {
         self.map.keys().map(|s| s.as_str())
     }
 
-    fn to_bytes(&self) -> Result<Vec<u8>> {
+    /// The arrays as a safetensors file's bytes (f32, little-endian).
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
         let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = self
             .map
             .iter()
@@ -115,7 +116,8 @@ impl Tensors {
             .map_err(|e| Error::Failed(format!("safetensors encoding failed: {e}")))
     }
 
-    fn from_bytes(bytes: &[u8], file: &Path) -> Result<Self> {
+    /// Parses a safetensors file's bytes (f32 arrays only); `file` names the source in errors.
+    pub fn from_bytes(bytes: &[u8], file: &Path) -> Result<Self> {
         let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| {
             Error::Input(format!(
                 "{}: not a readable safetensors file ({e})",
@@ -239,6 +241,30 @@ fn swap_in(tmp: &Path, dir: &Path, parent: &Path, name: &str) -> Result<()> {
         let _ = fs::remove_dir_all(old);
     }
     Ok(())
+}
+
+/// Writes one file atomically: a temporary sibling is written and fsynced, then renamed over
+/// `path`, so a reader (or a crash) never sees a half-written file where a good one was.
+pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    let parent = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    fs::create_dir_all(parent).map_err(|e| Error::io(parent, "create folder", e))?;
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::Input(format!("{}: not a usable file name", path.display())))?
+        .to_string_lossy()
+        .into_owned();
+    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    let result = write_synced(&tmp, bytes)
+        .and_then(|()| fs::rename(&tmp, path).map_err(|e| Error::io(path, "move into place", e)));
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    } else {
+        sync_dir(parent);
+    }
+    result
 }
 
 fn write_synced(path: &Path, bytes: &[u8]) -> Result<()> {

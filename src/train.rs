@@ -37,6 +37,9 @@ pub struct Request {
     /// The `linear` rungs only: the lattice of the colour model and of its output images;
     /// `None` = [`default_lattice`] of the network size.
     pub lattice: Option<(usize, usize)>,
+    /// CompenNet++ variants: how CompenNet's weights start (default: the shipped
+    /// pre-initialisation, DESIGN.md 5.2).
+    pub photometric: crate::nn::pretrain::PhotometricInit,
 }
 
 /// The default output lattice of the `linear` rungs: 1.5× the network size, rounded up to a
@@ -387,6 +390,8 @@ fn train_compennet(
         )));
     }
     let device = req.device.candle()?;
+    // A bad pre-initialisation file fails now, not after the geometry fit.
+    req.photometric.resolve(variant.width())?;
     let surface = setup.load_reference(Reference::Gray)?.masked(&fov.mask)?;
     let on_device = |t: candle_core::Tensor| t.to_device(&device);
     let data = Data {
@@ -403,6 +408,7 @@ fn train_compennet(
     let mut settings = Settings::new(variant, req.seed);
     settings.iters = req.iters;
     settings.batch = req.batch;
+    settings.photometric = req.photometric.clone();
     let never = std::sync::atomic::AtomicBool::new(false);
     let init = if variant.fixed_geometry() {
         let grid = sl_grid(setup, (nw, nh))?;
@@ -480,6 +486,7 @@ fn train_compennet(
             "final_loss": final_loss,
             "device": req.device,
             "geometry_init": geometry_init,
+            "photometric_init": report.photometric_init,
         }),
         metrics: serde_json::Value::Null,
         timings: json!({ "fit_seconds": report.seconds, "train_seconds": seconds,

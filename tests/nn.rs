@@ -345,6 +345,8 @@ fn compennet_training_learns_reproduces_and_cancels() {
     };
     let theta = [[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]];
     let mut settings = Settings::new(Variant::Faster, 4);
+    // From Kaiming noise: this test is about learning, not the pre-initialisation.
+    settings.photometric = compend::nn::pretrain::PhotometricInit::Kaiming;
     settings.iters = Some(40);
     settings.batch = Some(4);
     assert_eq!(
@@ -422,4 +424,339 @@ fn simplified_compennet_reproduces_the_full_network() {
         .sum();
     assert_eq!(backbone_params, 736_063);
     assert_eq!(simple.bias.s4.dims(), &[1, 256, 4, 6]);
+}
+
+fn tiny_pretrain(seed: u64) -> compend::nn::pretrain::PretrainSettings {
+    compend::nn::pretrain::PretrainSettings {
+        width: 4,
+        patch: 16,
+        image: 24,
+        pool: 3,
+        batch: 2,
+        iters: 4,
+        lr_step: 3,
+        learning_rate: 1e-3,
+        weight_decay: 1e-4,
+        seed,
+    }
+}
+
+#[test]
+fn pretraining_is_reproducible_round_trips_and_checks_widths() {
+    use compend::nn::pretrain::{PhotometricInit, Pretrained, pretrain};
+    use std::sync::atomic::AtomicBool;
+    let never = AtomicBool::new(false);
+    let run = |seed| pretrain(&tiny_pretrain(seed), &Device::Cpu, &never, |_, _, _| {}).unwrap();
+    let (a, b, c) = (run(3), run(3), run(4));
+    assert_eq!(a.tensors, b.tensors, "the same seed gives the same weights");
+    assert_ne!(a.tensors, c.tensors, "another seed gives other weights");
+    assert!(a.meta.first_loss.is_finite() && a.meta.final_loss.is_finite());
+    // Every CompenNet variable and nothing else, under the CompenNet++ names.
+    let names: Vec<&str> = a.tensors.names().collect();
+    assert_eq!(
+        names.len(),
+        2 * (4 + 3 + 10),
+        "weight and bias of 17 convolutions"
+    );
+    assert!(names.iter().all(|n| n.starts_with("compen.")), "{names:?}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("w4.safetensors");
+    a.save(&path).unwrap();
+    assert!(path.with_extension("json").exists());
+    let back = Pretrained::load(&path).unwrap();
+    assert_eq!(back.tensors, a.tensors);
+    assert_eq!(back.meta.settings, a.meta.settings);
+    assert!((back.meta.final_loss - a.meta.final_loss).abs() < 1e-9);
+    // Loaded for its own width it resolves; for another width it is refused, naming the file.
+    let init = PhotometricInit::File(path.clone());
+    assert!(init.resolve(4).unwrap().is_some());
+    let err = init.resolve(16).expect_err("width mismatch").to_string();
+    assert!(
+        err.contains("w4.safetensors") && err.contains("16"),
+        "{err}"
+    );
+    assert_eq!(
+        PhotometricInit::Kaiming.resolve(16).unwrap().map(|_| ()),
+        None
+    );
+    // A corrupt weight file and a metadata file of another version are input errors (exit 2).
+    std::fs::write(&path, b"not safetensors").unwrap();
+    let err = init.resolve(4).expect_err("corrupt");
+    assert_eq!(err.exit_code(), 2);
+    assert!(err.to_string().contains("w4.safetensors"), "{err}");
+    a.save(&path).unwrap();
+    let json = path.with_extension("json");
+    let text = std::fs::read_to_string(&json).unwrap();
+    std::fs::write(
+        &json,
+        text.replace("\"format_version\": 1", "\"format_version\": 7"),
+    )
+    .unwrap();
+    let err = init.resolve(4).expect_err("old version");
+    assert_eq!(err.exit_code(), 2);
+    assert!(err.to_string().contains("version 7"), "{err}");
+}
+
+/// The shipped weights: they load for both widths, they set every CompenNet variable of a
+/// CompenNet++ model, and on synthetic pairs the pre-training never saw (another seed) they
+/// undo the surface: at least 10 % below the loss of the input taken as the answer (a network that
+/// only copied its input would not be), and far below a Kaiming start.
+#[test]
+fn shipped_pretrained_weights_undo_the_synthetic_surface() {
+    use compend::nn::pretrain::{PREFIX, Pretrained, SURFACE_WEIGHT};
+    use compend::patterns::sampling::{Set, sampling_image};
+    let side = 128; // the pre-training's image side (its crops are 64²)
+    let content: Vec<_> = (0..4)
+        .map(|i| sampling_image(9_001, Set::Train, i, side, side))
+        .collect();
+    let x = stack(&content);
+    // A smooth surface, as the pre-training's (made at a quarter of the side and enlarged).
+    let s = stack(&[compend::resize::resize(
+        &sampling_image(9_002, Set::Test, 0, side / 4, side / 4),
+        side,
+        side,
+        compend::resize::Filter::Bilinear,
+    )]);
+    let input = x
+        .broadcast_sub(&s.affine(SURFACE_WEIGHT, 0.0).unwrap())
+        .unwrap()
+        .abs()
+        .unwrap();
+    let score = |t: &Tensor| -> f64 {
+        compend::nn::loss::l1_ssim(t, &x)
+            .unwrap()
+            .to_dtype(DType::F64)
+            .unwrap()
+            .to_scalar()
+            .unwrap()
+    };
+    let as_is = score(&input);
+    for width in [16, 32] {
+        let weights = Pretrained::shipped(width).unwrap().expect("shipped");
+        assert_eq!(weights.meta.settings.width, width);
+        assert!(
+            weights.meta.final_loss < 0.7 * weights.meta.first_loss,
+            "width {width}: the shipped run's loss fell only {:.3} → {:.3}",
+            weights.meta.first_loss,
+            weights.meta.final_loss
+        );
+        let varmap = candle_nn::VarMap::new();
+        let vb = candle_nn::VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let net = compend::nn::CompenNet::with_width(vb.pp(PREFIX), width).unwrap();
+        compend::nn::layers::seeded_init(&varmap, 1).unwrap();
+        let kaiming = score(&net.forward(&input, &s).unwrap());
+        assert_eq!(weights.apply(&varmap).unwrap(), 34);
+        let pretrained = score(&net.forward(&input, &s).unwrap());
+        eprintln!(
+            "width {width}: {pretrained:.3} pre-trained, {as_is:.3} as is, {kaiming:.3} Kaiming"
+        );
+        assert!(
+            pretrained < 0.9 * as_is && pretrained < 0.5 * kaiming,
+            "width {width}: loss {pretrained:.3} pre-trained, {as_is:.3} for the input as is, {kaiming:.3} from Kaiming"
+        );
+    }
+}
+
+/// The matmul convolutions equal candle's own, forward and backward, for every layer shape
+/// CompenNet++ uses (3×3 stride 1 and 2, 1×1, 2×2 stride-2 transposed), in f64 and f32.
+#[test]
+fn matmul_convolutions_equal_candles_with_gradients() {
+    use candle_nn::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
+    use compend::nn::conv::{conv_transpose2d, conv2d};
+    let dev = Device::Cpu;
+    let max_diff = |a: &Tensor, b: &Tensor| -> f64 {
+        (a - b)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_dtype(DType::F64)
+            .unwrap()
+            .to_scalar()
+            .unwrap()
+    };
+    for (dtype, tol) in [(DType::F64, 1e-10), (DType::F32, 1e-4)] {
+        // (cin, cout, k, stride, padding, h, w)
+        for &(ci, co, k, s, p, h, w) in &[
+            (3, 5, 3, 1, 1, 9, 7),
+            (4, 6, 3, 2, 1, 10, 8),
+            (3, 4, 3, 2, 1, 9, 7),
+            (5, 3, 1, 1, 0, 6, 5),
+            (2, 3, 3, 1, 0, 6, 6),
+        ] {
+            let x = Var::from_tensor(
+                &Tensor::randn(0f32, 1.0, (2, ci, h, w), &dev)
+                    .unwrap()
+                    .to_dtype(dtype)
+                    .unwrap(),
+            )
+            .unwrap();
+            let wt = Var::from_tensor(
+                &Tensor::randn(0f32, 0.3, (co, ci, k, k), &dev)
+                    .unwrap()
+                    .to_dtype(dtype)
+                    .unwrap(),
+            )
+            .unwrap();
+            let b = Var::from_tensor(
+                &Tensor::randn(0f32, 0.3, co, &dev)
+                    .unwrap()
+                    .to_dtype(dtype)
+                    .unwrap(),
+            )
+            .unwrap();
+            let cfg = Conv2dConfig {
+                padding: p,
+                stride: s,
+                ..Default::default()
+            };
+            let layer = Conv2d::new(wt.as_tensor().clone(), Some(b.as_tensor().clone()), cfg);
+            let ours = conv2d(&layer, x.as_tensor()).unwrap();
+            let theirs = candle_core::Module::forward(&layer, x.as_tensor()).unwrap();
+            assert_eq!(ours.dims(), theirs.dims());
+            assert!(
+                max_diff(&ours, &theirs) < tol,
+                "conv {ci}->{co} k{k} s{s} p{p}: forward"
+            );
+            // A loss that weights every output differently, so each gradient entry is tested.
+            let probe = Tensor::randn(0f32, 1.0, ours.dims(), &dev)
+                .unwrap()
+                .to_dtype(dtype)
+                .unwrap();
+            let g1 = (&ours * &probe)
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .backward()
+                .unwrap();
+            let g2 = (&theirs * &probe)
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .backward()
+                .unwrap();
+            for (name, v) in [("input", &x), ("weight", &wt), ("bias", &b)] {
+                let (a, c) = (g1.get(v).unwrap(), g2.get(v).unwrap());
+                assert!(
+                    max_diff(a, c) < tol * 10.0,
+                    "conv {ci}->{co} k{k} s{s} p{p} {dtype:?}: {name} gradient differs by {}",
+                    max_diff(a, c)
+                );
+            }
+        }
+        for &(ci, co, k, h, w) in &[(4, 3, 2, 5, 3), (6, 2, 2, 4, 4)] {
+            let x = Var::from_tensor(
+                &Tensor::randn(0f32, 1.0, (2, ci, h, w), &dev)
+                    .unwrap()
+                    .to_dtype(dtype)
+                    .unwrap(),
+            )
+            .unwrap();
+            let wt = Var::from_tensor(
+                &Tensor::randn(0f32, 0.3, (ci, co, k, k), &dev)
+                    .unwrap()
+                    .to_dtype(dtype)
+                    .unwrap(),
+            )
+            .unwrap();
+            let b = Var::from_tensor(
+                &Tensor::randn(0f32, 0.3, co, &dev)
+                    .unwrap()
+                    .to_dtype(dtype)
+                    .unwrap(),
+            )
+            .unwrap();
+            let cfg = ConvTranspose2dConfig {
+                stride: k,
+                ..Default::default()
+            };
+            let layer =
+                ConvTranspose2d::new(wt.as_tensor().clone(), Some(b.as_tensor().clone()), cfg);
+            let ours = conv_transpose2d(&layer, x.as_tensor()).unwrap();
+            let theirs = candle_core::Module::forward(&layer, x.as_tensor()).unwrap();
+            assert_eq!(ours.dims(), &[2, co, h * k, w * k]);
+            assert!(max_diff(&ours, &theirs) < tol, "tconv {ci}->{co}: forward");
+            let probe = Tensor::randn(0f32, 1.0, ours.dims(), &dev)
+                .unwrap()
+                .to_dtype(dtype)
+                .unwrap();
+            let g1 = (&ours * &probe)
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .backward()
+                .unwrap();
+            let g2 = (&theirs * &probe)
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .backward()
+                .unwrap();
+            for (name, v) in [("input", &x), ("weight", &wt), ("bias", &b)] {
+                let (a, c) = (g1.get(v).unwrap(), g2.get(v).unwrap());
+                assert!(
+                    max_diff(a, c) < tol * 10.0,
+                    "tconv {ci}->{co} {dtype:?}: {name} gradient differs by {}",
+                    max_diff(a, c)
+                );
+            }
+        }
+    }
+}
+
+/// The SSIM window's blur op equals replicate padding + candle's convolutions, forward and
+/// backward (its adjoint), also on planes narrower than the window.
+#[test]
+fn gaussian_blur_op_equals_padded_convolutions_with_gradients() {
+    use compend::nn::loss::GaussianBlur;
+    let dev = Device::Cpu;
+    let op = GaussianBlur::ssim_window();
+    let r = op.taps.len() / 2;
+    let kx = Tensor::from_vec(op.taps.clone(), (1, 1, 1, 2 * r + 1), &dev).unwrap();
+    let ky = Tensor::from_vec(op.taps.clone(), (1, 1, 2 * r + 1, 1), &dev).unwrap();
+    for (n, c, h, w) in [(2, 3, 9, 13), (1, 2, 4, 3), (1, 1, 16, 16)] {
+        let x = Var::from_tensor(&Tensor::randn(0f64, 1.0, (n, c, h, w), &dev).unwrap()).unwrap();
+        let ours = x.as_tensor().apply_op1(op.clone()).unwrap();
+        let flat = x.as_tensor().reshape((n * c, 1, h, w)).unwrap();
+        let a = flat
+            .pad_with_same(3, r, r)
+            .unwrap()
+            .conv2d(&kx, 0, 1, 1, 1)
+            .unwrap();
+        let theirs = a
+            .pad_with_same(2, r, r)
+            .unwrap()
+            .conv2d(&ky, 0, 1, 1, 1)
+            .unwrap()
+            .reshape((n, c, h, w))
+            .unwrap();
+        let diff = |a: &Tensor, b: &Tensor| -> f64 {
+            (a - b)
+                .unwrap()
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar()
+                .unwrap()
+        };
+        assert!(diff(&ours, &theirs) < 1e-12, "{n}x{c}x{h}x{w}: forward");
+        let probe = Tensor::randn(0f64, 1.0, (n, c, h, w), &dev).unwrap();
+        let g1 = (&ours * &probe)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap();
+        let g2 = (&theirs * &probe)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap();
+        let d = diff(g1.get(&x).unwrap(), g2.get(&x).unwrap());
+        assert!(d < 1e-12, "{n}x{c}x{h}x{w}: gradient differs by {d}");
+    }
 }

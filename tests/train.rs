@@ -190,6 +190,49 @@ fn bad_inputs_exit_2_and_keep_the_good_model() {
         before
     );
 
+    // A missing or mismatched photometric pre-initialisation names the file.
+    let weights = dir.path().join("w4.safetensors");
+    let tiny = compend::nn::pretrain::PretrainSettings {
+        width: 4,
+        patch: 16,
+        image: 16,
+        pool: 1,
+        batch: 1,
+        iters: 1,
+        lr_step: 1,
+        learning_rate: 1e-3,
+        weight_decay: 0.0,
+        seed: 0,
+    };
+    let never = std::sync::atomic::AtomicBool::new(false);
+    compend::nn::pretrain::pretrain(&tiny, &candle_core::Device::Cpu, &never, |_, _, _| {})
+        .unwrap()
+        .save(&weights)
+        .unwrap();
+    for (file, says) in [
+        ("absent.safetensors", "absent.safetensors"),
+        ("w4.safetensors", "width 4"),
+    ] {
+        let path = dir.path().join(file);
+        let out = compend(&[
+            "train",
+            "--setup",
+            s,
+            "--method",
+            "compennet++-faster",
+            "--photometric-init",
+            path.to_str().unwrap(),
+            "--out",
+            m,
+        ]);
+        assert_code(&out, 2);
+        assert!(stderr(&out).contains(says), "{}", stderr(&out));
+    }
+    assert_eq!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        before
+    );
+
     // A missing reference capture names the file.
     let white = setup.join("cam/raw/ref/img_0125.png");
     std::fs::remove_file(&white).unwrap();
@@ -351,6 +394,10 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
     assert_eq!(meta["method"], "compennet++-faster");
     assert_eq!(meta["training"]["iterations"], 40);
     assert_eq!(meta["training"]["lr_step"], 32);
+    assert_eq!(
+        meta["training"]["photometric_init"],
+        "shipped:weights/compennet-pretrain-w32.safetensors"
+    );
 
     // Loading runs the full network; the score is deterministic and the compensated row beats the
     // captures warped as they are.

@@ -255,6 +255,7 @@ fn bench_scene(
                 batch: args.batch,
                 device: Default::default(),
                 lattice: None,
+                photometric: Default::default(),
             };
             let mut row = Row {
                 scene: scene.into(),

@@ -39,6 +39,67 @@ pub struct Args {
     /// Training pairs of the timed `linear` fit (0 = skip it).
     #[arg(long, default_value_t = 48)]
     pub linear_pairs: usize,
+    /// A Python interpreter with PyTorch: the same CompenNet++ training steps (same sizes,
+    /// batch and thread count) are timed in PyTorch in this run (`scripts/bench_torch.py`,
+    /// compiled in and fed on stdin), and the ratio candle / PyTorch is reported per rung.
+    #[arg(long, value_name = "PYTHON")]
+    pub torch: Option<PathBuf>,
+}
+
+/// The PyTorch twin of the training step (run by `--torch`).
+const TORCH_SCRIPT: &str = include_str!("../../scripts/bench_torch.py");
+
+/// PyTorch's ms per training sample for the same model and sizes, or why there is none.
+fn torch_train_ms(
+    python: &std::path::Path,
+    side: usize,
+    width: usize,
+    camera: (usize, usize),
+    batch: usize,
+    steps: usize,
+) -> std::result::Result<(f64, String), String> {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(python)
+        .args([
+            "-",
+            "--network",
+            &side.to_string(),
+            "--width",
+            &width.to_string(),
+        ])
+        .args(["--camera", &format!("{}x{}", camera.0, camera.1)])
+        .args(["--batch", &batch.to_string(), "--steps", &steps.to_string()])
+        .args(["--threads", &rayon::current_num_threads().to_string()])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| format!("{}: could not start ({e})", python.display()))?;
+    if let Some(mut stdin) = child.stdin.take() {
+        stdin
+            .write_all(TORCH_SCRIPT.as_bytes())
+            .map_err(|e| format!("{}: writing the script failed ({e})", python.display()))?;
+    }
+    let out = child
+        .wait_with_output()
+        .map_err(|e| format!("{}: {e}", python.display()))?;
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        let last = err.lines().last().unwrap_or("").trim();
+        return Err(format!(
+            "{} exited with {}: {last}",
+            python.display(),
+            out.status
+        ));
+    }
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .map_err(|e| format!("{}: unreadable output ({e})", python.display()))?;
+    let ms = v["train_ms_per_sample"]
+        .as_f64()
+        .ok_or_else(|| format!("{}: no train_ms_per_sample in {v}", python.display()))?;
+    let name = v["framework"].as_str().unwrap_or("pytorch").to_string();
+    Ok((ms, name))
 }
 
 fn parse_camera(s: &str) -> std::result::Result<Size, String> {
@@ -77,6 +138,11 @@ struct Row {
     frame_ms: f64,
     /// Arithmetic per inference frame, GMAC (the simplified backbone; `null` for linear).
     frame_gmac: Option<f64>,
+    /// PyTorch's ms per training sample for the same model in this run (`--torch`), its
+    /// version, and candle's time over PyTorch's.
+    torch_ms_per_sample: Option<f64>,
+    torch: Option<String>,
+    candle_over_torch: Option<f64>,
     error: Option<String>,
 }
 
@@ -132,6 +198,8 @@ fn compennet_train_ms(
         targets: Tensor::rand(0f32, 1.0, (batch, 3, side, side), &dev).map_err(ce)?,
     };
     let mut settings = Settings::new(variant, 0);
+    // Costs only: the starting weights do not change them.
+    settings.photometric = compend::nn::pretrain::PhotometricInit::Kaiming;
     settings.iters = Some(steps + 1);
     settings.batch = Some(batch);
     let never = std::sync::atomic::AtomicBool::new(false);
@@ -183,6 +251,22 @@ fn compennet_row(
         Ok(ms) => (Some(ms), None),
         Err(e) => (None, Some(e.to_string())),
     };
+    let (mut torch_ms, mut torch, mut error) = (None, None, error);
+    if let Some(python) = &a.torch {
+        eprintln!(
+            "bench-train: the same steps in PyTorch ({})",
+            python.display()
+        );
+        match torch_train_ms(python, side, width, camera, a.batch, a.steps) {
+            Ok((ms, name)) => {
+                torch_ms = Some(ms);
+                torch = Some(name);
+            }
+            Err(e) => {
+                error = Some(error.map_or(e.clone(), |prev| format!("{prev}; {e}")));
+            }
+        }
+    }
     let model = compend::gpu::bench::synthetic_compennet_model(camera, (side, side), variant, 0)?;
     let frame = frame_ms(&model, camera, a.frames)?;
     let rate = train_ms.map(|ms| gflop / (ms / 1e3));
@@ -196,6 +280,9 @@ fn compennet_row(
         train_fraction_of_matmul: rate.map(|r| r / m.matmul_gflops),
         frame_ms: frame,
         frame_gmac: Some(backbone_macs(side, side, width) / 1e9),
+        candle_over_torch: train_ms.zip(torch_ms).map(|(c, t)| c / t),
+        torch_ms_per_sample: torch_ms,
+        torch,
         error,
     })
 }
@@ -254,6 +341,9 @@ fn linear_row(a: &Args, camera: (usize, usize)) -> Result<Row> {
         train_fraction_of_matmul: None,
         frame_ms: frame_ms(&model, camera, a.frames)?,
         frame_gmac: None,
+        torch_ms_per_sample: None,
+        torch: None,
+        candle_over_torch: None,
         error: None,
     })
 }
@@ -285,13 +375,13 @@ pub fn run(a: Args) -> Result<()> {
     let mut md = format!(
         "# compend bench-train\n\nMachine ({} threads): candle matmul 1024³ {:.1} GFLOP/s, \
          conv 128→256 3×3 at 64² batch 8 {:.1} GFLOP/s (best of three, this run).\n\n\
-         | method | network | width | train ms/sample | GFLOP/sample | GFLOP/s | of matmul | frame ms | frame GMAC |\n\
-         |---|---|---|---|---|---|---|---|---|\n",
+         | method | network | width | train ms/sample | GFLOP/sample | GFLOP/s | of matmul | PyTorch ms/sample | candle / PyTorch | frame ms | frame GMAC |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
         m.threads, m.matmul_gflops, m.conv_gflops
     );
     for r in &rows {
         md += &format!(
-            "| {} | {}² | {} | {} | {} | {} | {} | {:.1} | {} |\n",
+            "| {} | {}² | {} | {} | {} | {} | {} | {} | {} | {:.1} | {} |\n",
             r.method,
             r.network,
             r.width.map_or("–".into(), |w| w.to_string()),
@@ -300,6 +390,9 @@ pub fn run(a: Args) -> Result<()> {
             opt(r.train_gflops, 1),
             r.train_fraction_of_matmul
                 .map_or("–".into(), |f| format!("{:.0} %", 100.0 * f)),
+            opt(r.torch_ms_per_sample, 1),
+            r.candle_over_torch
+                .map_or("–".into(), |f| format!("{f:.2}×")),
             r.frame_ms,
             opt(r.frame_gmac, 2),
         );
@@ -309,7 +402,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     md += "\nTraining GFLOP per sample = 3 × 2 × (backbone MACs + surface-branch MACs / batch); \
            grid sampling and the WarpingNet are left out (small). `linear` trains by a \
-           closed-form fit: its figure is the whole fit divided by the pairs.\n";
+           closed-form fit: its figure is the whole fit divided by the pairs. PyTorch (with \
+           --torch) runs the same network, loss, optimiser, sizes, batch and thread count from \
+           scripts/bench_torch.py in this run.\n";
+    if let Some(t) = rows.iter().find_map(|r| r.torch.as_ref()) {
+        md += &format!("\nPyTorch: {t}.\n");
+    }
     let jp = a.out.join("bench-train.json");
     std::fs::write(&jp, serde_json::to_string_pretty(&json)? + "\n")
         .map_err(|e| compend::Error::io(&jp, "write", e))?;

@@ -11,6 +11,7 @@ pub mod inspect;
 pub mod metrics;
 pub mod patterns;
 pub mod play;
+pub mod pretrain;
 pub mod show;
 pub mod sim;
 pub mod train;

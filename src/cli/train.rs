@@ -15,8 +15,8 @@ pub struct Args {
     /// CompenNet++ variant: `compennet++-faster` (48 pairs, batch 16, 500 iterations),
     /// `compennet++-fast`, `compennet++-norefine`, `compennet++` (500 pairs, batch 48, 1500), or
     /// `compennet++-cpu`, the CPU-sized rung (half the network side, half the channel widths;
-    /// 48 pairs, batch 4, 400 iterations: about 8 minutes on 2 cores).
-    /// CompenNet++ on a CPU takes about a second per sample at 256²: see --iters.
+    /// 48 pairs, batch 4, 1000 iterations: about 6 minutes on 2 cores).
+    /// CompenNet++ on a CPU takes about 0.6–0.8 s per sample at 256²: see --iters.
     /// `auto` picks between `linear` and `linear-sl` by their paper-protocol PSNR on held-out
     /// training pairs, refits the winner on all pairs and records the evidence in model.json.
     #[arg(long)]
@@ -50,6 +50,12 @@ pub struct Args {
     /// canvas; offline, `compensate` writes images of this size.
     #[arg(long, value_name = "N|WxH", value_parser = parse_lattice)]
     pub lattice: Option<(usize, usize)>,
+    /// CompenNet++ variants: how CompenNet's weights start: `shipped` (the photometric
+    /// pre-initialisation compiled into compend, see `compend pretrain`), `none` (Kaiming noise
+    /// from --seed, as the paper without pre-training) or a `.safetensors` file written by
+    /// `compend pretrain` for the variant's channel width.
+    #[arg(long, value_name = "shipped|none|FILE", default_value = "shipped")]
+    pub photometric_init: compend::nn::pretrain::PhotometricInit,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -62,6 +68,7 @@ pub fn run(args: Args) -> Result<()> {
         batch: args.batch,
         device: args.device,
         lattice: args.lattice,
+        photometric: args.photometric_init.clone(),
     };
     let bar = super::progress_bar(args.json);
     let (model, summary) = train::train(&setup, &req, |stage, done, total| {

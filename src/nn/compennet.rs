@@ -47,10 +47,10 @@ impl SurfaceBranch {
     }
 
     pub fn forward(&self, s: &Tensor) -> Result<SurfaceFeatures> {
-        let s1 = self.conv1.forward(s)?.relu()?;
-        let s2 = self.conv2.forward(&s1)?.relu()?;
-        let s3 = self.conv3.forward(&s2)?.relu()?;
-        let s4 = self.conv4.forward(&s3)?.relu()?;
+        let s1 = super::conv::conv2d(&self.conv1, s)?.relu()?;
+        let s2 = super::conv::conv2d(&self.conv2, &s1)?.relu()?;
+        let s3 = super::conv::conv2d(&self.conv3, &s2)?.relu()?;
+        let s4 = super::conv::conv2d(&self.conv4, &s3)?.relu()?;
         Ok(SurfaceFeatures { s1, s2, s3, s4 })
     }
 }
@@ -78,7 +78,7 @@ impl Module for Skip1 {
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let mut r = x.clone();
         for c in &self.convs {
-            r = c.forward(&r)?.relu()?;
+            r = super::conv::conv2d(c, &r)?.relu()?;
         }
         Ok(r)
     }
@@ -123,16 +123,26 @@ impl Backbone {
     /// `x` (N, 3, H, W); the surface features broadcast over the batch.
     pub fn forward(&self, x: &Tensor, s: &SurfaceFeatures) -> Result<Tensor> {
         let res1 = self.skip1.forward(x)?;
-        let a1 = self.conv1.forward(x)?.broadcast_add(&s.s1)?.relu()?;
-        let res2 = self.skip2.forward(&a1)?;
-        let a2 = self.conv2.forward(&a1)?.broadcast_add(&s.s2)?.relu()?;
-        let res3 = self.skip3.forward(&a2)?;
-        let a3 = self.conv3.forward(&a2)?.broadcast_add(&s.s3)?.relu()?;
-        let a4 = self.conv4.forward(&a3)?.broadcast_add(&s.s4)?.relu()?;
-        let a5 = (self.conv5.forward(&a4)? + res3)?.relu()?;
-        let a6 = (self.tconv1.forward(&a5)? + res2)?.relu()?;
-        let a7 = self.tconv2.forward(&a6)?.relu()?;
-        (self.conv6.forward(&a7)? + res1)?.relu()?.clamp(0.0, 1.0)
+        let a1 = super::conv::conv2d(&self.conv1, x)?
+            .broadcast_add(&s.s1)?
+            .relu()?;
+        let res2 = super::conv::conv2d(&self.skip2, &a1)?;
+        let a2 = super::conv::conv2d(&self.conv2, &a1)?
+            .broadcast_add(&s.s2)?
+            .relu()?;
+        let res3 = super::conv::conv2d(&self.skip3, &a2)?;
+        let a3 = super::conv::conv2d(&self.conv3, &a2)?
+            .broadcast_add(&s.s3)?
+            .relu()?;
+        let a4 = super::conv::conv2d(&self.conv4, &a3)?
+            .broadcast_add(&s.s4)?
+            .relu()?;
+        let a5 = (super::conv::conv2d(&self.conv5, &a4)? + res3)?.relu()?;
+        let a6 = (super::conv::conv_transpose2d(&self.tconv1, &a5)? + res2)?.relu()?;
+        let a7 = super::conv::conv_transpose2d(&self.tconv2, &a6)?.relu()?;
+        (super::conv::conv2d(&self.conv6, &a7)? + res1)?
+            .relu()?
+            .clamp(0.0, 1.0)
     }
 }
 

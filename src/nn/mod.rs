@@ -3,9 +3,11 @@
 //! Tensors are NCHW, f32 (f64 works too, for gradient checks); images in [0,1] as in the core.
 
 pub mod compennet;
+pub mod conv;
 pub mod grid_sample;
 pub mod layers;
 pub mod loss;
+pub mod pretrain;
 pub mod train;
 pub mod warpingnet;
 

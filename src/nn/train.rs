@@ -80,7 +80,7 @@ impl Variant {
             Variant::Full | Variant::NoRefine => (500, 48, 1500, 1000),
             Variant::Fast => (48, 24, 1000, 800),
             Variant::Faster | Variant::Sl => (48, 16, 500, 400),
-            Variant::Cpu => (48, 4, 400, 320),
+            Variant::Cpu => (48, 4, 1000, 800),
         }
     }
 
@@ -105,6 +105,9 @@ pub struct Settings {
     pub learning_rate: f64,
     pub weight_decay: f64,
     pub seed: u64,
+    /// How CompenNet's weights start (default: the shipped pre-initialisation).
+    #[serde(default)]
+    pub photometric: super::pretrain::PhotometricInit,
 }
 
 impl Settings {
@@ -116,6 +119,7 @@ impl Settings {
             learning_rate: 1e-3,
             weight_decay: 1e-4,
             seed,
+            photometric: super::pretrain::PhotometricInit::default(),
         }
     }
 
@@ -262,6 +266,47 @@ impl CompenNetPP {
     }
 }
 
+/// Adam with the paper's settings (β 0.9/0.999, ε 1e-8); weight decay is added to the loss.
+pub(crate) fn adam(vars: Vec<candle_core::Var>, lr: f64) -> candle_core::Result<candle_nn::AdamW> {
+    candle_nn::AdamW::new(
+        vars,
+        candle_nn::ParamsAdamW {
+            lr,
+            weight_decay: 0.0,
+            ..Default::default()
+        },
+    )
+}
+
+/// Σw² over `vars` (the L2 weight-decay term before its factor wd/2).
+pub(crate) fn l2_penalty(vars: &[candle_core::Var], device: &Device) -> Result<Tensor> {
+    let ce = |e: candle_core::Error| Error::Failed(format!("L2 penalty: {e}"));
+    vars.iter()
+        .map(|v| v.as_tensor().sqr().and_then(|t| t.sum_all()))
+        .try_fold(
+            Tensor::zeros((), DType::F32, device).map_err(ce)?,
+            |acc, t| t.and_then(|t| acc + t),
+        )
+        .map_err(ce)
+}
+
+/// Divergence check for iteration `it`'s loss `value` after the losses so far: a non-finite
+/// loss, or one 10× the first after 10 iterations, stops training with an error.
+pub(crate) fn check_loss(value: f64, it: usize, losses: &[f64]) -> Result<()> {
+    if !value.is_finite() {
+        return Err(Error::Failed(format!(
+            "training diverged: loss {value} at iteration {it}"
+        )));
+    }
+    if it >= 10 && value > 10.0 * losses[0] {
+        return Err(Error::Failed(format!(
+            "training diverged: loss {value:.4} at iteration {it}, {:.1}× the first",
+            value / losses[0]
+        )));
+    }
+    Ok(())
+}
+
 /// What training reports.
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
@@ -273,6 +318,8 @@ pub struct Report {
     pub seconds: f64,
     /// Milliseconds per training sample (forward + backward + update).
     pub ms_per_sample: f64,
+    /// Where CompenNet's weights started: `kaiming`, or the pre-trained file's source.
+    pub photometric_init: String,
 }
 
 /// Trains a fresh model. Stops with an error (and no model) when `cancel` is set, when the loss
@@ -305,16 +352,15 @@ pub fn train(
         &device,
     )
     .map_err(ce)?;
+    let photometric_init = match settings.photometric.resolve(settings.variant.width())? {
+        Some(weights) => {
+            weights.apply(&model.varmap)?;
+            weights.source
+        }
+        None => "kaiming".to_string(),
+    };
     let vars = model.varmap.all_vars();
-    let mut opt = candle_nn::AdamW::new(
-        vars.clone(),
-        candle_nn::ParamsAdamW {
-            lr: settings.learning_rate,
-            weight_decay: 0.0,
-            ..Default::default()
-        },
-    )
-    .map_err(ce)?;
+    let mut opt = adam(vars.clone(), settings.learning_rate).map_err(ce)?;
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
     let mut order: Vec<u32> = (0..n as u32).collect();
     let mut losses = Vec::with_capacity(iters);
@@ -334,31 +380,14 @@ pub fn train(
         let y = data.targets.index_select(&idx, 0).map_err(ce)?;
         let out = model.forward(&x, &data.surface).map_err(ce)?;
         let fit = loss::l1_ssim(&out, &y).map_err(ce)?;
-        let l2 = vars
-            .iter()
-            .map(|v| v.as_tensor().sqr().and_then(|t| t.sum_all()))
-            .try_fold(
-                Tensor::zeros((), DType::F32, &device).map_err(ce)?,
-                |acc, t| t.and_then(|t| acc + t),
-            )
-            .map_err(ce)?;
+        let l2 = l2_penalty(&vars, &device)?;
         let total =
             (&fit + l2.affine(0.5 * settings.weight_decay, 0.0).map_err(ce)?).map_err(ce)?;
         let value: f64 = fit
             .to_dtype(DType::F64)
             .and_then(|t| t.to_scalar())
             .map_err(ce)?;
-        if !value.is_finite() {
-            return Err(Error::Failed(format!(
-                "training diverged: loss {value} at iteration {it}"
-            )));
-        }
-        if it >= 10 && value > 10.0 * losses[0] {
-            return Err(Error::Failed(format!(
-                "training diverged: loss {value:.4} at iteration {it}, {:.1}× the first",
-                value / losses[0]
-            )));
-        }
+        check_loss(value, it, &losses)?;
         losses.push(value);
         opt.backward_step(&total).map_err(ce)?;
         progress(it + 1, iters, value);
@@ -387,6 +416,7 @@ pub fn train(
             lr_step,
             ms_per_sample: 1e3 * seconds / (iters * batch) as f64,
             losses,
+            photometric_init,
             seconds,
         },
     ))

@@ -42,10 +42,10 @@ impl Refine {
 impl Module for Refine {
     /// `g` (N, 2, H, W) → correction (N, 2, H, W).
     fn forward(&self, g: &Tensor) -> Result<Tensor> {
-        let a = self.conv1.forward(g)?.relu()?;
-        let a = self.conv2.forward(&a)?.relu()?;
-        let a = self.tconv1.forward(&a)?.relu()?;
-        let a = self.tconv2.forward(&a)?;
+        let a = super::conv::conv2d(&self.conv1, g)?.relu()?;
+        let a = super::conv::conv2d(&self.conv2, &a)?.relu()?;
+        let a = super::conv::conv_transpose2d(&self.tconv1, &a)?.relu()?;
+        let a = super::conv::conv_transpose2d(&self.tconv2, &a)?;
         // LeakyReLU(0.1) = max(a, 0.1·a).
         a.maximum(&a.affine(0.1, 0.0)?)
     }

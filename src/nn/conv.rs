@@ -1,0 +1,296 @@
+//! Convolutions as matrix products, for training speed on the CPU.
+//!
+//! candle 0.11's CPU convolution builds its im2col tiles with a scalar, bounds-checked loop and
+//! computes the input gradient with a direct transposed convolution (`vec_dot` per output pixel);
+//! profiling CompenNet training (`perf`, width 16 at 64²) found under 5 % of the time in the
+//! matrix-product kernel. Here a convolution is an im2col copy ([`Im2Col`], a custom op whose
+//! backward pass is the matching col2im scatter-add) followed by one batched matrix product,
+//! so candle's matmul (and its gradient, two more matmuls) does the arithmetic. A stride-k,
+//! k×k transposed convolution (CompenNet's up-sampling) is a matrix product and a pixel
+//! shuffle. Results equal candle's own `conv2d` / `conv_transpose2d` to rounding (tested).
+//!
+//! Tensors are NCHW; images and features in network pixels. Other devices (CUDA) use candle's
+//! own convolutions.
+
+use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor, bail};
+use candle_nn::{Conv2d, ConvTranspose2d};
+use rayon::prelude::*;
+
+/// Geometry of one im2col: input (B, C, H, W), a k×k window, stride, zero padding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Im2Col {
+    pub k: usize,
+    pub stride: usize,
+    pub padding: usize,
+}
+
+impl Im2Col {
+    /// Output side for an input side `n`.
+    pub fn out(&self, n: usize) -> Result<usize> {
+        let padded = n + 2 * self.padding;
+        if padded < self.k || self.stride == 0 {
+            bail!(
+                "im2col: input side {n} with padding {} is smaller than the {}×{} window",
+                self.padding,
+                self.k,
+                self.k
+            );
+        }
+        Ok((padded - self.k) / self.stride + 1)
+    }
+
+    /// For kernel offset `kk` (row or column within the window), the range of output positions
+    /// whose input position `o·stride + kk − padding` lies inside `0..n`.
+    fn valid(&self, kk: usize, n: usize, out: usize) -> std::ops::Range<usize> {
+        let (s, p) = (self.stride as isize, self.padding as isize);
+        let kk = kk as isize;
+        // smallest o with o·s + kk − p ≥ 0; largest with o·s + kk − p ≤ n − 1
+        let lo = (p - kk).max(0);
+        let lo = (lo + s - 1) / s;
+        let hi = (n as isize - 1 + p - kk).div_euclid(s) + 1;
+        let hi = hi.clamp(0, out as isize);
+        (lo.min(hi) as usize)..(hi as usize)
+    }
+
+    /// One (image, channel) plane `x` (H×W) into its k·k rows of `cols` (each Ho·Wo long).
+    fn plane_to_rows<T: Copy + Default>(&self, x: &[T], h: usize, w: usize, cols: &mut [T]) {
+        let (ho, wo) = (self.out(h).unwrap_or(0), self.out(w).unwrap_or(0));
+        let n = ho * wo;
+        for kh in 0..self.k {
+            let ys = self.valid(kh, h, ho);
+            for kw in 0..self.k {
+                let xs = self.valid(kw, w, wo);
+                let row = &mut cols[(kh * self.k + kw) * n..][..n];
+                row.fill(T::default());
+                for oy in ys.clone() {
+                    let iy = oy * self.stride + kh - self.padding;
+                    let src = &x[iy * w..][..w];
+                    let dst = &mut row[oy * wo..][..wo];
+                    if self.stride == 1 {
+                        let ix0 = xs.start + kw - self.padding;
+                        dst[xs.clone()].copy_from_slice(&src[ix0..ix0 + xs.len()]);
+                    } else {
+                        for ox in xs.clone() {
+                            dst[ox] = src[ox * self.stride + kw - self.padding];
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The adjoint: k·k rows (each Ho·Wo) summed back into one H×W plane.
+    fn rows_to_plane<T: Copy + Default + std::ops::AddAssign>(
+        &self,
+        cols: &[T],
+        h: usize,
+        w: usize,
+        x: &mut [T],
+    ) {
+        let (ho, wo) = (self.out(h).unwrap_or(0), self.out(w).unwrap_or(0));
+        let n = ho * wo;
+        x.fill(T::default());
+        for kh in 0..self.k {
+            let ys = self.valid(kh, h, ho);
+            for kw in 0..self.k {
+                let xs = self.valid(kw, w, wo);
+                let row = &cols[(kh * self.k + kw) * n..][..n];
+                for oy in ys.clone() {
+                    let iy = oy * self.stride + kh - self.padding;
+                    let dst = &mut x[iy * w..][..w];
+                    let src = &row[oy * wo..][..wo];
+                    for ox in xs.clone() {
+                        dst[ox * self.stride + kw - self.padding] += src[ox];
+                    }
+                }
+            }
+        }
+    }
+
+    fn im2col<T: Copy + Default + Send + Sync>(
+        &self,
+        x: &[T],
+        dims: (usize, usize, usize, usize),
+    ) -> Result<Vec<T>> {
+        let (b, c, h, w) = dims;
+        let n = self.out(h)? * self.out(w)?;
+        let kk = self.k * self.k;
+        let mut cols = vec![T::default(); b * c * kk * n];
+        cols.par_chunks_mut(kk * n)
+            .zip(x.par_chunks(h * w))
+            .for_each(|(dst, src)| self.plane_to_rows(src, h, w, dst));
+        Ok(cols)
+    }
+
+    fn col2im<T: Copy + Default + Send + Sync + std::ops::AddAssign>(
+        &self,
+        cols: &[T],
+        dims: (usize, usize, usize, usize),
+    ) -> Result<Vec<T>> {
+        let (b, c, h, w) = dims;
+        let n = self.out(h)? * self.out(w)?;
+        let kk = self.k * self.k;
+        let mut x = vec![T::default(); b * c * h * w];
+        x.par_chunks_mut(h * w)
+            .zip(cols.par_chunks(kk * n))
+            .for_each(|(dst, src)| self.rows_to_plane(src, h, w, dst));
+        Ok(x)
+    }
+}
+
+fn contiguous<'a, T>(data: &'a [T], layout: &Layout, op: &str) -> Result<&'a [T]> {
+    match layout.contiguous_offsets() {
+        Some((start, end)) => Ok(&data[start..end]),
+        None => bail!("{op}: the input must be contiguous"),
+    }
+}
+
+impl CustomOp1 for Im2Col {
+    fn name(&self) -> &'static str {
+        "im2col"
+    }
+
+    /// (B, C, H, W) → (B, C·k·k, Ho·Wo); row `c·k·k + kh·k + kw` matches a weight (O, C, k, k)
+    /// flattened to (O, C·k·k).
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
+        let (b, c, h, w) = layout.shape().dims4()?;
+        let shape = Shape::from((b, c * self.k * self.k, self.out(h)? * self.out(w)?));
+        let out = match storage {
+            CpuStorage::F32(d) => {
+                CpuStorage::F32(self.im2col(contiguous(d, layout, "im2col")?, (b, c, h, w))?)
+            }
+            CpuStorage::F64(d) => {
+                CpuStorage::F64(self.im2col(contiguous(d, layout, "im2col")?, (b, c, h, w))?)
+            }
+            _ => bail!("im2col: only f32 and f64 tensors are supported"),
+        };
+        Ok((out, shape))
+    }
+
+    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> Result<Option<Tensor>> {
+        let (b, c, h, w) = arg.dims4()?;
+        let back = Col2Im {
+            geometry: *self,
+            dims: (b, c, h, w),
+        };
+        Ok(Some(grad_res.contiguous()?.apply_op1_no_bwd(&back)?))
+    }
+}
+
+/// The adjoint of [`Im2Col`] (its backward pass): (B, C·k·k, Ho·Wo) → (B, C, H, W), overlapping
+/// windows summed.
+struct Col2Im {
+    geometry: Im2Col,
+    dims: (usize, usize, usize, usize),
+}
+
+impl CustomOp1 for Col2Im {
+    fn name(&self) -> &'static str {
+        "col2im"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
+        let g = &self.geometry;
+        let (b, c, h, w) = self.dims;
+        let expected = (b, c * g.k * g.k, g.out(h)? * g.out(w)?);
+        if layout.shape().dims3()? != expected {
+            bail!(
+                "col2im: gradient shape {:?}, expected {expected:?}",
+                layout.shape()
+            );
+        }
+        let out = match storage {
+            CpuStorage::F32(d) => {
+                CpuStorage::F32(g.col2im(contiguous(d, layout, "col2im")?, self.dims)?)
+            }
+            CpuStorage::F64(d) => {
+                CpuStorage::F64(g.col2im(contiguous(d, layout, "col2im")?, self.dims)?)
+            }
+            _ => bail!("col2im: only f32 and f64 tensors are supported"),
+        };
+        Ok((out, Shape::from((b, c, h, w))))
+    }
+}
+
+/// `conv`'s forward pass on `x` (B, Cin, H, W) as im2col + matmul on the CPU (candle's own
+/// convolution elsewhere). Groups and dilation other than 1 are refused.
+pub fn conv2d(conv: &Conv2d, x: &Tensor) -> Result<Tensor> {
+    let cfg = conv.config();
+    if cfg.groups != 1 || cfg.dilation != 1 {
+        bail!(
+            "conv2d: groups {} and dilation {} are not supported (expected 1)",
+            cfg.groups,
+            cfg.dilation
+        );
+    }
+    if !x.device().is_cpu() {
+        return candle_core::Module::forward(conv, x);
+    }
+    let weight = conv.weight();
+    let (co, ci, kh, kw) = weight.dims4()?;
+    let (b, c, h, w) = x.dims4()?;
+    if c != ci || kh != kw {
+        bail!(
+            "conv2d: input has {c} channels and the kernel is {co}×{ci}×{kh}×{kw} (square kernels only)"
+        );
+    }
+    let geometry = Im2Col {
+        k: kh,
+        stride: cfg.stride,
+        padding: cfg.padding,
+    };
+    let (ho, wo) = (geometry.out(h)?, geometry.out(w)?);
+    let cols = if geometry
+        == (Im2Col {
+            k: 1,
+            stride: 1,
+            padding: 0,
+        }) {
+        x.reshape((b, c, h * w))?
+    } else {
+        x.contiguous()?.apply_op1(geometry)?
+    };
+    let y = weight
+        .reshape((co, ci * kh * kw))?
+        .broadcast_matmul(&cols)?
+        .reshape((b, co, ho, wo))?;
+    match conv.bias() {
+        Some(bias) => y.broadcast_add(&bias.reshape((1, co, 1, 1))?),
+        None => Ok(y),
+    }
+}
+
+/// `tconv`'s forward pass on `x` (B, Cin, H, W) when its stride equals its kernel side k and it
+/// has no padding (each input pixel paints its own k×k block): one matmul and a pixel shuffle on
+/// the CPU; candle's own transposed convolution otherwise.
+pub fn conv_transpose2d(tconv: &ConvTranspose2d, x: &Tensor) -> Result<Tensor> {
+    let cfg = tconv.config();
+    let weight = tconv.weight();
+    let (ci, co, kh, kw) = weight.dims4()?;
+    let blockwise = kh == kw
+        && cfg.stride == kh
+        && cfg.padding == 0
+        && cfg.output_padding == 0
+        && cfg.dilation == 1;
+    if !x.device().is_cpu() || !blockwise {
+        return candle_core::Module::forward(tconv, x);
+    }
+    let (b, c, h, w) = x.dims4()?;
+    if c != ci {
+        bail!("conv_transpose2d: input has {c} channels, the kernel {ci}×{co}×{kh}×{kw}");
+    }
+    let k = kh;
+    let z = weight
+        .reshape((ci, co * k * k))?
+        .t()?
+        .broadcast_matmul(&x.reshape((b, ci, h * w))?)?; // (B, co·k·k, H·W)
+    let y = z
+        .reshape((b, co, k, k, h, w))?
+        .permute((0, 1, 4, 2, 5, 3))?
+        .contiguous()?
+        .reshape((b, co, h * k, w * k))?;
+    match tconv.bias() {
+        Some(bias) => y.broadcast_add(&bias.reshape((1, co, 1, 1))?),
+        None => Ok(y),
+    }
+}
