@@ -558,25 +558,51 @@ fn shipped_pretrained_weights_undo_the_synthetic_surface() {
     }
 }
 
+/// Random variables of `dims` (normal, σ `std`) in `dtype`.
+fn random_var(dims: &[usize], std: f32, dtype: DType) -> Var {
+    let t = Tensor::randn(0f32, std, dims, &Device::Cpu).unwrap();
+    Var::from_tensor(&t.to_dtype(dtype).unwrap()).unwrap()
+}
+
+fn max_abs_diff(a: &Tensor, b: &Tensor) -> f64 {
+    (a - b)
+        .unwrap()
+        .abs()
+        .unwrap()
+        .max_all()
+        .unwrap()
+        .to_dtype(DType::F64)
+        .unwrap()
+        .to_scalar()
+        .unwrap()
+}
+
+/// `ours` and `theirs` (two implementations of one layer on the same variables) agree within
+/// `tol` forward and within 10·`tol` in the gradient of every variable.
+fn assert_same_layer(what: &str, ours: &Tensor, theirs: &Tensor, vars: &[(&str, &Var)], tol: f64) {
+    assert_eq!(ours.dims(), theirs.dims(), "{what}: shape");
+    let d = max_abs_diff(ours, theirs);
+    assert!(d < tol, "{what}: forward differs by {d}");
+    // A loss that weights every output differently, so each gradient entry is tested.
+    let probe = Tensor::randn(0f32, 1.0, ours.dims(), &Device::Cpu)
+        .unwrap()
+        .to_dtype(ours.dtype())
+        .unwrap();
+    let grads = |t: &Tensor| (t * &probe).unwrap().sum_all().unwrap().backward().unwrap();
+    let (g1, g2) = (grads(ours), grads(theirs));
+    for (name, v) in vars {
+        let d = max_abs_diff(g1.get(v).unwrap(), g2.get(v).unwrap());
+        assert!(d < 10.0 * tol, "{what}: {name} gradient differs by {d}");
+    }
+}
+
 /// The matmul convolutions equal candle's own, forward and backward, for every layer shape
 /// CompenNet++ uses (3×3 stride 1 and 2, 1×1, 2×2 stride-2 transposed), in f64 and f32.
 #[test]
 fn matmul_convolutions_equal_candles_with_gradients() {
+    use candle_core::Module;
     use candle_nn::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
     use compend::nn::conv::{conv_transpose2d, conv2d};
-    let dev = Device::Cpu;
-    let max_diff = |a: &Tensor, b: &Tensor| -> f64 {
-        (a - b)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_dtype(DType::F64)
-            .unwrap()
-            .to_scalar()
-            .unwrap()
-    };
     for (dtype, tol) in [(DType::F64, 1e-10), (DType::F32, 1e-4)] {
         // (cin, cout, k, stride, padding, h, w)
         for &(ci, co, k, s, p, h, w) in &[
@@ -586,88 +612,27 @@ fn matmul_convolutions_equal_candles_with_gradients() {
             (5, 3, 1, 1, 0, 6, 5),
             (2, 3, 3, 1, 0, 6, 6),
         ] {
-            let x = Var::from_tensor(
-                &Tensor::randn(0f32, 1.0, (2, ci, h, w), &dev)
-                    .unwrap()
-                    .to_dtype(dtype)
-                    .unwrap(),
-            )
-            .unwrap();
-            let wt = Var::from_tensor(
-                &Tensor::randn(0f32, 0.3, (co, ci, k, k), &dev)
-                    .unwrap()
-                    .to_dtype(dtype)
-                    .unwrap(),
-            )
-            .unwrap();
-            let b = Var::from_tensor(
-                &Tensor::randn(0f32, 0.3, co, &dev)
-                    .unwrap()
-                    .to_dtype(dtype)
-                    .unwrap(),
-            )
-            .unwrap();
+            let x = random_var(&[2, ci, h, w], 1.0, dtype);
+            let wt = random_var(&[co, ci, k, k], 0.3, dtype);
+            let b = random_var(&[co], 0.3, dtype);
             let cfg = Conv2dConfig {
                 padding: p,
                 stride: s,
                 ..Default::default()
             };
             let layer = Conv2d::new(wt.as_tensor().clone(), Some(b.as_tensor().clone()), cfg);
-            let ours = conv2d(&layer, x.as_tensor()).unwrap();
-            let theirs = candle_core::Module::forward(&layer, x.as_tensor()).unwrap();
-            assert_eq!(ours.dims(), theirs.dims());
-            assert!(
-                max_diff(&ours, &theirs) < tol,
-                "conv {ci}->{co} k{k} s{s} p{p}: forward"
+            assert_same_layer(
+                &format!("conv {ci}->{co} k{k} s{s} p{p} {dtype:?}"),
+                &conv2d(&layer, x.as_tensor()).unwrap(),
+                &layer.forward(x.as_tensor()).unwrap(),
+                &[("input", &x), ("weight", &wt), ("bias", &b)],
+                tol,
             );
-            // A loss that weights every output differently, so each gradient entry is tested.
-            let probe = Tensor::randn(0f32, 1.0, ours.dims(), &dev)
-                .unwrap()
-                .to_dtype(dtype)
-                .unwrap();
-            let g1 = (&ours * &probe)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap();
-            let g2 = (&theirs * &probe)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap();
-            for (name, v) in [("input", &x), ("weight", &wt), ("bias", &b)] {
-                let (a, c) = (g1.get(v).unwrap(), g2.get(v).unwrap());
-                assert!(
-                    max_diff(a, c) < tol * 10.0,
-                    "conv {ci}->{co} k{k} s{s} p{p} {dtype:?}: {name} gradient differs by {}",
-                    max_diff(a, c)
-                );
-            }
         }
         for &(ci, co, k, h, w) in &[(4, 3, 2, 5, 3), (6, 2, 2, 4, 4)] {
-            let x = Var::from_tensor(
-                &Tensor::randn(0f32, 1.0, (2, ci, h, w), &dev)
-                    .unwrap()
-                    .to_dtype(dtype)
-                    .unwrap(),
-            )
-            .unwrap();
-            let wt = Var::from_tensor(
-                &Tensor::randn(0f32, 0.3, (ci, co, k, k), &dev)
-                    .unwrap()
-                    .to_dtype(dtype)
-                    .unwrap(),
-            )
-            .unwrap();
-            let b = Var::from_tensor(
-                &Tensor::randn(0f32, 0.3, co, &dev)
-                    .unwrap()
-                    .to_dtype(dtype)
-                    .unwrap(),
-            )
-            .unwrap();
+            let x = random_var(&[2, ci, h, w], 1.0, dtype);
+            let wt = random_var(&[ci, co, k, k], 0.3, dtype);
+            let b = random_var(&[co], 0.3, dtype);
             let cfg = ConvTranspose2dConfig {
                 stride: k,
                 ..Default::default()
@@ -675,33 +640,14 @@ fn matmul_convolutions_equal_candles_with_gradients() {
             let layer =
                 ConvTranspose2d::new(wt.as_tensor().clone(), Some(b.as_tensor().clone()), cfg);
             let ours = conv_transpose2d(&layer, x.as_tensor()).unwrap();
-            let theirs = candle_core::Module::forward(&layer, x.as_tensor()).unwrap();
             assert_eq!(ours.dims(), &[2, co, h * k, w * k]);
-            assert!(max_diff(&ours, &theirs) < tol, "tconv {ci}->{co}: forward");
-            let probe = Tensor::randn(0f32, 1.0, ours.dims(), &dev)
-                .unwrap()
-                .to_dtype(dtype)
-                .unwrap();
-            let g1 = (&ours * &probe)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap();
-            let g2 = (&theirs * &probe)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .backward()
-                .unwrap();
-            for (name, v) in [("input", &x), ("weight", &wt), ("bias", &b)] {
-                let (a, c) = (g1.get(v).unwrap(), g2.get(v).unwrap());
-                assert!(
-                    max_diff(a, c) < tol * 10.0,
-                    "tconv {ci}->{co} {dtype:?}: {name} gradient differs by {}",
-                    max_diff(a, c)
-                );
-            }
+            assert_same_layer(
+                &format!("tconv {ci}->{co} k{k} {dtype:?}"),
+                &ours,
+                &layer.forward(x.as_tensor()).unwrap(),
+                &[("input", &x), ("weight", &wt), ("bias", &b)],
+                tol,
+            );
         }
     }
 }
@@ -717,7 +663,7 @@ fn gaussian_blur_op_equals_padded_convolutions_with_gradients() {
     let kx = Tensor::from_vec(op.taps.clone(), (1, 1, 1, 2 * r + 1), &dev).unwrap();
     let ky = Tensor::from_vec(op.taps.clone(), (1, 1, 2 * r + 1, 1), &dev).unwrap();
     for (n, c, h, w) in [(2, 3, 9, 13), (1, 2, 4, 3), (1, 1, 16, 16)] {
-        let x = Var::from_tensor(&Tensor::randn(0f64, 1.0, (n, c, h, w), &dev).unwrap()).unwrap();
+        let x = random_var(&[n, c, h, w], 1.0, DType::F64);
         let ours = x.as_tensor().apply_op1(op.clone()).unwrap();
         let flat = x.as_tensor().reshape((n * c, 1, h, w)).unwrap();
         let a = flat
@@ -732,31 +678,12 @@ fn gaussian_blur_op_equals_padded_convolutions_with_gradients() {
             .unwrap()
             .reshape((n, c, h, w))
             .unwrap();
-        let diff = |a: &Tensor, b: &Tensor| -> f64 {
-            (a - b)
-                .unwrap()
-                .abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar()
-                .unwrap()
-        };
-        assert!(diff(&ours, &theirs) < 1e-12, "{n}x{c}x{h}x{w}: forward");
-        let probe = Tensor::randn(0f64, 1.0, (n, c, h, w), &dev).unwrap();
-        let g1 = (&ours * &probe)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let g2 = (&theirs * &probe)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap();
-        let d = diff(g1.get(&x).unwrap(), g2.get(&x).unwrap());
-        assert!(d < 1e-12, "{n}x{c}x{h}x{w}: gradient differs by {d}");
+        assert_same_layer(
+            &format!("blur {n}x{c}x{h}x{w}"),
+            &ours,
+            &theirs,
+            &[("input", &x)],
+            1e-13,
+        );
     }
 }
