@@ -53,6 +53,7 @@ impl Im2Col {
     }
 
     /// One (image, channel) plane `x` (H×W) into its k·k rows of `cols` (each Ho·Wo long).
+    /// `cols` arrives zeroed: positions that fall in the padding are not written.
     fn plane_to_rows<T: Copy + Default>(&self, x: &[T], h: usize, w: usize, cols: &mut [T]) {
         let (ho, wo) = (self.out(h).unwrap_or(0), self.out(w).unwrap_or(0));
         let n = ho * wo;
@@ -61,7 +62,6 @@ impl Im2Col {
             for kw in 0..self.k {
                 let xs = self.valid(kw, w, wo);
                 let row = &mut cols[(kh * self.k + kw) * n..][..n];
-                row.fill(T::default());
                 for oy in ys.clone() {
                     let iy = oy * self.stride + kh - self.padding;
                     let src = &x[iy * w..][..w];
@@ -79,7 +79,7 @@ impl Im2Col {
         }
     }
 
-    /// The adjoint: k·k rows (each Ho·Wo) summed back into one H×W plane.
+    /// The adjoint: k·k rows (each Ho·Wo) summed back into one H×W plane, which arrives zeroed.
     fn rows_to_plane<T: Copy + Default + std::ops::AddAssign>(
         &self,
         cols: &[T],
@@ -89,7 +89,6 @@ impl Im2Col {
     ) {
         let (ho, wo) = (self.out(h).unwrap_or(0), self.out(w).unwrap_or(0));
         let n = ho * wo;
-        x.fill(T::default());
         for kh in 0..self.k {
             let ys = self.valid(kh, h, ho);
             for kw in 0..self.k {

@@ -29,10 +29,10 @@ impl GaussianBlur {
         }
     }
 
-    /// Along rows (x): `dst[x] = Σ_t g_t · src[clamp(x + t − r)]`, or its adjoint.
+    /// Along rows (x): `dst[x] = Σ_t g_t · src[clamp(x + t − r)]`, or its adjoint. `dst`
+    /// arrives zeroed (it accumulates).
     fn along_w<T: WithDType>(&self, src: &[T], dst: &mut [T], h: usize, w: usize) {
         let r = (self.taps.len() / 2) as isize;
-        dst.fill(T::zero());
         for y in 0..h {
             let s = &src[y * w..][..w];
             let d = &mut dst[y * w..][..w];
@@ -72,10 +72,10 @@ impl GaussianBlur {
         }
     }
 
-    /// Along columns (y): `dst[y] = Σ_t g_t · src[clamp(y + t − r)]` row by row, or its adjoint.
+    /// Along columns (y): `dst[y] = Σ_t g_t · src[clamp(y + t − r)]` row by row, or its adjoint. `dst`
+    /// arrives zeroed (it accumulates).
     fn along_h<T: WithDType>(&self, src: &[T], dst: &mut [T], h: usize, w: usize) {
         let r = (self.taps.len() / 2) as isize;
-        dst.fill(T::zero());
         for y in 0..h {
             for (t, &g) in self.taps.iter().enumerate() {
                 let g = T::from_f64(g);
