@@ -18,7 +18,7 @@ enum Command {
     /// Benchmark methods × scenes × training-set sizes × seeds on the virtual rig.
     Bench(cli::bench::Args),
     /// Per-frame GPU time of the compensation pass against a plain texture copy, and frames
-    /// dropped at 60 Hz on the virtual rig.
+    /// dropped at 60 Hz on the virtual rig and by the pipeline alone.
     BenchGpu(cli::bench_gpu::Args),
     /// Training and inference cost of the CompenNet++ rungs and `linear` on this CPU, against
     /// the machine's arithmetic rate measured in the same run.

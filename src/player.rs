@@ -173,6 +173,39 @@ pub struct VirtualOptions {
     pub mode: FeedMode,
 }
 
+/// Plays at `fps` with no display and no read-back: each refresh uploads the newest frame, runs
+/// the pass and waits until the GPU has finished it, then sleeps to the next refresh. This is the
+/// window's per-frame work without the presentation, so its `dropped_pipeline` says whether the
+/// upload and the pass keep up with the display on this adapter, whatever a virtual rig's
+/// read-back to the CPU costs. Ends when the source ends or after `refreshes`.
+pub fn play_headless(
+    ctx: &GpuContext,
+    player: &mut Player,
+    fps: f64,
+    refreshes: Option<u64>,
+) -> Result<PlayStats> {
+    let start = Instant::now();
+    player.stats.refresh_hz = fps;
+    let mut clock = Clock::new(Duration::from_secs_f64(1.0 / fps));
+    while refreshes.is_none_or(|n| player.stats.refreshes < n) {
+        let t = Instant::now();
+        match player.step(ctx, Duration::ZERO)? {
+            Step::New(_) => {
+                ctx.wait()?;
+                player.record_pipeline(t.elapsed().as_secs_f64());
+            }
+            Step::Held => {}
+            Step::Ended => break,
+        }
+        player.stats.dropped_pipeline += clock.finish(true);
+    }
+    let fs = player.feed.stats();
+    player.stats.received = fs.received;
+    player.stats.dropped_source = fs.dropped;
+    player.stats.seconds = start.elapsed().as_secs_f64();
+    Ok(player.stats.clone())
+}
+
 /// A camera view of a shown frame: (source sequence number, shown index from 1, image).
 pub type ViewSink = Box<dyn FnMut(u64, u64, &CamImage) -> Result<()> + Send>;
 

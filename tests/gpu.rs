@@ -233,6 +233,10 @@ fn bench_gpu_writes_ratios() {
         let rig = &r["virtual_rig"];
         assert!(rig["refreshes"].as_u64().unwrap() == 15, "{r}");
         assert!(rig["shown"].as_u64().unwrap() >= 1, "{r}");
+        let alone = &r["headless"];
+        assert!(alone["refreshes"].as_u64().unwrap() == 15, "{r}");
+        assert!(alone["shown"].as_u64().unwrap() >= 1, "{r}");
+        assert!(alone["pipeline_ms_mean"].as_f64().unwrap() > 0.0, "{r}");
     }
     let md = std::fs::read_to_string(out.join("bench-gpu.md")).unwrap();
     assert!(

@@ -1,8 +1,9 @@
 //! `compend bench-gpu`: per-frame GPU time of the compensation pass at projector resolutions for
 //! the `linear` model and the simplified CompenNet backbone (synthetic models with seeded
 //! weights), each next to a plain texture copy of the same size measured in the same run, and
-//! frames dropped at the display rate on the virtual rig (`linear`). Writes bench-gpu.json and
-//! bench-gpu.md.
+//! frames dropped at the display rate (`linear`): on the virtual rig, which reads every frame
+//! back to the CPU, and with the pipeline alone (upload + pass, no read-back, no display).
+//! Writes bench-gpu.json and bench-gpu.md.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -46,7 +47,8 @@ pub struct Args {
     /// Content frame resolution.
     #[arg(long, value_parser = parse_size, default_value = "1280x720")]
     pub content: Size,
-    /// Seconds of playback at the display rate on the virtual rig per size (0 = skip).
+    /// Seconds of playback at the display rate per size, on the virtual rig and then with the
+    /// pipeline alone (0 = skip both).
     #[arg(long, default_value_t = 2.0)]
     pub seconds: f64,
     /// Also time each CompenNet layer alone and print the times (stderr).
@@ -77,6 +79,8 @@ struct Row {
     /// compennet / copy, wall clock for both.
     compennet_over_copy_wall: Option<f64>,
     virtual_rig: Option<PlayStats>,
+    /// The same paced playback with no read-back and no display: upload + pass, waited for.
+    headless: Option<PlayStats>,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -152,10 +156,16 @@ pub fn run(args: Args) -> Result<()> {
             }
             None => None,
         };
-        let virtual_rig = if args.seconds > 0.0 {
-            Some(virtual_run(&ctx, &model, pass, prj, &args)?)
+        let (virtual_rig, headless) = if args.seconds > 0.0 {
+            let placement = Placement::for_model(&model, prj, DisplayRange::FULL)?;
+            let alone = CompensationPass::new(&ctx, &model, placement)?;
+            let headless = headless_run(&ctx, alone, &args)?;
+            (
+                Some(virtual_run(&ctx, &model, pass, prj, &args)?),
+                Some(headless),
+            )
         } else {
-            None
+            (None, None)
         };
         rows.push(Row {
             projector: prj,
@@ -167,6 +177,7 @@ pub fn run(args: Args) -> Result<()> {
             compennet_over_copy: cnn.map(|t| t.best_ms() / copy.best_ms()),
             compennet_over_copy_wall: cnn.map(|t| t.wall_ms / copy.wall_ms),
             virtual_rig,
+            headless,
         });
     }
     std::fs::create_dir_all(&args.out)
@@ -200,7 +211,7 @@ pub fn run(args: Args) -> Result<()> {
          content {}x{}. Times in ms as GPU timestamps / wall clock (submit to \
          idle) where the adapter has timestamps, else wall clock.\n\n| projector | copy | linear | linear / copy | \
          within 3x | CompenNet | CompenNet / copy | virtual rig @ {} Hz: shown / dropped (source) / dropped (pipeline) | pipeline mean (ms) \
-         |\n|---|---|---|---|---|---|---|---|---|\n",
+         | pipeline alone: shown / dropped (pipeline) / mean / max (ms) |\n|---|---|---|---|---|---|---|---|---|---|\n",
         ctx.describe(),
         args.iters,
         args.compennet_iters,
@@ -215,7 +226,7 @@ pub fn run(args: Args) -> Result<()> {
     for r in &rows {
         let v = r.virtual_rig.as_ref();
         md += &format!(
-            "| {}x{} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {}x{} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             r.projector.0,
             r.projector.1,
             both(&r.copy),
@@ -244,11 +255,18 @@ pub fn run(args: Args) -> Result<()> {
                 v.shown, v.dropped_source, v.dropped_pipeline
             )),
             v.map_or("-".into(), |v| format!("{:.2}", v.pipeline_ms_mean)),
+            r.headless.as_ref().map_or("-".into(), |h| format!(
+                "{} / {} / {:.2} / {:.2}",
+                h.shown, h.dropped_pipeline, h.pipeline_ms_mean, h.pipeline_ms_max
+            )),
         );
     }
     md += "\nThe copy is a texture-to-texture copy of one projector frame (rgba8): the memory-bandwidth \
            floor of any pass that writes one. Virtual-rig playback includes reading each frame back to the \
-           CPU for the simulated projector (the window presents from the GPU without it).\n";
+           CPU for the simulated projector (the window presents from the GPU without it). \
+           \"Pipeline alone\" plays the same paced source with neither read-back nor display: each \
+           refresh uploads the newest frame, runs the pass and waits for the GPU, which is the \
+           window's work per frame without the presentation.\n";
     if software {
         md += "\nThis adapter renders in software: its GPU timestamps for the copy are not \
                meaningful, so read the ratios after the slash (wall clock). They say nothing about \
@@ -282,18 +300,7 @@ fn virtual_run(
         delay_frames: 0,
         drop_rate: 0.0,
     })?;
-    let spec = SourceSpec::Pattern {
-        pattern: Pattern::Moving,
-        size: (args.content.width, args.content.height),
-        fps: args.fps,
-        frames: None,
-    };
-    let mut player = Player::new(
-        pass,
-        Feed::spawn(compend::source::open(&spec)?, FeedMode::Latest)?,
-    );
-    // Let the source start before the clock does.
-    std::thread::sleep(Duration::from_millis(50));
+    let mut player = paced_player(pass, args)?;
     let stats = player::play_virtual(
         ctx,
         &mut player,
@@ -306,4 +313,36 @@ fn virtual_run(
         Box::new(|_, _, _| Ok(())),
     )?;
     Ok(stats)
+}
+
+/// A player of the moving test pattern at the display rate, newest frame first (as live).
+fn paced_player(pass: CompensationPass, args: &Args) -> Result<Player> {
+    let spec = SourceSpec::Pattern {
+        pattern: Pattern::Moving,
+        size: (args.content.width, args.content.height),
+        fps: args.fps,
+        frames: None,
+    };
+    let player = Player::new(
+        pass,
+        Feed::spawn(compend::source::open(&spec)?, FeedMode::Latest)?,
+    );
+    // Let the source start before the clock does.
+    std::thread::sleep(Duration::from_millis(50));
+    Ok(player)
+}
+
+/// Plays the paced test pattern with no read-back and no display and returns the counts.
+fn headless_run(
+    ctx: &compend::gpu::GpuContext,
+    pass: CompensationPass,
+    args: &Args,
+) -> Result<PlayStats> {
+    let mut player = paced_player(pass, args)?;
+    Ok(player::play_headless(
+        ctx,
+        &mut player,
+        args.fps,
+        Some((args.seconds * args.fps).round() as u64),
+    )?)
 }
