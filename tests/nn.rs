@@ -628,6 +628,15 @@ fn matmul_convolutions_equal_candles_with_gradients() {
                 &[("input", &x), ("weight", &wt), ("bias", &b)],
                 tol,
             );
+            // Without a bias (no row of ones in the columns).
+            let layer = Conv2d::new(wt.as_tensor().clone(), None, cfg);
+            assert_same_layer(
+                &format!("conv {ci}->{co} k{k} s{s} p{p} {dtype:?}, no bias"),
+                &conv2d(&layer, x.as_tensor()).unwrap(),
+                &layer.forward(x.as_tensor()).unwrap(),
+                &[("input", &x), ("weight", &wt)],
+                tol,
+            );
         }
         for &(ci, co, k, h, w) in &[(4, 3, 2, 5, 3), (6, 2, 2, 4, 4)] {
             let x = random_var(&[2, ci, h, w], 1.0, dtype);
@@ -648,8 +657,57 @@ fn matmul_convolutions_equal_candles_with_gradients() {
                 &[("input", &x), ("weight", &wt), ("bias", &b)],
                 tol,
             );
+            let layer = ConvTranspose2d::new(wt.as_tensor().clone(), None, cfg);
+            assert_same_layer(
+                &format!("tconv {ci}->{co} k{k} {dtype:?}, no bias"),
+                &conv_transpose2d(&layer, x.as_tensor()).unwrap(),
+                &layer.forward(x.as_tensor()).unwrap(),
+                &[("input", &x), ("weight", &wt)],
+                tol,
+            );
         }
     }
+}
+
+/// The parallel ReLU op equals candle's `relu`, forward and backward (gradient passed where the
+/// input is ≥ 0, exact zeros included), on tensors larger than one parallel chunk; NaN stays NaN.
+#[test]
+fn parallel_relu_equals_candles_with_gradients() {
+    use compend::nn::conv::relu;
+    for dtype in [DType::F64, DType::F32] {
+        let x = random_var(&[2, 3, 97, 101], 1.0, dtype);
+        // Exact zeros, where the two conventions could differ.
+        let zeros = x
+            .as_tensor()
+            .abs()
+            .unwrap()
+            .lt(0.05)
+            .unwrap()
+            .where_cond(&x.as_tensor().zeros_like().unwrap(), x.as_tensor())
+            .unwrap();
+        x.set(&zeros).unwrap();
+        let n_zero = x
+            .as_tensor()
+            .eq(0.0)
+            .unwrap()
+            .to_dtype(DType::F32)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        assert!(n_zero > 100.0, "{n_zero} exact zeros");
+        assert_same_layer(
+            &format!("relu {dtype:?}"),
+            &relu(x.as_tensor()).unwrap(),
+            &x.as_tensor().relu().unwrap(),
+            &[("input", &x)],
+            1e-12,
+        );
+    }
+    let nan = Tensor::new(&[f32::NAN, -1.0, 2.0], &Device::Cpu).unwrap();
+    let out = relu(&nan).unwrap().to_vec1::<f32>().unwrap();
+    assert!(out[0].is_nan() && out[1] == 0.0 && out[2] == 2.0, "{out:?}");
 }
 
 /// The SSIM window's blur op equals replicate padding + candle's convolutions, forward and

@@ -47,10 +47,10 @@ impl SurfaceBranch {
     }
 
     pub fn forward(&self, s: &Tensor) -> Result<SurfaceFeatures> {
-        let s1 = super::conv::conv2d(&self.conv1, s)?.relu()?;
-        let s2 = super::conv::conv2d(&self.conv2, &s1)?.relu()?;
-        let s3 = super::conv::conv2d(&self.conv3, &s2)?.relu()?;
-        let s4 = super::conv::conv2d(&self.conv4, &s3)?.relu()?;
+        let s1 = super::conv::relu(&super::conv::conv2d(&self.conv1, s)?)?;
+        let s2 = super::conv::relu(&super::conv::conv2d(&self.conv2, &s1)?)?;
+        let s3 = super::conv::relu(&super::conv::conv2d(&self.conv3, &s2)?)?;
+        let s4 = super::conv::relu(&super::conv::conv2d(&self.conv4, &s3)?)?;
         Ok(SurfaceFeatures { s1, s2, s3, s4 })
     }
 }
@@ -78,7 +78,7 @@ impl Module for Skip1 {
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         let mut r = x.clone();
         for c in &self.convs {
-            r = super::conv::conv2d(c, &r)?.relu()?;
+            r = super::conv::relu(&super::conv::conv2d(c, &r)?)?;
         }
         Ok(r)
     }
@@ -123,26 +123,17 @@ impl Backbone {
     /// `x` (N, 3, H, W); the surface features broadcast over the batch.
     pub fn forward(&self, x: &Tensor, s: &SurfaceFeatures) -> Result<Tensor> {
         let res1 = self.skip1.forward(x)?;
-        let a1 = super::conv::conv2d(&self.conv1, x)?
-            .broadcast_add(&s.s1)?
-            .relu()?;
+        let relu = super::conv::relu;
+        let a1 = relu(&super::conv::conv2d(&self.conv1, x)?.broadcast_add(&s.s1)?)?;
         let res2 = super::conv::conv2d(&self.skip2, &a1)?;
-        let a2 = super::conv::conv2d(&self.conv2, &a1)?
-            .broadcast_add(&s.s2)?
-            .relu()?;
+        let a2 = relu(&super::conv::conv2d(&self.conv2, &a1)?.broadcast_add(&s.s2)?)?;
         let res3 = super::conv::conv2d(&self.skip3, &a2)?;
-        let a3 = super::conv::conv2d(&self.conv3, &a2)?
-            .broadcast_add(&s.s3)?
-            .relu()?;
-        let a4 = super::conv::conv2d(&self.conv4, &a3)?
-            .broadcast_add(&s.s4)?
-            .relu()?;
-        let a5 = (super::conv::conv2d(&self.conv5, &a4)? + res3)?.relu()?;
-        let a6 = (super::conv::conv_transpose2d(&self.tconv1, &a5)? + res2)?.relu()?;
-        let a7 = super::conv::conv_transpose2d(&self.tconv2, &a6)?.relu()?;
-        (super::conv::conv2d(&self.conv6, &a7)? + res1)?
-            .relu()?
-            .clamp(0.0, 1.0)
+        let a3 = relu(&super::conv::conv2d(&self.conv3, &a2)?.broadcast_add(&s.s3)?)?;
+        let a4 = relu(&super::conv::conv2d(&self.conv4, &a3)?.broadcast_add(&s.s4)?)?;
+        let a5 = relu(&(super::conv::conv2d(&self.conv5, &a4)? + res3)?)?;
+        let a6 = relu(&(super::conv::conv_transpose2d(&self.tconv1, &a5)? + res2)?)?;
+        let a7 = relu(&super::conv::conv_transpose2d(&self.tconv2, &a6)?)?;
+        relu(&(super::conv::conv2d(&self.conv6, &a7)? + res1)?)?.clamp(0.0, 1.0)
     }
 }
 

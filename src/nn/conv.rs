@@ -12,7 +12,7 @@
 //! Tensors are NCHW; images and features in network pixels. Other devices (CUDA) use candle's
 //! own convolutions.
 
-use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor, bail};
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor, bail};
 use candle_nn::{Conv2d, ConvTranspose2d};
 use rayon::prelude::*;
 
@@ -106,33 +106,54 @@ impl Im2Col {
         }
     }
 
+    /// (B, C, H, W) → (B, C·k·k [+ 1], Ho·Wo). With `one`, each image's block ends with a row
+    /// of that value: the bias row, so that a weight matrix with the bias as its last column
+    /// adds the bias inside the matrix product.
     fn im2col<T: Copy + Default + Send + Sync>(
         &self,
         x: &[T],
         dims: (usize, usize, usize, usize),
+        one: Option<T>,
     ) -> Result<Vec<T>> {
         let (b, c, h, w) = dims;
         let n = self.out(h)? * self.out(w)?;
         let kk = self.k * self.k;
-        let mut cols = vec![T::default(); b * c * kk * n];
-        cols.par_chunks_mut(kk * n)
-            .zip(x.par_chunks(h * w))
-            .for_each(|(dst, src)| self.plane_to_rows(src, h, w, dst));
+        let per_image = (c * kk + usize::from(one.is_some())) * n;
+        let mut cols = vec![T::default(); b * per_image];
+        cols.par_chunks_mut(per_image)
+            .zip(x.par_chunks(c * h * w))
+            .for_each(|(dst, src)| {
+                let (planes, ones) = dst.split_at_mut(c * kk * n);
+                planes
+                    .par_chunks_mut(kk * n)
+                    .zip(src.par_chunks(h * w))
+                    .for_each(|(d, s)| self.plane_to_rows(s, h, w, d));
+                if let Some(one) = one {
+                    ones.fill(one);
+                }
+            });
         Ok(cols)
     }
 
+    /// The adjoint of [`Self::im2col`]; a bias row (`ones`), when present, has no input to go to.
     fn col2im<T: Copy + Default + Send + Sync + std::ops::AddAssign>(
         &self,
         cols: &[T],
         dims: (usize, usize, usize, usize),
+        ones: bool,
     ) -> Result<Vec<T>> {
         let (b, c, h, w) = dims;
         let n = self.out(h)? * self.out(w)?;
         let kk = self.k * self.k;
+        let per_image = (c * kk + usize::from(ones)) * n;
         let mut x = vec![T::default(); b * c * h * w];
-        x.par_chunks_mut(h * w)
-            .zip(cols.par_chunks(kk * n))
-            .for_each(|(dst, src)| self.rows_to_plane(src, h, w, dst));
+        x.par_chunks_mut(c * h * w)
+            .zip(cols.par_chunks(per_image))
+            .for_each(|(dst, src)| {
+                dst.par_chunks_mut(h * w)
+                    .zip(src[..c * kk * n].par_chunks(kk * n))
+                    .for_each(|(d, s)| self.rows_to_plane(s, h, w, d));
+            });
         Ok(x)
     }
 }
@@ -152,28 +173,66 @@ impl CustomOp1 for Im2Col {
     /// (B, C, H, W) → (B, C·k·k, Ho·Wo); row `c·k·k + kh·k + kw` matches a weight (O, C, k, k)
     /// flattened to (O, C·k·k).
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
-        let (b, c, h, w) = layout.shape().dims4()?;
-        let shape = Shape::from((b, c * self.k * self.k, self.out(h)? * self.out(w)?));
-        let out = match storage {
-            CpuStorage::F32(d) => {
-                CpuStorage::F32(self.im2col(contiguous(d, layout, "im2col")?, (b, c, h, w))?)
-            }
-            CpuStorage::F64(d) => {
-                CpuStorage::F64(self.im2col(contiguous(d, layout, "im2col")?, (b, c, h, w))?)
-            }
-            _ => bail!("im2col: only f32 and f64 tensors are supported"),
-        };
-        Ok((out, shape))
+        im2col_fwd(self, false, storage, layout)
     }
 
     fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> Result<Option<Tensor>> {
-        let (b, c, h, w) = arg.dims4()?;
-        let back = Col2Im {
-            geometry: *self,
-            dims: (b, c, h, w),
-        };
-        Ok(Some(grad_res.contiguous()?.apply_op1_no_bwd(&back)?))
+        im2col_bwd(self, false, arg, grad_res)
     }
+}
+
+/// [`Im2Col`] with a row of ones after each image's C·k·k rows: (B, C, H, W) →
+/// (B, C·k·k + 1, Ho·Wo), for a weight (O, C·k·k + 1) whose last column is the bias.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Im2ColBias(pub Im2Col);
+
+impl CustomOp1 for Im2ColBias {
+    fn name(&self) -> &'static str {
+        "im2col-bias"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
+        im2col_fwd(&self.0, true, storage, layout)
+    }
+
+    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> Result<Option<Tensor>> {
+        im2col_bwd(&self.0, true, arg, grad_res)
+    }
+}
+
+fn im2col_fwd(
+    g: &Im2Col,
+    ones: bool,
+    storage: &CpuStorage,
+    layout: &Layout,
+) -> Result<(CpuStorage, Shape)> {
+    let (b, c, h, w) = layout.shape().dims4()?;
+    let rows = c * g.k * g.k + usize::from(ones);
+    let shape = Shape::from((b, rows, g.out(h)? * g.out(w)?));
+    let out = match storage {
+        CpuStorage::F32(d) => CpuStorage::F32(g.im2col(
+            contiguous(d, layout, "im2col")?,
+            (b, c, h, w),
+            ones.then_some(1.0),
+        )?),
+        CpuStorage::F64(d) => CpuStorage::F64(g.im2col(
+            contiguous(d, layout, "im2col")?,
+            (b, c, h, w),
+            ones.then_some(1.0),
+        )?),
+        _ => bail!("im2col: only f32 and f64 tensors are supported"),
+    };
+    Ok((out, shape))
+}
+
+fn im2col_bwd(g: &Im2Col, ones: bool, arg: &Tensor, grad_res: &Tensor) -> Result<Option<Tensor>> {
+    let (b, c, h, w) = arg.dims4()?;
+    let back = Col2Im {
+        geometry: *g,
+        dims: (b, c, h, w),
+        ones,
+    };
+    Ok(Some(grad_res.contiguous()?.apply_op1_no_bwd(&back)?))
 }
 
 /// The adjoint of [`Im2Col`] (its backward pass): (B, C·k·k, Ho·Wo) → (B, C, H, W), overlapping
@@ -181,6 +240,8 @@ impl CustomOp1 for Im2Col {
 struct Col2Im {
     geometry: Im2Col,
     dims: (usize, usize, usize, usize),
+    /// Whether the columns carry [`Im2ColBias`]'s row of ones (which gets no gradient here).
+    ones: bool,
 }
 
 impl CustomOp1 for Col2Im {
@@ -191,7 +252,11 @@ impl CustomOp1 for Col2Im {
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
         let g = &self.geometry;
         let (b, c, h, w) = self.dims;
-        let expected = (b, c * g.k * g.k, g.out(h)? * g.out(w)?);
+        let expected = (
+            b,
+            c * g.k * g.k + usize::from(self.ones),
+            g.out(h)? * g.out(w)?,
+        );
         if layout.shape().dims3()? != expected {
             bail!(
                 "col2im: gradient shape {:?}, expected {expected:?}",
@@ -200,10 +265,10 @@ impl CustomOp1 for Col2Im {
         }
         let out = match storage {
             CpuStorage::F32(d) => {
-                CpuStorage::F32(g.col2im(contiguous(d, layout, "col2im")?, self.dims)?)
+                CpuStorage::F32(g.col2im(contiguous(d, layout, "col2im")?, self.dims, self.ones)?)
             }
             CpuStorage::F64(d) => {
-                CpuStorage::F64(g.col2im(contiguous(d, layout, "col2im")?, self.dims)?)
+                CpuStorage::F64(g.col2im(contiguous(d, layout, "col2im")?, self.dims, self.ones)?)
             }
             _ => bail!("col2im: only f32 and f64 tensors are supported"),
         };
@@ -239,6 +304,15 @@ pub fn conv2d(conv: &Conv2d, x: &Tensor) -> Result<Tensor> {
         padding: cfg.padding,
     };
     let (ho, wo) = (geometry.out(h)?, geometry.out(w)?);
+    let weight = weight.reshape((co, ci * kh * kw))?;
+    if let Some(bias) = conv.bias() {
+        // The bias as the weight's last column against im2col's row of ones: added inside the
+        // matrix product, and its gradient (the row sums of the output gradient) comes out of
+        // the weight gradient's product rather than a separate reduction.
+        let weight = Tensor::cat(&[&weight, &bias.reshape((co, 1))?], 1)?;
+        let cols = x.contiguous()?.apply_op1(Im2ColBias(geometry))?;
+        return weight.broadcast_matmul(&cols)?.reshape((b, co, ho, wo));
+    }
     let cols = if geometry
         == (Im2Col {
             k: 1,
@@ -249,14 +323,7 @@ pub fn conv2d(conv: &Conv2d, x: &Tensor) -> Result<Tensor> {
     } else {
         x.contiguous()?.apply_op1(geometry)?
     };
-    let y = weight
-        .reshape((co, ci * kh * kw))?
-        .broadcast_matmul(&cols)?
-        .reshape((b, co, ho, wo))?;
-    match conv.bias() {
-        Some(bias) => y.broadcast_add(&bias.reshape((1, co, 1, 1))?),
-        None => Ok(y),
-    }
+    weight.broadcast_matmul(&cols)?.reshape((b, co, ho, wo))
 }
 
 /// `tconv`'s forward pass on `x` (B, Cin, H, W) when its stride equals its kernel side k and it
@@ -279,17 +346,120 @@ pub fn conv_transpose2d(tconv: &ConvTranspose2d, x: &Tensor) -> Result<Tensor> {
         bail!("conv_transpose2d: input has {c} channels, the kernel {ci}×{co}×{kh}×{kw}");
     }
     let k = kh;
-    let z = weight
-        .reshape((ci, co * k * k))?
-        .t()?
-        .broadcast_matmul(&x.reshape((b, ci, h * w))?)?; // (B, co·k·k, H·W)
-    let y = z
-        .reshape((b, co, k, k, h, w))?
+    let weight = weight.reshape((ci, co * k * k))?.t()?; // (co·k·k, ci)
+    let x = x.reshape((b, ci, h * w))?;
+    let z = match tconv.bias() {
+        // The bias (one per output channel, so per k·k block of rows) as an extra weight column
+        // against a row of ones under the input.
+        Some(bias) => {
+            let bias = bias
+                .reshape((co, 1))?
+                .broadcast_as((co, k * k))?
+                .contiguous()?
+                .reshape((co * k * k, 1))?;
+            let weight = Tensor::cat(&[&weight, &bias], 1)?;
+            let ones = Tensor::ones((b, 1, h * w), x.dtype(), x.device())?;
+            weight.broadcast_matmul(&Tensor::cat(&[&x, &ones], 1)?)?
+        }
+        None => weight.broadcast_matmul(&x)?,
+    }; // (B, co·k·k, H·W)
+    z.reshape((b, co, k, k, h, w))?
         .permute((0, 1, 4, 2, 5, 3))?
         .contiguous()?
-        .reshape((b, co, h * k, w * k))?;
-    match tconv.bias() {
-        Some(bias) => y.broadcast_add(&bias.reshape((1, co, 1, 1))?),
-        None => Ok(y),
+        .reshape((b, co, h * k, w * k))
+}
+
+/// `max(x, 0)` on the CPU in one parallel pass, with a one-pass backward (the gradient where
+/// `x ≥ 0`, as candle's `relu`); candle's `relu` elsewhere. candle's own CPU `relu` runs on one
+/// thread and its backward takes five passes over the tensor.
+pub fn relu(x: &Tensor) -> Result<Tensor> {
+    if !x.device().is_cpu() {
+        return x.relu();
+    }
+    x.contiguous()?.apply_op1(Relu)
+}
+
+struct Relu;
+
+/// Elements per parallel task of the element-wise ops.
+const CHUNK: usize = 1 << 14;
+
+impl CustomOp1 for Relu {
+    fn name(&self) -> &'static str {
+        "relu-par"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
+        fn go<T: Copy + PartialOrd + Default + Send + Sync>(x: &[T]) -> Vec<T> {
+            let zero = T::default();
+            let mut out = vec![zero; x.len()];
+            out.par_chunks_mut(CHUNK)
+                .zip(x.par_chunks(CHUNK))
+                .for_each(|(o, x)| {
+                    for (o, &v) in o.iter_mut().zip(x) {
+                        // NaN stays NaN (`max` would hide it from the divergence checks)
+                        *o = if v < zero { zero } else { v };
+                    }
+                });
+            out
+        }
+        let out = match storage {
+            CpuStorage::F32(d) => CpuStorage::F32(go(contiguous(d, layout, "relu")?)),
+            CpuStorage::F64(d) => CpuStorage::F64(go(contiguous(d, layout, "relu")?)),
+            _ => bail!("relu: only f32 and f64 tensors are supported"),
+        };
+        Ok((out, layout.shape().clone()))
+    }
+
+    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> Result<Option<Tensor>> {
+        Ok(Some(
+            arg.contiguous()?
+                .apply_op2_no_bwd(&grad_res.contiguous()?, &ReluGrad)?,
+        ))
+    }
+}
+
+/// (x, g) → g where x ≥ 0, else 0.
+struct ReluGrad;
+
+impl CustomOp2 for ReluGrad {
+    fn name(&self) -> &'static str {
+        "relu-grad"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        fn go<T: Copy + PartialOrd + Default + Send + Sync>(x: &[T], g: &[T]) -> Vec<T> {
+            let zero = T::default();
+            let mut out = vec![zero; x.len()];
+            out.par_chunks_mut(CHUNK)
+                .zip(x.par_chunks(CHUNK).zip(g.par_chunks(CHUNK)))
+                .for_each(|(o, (x, g))| {
+                    for ((o, &x), &g) in o.iter_mut().zip(x).zip(g) {
+                        *o = if x >= zero { g } else { zero };
+                    }
+                });
+            out
+        }
+        if l1.shape() != l2.shape() {
+            bail!("relu-grad: shapes {:?} and {:?}", l1.shape(), l2.shape());
+        }
+        let out = match (s1, s2) {
+            (CpuStorage::F32(x), CpuStorage::F32(g)) => CpuStorage::F32(go(
+                contiguous(x, l1, "relu-grad")?,
+                contiguous(g, l2, "relu-grad")?,
+            )),
+            (CpuStorage::F64(x), CpuStorage::F64(g)) => CpuStorage::F64(go(
+                contiguous(x, l1, "relu-grad")?,
+                contiguous(g, l2, "relu-grad")?,
+            )),
+            _ => bail!("relu-grad: only f32 and f64 tensors of one type are supported"),
+        };
+        Ok((out, l1.shape().clone()))
     }
 }

@@ -42,9 +42,9 @@ impl Refine {
 impl Module for Refine {
     /// `g` (N, 2, H, W) → correction (N, 2, H, W).
     fn forward(&self, g: &Tensor) -> Result<Tensor> {
-        let a = super::conv::conv2d(&self.conv1, g)?.relu()?;
-        let a = super::conv::conv2d(&self.conv2, &a)?.relu()?;
-        let a = super::conv::conv_transpose2d(&self.tconv1, &a)?.relu()?;
+        let a = super::conv::relu(&super::conv::conv2d(&self.conv1, g)?)?;
+        let a = super::conv::relu(&super::conv::conv2d(&self.conv2, &a)?)?;
+        let a = super::conv::relu(&super::conv::conv_transpose2d(&self.tconv1, &a)?)?;
         let a = super::conv::conv_transpose2d(&self.tconv2, &a)?;
         // LeakyReLU(0.1) = max(a, 0.1·a).
         a.maximum(&a.affine(0.1, 0.0)?)
