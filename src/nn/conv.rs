@@ -14,6 +14,8 @@
 
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor, bail};
 use candle_nn::{Conv2d, ConvTranspose2d};
+use std::mem::MaybeUninit;
+
 use rayon::prelude::*;
 
 /// Geometry of one im2col: input (B, C, H, W), a k×k window, stride, zero padding.
@@ -53,8 +55,15 @@ impl Im2Col {
     }
 
     /// One (image, channel) plane `x` (H×W) into its k·k rows of `cols` (each Ho·Wo long).
-    /// `cols` arrives zeroed: positions that fall in the padding are not written.
-    fn plane_to_rows<T: Copy + Default>(&self, x: &[T], h: usize, w: usize, cols: &mut [T]) {
+    /// Every element of `cols` is written: positions that fall in the padding get `zero`.
+    fn plane_to_rows<T: Copy>(
+        &self,
+        x: &[T],
+        h: usize,
+        w: usize,
+        cols: &mut [MaybeUninit<T>],
+        zero: T,
+    ) {
         let (ho, wo) = (self.out(h).unwrap_or(0), self.out(w).unwrap_or(0));
         let n = ho * wo;
         for kh in 0..self.k {
@@ -62,16 +71,22 @@ impl Im2Col {
             for kw in 0..self.k {
                 let xs = self.valid(kw, w, wo);
                 let row = &mut cols[(kh * self.k + kw) * n..][..n];
-                for oy in ys.clone() {
+                for oy in 0..ho {
+                    let dst = &mut row[oy * wo..][..wo];
+                    if !ys.contains(&oy) {
+                        fill(dst, zero);
+                        continue;
+                    }
                     let iy = oy * self.stride + kh - self.padding;
                     let src = &x[iy * w..][..w];
-                    let dst = &mut row[oy * wo..][..wo];
+                    fill(&mut dst[..xs.start], zero);
+                    fill(&mut dst[xs.end..], zero);
                     if self.stride == 1 {
                         let ix0 = xs.start + kw - self.padding;
-                        dst[xs.clone()].copy_from_slice(&src[ix0..ix0 + xs.len()]);
+                        dst[xs.clone()].write_copy_of_slice(&src[ix0..ix0 + xs.len()]);
                     } else {
                         for ox in xs.clone() {
-                            dst[ox] = src[ox * self.stride + kw - self.padding];
+                            dst[ox].write(src[ox * self.stride + kw - self.padding]);
                         }
                     }
                 }
@@ -119,19 +134,35 @@ impl Im2Col {
         let n = self.out(h)? * self.out(w)?;
         let kk = self.k * self.k;
         let per_image = (c * kk + usize::from(one.is_some())) * n;
-        let mut cols = vec![T::default(); b * per_image];
-        cols.par_chunks_mut(per_image)
+        let len = b * per_image;
+        if x.len() != b * c * h * w {
+            bail!(
+                "im2col: {} input values for a {b}×{c}×{h}×{w} tensor",
+                x.len()
+            );
+        }
+        if len == 0 || h * w == 0 {
+            return Ok(vec![T::default(); len]);
+        }
+        let mut cols: Vec<T> = Vec::with_capacity(len);
+        cols.spare_capacity_mut()[..len]
+            .par_chunks_mut(per_image)
             .zip(x.par_chunks(c * h * w))
             .for_each(|(dst, src)| {
                 let (planes, ones) = dst.split_at_mut(c * kk * n);
                 planes
                     .par_chunks_mut(kk * n)
                     .zip(src.par_chunks(h * w))
-                    .for_each(|(d, s)| self.plane_to_rows(s, h, w, d));
+                    .for_each(|(d, s)| self.plane_to_rows(s, h, w, d, T::default()));
                 if let Some(one) = one {
-                    ones.fill(one);
+                    fill(ones, one);
                 }
             });
+        // SAFETY: all `len` elements were written above: `plane_to_rows` writes every element
+        // of each plane's k·k rows (copies inside the image, zeros in the padding), and the
+        // ones row (present exactly when `one` is) is filled; the chunks tile `0..len` since
+        // `x` holds `b` images of `c` planes.
+        unsafe { cols.set_len(len) };
         Ok(cols)
     }
 
@@ -155,6 +186,13 @@ impl Im2Col {
                     .for_each(|(d, s)| self.rows_to_plane(s, h, w, d));
             });
         Ok(x)
+    }
+}
+
+/// Writes `v` to every element of `s`.
+fn fill<T: Copy>(s: &mut [MaybeUninit<T>], v: T) {
+    for e in s {
+        e.write(v);
     }
 }
 
@@ -305,25 +343,110 @@ pub fn conv2d(conv: &Conv2d, x: &Tensor) -> Result<Tensor> {
     };
     let (ho, wo) = (geometry.out(h)?, geometry.out(w)?);
     let weight = weight.reshape((co, ci * kh * kw))?;
-    if let Some(bias) = conv.bias() {
-        // The bias as the weight's last column against im2col's row of ones: added inside the
-        // matrix product, and its gradient (the row sums of the output gradient) comes out of
-        // the weight gradient's product rather than a separate reduction.
-        let weight = Tensor::cat(&[&weight, &bias.reshape((co, 1))?], 1)?;
-        let cols = x.contiguous()?.apply_op1(Im2ColBias(geometry))?;
-        return weight.broadcast_matmul(&cols)?.reshape((b, co, ho, wo));
-    }
-    let cols = if geometry
-        == (Im2Col {
-            k: 1,
-            stride: 1,
-            padding: 0,
-        }) {
-        x.reshape((b, c, h * w))?
-    } else {
-        x.contiguous()?.apply_op1(geometry)?
+    // The bias as the weight's last column against im2col's row of ones: added inside the
+    // matrix product, and its gradient (the row sums of the output gradient) comes out of the
+    // weight gradient's product rather than a separate reduction.
+    let (weight, bias) = match conv.bias() {
+        Some(b) => (Tensor::cat(&[&weight, &b.reshape((co, 1))?], 1)?, true),
+        None => (weight, false),
     };
-    weight.broadcast_matmul(&cols)?.reshape((b, co, ho, wo))
+    x.contiguous()?
+        .apply_op2(&weight.contiguous()?, MatmulConv { geometry, bias })?
+        .reshape((b, co, ho, wo))
+}
+
+/// A convolution as one op: im2col then the matrix product with the weight (O, C·k·k [+ 1 for
+/// the bias]), and a backward pass that computes the input and weight gradients directly. The
+/// im2col columns (k·k times the input) never become a node of candle's graph, which would
+/// otherwise zero-fill and accumulate a gradient of their size in every backward pass.
+#[derive(Clone, Copy, Debug)]
+struct MatmulConv {
+    geometry: Im2Col,
+    bias: bool,
+}
+
+impl MatmulConv {
+    fn fwd<T>(
+        &self,
+        x: &[T],
+        xl: &Layout,
+        w: &CpuStorage,
+        wl: &Layout,
+        wrap: fn(Vec<T>) -> CpuStorage,
+        one: T,
+    ) -> Result<(CpuStorage, Shape)>
+    where
+        T: Copy + Default + Send + Sync,
+    {
+        use candle_core::backend::BackendStorage;
+        let g = &self.geometry;
+        let (b, c, h, wd) = xl.shape().dims4()?;
+        let (co, k) = wl.shape().dims2()?;
+        let rows = c * g.k * g.k + usize::from(self.bias);
+        if k != rows {
+            bail!("conv: weight has {k} columns, the input's columns have {rows} rows");
+        }
+        let n = g.out(h)? * g.out(wd)?;
+        let cols = wrap(g.im2col(
+            contiguous(x, xl, "conv")?,
+            (b, c, h, wd),
+            self.bias.then_some(one),
+        )?);
+        let y = w.matmul(
+            &cols,
+            (b, co, n, k),
+            &wl.broadcast_as((b, co, k))?,
+            &Layout::contiguous((b, k, n)),
+        )?;
+        Ok((y, Shape::from((b, co, n))))
+    }
+}
+
+impl CustomOp2 for MatmulConv {
+    fn name(&self) -> &'static str {
+        "matmul-conv"
+    }
+
+    /// x (B, C, H, W), weight (O, C·k·k [+ 1]) → (B, O, Ho·Wo).
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        match s1 {
+            CpuStorage::F32(x) => self.fwd(x, l1, s2, l2, CpuStorage::F32, 1.0),
+            CpuStorage::F64(x) => self.fwd(x, l1, s2, l2, CpuStorage::F64, 1.0),
+            _ => bail!("conv: only f32 and f64 tensors are supported"),
+        }
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        w: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let (b, c, h, wd) = x.dims4()?;
+        let grad = grad.contiguous()?; // (B, O, n)
+        // The columns again (one im2col pass) rather than kept from the forward pass.
+        let cols = if self.bias {
+            x.apply_op1_no_bwd(&Im2ColBias(self.geometry))?
+        } else {
+            x.apply_op1_no_bwd(&self.geometry)?
+        }; // (B, K, n)
+        let dw = grad.matmul(&cols.transpose(1, 2)?)?.sum(0)?; // (O, K)
+        let dcols = w.t()?.broadcast_matmul(&grad)?; // (B, K, n)
+        let back = Col2Im {
+            geometry: self.geometry,
+            dims: (b, c, h, wd),
+            ones: self.bias,
+        };
+        let dx = dcols.apply_op1_no_bwd(&back)?;
+        Ok((Some(dx), Some(dw)))
+    }
 }
 
 /// `tconv`'s forward pass on `x` (B, Cin, H, W) when its stride equals its kernel side k and it
@@ -392,16 +515,11 @@ impl CustomOp1 for Relu {
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
         fn go<T: Copy + PartialOrd + Default + Send + Sync>(x: &[T]) -> Vec<T> {
             let zero = T::default();
-            let mut out = vec![zero; x.len()];
-            out.par_chunks_mut(CHUNK)
-                .zip(x.par_chunks(CHUNK))
-                .for_each(|(o, x)| {
-                    for (o, &v) in o.iter_mut().zip(x) {
-                        // NaN stays NaN (`max` would hide it from the divergence checks)
-                        *o = if v < zero { zero } else { v };
-                    }
-                });
-            out
+            // NaN stays NaN (`max` would hide it from the divergence checks).
+            x.par_iter()
+                .with_min_len(CHUNK)
+                .map(|&v| if v < zero { zero } else { v })
+                .collect()
         }
         let out = match storage {
             CpuStorage::F32(d) => CpuStorage::F32(go(contiguous(d, layout, "relu")?)),
@@ -436,15 +554,11 @@ impl CustomOp2 for ReluGrad {
     ) -> Result<(CpuStorage, Shape)> {
         fn go<T: Copy + PartialOrd + Default + Send + Sync>(x: &[T], g: &[T]) -> Vec<T> {
             let zero = T::default();
-            let mut out = vec![zero; x.len()];
-            out.par_chunks_mut(CHUNK)
-                .zip(x.par_chunks(CHUNK).zip(g.par_chunks(CHUNK)))
-                .for_each(|(o, (x, g))| {
-                    for ((o, &x), &g) in o.iter_mut().zip(x).zip(g) {
-                        *o = if x >= zero { g } else { zero };
-                    }
-                });
-            out
+            x.par_iter()
+                .zip(g)
+                .with_min_len(CHUNK)
+                .map(|(&x, &g)| if x >= zero { g } else { zero })
+                .collect()
         }
         if l1.shape() != l2.shape() {
             bail!("relu-grad: shapes {:?} and {:?}", l1.shape(), l2.shape());
