@@ -3,19 +3,22 @@
 //! candle 0.11's CPU convolution builds its im2col tiles with a scalar, bounds-checked loop and
 //! computes the input gradient with a direct transposed convolution (`vec_dot` per output pixel);
 //! profiling CompenNet training (`perf`, width 16 at 64²) found under 5 % of the time in the
-//! matrix-product kernel. Here a convolution is an im2col copy ([`Im2Col`], a custom op whose
-//! backward pass is the matching col2im scatter-add) followed by one batched matrix product,
-//! so candle's matmul (and its gradient, two more matmuls) does the arithmetic. A stride-k,
-//! k×k transposed convolution (CompenNet's up-sampling) is a matrix product and a pixel
-//! shuffle. Results equal candle's own `conv2d` / `conv_transpose2d` to rounding (tested).
+//! matrix-product kernel. Here a convolution is one op (`MatmulConv`): an im2col copy
+//! ([`Im2Col`]) and one batched matrix product with the weight, the bias being the weight's last
+//! column against a row of ones; its backward pass computes the weight gradient (bias included)
+//! and the input gradient (a matrix product and the col2im scatter-add) directly, so the im2col
+//! columns, k·k times the input, never get a gradient of their own in candle's graph. A
+//! stride-k, k×k transposed convolution (CompenNet's up-sampling) is a matrix product and a pixel
+//! shuffle. [`relu`] is a parallel one-pass ReLU with a one-pass backward. Results equal candle's
+//! own `conv2d` / `conv_transpose2d` / `relu` to rounding, gradients included (tested).
 //!
 //! Tensors are NCHW; images and features in network pixels. Other devices (CUDA) use candle's
 //! own convolutions.
 
-use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor, bail};
-use candle_nn::{Conv2d, ConvTranspose2d};
 use std::mem::MaybeUninit;
 
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor, bail};
+use candle_nn::{Conv2d, ConvTranspose2d};
 use rayon::prelude::*;
 
 /// Geometry of one im2col: input (B, C, H, W), a k×k window, stride, zero padding.
@@ -83,7 +86,10 @@ impl Im2Col {
                     fill(&mut dst[xs.end..], zero);
                     if self.stride == 1 {
                         let ix0 = xs.start + kw - self.padding;
-                        dst[xs.clone()].write_copy_of_slice(&src[ix0..ix0 + xs.len()]);
+                        let src = &src[ix0..ix0 + xs.len()];
+                        for (d, &v) in dst[xs.clone()].iter_mut().zip(src) {
+                            d.write(v);
+                        }
                     } else {
                         for ox in xs.clone() {
                             dst[ox].write(src[ox * self.stride + kw - self.padding]);
