@@ -47,8 +47,8 @@ pub struct Args {
     /// Content frame resolution.
     #[arg(long, value_parser = parse_size, default_value = "1280x720")]
     pub content: Size,
-    /// Seconds of playback at the display rate per size, on the virtual rig and then with the
-    /// pipeline alone (0 = skip both).
+    /// Seconds of playback at the display rate per size, with the pipeline alone and then on the
+    /// virtual rig (0 = skip both).
     #[arg(long, default_value_t = 2.0)]
     pub seconds: f64,
     /// Also time each CompenNet layer alone and print the times (stderr).
