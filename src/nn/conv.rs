@@ -209,82 +209,48 @@ fn contiguous<'a, T>(data: &'a [T], layout: &Layout, op: &str) -> Result<&'a [T]
     }
 }
 
-impl CustomOp1 for Im2Col {
+/// The im2col columns of a tensor as an op without a backward pass: [`MatmulConv`]'s backward
+/// pass recomputes them. (B, C, H, W) → (B, C·k·k [+ 1 with `ones`], Ho·Wo); row
+/// `c·k·k + kh·k + kw` matches a weight (O, C, k, k) flattened to (O, C·k·k), and the row of
+/// ones matches a bias as the weight's last column.
+struct Columns {
+    geometry: Im2Col,
+    ones: bool,
+}
+
+impl CustomOp1 for Columns {
     fn name(&self) -> &'static str {
         "im2col"
     }
 
-    /// (B, C, H, W) → (B, C·k·k, Ho·Wo); row `c·k·k + kh·k + kw` matches a weight (O, C, k, k)
-    /// flattened to (O, C·k·k).
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
-        im2col_fwd(self, false, storage, layout)
-    }
-
-    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> Result<Option<Tensor>> {
-        im2col_bwd(self, false, arg, grad_res)
-    }
-}
-
-/// [`Im2Col`] with a row of ones after each image's C·k·k rows: (B, C, H, W) →
-/// (B, C·k·k + 1, Ho·Wo), for a weight (O, C·k·k + 1) whose last column is the bias.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Im2ColBias(pub Im2Col);
-
-impl CustomOp1 for Im2ColBias {
-    fn name(&self) -> &'static str {
-        "im2col-bias"
-    }
-
-    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
-        im2col_fwd(&self.0, true, storage, layout)
-    }
-
-    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> Result<Option<Tensor>> {
-        im2col_bwd(&self.0, true, arg, grad_res)
+        let g = &self.geometry;
+        let (b, c, h, w) = layout.shape().dims4()?;
+        let rows = c * g.k * g.k + usize::from(self.ones);
+        let shape = Shape::from((b, rows, g.out(h)? * g.out(w)?));
+        let out = match storage {
+            CpuStorage::F32(d) => CpuStorage::F32(g.im2col(
+                contiguous(d, layout, "im2col")?,
+                (b, c, h, w),
+                self.ones.then_some(1.0),
+            )?),
+            CpuStorage::F64(d) => CpuStorage::F64(g.im2col(
+                contiguous(d, layout, "im2col")?,
+                (b, c, h, w),
+                self.ones.then_some(1.0),
+            )?),
+            _ => bail!("im2col: only f32 and f64 tensors are supported"),
+        };
+        Ok((out, shape))
     }
 }
 
-fn im2col_fwd(
-    g: &Im2Col,
-    ones: bool,
-    storage: &CpuStorage,
-    layout: &Layout,
-) -> Result<(CpuStorage, Shape)> {
-    let (b, c, h, w) = layout.shape().dims4()?;
-    let rows = c * g.k * g.k + usize::from(ones);
-    let shape = Shape::from((b, rows, g.out(h)? * g.out(w)?));
-    let out = match storage {
-        CpuStorage::F32(d) => CpuStorage::F32(g.im2col(
-            contiguous(d, layout, "im2col")?,
-            (b, c, h, w),
-            ones.then_some(1.0),
-        )?),
-        CpuStorage::F64(d) => CpuStorage::F64(g.im2col(
-            contiguous(d, layout, "im2col")?,
-            (b, c, h, w),
-            ones.then_some(1.0),
-        )?),
-        _ => bail!("im2col: only f32 and f64 tensors are supported"),
-    };
-    Ok((out, shape))
-}
-
-fn im2col_bwd(g: &Im2Col, ones: bool, arg: &Tensor, grad_res: &Tensor) -> Result<Option<Tensor>> {
-    let (b, c, h, w) = arg.dims4()?;
-    let back = Col2Im {
-        geometry: *g,
-        dims: (b, c, h, w),
-        ones,
-    };
-    Ok(Some(grad_res.contiguous()?.apply_op1_no_bwd(&back)?))
-}
-
-/// The adjoint of [`Im2Col`] (its backward pass): (B, C·k·k, Ho·Wo) → (B, C, H, W), overlapping
+/// The adjoint of the im2col columns: (B, C·k·k [+ 1], Ho·Wo) → (B, C, H, W), overlapping
 /// windows summed.
 struct Col2Im {
     geometry: Im2Col,
     dims: (usize, usize, usize, usize),
-    /// Whether the columns carry [`Im2ColBias`]'s row of ones (which gets no gradient here).
+    /// Whether the columns carry the bias row of ones (which has no input to go to).
     ones: bool,
 }
 
@@ -438,11 +404,10 @@ impl CustomOp2 for MatmulConv {
         let (b, c, h, wd) = x.dims4()?;
         let grad = grad.contiguous()?; // (B, O, n)
         // The columns again (one im2col pass) rather than kept from the forward pass.
-        let cols = if self.bias {
-            x.apply_op1_no_bwd(&Im2ColBias(self.geometry))?
-        } else {
-            x.apply_op1_no_bwd(&self.geometry)?
-        }; // (B, K, n)
+        let cols = x.apply_op1_no_bwd(&Columns {
+            geometry: self.geometry,
+            ones: self.bias,
+        })?; // (B, K, n)
         let dw = grad.matmul(&cols.transpose(1, 2)?)?.sum(0)?; // (O, K)
         let dcols = w.t()?.broadcast_matmul(&grad)?; // (B, K, n)
         let back = Col2Im {
