@@ -155,11 +155,13 @@ def main():
         opt.step()
         marks.append(time.perf_counter())
     ms = 1e3 * (marks[-1] - marks[0]) / (a.steps * a.batch)
+    step_ms = [1e3 * (b - a_) for a_, b in zip(marks, marks[1:])]
     print(json.dumps({
         "framework": "pytorch " + torch.__version__,
         "threads": torch.get_num_threads(),
         "network": a.network, "width": a.width, "batch": a.batch, "steps": a.steps,
         "train_ms_per_sample": ms,
+        "step_ms": step_ms,
         "loss": float(loss.detach()),
         "ok": math.isfinite(float(loss.detach())),
     }))

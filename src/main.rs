@@ -65,15 +65,26 @@ enum Command {
     Sim(cli::sim::Args),
 }
 
+/// Runs `f` on a worker thread of rayon's global pool (the pool candle's matrix products and
+/// compend's own parallel ops use) and waits for it. A training step runs hundreds of parallel
+/// ops; called from the main thread, each one is injected into the pool and the main thread
+/// sleeps until a worker wakes it: two thread switches per op, which cost more than the op at
+/// the CPU rung's sizes and far more when the host is busy. From a worker, an op splits its work
+/// with the other workers directly.
+fn on_a_pool_worker<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    rayon::scope(|_| f())
+}
+
 fn main() -> ExitCode {
     let args = Cli::parse();
-    if matches!(
+    let compute = matches!(
         args.command,
         Command::Bench(_) | Command::BenchTrain(_) | Command::Pretrain(_) | Command::Train(_)
-    ) {
+    );
+    if compute {
         keep_freed_memory();
     }
-    let result = match args.command {
+    let dispatch = move || match args.command {
         Command::Bench(a) => cli::bench::run(a),
         Command::BenchGpu(a) => cli::bench_gpu::run(a),
         Command::BenchTrain(a) => cli::bench_train::run(a),
@@ -88,6 +99,11 @@ fn main() -> ExitCode {
         Command::Show(a) => cli::show::run(a),
         Command::Sim(a) => cli::sim::run(a),
     };
+    let result = if compute {
+        on_a_pool_worker(dispatch)
+    } else {
+        dispatch()
+    };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
@@ -100,6 +116,13 @@ fn main() -> ExitCode {
 #[cfg(test)]
 mod tests {
     /// The option id is mimalloc's purge delay: the bundled mimalloc (v3) defaults it to 1 000 ms.
+    #[test]
+    fn compute_commands_run_on_a_pool_worker() {
+        assert_eq!(rayon::current_thread_index(), None);
+        let index = super::on_a_pool_worker(rayon::current_thread_index);
+        assert!(index.is_some_and(|i| i < rayon::current_num_threads()));
+    }
+
     #[test]
     fn purge_delay_option_is_the_one_set() {
         // SAFETY: mi_option_get only reads an option value.

@@ -64,3 +64,67 @@ fn bench_writes_rows_for_references_and_methods() {
     assert_code(&o, 2);
     assert!(stderr(&o).contains("nope"));
 }
+
+#[test]
+fn bench_train_measures_the_chosen_rows_in_rounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bt");
+    let missing = dir.path().join("no-python");
+    let o = compend(&[
+        "bench-train",
+        "--out",
+        out.to_str().unwrap(),
+        "--network",
+        "16",
+        "--camera",
+        "64x48",
+        "--steps",
+        "2",
+        "--rounds",
+        "2",
+        "--frames",
+        "1",
+        "--methods",
+        "linear,compennet++-cpu",
+        "--linear-pairs",
+        "3",
+        "--torch",
+        missing.to_str().unwrap(),
+    ]);
+    assert_code(&o, 0);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench-train.json")).unwrap()).unwrap();
+    assert_eq!(v["rounds"], 2);
+    let rows = v["rows"].as_array().unwrap();
+    // In the fixed order of the table, whatever the order asked for.
+    let names: Vec<&str> = rows.iter().map(|r| r["method"].as_str().unwrap()).collect();
+    assert_eq!(names, ["compennet++-cpu", "linear"]);
+    let rung = &rows[0];
+    assert_eq!(rung["network"], 8);
+    assert!(
+        rung["train_ms_per_sample"].as_f64().unwrap() > 0.0,
+        "{rung}"
+    );
+    // PyTorch could not run: no ratio, and the row says why, naming the interpreter.
+    assert!(rung["candle_over_torch"].is_null(), "{rung}");
+    let err = rung["error"].as_str().unwrap();
+    assert!(
+        err.contains("no-python") && err.contains("could not start"),
+        "{err}"
+    );
+    assert!(rows[1]["train_ms_per_sample"].as_f64().unwrap() > 0.0);
+
+    let o = compend(&[
+        "bench-train",
+        "--out",
+        out.to_str().unwrap(),
+        "--methods",
+        "compennet",
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("\"compennet\"") && stderr(&o).contains("compennet++-cpu"),
+        "{}",
+        stderr(&o)
+    );
+}

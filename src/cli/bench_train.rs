@@ -44,20 +44,36 @@ pub struct Args {
     /// compiled in and fed on stdin), and the ratio candle / PyTorch is reported per rung.
     #[arg(long, value_name = "PYTHON")]
     pub torch: Option<PathBuf>,
+    /// Rounds per CompenNet++ rung: each round times `--steps` steps in candle and then (with
+    /// `--torch`) in PyTorch, so a slow spell of the machine falls on both. Each side's figure
+    /// is the median step over all its rounds.
+    #[arg(long, default_value_t = 1)]
+    pub rounds: usize,
+    /// The rows to measure, comma-separated: `compennet++`, `compennet++-cpu`, `linear`.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "compennet++,compennet++-cpu,linear"
+    )]
+    pub methods: Vec<String>,
 }
+
+/// The rows `bench-train` can measure.
+const METHODS: [&str; 3] = ["compennet++", "compennet++-cpu", "linear"];
 
 /// The PyTorch twin of the training step (run by `--torch`).
 const TORCH_SCRIPT: &str = include_str!("../../scripts/bench_torch.py");
 
-/// PyTorch's ms per training sample for the same model and sizes, or why there is none.
-fn torch_train_ms(
+/// PyTorch's timed steps (ms per step) for the same model and sizes and its name, or why there
+/// are none.
+fn torch_train_steps(
     python: &std::path::Path,
     side: usize,
     width: usize,
     camera: (usize, usize),
     batch: usize,
     steps: usize,
-) -> std::result::Result<(f64, String), String> {
+) -> std::result::Result<(Vec<f64>, String), String> {
     use std::io::Write;
     use std::process::{Command, Stdio};
     let mut child = Command::new(python)
@@ -95,11 +111,32 @@ fn torch_train_ms(
     }
     let v: serde_json::Value = serde_json::from_slice(&out.stdout)
         .map_err(|e| format!("{}: unreadable output ({e})", python.display()))?;
-    let ms = v["train_ms_per_sample"]
-        .as_f64()
-        .ok_or_else(|| format!("{}: no train_ms_per_sample in {v}", python.display()))?;
+    let steps_ms: Vec<f64> = v["step_ms"]
+        .as_array()
+        .map(|a| a.iter().filter_map(|x| x.as_f64()).collect())
+        .filter(|a: &Vec<f64>| a.len() == steps)
+        .ok_or_else(|| {
+            format!(
+                "{}: expected step_ms with {steps} numbers in {v}",
+                python.display()
+            )
+        })?;
     let name = v["framework"].as_str().unwrap_or("pytorch").to_string();
-    Ok((ms, name))
+    Ok((steps_ms, name))
+}
+
+/// The candle / PyTorch cell: the ratio of the medians, and with several rounds the range of the
+/// per-round ratios.
+fn ratio_cell(r: &Row) -> String {
+    match (r.candle_over_torch, r.round_ratios.as_slice()) {
+        (None, _) => "–".into(),
+        (Some(f), [] | [_]) => format!("{f:.2}×"),
+        (Some(f), rr) => {
+            let lo = rr.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = rr.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            format!("{f:.2}× (rounds {lo:.2}–{hi:.2})")
+        }
+    }
 }
 
 fn parse_camera(s: &str) -> std::result::Result<Size, String> {
@@ -124,8 +161,9 @@ struct Row {
     network: usize,
     /// Base channel width (CompenNet++) or `null` (linear).
     width: Option<usize>,
-    /// Milliseconds per training sample (forward, backward and update; CompenNet++), or the
-    /// whole fit divided by the pairs (linear, a closed-form fit).
+    /// Milliseconds per training sample (forward, backward and update; CompenNet++: the median
+    /// timed step over all rounds / batch), or the whole fit divided by the pairs (linear, a
+    /// closed-form fit).
     train_ms_per_sample: Option<f64>,
     /// Arithmetic per training sample, GFLOP (2 per multiply-accumulate: forward ≈ 1/3 of
     /// forward + backward; the surface branch runs once per batch).
@@ -143,6 +181,8 @@ struct Row {
     torch_ms_per_sample: Option<f64>,
     torch: Option<String>,
     candle_over_torch: Option<f64>,
+    /// candle / PyTorch per round (`--rounds`), each from that round's median steps.
+    round_ratios: Vec<f64>,
     error: Option<String>,
 }
 
@@ -181,14 +221,26 @@ fn machine() -> Result<Machine> {
     })
 }
 
-/// Milliseconds per training sample of `variant` on random data: `steps` timed steps after one.
-fn compennet_train_ms(
+/// The median of `v` (not empty).
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        0.5 * (s[n / 2 - 1] + s[n / 2])
+    }
+}
+
+/// Milliseconds per training step of `variant` on random data: `steps` timed steps after one.
+fn compennet_train_steps(
     variant: Variant,
     side: usize,
     camera: (usize, usize),
     batch: usize,
     steps: usize,
-) -> compend::Result<f64> {
+) -> compend::Result<Vec<f64>> {
     let ce = |e: candle_core::Error| compend::Error::Failed(format!("synthetic data: {e}"));
     let dev = Device::Cpu;
     let (cw, ch) = camera;
@@ -209,12 +261,13 @@ fn compennet_train_ms(
     compend::nn::train::train(&data, init, &settings, &never, |_, _, _| {
         marks.push(Instant::now())
     })?;
-    match (marks.first(), marks.last()) {
-        (Some(a), Some(b)) if marks.len() > 1 => {
-            Ok(1e3 * (*b - *a).as_secs_f64() / ((marks.len() - 1) * batch) as f64)
-        }
-        _ => Err(compend::Error::Failed("no training step was timed".into())),
+    if marks.len() < 2 {
+        return Err(compend::Error::Failed("no training step was timed".into()));
     }
+    Ok(marks
+        .windows(2)
+        .map(|w| 1e3 * (w[1] - w[0]).as_secs_f64())
+        .collect())
 }
 
 fn frame_ms(model: &compend::model::Model, camera: (usize, usize), frames: usize) -> Result<f64> {
@@ -241,32 +294,50 @@ fn compennet_row(
     let width = variant.width();
     let macs = backbone_macs(side, side, width) + surface_macs(side, side, width) / a.batch as f64;
     let gflop = 3.0 * 2.0 * macs / 1e9;
-    eprintln!(
-        "bench-train: {} at {side}² (width {width}): {} training steps of batch {}",
-        variant.method(),
-        a.steps,
-        a.batch
-    );
-    let (train_ms, error) = match compennet_train_ms(variant, side, camera, a.batch, a.steps) {
-        Ok(ms) => (Some(ms), None),
-        Err(e) => (None, Some(e.to_string())),
-    };
-    let (mut torch_ms, mut torch, mut error) = (None, None, error);
-    if let Some(python) = &a.torch {
+    // Per-step times (ms) of every round, candle's and PyTorch's.
+    let (mut candle_steps, mut torch_steps) = (Vec::new(), Vec::new());
+    let (mut torch, mut errors) = (None, Vec::new());
+    let mut round_ratios = Vec::new();
+    for round in 1..=a.rounds {
         eprintln!(
-            "bench-train: the same steps in PyTorch ({})",
-            python.display()
+            "bench-train: {} at {side}² (width {width}): {} training steps of batch {} (round \
+             {round} of {})",
+            variant.method(),
+            a.steps,
+            a.batch,
+            a.rounds
         );
-        match torch_train_ms(python, side, width, camera, a.batch, a.steps) {
-            Ok((ms, name)) => {
-                torch_ms = Some(ms);
-                torch = Some(name);
-            }
+        let c = match compennet_train_steps(variant, side, camera, a.batch, a.steps) {
+            Ok(v) => v,
             Err(e) => {
-                error = Some(error.map_or(e.clone(), |prev| format!("{prev}; {e}")));
+                errors.push(e.to_string());
+                break;
+            }
+        };
+        if let Some(python) = &a.torch {
+            eprintln!(
+                "bench-train: the same steps in PyTorch ({})",
+                python.display()
+            );
+            match torch_train_steps(python, side, width, camera, a.batch, a.steps) {
+                Ok((t, name)) => {
+                    round_ratios.push(median(&c) / median(&t));
+                    torch_steps.extend(t);
+                    torch = Some(name);
+                }
+                Err(e) => {
+                    errors.push(e);
+                    candle_steps.extend(c);
+                    break;
+                }
             }
         }
+        candle_steps.extend(c);
     }
+    let per_sample = |v: &Vec<f64>| (!v.is_empty()).then(|| median(v) / a.batch as f64);
+    let train_ms = per_sample(&candle_steps);
+    let torch_ms = per_sample(&torch_steps);
+    let error = (!errors.is_empty()).then(|| errors.join("; "));
     let model = compend::gpu::bench::synthetic_compennet_model(camera, (side, side), variant, 0)?;
     let frame = frame_ms(&model, camera, a.frames)?;
     let rate = train_ms.map(|ms| gflop / (ms / 1e3));
@@ -281,6 +352,7 @@ fn compennet_row(
         frame_ms: frame,
         frame_gmac: Some(backbone_macs(side, side, width) / 1e9),
         candle_over_torch: train_ms.zip(torch_ms).map(|(c, t)| c / t),
+        round_ratios,
         torch_ms_per_sample: torch_ms,
         torch,
         error,
@@ -344,6 +416,7 @@ fn linear_row(a: &Args, camera: (usize, usize)) -> Result<Row> {
         torch_ms_per_sample: None,
         torch: None,
         candle_over_torch: None,
+        round_ratios: Vec::new(),
         error: None,
     })
 }
@@ -357,20 +430,36 @@ pub fn run(a: Args) -> Result<()> {
         ))
         .into());
     }
-    if a.steps == 0 || a.batch == 0 {
-        return Err(compend::Error::Input("--steps and --batch must be at least 1".into()).into());
+    if a.steps == 0 || a.batch == 0 || a.rounds == 0 {
+        return Err(compend::Error::Input(
+            "--steps, --batch and --rounds must be at least 1".into(),
+        )
+        .into());
+    }
+    if let Some(m) = a.methods.iter().find(|m| !METHODS.contains(&m.as_str())) {
+        return Err(compend::Error::Input(format!(
+            "--methods: unknown row {m:?}; expected some of {}",
+            METHODS.join(", ")
+        ))
+        .into());
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let camera = (a.camera.width, a.camera.height);
     eprintln!("bench-train: measuring the machine's arithmetic rate");
     let m = machine()?;
-    let rows = vec![
-        compennet_row(&a, Variant::Full, a.network, camera, &m)?,
-        compennet_row(&a, Variant::Cpu, a.network / 2, camera, &m)?,
-        linear_row(&a, camera)?,
-    ];
+    let mut rows = Vec::new();
+    for method in METHODS {
+        if !a.methods.iter().any(|m| m == method) {
+            continue;
+        }
+        rows.push(match method {
+            "compennet++" => compennet_row(&a, Variant::Full, a.network, camera, &m)?,
+            "compennet++-cpu" => compennet_row(&a, Variant::Cpu, a.network / 2, camera, &m)?,
+            _ => linear_row(&a, camera)?,
+        });
+    }
     let json = serde_json::json!({ "machine": m, "rows": rows, "camera": [camera.0, camera.1],
-                                   "steps": a.steps, "batch": a.batch });
+                                   "steps": a.steps, "batch": a.batch, "rounds": a.rounds });
     let opt = |v: Option<f64>, p: usize| v.map_or("–".to_string(), |x| format!("{x:.p$}"));
     let mut md = format!(
         "# compend bench-train\n\nMachine ({} threads): candle matmul 1024³ {:.1} GFLOP/s, \
@@ -391,8 +480,7 @@ pub fn run(a: Args) -> Result<()> {
             r.train_fraction_of_matmul
                 .map_or("–".into(), |f| format!("{:.0} %", 100.0 * f)),
             opt(r.torch_ms_per_sample, 1),
-            r.candle_over_torch
-                .map_or("–".into(), |f| format!("{f:.2}×")),
+            ratio_cell(r),
             r.frame_ms,
             opt(r.frame_gmac, 2),
         );
@@ -400,7 +488,12 @@ pub fn run(a: Args) -> Result<()> {
             md += &format!("\n{}: {e}\n", r.method);
         }
     }
-    md += "\nTraining GFLOP per sample = 3 × 2 × (backbone MACs + surface-branch MACs / batch); \
+    md += &format!(
+        "\nTraining ms per sample = the median timed step ({} steps × {} round(s) after one \
+         untimed step per round) / batch.",
+        a.steps, a.rounds
+    );
+    md += " Training GFLOP per sample = 3 × 2 × (backbone MACs + surface-branch MACs / batch); \
            grid sampling and the WarpingNet are left out (small). `linear` trains by a \
            closed-form fit: its figure is the whole fit divided by the pairs. PyTorch (with \
            --torch) runs the same network, loss, optimiser, sizes, batch and thread count from \
