@@ -710,6 +710,52 @@ fn parallel_relu_equals_candles_with_gradients() {
     assert!(out[0].is_nan() && out[1] == 0.0 && out[2] == 2.0, "{out:?}");
 }
 
+/// The fused add + ReLU equals candle's `relu(a.broadcast_add(b))` bit for bit, forward and
+/// both gradients: `b` of `a`'s shape and broadcast over the batch, sizes whose batch rows do
+/// not line up with the op's parallel chunks, and exact zero sums, where the gradient passes.
+#[test]
+fn fused_add_relu_equals_candles_bit_for_bit() {
+    use compend::nn::conv::add_relu;
+    // Below every difference an f32 or f64 can show: the results must be identical.
+    let exact = f64::MIN_POSITIVE;
+    for dtype in [DType::F64, DType::F32] {
+        for (a_dims, b_dims) in [
+            ([4, 3, 37, 41], [1, 3, 37, 41]),
+            ([3, 2, 100, 100], [1, 2, 100, 100]),
+            ([2, 3, 61, 67], [2, 3, 61, 67]),
+            ([1, 5, 9, 7], [1, 5, 9, 7]),
+        ] {
+            let a = random_var(&a_dims, 1.0, dtype);
+            let b = random_var(&b_dims, 1.0, dtype);
+            if a_dims == b_dims {
+                // Exact zero sums where |b| is small: b = -a there.
+                let t = b.as_tensor();
+                let zeroing = t.abs().unwrap().lt(0.05).unwrap();
+                let neg_a = a.as_tensor().neg().unwrap();
+                b.set(&zeroing.where_cond(&neg_a, t).unwrap()).unwrap();
+            }
+            let ours = add_relu(a.as_tensor(), b.as_tensor()).unwrap();
+            let theirs = a
+                .as_tensor()
+                .broadcast_add(b.as_tensor())
+                .unwrap()
+                .relu()
+                .unwrap();
+            assert_same_layer(
+                &format!("add-relu {dtype:?} {a_dims:?} + {b_dims:?}"),
+                &ours,
+                &theirs,
+                &[("a", &a), ("b", &b)],
+                exact / 10.0,
+            );
+        }
+    }
+    let a = Tensor::new(&[f32::NAN, -1.0, 2.0, 0.5], &Device::Cpu).unwrap();
+    let b = Tensor::new(&[1.0f32, 0.5, -3.0, -0.5], &Device::Cpu).unwrap();
+    let out = add_relu(&a, &b).unwrap().to_vec1::<f32>().unwrap();
+    assert!(out[0].is_nan() && out[1..] == [0.0, 0.0, 0.0], "{out:?}");
+}
+
 /// The SSIM window's blur op equals replicate padding + candle's convolutions, forward and
 /// backward (its adjoint), also on planes narrower than the window.
 #[test]

@@ -123,17 +123,17 @@ impl Backbone {
     /// `x` (N, 3, H, W); the surface features broadcast over the batch.
     pub fn forward(&self, x: &Tensor, s: &SurfaceFeatures) -> Result<Tensor> {
         let res1 = self.skip1.forward(x)?;
-        let relu = super::conv::relu;
-        let a1 = relu(&super::conv::conv2d(&self.conv1, x)?.broadcast_add(&s.s1)?)?;
-        let res2 = super::conv::conv2d(&self.skip2, &a1)?;
-        let a2 = relu(&super::conv::conv2d(&self.conv2, &a1)?.broadcast_add(&s.s2)?)?;
-        let res3 = super::conv::conv2d(&self.skip3, &a2)?;
-        let a3 = relu(&super::conv::conv2d(&self.conv3, &a2)?.broadcast_add(&s.s3)?)?;
-        let a4 = relu(&super::conv::conv2d(&self.conv4, &a3)?.broadcast_add(&s.s4)?)?;
-        let a5 = relu(&(super::conv::conv2d(&self.conv5, &a4)? + res3)?)?;
-        let a6 = relu(&(super::conv::conv_transpose2d(&self.tconv1, &a5)? + res2)?)?;
-        let a7 = relu(&super::conv::conv_transpose2d(&self.tconv2, &a6)?)?;
-        relu(&(super::conv::conv2d(&self.conv6, &a7)? + res1)?)?.clamp(0.0, 1.0)
+        use super::conv::{add_relu, conv_transpose2d, conv2d, relu};
+        let a1 = add_relu(&conv2d(&self.conv1, x)?, &s.s1)?;
+        let res2 = conv2d(&self.skip2, &a1)?;
+        let a2 = add_relu(&conv2d(&self.conv2, &a1)?, &s.s2)?;
+        let res3 = conv2d(&self.skip3, &a2)?;
+        let a3 = add_relu(&conv2d(&self.conv3, &a2)?, &s.s3)?;
+        let a4 = add_relu(&conv2d(&self.conv4, &a3)?, &s.s4)?;
+        let a5 = add_relu(&conv2d(&self.conv5, &a4)?, &res3)?;
+        let a6 = add_relu(&conv_transpose2d(&self.tconv1, &a5)?, &res2)?;
+        let a7 = relu(&conv_transpose2d(&self.tconv2, &a6)?)?;
+        add_relu(&conv2d(&self.conv6, &a7)?, &res1)?.clamp(0.0, 1.0)
     }
 }
 

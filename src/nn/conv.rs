@@ -548,3 +548,137 @@ impl CustomOp2 for ReluGrad {
         Ok((out, l1.shape().clone()))
     }
 }
+
+/// `max(a + b, 0)` with `b` of `a`'s shape or broadcast over `a`'s batch (`b` of shape
+/// (1, …) against `a` of shape (N, …)): on the CPU one op, one parallel pass forward and one
+/// backward, for CompenNet's `relu(conv + surface features)` and `relu(conv + residual)`. As an
+/// add and a ReLU these are two graph nodes, each with its own pass, zero-filled gradient and
+/// accumulation. The arithmetic is candle's, bit for bit: the gradient passes where `a + b ≥ 0`,
+/// and `b`'s gradient sums the batch in order, as candle's `sum_keepdim` does. Elsewhere, or for
+/// other shapes, `relu(a.broadcast_add(b))`.
+pub fn add_relu(a: &Tensor, b: &Tensor) -> Result<Tensor> {
+    let (da, db) = (a.dims(), b.dims());
+    let batched = !da.is_empty() && da.len() == db.len() && da[1..] == db[1..] && db[0] == 1;
+    if !a.device().is_cpu() || a.dtype() != b.dtype() || !(da == db || batched) {
+        return relu(&a.broadcast_add(b)?);
+    }
+    a.contiguous()?.apply_op2(&b.contiguous()?, AddRelu)
+}
+
+struct AddRelu;
+
+/// For `a` of `n` elements and `b` of `m` (`n` a multiple of `m`): element `i` of `a` adds
+/// element `i % m` of `b`.
+fn add_relu_fwd<T: Copy + PartialOrd + Default + std::ops::Add<Output = T> + Send + Sync>(
+    a: &[T],
+    b: &[T],
+) -> Vec<T> {
+    let zero = T::default();
+    let (n, m) = (a.len(), b.len());
+    if n == 0 || m == 0 {
+        return Vec::new();
+    }
+    let mut out: Vec<T> = Vec::with_capacity(n);
+    out.spare_capacity_mut()[..n]
+        .par_chunks_mut(CHUNK)
+        .zip(a.par_chunks(CHUNK))
+        .enumerate()
+        .for_each(|(k, (dst, src))| {
+            // `b` from this chunk's offset on, then round again as often as needed.
+            let bs = b[(k * CHUNK) % m..].iter().chain(b.iter().cycle());
+            for ((d, &x), &y) in dst.iter_mut().zip(src).zip(bs) {
+                let v = x + y;
+                // NaN stays NaN, as in `relu`.
+                d.write(if v < zero { zero } else { v });
+            }
+        });
+    // SAFETY: the chunks cover all `n` elements and every element was written above.
+    unsafe { out.set_len(n) };
+    out
+}
+
+impl CustomOp2 for AddRelu {
+    fn name(&self) -> &'static str {
+        "add-relu"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let out = match (s1, s2) {
+            (CpuStorage::F32(a), CpuStorage::F32(b)) => CpuStorage::F32(add_relu_fwd(
+                contiguous(a, l1, "add-relu")?,
+                contiguous(b, l2, "add-relu")?,
+            )),
+            (CpuStorage::F64(a), CpuStorage::F64(b)) => CpuStorage::F64(add_relu_fwd(
+                contiguous(a, l1, "add-relu")?,
+                contiguous(b, l2, "add-relu")?,
+            )),
+            _ => bail!("add-relu: only f32 and f64 tensors of one type are supported"),
+        };
+        Ok((out, l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        a: &Tensor,
+        b: &Tensor,
+        _res: &Tensor,
+        grad_res: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        // The gradient where a + b ≥ 0 (a + b recomputed: the output cannot tell a sum of
+        // exactly 0, whose gradient passes, from a negative one).
+        let sum = if a.dims() == b.dims() {
+            (a + b)?
+        } else {
+            a.broadcast_add(b)?
+        };
+        let ga = sum.apply_op2_no_bwd(&grad_res.contiguous()?, &ReluGrad)?;
+        let gb = if a.dims() == b.dims() {
+            ga.clone()
+        } else {
+            ga.apply_op1_no_bwd(&BatchSum)?
+        };
+        Ok((Some(ga), Some(gb)))
+    }
+}
+
+/// (N, …) → (1, …): the sum over the batch, each element summed from batch 0 up (candle's
+/// `sum_keepdim(0)` order, so gradients match it bit for bit).
+struct BatchSum;
+
+impl CustomOp1 for BatchSum {
+    fn name(&self) -> &'static str {
+        "batch-sum"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
+        fn go<T: Copy + Default + std::ops::Add<Output = T> + Send + Sync>(
+            x: &[T],
+            n: usize,
+        ) -> Vec<T> {
+            let m = x.len() / n.max(1);
+            (0..m)
+                .into_par_iter()
+                .with_min_len(CHUNK)
+                .map(|j| (0..n).fold(T::default(), |acc, i| acc + x[i * m + j]))
+                .collect()
+        }
+        let dims = layout.shape().dims();
+        let Some(&n) = dims.first() else {
+            bail!("batch-sum: expected a batch dimension, got a scalar");
+        };
+        let mut out_dims = dims.to_vec();
+        out_dims[0] = 1;
+        let out = match storage {
+            CpuStorage::F32(d) => CpuStorage::F32(go(contiguous(d, layout, "batch-sum")?, n)),
+            CpuStorage::F64(d) => CpuStorage::F64(go(contiguous(d, layout, "batch-sum")?, n)),
+            _ => bail!("batch-sum: only f32 and f64 tensors are supported"),
+        };
+        Ok((out, Shape::from(out_dims)))
+    }
+}
