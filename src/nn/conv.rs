@@ -17,7 +17,9 @@
 
 use std::mem::MaybeUninit;
 
-use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Result, Shape, Tensor, bail};
+use candle_core::{
+    CpuStorage, CustomOp1, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor, bail,
+};
 use candle_nn::{Conv2d, ConvTranspose2d};
 use rayon::prelude::*;
 
@@ -567,34 +569,46 @@ pub fn add_relu(a: &Tensor, b: &Tensor) -> Result<Tensor> {
 
 struct AddRelu;
 
-/// For `a` of `n` elements and `b` of `m` (`n` a multiple of `m`): element `i` of `a` adds
-/// element `i % m` of `b`.
-fn add_relu_fwd<T: Copy + PartialOrd + Default + std::ops::Add<Output = T> + Send + Sync>(
-    a: &[T],
+/// `out[i] = f([s[i] for s in full], b[i % m])` for slices `full` of one length `n` and `b` of
+/// `m` elements (`n` a multiple of `m`): `b` broadcast over the batch, in one parallel pass.
+fn map_cycled<T: Copy + Send + Sync, const K: usize>(
+    full: [&[T]; K],
     b: &[T],
+    f: impl Fn([T; K], T) -> T + Sync,
 ) -> Vec<T> {
-    let zero = T::default();
-    let (n, m) = (a.len(), b.len());
+    let (n, m) = (full.first().map_or(0, |s| s.len()), b.len());
     if n == 0 || m == 0 {
         return Vec::new();
     }
     let mut out: Vec<T> = Vec::with_capacity(n);
     out.spare_capacity_mut()[..n]
         .par_chunks_mut(CHUNK)
-        .zip(a.par_chunks(CHUNK))
         .enumerate()
-        .for_each(|(k, (dst, src))| {
+        .for_each(|(k, dst)| {
+            let lo = k * CHUNK;
+            let srcs = full.map(|s| &s[lo..lo + dst.len()]);
             // `b` from this chunk's offset on, then round again as often as needed.
-            let bs = b[(k * CHUNK) % m..].iter().chain(b.iter().cycle());
-            for ((d, &x), &y) in dst.iter_mut().zip(src).zip(bs) {
-                let v = x + y;
-                // NaN stays NaN, as in `relu`.
-                d.write(if v < zero { zero } else { v });
+            let bs = b[lo % m..].iter().chain(b.iter().cycle());
+            for (i, (d, &y)) in dst.iter_mut().zip(bs).enumerate() {
+                d.write(f(srcs.map(|s| s[i]), y));
             }
         });
     // SAFETY: the chunks cover all `n` elements and every element was written above.
     unsafe { out.set_len(n) };
     out
+}
+
+/// `max(a + b, 0)`, `b` cycled over `a` (see [`map_cycled`]).
+fn add_relu_fwd<T: Copy + PartialOrd + Default + std::ops::Add<Output = T> + Send + Sync>(
+    a: &[T],
+    b: &[T],
+) -> Vec<T> {
+    let zero = T::default();
+    map_cycled([a], b, |[x], y| {
+        let v = x + y;
+        // NaN stays NaN, as in `relu`.
+        if v < zero { zero } else { v }
+    })
 }
 
 impl CustomOp2 for AddRelu {
@@ -630,20 +644,65 @@ impl CustomOp2 for AddRelu {
         _res: &Tensor,
         grad_res: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
-        // The gradient where a + b ≥ 0 (a + b recomputed: the output cannot tell a sum of
-        // exactly 0, whose gradient passes, from a negative one).
-        let sum = if a.dims() == b.dims() {
-            (a + b)?
-        } else {
-            a.broadcast_add(b)?
-        };
-        let ga = sum.apply_op2_no_bwd(&grad_res.contiguous()?, &ReluGrad)?;
+        let ga = a.apply_op3_no_bwd(b, &grad_res.contiguous()?, &AddReluGrad)?;
         let gb = if a.dims() == b.dims() {
             ga.clone()
         } else {
             ga.apply_op1_no_bwd(&BatchSum)?
         };
         Ok((Some(ga), Some(gb)))
+    }
+}
+
+/// (a, b, g) → g where a + b ≥ 0, else 0 (`b` cycled over `a` as in [`AddRelu`]), in one pass:
+/// a + b is recomputed because the output cannot tell a sum of exactly 0, whose gradient
+/// passes, from a negative one.
+struct AddReluGrad;
+
+impl CustomOp3 for AddReluGrad {
+    fn name(&self) -> &'static str {
+        "add-relu-grad"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        fn go<T: Copy + PartialOrd + Default + std::ops::Add<Output = T> + Send + Sync>(
+            a: &[T],
+            b: &[T],
+            g: &[T],
+        ) -> Vec<T> {
+            let zero = T::default();
+            map_cycled([a, g], b, |[x, g], y| if x + y >= zero { g } else { zero })
+        }
+        if l1.shape() != l3.shape() {
+            bail!(
+                "add-relu-grad: shapes {:?} and {:?}",
+                l1.shape(),
+                l3.shape()
+            );
+        }
+        let name = "add-relu-grad";
+        let out = match (s1, s2, s3) {
+            (CpuStorage::F32(a), CpuStorage::F32(b), CpuStorage::F32(g)) => CpuStorage::F32(go(
+                contiguous(a, l1, name)?,
+                contiguous(b, l2, name)?,
+                contiguous(g, l3, name)?,
+            )),
+            (CpuStorage::F64(a), CpuStorage::F64(b), CpuStorage::F64(g)) => CpuStorage::F64(go(
+                contiguous(a, l1, name)?,
+                contiguous(b, l2, name)?,
+                contiguous(g, l3, name)?,
+            )),
+            _ => bail!("add-relu-grad: only f32 and f64 tensors of one type are supported"),
+        };
+        Ok((out, l1.shape().clone()))
     }
 }
 
