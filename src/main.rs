@@ -75,6 +75,20 @@ fn on_a_pool_worker<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| f())
 }
 
+/// candle 0.11 runs element-wise ops of 64 Ki elements or more on a thread pool of its own
+/// (`CANDLE_NUM_THREADS` − 1 threads beside the caller; by default one per core), whose threads
+/// spin for up to 25 000 PAUSEs after every op before they sleep. The compute commands already
+/// keep every core busy through rayon (a training step's shards, split matrix products), so
+/// those threads only take cores from it: on 2 cores the CPU rung's training step ran about
+/// twice as slow with them. Unless the user set `CANDLE_NUM_THREADS`, it is set to 1 (no extra
+/// threads: such ops run on the calling thread). Must run before any thread is started.
+fn no_candle_side_pool() {
+    if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
+        // SAFETY: called at the start of `main`, before any other thread exists.
+        unsafe { std::env::set_var("CANDLE_NUM_THREADS", "1") };
+    }
+}
+
 fn main() -> ExitCode {
     let args = Cli::parse();
     let compute = matches!(
@@ -82,6 +96,7 @@ fn main() -> ExitCode {
         Command::Bench(_) | Command::BenchTrain(_) | Command::Pretrain(_) | Command::Train(_)
     );
     if compute {
+        no_candle_side_pool();
         keep_freed_memory();
     }
     let dispatch = move || match args.command {

@@ -387,6 +387,66 @@ fn compennet_training_learns_reproduces_and_cancels() {
     assert!(err.to_string().contains("cancelled"), "{err}");
 }
 
+/// A training step split into shards (run in parallel) gives the loss and every variable's
+/// gradient of the unsharded step, up to f32 rounding: for a learned geometry with refinement and
+/// for a fixed grid, with even and uneven splits.
+#[test]
+fn sharded_training_step_equals_the_unsharded_one() {
+    use compend::nn::train::{CompenNetPP, GeometryInit};
+    let dev = Device::Cpu;
+    let (w, h) = (24, 16);
+    let fixed = Tensor::rand(-0.9f32, 0.9, (1, h, w, 2), &dev).unwrap();
+    for (name, init, refine) in [
+        (
+            "learned",
+            GeometryInit::Affine([[0.8, 0.05, 0.0], [0.0, 0.75, 0.02]]),
+            true,
+        ),
+        ("fixed grid", GeometryInit::Fixed(fixed), false),
+    ] {
+        let model = CompenNetPP::with_width(init, (w, h), refine, 4, 3, &dev).unwrap();
+        for batch in [3, 4] {
+            let x = Tensor::rand(0f32, 1.0, (batch, 3, 20, 30), &dev).unwrap();
+            let y = Tensor::rand(0f32, 1.0, (batch, 3, h, w), &dev).unwrap();
+            let s = Tensor::rand(0f32, 1.0, (1, 3, 20, 30), &dev).unwrap();
+            let (v1, g1) = model.gradients(&x, &y, &s, 1e-4, 1).unwrap();
+            for shards in [2, batch] {
+                let (vk, gk) = model.gradients(&x, &y, &s, 1e-4, shards).unwrap();
+                let what = format!("{name}, batch {batch}, {shards} shards");
+                assert!(
+                    (v1 - vk).abs() < 1e-6 * v1.abs(),
+                    "{what}: loss {v1} vs {vk}"
+                );
+                let mut compared = 0;
+                for (var, t) in model.named_tensors() {
+                    if !t.is_variable() {
+                        continue;
+                    }
+                    let (a, b) = (g1.get(&t), gk.get(&t));
+                    let (Some(a), Some(b)) = (a, b) else {
+                        panic!("{what}: {var} has a gradient in only one ({a:?} / {b:?})");
+                    };
+                    let scale = a
+                        .abs()
+                        .unwrap()
+                        .max_all()
+                        .unwrap()
+                        .to_scalar::<f32>()
+                        .unwrap();
+                    let d = max_abs_diff(a, b);
+                    assert!(
+                        scale > 0.0 && d <= 1e-4 * f64::from(scale),
+                        "{what}: {var} gradient differs by {d} (largest entry {scale})"
+                    );
+                    compared += 1;
+                }
+                let expected = if refine { 44 } else { 34 };
+                assert_eq!(compared, expected, "{what}: variables with gradients");
+            }
+        }
+    }
+}
+
 #[test]
 fn simplified_compennet_reproduces_the_full_network() {
     use compend::nn::train::CompenNetPP;

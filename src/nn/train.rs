@@ -266,6 +266,136 @@ impl CompenNetPP {
     }
 }
 
+/// How many shards a training step of `batch` samples is split into on `device`: two on the CPU
+/// (each shard runs on its own thread, see [`CompenNetPP::gradients`]), one elsewhere. The count
+/// does not depend on the machine's thread count, so a seeded run does the same arithmetic on
+/// any CPU.
+pub fn shards_for(device: &Device, batch: usize) -> usize {
+    if device.is_cpu() { batch.min(2) } else { 1 }
+}
+
+impl CompenNetPP {
+    /// One training step's loss and gradients for captures `x` (B, 3, Hc, Wc), targets `y`
+    /// (B, 3, Hn, Wn) and the surface image (1, 3, Hc, Wc): the fit `L1 + (1 − SSIM)` over the
+    /// batch (its value is returned) plus the L2 term `(wd/2)·Σw²` over every variable.
+    ///
+    /// With `shards` > 1 the batch is split into that many contiguous parts whose backbone
+    /// passes, forward and backward, run in parallel (one rayon task each). On a small CPU this
+    /// is what makes the second core pay: each op of the CPU rung is too small to split across
+    /// threads (the wake-ups cost more than the work), a shard is not. The shared part, the
+    /// grid and the surface branch, still runs once per step: the shards start from detached
+    /// copies of the grid and the surface features, and the gradients they return for those
+    /// copies are pushed back through the shared part in one backward pass
+    /// (`Σ grid·∂grid + Σ s_i·∂s_i`). Each shard's loss is weighted by its share of the batch, so
+    /// the sum is the batch loss: the result equals the unsharded one up to float rounding.
+    pub fn gradients(
+        &self,
+        x: &Tensor,
+        y: &Tensor,
+        surface: &Tensor,
+        weight_decay: f64,
+        shards: usize,
+    ) -> candle_core::Result<(f64, candle_core::backprop::GradStore)> {
+        use candle_core::Var;
+        let vars = self.varmap.all_vars();
+        let b = x.dim(0)?;
+        let shards = shards.clamp(1, b.max(1));
+        let device = x.device().clone();
+        let l2 = l2_penalty(&vars, &device)
+            .map_err(|e| candle_core::Error::Msg(e.to_string()))?
+            .affine(0.5 * weight_decay, 0.0)?;
+        let scalar = |t: &Tensor| t.to_dtype(DType::F64)?.to_scalar::<f64>();
+        if shards == 1 {
+            let out = self.forward(x, surface)?;
+            let fit = loss::l1_ssim(&out, y)?;
+            let value = scalar(&fit)?;
+            return Ok((value, (&fit + l2)?.backward()?));
+        }
+        // The shared part, with its graph.
+        let grid = self.warp.grid()?;
+        let sw = grid_sample(surface, &grid)?;
+        let f = self.compen.surface(&sw)?;
+        let shared = [&f.s1, &f.s2, &f.s3, &f.s4];
+        // The shards' starting points: detached copies that collect the shards' gradients.
+        let grid_leaf = match self.warp {
+            Geometry::Learned(_) => Some(Var::from_tensor(&grid.detach())?),
+            Geometry::Fixed(_) => None,
+        };
+        let leaves = shared
+            .iter()
+            .map(|t| Var::from_tensor(&t.detach()))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        let features = super::compennet::SurfaceFeatures {
+            s1: leaves[0].as_tensor().clone(),
+            s2: leaves[1].as_tensor().clone(),
+            s3: leaves[2].as_tensor().clone(),
+            s4: leaves[3].as_tensor().clone(),
+        };
+        let g = grid_leaf.as_ref().map_or(&grid, |v| v.as_tensor());
+        let (_, h, w, _) = g.dims4()?;
+        // Shard k covers samples lo..lo + len; its loss is weighted by len / b.
+        let shard = |k: usize| -> candle_core::Result<(f64, candle_core::backprop::GradStore)> {
+            let lo = k * b / shards;
+            let len = (k + 1) * b / shards - lo;
+            let gb = g.broadcast_as((len, h, w, 2))?.contiguous()?;
+            let xw = grid_sample(&x.narrow(0, lo, len)?, &gb)?;
+            let out = self.compen.forward_with(&xw, &features)?;
+            let share = len as f64 / b as f64;
+            let fit = loss::l1_ssim(&out, &y.narrow(0, lo, len)?)?.affine(share, 0.0)?;
+            Ok((scalar(&fit)?, fit.backward()?))
+        };
+        let parts = run_shards(shards, &shard)?;
+        let value = parts.iter().map(|(v, _)| v).sum();
+        // Σ over shards of one tensor's gradient, in shard order.
+        let summed = |t: &Tensor| -> candle_core::Result<Option<Tensor>> {
+            let mut acc: Option<Tensor> = None;
+            for (_, grads) in &parts {
+                if let Some(gk) = grads.get(t) {
+                    acc = Some(match acc {
+                        None => gk.clone(),
+                        Some(a) => (a + gk)?,
+                    });
+                }
+            }
+            Ok(acc)
+        };
+        // Back through the shared part: ∂/∂θ Σ t·∂t = ∂t/∂θ · ∂t for each shared output t.
+        let mut through = l2;
+        if let Some(leaf) = &grid_leaf {
+            if let Some(dg) = summed(leaf.as_tensor())? {
+                through = (through + (&grid * dg)?.sum_all()?)?;
+            }
+        }
+        for (t, leaf) in shared.iter().zip(&leaves) {
+            if let Some(dt) = summed(leaf.as_tensor())? {
+                through = (through + (*t * dt)?.sum_all()?)?;
+            }
+        }
+        let mut grads = through.backward()?;
+        for v in &vars {
+            let v = v.as_tensor();
+            if let Some(dv) = summed(v)? {
+                let total = match grads.get(v) {
+                    Some(own) => (own + dv)?,
+                    None => dv,
+                };
+                grads.insert(v, total);
+            }
+        }
+        Ok((value, grads))
+    }
+}
+
+/// Runs `shard(0..n)`, the shards in parallel on rayon's pool, and returns their results in
+/// shard order.
+fn run_shards<R: Send>(
+    n: usize,
+    shard: &(impl Fn(usize) -> candle_core::Result<R> + Sync),
+) -> candle_core::Result<Vec<R>> {
+    use rayon::prelude::*;
+    (0..n).into_par_iter().with_max_len(1).map(shard).collect()
+}
+
 /// Adam with the paper's settings (β 0.9/0.999, ε 1e-8); weight decay is added to the loss.
 pub(crate) fn adam(vars: Vec<candle_core::Var>, lr: f64) -> candle_core::Result<candle_nn::AdamW> {
     candle_nn::AdamW::new(
@@ -378,18 +508,18 @@ pub fn train(
         let idx = Tensor::from_vec(order[..batch].to_vec(), batch, &device).map_err(ce)?;
         let x = data.captures.index_select(&idx, 0).map_err(ce)?;
         let y = data.targets.index_select(&idx, 0).map_err(ce)?;
-        let out = model.forward(&x, &data.surface).map_err(ce)?;
-        let fit = loss::l1_ssim(&out, &y).map_err(ce)?;
-        let l2 = l2_penalty(&vars, &device)?;
-        let total =
-            (&fit + l2.affine(0.5 * settings.weight_decay, 0.0).map_err(ce)?).map_err(ce)?;
-        let value: f64 = fit
-            .to_dtype(DType::F64)
-            .and_then(|t| t.to_scalar())
+        let (value, grads) = model
+            .gradients(
+                &x,
+                &y,
+                &data.surface,
+                settings.weight_decay,
+                shards_for(&device, batch),
+            )
             .map_err(ce)?;
         check_loss(value, it, &losses)?;
         losses.push(value);
-        opt.backward_step(&total).map_err(ce)?;
+        opt.step(&grads).map_err(ce)?;
         progress(it + 1, iters, value);
     }
     // Collapse check: a model whose outputs no longer depend on the input is useless.
