@@ -252,10 +252,91 @@ pub fn fit(
     check_pairs(captures, targets)?;
     let cam_size = captures[0].size();
     let (nw, nh) = settings.network_size;
+    let mut history = Vec::new();
+    let (warp, curves) = fit_warp(
+        captures,
+        targets,
+        init,
+        settings,
+        &mut history,
+        &mut progress,
+    );
+    let mut grid = TpsBasis::new(nw, nh).grid(&warp);
+    let mut refine = None;
+    if let (true, Some((spacing, iters))) = (settings.learn_geometry, settings.refine) {
+        let field = refine_geometry(
+            captures,
+            targets,
+            &grid,
+            &curves,
+            settings,
+            (spacing, iters),
+            &mut history,
+            &mut progress,
+        );
+        field.apply(&mut grid);
+        refine = Some(field);
+    }
+    let (curves, coeffs, loss) = match settings.lattice {
+        Some((lw, lh)) if (lw, lh) != (nw, nh) => {
+            let fine = learned_grid(&warp, refine.as_ref(), (nw, nh), (lw, lh));
+            let up = lattice_targets(targets, (lw, lh));
+            let up = up.as_deref().unwrap_or(targets);
+            fit_colour(captures, up, &fine, curves, settings.ridge)
+        }
+        _ => fit_colour(captures, targets, &grid, curves, settings.ridge),
+    };
+    progress("colour", 1, 1);
+    Ok((
+        LinearModel {
+            geometry: Geometry::Learned(warp, refine),
+            curves,
+            coeffs,
+            camera_size: cam_size,
+            geometry_size: (nw, nh),
+        },
+        FitReport {
+            final_loss: loss,
+            loss_history: history,
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    ))
+}
+
+/// The affine + TPS geometry alone, as [`fit`] starts with (no dense refinement, no colour
+/// model): what the CompenNet++ variants start their WarpingNet from. Inputs as for [`fit`].
+pub fn fit_geometry(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+) -> Result<Warp> {
+    check_pairs(captures, targets)?;
+    let (warp, _) = fit_warp(
+        captures,
+        targets,
+        init,
+        settings,
+        &mut Vec::new(),
+        |_, _, _| {},
+    );
+    Ok(warp)
+}
+
+/// The coarse-to-fine affine + TPS fit that [`fit`] starts with (when
+/// `settings.learn_geometry`), the global curves fitted on the way at its first level; appends
+/// each step's loss to `history`.
+fn fit_warp(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+    history: &mut Vec<f64>,
+    mut progress: impl FnMut(&str, usize, usize),
+) -> (Warp, Curves) {
+    let (nw, nh) = settings.network_size;
     let mut warp = init;
     let mut curves = Curves::default();
-    let mut history = Vec::new();
-
     if settings.learn_geometry {
         let ng = settings.geometry_images.clamp(1, captures.len());
         let total: usize = settings.levels.iter().map(|l| l.1).sum();
@@ -313,46 +394,7 @@ pub fn fit(
             }
         }
     }
-    let mut grid = TpsBasis::new(nw, nh).grid(&warp);
-    let mut refine = None;
-    if let (true, Some((spacing, iters))) = (settings.learn_geometry, settings.refine) {
-        let field = refine_geometry(
-            captures,
-            targets,
-            &grid,
-            &curves,
-            settings,
-            (spacing, iters),
-            &mut history,
-            &mut progress,
-        );
-        field.apply(&mut grid);
-        refine = Some(field);
-    }
-    let (curves, coeffs, loss) = match settings.lattice {
-        Some((lw, lh)) if (lw, lh) != (nw, nh) => {
-            let fine = learned_grid(&warp, refine.as_ref(), (nw, nh), (lw, lh));
-            let up = lattice_targets(targets, (lw, lh));
-            let up = up.as_deref().unwrap_or(targets);
-            fit_colour(captures, up, &fine, curves, settings.ridge)
-        }
-        _ => fit_colour(captures, targets, &grid, curves, settings.ridge),
-    };
-    progress("colour", 1, 1);
-    Ok((
-        LinearModel {
-            geometry: Geometry::Learned(warp, refine),
-            curves,
-            coeffs,
-            camera_size: cam_size,
-            geometry_size: (nw, nh),
-        },
-        FitReport {
-            final_loss: loss,
-            loss_history: history,
-            seconds: start.elapsed().as_secs_f64(),
-        },
-    ))
+    (warp, curves)
 }
 
 /// The residual refinement: a dense offset field on top of the affine + TPS grid `base`, fitted

@@ -426,17 +426,13 @@ fn train_compennet(
             refine: None,
             ..FitSettings::default()
         };
-        let (fitted, _) = crate::linear::fit(
+        // Its geometry alone: the colour model is not needed here.
+        GeometryInit::Warp(crate::linear::fit_geometry(
             &captures,
             &full_targets,
             crate::warp::Warp::from_affine(theta),
             &settings,
-            |_, _, _| {},
-        )?;
-        match fitted.geometry {
-            crate::linear::Geometry::Learned(warp, _) => GeometryInit::Warp(warp),
-            crate::linear::Geometry::Fixed(_) => GeometryInit::Affine(theta),
-        }
+        )?)
     };
     let geometry_init = match &init {
         GeometryInit::Fixed(_) => "structured light (fixed)",

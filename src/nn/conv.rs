@@ -121,8 +121,17 @@ impl Im2Col {
                     let iy = oy * self.stride + kh - self.padding;
                     let dst = &mut x[iy * w..][..w];
                     let src = &row[oy * wo..][..wo];
-                    for ox in xs.clone() {
-                        dst[ox * self.stride + kw - self.padding] += src[ox];
+                    if self.stride == 1 {
+                        // Contiguous on both sides: a slice add the compiler vectorises.
+                        let ix0 = xs.start + kw - self.padding;
+                        let dst = &mut dst[ix0..ix0 + xs.len()];
+                        for (d, &v) in dst.iter_mut().zip(&src[xs.clone()]) {
+                            *d += v;
+                        }
+                    } else {
+                        for ox in xs.clone() {
+                            dst[ox * self.stride + kw - self.padding] += src[ox];
+                        }
                     }
                 }
             }
@@ -586,11 +595,20 @@ fn map_cycled<T: Copy + Send + Sync, const K: usize>(
         .enumerate()
         .for_each(|(k, dst)| {
             let lo = k * CHUNK;
-            let srcs = full.map(|s| &s[lo..lo + dst.len()]);
-            // `b` from this chunk's offset on, then round again as often as needed.
-            let bs = b[lo % m..].iter().chain(b.iter().cycle());
-            for (i, (d, &y)) in dst.iter_mut().zip(bs).enumerate() {
-                d.write(f(srcs.map(|s| s[i]), y));
+            // Runs over which `b` is contiguous (from this position to the end of `b` or of
+            // the chunk): equal-length slices, so the loop below has no wrap-around to check
+            // and vectorises.
+            let mut i = 0;
+            while i < dst.len() {
+                let j = (lo + i) % m;
+                let len = (m - j).min(dst.len() - i);
+                let d = &mut dst[i..i + len];
+                let bs = &b[j..j + len];
+                let srcs = full.map(|s| &s[lo + i..lo + i + len]);
+                for (t, (d, &y)) in d.iter_mut().zip(bs).enumerate() {
+                    d.write(f(srcs.map(|s| s[t]), y));
+                }
+                i += len;
             }
         });
     // SAFETY: the chunks cover all `n` elements and every element was written above.
