@@ -15,8 +15,8 @@ pub struct Args {
     /// CompenNet++ variant: `compennet++-faster` (48 pairs, batch 16, 500 iterations),
     /// `compennet++-fast`, `compennet++-norefine`, `compennet++` (500 pairs, batch 48, 1500), or
     /// `compennet++-cpu`, the CPU-sized rung (half the network side, half the channel widths;
-    /// 48 pairs, batch 4, 1000 iterations: about 6 minutes on 2 cores).
-    /// CompenNet++ on a CPU takes about 0.6–0.8 s per sample at 256²: see --iters.
+    /// 48 pairs, batch 4, 1000 iterations: about 4–4.5 minutes on 2 cores).
+    /// CompenNet++ on a 2-core CPU takes about 0.45–0.5 s per sample at 256²: see --iters.
     /// `auto` picks between `linear` and `linear-sl` by their paper-protocol PSNR on held-out
     /// training pairs, refits the winner on all pairs and records the evidence in model.json.
     #[arg(long)]
