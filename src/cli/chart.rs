@@ -66,7 +66,9 @@ pub fn write_charts(rows: &[Row], dir: &Path) -> Result<Vec<PathBuf>> {
 fn draw(spec: &Spec, points: &[(usize, f64, f64)], methods: &[&str], path: &Path) -> Result<()> {
     let (x0, x1) = bounds(points.iter().map(|p| p.1));
     let (_, y1) = bounds(points.iter().map(|p| p.2));
-    let (x0, x1) = (x0 / 1.5, x1 * 1.5);
+    // The axis starts at a power of ten: plotters labels a log axis from the first power of ten
+    // inside it, so points below that would sit left of every label.
+    let (x0, x1) = (10f64.powf((x0 / 1.5).log10().floor()), x1 * 1.5);
     let y1 = (y1 * 1.1).max(1.0);
     let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
     root.fill(&WHITE)?;
