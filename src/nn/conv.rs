@@ -220,6 +220,26 @@ fn contiguous<'a, T>(data: &'a [T], layout: &Layout, op: &str) -> Result<&'a [T]
     }
 }
 
+/// A two-input element-wise op's CPU body for f32 or f64 storage: `f32`/`f64` on the contiguous
+/// inputs of one type; `op` names the op in the errors.
+fn binary_f32_f64(
+    op: &str,
+    (s1, l1): (&CpuStorage, &Layout),
+    (s2, l2): (&CpuStorage, &Layout),
+    f32: fn(&[f32], &[f32]) -> Vec<f32>,
+    f64: fn(&[f64], &[f64]) -> Vec<f64>,
+) -> Result<CpuStorage> {
+    Ok(match (s1, s2) {
+        (CpuStorage::F32(a), CpuStorage::F32(b)) => {
+            CpuStorage::F32(f32(contiguous(a, l1, op)?, contiguous(b, l2, op)?))
+        }
+        (CpuStorage::F64(a), CpuStorage::F64(b)) => {
+            CpuStorage::F64(f64(contiguous(a, l1, op)?, contiguous(b, l2, op)?))
+        }
+        _ => bail!("{op}: only f32 and f64 tensors of one type are supported"),
+    })
+}
+
 /// The im2col columns of a tensor as an op without a backward pass: [`MatmulConv`]'s backward
 /// pass recomputes them. (B, C, H, W) → (B, C·k·k [+ 1 with `ones`], Ho·Wo); row
 /// `c·k·k + kh·k + kw` matches a weight (O, C, k, k) flattened to (O, C·k·k), and the row of
@@ -545,17 +565,7 @@ impl CustomOp2 for ReluGrad {
         if l1.shape() != l2.shape() {
             bail!("relu-grad: shapes {:?} and {:?}", l1.shape(), l2.shape());
         }
-        let out = match (s1, s2) {
-            (CpuStorage::F32(x), CpuStorage::F32(g)) => CpuStorage::F32(go(
-                contiguous(x, l1, "relu-grad")?,
-                contiguous(g, l2, "relu-grad")?,
-            )),
-            (CpuStorage::F64(x), CpuStorage::F64(g)) => CpuStorage::F64(go(
-                contiguous(x, l1, "relu-grad")?,
-                contiguous(g, l2, "relu-grad")?,
-            )),
-            _ => bail!("relu-grad: only f32 and f64 tensors of one type are supported"),
-        };
+        let out = binary_f32_f64("relu-grad", (s1, l1), (s2, l2), go::<f32>, go::<f64>)?;
         Ok((out, l1.shape().clone()))
     }
 }
@@ -641,17 +651,13 @@ impl CustomOp2 for AddRelu {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
-        let out = match (s1, s2) {
-            (CpuStorage::F32(a), CpuStorage::F32(b)) => CpuStorage::F32(add_relu_fwd(
-                contiguous(a, l1, "add-relu")?,
-                contiguous(b, l2, "add-relu")?,
-            )),
-            (CpuStorage::F64(a), CpuStorage::F64(b)) => CpuStorage::F64(add_relu_fwd(
-                contiguous(a, l1, "add-relu")?,
-                contiguous(b, l2, "add-relu")?,
-            )),
-            _ => bail!("add-relu: only f32 and f64 tensors of one type are supported"),
-        };
+        let out = binary_f32_f64(
+            "add-relu",
+            (s1, l1),
+            (s2, l2),
+            add_relu_fwd::<f32>,
+            add_relu_fwd::<f64>,
+        )?;
         Ok((out, l1.shape().clone()))
     }
 
