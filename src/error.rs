@@ -45,6 +45,19 @@ pub enum Error {
     /// The operation could not be carried out on valid input (e.g. nothing lit in the captures).
     #[error("{0}")]
     Failed(String),
+
+    /// A tensor operation failed (candle): out of memory, a device error, or shapes that do not
+    /// fit (a programming error). The cause is kept.
+    #[error("tensor operation failed: {0}")]
+    Candle(#[from] candle_core::Error),
+
+    /// The GPU (wgpu) failed: no adapter, a lost device, a failed read-back. The cause is kept.
+    #[error("GPU: {what}: {source}")]
+    Gpu {
+        what: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync + 'static>,
+    },
 }
 
 impl Error {
@@ -54,9 +67,25 @@ impl Error {
             Error::Missing { .. }
             | Error::Decode { .. }
             | Error::Size { .. }
-            | Error::Input(_)
-            | Error::Io { .. } => 2,
-            Error::Shape(_) | Error::Failed(_) => 1,
+            | Error::Input(_) => 2,
+            // I/O failures (disk full, permission denied) are the operation's, not the user's
+            // input: a service manager restarts on 1 and gives up on 2.
+            Error::Io { .. }
+            | Error::Shape(_)
+            | Error::Failed(_)
+            | Error::Candle(_)
+            | Error::Gpu { .. } => 1,
+        }
+    }
+
+    /// A GPU error with what was being done.
+    pub fn gpu(
+        what: impl Into<String>,
+        source: impl std::error::Error + Send + Sync + 'static,
+    ) -> Self {
+        Error::Gpu {
+            what: what.into(),
+            source: Box::new(source),
         }
     }
 

@@ -1176,9 +1176,9 @@ pub const METHOD: &str = "linear";
 impl LinearModel {
     /// Numeric state for the model directory: the learnable geometry, the baked grid (what playback
     /// reads), the curves and the per-pixel coefficients.
-    pub fn to_tensors(&self) -> Result<crate::modeldir::Tensors> {
+    pub fn to_tensors(&self) -> Result<crate::model::store::Tensors> {
         let (w, h) = self.network_size();
-        let mut t = crate::modeldir::Tensors::default();
+        let mut t = crate::model::store::Tensors::default();
         if let Geometry::Learned(warp, refine) = &self.geometry {
             let theta = warp.theta.iter().flatten().copied().collect();
             t.insert("warp.theta", vec![2, 3], theta)?;
@@ -1218,7 +1218,7 @@ impl LinearModel {
 
     /// Rebuilds a model from the model directory's tensors; `file` names the weights in errors.
     pub fn from_tensors(
-        t: &crate::modeldir::Tensors,
+        t: &crate::model::store::Tensors,
         network_size: (usize, usize),
         camera_size: (usize, usize),
         file: &std::path::Path,

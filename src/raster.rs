@@ -8,7 +8,69 @@
 use std::fmt;
 use std::marker::PhantomData;
 
+use serde::{Deserialize, Serialize};
+
 use crate::error::{Error, Result};
+
+/// Image size in pixels (width × height) of the space it belongs to: the one size type of the
+/// crate. In `model.json` and `rig.json` a size is written as a `[width, height]` pair
+/// ([`ImageSize::as_pair`]), elsewhere as `{"width", "height"}`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct ImageSize {
+    pub width: usize,
+    pub height: usize,
+}
+
+impl ImageSize {
+    pub const fn new(width: usize, height: usize) -> Self {
+        Self { width, height }
+    }
+
+    /// Number of pixels.
+    pub const fn area(self) -> usize {
+        self.width * self.height
+    }
+
+    /// Width over height.
+    pub fn aspect(self) -> f64 {
+        self.width as f64 / self.height as f64
+    }
+}
+
+/// Serde for a size written as a `[width, height]` pair (`#[serde(with = "...")]`), the form
+/// of the model directory's sizes since format version 1.
+pub mod as_pair {
+    use super::ImageSize;
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    pub fn serialize<S: Serializer>(size: &ImageSize, s: S) -> Result<S::Ok, S::Error> {
+        (size.width, size.height).serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<ImageSize, D::Error> {
+        let (width, height) = <(usize, usize)>::deserialize(d)?;
+        Ok(ImageSize { width, height })
+    }
+}
+
+impl From<(usize, usize)> for ImageSize {
+    fn from((width, height): (usize, usize)) -> Self {
+        Self { width, height }
+    }
+}
+
+impl From<ImageSize> for (usize, usize) {
+    fn from(s: ImageSize) -> Self {
+        (s.width, s.height)
+    }
+}
+
+impl fmt::Display for ImageSize {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}x{}", self.width, self.height)
+    }
+}
+
 
 /// A pixel space marker. Images of different spaces cannot be mixed by accident; conversions
 /// between spaces are explicit (a warp, a placement on the canvas, or [`Rgb::into_space`]).

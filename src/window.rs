@@ -27,7 +27,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, FRAME_FORMAT, GpuContext};
 use crate::model::Model;
 use crate::playback::Placement;
-use crate::player::{PlayStats, Player, Step};
+use crate::playback::player::{PlayStats, Player, Step};
 use crate::raster::PrjImage;
 use crate::source::{Feed, FeedMode, VideoSource};
 

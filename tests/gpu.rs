@@ -6,7 +6,7 @@ use compend::fov::DisplayRange;
 use compend::gpu::CompensationPass;
 use compend::linear::{Coefficients, Curves, Geometry, LinearModel};
 use compend::model::Model;
-use compend::modeldir::{FORMAT_VERSION, ModelMeta};
+use compend::model::store::{FORMAT_VERSION, ModelMeta};
 use compend::playback::{self, ContentFrame, Placement};
 use compend::raster::{Camera, Mask, Network, Rect, Rgb};
 use compend::sample::{Grid, pixel_to_norm};

@@ -364,7 +364,7 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
         ev["uncompensated"]["psnr"].as_f64().unwrap(),
     );
     assert!(c > u, "compennet-sl {c:.2} dB vs uncompensated {u:.2} dB");
-    let (_, t) = compend::modeldir::load(&sl).unwrap();
+    let (_, t) = compend::model::store::load(&sl).unwrap();
     assert!(t.names().any(|n| n == "warp.grid") && !t.names().any(|n| n == "warp.theta"));
 
     let model = dir.path().join("cnn");
@@ -471,12 +471,12 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
     );
 
     // A tensor of the wrong shape in the weights: exit 2 naming the tensor.
-    let (meta, mut tensors) = compend::modeldir::load(&model).unwrap();
+    let (meta, mut tensors) = compend::model::store::load(&model).unwrap();
     tensors
         .insert("compen.backbone.conv6.bias", vec![4], vec![0.0; 4])
         .unwrap();
     let bad = dir.path().join("bad");
-    compend::modeldir::save(&bad, &meta, &tensors).unwrap();
+    compend::model::store::save(&bad, &meta, &tensors).unwrap();
     let out = compend(&["eval", "--model", bad.to_str().unwrap(), "--setup", s]);
     assert_code(&out, 2);
     assert!(

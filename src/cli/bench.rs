@@ -15,7 +15,7 @@ use compend::metrics::Scores;
 use compend::model::paper_protocol;
 use compend::raster::PrjImage;
 use compend::rig::{self, ExportOptions, OracleOptions, Phase, Simulator};
-use compend::train::{self, Request};
+use compend::fit::{self, Request};
 use serde::Serialize;
 
 use super::sim::SceneArgs;
@@ -106,11 +106,11 @@ pub fn run(args: Args) -> Result<()> {
         args.scenes.clone()
     };
     for m in &args.methods {
-        if m != compend::train::AUTO && !compend::model::METHODS.contains(&m.as_str()) {
+        if m != compend::fit::AUTO && !compend::model::METHODS.contains(&m.as_str()) {
             return Err(compend::Error::Input(format!(
                 "--methods: `{m}` is not a method; methods: {}, {}",
                 compend::model::METHODS.join(", "),
-                compend::train::AUTO
+                compend::fit::AUTO
             ))
             .into());
         }
@@ -120,10 +120,10 @@ pub fn run(args: Args) -> Result<()> {
         .iter()
         .max()
         .context("--ntrain needs at least one size")?;
-    if max_train < train::MIN_TRAIN || args.ntest == 0 || args.seeds.is_empty() {
+    if max_train < fit::MIN_TRAIN || args.ntest == 0 || args.seeds.is_empty() {
         return Err(compend::Error::Input(format!(
             "--ntrain sizes must be at least {}, --ntest at least 1, and --seeds non-empty",
-            train::MIN_TRAIN
+            fit::MIN_TRAIN
         ))
         .into());
     }
@@ -215,7 +215,7 @@ fn bench_scene(
     let desired = setup.load_desired(Some(args.ntest))?;
     let on_canvas = |imgs: &[PrjImage]| -> compend::Result<Vec<PrjImage>> {
         imgs.iter()
-            .map(|i| rig::place_on_canvas(i, record.canvas, psize))
+            .map(|i| compend::playback::place_on_canvas(i, record.canvas, psize))
             .collect()
     };
     let tests = on_canvas(&setup.root().load(ProjectorSet::Test, Some(args.ntest))?)?;
@@ -277,7 +277,7 @@ fn bench_scene(
                 gap_db: None,
                 failed: None,
             };
-            match train::train(setup, &req, |_, _, _| {}) {
+            match fit::fit(setup, &req, |_, _, _| {}) {
                 Err(e) => {
                     eprintln!("bench: {scene} {method} n={n}: training failed: {e}");
                     row.failed = Some(e.to_string());

@@ -15,7 +15,7 @@ use compend::gpu::bench::{
     Timing, synthetic_compennet_model, synthetic_linear_model, time_copy, time_pass,
 };
 use compend::playback::Placement;
-use compend::player::{self, PlayStats, Player, VirtualOptions};
+use compend::playback::player::{self, PlayStats, Player, VirtualOptions};
 use compend::rig::{Phase, Simulator, VirtualRig, scene};
 use compend::source::{Feed, FeedMode, Pattern, SourceSpec};
 use serde::Serialize;

@@ -5,7 +5,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use compend::dataset::{ImageSize, Reference, SetCounts, Setup, SetupInfo};
+use compend::raster::ImageSize;
+use compend::dataset::{Reference, SetCounts, Setup, SetupInfo};
 use compend::raster::{CamImage, Camera, Mask, Rect};
 use serde::Serialize;
 

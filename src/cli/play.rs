@@ -9,7 +9,7 @@ use compend::fov::DisplayRange;
 use compend::gpu::{CompensationPass, GpuContext};
 use compend::model::Model;
 use compend::playback::Placement;
-use compend::player::{self, Player, VirtualOptions};
+use compend::playback::player::{self, Player, VirtualOptions};
 use compend::rig::{self, Phase, Simulator, VirtualRig, scene};
 use compend::source::{self, Feed, FeedMode, SourceSpec};
 

@@ -34,7 +34,7 @@ pub fn run(args: Args) -> Result<()> {
             width: w,
             height: h,
         };
-        compend::rig::place_on_canvas(&img, full, (w, h))?
+        compend::playback::place_on_canvas(&img, full, (w, h))?
     };
     win.show(&frame)?;
     eprintln!(

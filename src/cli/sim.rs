@@ -335,7 +335,7 @@ fn score(a: ScoreArgs) -> Result<()> {
     let psize = sim.projector_size();
     let on_canvas = |imgs: Vec<PrjImage>| -> compend::Result<Vec<PrjImage>> {
         imgs.iter()
-            .map(|i| rig::place_on_canvas(i, record.canvas, psize))
+            .map(|i| compend::playback::place_on_canvas(i, record.canvas, psize))
             .collect()
     };
     let tests = on_canvas(setup.root().load(ProjectorSet::Test, Some(n))?)?;

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use compend::train::{self, Request};
+use compend::fit::{self, Request};
 use serde_json::json;
 
 #[derive(clap::Args, Debug)]
@@ -43,7 +43,7 @@ pub struct Args {
     /// CompenNet++ variants: where to train, `cpu`, `cuda` or `cuda:N` (an NVIDIA GPU; needs a
     /// build with `--features cuda`). The `linear` rungs always fit on the CPU.
     #[arg(long, default_value = "cpu")]
-    pub device: compend::train::TrainDevice,
+    pub device: compend::fit::TrainDevice,
     /// The linear rungs: the lattice of the per-pixel colour model and of the compensation
     /// images, `N` or `WxH` (default: 1.5× the network size, 384 for 256²; the network size
     /// itself reproduces the paper's 256² output). Live playback stretches any lattice over the
@@ -71,7 +71,7 @@ pub fn run(args: Args) -> Result<()> {
         photometric: args.photometric_init.clone(),
     };
     let bar = super::progress_bar(args.json);
-    let (model, summary) = train::train(&setup, &req, |stage, done, total| {
+    let (model, summary) = fit::fit(&setup, &req, |stage, done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
         bar.set_message(stage.to_string());

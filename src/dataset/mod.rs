@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::pngio;
-use crate::raster::{CamImage, PrjImage, Rgb, Space};
+use crate::raster::{CamImage, ImageSize, PrjImage, Rgb, Space};
 
 pub use validate::Validation;
 
@@ -138,31 +138,6 @@ impl Reference {
             Self::White => "the white reference capture",
             Self::Gray => "the gray surface image",
         }
-    }
-}
-
-/// Image size in pixels of the space it belongs to.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ImageSize {
-    pub width: usize,
-    pub height: usize,
-}
-
-impl From<(usize, usize)> for ImageSize {
-    fn from((width, height): (usize, usize)) -> Self {
-        Self { width, height }
-    }
-}
-
-impl From<ImageSize> for (usize, usize) {
-    fn from(s: ImageSize) -> Self {
-        (s.width, s.height)
-    }
-}
-
-impl std::fmt::Display for ImageSize {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}x{}", self.width, self.height)
     }
 }
 

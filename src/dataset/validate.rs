@@ -5,12 +5,12 @@
 use std::path::{Path, PathBuf};
 
 use super::{
-    CaptureSet, ImageSize, ProjectorSet, Reference, References, Scan, SetCounts, Setup, SetupInfo,
+    CaptureSet, ProjectorSet, Reference, References, Scan, SetCounts, Setup, SetupInfo,
     par_map, scan,
 };
 use crate::error::Error;
 use crate::pngio;
-use crate::raster::Unspecified;
+use crate::raster::{ImageSize, Unspecified};
 
 /// The result of [`Setup::validate`]: the summary as far as it could be worked out, and the
 /// problems found (each an error naming its file and what was expected).

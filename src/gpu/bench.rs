@@ -214,7 +214,7 @@ pub fn synthetic_linear_model(
     use rand::{RngExt, SeedableRng};
 
     use crate::linear::{Coefficients, Curves, Geometry, LinearModel};
-    use crate::modeldir::{FORMAT_VERSION, ModelMeta};
+    use crate::model::store::{FORMAT_VERSION, ModelMeta};
     use crate::raster::Mask;
     use crate::sample::{Grid, pixel_to_norm};
 
@@ -269,7 +269,7 @@ pub fn synthetic_compennet_model(
     variant: crate::nn::train::Variant,
     seed: u64,
 ) -> Result<crate::model::Model> {
-    use crate::modeldir::{FORMAT_VERSION, ModelMeta};
+    use crate::model::store::{FORMAT_VERSION, ModelMeta};
     use crate::nn::train::{CompenNetPP, GeometryInit};
     use crate::raster::{CamImage, Mask};
 

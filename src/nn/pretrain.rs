@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{CompenNet, loss};
 use crate::error::{Error, Result};
-use crate::modeldir::Tensors;
+use crate::model::store::Tensors;
 use crate::patterns::sampling::{Set, sampling_image};
 
 /// Variable prefix of CompenNet inside a CompenNet++ model (and in the pre-trained file).
@@ -227,10 +227,10 @@ impl Pretrained {
     /// Writes the weights to `path` and the metadata beside it, each file atomically (the
     /// metadata last, so a crash in between leaves no JSON claiming new weights).
     pub fn save(&self, path: &Path) -> Result<()> {
-        crate::modeldir::write_file_atomically(path, &self.tensors.to_bytes()?)?;
+        crate::model::store::write_file_atomically(path, &self.tensors.to_bytes()?)?;
         let json = serde_json::to_vec_pretty(&self.meta)
             .map_err(|e| Error::Failed(format!("pre-training metadata: {e}")))?;
-        crate::modeldir::write_file_atomically(&meta_path(path), &json)
+        crate::model::store::write_file_atomically(&meta_path(path), &json)
     }
 
     /// Sets every CompenNet variable of `varmap` (names `compen.…`) from these weights. Every

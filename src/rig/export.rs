@@ -14,7 +14,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::model::{Phase, Simulator};
+use super::physics::{Phase, Simulator};
 use super::scene::Scene;
 use crate::dataset::{CaptureSet, DataRoot, ProjectorSet, Reference, Setup};
 use crate::error::{Error, Result};
@@ -89,48 +89,6 @@ pub struct ExportSummary {
     pub seconds: f64,
 }
 
-/// Stretches `img` (e.g. a network-size projector image) over `canvas` of a black projector
-/// frame of `size` (width, height), with bilinear resizing.
-pub fn place_on_canvas<S: Space>(
-    img: &Rgb<S>,
-    canvas: Rect,
-    size: (usize, usize),
-) -> Result<PrjImage> {
-    let (w, h) = size;
-    if canvas.width == 0
-        || canvas.height == 0
-        || canvas.x + canvas.width > w
-        || canvas.y + canvas.height > h
-    {
-        return Err(Error::Shape(format!(
-            "canvas {canvas} is empty or does not fit in the {w}x{h} projector frame"
-        )));
-    }
-    if img.width() == 0 || img.height() == 0 {
-        return Err(Error::Shape(
-            "cannot place an empty image on the canvas".into(),
-        ));
-    }
-    let fitted = resize_bilinear(img, canvas.width, canvas.height);
-    if canvas
-        == (Rect {
-            x: 0,
-            y: 0,
-            width: w,
-            height: h,
-        })
-    {
-        return Ok(fitted.into_space());
-    }
-    let mut out = PrjImage::new(w, h);
-    for y in 0..canvas.height {
-        for x in 0..canvas.width {
-            out.set(canvas.x + x, canvas.y + y, fitted.get(x, y));
-        }
-    }
-    Ok(out)
-}
-
 /// The full projector frame as a canvas.
 pub fn full_canvas(sim: &Simulator) -> Rect {
     let (w, h) = sim.projector_size();
@@ -165,7 +123,7 @@ pub fn export_setup(
     let shown = |set: ProjectorSet, i: usize| -> Result<PrjImage> {
         let p = root.image_path(set, i);
         let img = pngio::read_rgb_sized::<crate::raster::Projector>(&p, net, &net_why)?;
-        place_on_canvas(&img, canvas, psize)
+        crate::playback::place_on_canvas(&img, canvas, psize)
     };
 
     // References: black (cube 1), white (cube 125), optionally the rest of the cube; gray.
@@ -181,7 +139,7 @@ pub fn export_setup(
     let gray_path = root.gray_input_path();
     let gray = pngio::read_rgb_sized::<crate::raster::Projector>(&gray_path, net, &net_why)?;
     let cap = sim.capture(
-        &place_on_canvas(&gray, canvas, psize)?,
+        &crate::playback::place_on_canvas(&gray, canvas, psize)?,
         FRAMES_REF + Reference::Gray.index() as u64,
     )?;
     setup.write_reference(Reference::Gray, &cap)?;

@@ -14,7 +14,7 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use super::model::{Phase, Simulator, mix64};
+use super::physics::{Phase, Simulator, mix64};
 use super::scene::{Latency, Scene};
 use crate::device::{DisplaySink, Frame, FrameSource};
 use crate::error::{Error, Result};

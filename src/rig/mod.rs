@@ -22,16 +22,16 @@
 pub mod export;
 mod geom;
 pub mod live;
-mod model;
+mod physics;
 mod oracle;
 pub mod scene;
 pub mod score;
 pub mod sheet;
 mod texture;
 
-pub use export::{ExportOptions, export_setup, place_on_canvas};
+pub use export::{ExportOptions, export_setup};
 pub use live::VirtualRig;
-pub use model::{Phase, Simulator};
+pub use physics::{Phase, Simulator};
 pub use oracle::OracleOptions;
 pub use scene::{BUILTIN, Scene, builtin};
 pub use score::{ReferenceScores, closed_loop, reference_scores};

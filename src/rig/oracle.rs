@@ -1,7 +1,7 @@
 //! Reference projector images that know the scene's true model: the geometry-only warp and the
 //! oracle (the physical ceiling of compensation under input clipping).
 
-use super::model::{Simulator, mat3};
+use super::physics::{Simulator, mat3};
 use crate::error::{Error, Result};
 use crate::raster::{CamImage, Camera, Mask, PrjImage, check_same_size};
 

@@ -4,7 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::model::Simulator;
+use super::physics::Simulator;
 use super::oracle::OracleOptions;
 use crate::error::{Error, Result};
 use crate::metrics::{Accumulator, Scores};
@@ -110,7 +110,7 @@ pub fn oracle_at_network(
         .map(|o| {
             let region = o.crop(canvas)?;
             let small = crate::resize::resize_area(&region, network.0, network.1);
-            super::export::place_on_canvas(&small, canvas, psize)
+            crate::playback::place_on_canvas(&small, canvas, psize)
         })
         .collect::<Result<_>>()?;
     closed_loop(sim, &shown, desired, area, first_frame)

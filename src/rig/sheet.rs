@@ -2,8 +2,9 @@
 //! desired image, what the viewer sees uncompensated, and with the oracle (the scene's ceiling),
 //! with closed-loop scores under the panels.
 
-use super::export::{full_canvas, place_on_canvas};
-use super::model::Simulator;
+use super::export::full_canvas;
+use crate::playback::place_on_canvas;
+use super::physics::Simulator;
 use super::oracle::OracleOptions;
 use super::score::{ReferenceScores, area_mask, closed_loop};
 use crate::error::Result;

@@ -12,7 +12,7 @@ use crate::error::{Error, Result};
 use crate::fov;
 use crate::linear::{self, FitSettings};
 use crate::model::Model;
-use crate::modeldir::{FORMAT_VERSION, ModelMeta};
+use crate::model::store::{FORMAT_VERSION, ModelMeta};
 use crate::raster::{CamImage, Camera, NetImage, Network, Rect};
 use crate::sample::Grid;
 
@@ -109,7 +109,7 @@ pub struct Summary {
 }
 
 /// Trains `req.method` on `setup`; `progress(stage, done, total)` reports the fit's progress.
-pub fn train(
+pub fn fit(
     setup: &Setup,
     req: &Request,
     progress: impl FnMut(&str, usize, usize),

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::linear::LinearModel;
-use crate::modeldir::{self, ModelMeta, Tensors};
+use store::{ModelMeta, Tensors};
 use crate::raster::{CamImage, Camera, Mask, NetImage, Network};
 use crate::sample::Grid;
 
@@ -100,13 +100,13 @@ impl Model {
                 path: dir.to_path_buf(),
                 expected: format!(
                     "a model directory holding {} and {}",
-                    modeldir::META_FILE,
-                    modeldir::WEIGHTS_FILE
+                    store::META_FILE,
+                    store::WEIGHTS_FILE
                 ),
             });
         }
-        let (meta, tensors) = modeldir::load(dir)?;
-        let file = dir.join(modeldir::WEIGHTS_FILE);
+        let (meta, tensors) = store::load(dir)?;
+        let file = dir.join(store::WEIGHTS_FILE);
         let (cw, ch) = meta.camera_size;
         let fov = tensors.get("fov_mask", &[ch, cw], &file)?;
         let fov = Mask::from_vec(cw, ch, fov.iter().map(|&v| v >= 0.5).collect())?;
@@ -134,7 +134,7 @@ impl Model {
             }
             other => Err(Error::Input(format!(
                 "{}: method `{other}` is not one this compend can run (known: {})",
-                dir.join(modeldir::META_FILE).display(),
+                dir.join(store::META_FILE).display(),
                 METHODS.join(", ")
             ))),
         }
@@ -169,7 +169,7 @@ impl Model {
                 .map(|&b| if b { 1.0 } else { 0.0 })
                 .collect(),
         )?;
-        modeldir::save(dir, &self.meta, &tensors)
+        store::save(dir, &self.meta, &tensors)
     }
 
     pub fn camera_size(&self) -> (usize, usize) {

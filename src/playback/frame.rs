@@ -11,7 +11,7 @@
 //! 2. **Compensation image** (network pixels): the model's `π†(z')`: the baked grid samples `z'`
 //!    (bilinear, align-corners, zero outside), then the photometric part.
 //! 3. **Projector frame** (projector pixels): the compensation image stretched over the canvas
-//!    with bilinear resizing, black elsewhere ([`crate::rig::place_on_canvas`]).
+//!    with bilinear resizing, black elsewhere ([`place_on_canvas`]).
 //!
 //! Every step is the existing core function; [`reference_frame`] only chains them, so the CPU
 //! reference of the GPU pass is exactly what the offline commands and the rig's closed loop do.
@@ -22,6 +22,7 @@ use crate::error::{Error, Result};
 use crate::fov::{self, DisplayRange};
 use crate::model::Model;
 use crate::raster::{CamImage, NetImage, PrjImage, Rect, Rgb, Space};
+use crate::resize::resize_bilinear;
 
 /// Where frames go: the placement parameters of the chain above.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -188,5 +189,47 @@ pub fn reference_network(model: &Model, content: &ContentFrame, p: &Placement) -
 /// frame: the CPU reference of the GPU compensation pass.
 pub fn reference_frame(model: &Model, content: &ContentFrame, p: &Placement) -> Result<PrjImage> {
     let net = reference_network(model, content, p)?;
-    crate::rig::place_on_canvas(&net, p.canvas, p.projector_size)
+    place_on_canvas(&net, p.canvas, p.projector_size)
+}
+
+/// Stretches `img` (e.g. a network-size projector image) over `canvas` of a black projector
+/// frame of `size` (width, height), with bilinear resizing.
+pub fn place_on_canvas<S: Space>(
+    img: &Rgb<S>,
+    canvas: Rect,
+    size: (usize, usize),
+) -> Result<PrjImage> {
+    let (w, h) = size;
+    if canvas.width == 0
+        || canvas.height == 0
+        || canvas.x + canvas.width > w
+        || canvas.y + canvas.height > h
+    {
+        return Err(Error::Shape(format!(
+            "canvas {canvas} is empty or does not fit in the {w}x{h} projector frame"
+        )));
+    }
+    if img.width() == 0 || img.height() == 0 {
+        return Err(Error::Shape(
+            "cannot place an empty image on the canvas".into(),
+        ));
+    }
+    let fitted = resize_bilinear(img, canvas.width, canvas.height);
+    if canvas
+        == (Rect {
+            x: 0,
+            y: 0,
+            width: w,
+            height: h,
+        })
+    {
+        return Ok(fitted.into_space());
+    }
+    let mut out = PrjImage::new(w, h);
+    for y in 0..canvas.height {
+        for x in 0..canvas.width {
+            out.set(canvas.x + x, canvas.y + y, fitted.get(x, y));
+        }
+    }
+    Ok(out)
 }
