@@ -1,11 +1,31 @@
 //! compend: projector-camera compensation (geometry and colour) after CompenNet++.
 //!
-//! The crate is a pure core (image math, geometry, models, the virtual rig) with no device I/O,
-//! and a thin shell on top (CLI, and later camera, window, GPU and service). See `DESIGN.md`.
+//! The module map; docs/architecture.md explains it ("Layers" for the rules, "Data flow" for how
+//! a capture becomes a model and a video frame becomes a projector frame).
+//!
+//! **Pure core** (no device I/O; file I/O only where a file format is the job):
+//! - foundations: [`error`], [`files`] (atomic writes), [`raster`] (typed images, `ImageSize`),
+//!   [`pngio`], [`resize`], [`sample`], [`filter`], [`metrics`], [`morph`], [`device`] (the
+//!   display and camera traits);
+//! - geometry and data: [`fov`], [`warp`], [`patterns`], [`slgrid`], [`dataset`];
+//! - models: [`linear`], [`nn`] (CompenNet++ in candle), [`model`] (a loaded model;
+//!   `model::store`, the model directory), [`fit`] (training any rung);
+//! - [`playback`]`::frame`: the per-frame path and its CPU reference;
+//! - [`rig`]: the virtual rig, a simulated projector, surface and camera.
+//!
+//! **Shell** (devices): [`gpu`] (the compensation pass), [`window`] (the projector window),
+//! [`source`] (video sources), [`camera`] (the V4L2 camera), [`playback`]`::player` (the one
+//! playback loop); the binary's commands live in `src/main.rs` and `src/cli/`.
+//!
+//! Core modules never use shell modules; `tests/layout.rs` checks that this map, the module
+//! table of docs/architecture.md and the `pub mod` lines below agree, and that no two files
+//! import each other in a circle.
 
+pub mod camera;
 pub mod dataset;
 pub mod device;
 pub mod error;
+pub mod files;
 pub mod filter;
 pub mod fit;
 pub mod fov;

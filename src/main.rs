@@ -89,8 +89,39 @@ fn no_candle_side_pool() {
     }
 }
 
+/// Log lines (warnings about accepted-but-suspect input, progress of long operations) go to
+/// stderr as plain text. The level comes from `COMPEND_LOG` (tracing's filter syntax, e.g.
+/// `info` or `compend=debug`), `warn` by default.
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_env("COMPEND_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .without_time()
+        .with_ansi(false)
+        .try_init();
+}
+
+/// The error and its causes on one line, each cause once: library errors already name their
+/// cause in their message (an I/O error's OS reason, say), so a cause whose text is already
+/// there is not repeated.
+fn error_chain(err: &anyhow::Error) -> String {
+    let mut line = err.to_string();
+    for cause in err.chain().skip(1) {
+        let text = cause.to_string();
+        if !line.contains(&text) {
+            line.push_str(": ");
+            line.push_str(&text);
+        }
+    }
+    line
+}
+
 fn main() -> ExitCode {
     let args = Cli::parse();
+    init_logging();
     let compute = matches!(
         args.command,
         Command::Bench(_) | Command::BenchTrain(_) | Command::Pretrain(_) | Command::Train(_)
@@ -122,7 +153,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("compend: error: {err:#}");
+            eprintln!("compend: error: {}", error_chain(&err));
             ExitCode::from(cli::exit_code(&err))
         }
     }

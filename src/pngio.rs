@@ -3,8 +3,7 @@
 //! 16-bit PNGs are read at full precision; grayscale and alpha inputs are converted to RGB.
 
 use std::fs;
-use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::raster::{Mask, Plane, Rgb, Space};
@@ -20,6 +19,7 @@ pub fn read_rgb<S: Space>(path: &Path) -> Result<Rgb<S>> {
             }
         })?;
     let (w, h) = (img.width() as usize, img.height() as usize);
+    warn_if_translucent(path, &img);
     let data: Vec<f32> = match img {
         image::DynamicImage::ImageLuma16(_)
         | image::DynamicImage::ImageLumaA16(_)
@@ -38,6 +38,27 @@ pub fn read_rgb<S: Space>(path: &Path) -> Result<Rgb<S>> {
             .collect(),
     };
     Rgb::from_vec(w, h, data)
+}
+
+/// The alpha channel is dropped on reading (compend's images are RGB). That loses nothing when
+/// every pixel is opaque; otherwise the picture a person saw is not the one used, so it is
+/// logged as a warning naming the file.
+fn warn_if_translucent(path: &Path, img: &image::DynamicImage) {
+    let translucent = match img {
+        image::DynamicImage::ImageLumaA8(i) => i.pixels().filter(|p| p.0[1] < u8::MAX).count(),
+        image::DynamicImage::ImageRgba8(i) => i.pixels().filter(|p| p.0[3] < u8::MAX).count(),
+        image::DynamicImage::ImageLumaA16(i) => i.pixels().filter(|p| p.0[1] < u16::MAX).count(),
+        image::DynamicImage::ImageRgba16(i) => i.pixels().filter(|p| p.0[3] < u16::MAX).count(),
+        _ => 0,
+    };
+    if translucent > 0 {
+        tracing::warn!(
+            "{}: alpha channel dropped, {translucent} of {} pixels are not opaque (compend reads \
+             RGB; save captures without transparency)",
+            path.display(),
+            img.width() as usize * img.height() as usize
+        );
+    }
 }
 
 /// Reads a PNG and checks its size, naming `why` (what the size is required for) on mismatch.
@@ -83,8 +104,8 @@ pub fn quantize<S: Space>(img: &Rgb<S>) -> Rgb<S> {
     img.map(|v| to_u8(v) as f32 / 255.0)
 }
 
-/// Writes an RGB image as an 8-bit PNG. The file is written to a temporary sibling and renamed,
-/// so a reader never sees a half-written image. Parent folders are created.
+/// Writes an RGB image as an 8-bit PNG, atomically ([`crate::files::write_with`]): a reader
+/// never sees a half-written image. Parent folders are created.
 pub fn write_rgb<S: Space>(path: &Path, img: &Rgb<S>) -> Result<()> {
     let bytes: Vec<u8> = img.data().iter().map(|&v| to_u8(v)).collect();
     write_png(
@@ -131,35 +152,18 @@ pub fn read_mask<S: Space>(path: &Path) -> Result<Mask<S>> {
 }
 
 fn write_png(path: &Path, bytes: &[u8], w: usize, h: usize, color: image::ColorType) -> Result<()> {
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        fs::create_dir_all(parent).map_err(|e| Error::io(parent, "create folder", e))?;
-    }
-    let tmp = temp_sibling(path);
-    let result = (|| {
-        let file = fs::File::create(&tmp).map_err(|e| Error::io(&tmp, "create", e))?;
-        let mut out = BufWriter::new(file);
+    crate::files::write_with(path, |out| {
         let encoder = image::codecs::png::PngEncoder::new_with_quality(
-            &mut out,
+            out,
             image::codecs::png::CompressionType::Fast,
             image::codecs::png::FilterType::Adaptive,
         );
         image::ImageEncoder::write_image(encoder, bytes, w as u32, h as u32, color.into())
-            .map_err(|e| Error::Failed(format!("{}: PNG encoding failed: {e}", path.display())))?;
-        out.flush().map_err(|e| Error::io(&tmp, "write", e))?;
-        fs::rename(&tmp, path).map_err(|e| Error::io(path, "rename into place", e))
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
-}
-
-fn temp_sibling(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+            .map_err(|e| match e {
+                image::ImageError::IoError(e) => Error::io(path, "write", e),
+                e => Error::Failed(format!("{}: PNG encoding failed: {e}", path.display())),
+            })
+    })
 }
 
 /// The official dataset file name for a 1-based index: `img_0001.png`.

@@ -52,7 +52,35 @@ pub fn grid_from_correspondence(
     // Projector pixels per network pixel along each axis.
     let sx = (canvas.width - 1) as f64 / (nw - 1) as f64;
     let sy = (canvas.height - 1) as f64 / (nh - 1) as f64;
-    // Per network pixel: weighted moments of [1, dn_x, dn_y] and of the camera position.
+    let (cw, ch) = corr.size();
+    let (m, r) = local_moments(corr, canvas, network, (sx, sy));
+    let pos = local_fits(&m, &r);
+    let measured = Mask::from_fn(nw, nh, |i, j| pos[j * nw + i].is_some());
+    if measured.count() == 0 {
+        return Err(Error::Failed(
+            "structured light: no network pixel is seen by the camera (empty correspondence)"
+                .into(),
+        ));
+    }
+    let filled = fill_holes(&pos, nw, nh);
+    let grid = Grid::from_fn(nw, nh, |i, j| {
+        let [x, y] = filled[j * nw + i];
+        [pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch)]
+    });
+    Ok(SlGrid { grid, measured })
+}
+
+/// The weighted moments of the local fit at every network pixel (row-major): per pixel, of
+/// `[1, dn_x, dn_y]` (`Σw, Σw dx, Σw dy, Σw dx², Σw dx dy, Σw dy²`) and of the camera position
+/// `q` (`Σw q, Σw q dx, Σw q dy` for `q = (cx, cy)`, camera pixels). `dn` is a camera pixel's
+/// network position minus the network pixel's, in network pixels; `(sx, sy)` are projector
+/// pixels per network pixel.
+fn local_moments(
+    corr: &Correspondence,
+    canvas: Rect,
+    (nw, nh): (usize, usize),
+    (sx, sy): (f64, f64),
+) -> (Vec<[f64; 6]>, Vec<[f64; 6]>) {
     let mut m = vec![[0f64; 6]; nw * nh]; // Σw, Σw dx, Σw dy, Σw dx², Σw dx dy, Σw dy²
     let mut r = vec![[0f64; 6]; nw * nh]; // Σw q, Σw q dx, Σw q dy, for q = (cx, cy)
     let (cw, ch) = corr.size();
@@ -93,8 +121,16 @@ pub fn grid_from_correspondence(
             }
         }
     }
-    let mut pos: Vec<Option<[f64; 2]>> = vec![None; nw * nh];
-    for k in 0..nw * nh {
+    (m, r)
+}
+
+/// The camera position (camera pixels) at each network pixel from its moments: the constant
+/// term of the weighted affine fit, or the weighted mean where the samples are not spread
+/// enough; `None` with less than about one camera sample's weight.
+fn local_fits(m: &[[f64; 6]], r: &[[f64; 6]]) -> Vec<Option<[f64; 2]>> {
+    let n = m.len();
+    let mut pos: Vec<Option<[f64; 2]>> = vec![None; n];
+    for k in 0..n {
         let mm = &m[k];
         if mm[0] < 1.0 {
             continue; // less than about one camera sample's weight
@@ -114,19 +150,7 @@ pub fn grid_from_correspondence(
             pos[k] = Some([x, y]);
         }
     }
-    let measured = Mask::from_fn(nw, nh, |i, j| pos[j * nw + i].is_some());
-    if measured.count() == 0 {
-        return Err(Error::Failed(
-            "structured light: no network pixel is seen by the camera (empty correspondence)"
-                .into(),
-        ));
-    }
-    let filled = fill_holes(&pos, nw, nh);
-    let grid = Grid::from_fn(nw, nh, |i, j| {
-        let [x, y] = filled[j * nw + i];
-        [pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch)]
-    });
-    Ok(SlGrid { grid, measured })
+    pos
 }
 
 /// Membrane fill: unknown cells take the mean of known or already filled 4-neighbours, repeated

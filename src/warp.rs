@@ -1,15 +1,15 @@
-//! The geometric part of the models (`T⁻¹`, DESIGN.md section 5.1): a thin-plate-spline warp of the
-//! network lattice composed with a 2×3 affine map into camera space.
+//! The geometric part of the models (`T⁻¹`, docs/architecture.md, "Models"): a thin-plate-spline
+//! warp of the network lattice composed with a 2×3 affine map into camera space.
 //!
 //! Coordinates:
-//! - network pixel `p = (x, y)` has unit coordinates `(u, v) = (x / (W−1), y / (H−1))` in [0,1]²;
+//! - network pixel `p = (x, y)` has unit coordinates `(u, v) = (x / (W−1), y / (H−1))` in \[0,1\]²;
 //! - the TPS adds a displacement `z(u, v)` in unit coordinates and maps to normalised network
 //!   coordinates `t = 2·((u, v) + z) − 1` (align_corners = true, so `z = 0` is the identity);
 //! - the affine θ maps normalised network coordinates to normalised camera coordinates:
 //!   `g = θ · [t, 1]`. Composing in coordinate space (the affine grid sampled at the TPS positions)
 //!   equals this product for an affine grid, so the camera image is sampled once, at `g`.
 //!
-//! TPS: 6×6 control points `c_k` evenly spaced on [0,1]², kernel `U(r) = r² log r`,
+//! TPS: 6×6 control points `c_k` evenly spaced on \[0,1\]², kernel `U(r) = r² log r`,
 //! `z(u, v) = a0 + a1·u + a2·v + Σ_k w_k U(‖(u, v) − c_k‖)` per axis, in reduced form: the first
 //! weight is `w_0 = −Σ_{k≥1} w_k`, leaving 35 weights + 3 affine terms = 38 parameters per axis,
 //! 76 in all. Parameter layout per axis: `[w_1 … w_35, a0, a1, a2]`.

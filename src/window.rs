@@ -7,9 +7,11 @@
 //! non-sRGB surface format, so the bytes on screen are the frame's bytes). The window is also a
 //! [`DisplaySink`] (for the capture protocol): `show` uploads a CPU image and presents it.
 //!
-//! The event loop is pumped by the caller ([`ProjectorWindow::pump`]), so playback is a plain
-//! loop. Under Xvfb (no window manager) a fullscreen request keeps the default size, so the
-//! window is also placed at the monitor's origin and sized to the monitor explicitly.
+//! The window is a [`Screen`] of the playback loop ([`crate::playback::player`]): the loop pumps
+//! its events ([`ProjectorWindow::pump`]) before each refresh and presents the pass's output at
+//! the monitor's vsync. Under Xvfb (no window manager) a fullscreen request keeps the default
+//! size, so the window is also placed at the monitor's origin and sized to the monitor
+//! explicitly.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -25,22 +27,15 @@ use winit::window::{Fullscreen, Window, WindowId};
 use crate::device::DisplaySink;
 use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, FRAME_FORMAT, GpuContext};
-use crate::model::Model;
-use crate::playback::Placement;
-use crate::playback::player::{PlayStats, Player, Step};
+use crate::playback::player::{Refresh, Screen, Show};
 use crate::raster::PrjImage;
-use crate::source::{Feed, FeedMode, VideoSource};
 
 const BLIT: &str = include_str!("../shaders/blit.wgsl");
 
-/// Where and how long the window plays.
-#[derive(Clone, Debug, Default)]
-pub struct WindowOptions {
-    /// Monitor name or index; None = the primary monitor.
-    pub monitor: Option<String>,
-    /// Stop after this many refreshes.
-    pub refreshes: Option<u64>,
-}
+/// How long the window system may take to open the window.
+const OPEN_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long the window may take to reach the monitor's size.
+const RESIZE_TIMEOUT: Duration = Duration::from_secs(2);
 
 #[derive(Default)]
 struct App {
@@ -142,104 +137,20 @@ impl ApplicationHandler for App {
     }
 }
 
-/// The projector window with its GPU context.
-pub struct ProjectorWindow {
-    event_loop: EventLoop<()>,
-    app: App,
-    window: Arc<Window>,
-    surface: wgpu::Surface<'static>,
-    config: wgpu::SurfaceConfiguration,
-    ctx: GpuContext,
-    blit: wgpu::RenderPipeline,
-    blit_layout: wgpu::BindGroupLayout,
+/// The blit: a fullscreen triangle drawing a projector frame texture onto the surface pixel for
+/// pixel (`shaders/blit.wgsl`).
+struct Blit {
+    pipeline: wgpu::RenderPipeline,
+    layout: wgpu::BindGroupLayout,
     /// Bind group of the texture presented last (the pass output, reused every frame).
     bound: Option<(wgpu::Texture, wgpu::BindGroup)>,
-    /// Texture for [`DisplaySink::show`].
-    upload: Option<wgpu::Texture>,
-    refresh_hz: f64,
 }
 
-impl ProjectorWindow {
-    /// Opens the window on `monitor` (name or index; None = primary) and a GPU device that can
-    /// present to it.
-    pub fn open(monitor: Option<&str>) -> Result<Self> {
-        let mut builder = EventLoop::builder();
-        #[cfg(all(unix, not(target_os = "macos"), not(target_os = "android")))]
-        {
-            use winit::platform::x11::EventLoopBuilderExtX11;
-            builder.with_any_thread(true);
-        }
-        let mut event_loop = builder
-            .build()
-            .map_err(|e| Error::Failed(format!("no display for the projector window: {e}")))?;
-        let mut app = App {
-            monitor: monitor.map(str::to_string),
-            ..App::default()
-        };
-        let start = Instant::now();
-        while app.window.is_none() && app.error.is_none() {
-            if let PumpStatus::Exit(code) =
-                event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app)
-            {
-                return Err(Error::Failed(format!(
-                    "the window system closed the event loop ({code})"
-                )));
-            }
-            if start.elapsed() > Duration::from_secs(10) {
-                return Err(Error::Failed(
-                    "the projector window did not open within 10 s".into(),
-                ));
-            }
-        }
-        if let Some(e) = app.error.take() {
-            return Err(e);
-        }
-        let window = app.window.clone().expect("checked");
-        let monitor = app.chosen.clone().expect("set with the window");
-        // Wait (briefly) for the window to take the monitor's size.
-        let target = monitor.size();
-        let start = Instant::now();
-        while window.inner_size() != target && start.elapsed() < Duration::from_secs(2) {
-            let _ = event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app);
-        }
-        let size = window.inner_size();
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-        let surface = instance
-            .create_surface(window.clone())
-            .map_err(|e| Error::Failed(format!("cannot draw into the projector window: {e}")))?;
-        let ctx = GpuContext::with_instance(instance, Some(&surface))?.map_err(|why| {
-            Error::Failed(format!("{why} that can present to the projector window"))
-        })?;
-        let caps = surface.get_capabilities(&ctx.adapter);
-        // Exact bytes: a non-sRGB 8-bit format (the frame holds projector input values already).
-        let format = [
-            wgpu::TextureFormat::Bgra8Unorm,
-            wgpu::TextureFormat::Rgba8Unorm,
-        ]
-        .into_iter()
-        .find(|f| caps.formats.contains(f))
-        .or_else(|| caps.formats.iter().copied().find(|f| !f.is_srgb()))
-        .or_else(|| caps.formats.first().copied())
-        .ok_or_else(|| Error::Failed("the projector window's surface has no formats".into()))?;
-        let config = wgpu::SurfaceConfiguration {
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-            format,
-            width: size.width.max(1),
-            height: size.height.max(1),
-            present_mode: wgpu::PresentMode::Fifo,
-            desired_maximum_frame_latency: 2,
-            alpha_mode: caps
-                .alpha_modes
-                .first()
-                .copied()
-                .unwrap_or(wgpu::CompositeAlphaMode::Auto),
-            view_formats: vec![],
-            color_space: wgpu::SurfaceColorSpace::Auto,
-        };
-        surface.configure(&ctx.device, &config);
+impl Blit {
+    /// The pipeline drawing into surfaces of `format`.
+    fn new(ctx: &GpuContext, format: wgpu::TextureFormat) -> Result<Self> {
         let module = ctx.shader("blit", BLIT)?;
-        let blit_layout = ctx
+        let layout = ctx
             .device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("blit"),
@@ -254,18 +165,18 @@ impl ProjectorWindow {
                     count: None,
                 }],
             });
-        let layout = ctx
+        let pipeline_layout = ctx
             .device
             .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
                 label: Some("blit"),
-                bind_group_layouts: &[Some(&blit_layout)],
+                bind_group_layouts: &[Some(&layout)],
                 immediate_size: 0,
             });
-        let blit = ctx
+        let pipeline = ctx
             .device
             .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("blit"),
-                layout: Some(&layout),
+                layout: Some(&pipeline_layout),
                 vertex: wgpu::VertexState {
                     module: &module,
                     entry_point: Some("vs"),
@@ -288,7 +199,168 @@ impl ProjectorWindow {
                 multiview_mask: None,
                 cache: None,
             });
-        let refresh_hz = monitor
+        Ok(Self {
+            pipeline,
+            layout,
+            bound: None,
+        })
+    }
+
+    /// The bind group reading `frame`, made when the frame texture changes.
+    fn bind(&mut self, ctx: &GpuContext, frame: &wgpu::Texture) -> &wgpu::BindGroup {
+        let bound = match self.bound.take() {
+            Some((t, group)) if t == *frame => (t, group),
+            _ => {
+                let view = frame.create_view(&wgpu::TextureViewDescriptor::default());
+                let group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("blit"),
+                    layout: &self.layout,
+                    entries: &[wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: wgpu::BindingResource::TextureView(&view),
+                    }],
+                });
+                (frame.clone(), group)
+            }
+        };
+        &self.bound.insert(bound).1
+    }
+
+    /// Records drawing `frame` onto `target`.
+    fn draw(
+        &mut self,
+        ctx: &GpuContext,
+        enc: &mut wgpu::CommandEncoder,
+        frame: &wgpu::Texture,
+        target: &wgpu::TextureView,
+    ) {
+        let group = self.bind(ctx, frame).clone();
+        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("present"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: target,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            ..Default::default()
+        });
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.draw(0..3, 0..1);
+    }
+}
+
+/// The surface configuration for presenting exact bytes at vsync: a non-sRGB 8-bit format (the
+/// frame holds projector input values already), FIFO presentation, `size` in pixels.
+fn surface_config(
+    caps: &wgpu::SurfaceCapabilities,
+    size: winit::dpi::PhysicalSize<u32>,
+) -> Result<wgpu::SurfaceConfiguration> {
+    let format = [
+        wgpu::TextureFormat::Bgra8Unorm,
+        wgpu::TextureFormat::Rgba8Unorm,
+    ]
+    .into_iter()
+    .find(|f| caps.formats.contains(f))
+    .or_else(|| caps.formats.iter().copied().find(|f| !f.is_srgb()))
+    .or_else(|| caps.formats.first().copied())
+    .ok_or_else(|| Error::Failed("the projector window's surface has no formats".into()))?;
+    Ok(wgpu::SurfaceConfiguration {
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+        format,
+        width: size.width.max(1),
+        height: size.height.max(1),
+        present_mode: wgpu::PresentMode::Fifo,
+        desired_maximum_frame_latency: 2,
+        alpha_mode: caps
+            .alpha_modes
+            .first()
+            .copied()
+            .unwrap_or(wgpu::CompositeAlphaMode::Auto),
+        view_formats: vec![],
+        color_space: wgpu::SurfaceColorSpace::Auto,
+    })
+}
+
+/// An event loop with the window open on `monitor` (name or index; None = primary), sized to
+/// the monitor (waiting briefly for that), with the chosen monitor.
+fn open_window(monitor: Option<&str>) -> Result<(EventLoop<()>, App, Arc<Window>, MonitorHandle)> {
+    let mut builder = EventLoop::builder();
+    #[cfg(all(unix, not(target_os = "macos"), not(target_os = "android")))]
+    {
+        use winit::platform::x11::EventLoopBuilderExtX11;
+        builder.with_any_thread(true);
+    }
+    let mut event_loop = builder
+        .build()
+        .map_err(|e| Error::Failed(format!("no display for the projector window: {e}")))?;
+    let mut app = App {
+        monitor: monitor.map(str::to_string),
+        ..App::default()
+    };
+    let start = Instant::now();
+    let (window, chosen) = loop {
+        if let Some(e) = app.error.take() {
+            return Err(e);
+        }
+        if let (Some(w), Some(m)) = (&app.window, &app.chosen) {
+            break (w.clone(), m.clone());
+        }
+        if let PumpStatus::Exit(code) =
+            event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app)
+        {
+            return Err(Error::Failed(format!(
+                "the window system closed the event loop ({code})"
+            )));
+        }
+        if start.elapsed() > OPEN_TIMEOUT {
+            return Err(Error::Failed(format!(
+                "the projector window did not open within {} s",
+                OPEN_TIMEOUT.as_secs()
+            )));
+        }
+    };
+    let target = chosen.size();
+    let start = Instant::now();
+    while window.inner_size() != target && start.elapsed() < RESIZE_TIMEOUT {
+        let _ = event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app);
+    }
+    Ok((event_loop, app, window, chosen))
+}
+
+/// The projector window with its GPU context.
+pub struct ProjectorWindow {
+    event_loop: EventLoop<()>,
+    app: App,
+    window: Arc<Window>,
+    surface: wgpu::Surface<'static>,
+    config: wgpu::SurfaceConfiguration,
+    ctx: GpuContext,
+    blit: Blit,
+    /// Texture for [`DisplaySink::show`].
+    upload: Option<wgpu::Texture>,
+    refresh_hz: f64,
+}
+
+impl ProjectorWindow {
+    /// Opens the window on `monitor` (name or index; None = primary) and a GPU device that can
+    /// present to it.
+    pub fn open(monitor: Option<&str>) -> Result<Self> {
+        let (event_loop, app, window, chosen) = open_window(monitor)?;
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let surface = instance
+            .create_surface(window.clone())
+            .map_err(|e| Error::gpu("cannot draw into the projector window", e))?;
+        let ctx = GpuContext::with_instance(instance, Some(&surface))?;
+        let config = surface_config(&surface.get_capabilities(&ctx.adapter), window.inner_size())?;
+        surface.configure(&ctx.device, &config);
+        let blit = Blit::new(&ctx, config.format)?;
+        let refresh_hz = chosen
             .refresh_rate_millihertz()
             .filter(|&m| m > 0)
             .map_or(60.0, |m| m as f64 / 1000.0);
@@ -300,8 +372,6 @@ impl ProjectorWindow {
             config,
             ctx,
             blit,
-            blit_layout,
-            bound: None,
             upload: None,
             refresh_hz,
         })
@@ -327,76 +397,67 @@ impl ProjectorWindow {
         !self.app.closed
     }
 
-    /// Presents `frame` (a projector frame texture, e.g. [`CompensationPass::output`]) at the
-    /// next vsync; blocks while the presentation queue is full. Returns false when the frame was
-    /// skipped (window occluded, surface timed out).
-    pub fn present(&mut self, frame: &wgpu::Texture) -> Result<bool> {
-        let target = match self.surface.get_current_texture() {
+    /// The surface texture to draw the next frame into; None when this refresh is skipped
+    /// (window occluded, surface timed out, surface reconfigured after a resize).
+    fn next_target(&mut self) -> Result<Option<wgpu::SurfaceTexture>> {
+        match self.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t)
-            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => Ok(Some(t)),
             wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => {
-                return Ok(false);
+                Ok(None)
             }
             wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
                 let size = self.window.inner_size();
                 self.config.width = size.width.max(1);
                 self.config.height = size.height.max(1);
                 self.surface.configure(&self.ctx.device, &self.config);
-                return Ok(false);
+                Ok(None)
             }
-            wgpu::CurrentSurfaceTexture::Validation => {
-                return Err(Error::Failed(
-                    "presenting to the projector window failed validation".into(),
-                ));
-            }
-        };
-        if self.bound.as_ref().is_none_or(|(t, _)| t != frame) {
-            let view = frame.create_view(&wgpu::TextureViewDescriptor::default());
-            let group = self
-                .ctx
-                .device
-                .create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("blit"),
-                    layout: &self.blit_layout,
-                    entries: &[wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::TextureView(&view),
-                    }],
-                });
-            self.bound = Some((frame.clone(), group));
+            wgpu::CurrentSurfaceTexture::Validation => Err(Error::Failed(
+                "presenting to the projector window failed validation".into(),
+            )),
         }
-        let group = &self.bound.as_ref().expect("just bound").1;
+    }
+
+    /// Presents `frame` (a projector frame texture, e.g. [`CompensationPass::output`]) at the
+    /// next vsync; blocks while the presentation queue is full. Returns false when the frame was
+    /// skipped (window occluded, surface timed out).
+    pub fn present_texture(&mut self, frame: &wgpu::Texture) -> Result<bool> {
+        let Some(target) = self.next_target()? else {
+            return Ok(false);
+        };
         let view = target
             .texture
             .create_view(&wgpu::TextureViewDescriptor::default());
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("present"),
-            });
-        {
-            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("present"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                ..Default::default()
-            });
-            pass.set_pipeline(&self.blit);
-            pass.set_bind_group(0, group, &[]);
-            pass.draw(0..3, 0..1);
-        }
+        let mut enc = self.ctx.encoder("present");
+        self.blit.draw(&self.ctx, &mut enc, frame, &view);
         self.ctx.queue.submit([enc.finish()]);
         self.window.pre_present_notify();
         self.ctx.queue.present(target);
         Ok(true)
+    }
+
+    /// The texture [`DisplaySink::show`] uploads into, made on first use.
+    fn upload_texture(&mut self) -> wgpu::Texture {
+        let (w, h) = DisplaySink::size(self);
+        self.upload
+            .get_or_insert_with(|| {
+                self.ctx.device.create_texture(&wgpu::TextureDescriptor {
+                    label: Some("shown frame"),
+                    size: wgpu::Extent3d {
+                        width: w as u32,
+                        height: h as u32,
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format: FRAME_FORMAT,
+                    usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                    view_formats: &[],
+                })
+            })
+            .clone()
     }
 }
 
@@ -414,23 +475,7 @@ impl DisplaySink for ProjectorWindow {
                 frame.height()
             )));
         }
-        if self.upload.is_none() {
-            self.upload = Some(self.ctx.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("shown frame"),
-                size: wgpu::Extent3d {
-                    width: w as u32,
-                    height: h as u32,
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: FRAME_FORMAT,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            }));
-        }
-        let tex = self.upload.clone().expect("just made");
+        let tex = self.upload_texture();
         let mut rgba = Vec::with_capacity(w * h * 4);
         for px in frame.data().chunks_exact(3) {
             rgba.extend(px.iter().map(|&v| crate::pngio::to_u8(v)));
@@ -447,75 +492,31 @@ impl DisplaySink for ProjectorWindow {
             tex.size(),
         );
         self.pump();
-        self.present(&tex)?;
+        self.present_texture(&tex)?;
         Ok(())
     }
 }
 
-/// Plays `source` through `model`'s compensation pass on the projector window until the source
-/// ends (streams), `refreshes` is reached, or the window is closed.
-pub fn play(
-    model: &Model,
-    source: Box<dyn VideoSource>,
-    mode: FeedMode,
-    opts: WindowOptions,
-) -> Result<PlayStats> {
-    let start = Instant::now();
-    let mut win = ProjectorWindow::open(opts.monitor.as_deref())?;
-    let size = DisplaySink::size(&win);
-    let placement = Placement::for_model(model, size, crate::fov::DisplayRange::FULL)?;
-    let pass = CompensationPass::new(win.context(), model, placement)?;
-    let mut player = Player::new(pass, Feed::spawn(source, mode)?);
-    player.stats.refresh_hz = win.refresh_hz();
-    let period = 1.0 / win.refresh_hz();
-    eprintln!(
-        "play: {} on the projector window {}x{} at {:.1} Hz ({})",
-        player.feed.describe(),
-        size.0,
-        size.1,
-        win.refresh_hz(),
-        win.context().describe()
-    );
-    let mut last_present: Option<Instant> = None;
-    let wait = if mode == FeedMode::Queue {
-        Duration::from_millis(100)
-    } else {
-        Duration::ZERO
-    };
-    while win.pump() && opts.refreshes.is_none_or(|n| player.stats.refreshes < n) {
-        let t = Instant::now();
-        match player.step(win.context(), wait)? {
-            Step::New(_) => {
-                win.present(player.pass.output())?;
-                player.record_pipeline(t.elapsed().as_secs_f64());
-                if player.stats.shown == 1 {
-                    eprintln!("play: first frame presented");
-                }
-            }
-            Step::Held if player.stats.shown > 0 => {
-                win.present(player.pass.output())?;
-            }
-            Step::Held => std::thread::sleep(Duration::from_secs_f64(period)),
-            Step::Ended if player.feed.ends_playback() => break,
-            Step::Ended => {
-                // A still image: keep it on screen.
-                player.stats.refreshes += 1;
-                player.stats.held += 1;
-                win.present(player.pass.output())?;
-            }
-        }
-        // Refreshes longer than 1.5 periods: the display repeated a frame.
-        let now = Instant::now();
-        if let Some(prev) = last_present.replace(now) {
-            let periods = (now - prev).as_secs_f64() / period;
-            if mode == FeedMode::Latest && periods > 1.5 {
-                player.stats.dropped_pipeline += (periods.round() as u64).saturating_sub(1);
-            }
-        }
+/// The window in the playback loop: events pumped before each refresh, the pass's output
+/// presented at the monitor's vsync, a still image kept on screen until the window is closed.
+impl Screen for ProjectorWindow {
+    fn context(&self) -> &GpuContext {
+        &self.ctx
     }
-    let fs = player.feed.stats();
-    player.stats.received = fs.received;
-    player.stats.dropped_source = fs.dropped;
-    player.stats.seconds = start.elapsed().as_secs_f64();
-    Ok(player.stats.clone())
+
+    fn refresh(&self) -> Refresh {
+        Refresh::Vsync(self.refresh_hz)
+    }
+
+    fn keep_going(&mut self) -> bool {
+        self.pump()
+    }
+
+    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
+        self.present_texture(pass.output())?;
+        if let Show::New { index: 1, .. } = show {
+            eprintln!("play: first frame presented");
+        }
+        Ok(())
+    }
 }

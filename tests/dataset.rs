@@ -1,7 +1,7 @@
-//! Dataset layout (DESIGN.md section 3): root discovery, counts, loading and writing through the
-//! library, and `compend inspect` through the real binary. Every fixture is generated here into a
-//! temporary folder: network 16×16, camera 24×20, 3 train and 2 test pairs, nested setup
-//! `light1/pos1/curves`.
+//! Dataset layout (docs/architecture.md, "Dataset layout"): root discovery, counts, loading and
+//! writing through the library, and `compend inspect` through the real binary. Every fixture is
+//! generated here into a temporary folder: network 16×16, camera 24×20, 3 train and 2 test
+//! pairs, nested setup `light1/pos1/curves`.
 
 use std::fs;
 use std::path::{Path, PathBuf};

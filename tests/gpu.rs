@@ -66,13 +66,13 @@ pub fn test_model(seed: u64) -> Model {
     });
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
-        method: "linear".into(),
-        network_size: NET,
-        camera_size: CAM,
+        method: compend::model::Method::Linear,
+        network_size: NET.into(),
+        camera_size: CAM.into(),
         canvas: None,
-        training: serde_json::Value::Null,
+        training: Default::default(),
         metrics: serde_json::Value::Null,
-        timings: serde_json::Value::Null,
+        timings: Default::default(),
         written_by: "test".into(),
     };
     Model::linear(meta, fov, linear)
@@ -255,7 +255,7 @@ const CNET: (usize, usize) = (36, 28);
 /// sees the network's arithmetic, not just clamps.
 pub fn compennet_test_model(seed: u64) -> Model {
     use candle_core::{Device, Tensor, Var};
-    use compend::nn::train::{CompenNetPP, GeometryInit};
+    use compend::nn::compennetpp::{CompenNetPP, GeometryInit};
 
     let (nw, nh) = CNET;
     let grid: Vec<f32> = (0..nh)
@@ -306,13 +306,13 @@ pub fn compennet_test_model(seed: u64) -> Model {
     .unwrap();
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
-        method: "compennet-sl".into(),
-        network_size: CNET,
-        camera_size: CAM,
+        method: compend::model::Method::CompenNetSl,
+        network_size: CNET.into(),
+        camera_size: CAM.into(),
         canvas: None,
-        training: serde_json::Value::Null,
+        training: Default::default(),
         metrics: serde_json::Value::Null,
-        timings: serde_json::Value::Null,
+        timings: Default::default(),
         written_by: "test".into(),
     };
     Model::compennet(meta, fov, net, surface).unwrap()

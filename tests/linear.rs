@@ -167,8 +167,9 @@ fn linear_fit_generalises_and_compensates() {
     );
 }
 
-/// A finer output lattice (DESIGN: network space is what the models see; the `linear` rungs may
-/// write a finer image, which the canvas stretches like any other). On a system whose projector
+/// A finer output lattice (docs/architecture.md, "Spaces and conventions": network space is what
+/// the models see; the `linear` rungs may write a finer image, which the canvas stretches like
+/// any other). On a system whose projector
 /// stretches images as the canvas does, the lattice fit scored at the network size must beat
 /// the network-size fit.
 #[test]

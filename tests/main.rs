@@ -4,9 +4,11 @@
 mod bench;
 mod common;
 mod dataset;
+mod files;
 mod fov;
 mod gpu;
 mod image;
+mod layout;
 mod linear;
 mod metrics;
 mod nn;
@@ -14,4 +16,5 @@ mod patterns;
 mod play;
 mod rig;
 mod train;
+mod train_cli;
 mod window;

@@ -1,9 +1,12 @@
 //! `compend play` on the virtual rig: raw frames on standard input, patterns and images through
-//! the GPU pass, with frame counts checked; usage errors exit with 2.
+//! the GPU pass, with frame counts checked; usage errors exit with 2. The playback loop itself
+//! through the library, on a display that records what it is asked.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+
+use compend::playback::player::{PlayStats, Player, Refresh, Screen, Show};
 
 use crate::common::{assert_code, compend, gpu, stderr};
 
@@ -242,6 +245,12 @@ fn patterns_images_and_usage_errors() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(count(&v, "shown"), 1);
 
+    assert_usage_errors(m);
+}
+
+/// `compend play` usage errors exit with 2 and name what is wrong (`m`: a model directory); the
+/// source spellings are documented in --help.
+fn assert_usage_errors(m: &str) {
     for (args, what) in [
         (
             vec![
@@ -314,4 +323,133 @@ fn patterns_images_and_usage_errors() {
     ] {
         assert!(help.contains(s), "--help lacks {s}");
     }
+}
+
+/// A display that records what the playback loop asks of it; with [`Refresh::Vsync`] each
+/// present takes one period, as a window's does.
+struct Recorder<'a> {
+    ctx: &'a compend::gpu::GpuContext,
+    refresh: Refresh,
+    /// (sequence number, index) of each new frame presented.
+    new: Vec<(u64, u64)>,
+    again: u64,
+    began: Option<bool>,
+    finished: bool,
+}
+
+impl<'a> Recorder<'a> {
+    fn new(ctx: &'a compend::gpu::GpuContext, refresh: Refresh) -> Self {
+        Self {
+            ctx,
+            refresh,
+            new: Vec::new(),
+            again: 0,
+            began: None,
+            finished: false,
+        }
+    }
+}
+
+impl Screen for Recorder<'_> {
+    fn context(&self) -> &compend::gpu::GpuContext {
+        self.ctx
+    }
+    fn refresh(&self) -> Refresh {
+        self.refresh
+    }
+    fn begin(&mut self, live: bool) -> compend::Result<()> {
+        self.began = Some(live);
+        Ok(())
+    }
+    fn present(
+        &mut self,
+        _pass: &compend::gpu::CompensationPass,
+        show: Show,
+    ) -> compend::Result<()> {
+        match show {
+            Show::New { seq, index } => self.new.push((seq, index)),
+            Show::Again => self.again += 1,
+        }
+        if let Refresh::Vsync(hz) = self.refresh {
+            std::thread::sleep(std::time::Duration::from_secs_f64(1.0 / hz));
+        }
+        Ok(())
+    }
+    fn finish(&mut self, _stats: &mut PlayStats) -> compend::Result<()> {
+        self.finished = true;
+        Ok(())
+    }
+}
+
+/// The one playback loop through the library, on displays with and without a refresh of their
+/// own: offline every frame once; a still image held on a vsync display and ended on a timer
+/// one; live counts that add up.
+#[test]
+fn one_loop_paces_and_counts_for_every_screen() {
+    use compend::fov::DisplayRange;
+    use compend::raster::ImageSize;
+    use compend::source::{FeedMode, Pattern, SourceSpec};
+
+    let Some(ctx) = gpu() else { return };
+    let model = crate::gpu::test_model(1);
+    let display = ImageSize::new(64, 48);
+    let start = |spec: &SourceSpec, mode| {
+        let source = compend::source::open(spec).unwrap();
+        Player::start(&ctx, &model, display, DisplayRange::FULL, source, mode).unwrap()
+    };
+    let pattern = |fps, frames| SourceSpec::Pattern {
+        pattern: Pattern::Moving,
+        size: (32, 24),
+        fps,
+        frames,
+    };
+
+    // Offline on a display without a refresh of its own: every frame once, in order.
+    let mut screen = Recorder::new(&ctx, Refresh::Timer(60.0));
+    let s = start(&pattern(240.0, Some(5)), FeedMode::Queue)
+        .run(&mut screen, None)
+        .unwrap();
+    assert_eq!(screen.new, (1..=5).map(|i| (i, i)).collect::<Vec<_>>());
+    assert_eq!(screen.began, Some(false));
+    assert!(screen.finished);
+    let counts = (s.refreshes, s.shown, s.held, s.received);
+    assert_eq!(counts, (5, 5, 0, 5), "{s:?}");
+    assert_eq!(
+        (s.dropped_source, s.dropped_pipeline, s.refresh_hz),
+        (0, 0, 0.0)
+    );
+
+    // A still image: held on a vsync display until the refreshes run out ...
+    let dir = tempfile::tempdir().unwrap();
+    let img = dir.path().join("still.png");
+    compend::pngio::write_rgb(
+        &img,
+        &compend::raster::Rgb::<compend::raster::Unspecified>::filled(24, 16, [0.8, 0.5, 0.2]),
+    )
+    .unwrap();
+    let still = SourceSpec::Image(img);
+    let mut screen = Recorder::new(&ctx, Refresh::Vsync(120.0));
+    let s = start(&still, FeedMode::Latest)
+        .run(&mut screen, Some(6))
+        .unwrap();
+    assert_eq!((s.refreshes, s.shown, s.held), (6, 1, 5), "{s:?}");
+    assert_eq!(screen.new, vec![(1, 1)]);
+    assert!(screen.again >= 1 && screen.again <= 5);
+    assert_eq!((screen.began, s.refresh_hz), (Some(true), 120.0));
+    // ... and ended after its frame on a display without one.
+    let mut screen = Recorder::new(&ctx, Refresh::Timer(120.0));
+    let s = start(&still, FeedMode::Latest)
+        .run(&mut screen, None)
+        .unwrap();
+    assert_eq!((s.shown, screen.new.len()), (1, 1), "{s:?}");
+
+    // Live at 120 Hz from a 40 fps source: every refresh shows a new frame or holds one.
+    let mut screen = Recorder::new(&ctx, Refresh::Timer(120.0));
+    let s = start(&pattern(40.0, None), FeedMode::Latest)
+        .run(&mut screen, Some(24))
+        .unwrap();
+    assert_eq!(s.refreshes, 24, "{s:?}");
+    assert_eq!(s.shown + s.held, s.refreshes, "{s:?}");
+    assert!(s.shown >= 1 && s.received >= s.shown, "{s:?}");
+    assert_eq!(s.refresh_hz, 120.0);
 }

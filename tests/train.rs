@@ -1,11 +1,12 @@
 //! `compend train`, `eval` and `compensate` through the real binary, on a synthetic setup written
-//! in the dataset layout by the simulated system of `tests/linear.rs`.
+//! in the dataset layout by the simulated system of `tests/linear.rs`: every rung trains, saves,
+//! loads, scores and compensates. Their refusals of bad input are in `tests/train_cli.rs`.
 
 use std::path::{Path, PathBuf};
 
 use compend::dataset::{CaptureSet, DataRoot, ProjectorSet, Reference, Setup};
 use compend::patterns::GrayCode;
-use compend::raster::{NetImage, Rgb};
+use compend::raster::NetImage;
 use rand::SeedableRng;
 use rand::rngs::ChaCha8Rng;
 
@@ -13,7 +14,7 @@ use crate::common::{assert_code, compend, stderr, stdout};
 use crate::linear::{NET, System, texture};
 
 /// Writes ROOT/{train,test,sl} and ROOT/setup/cam/raw/{ref,train,test,sl} + cam/desire/test.
-fn make_setup(dir: &Path, ntrain: usize, ntest: usize) -> PathBuf {
+pub(crate) fn make_setup(dir: &Path, ntrain: usize, ntest: usize) -> PathBuf {
     let sys = System::new();
     let root = DataRoot::create(dir).unwrap();
     let setup = Setup::create(&root, Path::new("lab/pos1")).unwrap();
@@ -137,173 +138,6 @@ fn train_eval_compensate_linear_and_linear_sl() {
 }
 
 #[test]
-fn bad_inputs_exit_2_and_keep_the_good_model() {
-    let dir = tempfile::tempdir().unwrap();
-    let setup = make_setup(dir.path(), 8, 2);
-    let s = setup.to_str().unwrap();
-    let model = dir.path().join("model");
-    let m = model.to_str().unwrap();
-    assert_code(
-        &compend(&["train", "--setup", s, "--method", "linear", "--out", m]),
-        0,
-    );
-    let before = std::fs::read(model.join("model.safetensors")).unwrap();
-
-    // More training pairs than exist: exit 2, names the folder and the counts; model untouched.
-    let out = compend(&[
-        "train", "--setup", s, "--method", "linear", "--ntrain", "50", "--out", m,
-    ]);
-    assert_code(&out, 2);
-    assert!(
-        stderr(&out).contains("cam/raw/train") && stderr(&out).contains("50"),
-        "{}",
-        stderr(&out)
-    );
-    assert_eq!(
-        std::fs::read(model.join("model.safetensors")).unwrap(),
-        before
-    );
-
-    // Unknown method.
-    let out = compend(&["train", "--setup", s, "--method", "magic", "--out", m]);
-    assert_code(&out, 2);
-    assert!(stderr(&out).contains("magic"), "{}", stderr(&out));
-
-    // A lattice too small, or one for a method that has none.
-    for (method, lattice) in [("linear", "4x64"), ("compennet++-faster", "48")] {
-        let out = compend(&[
-            "train",
-            "--setup",
-            s,
-            "--method",
-            method,
-            "--lattice",
-            lattice,
-            "--out",
-            m,
-        ]);
-        assert_code(&out, 2);
-        assert!(stderr(&out).contains("--lattice"), "{}", stderr(&out));
-    }
-    assert_eq!(
-        std::fs::read(model.join("model.safetensors")).unwrap(),
-        before
-    );
-
-    // A missing or mismatched photometric pre-initialisation names the file.
-    let weights = dir.path().join("w4.safetensors");
-    let tiny = compend::nn::pretrain::PretrainSettings {
-        width: 4,
-        patch: 16,
-        image: 16,
-        pool: 1,
-        batch: 1,
-        iters: 1,
-        lr_step: 1,
-        learning_rate: 1e-3,
-        weight_decay: 0.0,
-        seed: 0,
-    };
-    let never = std::sync::atomic::AtomicBool::new(false);
-    compend::nn::pretrain::pretrain(&tiny, &candle_core::Device::Cpu, &never, |_, _, _| {})
-        .unwrap()
-        .save(&weights)
-        .unwrap();
-    for (file, says) in [
-        ("absent.safetensors", "absent.safetensors"),
-        ("w4.safetensors", "width 4"),
-    ] {
-        let path = dir.path().join(file);
-        let out = compend(&[
-            "train",
-            "--setup",
-            s,
-            "--method",
-            "compennet++-faster",
-            "--photometric-init",
-            path.to_str().unwrap(),
-            "--out",
-            m,
-        ]);
-        assert_code(&out, 2);
-        assert!(stderr(&out).contains(says), "{}", stderr(&out));
-    }
-    assert_eq!(
-        std::fs::read(model.join("model.safetensors")).unwrap(),
-        before
-    );
-
-    // A missing reference capture names the file.
-    let white = setup.join("cam/raw/ref/img_0125.png");
-    std::fs::remove_file(&white).unwrap();
-    let out = compend(&["train", "--setup", s, "--method", "linear", "--out", m]);
-    assert_code(&out, 2);
-    assert!(stderr(&out).contains("img_0125.png"), "{}", stderr(&out));
-    assert_eq!(
-        std::fs::read(model.join("model.safetensors")).unwrap(),
-        before
-    );
-
-    // A corrupt model file, an old format version, a missing model: exit 2 naming the file.
-    let bad = dir.path().join("bad-model");
-    std::fs::create_dir_all(&bad).unwrap();
-    std::fs::copy(model.join("model.json"), bad.join("model.json")).unwrap();
-    std::fs::write(bad.join("model.safetensors"), b"not a tensor file").unwrap();
-    let out = compend(&["eval", "--model", bad.to_str().unwrap(), "--setup", s]);
-    assert_code(&out, 2);
-    assert!(
-        stderr(&out).contains("model.safetensors"),
-        "{}",
-        stderr(&out)
-    );
-
-    let json = std::fs::read_to_string(model.join("model.json")).unwrap();
-    std::fs::write(
-        bad.join("model.json"),
-        json.replace("\"format_version\": 1", "\"format_version\": 0"),
-    )
-    .unwrap();
-    std::fs::copy(
-        model.join("model.safetensors"),
-        bad.join("model.safetensors"),
-    )
-    .unwrap();
-    let out = compend(&["eval", "--model", bad.to_str().unwrap(), "--setup", s]);
-    assert_code(&out, 2);
-    assert!(stderr(&out).contains("version 0"), "{}", stderr(&out));
-
-    let out = compend(&[
-        "compensate",
-        "--model",
-        dir.path().join("nope").to_str().unwrap(),
-        "--input",
-        s,
-        "--out",
-        s,
-    ]);
-    assert_code(&out, 2);
-
-    // A desired image of the wrong size names the file and both sizes.
-    let wrong = dir.path().join("wrong.png");
-    compend::pngio::write_rgb(&wrong, &Rgb::<compend::raster::Camera>::new(10, 10)).unwrap();
-    let out = compend(&[
-        "compensate",
-        "--model",
-        m,
-        "--input",
-        wrong.to_str().unwrap(),
-        "--out",
-        dir.path().join("o").to_str().unwrap(),
-    ]);
-    assert_code(&out, 2);
-    assert!(
-        stderr(&out).contains("wrong.png") && stderr(&out).contains("48x40"),
-        "{}",
-        stderr(&out)
-    );
-}
-
-#[test]
 fn inspect_reports_the_fov_and_display_area() {
     let dir = tempfile::tempdir().unwrap();
     let setup = make_setup(dir.path(), 4, 1);
@@ -341,50 +175,60 @@ fn inspect_reports_the_fov_and_display_area() {
 fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
     let dir = tempfile::tempdir().unwrap();
     let setup = make_setup(dir.path(), 12, 3);
-    let s = setup.to_str().unwrap();
-    // The two-step baseline: CompenNet on structured-light geometry, saved with its fixed grid.
-    let sl = dir.path().join("cnn-sl");
-    let out = compend(&[
+    compennet_sl_saves_its_fixed_grid(dir.path(), &setup);
+    let model = compennet_faster_trains_and_compensates(dir.path(), &setup);
+    compennet_cpu_works_at_half_the_network_side(dir.path(), &setup);
+    wrong_tensor_shape_names_the_tensor(dir.path(), &model, &setup);
+}
+
+/// Trains `method` through the CLI with `--iters` and batch 4 into `out`, expecting success;
+/// returns the command's stdout.
+fn train_cnn(setup: &Path, method: &str, iters: &str, out: &Path, json: bool) -> String {
+    let mut args = vec![
         "train",
         "--setup",
-        s,
+        setup.to_str().unwrap(),
         "--method",
-        "compennet-sl",
+        method,
         "--iters",
-        "80",
+        iters,
         "--batch",
         "4",
         "--out",
-        sl.to_str().unwrap(),
-    ]);
+        out.to_str().unwrap(),
+    ];
+    if json {
+        args.push("--json");
+    }
+    let out = compend(&args);
     assert_code(&out, 0);
-    let ev = eval_json(&sl, &setup);
-    let (c, u) = (
+    stdout(&out)
+}
+
+/// PSNRs (dB) of the compensated and uncompensated rows of `compend eval`.
+fn compensated_and_uncompensated(ev: &serde_json::Value) -> (f64, f64) {
+    (
         ev["compensated"]["psnr"].as_f64().unwrap(),
         ev["uncompensated"]["psnr"].as_f64().unwrap(),
-    );
+    )
+}
+
+/// The two-step baseline: CompenNet on structured-light geometry, saved with its fixed grid.
+fn compennet_sl_saves_its_fixed_grid(dir: &Path, setup: &Path) {
+    let sl = dir.join("cnn-sl");
+    train_cnn(setup, "compennet-sl", "80", &sl, false);
+    let (c, u) = compensated_and_uncompensated(&eval_json(&sl, setup));
     assert!(c > u, "compennet-sl {c:.2} dB vs uncompensated {u:.2} dB");
     let (_, t) = compend::model::store::load(&sl).unwrap();
     assert!(t.names().any(|n| n == "warp.grid") && !t.names().any(|n| n == "warp.theta"));
+}
 
-    let model = dir.path().join("cnn");
-    let m = model.to_str().unwrap();
-    let out = compend(&[
-        "train",
-        "--setup",
-        s,
-        "--method",
-        "compennet++-faster",
-        "--iters",
-        "40",
-        "--batch",
-        "4",
-        "--out",
-        m,
-        "--json",
-    ]);
-    assert_code(&out, 0);
-    let summary: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
+/// `compennet++-faster`: its record, a deterministic score above the uncompensated row, and
+/// compensation images at the network size. Returns the model's folder.
+fn compennet_faster_trains_and_compensates(dir: &Path, setup: &Path) -> PathBuf {
+    let model = dir.join("cnn");
+    let out = train_cnn(setup, "compennet++-faster", "40", &model, true);
+    let summary: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
     assert_eq!(
         summary["ntrain"], 12,
         "the variant's 48 capped at the 12 available"
@@ -401,139 +245,76 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
 
     // Loading runs the full network; the score is deterministic and the compensated row beats the
     // captures warped as they are.
-    let ev = eval_json(&model, &setup);
-    let (c, u) = (
-        ev["compensated"]["psnr"].as_f64().unwrap(),
-        ev["uncompensated"]["psnr"].as_f64().unwrap(),
-    );
+    let ev = eval_json(&model, setup);
+    let (c, u) = compensated_and_uncompensated(&ev);
     assert!(c > u, "compennet++ {c:.2} dB vs uncompensated {u:.2} dB");
-    assert_eq!(eval_json(&model, &setup)["compensated"], ev["compensated"]);
+    assert_eq!(eval_json(&model, setup)["compensated"], ev["compensated"]);
 
-    let cmp = dir.path().join("cmp");
-    let out = compend(&[
-        "compensate",
-        "--model",
-        m,
-        "--input",
-        setup.join("cam/desire/test").to_str().unwrap(),
-        "--out",
-        cmp.to_str().unwrap(),
-    ]);
-    assert_code(&out, 0);
+    let cmp = dir.join("cmp");
+    compensate(&model, setup, &cmp);
     assert_eq!(
         compend::pngio::png_size(&cmp.join("img_0001.png")).unwrap(),
         (NET, NET)
     );
+    model
+}
 
-    // The CPU rung: half the network side and half the widths; it loads back at its own size,
-    // is scored at the data's network size and writes images of its own size.
-    let small = dir.path().join("cnn-cpu");
+/// `compend compensate` of the setup's desired images into `out`, expecting success.
+fn compensate(model: &Path, setup: &Path, out: &Path) {
     let out = compend(&[
-        "train",
-        "--setup",
-        s,
-        "--method",
-        "compennet++-cpu",
-        "--iters",
-        "150",
-        "--batch",
-        "4",
+        "compensate",
+        "--model",
+        model.to_str().unwrap(),
+        "--input",
+        setup.join("cam/desire/test").to_str().unwrap(),
         "--out",
-        small.to_str().unwrap(),
+        out.to_str().unwrap(),
     ]);
     assert_code(&out, 0);
+}
+
+/// The CPU rung: half the network side and half the widths; it loads back at its own size, is
+/// scored at the data's network size and writes images of its own size.
+fn compennet_cpu_works_at_half_the_network_side(dir: &Path, setup: &Path) {
+    let small = dir.join("cnn-cpu");
+    train_cnn(setup, "compennet++-cpu", "150", &small, false);
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(small.join("model.json")).unwrap()).unwrap();
     assert_eq!(meta["network_size"], serde_json::json!([NET / 2, NET / 2]));
-    let ev = eval_json(&small, &setup);
-    let (c, u) = (
-        ev["compensated"]["psnr"].as_f64().unwrap(),
-        ev["uncompensated"]["psnr"].as_f64().unwrap(),
-    );
+    let (c, u) = compensated_and_uncompensated(&eval_json(&small, setup));
     assert!(
         c > u,
         "compennet++-cpu {c:.2} dB vs uncompensated {u:.2} dB"
     );
-    let cmp_small = dir.path().join("cmp-cpu");
-    let out = compend(&[
-        "compensate",
-        "--model",
-        small.to_str().unwrap(),
-        "--input",
-        setup.join("cam/desire/test").to_str().unwrap(),
-        "--out",
-        cmp_small.to_str().unwrap(),
-    ]);
-    assert_code(&out, 0);
+    let cmp_small = dir.join("cmp-cpu");
+    compensate(&small, setup, &cmp_small);
     assert_eq!(
         compend::pngio::png_size(&cmp_small.join("img_0001.png")).unwrap(),
         (NET / 2, NET / 2)
     );
+}
 
-    // A tensor of the wrong shape in the weights: exit 2 naming the tensor.
-    let (meta, mut tensors) = compend::model::store::load(&model).unwrap();
+/// A tensor of the wrong shape in the weights: exit 2 naming the tensor.
+fn wrong_tensor_shape_names_the_tensor(dir: &Path, model: &Path, setup: &Path) {
+    let (meta, mut tensors) = compend::model::store::load(model).unwrap();
     tensors
         .insert("compen.backbone.conv6.bias", vec![4], vec![0.0; 4])
         .unwrap();
-    let bad = dir.path().join("bad");
+    let bad = dir.join("bad");
     compend::model::store::save(&bad, &meta, &tensors).unwrap();
-    let out = compend(&["eval", "--model", bad.to_str().unwrap(), "--setup", s]);
+    let out = compend(&[
+        "eval",
+        "--model",
+        bad.to_str().unwrap(),
+        "--setup",
+        setup.to_str().unwrap(),
+    ]);
     assert_code(&out, 2);
     assert!(
         stderr(&out).contains("compen.backbone.conv6.bias"),
         "{}",
         stderr(&out)
     );
-}
-
-#[test]
-fn train_device_is_checked_before_any_work() {
-    let dir = tempfile::tempdir().unwrap();
-    let setup = make_setup(dir.path(), 6, 1);
-    let s = setup.to_str().unwrap();
-    let model = dir.path().join("m");
-    // A spelling that is no device is a usage error naming the accepted ones.
-    let out = compend(&[
-        "train",
-        "--setup",
-        s,
-        "--method",
-        "compennet++-faster",
-        "--device",
-        "gpu",
-    ]);
-    assert_code(&out, 2);
-    assert!(stderr(&out).contains("cuda:N"), "{}", stderr(&out));
-    // This build has no CUDA (CI never enables the feature): a clear input error, no model.
-    if !cfg!(feature = "cuda") {
-        let out = compend(&[
-            "train",
-            "--setup",
-            s,
-            "--method",
-            "compennet++-faster",
-            "--device",
-            "cuda",
-            "--out",
-            model.to_str().unwrap(),
-        ]);
-        assert_code(&out, 2);
-        assert!(stderr(&out).contains("--features cuda"), "{}", stderr(&out));
-        assert!(!model.exists());
-    }
-    // `--device cpu` is accepted by every method (the linear rungs always fit on the CPU).
-    let out = compend(&[
-        "train",
-        "--setup",
-        s,
-        "--method",
-        "linear",
-        "--device",
-        "cpu",
-        "--out",
-        model.to_str().unwrap(),
-    ]);
-    assert_code(&out, 0);
 }
 
 #[test]

@@ -10,14 +10,17 @@ use std::time::Duration;
 
 use anyhow::Result;
 use compend::fov::DisplayRange;
-use compend::gpu::CompensationPass;
 use compend::gpu::bench::{
-    Timing, synthetic_compennet_model, synthetic_linear_model, time_copy, time_pass,
+    Timing, synthetic_compennet_model, synthetic_linear_model, time_compennet_layers, time_copy,
+    time_pass,
 };
-use compend::playback::Placement;
-use compend::playback::player::{self, PlayStats, Player, VirtualOptions};
+use compend::gpu::{CompensationPass, GpuContext};
+use compend::model::Model;
+use compend::playback::ContentFrame;
+use compend::playback::player::{Headless, PlayStats, Player, WatchedSink};
+use compend::raster::ImageSize;
 use compend::rig::{Phase, Simulator, VirtualRig, scene};
-use compend::source::{Feed, FeedMode, Pattern, SourceSpec};
+use compend::source::{FeedMode, Pattern, SourceSpec};
 use serde::Serialize;
 
 use super::patterns::{Size, parse_wxh};
@@ -83,92 +86,110 @@ struct Row {
     headless: Option<PlayStats>,
 }
 
+/// What is measured at every projector size.
+struct Bench<'a> {
+    ctx: &'a GpuContext,
+    args: &'a Args,
+    /// The synthetic `linear` model.
+    linear: Model,
+    /// The synthetic CompenNet++ model, when measured.
+    compennet: Option<Model>,
+    /// The content frame of the timed passes.
+    content: ContentFrame,
+}
+
 pub fn run(args: Args) -> Result<()> {
-    let ctx = super::play::gpu()?;
+    let ctx = GpuContext::new()?;
     let (cam, net) = (
         (args.camera.width, args.camera.height),
         (args.network.width, args.network.height),
     );
-    let model = synthetic_linear_model(cam, net, 0);
     let compennet = if args.compennet_iters > 0 {
         Some(synthetic_compennet_model(
             cam,
             net,
-            compend::nn::train::Variant::NoRefine,
+            compend::nn::compennetpp::Variant::NoRefine,
             0,
         )?)
     } else {
         None
     };
-    let content = compend::source::pattern::render(
-        Pattern::Bars,
-        (args.content.width, args.content.height),
-        0,
-    );
+    let bench = Bench {
+        ctx: &ctx,
+        args: &args,
+        linear: synthetic_linear_model(cam, net, 0),
+        compennet,
+        content: compend::source::pattern::render(
+            Pattern::Bars,
+            (args.content.width, args.content.height),
+            0,
+        )?,
+    };
     eprintln!(
         "bench-gpu: {} (camera {cam:?}, network {net:?}, content {:?})",
         ctx.describe(),
-        content.size()
+        bench.content.size()
     );
-    let mut rows = Vec::new();
-    for s in &args.sizes {
-        let prj = (s.width, s.height);
-        let placement = Placement::for_model(&model, prj, DisplayRange::FULL)?;
-        let mut pass = CompensationPass::new(&ctx, &model, placement)?;
-        let copy = time_copy(&ctx, prj, 5, args.iters)?;
-        let linear = time_pass(&ctx, &mut pass, &content, 5, args.iters)?;
+    let rows = args
+        .sizes
+        .iter()
+        .map(|s| bench.row(ImageSize::new(s.width, s.height)))
+        .collect::<Result<Vec<Row>>>()?;
+    // A software adapter (lavapipe) reports timestamps, but its copies cost next to nothing on
+    // them while the wall clock shows the real memcpy: its ratios are read from the wall clock.
+    let software = ctx.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+    let timing = if rows.iter().all(|r| r.copy.gpu_ms.is_some()) {
+        "GPU timestamps"
+    } else {
+        "wall clock, submit to idle"
+    };
+    let json = serde_json::json!({
+        "adapter": ctx.describe(),
+        "software_adapter": software,
+        "timing": timing,
+        "iters": args.iters,
+        "camera": cam,
+        "network": net,
+        "compennet_iters": args.compennet_iters,
+        "content": bench.content.size(),
+        "fps": args.fps,
+        "rows": rows,
+    });
+    compend::files::write_atomically(
+        &args.out.join("bench-gpu.json"),
+        (serde_json::to_string_pretty(&json)? + "\n").as_bytes(),
+    )?;
+    let md = bench.markdown(&rows, timing, software);
+    compend::files::write_atomically(&args.out.join("bench-gpu.md"), md.as_bytes())?;
+    print!("{md}");
+    Ok(())
+}
+
+impl Bench<'_> {
+    /// The measurements at projector size `prj` (pixels).
+    fn row(&self, prj: ImageSize) -> Result<Row> {
+        let (ctx, args) = (self.ctx, self.args);
+        let mut pass = CompensationPass::for_display(ctx, &self.linear, prj, DisplayRange::FULL)?;
+        let copy = time_copy(ctx, prj.into(), 5, args.iters)?;
+        let linear = time_pass(ctx, &mut pass, &self.content, 5, args.iters)?;
         let ratio = linear.best_ms() / copy.best_ms();
         eprintln!(
-            "bench-gpu: {}x{}: copy {:.3} ms, linear {:.3} ms ({ratio:.2}x)",
-            prj.0,
-            prj.1,
+            "bench-gpu: {prj}: copy {:.3} ms, linear {:.3} ms ({ratio:.2}x)",
             copy.best_ms(),
             linear.best_ms()
         );
-        let cnn = match &compennet {
-            Some(m) => {
-                let placement = Placement::for_model(m, prj, DisplayRange::FULL)?;
-                let mut pass = CompensationPass::new(&ctx, m, placement)?;
-                let t = time_pass(&ctx, &mut pass, &content, 2, args.compennet_iters)?;
-                if args.layers {
-                    for (name, t) in compend::gpu::bench::time_compennet_layers(
-                        &ctx,
-                        &mut pass,
-                        &content,
-                        1,
-                        args.compennet_iters,
-                    )? {
-                        eprintln!(
-                            "bench-gpu:   layer {name}: {:.3} ms ({:.3} ms wall)",
-                            t.best_ms(),
-                            t.wall_ms
-                        );
-                    }
-                }
-                eprintln!(
-                    "bench-gpu: {}x{}: CompenNet {:.3} ms ({:.2}x the copy)",
-                    prj.0,
-                    prj.1,
-                    t.best_ms(),
-                    t.best_ms() / copy.best_ms()
-                );
-                Some(t)
-            }
+        let cnn = match &self.compennet {
+            Some(m) => Some(self.compennet(m, prj, &copy)?),
             None => None,
         };
         let (virtual_rig, headless) = if args.seconds > 0.0 {
-            let placement = Placement::for_model(&model, prj, DisplayRange::FULL)?;
-            let alone = CompensationPass::new(&ctx, &model, placement)?;
-            let headless = headless_run(&ctx, alone, &args)?;
-            (
-                Some(virtual_run(&ctx, &model, pass, prj, &args)?),
-                Some(headless),
-            )
+            let headless = self.headless_run(prj)?;
+            (Some(self.virtual_run(prj)?), Some(headless))
         } else {
             (None, None)
         };
-        rows.push(Row {
-            projector: prj,
+        Ok(Row {
+            projector: prj.into(),
             copy,
             linear,
             linear_over_copy: ratio,
@@ -178,104 +199,166 @@ pub fn run(args: Args) -> Result<()> {
             compennet_over_copy_wall: cnn.map(|t| t.wall_ms / copy.wall_ms),
             virtual_rig,
             headless,
-        });
+        })
     }
-    std::fs::create_dir_all(&args.out)
-        .map_err(|e| compend::Error::io(&args.out, "create folder", e))?;
-    let timing = if rows.iter().all(|r| r.copy.gpu_ms.is_some()) {
-        "GPU timestamps"
-    } else {
-        "wall clock, submit to idle"
-    };
-    // A software adapter (lavapipe) reports timestamps, but its copies cost next to nothing on
-    // them while the wall clock shows the real memcpy: its ratios are read from the wall clock.
-    let software = ctx.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
-    let json = serde_json::json!({
-        "adapter": ctx.describe(),
-        "software_adapter": software,
-        "timing": timing,
-        "iters": args.iters,
-        "camera": cam,
-        "network": net,
-        "compennet_iters": args.compennet_iters,
-        "content": content.size(),
-        "fps": args.fps,
-        "rows": rows,
-    });
-    let jp = args.out.join("bench-gpu.json");
-    std::fs::write(&jp, serde_json::to_string_pretty(&json)? + "\n")
-        .map_err(|e| compend::Error::io(&jp, "write", e))?;
-    let mut md = format!(
-        "# compend bench-gpu\n\nAdapter: {}. Timing: {timing}, median of {} frames ({} for CompenNet). Models \
-         (synthetic, seeded): linear and the simplified CompenNet backbone, camera {}x{}, network {}x{}; \
-         content {}x{}. Times in ms as GPU timestamps / wall clock (submit to \
-         idle) where the adapter has timestamps, else wall clock.\n\n| projector | copy | linear | linear / copy | \
-         within 3x | CompenNet | CompenNet / copy | virtual rig @ {} Hz: shown / dropped (source) / dropped (pipeline) | pipeline mean (ms) \
-         | pipeline alone: shown / dropped (pipeline) / mean / max (ms) |\n|---|---|---|---|---|---|---|---|---|---|\n",
-        ctx.describe(),
-        args.iters,
-        args.compennet_iters,
-        cam.0,
-        cam.1,
-        net.0,
-        net.1,
-        content.width,
-        content.height,
-        args.fps
-    );
-    for r in &rows {
-        let v = r.virtual_rig.as_ref();
-        md += &format!(
-            "| {}x{} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
-            r.projector.0,
-            r.projector.1,
-            both(&r.copy),
-            both(&r.linear),
-            match r.linear.gpu_ms {
-                Some(_) => format!("{:.2} / {:.2}", r.linear_over_copy, r.linear_over_copy_wall),
-                None => format!("{:.2}", r.linear_over_copy_wall),
-            },
-            if r.linear_over_copy <= 3.0 {
-                "yes"
-            } else {
-                "no"
-            },
-            r.compennet.as_ref().map_or("-".into(), both),
-            match (
-                r.compennet,
-                r.compennet_over_copy,
-                r.compennet_over_copy_wall
-            ) {
-                (Some(t), Some(g), Some(w)) if t.gpu_ms.is_some() => format!("{g:.1} / {w:.1}"),
-                (Some(_), _, Some(w)) => format!("{w:.1}"),
-                _ => "-".into(),
-            },
-            v.map_or("-".into(), |v| format!(
-                "{} / {} / {}",
-                v.shown, v.dropped_source, v.dropped_pipeline
-            )),
-            v.map_or("-".into(), |v| format!("{:.2}", v.pipeline_ms_mean)),
-            r.headless.as_ref().map_or("-".into(), |h| format!(
-                "{} / {} / {:.2} / {:.2}",
-                h.shown, h.dropped_pipeline, h.pipeline_ms_mean, h.pipeline_ms_max
-            )),
+
+    /// The CompenNet pass at `prj` (and its layers alone with `--layers`).
+    fn compennet(&self, model: &Model, prj: ImageSize, copy: &Timing) -> Result<Timing> {
+        let (ctx, args) = (self.ctx, self.args);
+        let mut pass = CompensationPass::for_display(ctx, model, prj, DisplayRange::FULL)?;
+        let t = time_pass(ctx, &mut pass, &self.content, 2, args.compennet_iters)?;
+        if args.layers {
+            let layers =
+                time_compennet_layers(ctx, &mut pass, &self.content, 1, args.compennet_iters)?;
+            for (name, t) in layers {
+                eprintln!(
+                    "bench-gpu:   layer {name}: {:.3} ms ({:.3} ms wall)",
+                    t.best_ms(),
+                    t.wall_ms
+                );
+            }
+        }
+        eprintln!(
+            "bench-gpu: {prj}: CompenNet {:.3} ms ({:.2}x the copy)",
+            t.best_ms(),
+            t.best_ms() / copy.best_ms()
         );
+        Ok(t)
     }
-    md += "\nThe copy is a texture-to-texture copy of one projector frame (rgba8): the memory-bandwidth \
-           floor of any pass that writes one. Virtual-rig playback includes reading each frame back to the \
-           CPU for the simulated projector (the window presents from the GPU without it). \
-           \"Pipeline alone\" plays the same paced source with neither read-back nor display: each \
-           refresh uploads the newest frame, runs the pass and waits for the GPU, which is the \
-           window's work per frame without the presentation.\n";
-    if software {
-        md += "\nThis adapter renders in software: its GPU timestamps for the copy are not \
-               meaningful, so read the ratios after the slash (wall clock). They say nothing about \
-               a hardware GPU.\n";
+
+    /// A player of the moving test pattern at the display rate, newest frame first (as live),
+    /// for the `linear` model on a display of `prj` pixels.
+    fn paced_player(&self, prj: ImageSize) -> Result<Player> {
+        let args = self.args;
+        let spec = SourceSpec::Pattern {
+            pattern: Pattern::Moving,
+            size: (args.content.width, args.content.height),
+            fps: args.fps,
+            frames: None,
+        };
+        let player = Player::start(
+            self.ctx,
+            &self.linear,
+            prj,
+            DisplayRange::FULL,
+            compend::source::open(&spec)?,
+            FeedMode::Latest,
+        )?;
+        // Let the source start before the clock does.
+        std::thread::sleep(Duration::from_millis(50));
+        Ok(player)
     }
-    let mp = args.out.join("bench-gpu.md");
-    std::fs::write(&mp, &md).map_err(|e| compend::Error::io(&mp, "write", e))?;
-    print!("{md}");
-    Ok(())
+
+    /// Refreshes played per measurement.
+    fn refreshes(&self) -> Option<u64> {
+        Some((self.args.seconds * self.args.fps).round() as u64)
+    }
+
+    /// Plays the paced test pattern at the display rate on the virtual rig and returns the
+    /// counts.
+    fn virtual_run(&self, prj: ImageSize) -> Result<PlayStats> {
+        let args = self.args;
+        let scene = scene::builtin("textured-plane")?
+            .with_resolution(self.linear.camera_size(), prj.into());
+        let rig = VirtualRig::from_simulator(Simulator::new(&scene, 0, Phase::Calibration)?);
+        rig.set_latency(scene::Latency {
+            fps: args.fps,
+            delay_frames: 0,
+            drop_rate: 0.0,
+        })?;
+        let mut screen = WatchedSink::new(
+            self.ctx,
+            args.fps,
+            rig.clone(),
+            rig,
+            Box::new(|_, _, _| Ok(())),
+        );
+        Ok(self.paced_player(prj)?.run(&mut screen, self.refreshes())?)
+    }
+
+    /// Plays the paced test pattern with no read-back and no display and returns the counts.
+    fn headless_run(&self, prj: ImageSize) -> Result<PlayStats> {
+        let mut screen = Headless::new(self.ctx, self.args.fps);
+        Ok(self.paced_player(prj)?.run(&mut screen, self.refreshes())?)
+    }
+
+    /// bench-gpu.md.
+    fn markdown(&self, rows: &[Row], timing: &str, software: bool) -> String {
+        let (ctx, args) = (self.ctx, self.args);
+        let mut md = format!(
+            "# compend bench-gpu\n\nAdapter: {}. Timing: {timing}, median of {} frames ({} for CompenNet). Models \
+             (synthetic, seeded): linear and the simplified CompenNet backbone, camera {}x{}, network {}x{}; \
+             content {}x{}. Times in ms as GPU timestamps / wall clock (submit to \
+             idle) where the adapter has timestamps, else wall clock.\n\n| projector | copy | linear | linear / copy | \
+             within 3x | CompenNet | CompenNet / copy | virtual rig @ {} Hz: shown / dropped (source) / dropped (pipeline) | pipeline mean (ms) \
+             | pipeline alone: shown / dropped (pipeline) / mean / max (ms) |\n|---|---|---|---|---|---|---|---|---|---|\n",
+            ctx.describe(),
+            args.iters,
+            args.compennet_iters,
+            args.camera.width,
+            args.camera.height,
+            args.network.width,
+            args.network.height,
+            self.content.width,
+            self.content.height,
+            args.fps
+        );
+        for r in rows {
+            md += &markdown_row(r);
+        }
+        md += "\nThe copy is a texture-to-texture copy of one projector frame (rgba8): the memory-bandwidth \
+               floor of any pass that writes one. Virtual-rig playback includes reading each frame back to the \
+               CPU for the simulated projector (the window presents from the GPU without it). \
+               \"Pipeline alone\" plays the same paced source with neither read-back nor display: each \
+               refresh uploads the newest frame, runs the pass and waits for the GPU, which is the \
+               window's work per frame without the presentation.\n";
+        if software {
+            md += "\nThis adapter renders in software: its GPU timestamps for the copy are not \
+                   meaningful, so read the ratios after the slash (wall clock). They say nothing about \
+                   a hardware GPU.\n";
+        }
+        md
+    }
+}
+
+/// One row of the bench-gpu.md table.
+fn markdown_row(r: &Row) -> String {
+    let v = r.virtual_rig.as_ref();
+    format!(
+        "| {}x{} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+        r.projector.0,
+        r.projector.1,
+        both(&r.copy),
+        both(&r.linear),
+        match r.linear.gpu_ms {
+            Some(_) => format!("{:.2} / {:.2}", r.linear_over_copy, r.linear_over_copy_wall),
+            None => format!("{:.2}", r.linear_over_copy_wall),
+        },
+        if r.linear_over_copy <= 3.0 {
+            "yes"
+        } else {
+            "no"
+        },
+        r.compennet.as_ref().map_or("-".into(), both),
+        match (
+            r.compennet,
+            r.compennet_over_copy,
+            r.compennet_over_copy_wall
+        ) {
+            (Some(t), Some(g), Some(w)) if t.gpu_ms.is_some() => format!("{g:.1} / {w:.1}"),
+            (Some(_), _, Some(w)) => format!("{w:.1}"),
+            _ => "-".into(),
+        },
+        v.map_or("-".into(), |v| format!(
+            "{} / {} / {}",
+            v.shown, v.dropped_source, v.dropped_pipeline
+        )),
+        v.map_or("-".into(), |v| format!("{:.2}", v.pipeline_ms_mean)),
+        r.headless.as_ref().map_or("-".into(), |h| format!(
+            "{} / {} / {:.2} / {:.2}",
+            h.shown, h.dropped_pipeline, h.pipeline_ms_mean, h.pipeline_ms_max
+        )),
+    )
 }
 
 fn both(t: &Timing) -> String {
@@ -283,66 +366,4 @@ fn both(t: &Timing) -> String {
         Some(g) => format!("{g:.3} / {:.3}", t.wall_ms),
         None => format!("{:.3}", t.wall_ms),
     }
-}
-
-/// Plays a paced test pattern at the display rate on the virtual rig and returns the counts.
-fn virtual_run(
-    ctx: &compend::gpu::GpuContext,
-    model: &compend::model::Model,
-    pass: CompensationPass,
-    prj: (usize, usize),
-    args: &Args,
-) -> Result<PlayStats> {
-    let scene = scene::builtin("textured-plane")?.with_resolution(model.camera_size(), prj);
-    let rig = VirtualRig::from_simulator(Simulator::new(&scene, 0, Phase::Calibration)?);
-    rig.set_latency(scene::Latency {
-        fps: args.fps,
-        delay_frames: 0,
-        drop_rate: 0.0,
-    })?;
-    let mut player = paced_player(pass, args)?;
-    let stats = player::play_virtual(
-        ctx,
-        &mut player,
-        &rig,
-        VirtualOptions {
-            fps: args.fps,
-            refreshes: Some((args.seconds * args.fps).round() as u64),
-            mode: FeedMode::Latest,
-        },
-        Box::new(|_, _, _| Ok(())),
-    )?;
-    Ok(stats)
-}
-
-/// A player of the moving test pattern at the display rate, newest frame first (as live).
-fn paced_player(pass: CompensationPass, args: &Args) -> Result<Player> {
-    let spec = SourceSpec::Pattern {
-        pattern: Pattern::Moving,
-        size: (args.content.width, args.content.height),
-        fps: args.fps,
-        frames: None,
-    };
-    let player = Player::new(
-        pass,
-        Feed::spawn(compend::source::open(&spec)?, FeedMode::Latest)?,
-    );
-    // Let the source start before the clock does.
-    std::thread::sleep(Duration::from_millis(50));
-    Ok(player)
-}
-
-/// Plays the paced test pattern with no read-back and no display and returns the counts.
-fn headless_run(
-    ctx: &compend::gpu::GpuContext,
-    pass: CompensationPass,
-    args: &Args,
-) -> Result<PlayStats> {
-    let mut player = paced_player(pass, args)?;
-    Ok(player::play_headless(
-        ctx,
-        &mut player,
-        args.fps,
-        Some((args.seconds * args.fps).round() as u64),
-    )?)
 }

@@ -7,10 +7,12 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use compend::model::Method;
 use anyhow::{Context, Result};
 use candle_core::{Device, Tensor};
 use compend::nn::compennet::{backbone_macs, surface_macs};
-use compend::nn::train::{Data, GeometryInit, Settings, Variant};
+use compend::nn::compennetpp::{GeometryInit, Variant};
+use compend::nn::train::{Data, Settings};
 use compend::raster::{CamImage, NetImage};
 use serde::Serialize;
 
@@ -52,14 +54,15 @@ pub struct Args {
     /// The rows to measure, comma-separated: `compennet++`, `compennet++-cpu`, `linear`.
     #[arg(
         long,
+        value_enum,
         value_delimiter = ',',
         default_value = "compennet++,compennet++-cpu,linear"
     )]
-    pub methods: Vec<String>,
+    pub methods: Vec<Method>,
 }
 
-/// The rows `bench-train` can measure.
-const METHODS: [&str; 3] = ["compennet++", "compennet++-cpu", "linear"];
+/// The rows `bench-train` can measure, in table order.
+const METHODS: [Method; 3] = [Method::CompenNetPp, Method::CompenNetPpCpu, Method::Linear];
 
 /// The PyTorch twin of the training step (run by `--torch`).
 const TORCH_SCRIPT: &str = include_str!("../../scripts/bench_torch.py");
@@ -436,10 +439,10 @@ pub fn run(a: Args) -> Result<()> {
         )
         .into());
     }
-    if let Some(m) = a.methods.iter().find(|m| !METHODS.contains(&m.as_str())) {
+    if let Some(m) = a.methods.iter().find(|m| !METHODS.contains(m)) {
         return Err(compend::Error::Input(format!(
-            "--methods: unknown row {m:?}; expected some of {}",
-            METHODS.join(", ")
+            "--methods: no bench-train row for {m}; expected some of {}",
+            METHODS.map(Method::name).join(", ")
         ))
         .into());
     }
@@ -449,12 +452,12 @@ pub fn run(a: Args) -> Result<()> {
     let m = machine()?;
     let mut rows = Vec::new();
     for method in METHODS {
-        if !a.methods.iter().any(|m| m == method) {
+        if !a.methods.contains(&method) {
             continue;
         }
         rows.push(match method {
-            "compennet++" => compennet_row(&a, Variant::Full, a.network, camera, &m)?,
-            "compennet++-cpu" => compennet_row(&a, Variant::Cpu, a.network / 2, camera, &m)?,
+            Method::CompenNetPp => compennet_row(&a, Variant::Full, a.network, camera, &m)?,
+            Method::CompenNetPpCpu => compennet_row(&a, Variant::Cpu, a.network / 2, camera, &m)?,
             _ => linear_row(&a, camera)?,
         });
     }
@@ -502,10 +505,9 @@ pub fn run(a: Args) -> Result<()> {
         md += &format!("\nPyTorch: {t}.\n");
     }
     let jp = a.out.join("bench-train.json");
-    std::fs::write(&jp, serde_json::to_string_pretty(&json)? + "\n")
-        .map_err(|e| compend::Error::io(&jp, "write", e))?;
+    compend::files::write_atomically(&jp, (serde_json::to_string_pretty(&json)? + "\n").as_bytes())?;
     let mp = a.out.join("bench-train.md");
-    std::fs::write(&mp, &md).map_err(|e| compend::Error::io(&mp, "write", e))?;
+    compend::files::write_atomically(&mp, md.as_bytes())?;
     print!("{md}");
     Ok(())
 }

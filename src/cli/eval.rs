@@ -23,6 +23,14 @@ pub fn run(args: Args) -> Result<()> {
     let model = Model::load(&args.model)?;
     let setup = args.setup.open()?;
     let pairs = setup.load_test(None)?;
+    let gray = setup.reference_path(compend::dataset::Reference::Gray);
+    if !gray.is_file() {
+        tracing::warn!(
+            "{}: missing (the gray surface capture); the test pairs are scored without it, \
+             but the setup is incomplete (see `compend inspect`)",
+            gray.display()
+        );
+    }
     let camera = setup.camera_size()?;
     if camera != model.camera_size() {
         return Err(compend::Error::Input(format!(
@@ -38,7 +46,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     let (comp, uncomp) = compend::model::paper_protocol(&model, &pairs)
         .with_context(|| format!("scoring the test pairs of {}", setup.path().display()))?;
-    let method = model.meta.method.clone();
+    let method = model.meta.method.name();
     if args.json {
         println!(
             "{}",

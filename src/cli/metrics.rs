@@ -11,7 +11,8 @@ use compend::raster::Unspecified;
 pub struct Args {
     /// First image, or a folder of PNGs (e.g. the captured or compensated results).
     pub a: PathBuf,
-    /// Second image, or a folder holding a PNG of the same name for every PNG in A.
+    /// Second image, or a folder holding the same PNG names as A (a name in one folder only
+    /// is an error).
     pub b: PathBuf,
     /// Print one JSON object {"psnr", "rmse", "ssim", "n"} on stdout instead of a table.
     #[arg(long)]
@@ -59,6 +60,27 @@ fn pair_paths(a: &Path, b: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
                     "{}: no PNG files in this folder",
                     a.display()
                 ))
+                .into());
+            }
+            // Every PNG must have its counterpart, whichever folder comes first: a score over
+            // fewer pairs than a folder holds would pass for the whole folder's.
+            let extra: Vec<String> = png_names(b)?
+                .into_iter()
+                .filter(|n| !names.contains(n))
+                .collect();
+            if let Some(first) = extra.first() {
+                return Err(compend::Error::Missing {
+                    path: a.join(first),
+                    expected: format!(
+                        "the counterpart of {} ({} PNG{} of {} have none in {}); compare \
+                         folders holding the same names",
+                        b.join(first).display(),
+                        extra.len(),
+                        if extra.len() == 1 { "" } else { "s" },
+                        b.display(),
+                        a.display()
+                    ),
+                }
                 .into());
             }
             names

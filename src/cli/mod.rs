@@ -4,7 +4,6 @@
 pub mod bench;
 pub mod bench_gpu;
 pub mod bench_train;
-pub mod chart;
 pub mod compensate;
 pub mod eval;
 pub mod inspect;

@@ -2,16 +2,17 @@
 //! virtual rig (`--rig virtual[:SCENE]`), which replaces the window by the rig's projector and
 //! writes what its camera sees.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, Result};
+use compend::device::DisplaySink;
 use compend::fov::DisplayRange;
-use compend::gpu::{CompensationPass, GpuContext};
+use compend::gpu::GpuContext;
 use compend::model::Model;
-use compend::playback::Placement;
-use compend::playback::player::{self, Player, VirtualOptions};
+use compend::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
 use compend::rig::{self, Phase, Simulator, VirtualRig, scene};
-use compend::source::{self, Feed, FeedMode, SourceSpec};
+use compend::source::{self, FeedMode, SourceSpec, VideoSource};
+use compend::window::ProjectorWindow;
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = compend::source::HELP)]
@@ -77,58 +78,8 @@ pub fn run(args: Args) -> Result<()> {
         Pace::Source => FeedMode::Queue,
     };
     let stats = match rig {
-        Some(scene_name) => {
-            let (rig, range) = virtual_rig(&model, scene_name.as_deref(), args.seed)?;
-            let ctx = gpu()?;
-            let sim = rig.simulator();
-            let placement = Placement::for_model(&model, sim.projector_size(), range)?;
-            eprintln!(
-                "play: {} on the virtual rig (scene {:?}, camera {}x{}, projector {}x{}; area {}, \
-                 canvas {}) with {}",
-                args.source,
-                sim.scene().name,
-                sim.camera_size().0,
-                sim.camera_size().1,
-                placement.projector_size.0,
-                placement.projector_size.1,
-                placement.area,
-                placement.canvas,
-                ctx.describe()
-            );
-            let pass = CompensationPass::new(&ctx, &model, placement)?;
-            let mut player = Player::new(pass, Feed::spawn(source, mode)?);
-            let views: player::ViewSink = match &args.out {
-                Some(dir) => {
-                    std::fs::create_dir_all(dir)
-                        .map_err(|e| compend::Error::io(dir, "create folder", e))?;
-                    let dir = dir.clone();
-                    Box::new(move |seq, _, img| {
-                        compend::pngio::write_rgb(&dir.join(format!("cam_{seq:06}.png")), img)
-                    })
-                }
-                None => Box::new(|_, _, _| Ok(())),
-            };
-            player::play_virtual(
-                &ctx,
-                &mut player,
-                &rig,
-                VirtualOptions {
-                    fps: args.fps,
-                    refreshes: args.frames,
-                    mode,
-                },
-                views,
-            )?
-        }
-        None => compend::window::play(
-            &model,
-            source,
-            mode,
-            compend::window::WindowOptions {
-                monitor: args.monitor.clone(),
-                refreshes: args.frames,
-            },
-        )?,
+        Some(scene_name) => play_virtual(&args, &model, scene_name.as_deref(), source, mode)?,
+        None => play_window(&args, &model, source, mode)?,
     };
     eprintln!(
         "play: {} refreshes, {} frames shown, {} held, {} dropped (source faster), {} dropped by \
@@ -143,14 +94,90 @@ pub fn run(args: Args) -> Result<()> {
     );
     let json = serde_json::to_string(&stats)?;
     if let Some(dir) = &args.out {
-        let p = dir.join("play.json");
-        std::fs::create_dir_all(dir).map_err(|e| compend::Error::io(dir, "create folder", e))?;
-        std::fs::write(&p, format!("{json}\n")).map_err(|e| compend::Error::io(&p, "write", e))?;
+        compend::files::write_atomically(&dir.join("play.json"), format!("{json}\n").as_bytes())?;
     }
     if args.json {
         println!("{json}");
     }
     Ok(())
+}
+
+/// Plays on the projector window until the source ends (streams), `--frames`, or the window is
+/// closed.
+fn play_window(
+    args: &Args,
+    model: &Model,
+    source: Box<dyn VideoSource>,
+    mode: FeedMode,
+) -> Result<PlayStats> {
+    let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
+    let size = DisplaySink::size(&win);
+    let mut player = Player::start(
+        win.context(),
+        model,
+        size.into(),
+        DisplayRange::FULL,
+        source,
+        mode,
+    )?;
+    eprintln!(
+        "play: {} on the projector window {}x{} at {:.1} Hz ({})",
+        player.feed.describe(),
+        size.0,
+        size.1,
+        win.refresh_hz(),
+        win.context().describe()
+    );
+    Ok(player.run(&mut win, args.frames)?)
+}
+
+/// Plays on the virtual rig (`scene_name`, or the rig the model was calibrated on) at `--fps`,
+/// writing the camera's views to `--out` when given.
+fn play_virtual(
+    args: &Args,
+    model: &Model,
+    scene_name: Option<&str>,
+    source: Box<dyn VideoSource>,
+    mode: FeedMode,
+) -> Result<PlayStats> {
+    let (rig, range) = virtual_rig(model, scene_name, args.seed)?;
+    let ctx = GpuContext::new()?;
+    let sim = rig.simulator();
+    let mut player = Player::start(
+        &ctx,
+        model,
+        sim.projector_size().into(),
+        range,
+        source,
+        mode,
+    )?;
+    let placement = player.pass.placement();
+    eprintln!(
+        "play: {} on the virtual rig (scene {:?}, camera {}x{}, projector {}x{}; area {}, canvas \
+         {}) with {}",
+        args.source,
+        sim.scene().name,
+        sim.camera_size().0,
+        sim.camera_size().1,
+        placement.projector_size.0,
+        placement.projector_size.1,
+        placement.area,
+        placement.canvas,
+        ctx.describe()
+    );
+    let views: ViewSink = match &args.out {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)
+                .map_err(|e| compend::Error::io(dir, "create folder", e))?;
+            let dir = dir.clone();
+            Box::new(move |seq, _, img| {
+                compend::pngio::write_rgb(&dir.join(format!("cam_{seq:06}.png")), img)
+            })
+        }
+        None => Box::new(|_, _, _| Ok(())),
+    };
+    let mut screen = WatchedSink::new(&ctx, args.fps, rig.clone(), rig, views);
+    Ok(player.run(&mut screen, args.frames)?)
 }
 
 /// `virtual` → None, `virtual:SCENE` → Some(SCENE).
@@ -165,15 +192,6 @@ fn parse_rig(s: &str) -> compend::Result<Option<String>> {
     }
 }
 
-pub fn gpu() -> Result<GpuContext> {
-    GpuContext::new()?.map_err(|why| {
-        compend::Error::Failed(format!(
-            "{why}; live compensation needs a GPU or a software Vulkan driver (Mesa lavapipe)"
-        ))
-        .into()
-    })
-}
-
 /// The rig the model was calibrated on (its setup's rig.json), or `scene` at the model's camera
 /// size; with the display range desired images were scaled into there.
 fn virtual_rig(
@@ -184,9 +202,8 @@ fn virtual_rig(
     let record = model
         .meta
         .training
-        .get("setup")
-        .and_then(|s| s.as_str())
-        .map(Path::new)
+        .setup
+        .as_deref()
         .and_then(|setup| rig::export::read_record(setup).ok());
     let (cw, ch) = model.camera_size();
     let (scene, record_seed, range) = match (scene_name, &record) {

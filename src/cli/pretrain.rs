@@ -58,6 +58,7 @@ pub fn run(args: Args) -> Result<()> {
         settings.patch = p;
         settings.image = settings.image.max(2 * p);
     }
+    check_weights_out(&args.out)?;
     let bar = super::progress_bar(args.json);
     bar.set_message("pretrain");
     let never = AtomicBool::new(false);
@@ -94,4 +95,30 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Before any work: `--out` may only replace an earlier weights file (a readable safetensors
+/// file), never a folder or a file of something else, and its folder must be writable.
+fn check_weights_out(out: &std::path::Path) -> compend::Result<()> {
+    match std::fs::symlink_metadata(out) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(compend::Error::io(out, "inspect the output path", e)),
+        Ok(m) if !m.is_file() => {
+            return Err(compend::Error::Input(format!(
+                "{}: not a file; --out names the weights file to write (FILE.safetensors)",
+                out.display()
+            )));
+        }
+        Ok(_) => {
+            let bytes = std::fs::read(out).map_err(|e| compend::Error::io(out, "read", e))?;
+            if safetensors::SafeTensors::deserialize(&bytes).is_err() {
+                return Err(compend::Error::Input(format!(
+                    "{}: exists and is not a safetensors file; only earlier weights are \
+                     replaced: choose another --out or move it away",
+                    out.display()
+                )));
+            }
+        }
+    }
+    compend::files::check_writable(out)
 }

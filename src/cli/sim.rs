@@ -306,12 +306,24 @@ struct Row {
     gap_db: f64,
 }
 
+impl Row {
+    /// A row of scores `s`, its gap measured to the oracle's PSNR `ceiling` (dB).
+    fn new(name: &str, s: &compend::metrics::Scores, ceiling: f64) -> Self {
+        Self {
+            name: name.to_string(),
+            psnr: s.psnr,
+            rmse: s.rmse,
+            ssim: s.ssim,
+            gap_db: ceiling - s.psnr,
+        }
+    }
+}
+
 /// First frame index of the closed-loop captures (apart from the export's).
 const FRAMES_SCORE: u64 = 2_000_000;
 
 fn score(a: ScoreArgs) -> Result<()> {
     use compend::dataset::ProjectorSet;
-    use compend::raster::PrjImage;
 
     let setup = a.setup.open()?;
     let record = rig::export::read_record(setup.path())?;
@@ -333,12 +345,11 @@ fn score(a: ScoreArgs) -> Result<()> {
     let desired = setup.load_desired(Some(n))?;
     let area = record.displayable_area;
     let psize = sim.projector_size();
-    let on_canvas = |imgs: Vec<PrjImage>| -> compend::Result<Vec<PrjImage>> {
-        imgs.iter()
-            .map(|i| compend::playback::place_on_canvas(i, record.canvas, psize))
-            .collect()
-    };
-    let tests = on_canvas(setup.root().load(ProjectorSet::Test, Some(n))?)?;
+    let tests = on_canvas(
+        setup.root().load(ProjectorSet::Test, Some(n))?,
+        record.canvas,
+        psize,
+    )?;
     let pose = match (&record.scene.drift, phase) {
         (Some(_), Phase::AfterDrift) => ", projector moved after calibration",
         (Some(_), Phase::Calibration) => ", projector where it was at calibration",
@@ -364,45 +375,16 @@ fn score(a: ScoreArgs) -> Result<()> {
         a.model.clone()
     };
     let ceiling = refs.oracle.psnr;
-    let row = |name: &str, s: &compend::metrics::Scores| Row {
-        name: name.to_string(),
-        psnr: s.psnr,
-        rmse: s.rmse,
-        ssim: s.ssim,
-        gap_db: ceiling - s.psnr,
-    };
     let mut rows = vec![
-        row("uncompensated", &refs.uncompensated),
-        row("geometry-only", &refs.geometry_only),
+        Row::new("uncompensated", &refs.uncompensated, ceiling),
+        Row::new("geometry-only", &refs.geometry_only, ceiling),
     ];
     let net = setup.root().network_size()?;
     for m in &models {
-        let dir = setup.compensation_dir(m)?;
-        // Any size is stretched over the canvas (a `linear` model's lattice can be finer than the
-        // network), but one model's images must all have one size.
-        let imgs: Vec<PrjImage> = (1..=n)
-            .map(|i| compend::pngio::read_rgb(&dir.join(compend::pngio::indexed_name(i))))
-            .collect::<compend::Result<_>>()?;
-        if let Some((i, img)) = imgs
-            .iter()
-            .enumerate()
-            .find(|(_, m)| m.size() != imgs[0].size())
-        {
-            return Err(compend::Error::Input(format!(
-                "{}: {}x{}, expected {}x{} like {}",
-                dir.join(compend::pngio::indexed_name(i + 1)).display(),
-                img.width(),
-                img.height(),
-                imgs[0].width(),
-                imgs[0].height(),
-                compend::pngio::indexed_name(1)
-            ))
-            .into());
-        }
-        let shown = on_canvas(imgs)?;
+        let shown = on_canvas(read_compensation(&setup, m, n)?, record.canvas, psize)?;
         let s = rig::closed_loop(&sim, &shown, &desired, area, FRAMES_SCORE)
             .with_context(|| format!("scoring model {m:?}"))?;
-        rows.push(row(m, &s));
+        rows.push(Row::new(m, &s, ceiling));
         if let Some(out) = &a.out {
             write_views(&sim, &shown, area, &out.join(m))?;
         }
@@ -426,9 +408,64 @@ fn score(a: ScoreArgs) -> Result<()> {
         net,
         FRAMES_SCORE,
     )?;
-    rows.push(row(&format!("oracle @ {}x{}", net.0, net.1), &net_oracle));
-    rows.push(row("oracle", &refs.oracle));
-    if a.json {
+    rows.push(Row::new(
+        &format!("oracle @ {}x{}", net.0, net.1),
+        &net_oracle,
+        ceiling,
+    ));
+    rows.push(Row::new("oracle", &refs.oracle, ceiling));
+    print_scores(a.json, &record, phase, n, &rows);
+    Ok(())
+}
+
+/// Projector images (network size, or a model's own lattice) stretched over the canvas
+/// (projector pixels) of a projector of `psize` (width, height) pixels.
+fn on_canvas(
+    imgs: Vec<compend::raster::PrjImage>,
+    canvas: compend::raster::Rect,
+    psize: (usize, usize),
+) -> compend::Result<Vec<compend::raster::PrjImage>> {
+    imgs.iter()
+        .map(|i| compend::playback::place_on_canvas(i, canvas, psize))
+        .collect()
+}
+
+/// The first `n` compensation images of model `m` (`prj/cmp/test/<m>`), all of one size.
+fn read_compensation(
+    setup: &compend::dataset::Setup,
+    m: &str,
+    n: usize,
+) -> Result<Vec<compend::raster::PrjImage>> {
+    let dir = setup.compensation_dir(m)?;
+    // Any size is stretched over the canvas (a `linear` model's lattice can be finer than the
+    // network), but one model's images must all have one size.
+    let imgs: Vec<compend::raster::PrjImage> = (1..=n)
+        .map(|i| compend::pngio::read_rgb(&dir.join(compend::pngio::indexed_name(i))))
+        .collect::<compend::Result<_>>()?;
+    if let Some((i, img)) = imgs
+        .iter()
+        .enumerate()
+        .find(|(_, m)| m.size() != imgs[0].size())
+    {
+        return Err(compend::Error::Input(format!(
+            "{}: {}x{}, expected {}x{} like {}",
+            dir.join(compend::pngio::indexed_name(i + 1)).display(),
+            img.width(),
+            img.height(),
+            imgs[0].width(),
+            imgs[0].height(),
+            compend::pngio::indexed_name(1)
+        ))
+        .into());
+    }
+    Ok(imgs)
+}
+
+/// Prints the rows: one JSON object with `json`, else a table (PSNR dB, RMSE and SSIM of the
+/// displayable area, gap to the oracle in dB).
+fn print_scores(json: bool, record: &rig::export::RigRecord, phase: Phase, n: usize, rows: &[Row]) {
+    let area = record.displayable_area;
+    if json {
         let out = serde_json::json!({
             "scene": record.scene.name,
             "seed": record.seed,
@@ -443,7 +480,7 @@ fn score(a: ScoreArgs) -> Result<()> {
             "{:<24} {:>9} {:>9} {:>9} {:>12}",
             "row", "PSNR", "RMSE", "SSIM", "gap (dB)"
         );
-        for r in &rows {
+        for r in rows {
             println!(
                 "{:<24} {:>9.4} {:>9.4} {:>9.4} {:>12.2}",
                 r.name, r.psnr, r.rmse, r.ssim, r.gap_db
@@ -454,7 +491,6 @@ fn score(a: ScoreArgs) -> Result<()> {
             area.width, area.height
         );
     }
-    Ok(())
 }
 
 /// Captures each projector image as `score` does and writes the displayable area of each.

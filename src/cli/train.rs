@@ -10,17 +10,12 @@ use serde_json::json;
 pub struct Args {
     #[command(flatten)]
     pub setup: super::SetupArgs,
-    /// Model to fit: `linear` (learned affine+TPS geometry, per-pixel linear colour), `linear-sl`
-    /// (geometry from the structured-light captures cam/raw/sl, same colour model), or a
-    /// CompenNet++ variant: `compennet++-faster` (48 pairs, batch 16, 500 iterations),
-    /// `compennet++-fast`, `compennet++-norefine`, `compennet++` (500 pairs, batch 48, 1500), or
-    /// `compennet++-cpu`, the CPU-sized rung (half the network side, half the channel widths;
-    /// 48 pairs, batch 4, 1000 iterations: about 4–4.5 minutes on 2 cores).
-    /// CompenNet++ on a 2-core CPU takes about 0.45–0.5 s per sample at 256²: see --iters.
-    /// `auto` picks between `linear` and `linear-sl` by their paper-protocol PSNR on held-out
-    /// training pairs, refits the winner on all pairs and records the evidence in model.json.
-    #[arg(long)]
-    pub method: String,
+    /// The rung to fit (listed below). CompenNet++ on a 2-core CPU takes about 0.45–0.5 s per
+    /// 256² sample (`compennet++-cpu`: about 4–4.5 minutes in all): see --iters. `auto` fits
+    /// `linear` and `linear-sl` on all but a sixth of the pairs, keeps the better on the held-out
+    /// pairs (paper-protocol PSNR), refits it on all pairs and records the evidence.
+    #[arg(long, value_enum)]
+    pub method: compend::model::MethodChoice,
     /// Number of training pairs to use (the first N). Default: all available, at most 48.
     #[arg(long)]
     pub ntrain: Option<usize>,
@@ -60,8 +55,14 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     let setup = args.setup.open()?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| setup.path().join("models").join(args.method.name()));
+    // Before any work: only a model directory is ever replaced, and the place must be writable.
+    compend::model::store::check_output(&out)?;
     let req = Request {
-        method: args.method.clone(),
+        method: args.method,
         ntrain: args.ntrain,
         seed: args.seed,
         iters: args.iters,
@@ -78,10 +79,6 @@ pub fn run(args: Args) -> Result<()> {
     })
     .with_context(|| format!("training {} on {}", args.method, setup.path().display()))?;
     bar.finish_and_clear();
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| setup.path().join("models").join(&args.method));
     model
         .save(&out)
         .with_context(|| format!("saving the model to {}", out.display()))?;

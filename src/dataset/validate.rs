@@ -1,14 +1,17 @@
-//! Whole-setup check: scans every folder of the root and the setup, reads every image (header
+//! The whole-setup check behind [`Setup::info`] and [`Setup::validate`] (docs/architecture.md,
+//! "Dataset layout"): scans every folder of the root and the setup, reads every image (header
 //! only, or fully decoded) and checks its size against the size of its space, collecting every
-//! problem instead of stopping at the first.
+//! problem instead of stopping at the first. Sizes are (width, height) in pixels of the space
+//! named.
 
 use std::path::{Path, PathBuf};
 
-use super::{
-    CaptureSet, ProjectorSet, Reference, References, Scan, SetCounts, Setup, SetupInfo,
-    par_map, scan,
-};
-use crate::error::Error;
+use super::info::{References, SetCounts, SetupInfo};
+use super::load::par_map;
+use super::names::{Scan, scan};
+use super::root::{DataRoot, ProjectorSet};
+use super::setup::{CaptureSet, Reference, Setup};
+use crate::error::{Error, Result};
 use crate::pngio;
 use crate::raster::{ImageSize, Unspecified};
 
@@ -29,6 +32,26 @@ pub struct Validation {
 impl Validation {
     pub fn is_ok(&self) -> bool {
         self.total_problems == 0
+    }
+}
+
+impl Setup {
+    /// Header-level summary: counts, sizes, references, models. Every file's header is read and
+    /// size-checked; the first problem found is returned as the error. For a full check that
+    /// decodes every image and reports every problem, use [`Setup::validate`].
+    pub fn info(&self) -> Result<SetupInfo> {
+        let mut v = survey(self, false, 1);
+        match v.problems.drain(..).next() {
+            Some(e) => Err(e),
+            None => Ok(v.info),
+        }
+    }
+
+    /// Full check: every image of every set (root and setup) is decoded and size-checked.
+    /// Returns the summary (as far as it could be worked out) with every problem found; at most
+    /// `max_problems` are kept, [`Validation::total_problems`] counts them all.
+    pub fn validate(&self, max_problems: usize) -> Validation {
+        survey(self, true, max_problems)
     }
 }
 
@@ -87,9 +110,31 @@ fn space_size(
         && p.is_file()
         && let Ok(size) = pngio::png_size(p)
     {
-        return Some(Expect {
-            size,
-            why: why.clone(),
+        // The primary sets the size unless most of the other images disagree with it: then it
+        // is the odd one out, and the majority's size is the one to check against.
+        let others: Vec<(usize, usize)> = paths
+            .iter()
+            .filter(|q| *q != p)
+            .filter_map(|q| pngio::png_size(q).ok())
+            .collect();
+        let majority = others
+            .iter()
+            .copied()
+            .find(|&m| m != size && 2 * others.iter().filter(|&&o| o == m).count() > others.len());
+        return Some(match majority {
+            Some(m) => Expect {
+                size: m,
+                why: format!(
+                    "the {space} size of {} of the {} {space} images; {} differs from them",
+                    others.iter().filter(|&&o| o == m).count(),
+                    others.len(),
+                    p.display()
+                ),
+            },
+            None => Expect {
+                size,
+                why: why.clone(),
+            },
         });
     }
     let missing = primary
@@ -124,6 +169,116 @@ fn check_file(path: &Path, expect: Option<&Expect>, decode: bool) -> Result<(), 
     }
 }
 
+/// A scanned folder: its path and the indexed files in it.
+struct Folder {
+    dir: PathBuf,
+    scan: Scan,
+}
+
+impl Folder {
+    fn paths(&self) -> Vec<PathBuf> {
+        paths_of(&self.dir, &self.scan)
+    }
+}
+
+/// The scans of the data root's sets.
+struct ProjectorScans {
+    train: Folder,
+    test: Folder,
+    refs: Folder,
+    sl: Folder,
+}
+
+impl ProjectorScans {
+    fn get(&self, set: ProjectorSet) -> &Folder {
+        match set {
+            ProjectorSet::Train => &self.train,
+            ProjectorSet::Test => &self.test,
+            ProjectorSet::Ref => &self.refs,
+            ProjectorSet::Sl => &self.sl,
+        }
+    }
+
+    /// Images per set, each the contiguous run from `img_0001.png`.
+    fn counts(&self) -> SetCounts {
+        SetCounts {
+            train: self.train.scan.contiguous(),
+            test: self.test.scan.contiguous(),
+            refs: self.refs.scan.contiguous(),
+            sl: self.sl.scan.contiguous(),
+        }
+    }
+}
+
+/// The scans of the setup's capture sets (`cam/raw/*`).
+struct CaptureScans {
+    refs: Folder,
+    train: Folder,
+    test: Folder,
+    sl: Folder,
+}
+
+impl CaptureScans {
+    fn get(&self, set: CaptureSet) -> &Folder {
+        match set {
+            CaptureSet::Ref => &self.refs,
+            CaptureSet::Train => &self.train,
+            CaptureSet::Test => &self.test,
+            CaptureSet::Sl => &self.sl,
+        }
+    }
+
+    /// Every capture set, in the order of [`CaptureSet::ALL`].
+    fn all(&self) -> [&Folder; 4] {
+        [&self.refs, &self.train, &self.test, &self.sl]
+    }
+
+    /// Captures per set: the contiguous run from `img_0001.png`, except for the references,
+    /// where every indexed file counts (only black, white and gray are required).
+    fn counts(&self) -> SetCounts {
+        SetCounts {
+            train: self.train.scan.contiguous(),
+            test: self.test.scan.contiguous(),
+            refs: self.refs.scan.indices.len(),
+            sl: self.sl.scan.contiguous(),
+        }
+    }
+}
+
+/// What the folders of the root and the setup hold, before any image is read.
+struct Scans {
+    prj: ProjectorScans,
+    cap: CaptureScans,
+    references: References,
+    /// `cam/desire/test`, and its scan when the folder exists.
+    desired_dir: PathBuf,
+    desired: Option<Scan>,
+    /// Model names under `prj/cmp/test` (sorted) and the scan of each one's folder.
+    models: Vec<String>,
+    model_scans: Vec<Folder>,
+}
+
+/// The image files of each pixel space.
+struct SpacePaths {
+    /// Network size: the root's train, test and ref images and the gray image x0 (the first
+    /// `n_root`), then the compensation images of every model.
+    network: Vec<PathBuf>,
+    n_root: usize,
+    /// Projector size: the structured-light patterns.
+    projector: Vec<PathBuf>,
+    /// Camera size: every capture set, then the desired images.
+    camera: Vec<PathBuf>,
+    /// Whether the gray image x0 (`ROOT/ref/img_gray.png`) is present.
+    gray_input: bool,
+}
+
+/// The size every image of each space must have; `None` when nothing sets it.
+struct SpaceSizes {
+    network: Option<Expect>,
+    projector: Option<Expect>,
+    camera: Option<Expect>,
+}
+
 pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
     let root = setup.root();
     let mut pr = Problems {
@@ -131,40 +286,107 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
         total: 0,
         cap,
     };
+    let scans = scan_all(setup, &mut pr);
+    let paths = space_paths(root, &scans);
+    let sizes = space_sizes(setup, &paths);
+    let images_checked = check_files(&paths, &sizes, decode, &mut pr);
 
-    // --- scans: root sets, capture sets, desired, compensation models
-    let prj: Vec<(ProjectorSet, PathBuf, Scan)> = ProjectorSet::ALL
+    // --- counts and cross-checks
+    let projector_images = scans.prj.counts();
+    let captures = scans.cap.counts();
+    check_pairing(root, &scans, &mut pr);
+    check_network_sides(sizes.network.as_ref(), &mut pr);
+
+    let size = |x: &Option<Expect>| x.as_ref().map(|x| ImageSize::from(x.size));
+    Validation {
+        info: SetupInfo {
+            root: root.path().to_path_buf(),
+            setup: setup.relative(),
+            // The camera size is the black reference's size only; a stand-in used for checking
+            // when it is unreadable is not reported as the camera size.
+            camera_size: if scans.references.black {
+                pngio::png_size(&setup.reference_path(Reference::Black))
+                    .ok()
+                    .map(ImageSize::from)
+            } else {
+                None
+            },
+            network_size: size(&sizes.network),
+            projector_size: size(&sizes.projector),
+            projector_images,
+            gray_input: paths.gray_input,
+            captures,
+            references: scans.references,
+            desired_test: scans.desired.as_ref().map(Scan::contiguous),
+            compensated: scans.models,
+        },
+        problems: pr.kept,
+        total_problems: pr.total,
+        images_checked,
+    }
+}
+
+/// Scans: root sets, capture sets (the named references checked), desired, compensation models.
+fn scan_all(setup: &Setup, pr: &mut Problems) -> Scans {
+    let root = setup.root();
+    let mut prj = |set: ProjectorSet| {
+        let dir = root.dir(set);
+        let scan = pr.scan(&dir, false);
+        Folder { dir, scan }
+    };
+    // Fields are evaluated in the order written: the order of `ProjectorSet::ALL`.
+    let prj = ProjectorScans {
+        train: prj(ProjectorSet::Train),
+        test: prj(ProjectorSet::Test),
+        refs: prj(ProjectorSet::Ref),
+        sl: prj(ProjectorSet::Sl),
+    };
+    let mut cap = |set: CaptureSet| {
+        let dir = setup.capture_dir(set);
+        let scan = pr.scan(&dir, set == CaptureSet::Ref);
+        Folder { dir, scan }
+    };
+    // The order of `CaptureSet::ALL`.
+    let cap = CaptureScans {
+        refs: cap(CaptureSet::Ref),
+        train: cap(CaptureSet::Train),
+        test: cap(CaptureSet::Test),
+        sl: cap(CaptureSet::Sl),
+    };
+    let references = check_references(&cap.refs, pr);
+
+    let desired_dir = setup.desired_dir();
+    let desired = desired_dir.is_dir().then(|| pr.scan(&desired_dir, false));
+
+    let models = match setup.compensated_models() {
+        Ok(m) => m,
+        Err(e) => {
+            pr.push(e);
+            Vec::new()
+        }
+    };
+    let model_scans: Vec<Folder> = models
         .iter()
-        .map(|&set| {
-            let dir = root.dir(set);
-            let s = pr.scan(&dir, false);
-            (set, dir, s)
+        .map(|m| {
+            let dir = setup.compensation_root().join(m);
+            let scan = pr.scan(&dir, false);
+            Folder { dir, scan }
         })
         .collect();
-    let prj_of = |set: ProjectorSet| {
-        prj.iter()
-            .find(|(s, _, _)| *s == set)
-            .map(|(_, d, s)| (d, s))
-            .expect("every projector set was scanned")
-    };
-    let cap_scans: Vec<(CaptureSet, PathBuf, Scan)> = CaptureSet::ALL
-        .iter()
-        .map(|&set| {
-            let dir = setup.capture_dir(set);
-            let s = pr.scan(&dir, set == CaptureSet::Ref);
-            (set, dir, s)
-        })
-        .collect();
-    let cap_of = |set: CaptureSet| {
-        cap_scans
-            .iter()
-            .find(|(s, _, _)| *s == set)
-            .map(|(_, d, s)| (d, s))
-            .expect("every capture set was scanned")
-    };
+    Scans {
+        prj,
+        cap,
+        references,
+        desired_dir,
+        desired,
+        models,
+        model_scans,
+    }
+}
 
-    let (ref_dir, ref_scan) = cap_of(CaptureSet::Ref);
-    let has = |r: Reference| ref_scan.indices.binary_search(&r.index()).is_ok();
+/// Which named references `cam/raw/ref` holds; each missing one is a problem.
+fn check_references(refs: &Folder, pr: &mut Problems) -> References {
+    let has = |r: Reference| refs.scan.indices.binary_search(&r.index()).is_ok();
     let references = References {
         black: has(Reference::Black),
         white: has(Reference::White),
@@ -173,7 +395,7 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
     for r in Reference::ALL {
         if !has(r) {
             pr.push(Error::Missing {
-                path: ref_dir.join(r.file_name()),
+                path: refs.dir.join(r.file_name()),
                 expected: format!(
                     "{}; a setup needs black {}, white {} and gray {} in cam/raw/ref",
                     r.describe(),
@@ -184,52 +406,43 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
             });
         }
     }
+    references
+}
 
-    let desired_dir = setup.desired_dir();
-    let desired_scan = desired_dir.is_dir().then(|| pr.scan(&desired_dir, false));
-
-    let models = match setup.compensated_models() {
-        Ok(m) => m,
-        Err(e) => {
-            pr.push(e);
-            Vec::new()
-        }
-    };
-    let model_scans: Vec<(PathBuf, Scan)> = models
-        .iter()
-        .map(|m| {
-            let dir = setup.compensation_root().join(m);
-            let s = pr.scan(&dir, false);
-            (dir, s)
-        })
-        .collect();
-
-    // --- the files of each space
-    let mut network_paths = Vec::new();
+/// The files of each space.
+fn space_paths(root: &DataRoot, scans: &Scans) -> SpacePaths {
+    let mut network = Vec::new();
     for set in [ProjectorSet::Train, ProjectorSet::Test, ProjectorSet::Ref] {
-        let (d, s) = prj_of(set);
-        network_paths.extend(paths_of(d, s));
+        network.extend(scans.prj.get(set).paths());
     }
     let gray_input = root.gray_input_path().is_file();
     if gray_input {
-        network_paths.push(root.gray_input_path());
+        network.push(root.gray_input_path());
     }
-    let model_paths: Vec<PathBuf> = model_scans
-        .iter()
-        .flat_map(|(d, s)| paths_of(d, s))
-        .collect();
-    network_paths.extend(model_paths.iter().cloned());
-    let (sl_dir, sl_scan) = prj_of(ProjectorSet::Sl);
-    let projector_paths = paths_of(sl_dir, sl_scan);
-    let mut camera_paths = Vec::new();
-    for (_, d, s) in &cap_scans {
-        camera_paths.extend(paths_of(d, s));
+    let n_root = network.len();
+    network.extend(scans.model_scans.iter().flat_map(Folder::paths));
+    let projector = scans.prj.get(ProjectorSet::Sl).paths();
+    let mut camera = Vec::new();
+    for f in scans.cap.all() {
+        camera.extend(f.paths());
     }
-    if let Some(s) = &desired_scan {
-        camera_paths.extend(paths_of(&desired_dir, s));
+    if let Some(s) = &scans.desired {
+        camera.extend(paths_of(&scans.desired_dir, s));
     }
+    SpacePaths {
+        network,
+        n_root,
+        projector,
+        camera,
+        gray_input,
+    }
+}
 
-    // --- the size of each space
+/// The size of each space: the network size from the first training (else test) image, the
+/// projector size from the first structured-light pattern, the camera size from the black
+/// reference capture, each overruled by a clear majority of its space (see [`space_size`]).
+fn space_sizes(setup: &Setup, paths: &SpacePaths) -> SpaceSizes {
+    let root = setup.root();
     let train1 = root.image_path(ProjectorSet::Train, 1);
     let net_primary = if train1.is_file() {
         train1
@@ -237,88 +450,98 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
         root.image_path(ProjectorSet::Test, 1)
     };
     let net_why = format!("the network size, set by {}", net_primary.display());
-    let network = space_size(Some((net_primary, net_why)), &network_paths, "network");
+    let network = space_size(Some((net_primary, net_why)), &paths.network, "network");
     let sl1 = root.image_path(ProjectorSet::Sl, 1);
     let prj_why = format!("the projector size, set by {}", sl1.display());
-    let projector = space_size(Some((sl1, prj_why)), &projector_paths, "projector");
+    let projector = space_size(Some((sl1, prj_why)), &paths.projector, "projector");
     let black = setup.reference_path(Reference::Black);
     let cam_why = format!(
         "the camera size, set by the black reference capture {}",
         black.display()
     );
-    let camera = space_size(Some((black, cam_why)), &camera_paths, "camera");
+    let camera = space_size(Some((black, cam_why)), &paths.camera, "camera");
+    SpaceSizes {
+        network,
+        projector,
+        camera,
+    }
+}
 
-    // --- read every file, in report order: root sets, sl patterns, captures, desired, models
-    let n_root = network_paths.len() - model_paths.len();
+/// Reads every file, in report order: root sets, sl patterns, captures, desired, models.
+/// Returns the number of files read.
+fn check_files(paths: &SpacePaths, sizes: &SpaceSizes, decode: bool, pr: &mut Problems) -> usize {
+    let n_root = paths.n_root;
     let mut jobs: Vec<(&Path, Option<&Expect>)> = Vec::new();
     jobs.extend(
-        network_paths[..n_root]
+        paths.network[..n_root]
             .iter()
-            .map(|p| (p.as_path(), network.as_ref())),
+            .map(|p| (p.as_path(), sizes.network.as_ref())),
     );
     jobs.extend(
-        projector_paths
+        paths
+            .projector
             .iter()
-            .map(|p| (p.as_path(), projector.as_ref())),
+            .map(|p| (p.as_path(), sizes.projector.as_ref())),
     );
-    jobs.extend(camera_paths.iter().map(|p| (p.as_path(), camera.as_ref())));
     jobs.extend(
-        network_paths[n_root..]
+        paths
+            .camera
             .iter()
-            .map(|p| (p.as_path(), network.as_ref())),
+            .map(|p| (p.as_path(), sizes.camera.as_ref())),
     );
-    let images_checked = jobs.len();
+    jobs.extend(
+        paths.network[n_root..]
+            .iter()
+            .map(|p| (p.as_path(), sizes.network.as_ref())),
+    );
     for r in par_map(&jobs, |(p, x)| check_file(p, *x, decode)) {
         if let Err(e) = r {
             pr.push(e);
         }
     }
+    jobs.len()
+}
 
-    // --- counts and cross-checks
-    let count = |s: &Scan| s.contiguous();
-    let projector_images = SetCounts {
-        train: count(prj_of(ProjectorSet::Train).1),
-        test: count(prj_of(ProjectorSet::Test).1),
-        refs: count(prj_of(ProjectorSet::Ref).1),
-        sl: count(prj_of(ProjectorSet::Sl).1),
-    };
-    let captures = SetCounts {
-        train: count(cap_of(CaptureSet::Train).1),
-        test: count(cap_of(CaptureSet::Test).1),
-        refs: ref_scan.indices.len(),
-        sl: count(cap_of(CaptureSet::Sl).1),
-    };
-    // Every capture (and desired image) needs the projector image it belongs to.
-    let mut unpaired = |dir: &Path, s: &Scan, prj_dir: &Path, prj_have: usize, what: &str| {
-        if let Some(&i) = s.indices.iter().find(|&&i| i > prj_have) {
-            pr.push(Error::Input(format!(
-                "{}: {what} without a projector image: {} holds only {prj_have} images \
-                 (the set in {} runs to {})",
-                dir.join(pngio::indexed_name(i)).display(),
-                prj_dir.display(),
-                dir.display(),
-                pngio::indexed_name(*s.indices.last().expect("found one"))
-            )));
-        }
-    };
+/// Every capture (and desired image) needs the projector image it belongs to.
+fn check_pairing(root: &DataRoot, scans: &Scans, pr: &mut Problems) {
     for set in [CaptureSet::Train, CaptureSet::Test, CaptureSet::Sl] {
-        let (d, s) = cap_of(set);
+        let f = scans.cap.get(set);
         let pset = set.projector_set();
-        let prj_have = count(prj_of(pset).1);
-        unpaired(d, s, &root.dir(pset), prj_have, "a capture");
+        let prj_have = scans.prj.get(pset).scan.contiguous();
+        unpaired(pr, &f.dir, &f.scan, &root.dir(pset), prj_have, "a capture");
     }
-    let desired_test = desired_scan.as_ref().map(count);
-    if let Some(s) = &desired_scan {
+    if let Some(s) = &scans.desired {
         let prj_dir = root.dir(ProjectorSet::Test);
+        let prj_have = scans.prj.test.scan.contiguous();
         unpaired(
-            &desired_dir,
+            pr,
+            &scans.desired_dir,
             s,
             &prj_dir,
-            projector_images.test,
+            prj_have,
             "a desired image",
         );
     }
-    if let Some(n) = &network
+}
+
+/// A problem for the first image of `s` (in `dir`) beyond the `prj_have` projector images of
+/// `prj_dir`.
+fn unpaired(pr: &mut Problems, dir: &Path, s: &Scan, prj_dir: &Path, prj_have: usize, what: &str) {
+    if let (Some(&i), Some(&last)) = (s.indices.iter().find(|&&i| i > prj_have), s.indices.last()) {
+        pr.push(Error::Input(format!(
+            "{}: {what} without a projector image: {} holds only {prj_have} images \
+             (the set in {} runs to {})",
+            dir.join(pngio::indexed_name(i)).display(),
+            prj_dir.display(),
+            dir.display(),
+            pngio::indexed_name(last)
+        )));
+    }
+}
+
+/// The models halve the resolution twice: both network sides must be divisible by 4.
+fn check_network_sides(network: Option<&Expect>, pr: &mut Problems) {
+    if let Some(n) = network
         && (n.size.0 % 4 != 0 || n.size.1 % 4 != 0)
     {
         pr.push(Error::Input(format!(
@@ -326,33 +549,5 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
              resolution twice)",
             n.size.0, n.size.1, n.why
         )));
-    }
-
-    let size = |x: &Option<Expect>| x.as_ref().map(|x| ImageSize::from(x.size));
-    Validation {
-        info: SetupInfo {
-            root: root.path().to_path_buf(),
-            setup: setup.relative(),
-            // The camera size is the black reference's size only; a stand-in used for checking
-            // when it is unreadable is not reported as the camera size.
-            camera_size: if references.black {
-                pngio::png_size(&setup.reference_path(Reference::Black))
-                    .ok()
-                    .map(ImageSize::from)
-            } else {
-                None
-            },
-            network_size: size(&network),
-            projector_size: size(&projector),
-            projector_images,
-            gray_input,
-            captures,
-            references,
-            desired_test,
-            compensated: models,
-        },
-        problems: pr.kept,
-        total_problems: pr.total,
-        images_checked,
     }
 }

@@ -99,22 +99,11 @@ pub fn time_work(
         let wall = t.elapsed().as_secs_f64() * 1e3;
         let gpu = match &query {
             Some((_, _, read)) => {
-                let (tx, rx) = std::sync::mpsc::channel();
-                read.map_async(wgpu::MapMode::Read, .., move |r| {
-                    let _ = tx.send(r);
-                });
-                ctx.wait()?;
-                rx.recv()
-                    .map_err(|_| Error::Failed("timestamp read-back cancelled".into()))?
-                    .map_err(|e| Error::Failed(format!("timestamp read-back: {e}")))?;
-                let ticks: [u64; 2] = {
-                    let view = read
-                        .get_mapped_range(..)
-                        .map_err(|e| Error::Failed(format!("timestamp mapping: {e}")))?;
-                    let v: &[u64] = bytemuck::cast_slice(&view);
-                    [v[0], v[1]]
-                };
-                read.unmap();
+                let ticks = ctx.map_read(read, |bytes| {
+                    let v: &[u64] = bytemuck::try_cast_slice(bytes)
+                        .map_err(|e| Error::Failed(format!("GPU timestamps layout: {e}")))?;
+                    Ok([v[0], v[1]])
+                })?;
                 Some(ticks[1].saturating_sub(ticks[0]) as f64 * period_ns / 1e6)
             }
             None => None,
@@ -246,13 +235,13 @@ pub fn synthetic_linear_model(
     };
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
-        method: crate::linear::METHOD.into(),
-        network_size: network,
-        camera_size: camera,
+        method: crate::model::Method::Linear,
+        network_size: network.into(),
+        camera_size: camera.into(),
         canvas: None,
-        training: serde_json::Value::Null,
+        training: Default::default(),
         metrics: serde_json::Value::Null,
-        timings: serde_json::Value::Null,
+        timings: Default::default(),
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
     };
     crate::model::Model::linear(meta, Mask::full(camera.0, camera.1), model)
@@ -266,11 +255,11 @@ pub fn synthetic_linear_model(
 pub fn synthetic_compennet_model(
     camera: (usize, usize),
     network: (usize, usize),
-    variant: crate::nn::train::Variant,
+    variant: crate::nn::compennetpp::Variant,
     seed: u64,
 ) -> Result<crate::model::Model> {
     use crate::model::store::{FORMAT_VERSION, ModelMeta};
-    use crate::nn::train::{CompenNetPP, GeometryInit};
+    use crate::nn::compennetpp::{CompenNetPP, GeometryInit};
     use crate::raster::{CamImage, Mask};
 
     if network.0 % 4 != 0 || network.1 % 4 != 0 || network.0 == 0 || network.1 == 0 {
@@ -302,13 +291,14 @@ pub fn synthetic_compennet_model(
     )?;
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
-        method: variant.method().into(),
-        network_size: network,
-        camera_size: camera,
+        method: crate::model::Method::from_name(variant.method())
+            .ok_or_else(|| crate::Error::Shape(format!("no method named {}", variant.method())))?,
+        network_size: network.into(),
+        camera_size: camera.into(),
         canvas: None,
-        training: serde_json::Value::Null,
+        training: Default::default(),
         metrics: serde_json::Value::Null,
-        timings: serde_json::Value::Null,
+        timings: Default::default(),
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
     };
     crate::model::Model::compennet(meta, Mask::full(cw, ch), net, surface)

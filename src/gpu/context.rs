@@ -1,10 +1,15 @@
 //! The GPU device: one wgpu instance, adapter, device and queue, created once per process.
 //!
-//! No adapter is a normal outcome on a machine without a GPU or a software Vulkan driver:
-//! [`GpuContext::new`] reports it as `Ok(None)` with the reason, so callers can fall back to the
-//! CPU or skip; a device that exists but fails is an error.
+//! No adapter is a normal outcome on a machine without a GPU or a software Vulkan driver: it is
+//! an [`Error::Gpu`] whose cause is a [`NoAdapter`] ([`is_no_adapter`] tells it apart), so
+//! callers can skip or fall back; an adapter that exists but fails to open is another
+//! [`Error::Gpu`]. Every wgpu failure keeps its cause.
 
 use crate::error::{Error, Result};
+
+/// What a machine without a usable adapter is told.
+const NO_ADAPTER_HINT: &str =
+    "live compensation needs a GPU or a software Vulkan driver (Mesa lavapipe)";
 
 /// An open GPU device.
 pub struct GpuContext {
@@ -20,20 +25,25 @@ impl std::fmt::Debug for GpuContext {
     }
 }
 
-/// Why there is no GPU context.
-#[derive(Clone, Debug)]
-pub struct NoAdapter(pub String);
+/// The cause of an [`Error::Gpu`] when wgpu found no adapter (none at all, or none that can
+/// present to the projector window).
+#[derive(Debug, thiserror::Error)]
+#[error("no GPU adapter: {0}")]
+pub struct NoAdapter(#[source] pub wgpu::RequestAdapterError);
 
-impl std::fmt::Display for NoAdapter {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
+/// Whether `err` says that there is no GPU adapter (rather than a GPU that failed).
+pub fn is_no_adapter(err: &Error) -> bool {
+    match err {
+        Error::Gpu { source, .. } => source.is::<NoAdapter>(),
+        _ => false,
     }
 }
 
 impl GpuContext {
     /// Opens the default adapter (backends from `WGPU_BACKEND`, e.g. `vulkan` or `gl`; the
-    /// software Vulkan driver lavapipe counts as an adapter). `Ok(Err(reason))` when there is none.
-    pub fn new() -> Result<std::result::Result<Self, NoAdapter>> {
+    /// software Vulkan driver lavapipe counts as an adapter). No adapter: an [`Error::Gpu`] for
+    /// which [`is_no_adapter`] holds.
+    pub fn new() -> Result<Self> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         Self::with_instance(instance, None)
@@ -44,17 +54,22 @@ impl GpuContext {
     pub fn with_instance(
         instance: wgpu::Instance,
         surface: Option<&wgpu::Surface<'_>>,
-    ) -> Result<std::result::Result<Self, NoAdapter>> {
-        let adapter =
-            match pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-                power_preference: wgpu::PowerPreference::HighPerformance,
-                force_fallback_adapter: false,
-                compatible_surface: surface,
-                ..Default::default()
-            })) {
-                Ok(a) => a,
-                Err(e) => return Ok(Err(NoAdapter(format!("no GPU adapter: {e}")))),
+    ) -> Result<Self> {
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            force_fallback_adapter: false,
+            compatible_surface: surface,
+            ..Default::default()
+        }))
+        .map_err(|e| {
+            let what = match surface {
+                Some(_) => {
+                    format!("no adapter can present to the projector window; {NO_ADAPTER_HINT}")
+                }
+                None => format!("no adapter; {NO_ADAPTER_HINT}"),
             };
+            Error::gpu(what, NoAdapter(e))
+        })?;
         // Timestamps help the benchmark when the adapter has them; nothing else needs a feature.
         let wanted =
             wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS;
@@ -66,17 +81,17 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| {
-            Error::Failed(format!(
-                "GPU adapter {} did not open a device: {e}",
-                adapter.get_info().name
-            ))
+            Error::gpu(
+                format!("adapter {} did not open a device", adapter.get_info().name),
+                e,
+            )
         })?;
-        Ok(Ok(Self {
+        Ok(Self {
             instance,
             adapter,
             device,
             queue,
-        }))
+        })
     }
 
     /// "name (backend, device type)".
@@ -90,10 +105,10 @@ impl GpuContext {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map(|_| ())
-            .map_err(|e| Error::Failed(format!("GPU wait failed: {e}")))
+            .map_err(|e| Error::gpu("waiting for the GPU", e))
     }
 
-    /// Compiles a WGSL module, turning validation errors into [`Error::Failed`].
+    /// Compiles a WGSL module; a validation error is an [`Error::Gpu`] naming the shader.
     pub fn shader(&self, label: &str, source: &str) -> Result<wgpu::ShaderModule> {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self
@@ -103,7 +118,7 @@ impl GpuContext {
                 source: wgpu::ShaderSource::Wgsl(source.into()),
             });
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(Error::Failed(format!("shader {label}: {e}")));
+            return Err(Error::gpu(format!("shader {label}"), e));
         }
         Ok(module)
     }
@@ -115,17 +130,8 @@ impl GpuContext {
         let row = w * bytes_per_texel;
         let padded =
             row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: (padded * h) as u64,
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("readback"),
-            });
+        let buffer = self.staging((padded * h) as u64);
+        let mut enc = self.encoder("readback");
         enc.copy_texture_to_buffer(
             texture.as_image_copy(),
             wgpu::TexelCopyBufferInfo {
@@ -139,61 +145,68 @@ impl GpuContext {
             texture.size(),
         );
         self.queue.submit([enc.finish()]);
+        self.map_read(&buffer, |view| {
+            let mut out = Vec::with_capacity((row * h) as usize);
+            for y in 0..h as usize {
+                let start = y * padded as usize;
+                out.extend_from_slice(&view[start..start + row as usize]);
+            }
+            Ok(out)
+        })
+    }
+
+    /// Reads back a storage buffer (created with `COPY_SRC`) of f32 values.
+    pub fn read_buffer(&self, buffer: &wgpu::Buffer) -> Result<Vec<f32>> {
+        let size = buffer.size();
+        let staging = self.staging(size);
+        let mut enc = self.encoder("readback");
+        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        self.queue.submit([enc.finish()]);
+        self.map_read(&staging, |view| {
+            Ok(bytemuck::try_cast_slice::<u8, f32>(view)
+                .map_err(|e| Error::Failed(format!("GPU read-back layout: {e}")))?
+                .to_vec())
+        })
+    }
+
+    /// A command encoder.
+    pub fn encoder(&self, label: &str) -> wgpu::CommandEncoder {
+        self.device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
+    }
+
+    /// A buffer of `size` bytes to copy GPU data into and map for reading.
+    fn staging(&self, size: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Maps `buffer` (whose copy was submitted) for reading once the GPU is done, hands its bytes
+    /// to `read`, and unmaps it.
+    pub(crate) fn map_read<T>(
+        &self,
+        buffer: &wgpu::Buffer,
+        read: impl FnOnce(&[u8]) -> Result<T>,
+    ) -> Result<T> {
         let (tx, rx) = std::sync::mpsc::channel();
         buffer.map_async(wgpu::MapMode::Read, .., move |r| {
             let _ = tx.send(r);
         });
         self.wait()?;
         rx.recv()
-            .map_err(|_| Error::Failed("GPU read-back was cancelled".into()))?
-            .map_err(|e| Error::Failed(format!("GPU read-back failed: {e}")))?;
-        let mut out = Vec::with_capacity((row * h) as usize);
-        {
+            .map_err(|e| Error::gpu("GPU read-back was cancelled", e))?
+            .map_err(|e| Error::gpu("GPU read-back", e))?;
+        let out = {
             let view = buffer
                 .get_mapped_range(..)
-                .map_err(|e| Error::Failed(format!("GPU read-back mapping: {e}")))?;
-            for y in 0..h as usize {
-                let start = y * padded as usize;
-                out.extend_from_slice(&view[start..start + row as usize]);
-            }
-        }
-        buffer.unmap();
-        Ok(out)
-    }
-
-    /// Reads back a storage buffer (created with `COPY_SRC`) of f32 values.
-    pub fn read_buffer(&self, buffer: &wgpu::Buffer) -> Result<Vec<f32>> {
-        let size = buffer.size();
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size,
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("readback"),
-            });
-        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-        self.queue.submit([enc.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        staging.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait()?;
-        rx.recv()
-            .map_err(|_| Error::Failed("GPU read-back was cancelled".into()))?
-            .map_err(|e| Error::Failed(format!("GPU read-back failed: {e}")))?;
-        let out = {
-            let view = staging
-                .get_mapped_range(..)
-                .map_err(|e| Error::Failed(format!("GPU read-back mapping: {e}")))?;
-            bytemuck::try_cast_slice::<u8, f32>(&view)
-                .map_err(|e| Error::Failed(format!("GPU read-back layout: {e}")))?
-                .to_vec()
+                .map_err(|e| Error::gpu("GPU read-back mapping", e))?;
+            read(&view)
         };
-        staging.unmap();
-        Ok(out)
+        buffer.unmap();
+        out
     }
 }

@@ -114,7 +114,7 @@ impl Stage {
                 cache: None,
             });
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(crate::Error::Failed(format!("compute stage {label}: {e}")));
+            return Err(crate::Error::gpu(format!("compute stage {label}"), e));
         }
         Ok(Self {
             layout,

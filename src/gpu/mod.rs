@@ -1,6 +1,7 @@
-//! The GPU shell: live compensation in wgpu compute passes (DESIGN.md section 1, playback).
+//! The GPU shell: live compensation in wgpu compute passes (docs/architecture.md, "Playback").
 //!
-//! - [`context`]: instance, adapter, device, queue; "no adapter" is reported, not an error.
+//! - [`context`]: instance, adapter, device and queue; "no adapter" is an [`crate::Error::Gpu`]
+//!   that [`is_no_adapter`] recognises, so callers can skip instead of failing.
 //! - [`pass`]: the compensation pass (content frame → projector frame at native resolution),
 //!   with its stages in `shaders/*.wgsl`; the model's photometric stage is a [`pass::Photometric`]
 //!   variant ([`linear`] for the `linear` rung, [`compennet`] for the CompenNet++ family).
@@ -15,5 +16,5 @@ mod kernel;
 pub mod linear;
 pub mod pass;
 
-pub use context::{GpuContext, NoAdapter};
+pub use context::{GpuContext, NoAdapter, is_no_adapter};
 pub use pass::{CompensationPass, FRAME_FORMAT, Photometric};

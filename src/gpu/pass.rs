@@ -17,9 +17,10 @@ use super::compennet::CompenNetStage;
 use super::kernel::{Slot, Stage, image_texture, storage, uniform, view};
 use super::linear::LinearStage;
 use crate::error::{Error, Result};
+use crate::fov::DisplayRange;
 use crate::model::{Kind, Model};
 use crate::playback::{ContentFrame, Placement};
-use crate::raster::{NetImage, PrjImage, Rgb, Space};
+use crate::raster::{ImageSize, NetImage, PrjImage, Rgb, Space};
 
 const PLACE: &str = include_str!("../../shaders/place.wgsl");
 const CANVAS: &str = include_str!("../../shaders/canvas.wgsl");
@@ -107,6 +108,35 @@ struct Content {
     group: wgpu::BindGroup,
 }
 
+/// The images between the stages, each (width, height) in its space's pixels.
+struct Images {
+    /// The desired camera view: rgba32float, camera pixels.
+    desired: wgpu::Texture,
+    /// The compensation image: rgba32float, network pixels.
+    network: wgpu::Texture,
+    /// The projector frame: [`FRAME_FORMAT`], projector pixels.
+    output: wgpu::Texture,
+}
+
+impl Images {
+    fn new(ctx: &GpuContext, p: &Placement) -> Self {
+        let st = wgpu::TextureUsages::STORAGE_BINDING;
+        let size = |(w, h): (usize, usize)| (w as u32, h as u32);
+        let f32x4 = wgpu::TextureFormat::Rgba32Float;
+        Self {
+            desired: image_texture(ctx, "desired view", size(p.camera_size), f32x4, st),
+            network: image_texture(ctx, "compensation image", size(p.network_size), f32x4, st),
+            output: image_texture(
+                ctx,
+                "projector frame",
+                size(p.projector_size),
+                FRAME_FORMAT,
+                st,
+            ),
+        }
+    }
+}
+
 /// The compensation pass for one model and one display.
 pub struct CompensationPass {
     placement: Placement,
@@ -125,6 +155,20 @@ pub struct CompensationPass {
 }
 
 impl CompensationPass {
+    /// The pass for `model` on a display of `display` projector pixels: content goes into the
+    /// largest rectangle of the canvas aspect in the model's FOV mask with its values mapped into
+    /// `range`, and the model's output is stretched over its canvas (default the whole display),
+    /// as [`Placement::for_model`] places them.
+    pub fn for_display(
+        ctx: &GpuContext,
+        model: &Model,
+        display: ImageSize,
+        range: DisplayRange,
+    ) -> Result<Self> {
+        let placement = Placement::for_model(model, display.into(), range)?;
+        Self::new(ctx, model, placement)
+    }
+
     /// Compiles the stages and uploads the model's constants once.
     pub fn new(ctx: &GpuContext, model: &Model, placement: Placement) -> Result<Self> {
         placement.validate()?;
@@ -160,28 +204,11 @@ impl CompensationPass {
             &[Slot::Uniform, Slot::Texture, Slot::Output(FRAME_FORMAT)],
         )?;
         let p = &placement;
-        let st = wgpu::TextureUsages::STORAGE_BINDING;
-        let desired = image_texture(
-            ctx,
-            "desired view",
-            (p.camera_size.0 as u32, p.camera_size.1 as u32),
-            wgpu::TextureFormat::Rgba32Float,
-            st,
-        );
-        let network = image_texture(
-            ctx,
-            "compensation image",
-            (p.network_size.0 as u32, p.network_size.1 as u32),
-            wgpu::TextureFormat::Rgba32Float,
-            st,
-        );
-        let output = image_texture(
-            ctx,
-            "projector frame",
-            (p.projector_size.0 as u32, p.projector_size.1 as u32),
-            FRAME_FORMAT,
-            st,
-        );
+        let Images {
+            desired,
+            network,
+            output,
+        } = Images::new(ctx, p);
         let fov: Vec<f32> = model
             .fov
             .data()
@@ -245,10 +272,11 @@ impl CompensationPass {
         if frame.width == 0 || frame.height == 0 {
             return Err(Error::Shape("empty content frame".into()));
         }
-        if self.content.as_ref().is_none_or(|c| c.size != frame.size()) {
-            self.content = Some(self.make_content(ctx, frame.size()));
-        }
-        let c = self.content.as_ref().expect("just made");
+        let c = match self.content.take() {
+            Some(c) if c.size == frame.size() => c,
+            _ => self.make_content(ctx, frame.size()),
+        };
+        let c = self.content.insert(c);
         ctx.queue.write_texture(
             c.texture.as_image_copy(),
             &frame.rgba,

@@ -6,20 +6,13 @@ use std::path::Path;
 use crate::error::{Error, Result};
 use crate::linear::LinearModel;
 use store::{ModelMeta, Tensors};
+
+pub mod method;
+pub mod store;
+
+pub use method::{Method, MethodChoice};
 use crate::raster::{CamImage, Camera, Mask, NetImage, Network};
 use crate::sample::Grid;
-
-/// The methods this build can train and load, by rung.
-pub const METHODS: &[&str] = &[
-    crate::linear::METHOD,
-    "linear-sl",
-    "compennet++-faster",
-    "compennet++-fast",
-    "compennet++-norefine",
-    "compennet++",
-    "compennet-sl",
-    "compennet++-cpu",
-];
 
 /// A loaded model with its metadata and the projector FOV mask its inputs are masked with.
 #[derive(Debug)]
@@ -39,11 +32,11 @@ pub enum Kind {
     /// The CompenNet++ variants: the full network (CPU, candle), the gray surface capture it
     /// conditions on (camera space, masked), and its grid baked for the geometry-only row.
     CompenNet {
-        net: Box<crate::nn::train::CompenNetPP>,
+        net: Box<crate::nn::compennetpp::CompenNetPP>,
         surface: CamImage,
         grid: Grid<Network, Camera>,
         /// Baked grid and folded surface branch: what runs per frame.
-        simplified: Box<crate::nn::train::SimplifiedCompenNet>,
+        simplified: Box<crate::nn::compennetpp::SimplifiedCompenNet>,
     },
 }
 
@@ -73,13 +66,13 @@ impl Model {
     pub fn compennet(
         meta: ModelMeta,
         fov: Mask<Camera>,
-        net: crate::nn::train::CompenNetPP,
+        net: crate::nn::compennetpp::CompenNetPP,
         surface: CamImage,
     ) -> Result<Self> {
-        let grid = baked_grid(&net, meta.network_size)?;
-        let simplified = crate::nn::images_to_tensor(std::slice::from_ref(&surface))
-            .and_then(|s| net.simplify(&s))
-            .map_err(|e| Error::Failed(format!("simplifying CompenNet++: {e}")))?;
+        let grid = baked_grid(&net, meta.network_size.into())?;
+        let simplified = net.simplify(&crate::nn::images_to_tensor(std::slice::from_ref(
+            &surface,
+        ))?)?;
         Ok(Self {
             meta,
             fov,
@@ -107,36 +100,30 @@ impl Model {
         }
         let (meta, tensors) = store::load(dir)?;
         let file = dir.join(store::WEIGHTS_FILE);
-        let (cw, ch) = meta.camera_size;
+        let (cw, ch) = meta.camera_size.into();
         let fov = tensors.get("fov_mask", &[ch, cw], &file)?;
         let fov = Mask::from_vec(cw, ch, fov.iter().map(|&v| v >= 0.5).collect())?;
-        match meta.method.as_str() {
-            m if m == crate::linear::METHOD || m == "linear-sl" => {
+        match crate::nn::compennetpp::Variant::from_method(meta.method.name()) {
+            None => {
                 let model = LinearModel::from_tensors(
                     &tensors,
-                    meta.network_size,
-                    meta.camera_size,
+                    meta.network_size.into(),
+                    meta.camera_size.into(),
                     &file,
                 )?;
                 Ok(Self::linear(meta, fov, model))
             }
-            m if crate::nn::train::Variant::from_method(m).is_some() => {
-                let variant = crate::nn::train::Variant::from_method(m).expect("checked");
+            Some(variant) => {
                 let surface = tensors.get("surface", &[ch, cw, 3], &file)?;
                 let surface = CamImage::from_vec(cw, ch, surface.to_vec())?;
-                let net = crate::nn::train::CompenNetPP::restore(
-                    meta.network_size,
+                let net = crate::nn::compennetpp::CompenNetPP::restore(
+                    meta.network_size.into(),
                     variant,
                     &candle_core::Device::Cpu,
                     |name, shape| tensors.get(name, shape, &file).map(|v| v.to_vec()),
                 )?;
                 Self::compennet(meta, fov, net, surface)
             }
-            other => Err(Error::Input(format!(
-                "{}: method `{other}` is not one this compend can run (known: {})",
-                dir.join(store::META_FILE).display(),
-                METHODS.join(", ")
-            ))),
         }
     }
 
@@ -148,10 +135,7 @@ impl Model {
                 let mut t = Tensors::default();
                 for (name, value) in net.named_tensors() {
                     let dims = value.dims().to_vec();
-                    let data: Vec<f32> = value
-                        .flatten_all()
-                        .and_then(|v| v.to_vec1())
-                        .map_err(|e| Error::Failed(format!("tensor {name}: {e}")))?;
+                    let data: Vec<f32> = value.flatten_all()?.to_vec1()?;
                     t.insert(&name, dims, data)?;
                 }
                 let (w, h) = surface.size();
@@ -172,12 +156,14 @@ impl Model {
         store::save(dir, &self.meta, &tensors)
     }
 
+    /// Camera size (width, height), camera pixels.
     pub fn camera_size(&self) -> (usize, usize) {
-        self.meta.camera_size
+        self.meta.camera_size.into()
     }
 
+    /// Network size (width, height), network pixels.
     pub fn network_size(&self) -> (usize, usize) {
-        self.meta.network_size
+        self.meta.network_size.into()
     }
 
     /// The baked sampling grid from network pixels into the camera image.
@@ -209,11 +195,9 @@ impl Model {
         match &self.kind {
             Kind::Linear { simplified, .. } => Ok(simplified.apply(&masked)),
             Kind::CompenNet { simplified, .. } => {
-                let ce =
-                    |e: candle_core::Error| Error::Failed(format!("CompenNet++ inference: {e}"));
-                let x = crate::nn::images_to_tensor(std::slice::from_ref(&masked)).map_err(ce)?;
-                let out = simplified.forward(&x).map_err(ce)?;
-                crate::nn::tensor_to_image(&out, 0).map_err(ce)
+                let x = crate::nn::images_to_tensor(std::slice::from_ref(&masked))?;
+                let out = simplified.forward(&x)?;
+                Ok(crate::nn::tensor_to_image(&out, 0)?)
             }
         }
     }
@@ -227,7 +211,7 @@ impl Model {
     }
 }
 
-/// The paper protocol (DESIGN.md section 6) on test pairs: the model's output for each capture
+/// The paper protocol (docs/architecture.md, "Models") on test pairs: the model's output for each capture
 /// against the projector input, and the "uncompensated" row (captures warped by the model's own
 /// grid against the inputs). Returns (compensated, uncompensated).
 pub fn paper_protocol(
@@ -260,14 +244,9 @@ pub fn at_size(img: NetImage, size: (usize, usize)) -> NetImage {
 
 /// The network's current sampling grid as a core grid.
 fn baked_grid(
-    net: &crate::nn::train::CompenNetPP,
+    net: &crate::nn::compennetpp::CompenNetPP,
     (w, h): (usize, usize),
 ) -> Result<Grid<Network, Camera>> {
-    let g: Vec<f32> = net
-        .warp
-        .grid()
-        .and_then(|g| g.flatten_all())
-        .and_then(|g| g.to_vec1())
-        .map_err(|e| Error::Failed(format!("CompenNet++ grid: {e}")))?;
+    let g: Vec<f32> = net.warp.grid()?.flatten_all()?.to_vec1()?;
     Grid::from_vec(w, h, g.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
 }

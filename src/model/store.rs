@@ -1,19 +1,20 @@
-//! The model directory (DESIGN.md section 7): `model.safetensors` holds every numeric array
+//! The model directory (docs/architecture.md, "Model directory"): `model.safetensors` holds every numeric array
 //! (weights, or the baked grid and constants), `model.json` the metadata (format version, method,
 //! sizes, canvas, training settings, metrics, timings).
 //!
-//! Saving never leaves a half-written model where a good one was: the new directory is written
-//! beside the target under a temporary name, every file is fsynced, and only then swapped in.
+//! Saving never leaves a half-written model where a good one was, and never replaces anything
+//! but a model: see [`save`] and [`check_output`].
 
 use std::collections::BTreeMap;
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use safetensors::tensor::{Dtype, TensorView};
 use serde::{Deserialize, Serialize};
 
+use super::Method;
 use crate::error::{Error, Result};
+use crate::raster::ImageSize;
 
 /// Version of the model directory format this build reads and writes.
 pub const FORMAT_VERSION: u32 = 1;
@@ -25,27 +26,131 @@ pub const META_FILE: &str = "model.json";
 #[serde(deny_unknown_fields)]
 pub struct ModelMeta {
     pub format_version: u32,
-    /// Method name, e.g. `linear`.
-    pub method: String,
-    /// Network (model) size, width × height, in network pixels.
-    pub network_size: (usize, usize),
-    /// Camera size, width × height, in camera pixels.
-    pub camera_size: (usize, usize),
+    /// The rung, e.g. `linear`.
+    pub method: Method,
+    /// Network (model) size in network pixels, written `[width, height]`.
+    #[serde(with = "crate::raster::as_pair")]
+    pub network_size: ImageSize,
+    /// Camera size in camera pixels, written `[width, height]`.
+    #[serde(with = "crate::raster::as_pair")]
+    pub camera_size: ImageSize,
     /// Where network-space images are placed in projector space, when compend owns the placement
     /// (live calibration); `None` for models trained on recorded datasets.
     #[serde(default)]
     pub canvas: Option<crate::raster::Rect>,
-    /// Free-form training settings and provenance (setup path, #train, seed, …).
+    /// How the model was trained: data, settings, evidence.
     #[serde(default)]
-    pub training: serde_json::Value,
-    /// Evaluation results, if any.
+    pub training: TrainingRecord,
+    /// Evaluation results, if any (free-form: written by the commands that score a model).
     #[serde(default)]
     pub metrics: serde_json::Value,
-    /// Timings in seconds (training, …).
+    /// Timings of the training, seconds.
     #[serde(default)]
-    pub timings: serde_json::Value,
+    pub timings: Timings,
     /// The compend version that wrote the model.
     pub written_by: String,
+}
+
+/// How a model was trained (`model.json`'s `training`). Every field has a default, so the
+/// records of earlier builds (format version 1) still load; fields of one family are absent
+/// from the other's record.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrainingRecord {
+    /// The setup folder trained on (as given to `train --setup`).
+    #[serde(default)]
+    pub setup: Option<PathBuf>,
+    /// The data root holding the projector-side images.
+    #[serde(default)]
+    pub data_root: Option<PathBuf>,
+    /// Training pairs used.
+    #[serde(default)]
+    pub ntrain: usize,
+    /// Seed of every random choice of the fit.
+    #[serde(default)]
+    pub seed: u64,
+    /// What the FOV detection measured ([`crate::fov::FovDiagnostics`], as written).
+    #[serde(default)]
+    pub fov: serde_json::Value,
+    /// Bounding box of the projector FOV, camera pixels.
+    #[serde(default)]
+    pub fov_bbox: Option<crate::raster::Rect>,
+    /// The rung's own settings as written ([`crate::linear::FitSettings`] for the linear rungs,
+    /// [`crate::nn::train::Settings`] for the CompenNet++ family).
+    #[serde(default)]
+    pub settings: serde_json::Value,
+    /// The training loss at the end (`None` when it was not finite).
+    #[serde(default)]
+    pub final_loss: Option<f64>,
+    /// Linear rungs: the fitted response curves.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub curves: Option<crate::linear::Curves>,
+    /// `--method auto`: the rule, the held-out figures and the choice.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub auto: Option<AutoEvidence>,
+    /// CompenNet++: iterations run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iterations: Option<usize>,
+    /// CompenNet++: batch size.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub batch: Option<usize>,
+    /// CompenNet++: iterations between learning-rate drops.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lr_step: Option<usize>,
+    /// CompenNet++: where it trained.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device: Option<crate::fit::TrainDevice>,
+    /// CompenNet++: where the geometry started.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry_init: Option<String>,
+    /// CompenNet++: where CompenNet's weights started.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub photometric_init: Option<String>,
+}
+
+/// The evidence of `--method auto`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AutoEvidence {
+    /// The selection rule, in words.
+    pub rule: String,
+    /// The rung chosen.
+    pub chosen: Method,
+    /// Why no comparison was run (too few pairs, no structured light), if none was.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub why: Option<String>,
+    /// Training pairs held out for the comparison.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub held_out: Option<usize>,
+    /// Training pairs the candidates were fitted on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fitted_on: Option<usize>,
+    /// Each candidate's held-out figures.
+    #[serde(default)]
+    pub candidates: Vec<AutoCandidate>,
+}
+
+/// One candidate rung of `--method auto` on the held-out pairs (paper protocol).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AutoCandidate {
+    pub method: Method,
+    /// PSNR in dB.
+    pub held_out_psnr: f64,
+    pub held_out_ssim: f64,
+    /// Time to fit the candidate, seconds.
+    pub fit_seconds: f64,
+}
+
+/// Timings of the training (`model.json`'s `timings`), seconds.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Timings {
+    /// The fit alone.
+    #[serde(default)]
+    pub fit_seconds: f64,
+    /// The whole training, loading included.
+    #[serde(default)]
+    pub train_seconds: f64,
+    /// CompenNet++: wall time per training sample, milliseconds.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ms_per_sample: Option<f64>,
 }
 
 /// Named f32 arrays with shapes.
@@ -182,100 +287,71 @@ pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
     Ok((meta, tensors))
 }
 
-/// Writes a model directory atomically: a temporary sibling is written and fsynced, then swapped
-/// in; an existing model at `dir` is replaced only once the new one is complete.
-pub fn save(dir: &Path, meta: &ModelMeta, tensors: &Tensors) -> Result<()> {
-    let parent = dir
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .to_path_buf();
-    fs::create_dir_all(&parent).map_err(|e| Error::io(&parent, "create folder", e))?;
-    let name = dir
-        .file_name()
-        .ok_or_else(|| {
-            Error::Input(format!(
-                "{}: not a usable model directory name",
+/// Checks, before any work, that a model may be written at `dir`: nothing is there, an empty
+/// folder, or a model directory (a folder holding only [`META_FILE`] and [`WEIGHTS_FILE`], with a
+/// `format_version` in its metadata). Anything else (a regular file, a folder of other things,
+/// a dataset setup) is an input error naming it, so that nothing but a model is ever replaced.
+/// The folder that will hold `dir` must be writable.
+pub fn check_output(dir: &Path) -> Result<()> {
+    let refuse = |what: &str| {
+        Err(Error::Input(format!(
+            "{}: {what}; only a model directory ({META_FILE} + {WEIGHTS_FILE}) is ever replaced: \
+             choose another --out or move it away",
+            dir.display()
+        )))
+    };
+    match fs::symlink_metadata(dir) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
+            return Err(Error::Input(format!(
+                "{}: a folder on this path is a file; choose another --out",
                 dir.display()
-            ))
-        })?
-        .to_string_lossy()
-        .into_owned();
-    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
-    let result = write_into(&tmp, meta, tensors).and_then(|()| swap_in(&tmp, dir, &parent, &name));
+            )));
+        }
+        Err(e) => return Err(Error::io(dir, "inspect the output path", e)),
+        Ok(m) if m.file_type().is_symlink() => return refuse("is a symbolic link"),
+        Ok(m) if !m.is_dir() => return refuse("is a file, not a model directory"),
+        Ok(_) => {
+            let entries = fs::read_dir(dir).map_err(|e| Error::io(dir, "list", e))?;
+            let mut names = Vec::new();
+            for entry in entries {
+                let entry = entry.map_err(|e| Error::io(dir, "list", e))?;
+                names.push(entry.file_name().to_string_lossy().into_owned());
+            }
+            if let Some(other) = names.iter().find(|n| *n != META_FILE && *n != WEIGHTS_FILE) {
+                return refuse(&format!("holds `{other}`, so it is not a model directory"));
+            }
+            if !names.is_empty() && !is_model_meta(&dir.join(META_FILE)) {
+                return refuse(&format!("has no readable {META_FILE} with a format_version"));
+            }
+        }
+    }
+    crate::files::check_writable(dir)
+}
+
+/// Whether `path` is a compend model's metadata file (JSON with a `format_version`).
+fn is_model_meta(path: &Path) -> bool {
+    fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .is_some_and(|v| v.get("format_version").is_some_and(|v| v.is_u64()))
+}
+
+/// Writes a model directory atomically: the new directory is written complete and fsynced
+/// beside `dir` (`.NAME.tmp-PID`), then exchanged with the old one in one step, so `dir` always
+/// holds a complete model ([`crate::files::swap_in_dir`]). What is at `dir` is checked first
+/// ([`check_output`]): only a model directory is replaced. Leftovers of killed saves are removed.
+pub fn save(dir: &Path, meta: &ModelMeta, tensors: &Tensors) -> Result<()> {
+    check_output(dir)?;
+    let weights = tensors.to_bytes()?;
+    let json = serde_json::to_vec_pretty(meta)
+        .map_err(|e| Error::Failed(format!("model metadata: {e}")))?;
+    let tmp = crate::files::temp_dir_for(dir)?;
+    let result = crate::files::write_synced(&tmp.join(WEIGHTS_FILE), &weights)
+        .and_then(|()| crate::files::write_synced(&tmp.join(META_FILE), &json))
+        .and_then(|()| crate::files::swap_in_dir(&tmp, dir));
     if result.is_err() {
         let _ = fs::remove_dir_all(&tmp);
     }
     result
-}
-
-fn write_into(tmp: &Path, meta: &ModelMeta, tensors: &Tensors) -> Result<()> {
-    if tmp.exists() {
-        fs::remove_dir_all(tmp).map_err(|e| Error::io(tmp, "remove stale temporary model", e))?;
-    }
-    fs::create_dir_all(tmp).map_err(|e| Error::io(tmp, "create", e))?;
-    write_synced(&tmp.join(WEIGHTS_FILE), &tensors.to_bytes()?)?;
-    let json = serde_json::to_vec_pretty(meta)
-        .map_err(|e| Error::Failed(format!("model metadata: {e}")))?;
-    write_synced(&tmp.join(META_FILE), &json)?;
-    sync_dir(tmp);
-    Ok(())
-}
-
-fn swap_in(tmp: &Path, dir: &Path, parent: &Path, name: &str) -> Result<()> {
-    let old: Option<PathBuf> = if dir.exists() {
-        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-        fs::rename(dir, &old).map_err(|e| Error::io(dir, "move the previous model aside", e))?;
-        Some(old)
-    } else {
-        None
-    };
-    if let Err(e) = fs::rename(tmp, dir) {
-        if let Some(old) = &old {
-            let _ = fs::rename(old, dir); // put the previous model back
-        }
-        return Err(Error::io(dir, "move the new model into place", e));
-    }
-    sync_dir(parent);
-    if let Some(old) = old {
-        let _ = fs::remove_dir_all(old);
-    }
-    Ok(())
-}
-
-/// Writes one file atomically: a temporary sibling is written and fsynced, then renamed over
-/// `path`, so a reader (or a crash) never sees a half-written file where a good one was.
-pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    let parent = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    fs::create_dir_all(parent).map_err(|e| Error::io(parent, "create folder", e))?;
-    let name = path
-        .file_name()
-        .ok_or_else(|| Error::Input(format!("{}: not a usable file name", path.display())))?
-        .to_string_lossy()
-        .into_owned();
-    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
-    let result = write_synced(&tmp, bytes)
-        .and_then(|()| fs::rename(&tmp, path).map_err(|e| Error::io(path, "move into place", e)));
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    } else {
-        sync_dir(parent);
-    }
-    result
-}
-
-fn write_synced(path: &Path, bytes: &[u8]) -> Result<()> {
-    let mut f = fs::File::create(path).map_err(|e| Error::io(path, "create", e))?;
-    f.write_all(bytes)
-        .map_err(|e| Error::io(path, "write", e))?;
-    f.sync_all().map_err(|e| Error::io(path, "sync", e))
-}
-
-fn sync_dir(dir: &Path) {
-    if let Ok(d) = fs::File::open(dir) {
-        let _ = d.sync_all();
-    }
 }

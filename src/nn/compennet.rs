@@ -1,4 +1,5 @@
-//! CompenNet (the photometric part `F†` of CompenNet++, DESIGN.md section 5.2) in candle.
+//! CompenNet (the photometric part `F†` of CompenNet++, docs/architecture.md, "Models") in
+//! candle.
 //!
 //! Input: the (warped) capture `x` (N, 3, H, W) in network space and the (warped) surface image
 //! `s` (1 or N, 3, H, W); output: the projector image in [0, 1], same size. H and W must be
@@ -85,7 +86,7 @@ impl Module for Skip1 {
 }
 
 /// The backbone: encoder with surface features added, decoder with skips. Its layers are public
-/// so that other executors (the GPU pass, [`crate::gpu`]) can read the weights.
+/// so that other executors (the GPU compensation pass) can read the weights.
 #[derive(Clone, Debug)]
 pub struct Backbone {
     pub skip1: Skip1,
@@ -174,7 +175,7 @@ impl CompenNet {
 }
 
 /// Multiply-accumulates of one backbone pass (the simplified network's per-frame work) on an
-/// `h`×`w` input with base width `c`, counted layer by layer from the table in DESIGN.md 5.2:
+/// `h`×`w` input with base width `c`, counted layer by layer from [`Backbone`]'s layers:
 /// 3.22 GMAC at 256² and the paper's width.
 pub fn backbone_macs(h: usize, w: usize, c: usize) -> f64 {
     let full = (h * w) as f64;

@@ -1,7 +1,7 @@
-//! Training losses in candle with the conventions of [`crate::metrics`] (DESIGN.md section 6):
-//! SSIM with an 11-tap Gaussian window (σ 1.5), replicate padding, C1 = 0.01², C2 = 0.03², per
-//! channel, averaged over pixels, channels and images — differentiable, so the training loss
-//! `L1 + (1 − SSIM)` optimises exactly what `compend eval` reports.
+//! Training losses in candle with the conventions of [`crate::metrics`] (docs/architecture.md,
+//! "Models"): SSIM with an 11-tap Gaussian window (σ 1.5), replicate padding, C1 = 0.01²,
+//! C2 = 0.03², per channel, averaged over pixels, channels and images — differentiable, so the
+//! training loss `L1 + (1 − SSIM)` optimises exactly what `compend eval` reports. Images in [0, 1].
 
 use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor, WithDType, bail};
 use rayon::prelude::*;

@@ -1,12 +1,21 @@
-//! Neural-network building blocks in candle for the learned models (CompenNet++ family).
+//! Neural-network building blocks in candle for the learned models (CompenNet++ family,
+//! docs/architecture.md, "Models").
 //!
 //! Tensors are NCHW, f32 (f64 works too, for gradient checks); images in [0,1] as in the core.
+//!
+//! Files, each importing only those listed before it: `layers` (convolution constructors and the
+//! seeded variable store), `conv` (the CPU convolution and ReLU ops), `grid_sample`, `loss`,
+//! `optim` (Adam, the L2 term, the divergence check), `warpingnet`, `compennet`, `compennetpp`
+//! (the model, its variants and one step's gradients), `pretrain` (CompenNet's photometric
+//! pre-initialisation), `train` (the training loop).
 
 pub mod compennet;
+pub mod compennetpp;
 pub mod conv;
 pub mod grid_sample;
 pub mod layers;
 pub mod loss;
+pub mod optim;
 pub mod pretrain;
 pub mod train;
 pub mod warpingnet;

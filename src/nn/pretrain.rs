@@ -1,6 +1,6 @@
-//! The photometric pre-initialisation of CompenNet (DESIGN.md section 5.2): CompenNet trained once,
-//! independent of any setup and with no projection, on synthetic pairs — input `|x − 0.3·ṡ|`,
-//! surface image `ṡ`, target `x` — where `x` and `ṡ` are colourful sampling images
+//! The photometric pre-initialisation of CompenNet (docs/architecture.md, "Models"): CompenNet
+//! trained once, independent of any setup and with no projection, on synthetic pairs — input
+//! `|x − 0.3·ṡ|`, surface image `ṡ`, target `x` — where `x` and `ṡ` are colourful sampling images
 //! ([`crate::patterns::sampling`]) from their own random streams. Every CompenNet++ training then
 //! starts its photometric part from these weights instead of Kaiming noise, so the few samples a
 //! CPU can afford go into the setup rather than into learning that the output should resemble the
@@ -16,12 +16,15 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use candle_core::{DType, Device, Tensor};
-use candle_nn::{Optimizer, VarBuilder, VarMap};
+use candle_nn::{Optimizer, VarMap};
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
 
-use super::{CompenNet, loss};
+use super::compennet::CompenNet;
+use super::layers::SeededInit;
+use super::loss;
+use super::optim::{adam, check_loss, l2_penalty};
 use crate::error::{Error, Result};
 use crate::model::store::Tensors;
 use crate::patterns::sampling::{Set, sampling_image};
@@ -32,7 +35,8 @@ pub const PREFIX: &str = "compen";
 pub const FORMAT_VERSION: u32 = 1;
 /// What the JSON file beside the weights says it is.
 pub const KIND: &str = "compennet-photometric-pretrain";
-/// Weight of the synthetic surface in the input `|x − SURFACE_WEIGHT·ṡ|` (DESIGN.md 5.2).
+/// Weight of the synthetic surface in the input `|x − SURFACE_WEIGHT·ṡ|` (docs/architecture.md,
+/// "Models"); images in [0, 1].
 pub const SURFACE_WEIGHT: f64 = 0.3;
 
 /// Settings of one pre-training run.
@@ -227,10 +231,10 @@ impl Pretrained {
     /// Writes the weights to `path` and the metadata beside it, each file atomically (the
     /// metadata last, so a crash in between leaves no JSON claiming new weights).
     pub fn save(&self, path: &Path) -> Result<()> {
-        crate::model::store::write_file_atomically(path, &self.tensors.to_bytes()?)?;
+        crate::files::write_atomically(path, &self.tensors.to_bytes()?)?;
         let json = serde_json::to_vec_pretty(&self.meta)
             .map_err(|e| Error::Failed(format!("pre-training metadata: {e}")))?;
-        crate::model::store::write_file_atomically(&meta_path(path), &json)
+        crate::files::write_atomically(&meta_path(path), &json)
     }
 
     /// Sets every CompenNet variable of `varmap` (names `compen.…`) from these weights. Every
@@ -251,9 +255,7 @@ impl Pretrained {
             Tensor::from_vec(values.to_vec(), dims, var.device())
                 .and_then(|t| t.to_dtype(var.dtype()))
                 .and_then(|t| var.set(&t))
-                .map_err(|e| {
-                    Error::Failed(format!("setting `{name}` from {}: {e}", self.source))
-                })?;
+                .map_err(|e| e.context(format!("setting `{name}` from {}", self.source)))?;
             set += 1;
         }
         if set == 0 {
@@ -295,9 +297,7 @@ impl Pool {
                     ),
                 })
                 .collect();
-            super::images_to_tensor(&imgs)
-                .and_then(|t| t.to_device(device))
-                .map_err(|e| Error::Failed(format!("pre-training images: {e}")))
+            Ok(super::images_to_tensor(&imgs)?.to_device(device)?)
         };
         Ok(Self {
             content: make(Set::Train)?,
@@ -349,14 +349,13 @@ pub fn pretrain(
 ) -> Result<Pretrained> {
     settings.validate()?;
     let start = Instant::now();
-    let ce = |e: candle_core::Error| Error::Failed(format!("CompenNet pre-training: {e}"));
     let pool = Pool::new(settings, device)?;
-    let varmap = VarMap::new();
-    let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
-    let net = CompenNet::with_width(vb.pp(PREFIX), settings.width).map_err(ce)?;
-    super::layers::seeded_init(&varmap, settings.seed).map_err(ce)?;
+    let seeded = SeededInit::new(settings.seed);
+    let vb = seeded.var_builder(DType::F32, device);
+    let net = CompenNet::with_width(vb.pp(PREFIX), settings.width)?;
+    let varmap = seeded.finish()?;
     let vars = varmap.all_vars();
-    let mut opt = super::train::adam(vars.clone(), settings.learning_rate).map_err(ce)?;
+    let mut opt = adam(vars.clone(), settings.learning_rate)?;
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
     let mut losses = Vec::with_capacity(settings.iters);
     let window = settings.iters.min(50);
@@ -371,47 +370,21 @@ pub fn pretrain(
         if it == settings.lr_step {
             opt.set_learning_rate(settings.learning_rate * 0.2);
         }
-        let (x, s, y) = pool.batch(settings, &mut rng).map_err(ce)?;
+        let (x, s, y) = pool.batch(settings, &mut rng)?;
         if it >= settings.iters - window {
-            let as_is = loss::l1_ssim(&x, &y)
-                .and_then(|t| t.to_dtype(DType::F64))
-                .and_then(|t| t.to_scalar::<f64>())
-                .map_err(ce)?;
-            input_losses.push(as_is);
+            input_losses.push(to_f64(&loss::l1_ssim(&x, &y)?)?);
         }
-        let out = net.forward(&x, &s).map_err(ce)?;
-        let fit = loss::l1_ssim(&out, &y).map_err(ce)?;
-        let total = (&fit
-            + super::train::l2_penalty(&vars, device)?
-                .affine(0.5 * settings.weight_decay, 0.0)
-                .map_err(ce)?)
-        .map_err(ce)?;
-        let value: f64 = fit
-            .to_dtype(DType::F64)
-            .and_then(|t| t.to_scalar())
-            .map_err(ce)?;
-        super::train::check_loss(value, it, &losses)?;
+        let out = net.forward(&x, &s)?;
+        let fit = loss::l1_ssim(&out, &y)?;
+        let l2 = l2_penalty(&vars, device)?.affine(0.5 * settings.weight_decay, 0.0)?;
+        let total = (&fit + l2)?;
+        let value = to_f64(&fit)?;
+        check_loss(value, it, &losses)?;
         losses.push(value);
-        opt.backward_step(&total).map_err(ce)?;
+        opt.backward_step(&total)?;
         progress(it + 1, settings.iters, value);
     }
     let mean = |s: &[f64]| s.iter().sum::<f64>() / s.len().max(1) as f64;
-    let mut tensors = Tensors::default();
-    let data = varmap
-        .data()
-        .lock()
-        .map_err(|_| Error::Failed("variable map lock poisoned".into()))?;
-    let mut names: Vec<&String> = data.keys().collect();
-    names.sort();
-    for name in names {
-        let t = data[name].as_tensor();
-        let values = t
-            .flatten_all()
-            .and_then(|t| t.to_dtype(DType::F32))
-            .and_then(|t| t.to_vec1::<f32>())
-            .map_err(ce)?;
-        tensors.insert(name, t.dims().to_vec(), values)?;
-    }
     Ok(Pretrained {
         meta: PretrainMeta {
             format_version: FORMAT_VERSION,
@@ -423,9 +396,31 @@ pub fn pretrain(
             seconds: start.elapsed().as_secs_f64(),
             written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
         },
-        tensors,
+        tensors: weight_tensors(&varmap)?,
         source: "pre-training run".to_string(),
     })
+}
+
+/// A scalar tensor's value as f64.
+fn to_f64(t: &Tensor) -> candle_core::Result<f64> {
+    t.to_dtype(DType::F64)?.to_scalar::<f64>()
+}
+
+/// Every variable of `varmap` as f32 values under its name, in name order.
+fn weight_tensors(varmap: &VarMap) -> Result<Tensors> {
+    let mut tensors = Tensors::default();
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| Error::Failed("variable map lock poisoned".into()))?;
+    let mut names: Vec<&String> = data.keys().collect();
+    names.sort();
+    for name in names {
+        let t = data[name].as_tensor();
+        let values = t.flatten_all()?.to_dtype(DType::F32)?.to_vec1::<f32>()?;
+        tensors.insert(name, t.dims().to_vec(), values)?;
+    }
+    Ok(tensors)
 }
 
 /// How a CompenNet++ model's photometric part (CompenNet) starts.

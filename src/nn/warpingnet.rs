@@ -1,6 +1,7 @@
-//! WarpingNet (the geometric part `T⁻¹` of CompenNet++, DESIGN.md section 5.1) in candle: the
-//! affine θ and the TPS parameters as learnable variables, composed in coordinate space exactly as
-//! [`crate::warp`] does on the CPU, plus the optional refinement CNN on the 2-channel grid.
+//! WarpingNet (the geometric part `T⁻¹` of CompenNet++, docs/architecture.md, "Models") in
+//! candle: the affine θ and the TPS parameters as learnable variables, composed in coordinate
+//! space exactly as [`crate::warp`] does on the CPU, plus the optional refinement CNN on the
+//! 2-channel grid. Grids hold normalised camera coordinates in [-1, 1] for network pixels.
 //!
 //! Composition: `g = θ · [t, 1]` with `t` the TPS positions. Sampling the camera-resolution affine
 //! grid at `t` (the paper's formulation) gives the same values wherever `t` lies inside [-1, 1];

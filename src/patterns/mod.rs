@@ -1,8 +1,8 @@
-//! Projector-side images of a dataset (DESIGN.md section 3): the sampling images of `train/` and
-//! `test/`, the reference images of `ref/` (5×5×5 colour cube and the gray image `x0`), and the
-//! Gray-code structured light of `sl/` with its decoder.
+//! Projector-side images of a dataset (docs/architecture.md, "Dataset layout"): the sampling
+//! images of `train/` and `test/`, the reference images of `ref/` (5×5×5 colour cube and the gray
+//! image `x0`), and the Gray-code structured light of `sl/` with its decoder.
 //!
-//! Everything here is in projector space (`Rgb<Projector>`), RGB in [0,1], and deterministic: the
+//! Everything here is in projector space (`Rgb<Projector>`), RGB in \[0,1\], and deterministic: the
 //! sampling images from `(seed, set, index)`, the rest from their parameters alone. Sampling and
 //! reference images are generated at network size (the dataset stores them so); structured light
 //! at projector resolution.

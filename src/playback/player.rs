@@ -1,9 +1,9 @@
-//! Playback: a source's frames through the compensation pass to a display, with the frame
-//! accounting of DESIGN.md section 1 (playback) and issue 6:
+//! The one playback loop (docs/architecture.md, "Playback"): a source's frames through the
+//! compensation pass to a display, paced at the display's refresh, with the frame accounting:
 //!
 //! - a *refresh* is one display period (vsync on the projector window, `1/fps` of real time on
-//!   the virtual rig); at each refresh the player takes the newest frame from the source's
-//!   [`Feed`] without waiting, runs the pass on it and presents the result;
+//!   the virtual rig and with no display); at each refresh the loop takes the newest frame from
+//!   the source's [`Feed`] without waiting, runs the pass on it and presents the result;
 //! - `held`: refreshes with no new frame (the source is slower than the display): the last frame
 //!   stays on screen;
 //! - `dropped_source`: frames the source delivered that were replaced by a newer one before a
@@ -11,22 +11,31 @@
 //! - `dropped_pipeline`: refreshes the pipeline missed because its work for the previous refresh
 //!   was not done in time (the display repeated a frame although a new one was being processed).
 //!
-//! On the virtual rig ([`play_virtual`]) the simulated camera runs on its own thread, as a real
-//! camera would, so its simulation cost does not count against the pipeline.
+//! With `--pace source` ([`FeedMode::Queue`]) every source frame is shown once and nothing is
+//! dropped: a display with a refresh of its own (the window) still presents at its vsync; one
+//! without (the virtual rig) has no clock at all, and a refresh is a frame.
+//!
+//! Displays are [`Screen`]s: the projector window (`crate::window::ProjectorWindow`), a
+//! [`DisplaySink`] watched by a [`FrameSource`] on a thread of their own ([`WatchedSink`]: the
+//! virtual rig's projector and camera, whose simulation cost does not count against the
+//! pipeline), and no display at all ([`Headless`], for benchmarks). [`Player::start`] builds the
+//! pipeline for a model and a display; [`Player::run`] plays it.
 
 use std::sync::mpsc;
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
+use crate::fov::DisplayRange;
 use crate::gpu::{CompensationPass, GpuContext};
-use crate::raster::CamImage;
-use crate::rig::VirtualRig;
-use crate::source::{Feed, FeedMode, Poll};
+use crate::model::Model;
+use crate::raster::{CamImage, ImageSize, PrjImage};
+use crate::source::{Feed, FeedMode, Poll, VideoSource};
 
-/// Counts and timings of one playback.
+/// Counts and timings of one playback (`play.json`).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct PlayStats {
     /// What was played.
@@ -45,7 +54,9 @@ pub struct PlayStats {
     pub dropped_source: u64,
     /// Refreshes missed because the pipeline was late.
     pub dropped_pipeline: u64,
-    /// Mean wall time per shown frame of upload + pass (+ read-back on the virtual rig), ms.
+    /// Mean wall time per shown frame, ms: upload + pass + what the display does with a new
+    /// frame (presenting on the window, reading back on the virtual rig, waiting for the GPU with
+    /// no display).
     pub pipeline_ms_mean: f64,
     /// Worst of the same, ms.
     pub pipeline_ms_max: f64,
@@ -53,34 +64,96 @@ pub struct PlayStats {
     pub camera_views: u64,
     /// Camera views skipped because the simulated camera fell behind (live pacing only).
     pub camera_views_skipped: u64,
-    /// Wall time of the playback, s.
+    /// Wall time of the playback loop, s.
     pub seconds: f64,
+}
+
+/// How a display refreshes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Refresh {
+    /// Its own vertical sync at this rate, Hz: presenting waits for a free refresh. A display
+    /// someone watches (the projector window): a still image stays on it until it is closed.
+    Vsync(f64),
+    /// No refresh of its own: in live pacing the loop keeps time at this rate, Hz; in offline
+    /// pacing there is no clock. A simulated or absent display: playback ends with the source.
+    Timer(f64),
+}
+
+impl Refresh {
+    fn hz(self) -> f64 {
+        match self {
+            Refresh::Vsync(hz) | Refresh::Timer(hz) => hz,
+        }
+    }
+}
+
+/// What a refresh presents.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Show {
+    /// A new frame: its source sequence number (from 1) and its index among the frames shown
+    /// (from 1).
+    New { seq: u64, index: u64 },
+    /// The last frame again: nothing new arrived for this refresh.
+    Again,
+}
+
+/// A display the playback loop drives.
+pub trait Screen {
+    /// The GPU device the pass runs on (the window's: one that can present to it).
+    fn context(&self) -> &GpuContext;
+
+    /// How the display refreshes.
+    fn refresh(&self) -> Refresh;
+
+    /// Called once before the first refresh. `live`: real-time pacing, where a display may skip
+    /// what it cannot keep up with; otherwise offline, where every frame counts.
+    fn begin(&mut self, live: bool) -> Result<()> {
+        let _ = live;
+        Ok(())
+    }
+
+    /// Called before each refresh: lets the display catch up (the window handles its events,
+    /// [`WatchedSink`] hands its thread a frame it had no room for) and says whether playback
+    /// goes on (false once the window was closed).
+    fn keep_going(&mut self) -> bool {
+        true
+    }
+
+    /// Puts the pass's output on the display; for [`Show::New`] the pass was just submitted
+    /// with a new frame, and the time from its upload to the end of this call is the frame's
+    /// pipeline time.
+    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()>;
+
+    /// Called once after the last refresh, also when playback failed: the display's own counts
+    /// go into `stats` (camera views).
+    fn finish(&mut self, stats: &mut PlayStats) -> Result<()> {
+        let _ = stats;
+        Ok(())
+    }
 }
 
 /// Deadline accounting for a display paced at `period`: call [`Clock::finish`] after each
 /// refresh's work; it sleeps to the next refresh or reports how many were missed.
 #[derive(Debug)]
-pub struct Clock {
+struct Clock {
     period: Duration,
     next: Instant,
 }
 
 impl Clock {
-    pub fn new(period: Duration) -> Self {
+    fn new(period: Duration) -> Self {
         Self {
             period,
             next: Instant::now() + period,
         }
     }
 
-    /// Ends a refresh whose work is done now: waits for the refresh instant when early (if
-    /// `sleep`), and returns the number of refresh instants missed when late.
-    pub fn finish(&mut self, sleep: bool) -> u64 {
+    /// Ends a refresh whose work is done now: waits for the refresh instant when early, and
+    /// returns the number of refresh instants missed when late.
+    fn finish(&mut self) -> u64 {
         let now = Instant::now();
         if now <= self.next {
-            if sleep {
-                std::thread::sleep(self.next - now);
-            }
+            std::thread::sleep(self.next - now);
             self.next += self.period;
             return 0;
         }
@@ -91,9 +164,63 @@ impl Clock {
     }
 }
 
-/// What one refresh did.
+/// Ends each refresh at the display's pace and counts the refreshes the pipeline missed.
+struct Pacer {
+    refresh: Refresh,
+    live: bool,
+    clock: Clock,
+    /// End of the previous refresh (vsync displays).
+    last: Option<Instant>,
+}
+
+impl Pacer {
+    fn new(refresh: Refresh, live: bool) -> Self {
+        Self {
+            refresh,
+            live,
+            clock: Clock::new(Duration::from_secs_f64(1.0 / refresh.hz())),
+            last: None,
+        }
+    }
+
+    /// Offline pacing on a display without a refresh of its own: only frames are refreshes.
+    fn frames_only(&self) -> bool {
+        matches!(self.refresh, Refresh::Timer(_)) && !self.live
+    }
+
+    /// Ends a refresh (`presented`: whether it presented anything); returns the refreshes the
+    /// pipeline missed before it, counted in live pacing only.
+    fn end_refresh(&mut self, presented: bool) -> u64 {
+        match self.refresh {
+            Refresh::Timer(_) if self.live => self.clock.finish(),
+            Refresh::Timer(_) => 0,
+            Refresh::Vsync(_) => {
+                let period = self.clock.period;
+                if !presented {
+                    // Nothing to present yet: let one refresh go by.
+                    std::thread::sleep(period);
+                }
+                let now = Instant::now();
+                match self.last.replace(now) {
+                    // A refresh that took longer than 1.5 periods: the display repeated a frame.
+                    Some(prev) if self.live => {
+                        let periods = (now - prev).as_secs_f64() / period.as_secs_f64();
+                        if periods > 1.5 {
+                            (periods.round() as u64).saturating_sub(1)
+                        } else {
+                            0
+                        }
+                    }
+                    _ => 0,
+                }
+            }
+        }
+    }
+}
+
+/// What the feed had for one refresh.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Step {
+enum Step {
     /// A new frame (source sequence number) was compensated and submitted.
     New(u64),
     /// Nothing new: the last frame stays.
@@ -102,15 +229,32 @@ pub enum Step {
     Ended,
 }
 
-/// The pass fed by a source.
+/// The compensation pass fed by a source: one playback.
 pub struct Player {
     pub pass: CompensationPass,
     pub feed: Feed,
-    pub stats: PlayStats,
+    stats: PlayStats,
+    /// Sum of the pipeline times of the frames shown, s.
     pipeline_total: f64,
 }
 
 impl Player {
+    /// The pipeline for `model` on a display of `display` projector pixels, content values
+    /// mapped into `range`: the pass built on `ctx` ([`CompensationPass::for_display`]), fed by
+    /// `source` on its own thread in `mode`.
+    pub fn start(
+        ctx: &GpuContext,
+        model: &Model,
+        display: ImageSize,
+        range: DisplayRange,
+        source: Box<dyn VideoSource>,
+        mode: FeedMode,
+    ) -> Result<Self> {
+        let pass = CompensationPass::for_display(ctx, model, display, range)?;
+        Ok(Self::new(pass, Feed::spawn(source, mode)?))
+    }
+
+    /// A player of `pass` fed by `feed`.
     pub fn new(pass: CompensationPass, feed: Feed) -> Self {
         let stats = PlayStats {
             source: feed.describe().to_string(),
@@ -124,35 +268,117 @@ impl Player {
         }
     }
 
-    /// One refresh: takes the newest frame (waiting up to `wait` for one; zero = never wait),
-    /// uploads it and submits the pass. Counts the refresh.
-    pub fn step(&mut self, ctx: &GpuContext, wait: Duration) -> Result<Step> {
+    /// The counts so far.
+    pub fn stats(&self) -> &PlayStats {
+        &self.stats
+    }
+
+    /// Plays on `screen` until the source ends (a still image on a display without vsync: after
+    /// its frame), `refreshes` refreshes were played, or the screen is closed; returns the
+    /// counts.
+    pub fn run<S: Screen + ?Sized>(
+        &mut self,
+        screen: &mut S,
+        refreshes: Option<u64>,
+    ) -> Result<PlayStats> {
+        let refresh = screen.refresh();
+        let hz = refresh.hz();
+        if !(hz.is_finite() && hz > 0.0) {
+            return Err(Error::Input(format!(
+                "display refresh rate must be positive, got {hz} Hz"
+            )));
+        }
+        let start = Instant::now();
+        let live = self.feed.mode() == FeedMode::Latest;
+        self.stats.refresh_hz = match refresh {
+            Refresh::Timer(_) if !live => 0.0,
+            _ => hz,
+        };
+        screen.begin(live)?;
+        let played = self.play(screen, refreshes, Pacer::new(refresh, live));
+        let finished = screen.finish(&mut self.stats);
+        played?;
+        finished?;
+        self.count_feed();
+        self.stats.seconds = start.elapsed().as_secs_f64();
+        Ok(self.stats.clone())
+    }
+
+    /// The refreshes.
+    fn play<S: Screen + ?Sized>(
+        &mut self,
+        screen: &mut S,
+        refreshes: Option<u64>,
+        mut pacer: Pacer,
+    ) -> Result<()> {
+        // Offline: wait for the source, in slices so that a stalled source can still end.
+        let wait = if pacer.live {
+            Duration::ZERO
+        } else {
+            Duration::from_millis(100)
+        };
+        let holds_stills = matches!(pacer.refresh, Refresh::Vsync(_)) && !self.feed.ends_playback();
+        while screen.keep_going() && refreshes.is_none_or(|n| self.stats.refreshes < n) {
+            let t = Instant::now();
+            let presented = match self.next(screen.context(), wait)? {
+                Step::New(seq) => {
+                    self.stats.refreshes += 1;
+                    self.stats.shown += 1;
+                    let index = self.stats.shown;
+                    screen.present(&self.pass, Show::New { seq, index })?;
+                    self.record_pipeline(t.elapsed().as_secs_f64());
+                    true
+                }
+                Step::Held if pacer.frames_only() => continue,
+                Step::Held => self.hold(screen)?,
+                // A still image on a watched display: keep it on screen.
+                Step::Ended if holds_stills => self.hold(screen)?,
+                Step::Ended => break,
+            };
+            self.stats.dropped_pipeline += pacer.end_refresh(presented);
+        }
+        Ok(())
+    }
+
+    /// Takes the newest frame (waiting up to `wait` for one; zero = never wait), uploads it and
+    /// submits the pass.
+    fn next(&mut self, ctx: &GpuContext, wait: Duration) -> Result<Step> {
         let poll = if wait.is_zero() {
             self.feed.poll()?
         } else {
             self.feed.wait(wait)?
         };
-        let fs = self.feed.stats();
-        self.stats.received = fs.received;
-        self.stats.dropped_source = fs.dropped;
+        self.count_feed();
         match poll {
             Poll::Frame { seq, frame } => {
                 self.pass.run(ctx, &frame)?;
-                self.stats.refreshes += 1;
-                self.stats.shown += 1;
                 Ok(Step::New(seq))
             }
-            Poll::Nothing => {
-                self.stats.refreshes += 1;
-                self.stats.held += 1;
-                Ok(Step::Held)
-            }
+            Poll::Nothing => Ok(Step::Held),
             Poll::Ended => Ok(Step::Ended),
         }
     }
 
-    /// Records the pipeline time of a shown frame.
-    pub fn record_pipeline(&mut self, seconds: f64) {
+    /// A refresh with no new frame: the last one stays, presented again where the display needs
+    /// that. Returns whether anything was presented.
+    fn hold<S: Screen + ?Sized>(&mut self, screen: &mut S) -> Result<bool> {
+        self.stats.refreshes += 1;
+        self.stats.held += 1;
+        if self.stats.shown == 0 {
+            return Ok(false);
+        }
+        screen.present(&self.pass, Show::Again)?;
+        Ok(true)
+    }
+
+    fn count_feed(&mut self) {
+        let fs = self.feed.stats();
+        self.stats.received = fs.received;
+        self.stats.dropped_source = fs.dropped;
+    }
+
+    /// Records the pipeline time of a shown frame, s.
+    fn record_pipeline(&mut self, seconds: f64) {
         self.pipeline_total += seconds;
         let ms = seconds * 1e3;
         self.stats.pipeline_ms_max = self.stats.pipeline_ms_max.max(ms);
@@ -160,135 +386,178 @@ impl Player {
     }
 }
 
-/// How the virtual rig plays.
-#[derive(Clone, Copy, Debug)]
-pub struct VirtualOptions {
-    /// Display refresh rate, Hz.
-    pub fps: f64,
-    /// Stop after this many refreshes.
-    pub refreshes: Option<u64>,
-    /// [`FeedMode::Latest`]: real-time pacing at `fps`, frames dropped and counted as they
-    /// would be live. [`FeedMode::Queue`]: every source frame shown once, as fast as the
-    /// pipeline goes (offline rendering; nothing dropped by construction).
-    pub mode: FeedMode,
+/// No display: each new frame's upload and pass are waited for on the GPU and nothing is
+/// presented, at `hz` in live pacing. This is the window's work per frame without the
+/// presentation, so its `dropped_pipeline` says whether the upload and the pass keep up with
+/// the display on this adapter, whatever a virtual rig's read-back to the CPU costs.
+pub struct Headless<'a> {
+    ctx: &'a GpuContext,
+    hz: f64,
 }
 
-/// Plays at `fps` with no display and no read-back: each refresh uploads the newest frame, runs
-/// the pass and waits until the GPU has finished it, then sleeps to the next refresh. This is the
-/// window's per-frame work without the presentation, so its `dropped_pipeline` says whether the
-/// upload and the pass keep up with the display on this adapter, whatever a virtual rig's
-/// read-back to the CPU costs. Ends when the source ends or after `refreshes`.
-pub fn play_headless(
-    ctx: &GpuContext,
-    player: &mut Player,
-    fps: f64,
-    refreshes: Option<u64>,
-) -> Result<PlayStats> {
-    let start = Instant::now();
-    player.stats.refresh_hz = fps;
-    let mut clock = Clock::new(Duration::from_secs_f64(1.0 / fps));
-    while refreshes.is_none_or(|n| player.stats.refreshes < n) {
-        let t = Instant::now();
-        match player.step(ctx, Duration::ZERO)? {
-            Step::New(_) => {
-                ctx.wait()?;
-                player.record_pipeline(t.elapsed().as_secs_f64());
-            }
-            Step::Held => {}
-            Step::Ended => break,
-        }
-        player.stats.dropped_pipeline += clock.finish(true);
+impl<'a> Headless<'a> {
+    pub fn new(ctx: &'a GpuContext, hz: f64) -> Self {
+        Self { ctx, hz }
     }
-    let fs = player.feed.stats();
-    player.stats.received = fs.received;
-    player.stats.dropped_source = fs.dropped;
-    player.stats.seconds = start.elapsed().as_secs_f64();
-    Ok(player.stats.clone())
 }
 
-/// A camera view of a shown frame: (source sequence number, shown index from 1, image).
+impl Screen for Headless<'_> {
+    fn context(&self) -> &GpuContext {
+        self.ctx
+    }
+
+    fn refresh(&self) -> Refresh {
+        Refresh::Timer(self.hz)
+    }
+
+    fn present(&mut self, _pass: &CompensationPass, show: Show) -> Result<()> {
+        match show {
+            Show::New { .. } => self.ctx.wait(),
+            Show::Again => Ok(()),
+        }
+    }
+}
+
+/// A camera view of a shown frame: (source sequence number, index among the frames shown from
+/// 1, the view in camera pixels).
 pub type ViewSink = Box<dyn FnMut(u64, u64, &CamImage) -> Result<()> + Send>;
 
-/// Plays on the virtual rig: each new compensated frame is read back (the rig is simulated on
-/// the CPU), shown on the rig's projector, and captured by its camera on a separate thread,
-/// which hands the camera view to `views`. Ends when the source ends (a still image: after its
-/// frame) or after `opts.refreshes`.
-pub fn play_virtual(
-    ctx: &GpuContext,
-    player: &mut Player,
-    rig: &VirtualRig,
-    opts: VirtualOptions,
+/// A shown frame on its way to the display thread: (sequence number, index, projector frame).
+type Item = (u64, u64, PrjImage);
+
+/// The display thread of a [`WatchedSink`]: its channel and the thread, which returns the
+/// number of views captured.
+struct Watcher {
+    tx: mpsc::SyncSender<Item>,
+    thread: JoinHandle<Result<u64>>,
+}
+
+/// A [`DisplaySink`] watched by a [`FrameSource`]: each new frame is read back from the GPU
+/// (part of its pipeline time) and handed to a thread of their own, which shows it on the sink,
+/// grabs the camera's next frame and passes it to a [`ViewSink`]; that thread's time does not
+/// count against the pipeline. The virtual rig's projector and camera (two clones of one
+/// [`crate::rig::VirtualRig`], set to deliver one exposure per shown frame), paced by a timer at
+/// `hz`. In live pacing a frame the thread has no room for is skipped and counted
+/// (`camera_views_skipped`); offline, the loop waits for the thread.
+pub struct WatchedSink<'a, D, C> {
+    ctx: &'a GpuContext,
+    hz: f64,
+    /// The devices and the view sink until [`Screen::begin`] moves them to their thread.
+    devices: Option<(D, C, ViewSink)>,
+    watcher: Option<Watcher>,
+    live: bool,
+    /// A frame the thread had no room for yet (offline pacing).
+    pending: Option<Item>,
+    skipped: u64,
+    /// The thread stopped taking frames (it failed; [`Screen::finish`] reports why).
+    closed: bool,
+}
+
+impl<'a, D, C> WatchedSink<'a, D, C>
+where
+    D: DisplaySink + Send + 'static,
+    C: FrameSource + Send + 'static,
+{
+    /// Frames of `ctx`'s passes shown on `display`, seen by `camera`, the views going to `views`.
+    pub fn new(ctx: &'a GpuContext, hz: f64, display: D, camera: C, views: ViewSink) -> Self {
+        Self {
+            ctx,
+            hz,
+            devices: Some((display, camera, views)),
+            watcher: None,
+            live: true,
+            pending: None,
+            skipped: 0,
+            closed: false,
+        }
+    }
+}
+
+/// The display thread's work: show each frame, grab a view, hand it on. Returns the views taken.
+fn watch(
+    rx: mpsc::Receiver<Item>,
+    mut display: impl DisplaySink,
+    mut camera: impl FrameSource,
     mut views: ViewSink,
-) -> Result<PlayStats> {
-    let start = Instant::now();
-    let live = opts.mode == FeedMode::Latest;
-    let (tx, rx) =
-        mpsc::sync_channel::<(u64, u64, crate::raster::PrjImage)>(if live { 8 } else { 1 });
-    let mut cam_rig = rig.clone();
-    let camera = std::thread::Builder::new()
-        .name("compend-virtual-camera".into())
-        .spawn(move || -> Result<u64> {
-            let mut n = 0;
-            for (seq, shown, frame) in rx {
-                cam_rig.show(&frame)?;
-                let view = cam_rig.grab()?;
-                views(seq, shown, &view.image)?;
-                n += 1;
-            }
-            Ok(n)
-        })
-        .map_err(|e| Error::Failed(format!("cannot start the virtual camera: {e}")))?;
-    player.stats.refresh_hz = if live { opts.fps } else { 0.0 };
-    let mut clock = Clock::new(Duration::from_secs_f64(1.0 / opts.fps));
-    let mut skipped = 0;
-    let result = (|| -> Result<()> {
-        while opts.refreshes.is_none_or(|n| player.stats.refreshes < n) {
-            let t = Instant::now();
-            // Offline: wait for the source (in slices, so a stalled source can still end).
-            let wait = if live {
-                Duration::ZERO
-            } else {
-                Duration::from_millis(100)
-            };
-            let step = player.step(ctx, wait)?;
-            match step {
-                Step::New(seq) => {
-                    let frame = player.pass.read_output(ctx)?;
-                    player.record_pipeline(t.elapsed().as_secs_f64());
-                    let item = (seq, player.stats.shown, frame);
-                    if live {
-                        if let Err(mpsc::TrySendError::Full(_)) = tx.try_send(item) {
-                            skipped += 1;
-                        }
-                    } else if tx.send(item).is_err() {
-                        break; // the camera thread failed; its error is reported below
-                    }
-                }
-                Step::Held if !live => {
-                    // Offline pacing: a refresh only counts with a frame.
-                    player.stats.refreshes -= 1;
-                    player.stats.held -= 1;
-                    continue;
-                }
-                Step::Held => {}
-                Step::Ended => break,
-            }
-            if live {
-                player.stats.dropped_pipeline += clock.finish(true);
-            }
+) -> Result<u64> {
+    let mut n = 0;
+    for (seq, index, frame) in rx {
+        display.show(&frame)?;
+        let view = camera.grab()?;
+        views(seq, index, &view.image)?;
+        n += 1;
+    }
+    Ok(n)
+}
+
+impl<D, C> Screen for WatchedSink<'_, D, C>
+where
+    D: DisplaySink + Send + 'static,
+    C: FrameSource + Send + 'static,
+{
+    fn context(&self) -> &GpuContext {
+        self.ctx
+    }
+
+    fn refresh(&self) -> Refresh {
+        Refresh::Timer(self.hz)
+    }
+
+    fn begin(&mut self, live: bool) -> Result<()> {
+        let (display, camera, views) = self
+            .devices
+            .take()
+            .ok_or_else(|| Error::Failed("a watched display plays only once".into()))?;
+        self.live = live;
+        let (tx, rx) = mpsc::sync_channel::<Item>(if live { 8 } else { 1 });
+        let thread = std::thread::Builder::new()
+            .name("compend-virtual-camera".into())
+            .spawn(move || watch(rx, display, camera, views))
+            .map_err(|e| Error::Failed(format!("cannot start the virtual camera: {e}")))?;
+        self.watcher = Some(Watcher { tx, thread });
+        Ok(())
+    }
+
+    fn keep_going(&mut self) -> bool {
+        if let (Some(item), Some(w)) = (self.pending.take(), &self.watcher)
+            && w.tx.send(item).is_err()
+        {
+            self.closed = true;
+        }
+        !self.closed
+    }
+
+    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
+        let Show::New { seq, index } = show else {
+            return Ok(()); // the sink keeps showing the last frame
+        };
+        let frame = pass.read_output(self.ctx)?;
+        let w = self
+            .watcher
+            .as_ref()
+            .ok_or_else(|| Error::Failed("a watched display presented before it began".into()))?;
+        match w.tx.try_send((seq, index, frame)) {
+            Ok(()) => {}
+            Err(mpsc::TrySendError::Full(_)) if self.live => self.skipped += 1,
+            Err(mpsc::TrySendError::Full(item)) => self.pending = Some(item),
+            Err(mpsc::TrySendError::Disconnected(_)) => self.closed = true,
         }
         Ok(())
-    })();
-    drop(tx);
-    let cam = camera
-        .join()
-        .map_err(|_| Error::Failed("the virtual camera thread panicked".into()))?;
-    result?;
-    player.stats.camera_views = cam?;
-    player.stats.camera_views_skipped = skipped;
-    let fs = player.feed.stats();
-    player.stats.received = fs.received;
-    player.stats.dropped_source = fs.dropped;
-    player.stats.seconds = start.elapsed().as_secs_f64();
-    Ok(player.stats.clone())
+    }
+
+    fn finish(&mut self, stats: &mut PlayStats) -> Result<()> {
+        let Some(Watcher { tx, thread }) = self.watcher.take() else {
+            return Ok(());
+        };
+        if let Some(item) = self.pending.take() {
+            let _ = tx.send(item); // a failed thread reports its error below
+        }
+        drop(tx);
+        let views = thread
+            .join()
+            .map_err(|_| Error::Failed("the virtual camera thread panicked".into()))??;
+        stats.camera_views = views;
+        stats.camera_views_skipped = self.skipped;
+        Ok(())
+    }
 }

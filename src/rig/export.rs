@@ -1,5 +1,5 @@
-//! Writing a simulated setup in the dataset layout (DESIGN.md section 3), so the offline
-//! commands and other tools (such as the official PyTorch code) can read it.
+//! Writing a simulated setup in the dataset layout (docs/architecture.md, "Dataset layout"), so
+//! the offline commands and other tools (such as the official PyTorch code) can read it.
 //!
 //! The projector-side images (`ROOT/train`, `test`, `ref`, `sl`) must already exist (`compend
 //! patterns` writes them); this module captures them on the rig exactly as stored (8-bit PNGs),
@@ -21,8 +21,7 @@ use crate::error::{Error, Result};
 use crate::fov;
 use crate::patterns::CUBE_COUNT;
 use crate::pngio;
-use crate::raster::{PrjImage, Rect, Rgb, Space};
-use crate::resize::resize_bilinear;
+use crate::raster::{PrjImage, Rect};
 
 /// Name of the file in the setup folder that records how the setup was simulated.
 pub const RIG_FILE: &str = "rig.json";
@@ -114,122 +113,169 @@ pub fn export_setup(
     let start = Instant::now();
     let net = root.network_size()?;
     let setup = Setup::create(root, setup)?;
-    let canvas = full_canvas(sim);
-    let psize = sim.projector_size();
+    let rig = Capturing {
+        sim,
+        root,
+        setup,
+        canvas: full_canvas(sim),
+        psize: sim.projector_size(),
+        net,
+        net_why: format!("the network size of {}", root.path().display()),
+    };
+    let nref = rig.references(opts.full_cube)?;
+    let nsl = if opts.structured_light && root.image_path(ProjectorSet::Sl, 1).is_file() {
+        rig.structured_light()?
+    } else {
+        0
+    };
+    rig.pairs(opts.ntrain, opts.ntest)?;
+    let (fov, area, range) = rig.desired(opts.ntest, opts.reachable_desired)?;
+
     let cam = sim.camera_size();
-    let net_why = format!("the network size of {}", root.path().display());
-
-    // A projector-side network-size image, as the projector shows it on the canvas.
-    let shown = |set: ProjectorSet, i: usize| -> Result<PrjImage> {
-        let p = root.image_path(set, i);
-        let img = pngio::read_rgb_sized::<crate::raster::Projector>(&p, net, &net_why)?;
-        crate::playback::place_on_canvas(&img, canvas, psize)
-    };
-
-    // References: black (cube 1), white (cube 125), optionally the rest of the cube; gray.
-    let cube: Vec<usize> = if opts.full_cube {
-        (1..=CUBE_COUNT).collect()
-    } else {
-        vec![Reference::Black.index(), Reference::White.index()]
-    };
-    cube.par_iter().try_for_each(|&i| -> Result<()> {
-        let cap = sim.capture(&shown(ProjectorSet::Ref, i)?, FRAMES_REF + i as u64)?;
-        setup.write_capture(CaptureSet::Ref, i, &cap).map(drop)
-    })?;
-    let gray_path = root.gray_input_path();
-    let gray = pngio::read_rgb_sized::<crate::raster::Projector>(&gray_path, net, &net_why)?;
-    let cap = sim.capture(
-        &crate::playback::place_on_canvas(&gray, canvas, psize)?,
-        FRAMES_REF + Reference::Gray.index() as u64,
-    )?;
-    setup.write_reference(Reference::Gray, &cap)?;
-
-    // Structured light at projector resolution, shown as is.
-    let mut nsl = 0;
-    if opts.structured_light && root.image_path(ProjectorSet::Sl, 1).is_file() {
-        nsl = root.count(ProjectorSet::Sl)?;
-        let why = format!("the projector size of scene {:?}", sim.scene().name);
-        (1..=nsl).into_par_iter().try_for_each(|i| -> Result<()> {
-            let p = root.image_path(ProjectorSet::Sl, i);
-            let img = pngio::read_rgb_sized(&p, psize, &why)?;
-            let cap = sim.capture(&img, FRAMES_SL + i as u64)?;
-            setup.write_capture(CaptureSet::Sl, i, &cap).map(drop)
-        })?;
-    }
-
-    // Training and test captures.
-    for (set, cset, n, base) in [
-        (
-            ProjectorSet::Train,
-            CaptureSet::Train,
-            opts.ntrain,
-            FRAMES_TRAIN,
-        ),
-        (
-            ProjectorSet::Test,
-            CaptureSet::Test,
-            opts.ntest,
-            FRAMES_TEST,
-        ),
-    ] {
-        let have = root.count(set)?;
-        if have < n {
-            return Err(Error::Input(format!(
-                "{}: {have} projector images, {n} requested",
-                root.dir(set).display()
-            )));
-        }
-        (1..=n).into_par_iter().try_for_each(|i| -> Result<()> {
-            let cap = sim.capture(&shown(set, i)?, base + i as u64)?;
-            setup.write_capture(cset, i, &cap).map(drop)
-        })?;
-    }
-
-    // FOV and displayable area from the captures, as a real setup finds them.
-    let black = setup.load_reference(Reference::Black)?;
-    let white = setup.load_reference(Reference::White)?;
-    let label = setup.capture_dir(CaptureSet::Ref).display().to_string();
-    let fov = fov::fov_mask(&black, &white, &label)?;
-    let aspect = canvas.width as f64 / canvas.height as f64;
-    let area = fov::displayable_area(&fov.mask, aspect)?;
-    let range = if opts.reachable_desired {
-        fov::display_range(&black, &white, area, DESIRED_RANGE_QUANTILE)?
-    } else {
-        fov::DisplayRange::FULL
-    };
-    (1..=opts.ntest)
-        .into_par_iter()
-        .try_for_each(|i| -> Result<()> {
-            let p = root.image_path(ProjectorSet::Test, i);
-            let img = pngio::read_rgb_sized::<crate::raster::Projector>(&p, net, &net_why)?;
-            let z = fov::place_in_area(&range.apply(&img), area, cam)?;
-            setup.write_desired(i, &z).map(drop)
-        })?;
-
     let frame = (cam.0 * cam.1) as f64;
     let record = RigRecord {
         scene: sim.scene().clone(),
         seed: sim.seed(),
         phase: sim.phase(),
-        canvas,
+        canvas: rig.canvas,
         displayable_area: area,
         desired_range: range,
         fov_coverage: fov.mask.count() as f64 / frame,
         true_fov_coverage: sim.lit_mask().count() as f64 / frame,
-        ref_captures: cube.len() + 1,
+        ref_captures: nref,
         sl_captures: nsl,
         train_captures: opts.ntrain,
         test_captures: opts.ntest,
     };
-    let path = setup.path().join(RIG_FILE);
-    let json = serde_json::to_string_pretty(&record)
-        .map_err(|e| Error::Failed(format!("{}: cannot encode the record: {e}", path.display())))?;
-    write_atomic(&path, json.as_bytes())?;
+    write_record(&rig.setup, &record)?;
     Ok(ExportSummary {
-        setup: setup.path().to_path_buf(),
+        setup: rig.setup.path().to_path_buf(),
         record,
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// The rig capturing the projector-side images of a data root into one setup.
+struct Capturing<'a> {
+    sim: &'a Simulator,
+    root: &'a DataRoot,
+    setup: Setup,
+    /// Where network-size images are stretched (projector pixels): the full frame.
+    canvas: Rect,
+    /// Projector size, (width, height) pixels.
+    psize: (usize, usize),
+    /// Network size of the root's images, (width, height) pixels, and why (for size errors).
+    net: (usize, usize),
+    net_why: String,
+}
+
+impl Capturing<'_> {
+    /// A projector-side network-size image, as the projector shows it on the canvas.
+    fn shown(&self, set: ProjectorSet, i: usize) -> Result<PrjImage> {
+        let p = self.root.image_path(set, i);
+        let img = pngio::read_rgb_sized::<crate::raster::Projector>(&p, self.net, &self.net_why)?;
+        crate::playback::place_on_canvas(&img, self.canvas, self.psize)
+    }
+
+    /// References: black (cube 1), white (cube 125), optionally the rest of the cube; gray.
+    /// Returns the number of reference captures written.
+    fn references(&self, full_cube: bool) -> Result<usize> {
+        let cube: Vec<usize> = if full_cube {
+            (1..=CUBE_COUNT).collect()
+        } else {
+            vec![Reference::Black.index(), Reference::White.index()]
+        };
+        cube.par_iter().try_for_each(|&i| -> Result<()> {
+            let cap = self
+                .sim
+                .capture(&self.shown(ProjectorSet::Ref, i)?, FRAMES_REF + i as u64)?;
+            self.setup.write_capture(CaptureSet::Ref, i, &cap).map(drop)
+        })?;
+        let gray_path = self.root.gray_input_path();
+        let gray =
+            pngio::read_rgb_sized::<crate::raster::Projector>(&gray_path, self.net, &self.net_why)?;
+        let cap = self.sim.capture(
+            &crate::playback::place_on_canvas(&gray, self.canvas, self.psize)?,
+            FRAMES_REF + Reference::Gray.index() as u64,
+        )?;
+        self.setup.write_reference(Reference::Gray, &cap)?;
+        Ok(cube.len() + 1)
+    }
+
+    /// Structured light at projector resolution, shown as is. Returns the number of patterns.
+    fn structured_light(&self) -> Result<usize> {
+        let nsl = self.root.count(ProjectorSet::Sl)?;
+        let why = format!("the projector size of scene {:?}", self.sim.scene().name);
+        (1..=nsl).into_par_iter().try_for_each(|i| -> Result<()> {
+            let p = self.root.image_path(ProjectorSet::Sl, i);
+            let img = pngio::read_rgb_sized(&p, self.psize, &why)?;
+            let cap = self.sim.capture(&img, FRAMES_SL + i as u64)?;
+            self.setup.write_capture(CaptureSet::Sl, i, &cap).map(drop)
+        })?;
+        Ok(nsl)
+    }
+
+    /// Training and test captures: the first `ntrain` and `ntest` images of the root.
+    fn pairs(&self, ntrain: usize, ntest: usize) -> Result<()> {
+        for (set, cset, n, base) in [
+            (ProjectorSet::Train, CaptureSet::Train, ntrain, FRAMES_TRAIN),
+            (ProjectorSet::Test, CaptureSet::Test, ntest, FRAMES_TEST),
+        ] {
+            let have = self.root.count(set)?;
+            if have < n {
+                return Err(Error::Input(format!(
+                    "{}: {have} projector images, {n} requested",
+                    self.root.dir(set).display()
+                )));
+            }
+            (1..=n).into_par_iter().try_for_each(|i| -> Result<()> {
+                let cap = self.sim.capture(&self.shown(set, i)?, base + i as u64)?;
+                self.setup.write_capture(cset, i, &cap).map(drop)
+            })?;
+        }
+        Ok(())
+    }
+
+    /// FOV and displayable area (camera pixels) from the captures, as a real setup finds them;
+    /// the first `ntest` test images placed in the area as desired images, scaled into the
+    /// display range when `reachable`.
+    fn desired(
+        &self,
+        ntest: usize,
+        reachable: bool,
+    ) -> Result<(fov::FovMask, Rect, fov::DisplayRange)> {
+        let setup = &self.setup;
+        let black = setup.load_reference(Reference::Black)?;
+        let white = setup.load_reference(Reference::White)?;
+        let label = setup.capture_dir(CaptureSet::Ref).display().to_string();
+        let fov = fov::fov_mask(&black, &white, &label)?;
+        let aspect = self.canvas.width as f64 / self.canvas.height as f64;
+        let area = fov::displayable_area(&fov.mask, aspect)?;
+        let range = if reachable {
+            fov::display_range(&black, &white, area, DESIRED_RANGE_QUANTILE)?
+        } else {
+            fov::DisplayRange::FULL
+        };
+        let cam = self.sim.camera_size();
+        (1..=ntest)
+            .into_par_iter()
+            .try_for_each(|i| -> Result<()> {
+                let p = self.root.image_path(ProjectorSet::Test, i);
+                let img =
+                    pngio::read_rgb_sized::<crate::raster::Projector>(&p, self.net, &self.net_why)?;
+                let z = fov::place_in_area(&range.apply(&img), area, cam)?;
+                setup.write_desired(i, &z).map(drop)
+            })?;
+        Ok((fov, area, range))
+    }
+}
+
+/// Writes `SETUP/rig.json`.
+fn write_record(setup: &Setup, record: &RigRecord) -> Result<()> {
+    let path = setup.path().join(RIG_FILE);
+    let json = serde_json::to_string_pretty(record)
+        .map_err(|e| Error::Failed(format!("{}: cannot encode the record: {e}", path.display())))?;
+    crate::files::write_atomically(&path, json.as_bytes())
 }
 
 /// Reads `SETUP/rig.json`.
@@ -242,12 +288,6 @@ pub fn read_record(setup: &Path) -> Result<RigRecord> {
             path.display()
         ))
     })
-}
-
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = path.with_extension("json.tmp");
-    std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, "write", e))?;
-    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, "rename into place", e))
 }
 
 fn full_range() -> fov::DisplayRange {

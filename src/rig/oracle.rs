@@ -66,95 +66,18 @@ impl Simulator {
         let zeros = vec![0f32; pw * ph * 3];
         let mut c = self.sensor(&self.drive_to_emission(&zeros, true));
         self.add_constant(&mut c);
-        let forward = |d: &[f32]| -> Vec<f32> {
-            let mut s = self.sensor(&self.drive_to_emission(d, false));
-            for (v, k) in s.iter_mut().zip(&c) {
-                *v += k;
-            }
-            s
-        };
-        let adjoint = |g: &[f32]| self.emission_to_drive_adjoint(&self.sensor_adjoint(g));
-        let enc = |s: f32| s.clamp(0.0, 1.0).powf(1.0 / gamma_c);
-        // Slope of the encoding, floored near black (it is infinite at 0) and 0 when clipped.
-        let s_floor = 1e-4f32;
-        let slope = |s: f32| {
-            if s >= 1.0 {
-                0.0
-            } else {
-                s.max(s_floor).powf(1.0 / gamma_c - 1.0) / gamma_c
-            }
-        };
-        let objective = |s: &[f32]| -> f64 {
-            s.iter()
-                .zip(z)
-                .zip(&inside)
-                .filter(|(_, m)| **m)
-                .map(|((&s, &z), _)| {
-                    let e = (enc(s) - z) as f64;
-                    e * e
-                })
-                .sum::<f64>()
-                / 2.0
+        let problem = Objective {
+            sim: self,
+            z,
+            inside,
+            c,
+            gamma_c,
         };
         let ones = vec![1f32; pw * ph * 3];
         let a1 = self.sensor(&self.drive_to_emission(&ones, false));
 
-        let mut x = self.per_pixel_start(&target, mask)?;
-        let mut s = forward(&x);
-        let mut f = objective(&s);
-        let mut diag = Vec::new();
-        let mut step = 1.0f32;
-        for it in 0..opts.iterations {
-            if it % 8 == 0 {
-                // Gauss-Newton weights at the current output; Jacobi majoriser diag(AᵀWA·1)
-                // (A has non-negative entries).
-                let wa1: Vec<f32> = a1
-                    .iter()
-                    .zip(&s)
-                    .zip(&inside)
-                    .map(|((a, &s), &m)| {
-                        if m {
-                            let k = slope(s);
-                            a * k * k
-                        } else {
-                            0.0
-                        }
-                    })
-                    .collect();
-                diag = adjoint(&wa1);
-            }
-            // Gradient of ½Σ(enc(s) − z)² with respect to the drives.
-            let r: Vec<f32> = s
-                .iter()
-                .zip(z)
-                .zip(&inside)
-                .map(|((&s, &z), &m)| if m { (enc(s) - z) * slope(s) } else { 0.0 })
-                .collect();
-            let grad = adjoint(&r);
-            let mut accepted = false;
-            for _ in 0..4 {
-                let mut next = x.clone();
-                for j in 0..next.len() {
-                    if diag[j] > 1e-12 {
-                        next[j] = (x[j] - step * grad[j] / diag[j]).clamp(0.0, 1.0);
-                    }
-                }
-                let s_next = forward(&next);
-                let f_next = objective(&s_next);
-                if f_next <= f {
-                    x = next;
-                    s = s_next;
-                    f = f_next;
-                    step = (step * 1.25).min(2.0);
-                    accepted = true;
-                    break;
-                }
-                step *= 0.5;
-            }
-            if !accepted {
-                break;
-            }
-        }
+        let x = self.per_pixel_start(&target, mask)?;
+        let x = problem.descend(x, &a1, opts.iterations);
 
         // Drives back to projector input levels.
         let gp = self.scene().projector.gamma;
@@ -216,6 +139,146 @@ impl Simulator {
             )));
         }
         Ok(())
+    }
+}
+
+/// The oracle's problem for one desired image: ½Σ(enc(s) − z)² over the masked camera values,
+/// with the sensor signal `s = A·d + c` affine in the projector drives `d` (projector pixels,
+/// linear, in \[0,1\]) and `enc` the camera's clip and response curve (camera pixels).
+struct Objective<'a> {
+    sim: &'a Simulator,
+    /// The desired camera image (encoded values, interleaved RGB).
+    z: &'a [f32],
+    /// Per camera value: inside the mask.
+    inside: Vec<bool>,
+    /// The constant part of the sensor signal: A(black) + ambient + glare.
+    c: Vec<f32>,
+    /// The camera's response exponent γ.
+    gamma_c: f32,
+}
+
+/// Slope of the encoding is floored near black at this signal (it is infinite at 0).
+const S_FLOOR: f32 = 1e-4;
+
+impl Objective<'_> {
+    /// The sensor signal for drives `d`: A·d + c.
+    fn forward(&self, d: &[f32]) -> Vec<f32> {
+        let mut s = self.sim.sensor(&self.sim.drive_to_emission(d, false));
+        for (v, k) in s.iter_mut().zip(&self.c) {
+            *v += k;
+        }
+        s
+    }
+
+    /// Aᵀ·g: a camera-space signal gradient to a drive gradient.
+    fn adjoint(&self, g: &[f32]) -> Vec<f32> {
+        self.sim
+            .emission_to_drive_adjoint(&self.sim.sensor_adjoint(g))
+    }
+
+    /// The camera's encoded output for signal `s`.
+    fn enc(&self, s: f32) -> f32 {
+        s.clamp(0.0, 1.0).powf(1.0 / self.gamma_c)
+    }
+
+    /// Slope of the encoding, floored near black (it is infinite at 0) and 0 when clipped.
+    fn slope(&self, s: f32) -> f32 {
+        let gamma_c = self.gamma_c;
+        if s >= 1.0 {
+            0.0
+        } else {
+            s.max(S_FLOOR).powf(1.0 / gamma_c - 1.0) / gamma_c
+        }
+    }
+
+    /// The objective ½Σ(enc(s) − z)² over the masked values of signal `s`.
+    fn value(&self, s: &[f32]) -> f64 {
+        s.iter()
+            .zip(self.z)
+            .zip(&self.inside)
+            .filter(|(_, m)| **m)
+            .map(|((&s, &z), _)| {
+                let e = (self.enc(s) - z) as f64;
+                e * e
+            })
+            .sum::<f64>()
+            / 2.0
+    }
+
+    /// Gauss-Newton weights at the current output `s`; the Jacobi majoriser diag(AᵀWA·1) (A has
+    /// non-negative entries), with `a1` = A·1.
+    fn majoriser(&self, a1: &[f32], s: &[f32]) -> Vec<f32> {
+        let wa1: Vec<f32> = a1
+            .iter()
+            .zip(s)
+            .zip(&self.inside)
+            .map(|((a, &s), &m)| {
+                if m {
+                    let k = self.slope(s);
+                    a * k * k
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        self.adjoint(&wa1)
+    }
+
+    /// Gradient of ½Σ(enc(s) − z)² with respect to the drives.
+    fn gradient(&self, s: &[f32]) -> Vec<f32> {
+        let r: Vec<f32> = s
+            .iter()
+            .zip(self.z)
+            .zip(&self.inside)
+            .map(|((&s, &z), &m)| {
+                if m {
+                    (self.enc(s) - z) * self.slope(s)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        self.adjoint(&r)
+    }
+
+    /// Projected gradient descent from drives `x`, scaled by the majoriser (refreshed every 8
+    /// iterations), with step halving whenever the objective would rise; stops early when four
+    /// halvings in a row do not help. `a1` = A·1.
+    fn descend(&self, mut x: Vec<f32>, a1: &[f32], iterations: usize) -> Vec<f32> {
+        let mut s = self.forward(&x);
+        let mut f = self.value(&s);
+        let mut diag = Vec::new();
+        let mut step = 1.0f32;
+        for it in 0..iterations {
+            if it % 8 == 0 {
+                diag = self.majoriser(a1, &s);
+            }
+            let grad = self.gradient(&s);
+            let mut accepted = false;
+            for _ in 0..4 {
+                let mut next = x.clone();
+                for j in 0..next.len() {
+                    if diag[j] > 1e-12 {
+                        next[j] = (x[j] - step * grad[j] / diag[j]).clamp(0.0, 1.0);
+                    }
+                }
+                let s_next = self.forward(&next);
+                let f_next = self.value(&s_next);
+                if f_next <= f {
+                    x = next;
+                    s = s_next;
+                    f = f_next;
+                    step = (step * 1.25).min(2.0);
+                    accepted = true;
+                    break;
+                }
+                step *= 0.5;
+            }
+            if !accepted {
+                break;
+            }
+        }
+        x
     }
 }
 

@@ -1,6 +1,6 @@
 //! Closed-loop scoring on the rig: project, capture, compare with the desired image inside the
-//! displayable area (DESIGN.md section 6 metrics on the cropped area), and the three reference
-//! rows every method is compared with.
+//! displayable area (the paper protocol's metrics, docs/architecture.md, "Models", on the cropped
+//! area), and the three reference rows every method is compared with.
 
 use serde::{Deserialize, Serialize};
 

@@ -14,9 +14,12 @@ use super::{Next, VideoSource};
 use crate::error::{Error, Result};
 use crate::playback::ContentFrame;
 
+/// How the mailbox hands frames over (see the module documentation).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FeedMode {
+    /// Live: a newer frame replaces one not yet taken (`--pace display`).
     Latest,
+    /// Offline: every frame is taken once, the source waits (`--pace source`).
     Queue,
 }
 
@@ -66,6 +69,7 @@ pub struct Feed {
     shared: Arc<Shared>,
     describe: String,
     ends_playback: bool,
+    mode: FeedMode,
 }
 
 impl Feed {
@@ -86,7 +90,13 @@ impl Feed {
             shared,
             describe,
             ends_playback,
+            mode,
         })
+    }
+
+    /// How frames are handed over: newest first (live) or every one (offline).
+    pub fn mode(&self) -> FeedMode {
+        self.mode
     }
 
     pub fn describe(&self) -> &str {

@@ -1,5 +1,5 @@
 //! Video sources for playback: still images, slideshows, raw frames on a pipe or FIFO, V4L2
-//! capture devices and generated test patterns (spellings in [`spec::HELP`]), and the [`Feed`]
+//! cameras ([`crate::camera`]) and generated test patterns (spellings in [`spec::HELP`]), and the [`Feed`]
 //! that runs a source on its own thread so decoding never blocks the render loop.
 //!
 //! Frames are 8-bit RGBA, sRGB-encoded as stored ([`ContentFrame`], content pixels).
@@ -70,7 +70,9 @@ pub fn open(spec: &SourceSpec) -> Result<Box<dyn VideoSource>> {
             }))
         }
         #[cfg(target_os = "linux")]
-        SourceSpec::V4l2 { device, size } => Ok(Box::new(v4l2::Camera::open(device, *size)?)),
+        SourceSpec::V4l2 { device, size } => {
+            Ok(Box::new(crate::camera::V4l2Camera::open(device, *size)?))
+        }
         #[cfg(not(target_os = "linux"))]
         SourceSpec::V4l2 { .. } => Err(Error::Input("V4L2 sources exist only on Linux".into())),
         SourceSpec::Pattern {

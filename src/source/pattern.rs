@@ -38,8 +38,8 @@ impl Generator {
     }
 }
 
-/// Frame `index` of `pattern` at `size`.
-pub fn render(pattern: Pattern, (w, h): (usize, usize), index: u64) -> ContentFrame {
+/// Frame `index` of `pattern` at `size` ((width, height), content pixels).
+pub fn render(pattern: Pattern, (w, h): (usize, usize), index: u64) -> Result<ContentFrame> {
     let mut rgba = Vec::with_capacity(w * h * 4);
     // The moving square: side h/4, one pixel per frame left to right, wrapping.
     let side = (h / 4).max(1);
@@ -74,7 +74,7 @@ pub fn render(pattern: Pattern, (w, h): (usize, usize), index: u64) -> ContentFr
             rgba.extend_from_slice(&[px[0], px[1], px[2], 255]);
         }
     }
-    ContentFrame::from_rgba(w, h, rgba).expect("sized by construction")
+    ContentFrame::from_rgba(w, h, rgba)
 }
 
 impl VideoSource for Generator {
@@ -91,7 +91,7 @@ impl VideoSource for Generator {
         if self.frames.is_some_and(|n| self.index >= n) {
             return Ok(Next::End);
         }
-        let frame = render(self.pattern, self.size, self.index);
+        let frame = render(self.pattern, self.size, self.index)?;
         self.index += 1;
         Ok(Next::Frame {
             frame,

@@ -148,130 +148,142 @@ impl SourceSpec {
             None => (rest, None),
         };
         match scheme {
-            None => {
-                let path = PathBuf::from(spec);
-                if path.is_dir() {
-                    Ok(Self::Folder {
-                        dir: path,
-                        period: Duration::from_secs(5),
-                    })
-                } else if path.is_file() {
-                    Ok(Self::Image(path))
-                } else {
-                    Err(Error::Missing {
-                        path,
-                        expected: "an image or a folder of images to play (or a source spelled \
-                             raw:, v4l2:, pattern:; see `compend play --help`)"
-                            .into(),
-                    })
-                }
-            }
+            None => Self::bare_path(spec),
             Some("image") => {
                 options(spec, query, &[])?;
                 Ok(Self::Image(PathBuf::from(body)))
             }
-            Some("folder") => {
-                let mut period = Duration::from_secs(5);
-                for (k, v) in options(spec, query, &["period"])? {
-                    if k == "period" {
-                        let s: f64 = v.parse().map_err(|_| {
-                            bad(spec, format!("period {v:?} is not a number of seconds"))
-                        })?;
-                        if !(s.is_finite() && s > 0.0) {
-                            return Err(bad(spec, "period must be positive"));
-                        }
-                        period = Duration::from_secs_f64(s);
-                    }
+            Some("folder") => Self::folder(spec, body, query),
+            Some("raw") => Self::raw(spec, body, query),
+            Some("v4l2") => Self::v4l2(spec, body, query),
+            _ => Self::pattern(spec, body, query),
+        }
+    }
+
+    /// A bare path: a folder is a slideshow, a file an image.
+    fn bare_path(spec: &str) -> Result<Self> {
+        let path = PathBuf::from(spec);
+        if path.is_dir() {
+            Ok(Self::Folder {
+                dir: path,
+                period: Duration::from_secs(5),
+            })
+        } else if path.is_file() {
+            Ok(Self::Image(path))
+        } else {
+            Err(Error::Missing {
+                path,
+                expected: "an image or a folder of images to play (or a source spelled raw:, \
+                           v4l2:, pattern:; see `compend play --help`)"
+                    .into(),
+            })
+        }
+    }
+
+    /// `folder:DIR?period=S`.
+    fn folder(spec: &str, body: &str, query: Option<&str>) -> Result<Self> {
+        let mut period = Duration::from_secs(5);
+        for (k, v) in options(spec, query, &["period"])? {
+            if k == "period" {
+                let s: f64 = v
+                    .parse()
+                    .map_err(|_| bad(spec, format!("period {v:?} is not a number of seconds")))?;
+                if !(s.is_finite() && s > 0.0) {
+                    return Err(bad(spec, "period must be positive"));
                 }
-                Ok(Self::Folder {
-                    dir: PathBuf::from(body),
-                    period,
-                })
-            }
-            Some("raw") => {
-                let (mut size, mut format) = (None, RawFormat::Rgb24);
-                for (k, v) in options(spec, query, &["size", "format"])? {
-                    match k {
-                        "size" => size = Some(parse_size(spec, v)?),
-                        _ => {
-                            format = match v {
-                                "rgb24" | "rgb" => RawFormat::Rgb24,
-                                "rgba" | "rgba32" => RawFormat::Rgba,
-                                _ => {
-                                    return Err(bad(
-                                        spec,
-                                        format!("format {v:?} is not rgb24 or rgba"),
-                                    ));
-                                }
-                            }
-                        }
-                    }
-                }
-                let size = size.ok_or_else(|| bad(spec, "raw frames need ?size=WxH"))?;
-                if body.is_empty() {
-                    return Err(bad(spec, "raw needs - (standard input) or a path"));
-                }
-                Ok(Self::Raw {
-                    path: (body != "-").then(|| PathBuf::from(body)),
-                    size,
-                    format,
-                })
-            }
-            Some("v4l2") => {
-                let mut size = None;
-                for (_, v) in options(spec, query, &["size"])? {
-                    size = Some(parse_size(spec, v)?);
-                }
-                if body.is_empty() {
-                    return Err(bad(spec, "v4l2 needs a device path, e.g. v4l2:/dev/video0"));
-                }
-                Ok(Self::V4l2 {
-                    device: PathBuf::from(body),
-                    size,
-                })
-            }
-            _ => {
-                let pattern = match body {
-                    "bars" => Pattern::Bars,
-                    "ramp" => Pattern::Ramp,
-                    "checker" => Pattern::Checker,
-                    "gray" | "grey" => Pattern::Gray,
-                    "moving" => Pattern::Moving,
-                    _ => {
-                        return Err(bad(
-                            spec,
-                            format!("unknown pattern {body:?} (known: {})", PATTERNS.join(", ")),
-                        ));
-                    }
-                };
-                let (mut size, mut fps, mut frames) = ((1280, 720), 60.0f64, None);
-                for (k, v) in options(spec, query, &["size", "fps", "frames"])? {
-                    match k {
-                        "size" => size = parse_size(spec, v)?,
-                        "fps" => {
-                            fps = v
-                                .parse()
-                                .map_err(|_| bad(spec, format!("fps {v:?} is not a number")))?;
-                            if !(fps.is_finite() && fps > 0.0) {
-                                return Err(bad(spec, "fps must be positive"));
-                            }
-                        }
-                        _ => {
-                            frames =
-                                Some(v.parse().map_err(|_| {
-                                    bad(spec, format!("frames {v:?} is not a count"))
-                                })?)
-                        }
-                    }
-                }
-                Ok(Self::Pattern {
-                    pattern,
-                    size,
-                    fps,
-                    frames,
-                })
+                period = Duration::from_secs_f64(s);
             }
         }
+        Ok(Self::Folder {
+            dir: PathBuf::from(body),
+            period,
+        })
+    }
+
+    /// `raw:-|PATH?size=WxH&format=rgb24|rgba`.
+    fn raw(spec: &str, body: &str, query: Option<&str>) -> Result<Self> {
+        let (mut size, mut format) = (None, RawFormat::Rgb24);
+        for (k, v) in options(spec, query, &["size", "format"])? {
+            match k {
+                "size" => size = Some(parse_size(spec, v)?),
+                _ => {
+                    format = match v {
+                        "rgb24" | "rgb" => RawFormat::Rgb24,
+                        "rgba" | "rgba32" => RawFormat::Rgba,
+                        _ => {
+                            return Err(bad(spec, format!("format {v:?} is not rgb24 or rgba")));
+                        }
+                    }
+                }
+            }
+        }
+        let size = size.ok_or_else(|| bad(spec, "raw frames need ?size=WxH"))?;
+        if body.is_empty() {
+            return Err(bad(spec, "raw needs - (standard input) or a path"));
+        }
+        Ok(Self::Raw {
+            path: (body != "-").then(|| PathBuf::from(body)),
+            size,
+            format,
+        })
+    }
+
+    /// `v4l2:DEVICE?size=WxH`.
+    fn v4l2(spec: &str, body: &str, query: Option<&str>) -> Result<Self> {
+        let mut size = None;
+        for (_, v) in options(spec, query, &["size"])? {
+            size = Some(parse_size(spec, v)?);
+        }
+        if body.is_empty() {
+            return Err(bad(spec, "v4l2 needs a device path, e.g. v4l2:/dev/video0"));
+        }
+        Ok(Self::V4l2 {
+            device: PathBuf::from(body),
+            size,
+        })
+    }
+
+    /// `pattern:NAME?size=WxH&fps=F&frames=N`.
+    fn pattern(spec: &str, body: &str, query: Option<&str>) -> Result<Self> {
+        let pattern = match body {
+            "bars" => Pattern::Bars,
+            "ramp" => Pattern::Ramp,
+            "checker" => Pattern::Checker,
+            "gray" | "grey" => Pattern::Gray,
+            "moving" => Pattern::Moving,
+            _ => {
+                return Err(bad(
+                    spec,
+                    format!("unknown pattern {body:?} (known: {})", PATTERNS.join(", ")),
+                ));
+            }
+        };
+        let (mut size, mut fps, mut frames) = ((1280, 720), 60.0f64, None);
+        for (k, v) in options(spec, query, &["size", "fps", "frames"])? {
+            match k {
+                "size" => size = parse_size(spec, v)?,
+                "fps" => {
+                    fps = v
+                        .parse()
+                        .map_err(|_| bad(spec, format!("fps {v:?} is not a number")))?;
+                    if !(fps.is_finite() && fps > 0.0) {
+                        return Err(bad(spec, "fps must be positive"));
+                    }
+                }
+                _ => {
+                    frames = Some(
+                        v.parse()
+                            .map_err(|_| bad(spec, format!("frames {v:?} is not a count")))?,
+                    )
+                }
+            }
+        }
+        Ok(Self::Pattern {
+            pattern,
+            size,
+            fps,
+            frames,
+        })
     }
 }
 

@@ -57,16 +57,17 @@ pub fn skip_or_fail(reason: &str) {
 }
 
 /// The GPU context, or `None` after printing why the test is skipped (a panic instead when
-/// `COMPEND_REQUIRE_GPU_ADAPTER=1`).
+/// `COMPEND_REQUIRE_GPU_ADAPTER=1`). An adapter that exists but fails to open is a failure.
 pub fn gpu() -> Option<compend::gpu::GpuContext> {
-    match compend::gpu::GpuContext::new().expect("a GPU adapter that exists opens a device") {
+    match compend::gpu::GpuContext::new() {
         Ok(ctx) => {
             eprintln!("GPU adapter: {}", ctx.describe());
             Some(ctx)
         }
-        Err(why) => {
-            skip_or_fail(&format!("no GPU adapter ({why})"));
+        Err(e) if compend::gpu::is_no_adapter(&e) => {
+            skip_or_fail(&format!("no GPU adapter ({e})"));
             None
         }
+        Err(e) => panic!("a GPU adapter that exists opens a device: {e}"),
     }
 }

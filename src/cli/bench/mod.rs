@@ -1,0 +1,359 @@
+//! `compend bench`: methods × scenes × training-set sizes × seeds on the virtual rig
+//! (docs/architecture.md, "Data flow": monitor). For every scene and seed it exports a setup,
+//! scores the reference rows (uncompensated, geometry-only, the oracle at network resolution and
+//! the oracle), then trains every method at every training-set size and scores it with the paper
+//! protocol and closed loop on the rig. Writes `bench.json` (every row), `bench.md` (tables) and
+//! two PNG charts (accuracy against training time and against per-frame time); progress on
+//! stderr.
+
+mod chart;
+mod row;
+
+pub use row::Row;
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use compend::dataset::{DataRoot, ProjectorSet, Setup};
+use compend::fit::{self, Request};
+use compend::model::paper_protocol;
+use compend::raster::PrjImage;
+use compend::rig::{self, ExportOptions, OracleOptions, Phase, Simulator};
+
+use crate::cli::sim::SceneArgs;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Folder for bench.json, bench.md, the charts (accuracy-vs-training.png,
+    /// accuracy-vs-frame.png) and the simulated data (data/).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Scenes, comma-separated [default: every built-in scene].
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<String>,
+    /// Methods, comma-separated.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "linear,linear-sl"
+    )]
+    pub methods: Vec<compend::model::MethodChoice>,
+    /// Training-set sizes, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "48")]
+    pub ntrain: Vec<usize>,
+    /// Seeds (scene texture, noise and sampling images), comma-separated; several seeds test
+    /// stability.
+    #[arg(long, value_delimiter = ',', default_value = "0")]
+    pub seeds: Vec<u64>,
+    /// Test images per scene.
+    #[arg(long, default_value_t = 10)]
+    pub ntest: usize,
+    /// CompenNet++ methods: iterations instead of the variant's (the lr step scales with it).
+    #[arg(long)]
+    pub iters: Option<usize>,
+    /// CompenNet++ methods: batch size instead of the variant's.
+    #[arg(long)]
+    pub batch: Option<usize>,
+    /// Camera / projector / network sizes (defaults: the scenes' 640x480 / 800x600, 256).
+    #[command(flatten)]
+    pub scene_args: SceneArgs,
+}
+
+/// Frame indices of the closed-loop captures (apart from the export's).
+const FRAMES_BENCH: u64 = 3_000_000;
+
+pub fn run(args: Args) -> Result<()> {
+    let start = Instant::now();
+    let scenes: Vec<String> = if args.scenes.is_empty() {
+        rig::BUILTIN.iter().map(|s| s.to_string()).collect()
+    } else {
+        args.scenes.clone()
+    };
+    let max_train = *args
+        .ntrain
+        .iter()
+        .max()
+        .context("--ntrain needs at least one size")?;
+    if max_train < fit::MIN_TRAIN || args.ntest == 0 || args.seeds.is_empty() {
+        return Err(compend::Error::Input(format!(
+            "--ntrain sizes must be at least {}, --ntest at least 1, and --seeds non-empty",
+            fit::MIN_TRAIN
+        ))
+        .into());
+    }
+    let mut rows = Vec::new();
+    for &seed in &args.seeds {
+        let sa = SceneArgs {
+            seed,
+            camera: args.scene_args.camera,
+            projector: args.scene_args.projector,
+            network: args.scene_args.network,
+        };
+        for name in &scenes {
+            let scene = super::sim::resolve(name, &sa)?;
+            eprintln!("bench: scene {} seed {seed}", scene.name);
+            let root_dir = args.out.join("data").join(format!("seed{seed}"));
+            super::patterns::run(super::patterns::Args {
+                out: root_dir.clone(),
+                ntrain: max_train as u64,
+                ntest: args.ntest as u64,
+                seed,
+                size: sa.network,
+                projector: super::patterns::Size {
+                    width: scene.projector.width,
+                    height: scene.projector.height,
+                },
+                gray_level: compend::patterns::DEFAULT_GRAY_LEVEL,
+            })?;
+            let root = DataRoot::open(&root_dir)?;
+            let sim = Simulator::new(&scene, seed, Phase::Calibration)?;
+            let opts = ExportOptions {
+                ntrain: max_train,
+                ntest: args.ntest,
+                full_cube: false,
+                structured_light: true,
+                reachable_desired: true,
+            };
+            let exported =
+                rig::export::export_setup(&sim, &root, &PathBuf::from(&scene.name), &opts)
+                    .with_context(|| format!("exporting scene {}", scene.name))?;
+            let setup = Setup::open(&exported.setup, Some(root.path()))?;
+            // Score as the viewer will see it: after the projector moved, for the drift scene.
+            let viewer = Simulator::new(&scene, seed, Phase::AfterDrift)?;
+            rows.extend(bench_scene(
+                &args,
+                &scene.name,
+                seed,
+                &viewer,
+                &setup,
+                &exported.record,
+            )?);
+        }
+    }
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| compend::Error::io(&args.out, "create folder", e))?;
+    let json = serde_json::json!({
+        "compend": env!("CARGO_PKG_VERSION"),
+        "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+        "seconds": start.elapsed().as_secs_f64(),
+        "ntest": args.ntest,
+        "rows": rows,
+    });
+    let jpath = args.out.join("bench.json");
+    compend::files::write_atomically(&jpath, &serde_json::to_vec_pretty(&json)?)?;
+    let mpath = args.out.join("bench.md");
+    compend::files::write_atomically(&mpath, markdown(&rows).as_bytes())?;
+    let charts = chart::write_charts(&rows, &args.out)?;
+    eprintln!(
+        "bench: {} rows in {:.0} s; wrote {}, {} and {} chart(s)",
+        rows.len(),
+        start.elapsed().as_secs_f64(),
+        jpath.display(),
+        mpath.display(),
+        charts.len()
+    );
+    Ok(())
+}
+
+fn bench_scene(
+    args: &Args,
+    scene: &str,
+    seed: u64,
+    sim: &Simulator,
+    setup: &Setup,
+    record: &rig::export::RigRecord,
+) -> Result<Vec<Row>> {
+    let bench = SceneBench {
+        args,
+        scene,
+        seed,
+        sim,
+        setup,
+        record,
+        desired: setup.load_desired(Some(args.ntest))?,
+    };
+    let (mut rows, ceiling) = bench.reference_rows()?;
+    let test_pairs = setup.load_test(Some(args.ntest))?;
+    for &method in &args.methods {
+        for &n in &args.ntrain {
+            rows.push(bench.method_row(method, n, &test_pairs, ceiling)?);
+        }
+    }
+    Ok(rows)
+}
+
+/// One scene and seed of the bench: the rig as the viewer sees it, the exported setup and its
+/// record, and the desired test images (camera pixels).
+struct SceneBench<'a> {
+    args: &'a Args,
+    scene: &'a str,
+    seed: u64,
+    sim: &'a Simulator,
+    setup: &'a Setup,
+    record: &'a rig::export::RigRecord,
+    desired: Vec<compend::raster::CamImage>,
+}
+
+impl SceneBench<'_> {
+    /// Projector images stretched over the record's canvas (projector pixels).
+    fn on_canvas(&self, imgs: &[PrjImage]) -> compend::Result<Vec<PrjImage>> {
+        let psize = self.sim.projector_size();
+        imgs.iter()
+            .map(|i| compend::playback::place_on_canvas(i, self.record.canvas, psize))
+            .collect()
+    }
+
+    /// The reference rows (uncompensated, geometry-only, the oracle at network resolution and
+    /// the oracle) and the oracle's PSNR (dB), the ceiling every gap is measured to.
+    fn reference_rows(&self) -> Result<(Vec<Row>, f64)> {
+        let (args, scene, seed, sim) = (self.args, self.scene, self.seed, self.sim);
+        let area = self.record.displayable_area;
+        let tests = self.on_canvas(
+            &self
+                .setup
+                .root()
+                .load(ProjectorSet::Test, Some(args.ntest))?,
+        )?;
+        let (refs, oracle_imgs) = rig::score::reference_scores_with_oracle(
+            sim,
+            &tests,
+            &self.desired,
+            area,
+            OracleOptions::default(),
+            FRAMES_BENCH,
+        )?;
+        let net = self.setup.root().network_size()?;
+        let net_oracle = rig::score::oracle_at_network(
+            sim,
+            &oracle_imgs,
+            &self.desired,
+            area,
+            self.record.canvas,
+            net,
+            FRAMES_BENCH,
+        )?;
+        let ceiling = refs.oracle.psnr;
+        let rows = vec![
+            Row::reference(scene, seed, "uncompensated", refs.uncompensated, ceiling),
+            Row::reference(scene, seed, "geometry-only", refs.geometry_only, ceiling),
+            Row::reference(scene, seed, "oracle@network", net_oracle, ceiling),
+            Row::reference(scene, seed, "oracle", refs.oracle, ceiling),
+        ];
+        Ok((rows, ceiling))
+    }
+
+    /// Trains `method` on the first `n` pairs and scores it: the paper protocol on the test
+    /// pairs, the CPU time per frame (ms), and closed loop on the rig with its gap to `ceiling`
+    /// (dB). A failed training is a row that says so.
+    fn method_row(
+        &self,
+        method: compend::model::MethodChoice,
+        n: usize,
+        test_pairs: &compend::dataset::Pairs,
+        ceiling: f64,
+    ) -> Result<Row> {
+        let (args, scene, seed) = (self.args, self.scene, self.seed);
+        let req = Request {
+            method,
+            ntrain: Some(n),
+            seed,
+            iters: args.iters,
+            batch: args.batch,
+            device: Default::default(),
+            lattice: None,
+            photometric: Default::default(),
+        };
+        let mut row = Row {
+            scene: scene.into(),
+            seed,
+            method: method.to_string(),
+            ntrain: Some(n),
+            train_seconds: None,
+            captures: Some(
+                n + 3
+                    + if method.name().ends_with("-sl") {
+                        self.record.sl_captures
+                    } else {
+                        0
+                    },
+            ),
+            frame_ms_cpu: None,
+            paper: None,
+            closed_loop: None,
+            gap_db: None,
+            failed: None,
+        };
+        match fit::fit(self.setup, &req, |_, _, _| {}) {
+            Err(e) => {
+                eprintln!("bench: {scene} {method} n={n}: training failed: {e}");
+                row.failed = Some(e.to_string());
+            }
+            Ok((model, summary)) => {
+                row.train_seconds = Some(summary.seconds);
+                row.paper = Some(paper_protocol(&model, test_pairs)?.0);
+                let desired = &self.desired;
+                let t = Instant::now();
+                let shown: Vec<PrjImage> = desired
+                    .iter()
+                    .map(|z| model.infer(z).map(|x| x.into_space()))
+                    .collect::<compend::Result<_>>()?;
+                row.frame_ms_cpu = Some(1e3 * t.elapsed().as_secs_f64() / desired.len() as f64);
+                let area = self.record.displayable_area;
+                let s = rig::closed_loop(
+                    self.sim,
+                    &self.on_canvas(&shown)?,
+                    desired,
+                    area,
+                    FRAMES_BENCH,
+                )?;
+                row.gap_db = Some(ceiling - s.psnr);
+                row.closed_loop = Some(s);
+                eprintln!(
+                    "bench: {scene} {method} n={n}: {:.1} s, closed loop {:.2} dB (gap {:.2} dB)",
+                    summary.seconds,
+                    s.psnr,
+                    ceiling - s.psnr
+                );
+            }
+        }
+        Ok(row)
+    }
+}
+
+/// Tables: one row per scene × seed × method × ntrain.
+fn markdown(rows: &[Row]) -> String {
+    let mut md = String::from(
+        "# compend bench\n\nClosed loop: PSNR/SSIM of what the rig's camera sees inside the displayable \
+         area against the desired image; gap: oracle PSNR minus the row's. Paper: the model's output \
+         for test captures against the projector inputs (network space).\n\n\
+         | scene | seed | method | #train | train s | captures | ms/frame (CPU) | closed-loop PSNR | SSIM | gap dB | paper PSNR | paper SSIM |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let f = |v: Option<f64>, p: usize| v.map_or("–".to_string(), |x| format!("{x:.p$}"));
+    for r in rows {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.scene,
+            r.seed,
+            if r.failed.is_some() {
+                format!("{} (failed)", r.method)
+            } else {
+                r.method.clone()
+            },
+            r.ntrain.map_or("–".into(), |n| n.to_string()),
+            f(r.train_seconds, 1),
+            r.captures.map_or("–".into(), |n| n.to_string()),
+            f(r.frame_ms_cpu, 1),
+            f(r.closed_loop.map(|s| s.psnr), 2),
+            f(r.closed_loop.map(|s| s.ssim), 3),
+            f(r.gap_db, 2),
+            f(r.paper.map(|s| s.psnr), 2),
+            f(r.paper.map(|s| s.ssim), 3),
+        );
+    }
+    md
+}

@@ -1,0 +1,47 @@
+//! One row of `compend bench`: a method (or a reference row) on a scene, seed and training-set
+//! size, with its cost and scores; the tables and the charts are drawn from these.
+
+use compend::metrics::Scores;
+use serde::Serialize;
+
+/// One row of the benchmark.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub scene: String,
+    pub seed: u64,
+    /// A method, or a reference row: `uncompensated`, `geometry-only`, `oracle@network`, `oracle`.
+    pub method: String,
+    pub ntrain: Option<usize>,
+    /// Training wall time, seconds (loading and FOV included).
+    pub train_seconds: Option<f64>,
+    /// Captures the method needs: training pairs, references, structured light.
+    pub captures: Option<usize>,
+    /// CPU reference compensation time per frame (camera image → network image), milliseconds.
+    pub frame_ms_cpu: Option<f64>,
+    /// Paper protocol on the test pairs (network space).
+    pub paper: Option<Scores>,
+    /// Closed loop on the rig inside the displayable area.
+    pub closed_loop: Option<Scores>,
+    /// Oracle PSNR minus this row's closed-loop PSNR, dB.
+    pub gap_db: Option<f64>,
+    /// Why the method produced no model (training failed or diverged), if it did not.
+    pub failed: Option<String>,
+}
+
+impl Row {
+    pub(super) fn reference(scene: &str, seed: u64, method: &str, s: Scores, oracle: f64) -> Self {
+        Row {
+            scene: scene.into(),
+            seed,
+            method: method.into(),
+            ntrain: None,
+            train_seconds: None,
+            captures: None,
+            frame_ms_cpu: None,
+            paper: None,
+            closed_loop: Some(s),
+            gap_db: Some(oracle - s.psnr),
+            failed: None,
+        }
+    }
+}

@@ -1,0 +1,315 @@
+//! Writing files so that nothing is lost (docs/architecture.md, "Errors and files"): the one
+//! atomic-write helper every writer uses, the naming of temporary siblings, the cleaning of
+//! what killed runs left behind, and the directory swap that replaces a model.
+//!
+//! - A file is written to a temporary sibling `.NAME.tmp-PID`, fsynced, renamed over `NAME`,
+//!   and the folder is fsynced: a reader (or a crash) sees the old file or the new one, never a
+//!   half-written one.
+//! - A directory (a model) is written complete under `.NAME.tmp-PID` and then exchanged with
+//!   the old one in one step (`renameat2(RENAME_EXCHANGE)` on Linux), so the final path always
+//!   holds a complete directory; the old one is removed after the exchange.
+//! - Temporary siblings of processes that no longer run are removed by the next write of the
+//!   same name ([`clean_stale_siblings`]); those of a live process are left alone.
+
+use std::fs;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+
+/// Marker between a name and the writer's PID in a temporary sibling: `.NAME.tmp-PID`.
+const TMP_MARK: &str = ".tmp-";
+/// Marker of a previous directory moved aside by the fallback swap: `.NAME.old-PID`.
+const OLD_MARK: &str = ".old-";
+
+/// The folder holding `path` (`.` for a bare name).
+pub fn parent_of(path: &Path) -> &Path {
+    path.parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+}
+
+/// The last component of `path` as a string; an input error for `/`, `..` and the like.
+pub fn file_name_of(path: &Path) -> Result<String> {
+    path.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .ok_or_else(|| {
+            Error::Input(format!(
+                "{}: not a usable file or folder name",
+                path.display()
+            ))
+        })
+}
+
+/// This process's temporary sibling of `path`: `.NAME.tmp-PID` in the same folder (the same
+/// file system, so the final rename is atomic).
+pub fn temp_sibling(path: &Path) -> Result<PathBuf> {
+    let name = file_name_of(path)?;
+    Ok(parent_of(path).join(format!(".{name}{TMP_MARK}{}", std::process::id())))
+}
+
+/// Writes `bytes` to `path` atomically (temporary sibling, fsync, rename, fsync of the folder).
+/// The folder is created when missing.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_with(path, |w| {
+        w.write_all(bytes)
+            .map_err(|e| Error::io(path, "write", e))
+    })
+}
+
+/// Like [`write_atomically`], with the content produced by `fill` into a buffered writer (an
+/// encoder streams into it). On any error the temporary file is removed and `path` untouched.
+pub fn write_with(path: &Path, fill: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
+    let parent = parent_of(path);
+    fs::create_dir_all(parent).map_err(|e| Error::io(parent, "create folder", e))?;
+    let tmp = temp_sibling(path)?;
+    clean_stale_siblings(path);
+    let result = (|| {
+        let file = fs::File::create(&tmp).map_err(|e| Error::io(&tmp, "create", e))?;
+        let mut out = BufWriter::new(file);
+        fill(&mut out)?;
+        let file = out
+            .into_inner()
+            .map_err(|e| Error::io(&tmp, "write", e.into_error()))?;
+        file.sync_all().map_err(|e| Error::io(&tmp, "sync", e))?;
+        drop(file);
+        fs::rename(&tmp, path).map_err(|e| Error::io(path, "move into place", e))
+    })();
+    match result {
+        Ok(()) => {
+            sync_dir(parent);
+            Ok(())
+        }
+        Err(e) => {
+            let _ = fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
+/// Creates (or empties) this process's temporary sibling folder of `dir`, for a directory that
+/// [`swap_in_dir`] will put in place.
+pub fn temp_dir_for(dir: &Path) -> Result<PathBuf> {
+    let parent = parent_of(dir);
+    fs::create_dir_all(parent).map_err(|e| Error::io(parent, "create folder", e))?;
+    clean_stale_siblings(dir);
+    let tmp = temp_sibling(dir)?;
+    if tmp.exists() {
+        fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, "remove stale temporary folder", e))?;
+    }
+    fs::create_dir(&tmp).map_err(|e| Error::io(&tmp, "create", e))?;
+    Ok(tmp)
+}
+
+/// Writes one file of a folder being built: fsynced, no rename (the folder is swapped whole).
+pub fn write_synced(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut f = fs::File::create(path).map_err(|e| Error::io(path, "create", e))?;
+    f.write_all(bytes)
+        .map_err(|e| Error::io(path, "write", e))?;
+    f.sync_all().map_err(|e| Error::io(path, "sync", e))
+}
+
+/// Puts the complete folder `tmp` (a sibling of `dir`, from [`temp_dir_for`]) at `dir`. When
+/// `dir` exists, the two are exchanged in one step and the old one is then removed: at every
+/// moment `dir` holds either the old or the new folder. The caller has checked that what is at
+/// `dir` may be replaced. Where the file system cannot exchange, the old folder is moved aside,
+/// the new one renamed in, and the old one put back if that fails (a moment with no folder).
+pub fn swap_in_dir(tmp: &Path, dir: &Path) -> Result<()> {
+    let parent = parent_of(dir);
+    sync_dir(tmp);
+    if !dir.exists() {
+        fs::rename(tmp, dir).map_err(|e| Error::io(dir, "move the new folder into place", e))?;
+        sync_dir(parent);
+        return Ok(());
+    }
+    match exchange(tmp, dir) {
+        Ok(()) => {
+            sync_dir(parent);
+            // `tmp` now holds the previous folder.
+            fs::remove_dir_all(tmp).map_err(|e| Error::io(tmp, "remove the previous folder", e))
+        }
+        Err(e) if exchange_unsupported(&e) => swap_by_renames(tmp, dir),
+        Err(e) => Err(Error::io(dir, "exchange with the new folder", e)),
+    }
+}
+
+fn swap_by_renames(tmp: &Path, dir: &Path) -> Result<()> {
+    let parent = parent_of(dir);
+    let name = file_name_of(dir)?;
+    let old = parent.join(format!(".{name}{OLD_MARK}{}", std::process::id()));
+    fs::rename(dir, &old).map_err(|e| Error::io(dir, "move the previous folder aside", e))?;
+    if let Err(e) = fs::rename(tmp, dir) {
+        let _ = fs::rename(&old, dir); // put the previous folder back
+        return Err(Error::io(dir, "move the new folder into place", e));
+    }
+    sync_dir(parent);
+    fs::remove_dir_all(&old).map_err(|e| Error::io(&old, "remove the previous folder", e))
+}
+
+#[cfg(target_os = "linux")]
+fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
+    use std::ffi::CString;
+    use std::os::unix::ffi::OsStrExt;
+    let cstr = |p: &Path| {
+        CString::new(p.as_os_str().as_bytes())
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))
+    };
+    let (ca, cb) = (cstr(a)?, cstr(b)?);
+    // SAFETY: both pointers are valid NUL-terminated strings for the duration of the call.
+    let rc = unsafe {
+        libc::renameat2(
+            libc::AT_FDCWD,
+            ca.as_ptr(),
+            libc::AT_FDCWD,
+            cb.as_ptr(),
+            libc::RENAME_EXCHANGE,
+        )
+    };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn exchange(_: &Path, _: &Path) -> std::io::Result<()> {
+    Err(std::io::Error::from(std::io::ErrorKind::Unsupported))
+}
+
+/// The file system or kernel cannot exchange two paths atomically.
+fn exchange_unsupported(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::Unsupported
+        || matches!(e.raw_os_error(), Some(code) if code == libc::EINVAL || code == libc::ENOSYS)
+}
+
+/// Removes the temporary siblings of `path` (`.NAME.tmp-PID`, `.NAME.old-PID`) left by
+/// processes that no longer run: a write killed half-way. Best effort: what cannot be listed or
+/// removed stays, and nothing else is touched.
+pub fn clean_stale_siblings(path: &Path) {
+    let Ok(name) = file_name_of(path) else { return };
+    let Ok(entries) = fs::read_dir(parent_of(path)) else {
+        return;
+    };
+    let prefix = format!(".{name}");
+    for entry in entries.flatten() {
+        let file_name = entry.file_name();
+        let Some(rest) = file_name.to_str().and_then(|n| n.strip_prefix(&prefix)) else {
+            continue;
+        };
+        let Some(pid) = [TMP_MARK, OLD_MARK]
+            .iter()
+            .find_map(|m| rest.strip_prefix(m))
+            .and_then(|pid| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid == std::process::id() || process_alive(pid) {
+            continue;
+        }
+        let stale = entry.path();
+        let _ = match entry.file_type() {
+            Ok(t) if t.is_dir() => fs::remove_dir_all(&stale),
+            _ => fs::remove_file(&stale),
+        };
+    }
+}
+
+/// Whether a process with this PID runs (signal 0 reaches it, or it exists but is not ours).
+fn process_alive(pid: u32) -> bool {
+    let Ok(pid) = libc::pid_t::try_from(pid) else {
+        return false;
+    };
+    // SAFETY: kill with signal 0 only checks whether the process exists.
+    let rc = unsafe { libc::kill(pid, 0) };
+    rc == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
+}
+
+/// fsyncs a folder so a rename inside it survives a power cut. Best effort: a folder that
+/// cannot be opened (some file systems) is skipped.
+pub fn sync_dir(dir: &Path) {
+    if let Ok(d) = fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// Checks, before any work, that `path` can be written: its folder exists or can be created,
+/// and a file can be created in it. An input error (exit 2) naming the path otherwise.
+pub fn check_writable(path: &Path) -> Result<()> {
+    let parent = parent_of(path);
+    fs::create_dir_all(parent).map_err(|e| {
+        Error::Input(format!(
+            "{}: cannot create the output folder {} ({e})",
+            path.display(),
+            parent.display()
+        ))
+    })?;
+    // Our own temporary name; `create_new` never truncates anything that is there.
+    let probe = temp_sibling(path)?;
+    match fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(_) => {
+            let _ = fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(e) => Err(Error::Input(format!(
+            "{}: cannot write in {} ({e})",
+            path.display(),
+            parent.display()
+        ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_folder_is_exchanged_whole_and_the_old_one_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("model");
+        fs::create_dir(&target).unwrap();
+        fs::write(target.join("a"), b"old").unwrap();
+        let tmp = temp_dir_for(&target).unwrap();
+        fs::write(tmp.join("a"), b"new").unwrap();
+        swap_in_dir(&tmp, &target).unwrap();
+        assert_eq!(fs::read(target.join("a")).unwrap(), b"new");
+        assert!(!tmp.exists());
+        let names: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
+        assert_eq!(names.len(), 1);
+    }
+
+    #[test]
+    fn stale_siblings_of_dead_processes_go_and_live_ones_stay() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out.png");
+        // PID 1 always runs; 999999999 is above any PID Linux hands out.
+        let live = dir.path().join(".out.png.tmp-1");
+        let dead = dir.path().join(".out.png.tmp-999999999");
+        let dead_dir = dir.path().join(".out.png.old-999999998");
+        let other = dir.path().join(".out.png.notes");
+        for f in [&live, &dead, &other] {
+            fs::write(f, b"x").unwrap();
+        }
+        fs::create_dir(&dead_dir).unwrap();
+        write_atomically(&target, b"png").unwrap();
+        assert_eq!(fs::read(&target).unwrap(), b"png");
+        assert!(live.exists() && other.exists());
+        assert!(!dead.exists() && !dead_dir.exists());
+    }
+
+    #[test]
+    fn a_failed_write_leaves_the_old_file_and_no_temporary() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("f.json");
+        fs::write(&target, b"good").unwrap();
+        let err = write_with(&target, |_| Err(Error::Failed("encoder failed".into())));
+        assert!(err.is_err());
+        assert_eq!(fs::read(&target).unwrap(), b"good");
+        assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+}

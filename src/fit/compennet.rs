@@ -1,0 +1,222 @@
+//! A CompenNet++ rung's training (docs/architecture.md, "Models"): its data on the training
+//! device (projector images shrunk onto a coarser network for the smaller rungs), the
+//! WarpingNet's start (the `linear` rung's geometry, or structured light for `compennet-sl`),
+//! the training loop, the weights brought to the CPU, and the model's record.
+
+use std::time::Instant;
+
+use super::{Request, Summary, TrainingData, common_record, sl_grid};
+use crate::dataset::{Reference, Setup};
+use crate::error::{Error, Result};
+use crate::fov;
+use crate::linear::FitSettings;
+use crate::model::store::{FORMAT_VERSION, ModelMeta, Timings, TrainingRecord};
+use crate::model::{Method, Model};
+use crate::raster::{CamImage, NetImage};
+
+/// Trains a CompenNet++ variant on already masked captures.
+pub(super) fn train_compennet(
+    setup: &Setup,
+    req: &Request,
+    method: Method,
+    variant: crate::nn::compennetpp::Variant,
+    data: TrainingData,
+    start: Instant,
+    mut progress: impl FnMut(&str, usize, usize),
+) -> Result<(Model, Summary)> {
+    use crate::nn::train::Settings;
+    let TrainingData {
+        fov,
+        theta,
+        captures,
+        targets,
+        ..
+    } = data;
+    let prepared = prepare_compennet_data(setup, req, variant, &fov, &captures, &targets)?;
+    let mut settings = Settings::new(variant, req.seed);
+    settings.iters = req.iters;
+    settings.batch = req.batch;
+    settings.photometric = req.photometric.clone();
+    let never = std::sync::atomic::AtomicBool::new(false);
+    let (init, geometry_init) = geometry_start(
+        setup,
+        variant,
+        &prepared,
+        theta,
+        &captures,
+        &targets,
+        &mut progress,
+    )?;
+    let (net, report) =
+        crate::nn::train::train(&prepared.data, init, &settings, &never, |done, total, _| {
+            progress("training", done, total)
+        })?;
+    let net = weights_to_cpu(net, &prepared.device, prepared.size, variant)?;
+    let final_loss = report.losses.last().copied().unwrap_or(f64::NAN);
+    let seconds = start.elapsed().as_secs_f64();
+    let CompenNetData { surface, size, .. } = prepared;
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method,
+        network_size: size.into(),
+        camera_size: surface.size().into(),
+        canvas: None,
+        training: TrainingRecord {
+            iterations: Some(report.iterations),
+            batch: Some(report.batch),
+            lr_step: Some(report.lr_step),
+            device: Some(req.device),
+            geometry_init: Some(geometry_init.into()),
+            photometric_init: Some(report.photometric_init.clone()),
+            ..common_record(setup, captures.len(), req.seed, &fov, &settings, final_loss)?
+        },
+        metrics: serde_json::Value::Null,
+        timings: Timings {
+            fit_seconds: report.seconds,
+            train_seconds: seconds,
+            ms_per_sample: Some(report.ms_per_sample),
+        },
+        written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
+    };
+    let summary = Summary {
+        method,
+        ntrain: captures.len(),
+        seconds,
+        fit_seconds: report.seconds,
+        final_loss,
+    };
+    Ok((Model::compennet(meta, fov.mask, net, surface)?, summary))
+}
+
+/// A CompenNet++ rung's training data, on its device.
+struct CompenNetData {
+    data: crate::nn::train::Data,
+    /// The gray surface image s̃ masked by the FOV (camera pixels).
+    surface: CamImage,
+    /// The rung's network size, (width, height) pixels: the data's, divided by the rung's
+    /// network divisor.
+    size: (usize, usize),
+    device: candle_core::Device,
+}
+
+/// Brings the training data onto the device: the masked captures, the masked surface image and
+/// the projector images, shrunk onto the rung's network when it is coarser. Checks the sides,
+/// the device and the photometric pre-initialisation before the geometry fit.
+fn prepare_compennet_data(
+    setup: &Setup,
+    req: &Request,
+    variant: crate::nn::compennetpp::Variant,
+    fov: &fov::FovMask,
+    captures: &[CamImage],
+    full_targets: &[NetImage],
+) -> Result<CompenNetData> {
+    use crate::nn::train::Data;
+    // A smaller rung works on a coarser network: the projector images are shrunk onto it (their
+    // canvas stretch shows the same picture, a little blurred).
+    let div = variant.network_divisor();
+    let full_size = full_targets[0].size();
+    let shrunk: Option<Vec<NetImage>> = (div > 1).then(|| {
+        let (w, h) = full_size;
+        full_targets
+            .iter()
+            .map(|t| crate::resize::resize_area(t, w / div, h / div))
+            .collect()
+    });
+    let targets: &[NetImage] = shrunk.as_deref().unwrap_or(full_targets);
+    let (nw, nh) = targets[0].size();
+    if nw % 4 != 0 || nh % 4 != 0 {
+        return Err(Error::Input(format!(
+            "{} needs network sides divisible by {}, the projector images are {}x{}",
+            req.method,
+            4 * div,
+            nw * div,
+            nh * div
+        )));
+    }
+    let device = req.device.candle()?;
+    // A bad pre-initialisation file fails now, not after the geometry fit.
+    req.photometric.resolve(variant.width())?;
+    let surface = setup.load_reference(Reference::Gray)?.masked(&fov.mask)?;
+    let on_device = |t: candle_core::Tensor| t.to_device(&device);
+    let data = Data {
+        captures: on_device(crate::nn::images_to_tensor(captures)?)?,
+        surface: on_device(crate::nn::images_to_tensor(std::slice::from_ref(&surface))?)?,
+        targets: on_device(crate::nn::images_to_tensor(targets)?)?,
+    };
+    Ok(CompenNetData {
+        data,
+        surface,
+        size: (nw, nh),
+        device,
+    })
+}
+
+/// Where the WarpingNet starts: the structured-light grid for the fixed-geometry rung, else the
+/// `linear` rung's affine + TPS fit. Returns the start and its description for the record.
+fn geometry_start(
+    setup: &Setup,
+    variant: crate::nn::compennetpp::Variant,
+    prepared: &CompenNetData,
+    theta: [[f32; 3]; 2],
+    captures: &[CamImage],
+    full_targets: &[NetImage],
+    progress: &mut impl FnMut(&str, usize, usize),
+) -> Result<(crate::nn::compennetpp::GeometryInit, &'static str)> {
+    use crate::nn::compennetpp::GeometryInit;
+    let (nw, nh) = prepared.size;
+    let init = if variant.fixed_geometry() {
+        let grid = sl_grid(setup, (nw, nh))?;
+        let flat: Vec<f32> = grid.data().iter().flatten().copied().collect();
+        GeometryInit::Fixed(candle_core::Tensor::from_vec(
+            flat,
+            (1, nh, nw, 2),
+            &prepared.device,
+        )?)
+    } else {
+        // Climb from the rung below: the `linear` fit's affine + TPS geometry (seconds on a CPU)
+        // starts the WarpingNet, so the network's few samples go into photometry. Fitted at the
+        // data's network size; the warp is resolution independent.
+        progress("geometry (linear rung)", 0, 1);
+        let settings = FitSettings {
+            network_size: full_targets[0].size(),
+            refine: None,
+            ..FitSettings::default()
+        };
+        // Its geometry alone: the colour model is not needed here.
+        GeometryInit::Warp(crate::linear::fit_geometry(
+            captures,
+            full_targets,
+            crate::warp::Warp::from_affine(theta),
+            &settings,
+        )?)
+    };
+    let description = match &init {
+        GeometryInit::Fixed(_) => "structured light (fixed)",
+        GeometryInit::Warp(_) => "the linear rung's affine + TPS fit",
+        GeometryInit::Affine(_) => "the FOV bounding box's affine",
+    };
+    Ok((init, description))
+}
+
+/// Inference, simplification and saving run on the CPU: brings the weights of a network trained
+/// on another device over (`size`: the rung's network size, (width, height) pixels).
+fn weights_to_cpu(
+    net: crate::nn::compennetpp::CompenNetPP,
+    device: &candle_core::Device,
+    size: (usize, usize),
+    variant: crate::nn::compennetpp::Variant,
+) -> Result<crate::nn::compennetpp::CompenNetPP> {
+    if device.is_cpu() {
+        return Ok(net);
+    }
+    let values: std::collections::HashMap<String, candle_core::Tensor> =
+        net.named_tensors().into_iter().collect();
+    crate::nn::compennetpp::CompenNetPP::restore(size, variant, &candle_core::Device::Cpu, {
+        |name, _shape| {
+            let t = values
+                .get(name)
+                .ok_or_else(|| Error::Failed(format!("trained network lacks `{name}`")))?;
+            Ok(t.flatten_all()?.to_vec1::<f32>()?)
+        }
+    })
+}

@@ -1,0 +1,303 @@
+//! Training a model on a setup: the shared core of `compend train`, `compend bench` and
+//! calibration. Loads the references and training pairs, finds the projector FOV, fits the
+//! requested rung and returns the model ready to save.
+//!
+//! Files by step: this file checks the request, loads the references, FOV and training pairs
+//! and dispatches; `linear_rungs.rs` fits the linear rungs (and `auto`'s choice among them);
+//! `compennet.rs` prepares the data of a CompenNet++ rung, starts its geometry, trains it and
+//! brings its weights to the CPU. Each writes the model's record (docs/architecture.md, "Model
+//! directory").
+
+mod compennet;
+mod linear_rungs;
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::{CaptureSet, Reference, Setup};
+use crate::error::{Error, Result};
+use crate::fov;
+use crate::model::store::TrainingRecord;
+use crate::model::{Method, MethodChoice, Model};
+use crate::raster::{CamImage, Camera, NetImage, Network, Rect};
+use crate::sample::Grid;
+
+/// Fewest training pairs the linear rungs accept.
+pub const MIN_TRAIN: usize = 4;
+/// Training pairs used when the caller does not say.
+pub const DEFAULT_TRAIN: usize = 48;
+
+/// What to train.
+#[derive(Clone, Debug)]
+pub struct Request {
+    /// The rung, or `auto`.
+    pub method: MethodChoice,
+    /// Training pairs to use (the first N); `None` = all available, at most [`DEFAULT_TRAIN`].
+    pub ntrain: Option<usize>,
+    pub seed: u64,
+    /// CompenNet++ only: override the variant's iterations (the lr step scales) and batch size.
+    pub iters: Option<usize>,
+    pub batch: Option<usize>,
+    /// Where the CompenNet++ variants train (the `linear` rungs are closed-form CPU fits).
+    pub device: TrainDevice,
+    /// The `linear` rungs only: the lattice of the colour model and of its output images;
+    /// `None` = [`default_lattice`] of the network size.
+    pub lattice: Option<(usize, usize)>,
+    /// CompenNet++ variants: how CompenNet's weights start (default: the shipped
+    /// pre-initialisation, docs/architecture.md, "Models").
+    pub photometric: crate::nn::pretrain::PhotometricInit,
+}
+
+/// The default output lattice of the `linear` rungs: 1.5× the network size, rounded up to a
+/// multiple of 4 (256² → 384²). The per-pixel model costs little more on a finer lattice, and a
+/// 256² image stretched over the canvas has fewer pixels across the displayable area than the
+/// desired image: on the rig's curved scene (seed 1, 48 images) 384² closes 0.46 dB of the
+/// closed-loop gap to the oracle, 512² no more.
+pub fn default_lattice((w, h): (usize, usize)) -> (usize, usize) {
+    ((w * 3 / 2).div_ceil(4) * 4, (h * 3 / 2).div_ceil(4) * 4)
+}
+
+/// The device CompenNet++ training runs on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TrainDevice {
+    #[default]
+    Cpu,
+    /// An NVIDIA GPU by CUDA ordinal; needs a build with the `cuda` cargo feature.
+    Cuda(usize),
+}
+
+impl std::str::FromStr for TrainDevice {
+    type Err = Error;
+    /// `cpu`, `cuda` (ordinal 0) or `cuda:N`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "cpu" => Ok(Self::Cpu),
+            "cuda" => Ok(Self::Cuda(0)),
+            _ => s
+                .strip_prefix("cuda:")
+                .and_then(|n| n.parse().ok())
+                .map(Self::Cuda)
+                .ok_or_else(|| {
+                    Error::Input(format!(
+                        "device `{s}`: expected `cpu`, `cuda` or `cuda:N` (N a GPU ordinal)"
+                    ))
+                }),
+        }
+    }
+}
+
+impl TrainDevice {
+    /// The candle device; an input error when this build has no CUDA or the GPU cannot be opened.
+    pub fn candle(self) -> Result<candle_core::Device> {
+        match self {
+            Self::Cpu => Ok(candle_core::Device::Cpu),
+            Self::Cuda(_) if !cfg!(feature = "cuda") => Err(Error::Input(
+                "--device cuda: this compend was built without CUDA; rebuild with \
+                 `cargo build --release --features cuda` (needs the CUDA toolkit's nvcc)"
+                    .into(),
+            )),
+            Self::Cuda(n) => candle_core::Device::new_cuda(n)
+                .map_err(|e| Error::Input(format!("--device cuda:{n}: cannot open the GPU: {e}"))),
+        }
+    }
+}
+
+/// What training reports besides the model.
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub method: Method,
+    pub ntrain: usize,
+    /// Wall time of the whole training (loading included), seconds.
+    pub seconds: f64,
+    /// Wall time of the fit alone, seconds.
+    pub fit_seconds: f64,
+    pub final_loss: f64,
+}
+
+/// Trains `req.method` on `setup`; `progress(stage, done, total)` reports the fit's progress.
+pub fn fit(
+    setup: &Setup,
+    req: &Request,
+    progress: impl FnMut(&str, usize, usize),
+) -> Result<(Model, Summary)> {
+    let start = Instant::now();
+    let variant = match req.method {
+        MethodChoice::Rung(m) => crate::nn::compennetpp::Variant::from_method(m.name()),
+        MethodChoice::Auto => None,
+    };
+    check_request(req, variant)?;
+    let ntrain = train_count(setup, req, variant)?;
+    let data = load_training(setup, variant.is_none(), ntrain)?;
+    if let (Some(variant), MethodChoice::Rung(method)) = (variant, req.method) {
+        return compennet::train_compennet(setup, req, method, variant, data, start, progress);
+    }
+    linear_rungs::fit_linear(setup, req, ntrain, data, start, progress)
+}
+
+/// The argument checks that need no data: `--lattice` only for the linear rungs and at least
+/// 8×8 pixels, `--iters` and `--batch` only for the CompenNet++ rungs and at least 1, and a
+/// usable training device, all before anything is loaded.
+fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>) -> Result<()> {
+    if variant.is_some() {
+        if let Some((w, h)) = req.lattice {
+            return Err(Error::Input(format!(
+                "--lattice {w}x{h}: only the linear rungs have an output lattice; {} works at \
+                 the network size",
+                req.method
+            )));
+        }
+        // Fail before loading anything when the device is unusable.
+        req.device.candle()?;
+    }
+    for (flag, value) in [("--iters", req.iters), ("--batch", req.batch)] {
+        match value {
+            Some(0) => {
+                return Err(Error::Input(format!("{flag} 0: expected at least 1")));
+            }
+            Some(n) if variant.is_none() => {
+                return Err(Error::Input(format!(
+                    "{flag} {n}: only the CompenNet++ rungs train in iterations and batches; \
+                     {} is a closed-form fit",
+                    req.method
+                )));
+            }
+            _ => {}
+        }
+    }
+    if let Some((w, h)) = req.lattice
+        && (w < 8 || h < 8)
+    {
+        return Err(Error::Input(format!(
+            "--lattice {w}x{h}: expected at least 8x8 pixels"
+        )));
+    }
+    Ok(())
+}
+
+/// The number of training pairs to use: `--ntrain`, else what the setup holds up to the rung's
+/// default; at least [`MIN_TRAIN`].
+fn train_count(
+    setup: &Setup,
+    req: &Request,
+    variant: Option<crate::nn::compennetpp::Variant>,
+) -> Result<usize> {
+    let available = setup.count(CaptureSet::Train)?;
+    let default_train = variant.map_or(DEFAULT_TRAIN, |v| v.schedule().train_pairs);
+    let ntrain = req.ntrain.unwrap_or(available.min(default_train));
+    if ntrain < MIN_TRAIN {
+        return Err(Error::Input(format!(
+            "--ntrain {ntrain}: the {} method needs at least {MIN_TRAIN} training pairs ({} has {available})",
+            req.method,
+            setup.capture_dir(CaptureSet::Train).display()
+        )));
+    }
+    Ok(ntrain)
+}
+
+/// What every rung starts from.
+struct TrainingData {
+    /// The projector FOV mask (camera pixels) from the black and white references.
+    fov: fov::FovMask,
+    /// Camera size, (width, height) pixels: the black reference's.
+    cam_size: (usize, usize),
+    /// The warp's affine start from the FOV's bounding box (network → camera, normalised).
+    theta: [[f32; 3]; 2],
+    /// Network size, (width, height) pixels: the first projector image's.
+    network_size: (usize, usize),
+    /// The first `ntrain` captures x̃_i, masked by the FOV (camera pixels).
+    captures: Vec<CamImage>,
+    /// Their projector images x_i (network pixels).
+    targets: Vec<NetImage>,
+}
+
+/// Loads the references, finds the FOV and its affine start, and loads the first `ntrain`
+/// pairs. `linear`: the rung does not need the gray surface image (its absence is a warning).
+fn load_training(setup: &Setup, linear: bool, ntrain: usize) -> Result<TrainingData> {
+    let black = setup.load_reference(Reference::Black)?;
+    let white = setup.load_reference(Reference::White)?;
+    let label = format!(
+        "{} and {}",
+        setup.reference_path(Reference::Black).display(),
+        setup.reference_path(Reference::White).display()
+    );
+    let gray = setup.reference_path(Reference::Gray);
+    if linear && !gray.is_file() {
+        // The linear rungs do not use it; the setup is still incomplete (inspect says so).
+        tracing::warn!(
+            "{}: missing (the gray surface capture); the linear rungs train without it, but \
+             the CompenNet++ rungs and `inspect` need it",
+            gray.display()
+        );
+    }
+    let fov = fov::fov_mask(&black, &white, &label)?;
+    let cam_size = black.size();
+    let theta = fov::affine_from_box(fov.bbox, cam_size)?;
+    let pairs = setup.load_train(Some(ntrain))?;
+    let network_size = pairs.inputs[0].size();
+    let captures: Vec<CamImage> = pairs
+        .captures
+        .iter()
+        .map(|c| c.masked(&fov.mask))
+        .collect::<Result<_>>()?;
+    let targets: Vec<NetImage> = pairs.inputs.into_iter().map(|p| p.into_space()).collect();
+    Ok(TrainingData {
+        fov,
+        cam_size,
+        theta,
+        network_size,
+        captures,
+        targets,
+    })
+}
+
+/// The network→camera grid from the setup's structured-light captures; the network image is
+/// assumed stretched over the whole projector frame (the size of the root's sl/ patterns).
+pub fn sl_grid(setup: &Setup, network_size: (usize, usize)) -> Result<Grid<Network, Camera>> {
+    let projector = setup.root().projector_size()?;
+    let code = crate::patterns::GrayCode::new(projector.0, projector.1)?;
+    let captures = setup.load_captures(CaptureSet::Sl, None)?;
+    if captures.len() != code.len() {
+        return Err(Error::Input(format!(
+            "{}: {} structured-light captures, expected {} for a {}x{} projector",
+            setup.capture_dir(CaptureSet::Sl).display(),
+            captures.len(),
+            code.len(),
+            projector.0,
+            projector.1
+        )));
+    }
+    let corr = code.decode(&captures)?;
+    let canvas = Rect {
+        x: 0,
+        y: 0,
+        width: projector.0,
+        height: projector.1,
+    };
+    Ok(crate::slgrid::grid_from_correspondence(&corr, canvas, network_size)?.grid)
+}
+
+/// The part of the training record every rung writes.
+fn common_record(
+    setup: &Setup,
+    ntrain: usize,
+    seed: u64,
+    fov: &fov::FovMask,
+    settings: &impl Serialize,
+    final_loss: f64,
+) -> Result<TrainingRecord> {
+    let json = |v: serde_json::Result<serde_json::Value>| {
+        v.map_err(|e| Error::Failed(format!("training record: {e}")))
+    };
+    Ok(TrainingRecord {
+        setup: Some(setup.path().to_path_buf()),
+        data_root: Some(setup.root().path().to_path_buf()),
+        ntrain,
+        seed,
+        fov: json(serde_json::to_value(&fov.diagnostics))?,
+        fov_bbox: Some(fov.bbox),
+        settings: json(serde_json::to_value(settings))?,
+        final_loss: final_loss.is_finite().then_some(final_loss),
+        ..TrainingRecord::default()
+    })
+}

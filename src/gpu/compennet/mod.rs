@@ -1,0 +1,573 @@
+//! The CompenNet++ family's photometric stage on the GPU: the simplified CompenNet backbone
+//! (docs/architecture.md, "Playback"; the surface branch folded into constant bias maps) as a
+//! chain of compute dispatches.
+//!
+//! 1. `sample` (`shaders/compennet.wgsl`): the desired camera view (rgba32float texture, camera
+//!    pixels, sRGB-encoded camera values, FOV-masked) sampled through the baked grid into the
+//!    backbone input, a (3, H, W) f32 storage buffer in network pixels;
+//! 2. the backbone's 13 convolutions and transposed convolutions (`shaders/conv.wgsl`), each with
+//!    its bias, the constant surface-bias map s1..s4 or skip activation added, ReLU, and the final
+//!    `min(., 1)`; activations are (C, h, w) f32 storage buffers at the layer's resolution;
+//! 3. `store`: the output (projector input values in [0,1]) into the compensation image
+//!    (rgba32float storage texture, network pixels).
+//!
+//! Everything is built once per model: weights repacked and uploaded, activation buffers
+//! allocated, one uniform buffer and bind group per layer. Per frame: only dispatches (one
+//! pipeline per kernel kind, reused by every layer). f32 throughout.
+//! CPU reference: [`crate::nn::compennetpp::SimplifiedCompenNet::forward`].
+
+use bytemuck::{Pod, Zeroable};
+use candle_core::Tensor;
+
+use super::GpuContext;
+use super::kernel::{Slot, Stage, scratch, storage, uniform};
+use crate::error::{Error, Result};
+use crate::nn::compennetpp::SimplifiedCompenNet;
+
+mod weights;
+
+use weights::{Weights, values};
+
+const SHADER: &str = include_str!("../../../shaders/compennet.wgsl");
+const CONV: &str = include_str!("../../../shaders/conv.wgsl");
+
+/// Output channels per vec4 accumulator of the convolution kernels.
+const LANES: usize = 4;
+/// vec4 accumulators per invocation (the shader's `B`) for layers with at least
+/// `4 * WIDE_BLOCK` output channels; 1 for the others (the 3-channel layers).
+const WIDE_BLOCK: usize = 4;
+/// Workgroup of the convolution kernels: 8×8 invocations of one channel block.
+const WG: u32 = 8;
+/// Output pixels per invocation along x of the `conv` kernel (the shader's `P`).
+const PIXELS: u32 = 4;
+
+const FLAG_ADD: u32 = 1;
+const FLAG_RELU: u32 = 2;
+const FLAG_CLAMP1: u32 = 4;
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct NetParams {
+    camera: [u32; 2],
+    network: [u32; 2],
+    half: [f32; 2],
+    _pad: [f32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable, Debug)]
+struct ConvParams {
+    cin: u32,
+    cout: u32,
+    k: u32,
+    stride: u32,
+    in_size: [u32; 2],
+    out_size: [u32; 2],
+    pad: u32,
+    flags: u32,
+    cout4: u32,
+    _pad: u32,
+}
+
+/// An activation: a (channels, height, width) f32 storage buffer; `size` is (width, height) in
+/// pixels of the layer's resolution.
+struct Act {
+    buffer: wgpu::Buffer,
+    channels: usize,
+    size: (usize, usize),
+}
+
+/// One recorded layer: which kernel, its bind group, its workgroup counts.
+struct Layer {
+    name: &'static str,
+    /// Index into [`CompenNetStage::kernels`].
+    kernel: usize,
+    group: wgpu::BindGroup,
+    groups: (u32, u32, u32),
+}
+
+/// Key of a convolution pipeline: (transposed, vec4 accumulators per invocation).
+type KernelKind = (bool, usize);
+
+/// The simplified CompenNet backbone on the GPU, for one model (fixed network size).
+pub struct CompenNetStage {
+    sample: Stage,
+    store: Stage,
+    /// One pipeline per kernel kind, reused by every layer of that kind.
+    kernels: Vec<(KernelKind, Stage)>,
+    params: wgpu::Buffer,
+    grid: wgpu::Buffer,
+    input: Act,
+    output: Act,
+    layers: Vec<Layer>,
+    /// Activations by layer name, kept for read-back in tests.
+    acts: Vec<(&'static str, Act)>,
+    /// (width, height) of the network image, network pixels.
+    network_size: (u32, u32),
+}
+
+/// What is added to a layer's pre-activation.
+enum Add<'a> {
+    None,
+    /// A constant map (the folded surface branch), uploaded once.
+    Constant(&'a Tensor),
+    /// An earlier activation (a skip connection), by name.
+    Skip(&'static str),
+}
+
+/// One step of the forward pass: layer `name` applies `weights` to the activation `from` ("x" =
+/// the sampled input), adds `add`, then applies `flags`.
+struct Planned<'a> {
+    name: &'static str,
+    weights: Weights,
+    from: &'static str,
+    add: Add<'a>,
+    flags: u32,
+}
+
+/// The forward pass of `compend::nn::compennet::Backbone`, layer by layer, with the weights read
+/// out of candle.
+fn plan(model: &SimplifiedCompenNet) -> Result<Vec<Planned<'_>>> {
+    let (b, s) = (&model.backbone, &model.bias);
+    let step = |name, weights, from, add, flags| Planned {
+        name,
+        weights,
+        from,
+        add,
+        flags,
+    };
+    let (conv, tconv) = (Weights::conv, Weights::tconv);
+    let relu_add = FLAG_ADD | FLAG_RELU;
+    Ok(vec![
+        step(
+            "skip1.0",
+            conv(&b.skip1.convs[0], "skip1.0")?,
+            "x",
+            Add::None,
+            FLAG_RELU,
+        ),
+        step(
+            "skip1.1",
+            conv(&b.skip1.convs[1], "skip1.1")?,
+            "skip1.0",
+            Add::None,
+            FLAG_RELU,
+        ),
+        step(
+            "res1",
+            conv(&b.skip1.convs[2], "skip1.2")?,
+            "skip1.1",
+            Add::None,
+            FLAG_RELU,
+        ),
+        step(
+            "a1",
+            conv(&b.conv1, "conv1")?,
+            "x",
+            Add::Constant(&s.s1),
+            relu_add,
+        ),
+        step("res2", conv(&b.skip2, "skip2")?, "a1", Add::None, 0),
+        step(
+            "a2",
+            conv(&b.conv2, "conv2")?,
+            "a1",
+            Add::Constant(&s.s2),
+            relu_add,
+        ),
+        step("res3", conv(&b.skip3, "skip3")?, "a2", Add::None, 0),
+        step(
+            "a3",
+            conv(&b.conv3, "conv3")?,
+            "a2",
+            Add::Constant(&s.s3),
+            relu_add,
+        ),
+        step(
+            "a4",
+            conv(&b.conv4, "conv4")?,
+            "a3",
+            Add::Constant(&s.s4),
+            relu_add,
+        ),
+        step(
+            "a5",
+            conv(&b.conv5, "conv5")?,
+            "a4",
+            Add::Skip("res3"),
+            relu_add,
+        ),
+        step(
+            "a6",
+            tconv(&b.tconv1, "tconv1")?,
+            "a5",
+            Add::Skip("res2"),
+            relu_add,
+        ),
+        step(
+            "a7",
+            tconv(&b.tconv2, "tconv2")?,
+            "a6",
+            Add::None,
+            FLAG_RELU,
+        ),
+        step(
+            "out",
+            conv(&b.conv6, "conv6")?,
+            "a7",
+            Add::Skip("res1"),
+            relu_add | FLAG_CLAMP1,
+        ),
+    ])
+}
+
+/// (width, height) of the network image in network pixels, from the baked grid.
+fn network_size(model: &SimplifiedCompenNet) -> Result<(usize, usize)> {
+    let (_, nh, nw, two) = model
+        .grid
+        .dims4()
+        .map_err(|e| Error::Shape(format!("CompenNet on the GPU: {e}")))?;
+    if two != 2 || nw % 4 != 0 || nh % 4 != 0 {
+        return Err(Error::Shape(format!(
+            "CompenNet on the GPU: grid {:?} is not (1, H, W, 2) with H and W divisible by 4",
+            model.grid.dims()
+        )));
+    }
+    Ok((nw, nh))
+}
+
+/// Activation buffers, each within the device's storage binding limit.
+fn activation(ctx: &GpuContext, label: &str, channels: usize, size: (usize, usize)) -> Result<Act> {
+    let limit = ctx.device.limits().max_storage_buffer_binding_size as usize;
+    let bytes = 4 * channels * size.0 * size.1;
+    if bytes > limit {
+        return Err(Error::Input(format!(
+            "CompenNet on the GPU: activation {label} ({channels}x{}x{}) needs {bytes} bytes, \
+             more than this device's storage binding limit of {limit} (use a smaller network \
+             size)",
+            size.1, size.0
+        )));
+    }
+    Ok(Act {
+        buffer: scratch(ctx, label, channels * size.0 * size.1),
+        channels,
+        size,
+    })
+}
+
+/// The backbone's layers as they are built: activations, bind groups, and the convolution
+/// pipelines compiled so far.
+struct Builder<'c> {
+    ctx: &'c GpuContext,
+    input: Act,
+    acts: Vec<(&'static str, Act)>,
+    layers: Vec<Layer>,
+    kernels: Vec<(KernelKind, Stage)>,
+    /// Bound as the added map of layers that add nothing.
+    no_add: wgpu::Buffer,
+}
+
+impl<'c> Builder<'c> {
+    fn new(ctx: &'c GpuContext, input: Act) -> Self {
+        Self {
+            ctx,
+            input,
+            acts: Vec::new(),
+            layers: Vec::new(),
+            kernels: Vec::new(),
+            no_add: storage(ctx, "no add", &[0.0]),
+        }
+    }
+
+    /// The activation `name` ("x" = the sampled input).
+    fn act(&self, name: &str) -> Result<&Act> {
+        if name == "x" {
+            return Ok(&self.input);
+        }
+        self.acts
+            .iter()
+            .find(|(a, _)| *a == name)
+            .map(|(_, a)| a)
+            .ok_or_else(|| Error::Failed(format!("CompenNet plan: no activation {name}")))
+    }
+
+    /// The buffer added to layer `name`'s pre-activation of `cout` channels × `size` pixels.
+    fn added(
+        &self,
+        name: &str,
+        add: &Add,
+        cout: usize,
+        size: (usize, usize),
+    ) -> Result<wgpu::Buffer> {
+        match add {
+            Add::None => Ok(self.no_add.clone()),
+            Add::Constant(t) => {
+                let v = values(t, name)?;
+                if v.len() != cout * size.0 * size.1 {
+                    return Err(Error::Shape(format!(
+                        "CompenNet layer {name}: surface-bias map {:?}, the layer's output is \
+                         ({cout}, {}, {})",
+                        t.dims(),
+                        size.1,
+                        size.0
+                    )));
+                }
+                Ok(storage(self.ctx, name, &v))
+            }
+            Add::Skip(n) => {
+                let a = self.act(n)?;
+                if (a.channels, a.size) != (cout, size) {
+                    return Err(Error::Shape(format!(
+                        "CompenNet layer {name}: skip {n} is {}x{}x{}, the output {cout}x{}x{}",
+                        a.channels, a.size.1, a.size.0, size.1, size.0
+                    )));
+                }
+                Ok(a.buffer.clone())
+            }
+        }
+    }
+
+    /// The pipeline for `w`'s kind, compiled on first use.
+    fn kernel(&mut self, w: &Weights) -> Result<usize> {
+        let block = w.block();
+        let key = (w.transposed, block);
+        if let Some(i) = self.kernels.iter().position(|(k, _)| *k == key) {
+            return Ok(i);
+        }
+        let entry = if w.transposed { "tconv" } else { "conv" };
+        let label = format!("{entry} x{}", LANES * block);
+        let slots = [
+            Slot::Uniform,
+            Slot::Storage,
+            Slot::Storage,
+            Slot::Storage,
+            Slot::Storage,
+            Slot::StorageRw,
+        ];
+        let stage = Stage::with_constants(
+            self.ctx,
+            &label,
+            CONV,
+            entry,
+            &slots,
+            &[("B", block as f64)],
+        )?;
+        self.kernels.push((key, stage));
+        Ok(self.kernels.len() - 1)
+    }
+
+    /// Allocates the layer's output, uploads its weights and records its bind group.
+    fn push(&mut self, step: Planned) -> Result<()> {
+        let Planned {
+            name,
+            weights: w,
+            from,
+            add,
+            flags,
+        } = step;
+        let src = self.act(from)?;
+        if src.channels != w.cin {
+            return Err(Error::Shape(format!(
+                "CompenNet layer {name}: {} input channels, the weights take {}",
+                src.channels, w.cin
+            )));
+        }
+        let in_size = src.size;
+        let src = src.buffer.clone();
+        let out_size = w.out_size(in_size, name)?;
+        let dst = activation(self.ctx, name, w.cout, out_size)?;
+        let added = self.added(name, &add, w.cout, out_size)?;
+        let (wp, bp) = w.packed();
+        let block = w.block();
+        let cout4 = (w.cout_padded() / LANES) as u32;
+        let params = ConvParams {
+            cin: w.cin as u32,
+            cout: w.cout as u32,
+            k: w.k as u32,
+            stride: w.stride as u32,
+            in_size: [in_size.0 as u32, in_size.1 as u32],
+            out_size: [out_size.0 as u32, out_size.1 as u32],
+            pad: w.pad as u32,
+            flags,
+            cout4,
+            _pad: 0,
+        };
+        let kernel = self.kernel(&w)?;
+        let ctx = self.ctx;
+        let group = self.kernels[kernel].1.bind(
+            ctx,
+            name,
+            &[
+                uniform(ctx, name, &params).as_entire_binding(),
+                src.as_entire_binding(),
+                storage(ctx, name, &wp).as_entire_binding(),
+                storage(ctx, name, &bp).as_entire_binding(),
+                added.as_entire_binding(),
+                dst.buffer.as_entire_binding(),
+            ],
+        );
+        let per_x = if w.transposed { 1 } else { PIXELS };
+        self.layers.push(Layer {
+            name,
+            kernel,
+            group,
+            groups: (
+                (out_size.0 as u32).div_ceil(per_x).div_ceil(WG),
+                (out_size.1 as u32).div_ceil(WG),
+                cout4 / block as u32,
+            ),
+        });
+        self.acts.push((name, dst));
+        Ok(())
+    }
+}
+
+impl CompenNetStage {
+    /// Uploads the grid (network pixels → normalised camera positions), the backbone's weights
+    /// and the surface-bias maps once, and allocates the activations; `camera_size` is the desired
+    /// view's (width, height) in camera pixels.
+    pub fn new(
+        ctx: &GpuContext,
+        model: &SimplifiedCompenNet,
+        camera_size: (usize, usize),
+    ) -> Result<Self> {
+        let (nw, nh) = network_size(model)?;
+        // The sampling and storing pipelines (the convolutions' are compiled per layer kind).
+        let slots = [
+            Slot::Uniform,
+            Slot::Texture,
+            Slot::Storage,
+            Slot::StorageRw,
+            Slot::Output(wgpu::TextureFormat::Rgba32Float),
+        ];
+        let sample = Stage::new(ctx, "compennet sample", SHADER, "sample", &slots)?;
+        let store = Stage::new(ctx, "compennet store", SHADER, "store", &slots)?;
+        // The constants of the sampling stage: sizes and the baked grid.
+        let (cw, ch) = camera_size;
+        let half = |n: usize| (n.max(1) - 1) as f32 / 2.0;
+        let params = uniform(
+            ctx,
+            "compennet params",
+            &NetParams {
+                camera: [cw as u32, ch as u32],
+                network: [nw as u32, nh as u32],
+                // (n − 1)/2 in f32, as compend::nn::grid_sample computes it.
+                half: [half(cw), half(ch)],
+                _pad: [0.0; 2],
+            },
+        );
+        let grid = storage(ctx, "compennet grid", &values(&model.grid, "the grid")?);
+        // The layers: activations, weights and bind groups, in forward order.
+        let mut built = Builder::new(ctx, activation(ctx, "x", 3, (nw, nh))?);
+        for step in plan(model)? {
+            built.push(step)?;
+        }
+        let Builder {
+            input,
+            mut acts,
+            layers,
+            kernels,
+            ..
+        } = built;
+        let output = acts
+            .pop()
+            .map(|(_, a)| a)
+            .ok_or_else(|| Error::Failed("CompenNet plan: no layers".into()))?;
+        if (output.channels, output.size) != (3, (nw, nh)) {
+            return Err(Error::Shape(format!(
+                "CompenNet on the GPU: the backbone's output is {}x{}x{}, the network {}x{}x3",
+                output.channels, output.size.1, output.size.0, nh, nw
+            )));
+        }
+        Ok(Self {
+            sample,
+            store,
+            kernels,
+            params,
+            grid,
+            input,
+            output,
+            layers,
+            acts,
+            network_size: (nw as u32, nh as u32),
+        })
+    }
+
+    /// The bind groups reading the desired view `desired` and writing the network image
+    /// `network`: [sample, store].
+    pub fn bind(
+        &self,
+        ctx: &GpuContext,
+        desired: &wgpu::TextureView,
+        network: &wgpu::TextureView,
+    ) -> Vec<wgpu::BindGroup> {
+        [(&self.sample, &self.input), (&self.store, &self.output)]
+            .into_iter()
+            .map(|(stage, act)| {
+                stage.bind(
+                    ctx,
+                    "compennet",
+                    &[
+                        self.params.as_entire_binding(),
+                        wgpu::BindingResource::TextureView(desired),
+                        self.grid.as_entire_binding(),
+                        act.buffer.as_entire_binding(),
+                        wgpu::BindingResource::TextureView(network),
+                    ],
+                )
+            })
+            .collect()
+    }
+
+    /// Records the whole backbone: sample, the layers in order, store.
+    pub fn dispatch(&self, pass: &mut wgpu::ComputePass<'_>, groups: &[wgpu::BindGroup]) {
+        let [sample, store] = groups else {
+            // bind() always returns two groups; nothing to record otherwise.
+            return;
+        };
+        self.sample.dispatch(pass, sample, self.network_size);
+        for l in &self.layers {
+            if let Some((_, stage)) = self.kernels.get(l.kernel) {
+                stage.dispatch_groups(pass, &l.group, l.groups);
+            }
+        }
+        self.store.dispatch(pass, store, self.network_size);
+    }
+
+    /// Records layer `i` alone (in [`Self::layer_names`] order), reading the activations the
+    /// last frame left: for per-layer timing.
+    pub fn dispatch_layer(&self, pass: &mut wgpu::ComputePass<'_>, i: usize) {
+        if let Some(l) = self.layers.get(i)
+            && let Some((_, stage)) = self.kernels.get(l.kernel)
+        {
+            stage.dispatch_groups(pass, &l.group, l.groups);
+        }
+    }
+
+    /// Names of the intermediate activations in order ("x" is the sampled input; the output is
+    /// the compensation image).
+    pub fn layer_names(&self) -> Vec<&'static str> {
+        self.layers.iter().map(|l| l.name).collect()
+    }
+
+    /// An activation read back as (channels, height, width, values (C, H, W) row-major), for tests:
+    /// `x` the sampled input, a layer's name its output (see [`Self::layer_names`]).
+    pub fn read_activation(
+        &self,
+        ctx: &GpuContext,
+        name: &str,
+    ) -> Result<(usize, usize, usize, Vec<f32>)> {
+        let act = match name {
+            "x" => &self.input,
+            "out" => &self.output,
+            _ => self
+                .acts
+                .iter()
+                .find(|(n, _)| *n == name)
+                .map(|(_, a)| a)
+                .ok_or_else(|| Error::Input(format!("no CompenNet activation `{name}`")))?,
+        };
+        let v = ctx.read_buffer(&act.buffer)?;
+        Ok((act.channels, act.size.1, act.size.0, v))
+    }
+}

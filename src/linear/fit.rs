@@ -1,0 +1,245 @@
+//! Training entry points of the `linear` rung: the full fit ([`fit`]: geometry, then colour),
+//! the geometry alone ([`fit_geometry`], for the CompenNet++ variants) and the colour alone on a
+//! fixed grid ([`fit_on_grid`], for `linear-sl`), with their settings and report.
+//!
+//! Inputs: captures in camera space (camera pixels, encoded values in \[0,1\]) and the projector
+//! images shown, in network space (network pixels).
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::colour::fit_colour;
+use super::geometry::{fit_warp, refine_geometry};
+use super::model::{Curves, Geometry, LinearModel, learned_grid};
+use crate::error::{Error, Result};
+use crate::raster::{CamImage, Camera, NetImage, Network};
+use crate::sample::Grid;
+use crate::warp::{TpsBasis, Warp};
+
+/// Training settings.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FitSettings {
+    /// Network (output) size.
+    pub network_size: (usize, usize),
+    /// Optimise the warp (false keeps the initial affine, e.g. for geometry from structured light).
+    pub learn_geometry: bool,
+    /// (network side, Adam iterations, capture blur σ in camera pixels) per coarse-to-fine level.
+    pub levels: Vec<(usize, usize, f32)>,
+    /// Adam step size for the parameters (normalised coordinates).
+    pub learning_rate: f32,
+    /// Ridge weight pulling each pixel's coefficients towards the global model: a fixed prior
+    /// strength in squared linear light, so the data outweighs it more as images are added.
+    /// Measured closed loop on the rig with 48 images: 1e-2 per image (the earlier rule) cost
+    /// 0.65 dB on the curved scene because dark, textured pixels were pulled to the global
+    /// model. With 12 images the result moves by about ±0.4 dB with this weight, through the
+    /// geometry's convergence rather than the colour fit.
+    pub ridge: f32,
+    /// Images used for the geometry (the colour fit always uses all of them).
+    pub geometry_images: usize,
+    /// The residual refinement after affine + TPS: (node spacing in network pixels, Adam
+    /// iterations) of a dense offset field ([`OffsetField`](crate::warp::OffsetField)); `None`
+    /// keeps affine + TPS.
+    /// Measured closed loop on the rig (seed 31, 48 images): the `step` scene's depth
+    /// discontinuity 20.3 → 25.7 dB, `curved` +0.3 dB, `white-plane` and `dark-texture` ±0.05 dB,
+    /// for 5–10 s more training (60 iterations at 256²).
+    pub refine: Option<(usize, usize)>,
+    /// The lattice of the colour model and of its output images, when it differs from
+    /// `network_size` (`None`: the network size). The geometry is fitted at `network_size` and is
+    /// resolution independent; only the per-pixel colour solve runs on the lattice, with the
+    /// projector images resampled onto it. A network image stretched over an 800×600 canvas
+    /// has fewer pixels across the displayable area than the desired image it should reproduce:
+    /// measured closed loop on the rig's curved scene (seed 1, 48 images), 384² instead of 256²
+    /// gains 0.46 dB and 512² nothing more, for about 1 s more training.
+    pub lattice: Option<(usize, usize)>,
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        Self {
+            network_size: (256, 256),
+            learn_geometry: true,
+            levels: vec![(64, 120, 2.0), (128, 60, 1.0), (256, 30, 0.0)],
+            learning_rate: 2e-3,
+            ridge: 0.012,
+            geometry_images: 24,
+            refine: Some((4, 60)),
+            lattice: None,
+        }
+    }
+}
+
+/// What the fit reports.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FitReport {
+    /// Mean squared residual in linear projector light at the end, per value.
+    pub final_loss: f64,
+    /// Loss after each geometry iteration (all levels in order).
+    pub loss_history: Vec<f64>,
+    pub seconds: f64,
+}
+
+/// Fits a `linear` model on training pairs: captures `x̃_i` (camera space, already masked by the
+/// FOV mask if desired) and projector inputs `x_i` (network space).
+pub fn fit(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+    mut progress: impl FnMut(&str, usize, usize),
+) -> Result<(LinearModel, FitReport)> {
+    let start = Instant::now();
+    check_pairs(captures, targets)?;
+    let cam_size = captures[0].size();
+    let (nw, nh) = settings.network_size;
+    let mut history = Vec::new();
+    let (warp, curves) = fit_warp(
+        captures,
+        targets,
+        init,
+        settings,
+        &mut history,
+        &mut progress,
+    );
+    let mut grid = TpsBasis::new(nw, nh).grid(&warp);
+    let mut refine = None;
+    if let (true, Some((spacing, iters))) = (settings.learn_geometry, settings.refine) {
+        let field = refine_geometry(
+            captures,
+            targets,
+            &grid,
+            &curves,
+            settings,
+            (spacing, iters),
+            &mut history,
+            &mut progress,
+        );
+        field.apply(&mut grid);
+        refine = Some(field);
+    }
+    let (curves, coeffs, loss) = match settings.lattice {
+        Some((lw, lh)) if (lw, lh) != (nw, nh) => {
+            let fine = learned_grid(&warp, refine.as_ref(), (nw, nh), (lw, lh));
+            let up = lattice_targets(targets, (lw, lh));
+            let up = up.as_deref().unwrap_or(targets);
+            fit_colour(captures, up, &fine, curves, settings.ridge)
+        }
+        _ => fit_colour(captures, targets, &grid, curves, settings.ridge),
+    };
+    progress("colour", 1, 1);
+    Ok((
+        LinearModel {
+            geometry: Geometry::Learned(warp, refine),
+            curves,
+            coeffs,
+            camera_size: cam_size,
+            geometry_size: (nw, nh),
+        },
+        FitReport {
+            final_loss: loss,
+            loss_history: history,
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    ))
+}
+
+/// The affine + TPS geometry alone, as [`fit`] starts with (no dense refinement, no colour
+/// model): what the CompenNet++ variants start their WarpingNet from. Inputs as for [`fit`].
+pub fn fit_geometry(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+) -> Result<Warp> {
+    check_pairs(captures, targets)?;
+    let (warp, _) = fit_warp(
+        captures,
+        targets,
+        init,
+        settings,
+        &mut Vec::new(),
+        |_, _, _| {},
+    );
+    Ok(warp)
+}
+
+/// Fits only the colour part on a fixed geometry (the two-step `linear-sl` baseline): the grid
+/// maps network pixels to camera positions, e.g. from decoded structured light.
+pub fn fit_on_grid(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    grid: Grid<Network, Camera>,
+    settings: &FitSettings,
+) -> Result<(LinearModel, FitReport)> {
+    let start = Instant::now();
+    check_pairs(captures, targets)?;
+    if grid.width() < 2 || grid.height() < 2 {
+        return Err(Error::Shape(format!(
+            "grid is {}x{}, expected at least 2x2",
+            grid.width(),
+            grid.height()
+        )));
+    }
+    // The grid's size is the model's lattice; finer than the projector images, they are
+    // resampled onto it (see [`lattice_targets`]).
+    let up = lattice_targets(targets, grid.size());
+    let targets = up.as_deref().unwrap_or(targets);
+    let (curves, coeffs, loss) =
+        fit_colour(captures, targets, &grid, Curves::default(), settings.ridge);
+    Ok((
+        LinearModel {
+            geometry_size: grid.size(),
+            geometry: Geometry::Fixed(grid),
+            curves,
+            coeffs,
+            camera_size: captures[0].size(),
+        },
+        FitReport {
+            final_loss: loss,
+            loss_history: Vec::new(),
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    ))
+}
+
+/// The projector images resampled onto a model lattice of `size` (`None` when they already
+/// have that size). The projector shows an image stretched bilinearly over the canvas (half-pixel
+/// centres), so a bilinear resample with the same convention gives, at each lattice pixel, close
+/// to the value the projector showed there.
+fn lattice_targets(targets: &[NetImage], size: (usize, usize)) -> Option<Vec<NetImage>> {
+    (targets[0].size() != size).then(|| {
+        targets
+            .par_iter()
+            .map(|t| crate::resize::resize_bilinear(t, size.0, size.1))
+            .collect()
+    })
+}
+
+/// Checks that captures and projector images pair up and are each of one size.
+fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
+    if captures.is_empty() || captures.len() != targets.len() {
+        return Err(Error::Input(format!(
+            "linear fit needs as many captures as projector images, got {} and {}",
+            captures.len(),
+            targets.len()
+        )));
+    }
+    let cam_size = captures[0].size();
+    if let Some(c) = captures.iter().find(|c| c.size() != cam_size) {
+        return Err(Error::Shape(format!(
+            "captures differ in size: {:?} and {:?}",
+            cam_size,
+            c.size()
+        )));
+    }
+    let net_size = targets[0].size();
+    if let Some(t) = targets.iter().find(|t| t.size() != net_size) {
+        return Err(Error::Shape(format!(
+            "projector images differ in size: {:?} and {:?}",
+            net_size,
+            t.size()
+        )));
+    }
+    Ok(())
+}

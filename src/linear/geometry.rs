@@ -1,0 +1,358 @@
+//! The geometry fit of the `linear` rung: the coarse-to-fine affine + TPS warp ([`fit_warp`])
+//! and the dense residual refinement ([`refine_geometry`]), both by Adam on the fused per-pixel
+//! residual ([`geometry_step`]).
+//!
+//! Spaces: captures are camera images (camera pixels); targets are network images at each
+//! level's size; grids and gradients are in normalised camera coordinates (align-corners,
+//! \[-1,1\]) per network pixel. Residuals are in linear projector light.
+
+use rayon::prelude::*;
+
+use super::colour::{IDENTITY, Normal, global_solution, targets_linear};
+use super::curve::fit_curves;
+use super::fit::FitSettings;
+use super::model::Curves;
+use crate::filter::gaussian_blur;
+use crate::raster::{CamImage, Camera, NetImage, Network, Rgb};
+use crate::resize::resize_area;
+use crate::sample::{Grid, norm_to_pixel};
+use crate::warp::{OffsetField, TpsBasis, Warp};
+
+/// The coarse-to-fine affine + TPS fit that [`fit`] starts with (when
+/// `settings.learn_geometry`), the global curves fitted on the way at its first level; appends
+/// each step's loss to `history`.
+pub(super) fn fit_warp(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+    history: &mut Vec<f64>,
+    mut progress: impl FnMut(&str, usize, usize),
+) -> (Warp, Curves) {
+    let (nw, nh) = settings.network_size;
+    let mut warp = init;
+    let mut curves = Curves::default();
+    if settings.learn_geometry {
+        let ng = settings.geometry_images.clamp(1, captures.len());
+        let total: usize = settings.levels.iter().map(|l| l.1).sum();
+        let mut done = 0;
+        let mut adam = Adam::new(warp.param_count());
+        for (level, &(side, iters, sigma)) in settings.levels.iter().enumerate() {
+            let (lw, lh) = level_size((nw, nh), side);
+            let caps: Vec<CamImage> = captures[..ng]
+                .par_iter()
+                .map(|c| blur_rgb(c, sigma))
+                .collect();
+            let tgts: Vec<NetImage> = targets[..ng]
+                .iter()
+                .map(|t| resize_area(t, lw, lh))
+                .collect();
+            let basis = TpsBasis::new(lw, lh);
+            if level == 0 {
+                // The curves are global: a coarse fit here, refined once at the end.
+                curves = fit_curves(
+                    &caps,
+                    &tgts,
+                    &basis.grid(&warp),
+                    curves,
+                    settings.ridge,
+                    2,
+                    2,
+                );
+            }
+            let lut = PowLut::new(curves.camera_gamma);
+            let ylin = linear_targets(&tgts, &curves);
+            let values = ng * lw * lh;
+            let (_, _, global) = geometry_step(
+                &caps,
+                &ylin,
+                &basis.grid(&warp),
+                &lut,
+                &IDENTITY,
+                settings.ridge,
+            );
+            let mut prior = global_solution(&global, values);
+            for it in 0..iters {
+                let grid = basis.grid(&warp);
+                let (loss, dl_dg, global) =
+                    geometry_step(&caps, &ylin, &grid, &lut, &prior, settings.ridge);
+                prior = global_solution(&global, values);
+                history.push(loss);
+                let grad = basis.backward(&warp, &dl_dg);
+                let mut params = warp.to_params();
+                // Step size decays within a level so each level settles.
+                let lr = settings.learning_rate * (1.0 - 0.7 * it as f32 / iters.max(1) as f32);
+                adam.step(&mut params, &grad, lr);
+                warp.set_params(&params);
+                done += 1;
+                progress("geometry", done, total);
+            }
+        }
+    }
+    (warp, curves)
+}
+
+/// The residual refinement: a dense offset field on top of the affine + TPS grid `base`, fitted
+/// with Adam on the same per-pixel residual as the TPS levels (full network resolution, no blur).
+/// Pixels that never see the projector get no gradient and keep a zero offset.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn refine_geometry(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    base: &Grid<Network, Camera>,
+    curves: &Curves,
+    settings: &FitSettings,
+    (spacing, iters): (usize, usize),
+    history: &mut Vec<f64>,
+    progress: &mut impl FnMut(&str, usize, usize),
+) -> OffsetField {
+    let (nw, nh) = base.size();
+    let ng = settings.geometry_images.clamp(1, captures.len());
+    let caps = &captures[..ng];
+    let lut = PowLut::new(curves.camera_gamma);
+    let ylin = linear_targets(&targets[..ng], curves);
+    let values = ng * nw * nh;
+    let spacing = spacing.max(1);
+    let mut field = OffsetField::zeros((nw - 1) / spacing + 2, (nh - 1) / spacing + 2);
+    let mut adam = Adam::new(2 * field.offsets.len());
+    let (_, _, global) = geometry_step(caps, &ylin, base, &lut, &IDENTITY, settings.ridge);
+    let mut prior = global_solution(&global, values);
+    for it in 0..iters {
+        let mut grid = base.clone();
+        field.apply(&mut grid);
+        let (loss, dl_dg, global) = geometry_step(caps, &ylin, &grid, &lut, &prior, settings.ridge);
+        prior = global_solution(&global, values);
+        history.push(loss);
+        let grad = field.backward(&dl_dg, nw, nh);
+        let mut params = field.to_params();
+        let lr = settings.learning_rate * (1.0 - 0.7 * it as f32 / iters.max(1) as f32);
+        adam.step(&mut params, &grad, lr);
+        field.set_params(&params);
+        progress("refine", it + 1, iters);
+    }
+    field
+}
+
+/// Network size of a coarse level whose longer side is at most `side`.
+fn level_size((w, h): (usize, usize), side: usize) -> (usize, usize) {
+    let s = (side as f64 / w.max(h) as f64).min(1.0);
+    (
+        ((w as f64 * s).round() as usize).max(4),
+        ((h as f64 * s).round() as usize).max(4),
+    )
+}
+
+fn blur_rgb(img: &CamImage, sigma: f32) -> CamImage {
+    if sigma <= 0.0 {
+        return img.clone();
+    }
+    let ch: Vec<_> = (0..3)
+        .map(|c| gaussian_blur(&img.channel(c), sigma as f64))
+        .collect();
+    Rgb::from_channels(&ch[0], &ch[1], &ch[2]).expect("blurred channels keep the size")
+}
+
+/// Targets in linear projector light, laid out `[p * n + i]` (pixel-major) for the fused step.
+fn linear_targets(tgts: &[NetImage], curves: &Curves) -> Vec<[f32; 3]> {
+    let n = tgts.len();
+    let px = tgts[0].width() * tgts[0].height();
+    let mut out = vec![[0f32; 3]; px * n];
+    for (i, t) in tgts.iter().enumerate() {
+        for (p, x) in t.data().chunks_exact(3).enumerate() {
+            out[p * n + i] = targets_linear(curves, x);
+        }
+    }
+    out
+}
+
+/// Lookup tables of `v^γ` and its derivative on [0, 1] per channel, for the training loops
+/// (about 20× cheaper than `powf`; the fitted model is applied with exact `powf`).
+struct PowLut {
+    value: [Vec<f32>; 3],
+    slope: [Vec<f32>; 3],
+}
+
+const LUT_SIZE: usize = 4096;
+
+impl PowLut {
+    fn new(gamma: [f32; 3]) -> Self {
+        let table = |g: f32, d: bool| -> Vec<f32> {
+            (0..LUT_SIZE)
+                .map(|i| {
+                    let v = i as f32 / (LUT_SIZE - 1) as f32;
+                    if d {
+                        if v <= 0.0 { 0.0 } else { g * v.powf(g - 1.0) }
+                    } else {
+                        v.powf(g)
+                    }
+                })
+                .collect()
+        };
+        Self {
+            value: gamma.map(|g| table(g, false)),
+            slope: gamma.map(|g| table(g, true)),
+        }
+    }
+
+    /// (v^γ, d/dv v^γ) for channel `c`, `v` clamped to [0, 1], linear interpolation between entries.
+    #[inline]
+    fn eval(&self, c: usize, v: f32) -> (f32, f32) {
+        let x = v.clamp(0.0, 1.0) * (LUT_SIZE - 1) as f32;
+        let i = (x as usize).min(LUT_SIZE - 2);
+        let f = x - i as f32;
+        let (t, d) = (&self.value[c], &self.slope[c]);
+        (t[i] + f * (t[i + 1] - t[i]), d[i] + f * (d[i + 1] - d[i]))
+    }
+}
+
+/// One image's contribution at one pixel: features a = [f_c(w), 1], the slope f_c'(w), and the
+/// derivatives of the warped value w.r.t. the normalised grid position.
+#[derive(Clone, Copy, Default)]
+struct Sample {
+    a: [f32; 4],
+    slope: [f32; 3],
+    dgx: [f32; 3],
+    dgy: [f32; 3],
+}
+
+/// One geometry step, fused per pixel: sample every capture with its spatial derivative, solve the
+/// pixel's coefficients against `prior` (the previous step's global model), and accumulate the
+/// residual and the loss gradient w.r.t. the pixel's normalised camera position. Returns the mean
+/// squared residual (linear light), the gradient per pixel, and the global normal equations for
+/// the next step's prior. `ylin[p * n + i]` are the targets in linear projector light.
+fn geometry_step(
+    caps: &[CamImage],
+    ylin: &[[f32; 3]],
+    grid: &Grid<Network, Camera>,
+    lut: &PowLut,
+    prior: &[f32; 12],
+    ridge: f32,
+) -> (f64, Vec<[f32; 2]>, Normal) {
+    let n = caps.len();
+    let (cw, ch) = caps[0].size();
+    let (sx, sy) = (0.5 * (cw.max(2) - 1) as f32, 0.5 * (ch.max(2) - 1) as f32);
+    let lambda = ridge as f64;
+    let count = (n * grid.data().len() * 3) as f32;
+    let results: Vec<(f64, [f32; 2], Normal)> = grid
+        .data()
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || vec![Sample::default(); n],
+            |buf, (p, &[gx, gy])| {
+                let mut ne = Normal::default();
+                for (i, cap) in caps.iter().enumerate() {
+                    let (w, [du, dv]) = sample_with_gradient(cap, gx, gy);
+                    let s = &mut buf[i];
+                    for c in 0..3 {
+                        let (v, d) = lut.eval(c, w[c]);
+                        s.a[c] = v;
+                        s.slope[c] = d;
+                        s.dgx[c] = du[c] * sx;
+                        s.dgy[c] = dv[c] * sy;
+                    }
+                    s.a[3] = 1.0;
+                    ne.add(&s.a, &ylin[p * n + i]);
+                }
+                let k = ne.solve(lambda, prior);
+                let (mut loss, mut g) = (0f64, [0f32; 2]);
+                for (i, s) in buf.iter().enumerate() {
+                    let y = &ylin[p * n + i];
+                    let mut dw = [0f32; 3];
+                    for o in 0..3 {
+                        let r = k[o * 3] * s.a[0]
+                            + k[o * 3 + 1] * s.a[1]
+                            + k[o * 3 + 2] * s.a[2]
+                            + k[9 + o]
+                            - y[o];
+                        loss += (r * r) as f64;
+                        for (c, d) in dw.iter_mut().enumerate() {
+                            *d += 2.0 * r * k[o * 3 + c];
+                        }
+                    }
+                    for (c, &dwc) in dw.iter().enumerate() {
+                        let d = dwc * s.slope[c];
+                        g[0] += d * s.dgx[c];
+                        g[1] += d * s.dgy[c];
+                    }
+                }
+                (loss, [g[0] / count, g[1] / count], ne)
+            },
+        )
+        .collect();
+    let mut global = Normal::default();
+    let mut loss = 0f64;
+    let mut grad = Vec::with_capacity(results.len());
+    for (l, g, ne) in &results {
+        loss += l;
+        grad.push(*g);
+        global.merge(ne);
+    }
+    (loss / count as f64, grad, global)
+}
+
+/// The bilinear sample of `img` at normalised (gx, gy) and its derivatives w.r.t. the pixel
+/// coordinates (u, v), per channel, zero padding (as [`crate::sample::grid_sample`]).
+fn sample_with_gradient(img: &CamImage, gx: f32, gy: f32) -> ([f32; 3], [[f32; 3]; 2]) {
+    let (w, h) = img.size();
+    let (u, v) = (norm_to_pixel(gx, w), norm_to_pixel(gy, h));
+    if !u.is_finite() || !v.is_finite() {
+        return ([0.0; 3], [[0.0; 3]; 2]);
+    }
+    let (x0, y0) = (u.floor(), v.floor());
+    let (fx, fy) = (u - x0, v - y0);
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let data = img.data();
+    let px = |x: i64, y: i64| -> [f32; 3] {
+        if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+            [0.0; 3]
+        } else {
+            let i = (y as usize * w + x as usize) * 3;
+            [data[i], data[i + 1], data[i + 2]]
+        }
+    };
+    let (p00, p10, p01, p11) = (
+        px(x0, y0),
+        px(x0 + 1, y0),
+        px(x0, y0 + 1),
+        px(x0 + 1, y0 + 1),
+    );
+    let mut val = [0f32; 3];
+    let mut du = [0f32; 3];
+    let mut dv = [0f32; 3];
+    for c in 0..3 {
+        let top = p00[c] + fx * (p10[c] - p00[c]);
+        let bottom = p01[c] + fx * (p11[c] - p01[c]);
+        val[c] = top + fy * (bottom - top);
+        du[c] = (1.0 - fy) * (p10[c] - p00[c]) + fy * (p11[c] - p01[c]);
+        dv[c] = bottom - top;
+    }
+    (val, [du, dv])
+}
+
+/// Adam (Kingma & Ba) over a flat parameter vector.
+struct Adam {
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: i32,
+}
+
+impl Adam {
+    fn new(n: usize) -> Self {
+        Self {
+            m: vec![0.0; n],
+            v: vec![0.0; n],
+            t: 0,
+        }
+    }
+    fn step(&mut self, params: &mut [f32], grad: &[f32], lr: f32) {
+        let (b1, b2, eps) = (0.9f32, 0.999f32, 1e-12f32);
+        self.t += 1;
+        let (c1, c2) = (1.0 - b1.powi(self.t), 1.0 - b2.powi(self.t));
+        for i in 0..params.len() {
+            self.m[i] = b1 * self.m[i] + (1.0 - b1) * grad[i];
+            self.v[i] = b2 * self.v[i] + (1.0 - b2) * grad[i] * grad[i];
+            params[i] -= lr * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + eps);
+        }
+    }
+}

@@ -1,0 +1,162 @@
+//! The `linear` model's representation and inference: geometry (a learned affine + TPS warp
+//! with its dense refinement, or a fixed grid), the global response curves and the per-pixel
+//! colour coefficients, and the CPU reference of the compensation pass.
+//!
+//! Coefficients live on the network lattice (network pixels, or the finer lattice the model was
+//! fitted on); the grid maps those pixels to normalised camera coordinates (align-corners).
+
+use serde::{Deserialize, Serialize};
+
+use crate::raster::{CamImage, Camera, NetImage, Network};
+use crate::sample::Grid;
+use crate::warp::{OffsetField, TpsBasis, Warp};
+
+/// Global per-channel response curves (gamma exponents).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Curves {
+    /// Camera linearisation exponent per channel: linear = captured^γ.
+    pub camera_gamma: [f32; 3],
+    /// Projector response exponent per channel: linear light = input^γ.
+    pub projector_gamma: [f32; 3],
+}
+
+impl Default for Curves {
+    fn default() -> Self {
+        Self {
+            camera_gamma: [2.2; 3],
+            projector_gamma: [2.2; 3],
+        }
+    }
+}
+
+impl Curves {
+    #[inline]
+    pub fn camera_linear(&self, c: usize, v: f32) -> f32 {
+        v.max(0.0).powf(self.camera_gamma[c])
+    }
+    #[inline]
+    pub fn projector_linear(&self, c: usize, x: f32) -> f32 {
+        x.max(0.0).powf(self.projector_gamma[c])
+    }
+    #[inline]
+    pub fn projector_input(&self, c: usize, l: f32) -> f32 {
+        l.clamp(0.0, 1.0).powf(1.0 / self.projector_gamma[c])
+    }
+}
+
+/// Per-pixel coefficients on the network lattice: `[M (3×3 row-major), b (3)]` per pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Coefficients {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<[f32; 12]>,
+}
+
+/// Where a model's geometry comes from.
+#[derive(Clone, Debug)]
+pub enum Geometry {
+    /// Learned affine + TPS warp with its optional residual refinement (`linear`).
+    Learned(Warp, Option<OffsetField>),
+    /// A fixed grid, e.g. from decoded structured light (`linear-sl`).
+    Fixed(Grid<Network, Camera>),
+}
+
+/// A trained `linear` model: geometry, curves and per-pixel colour coefficients.
+#[derive(Clone, Debug)]
+pub struct LinearModel {
+    pub geometry: Geometry,
+    pub curves: Curves,
+    pub coeffs: Coefficients,
+    /// Camera image size the geometry refers to.
+    pub camera_size: (usize, usize),
+    /// The network size a learned geometry was fitted at (its domain, align-corners); the
+    /// coefficients' lattice can be finer (see
+    /// [`FitSettings::lattice`](super::FitSettings::lattice)).
+    pub geometry_size: (usize, usize),
+}
+
+/// The simplified form used for playback: one baked grid, the curves and the coefficients.
+#[derive(Clone, Debug)]
+pub struct SimplifiedLinear {
+    pub grid: Grid<Network, Camera>,
+    pub curves: Curves,
+    pub coeffs: Coefficients,
+}
+
+impl LinearModel {
+    pub fn network_size(&self) -> (usize, usize) {
+        (self.coeffs.width, self.coeffs.height)
+    }
+
+    /// The sampling grid from network pixels into the camera image.
+    pub fn grid(&self) -> Grid<Network, Camera> {
+        let (w, h) = self.network_size();
+        match &self.geometry {
+            Geometry::Learned(warp, refine) => {
+                learned_grid(warp, refine.as_ref(), self.geometry_size, (w, h))
+            }
+            Geometry::Fixed(grid) => grid.clone(),
+        }
+    }
+
+    /// Bakes the geometry into one sampling grid.
+    pub fn simplify(&self) -> SimplifiedLinear {
+        SimplifiedLinear {
+            grid: self.grid(),
+            curves: self.curves,
+            coeffs: self.coeffs.clone(),
+        }
+    }
+}
+
+/// The sampling grid of a learned geometry (fitted on a `network` image) at the pixel centres of
+/// a `lattice` image stretched over the same canvas.
+pub(super) fn learned_grid(
+    warp: &Warp,
+    refine: Option<&OffsetField>,
+    network: (usize, usize),
+    lattice: (usize, usize),
+) -> Grid<Network, Camera> {
+    if network == lattice {
+        let mut grid = TpsBasis::new(lattice.0, lattice.1).grid(warp);
+        if let Some(field) = refine {
+            field.apply(&mut grid);
+        }
+        grid
+    } else {
+        let mut grid = TpsBasis::on_lattice(network, lattice).grid(warp);
+        if let Some(field) = refine {
+            field.apply_on_lattice(&mut grid, network);
+        }
+        grid
+    }
+}
+
+impl SimplifiedLinear {
+    /// The CPU reference of the `linear` compensation pass: sample the camera-view image through
+    /// the baked grid (bilinear, align-corners, zero outside), apply the per-pixel affine colour
+    /// model in linear light, map back through the inverse projector curve and clamp to [0, 1].
+    /// Input: a camera-space image (a capture x̃, or a desired viewer image z'); output: the
+    /// network-space projector image.
+    pub fn apply(&self, input: &CamImage) -> NetImage {
+        let warped = crate::sample::grid_sample(input, &self.grid);
+        apply_colour(&warped, &self.curves, &self.coeffs)
+    }
+}
+
+/// Applies curves and per-pixel coefficients to an already warped image.
+pub fn apply_colour(warped: &NetImage, curves: &Curves, coeffs: &Coefficients) -> NetImage {
+    let mut out = warped.clone();
+    for (px, k) in out.data_mut().chunks_exact_mut(3).zip(&coeffs.data) {
+        let a = [
+            curves.camera_linear(0, px[0]),
+            curves.camera_linear(1, px[1]),
+            curves.camera_linear(2, px[2]),
+        ];
+        for c in 0..3 {
+            let l = k[c * 3] * a[0] + k[c * 3 + 1] * a[1] + k[c * 3 + 2] * a[2] + k[9 + c];
+            px[c] = curves.projector_input(c, l);
+        }
+    }
+    out
+}

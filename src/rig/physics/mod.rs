@@ -1,0 +1,380 @@
+//! The simulator: a scene turned into per-pixel maps once, so that a capture is a gather plus
+//! per-pixel colour maths (plus a blur for defocus), noise and quantisation.
+//!
+//! Forward model for a projector input image P (projector space, values in \[0,1\]):
+//!
+//! 1. projector: input quantised to 8 bits, drive d = level^γ_c per channel, emitted light
+//!    e = M_p·d + black (linear, projector space); optional defocus blurs e (Gaussian, zero
+//!    padding: no light comes from outside the frame);
+//! 2. geometry: each camera pixel sees one surface point, lit by the emitted light sampled
+//!    bilinearly at the projector coordinate of that point (zeros outside the frame), E_i;
+//! 3. surface: radiance R_i = ρ_i·g_i·E_i + spec_i·E_i + ρ_i·I_i + ρ_i·A_i + glare_i, where
+//!    g_i = visibility × cos(incidence) × distance fall-off × projector vignetting, spec_i the
+//!    projector highlight, I_i one inter-reflection bounce (strength × wide blur of ρ·g·E),
+//!    A_i ambient irradiance;
+//! 4. camera: sensor s_i = exposure·vignetting_i·M_c·R_i; Poisson-Gaussian noise; clip to \[0,1\];
+//!    encoded value s^(1/γ); 8-bit quantisation (round to nearest level).
+//!
+//! Steps 1 (after the response curve) to the sensor signal are linear in the drive d; the oracle
+//! ([`super::oracle`]) uses that operator and its adjoint.
+//!
+//! Spaces: the per-pixel maps and sensor signals are in camera pixels (row-major, interleaved
+//! RGB), emitted light and drives in projector pixels; pixel centres at integer coordinates.
+//!
+//! - this module: the [`Simulator`] (built once per scene, seed and [`Phase`]), captures, masks
+//!   and correspondences;
+//! - `pixel`: ray casting and shading of one camera pixel (step 2 and 3's per-pixel factors);
+//! - `operator`: the linear operator (emission → sensor) and its adjoint;
+//! - `bounce`: the inter-reflection of step 3;
+//! - `kernels`: blurs, small matrix helpers, the parallel loops and the noise hashing.
+
+use std::sync::OnceLock;
+
+use super::geom::{Pinhole, Shape};
+use super::scene::{Pose, Scene};
+use crate::error::{Error, Result};
+use crate::raster::{CamImage, Camera, Mask, PrjImage};
+use rayon::prelude::*;
+
+mod bounce;
+mod kernels;
+mod operator;
+mod pixel;
+#[cfg(test)]
+mod tests;
+
+use bounce::Bounce;
+use kernels::{CHUNK, approx_normal, gaussian_kernel, par_rows};
+pub(crate) use kernels::{mat3, mix64};
+use pixel::{PixelMaps, camera_maps};
+
+/// Which projector pose the simulator uses: the one at calibration, or the moved one of
+/// [`Scene::drift`] (identical when the scene has no drift).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Phase {
+    Calibration,
+    AfterDrift,
+}
+
+/// Four bilinear taps into projector space: the pixel at `base` and its right, lower and
+/// lower-right neighbours, weights in that order (zero for taps outside the frame).
+#[derive(Clone, Copy, Debug, Default)]
+struct Tap {
+    base: u32,
+    w: [f32; 4],
+}
+
+/// A scene prepared for simulation. Immutable and `Sync`: captures can run from any thread.
+#[derive(Debug)]
+pub struct Simulator {
+    scene: Scene,
+    seed: u64,
+    phase: Phase,
+    cam: Pinhole,
+    prj: Pinhole,
+    shape: Shape,
+    // Camera-space maps, one entry per camera pixel (row-major).
+    taps: Vec<Tap>,
+    prj_xy: Vec<[f32; 2]>,
+    lit: Vec<bool>,
+    shadow: Vec<bool>,
+    diffuse: Vec<[f32; 3]>,
+    spec: Vec<f32>,
+    albedo: Vec<[f32; 3]>,
+    gain: Vec<f32>,
+    constant: Vec<[f32; 3]>,
+    preview: CamImage,
+    // Global terms.
+    prj_lut: [[f32; 256]; 3],
+    prj_mix: [[f32; 3]; 3],
+    prj_black: [f32; 3],
+    cam_mix: [[f32; 3]; 3],
+    defocus: Option<Vec<f32>>,
+    bounce: Option<Bounce>,
+    /// Sensor signal at which the encoded output reaches level k + ½, k = 0..254.
+    thresholds: Vec<f32>,
+    /// For a signal bucket floor(s·QUANT_BUCKETS), the level at its lower edge.
+    bucket_level: Vec<u8>,
+    noise: (f32, f32),
+    prj_to_cam: OnceLock<Vec<[f32; 2]>>,
+}
+
+const QUANT_BUCKETS: usize = 4096;
+
+impl Simulator {
+    /// Prepares `scene` (validated) with texture seed `seed` and the projector pose of `phase`.
+    pub fn new(scene: &Scene, seed: u64, phase: Phase) -> Result<Self> {
+        scene.validate()?;
+        let c = &scene.camera;
+        let p = &scene.projector;
+        let cam = Pinhole::new(c.width, c.height, c.hfov_deg, &c.pose);
+        let prj_pose = projector_pose(scene, phase);
+        let prj = Pinhole::new(p.width, p.height, p.hfov_deg, &prj_pose);
+        let shape = Shape::new(&scene.surface);
+
+        let m3 = |m: &[[f64; 3]; 3]| m.map(|r| r.map(|v| v as f32));
+        let cam_mix = m3(&c.mixing);
+        let (cw, chh) = (c.width, c.height);
+        let pixels = camera_maps(scene, seed, &cam, &prj, &shape, cam_mix);
+
+        let n = cw * chh;
+        let mut sim = Simulator {
+            scene: scene.clone(),
+            seed,
+            phase,
+            cam,
+            prj,
+            shape,
+            taps: Vec::with_capacity(n),
+            prj_xy: Vec::with_capacity(n),
+            lit: Vec::with_capacity(n),
+            shadow: Vec::with_capacity(n),
+            diffuse: Vec::with_capacity(n),
+            spec: Vec::with_capacity(n),
+            albedo: Vec::with_capacity(n),
+            gain: Vec::with_capacity(n),
+            constant: Vec::with_capacity(n),
+            preview: CamImage::new(cw, chh),
+            prj_lut: [[0.0; 256]; 3],
+            prj_mix: m3(&p.mixing),
+            prj_black: p.black.map(|v| v as f32),
+            cam_mix,
+            defocus: None,
+            bounce: None,
+            thresholds: Vec::new(),
+            bucket_level: Vec::new(),
+            noise: (c.noise.shot as f32, c.noise.read as f32),
+            prj_to_cam: OnceLock::new(),
+        };
+        sim.store_pixels(pixels)?;
+        sim.set_global_terms();
+        Ok(sim)
+    }
+
+    /// Moves the per-pixel maps into the simulator's camera-space arrays (row-major) and builds
+    /// the surface preview from them.
+    fn store_pixels(&mut self, pixels: Vec<PixelMaps>) -> Result<()> {
+        let (cw, chh) = self.camera_size();
+        let n = cw * chh;
+        let sim = self;
+        let mut preview = Vec::with_capacity(n * 3);
+        for px in pixels {
+            sim.taps.push(px.tap);
+            sim.prj_xy.push(px.prj_xy);
+            sim.lit.push(px.lit);
+            sim.shadow.push(px.shadow);
+            sim.diffuse.push(px.diffuse);
+            sim.spec.push(px.spec);
+            sim.albedo.push(px.albedo);
+            sim.gain.push(px.gain);
+            sim.constant.push(px.constant);
+            preview.extend_from_slice(&px.preview);
+        }
+        sim.preview = CamImage::from_vec(cw, chh, preview)?;
+        Ok(())
+    }
+
+    /// The global terms of the scene: the projector's response table per 8-bit level, the
+    /// defocus kernel (projector pixels), the inter-reflection bounce and the camera's
+    /// quantisation tables.
+    fn set_global_terms(&mut self) {
+        let sim = self;
+        let scene = &sim.scene;
+        let (c, p) = (&scene.camera, &scene.projector);
+        let (cw, chh) = (c.width, c.height);
+        for (ch, lut) in sim.prj_lut.iter_mut().enumerate() {
+            for (level, v) in lut.iter_mut().enumerate() {
+                *v = (level as f64 / 255.0).powf(p.gamma[ch]) as f32;
+            }
+        }
+        if p.defocus_px > 0.05 {
+            sim.defocus = Some(gaussian_kernel(p.defocus_px));
+        }
+        if let Some(ir) = &scene.interreflection {
+            if ir.strength > 0.0 {
+                sim.bounce = Some(Bounce::new(cw, chh, ir.strength, ir.radius));
+            }
+        }
+        // Quantisation thresholds of the encoded output: level k+1 starts where
+        // s^(1/γ) = (k + ½)/255.
+        sim.thresholds = (0..255)
+            .map(|k| ((k as f64 + 0.5) / 255.0).powf(c.gamma) as f32)
+            .collect();
+        sim.bucket_level = (0..QUANT_BUCKETS)
+            .map(|b| {
+                let s = b as f32 / QUANT_BUCKETS as f32;
+                sim.thresholds.iter().take_while(|&&t| t <= s).count() as u8
+            })
+            .collect();
+    }
+
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+    /// (width, height) of the camera frame.
+    pub fn camera_size(&self) -> (usize, usize) {
+        (self.cam.width, self.cam.height)
+    }
+    /// (width, height) of the projector frame.
+    pub fn projector_size(&self) -> (usize, usize) {
+        (self.prj.width, self.prj.height)
+    }
+
+    /// One capture of projector image `prj`: noise drawn from (seed, `frame`), clipped, encoded
+    /// and quantised to 8-bit levels (values k/255).
+    pub fn capture(&self, prj: &PrjImage, frame: u64) -> Result<CamImage> {
+        let s = self.clean_signal(prj)?;
+        Ok(self.finish(&s, Some(frame)))
+    }
+
+    /// The noise-free sensor signal for `prj` (linear, camera space, interleaved RGB, not yet
+    /// clipped): what every capture of it scatters around.
+    pub fn clean_signal(&self, prj: &PrjImage) -> Result<Vec<f32>> {
+        self.check_prj(prj)?;
+        let e = self.emission(prj);
+        let mut s = self.sensor(&e);
+        self.add_constant(&mut s);
+        Ok(s)
+    }
+
+    /// The camera's output for a sensor signal: noise for `frame` (none for `None`), clipping,
+    /// response curve and 8-bit quantisation.
+    pub fn finish(&self, signal: &[f32], frame: Option<u64>) -> CamImage {
+        let (shot, read) = self.noise;
+        let key = frame.map(|f| mix64(self.seed ^ mix64(f.wrapping_add(0x5eed_f4a3))));
+        let read2 = read * read;
+        let mut data = vec![0f32; signal.len()];
+        data.par_chunks_mut(CHUNK)
+            .zip(signal.par_chunks(CHUNK))
+            .enumerate()
+            .for_each(|(c, (out, sig))| {
+                for (j, (o, &s)) in out.iter_mut().zip(sig).enumerate() {
+                    let s = match key {
+                        Some(k) => {
+                            let i = (c * CHUNK + j) as u64;
+                            let sd = (shot * s.max(0.0) + read2).sqrt();
+                            s + sd * approx_normal(mix64(k.wrapping_add(i)))
+                        }
+                        None => s,
+                    };
+                    *o = self.quantise(s) as f32 / 255.0;
+                }
+            });
+        CamImage::from_vec(self.cam.width, self.cam.height, data)
+            .expect("the signal has the camera's size")
+    }
+
+    /// Noise-free camera output for `prj` without quantisation: clip and response curve only.
+    pub fn expected(&self, prj: &PrjImage) -> Result<CamImage> {
+        let s = self.clean_signal(prj)?;
+        let inv = 1.0 / self.scene.camera.gamma as f32;
+        let data = s.iter().map(|&v| v.clamp(0.0, 1.0).powf(inv)).collect();
+        CamImage::from_vec(self.cam.width, self.cam.height, data)
+    }
+
+    /// Camera pixels whose surface point the projector frame lights (inside the frame, facing
+    /// the projector, not shadowed): the true projector FOV mask.
+    pub fn lit_mask(&self) -> Mask<Camera> {
+        let (w, h) = self.camera_size();
+        Mask::from_vec(w, h, self.lit.clone()).expect("one entry per camera pixel")
+    }
+
+    /// Camera pixels whose surface point lies in the projector's frustum but is hidden from the
+    /// projector by another part of the surface or faces away from it (self-occlusion).
+    pub fn shadow_mask(&self) -> Mask<Camera> {
+        let (w, h) = self.camera_size();
+        Mask::from_vec(w, h, self.shadow.clone()).expect("one entry per camera pixel")
+    }
+
+    /// For every camera pixel (row-major), the projector pixel coordinate of the surface point
+    /// it sees (pixel centres at integers), or NaN where the projector does not reach it.
+    pub fn projector_coords(&self) -> &[[f32; 2]] {
+        &self.prj_xy
+    }
+
+    /// For every projector pixel (row-major), the camera pixel coordinate where its light lands
+    /// (pixel centres at integers), or NaN where no camera pixel sees it. Computed on first use.
+    pub fn camera_coords(&self) -> &[[f32; 2]] {
+        self.prj_to_cam.get_or_init(|| {
+            let (pw, ph) = self.projector_size();
+            par_rows(ph, |v| {
+                (0..pw)
+                    .map(|u| self.camera_coord_of(u as f64, v as f64))
+                    .collect::<Vec<_>>()
+            })
+        })
+    }
+
+    /// The scene as a person would see it under plain room light (linear albedo × shading,
+    /// encoded with γ 2.2), darkened where the projector does not reach.
+    pub fn surface_preview(&self) -> &CamImage {
+        &self.preview
+    }
+
+    fn camera_coord_of(&self, u: f64, v: f64) -> [f32; 2] {
+        let nan = [f32::NAN; 2];
+        let d = self.prj.ray(u, v);
+        let Some(t) = self.shape.intersect(&self.prj.centre, &d) else {
+            return nan;
+        };
+        let q = self.prj.centre + d * t;
+        let n = self.shape.normal(&q);
+        if n.dot(&(self.cam.centre - q)) <= 0.0 || !self.shape.reaches(&self.cam.centre, &q) {
+            return nan;
+        }
+        match self.cam.project(&q) {
+            Some((x, y)) => [x as f32, y as f32],
+            None => nan,
+        }
+    }
+
+    fn check_prj(&self, prj: &PrjImage) -> Result<()> {
+        if prj.size() != self.projector_size() {
+            return Err(Error::Shape(format!(
+                "virtual projector of scene {:?} is {}x{}, got a {}x{} projector image",
+                self.scene.name,
+                self.prj.width,
+                self.prj.height,
+                prj.width(),
+                prj.height()
+            )));
+        }
+        Ok(())
+    }
+
+    #[inline]
+    fn quantise(&self, s: f32) -> u8 {
+        if s.is_nan() || s <= 0.0 {
+            return 0;
+        }
+        if s >= 1.0 {
+            return 255;
+        }
+        let b = ((s * QUANT_BUCKETS as f32) as i32 as usize).min(QUANT_BUCKETS - 1);
+        let mut q = self.bucket_level[b] as usize;
+        while q < 255 && self.thresholds[q] <= s {
+            q += 1;
+        }
+        q as u8
+    }
+}
+
+/// The projector pose of `phase`: the calibrated one, or for [`Phase::AfterDrift`] turned by the
+/// scene's drift (projector pixels converted to angles through the focal length).
+fn projector_pose(scene: &Scene, phase: Phase) -> Pose {
+    let p = &scene.projector;
+    let mut prj_pose = p.pose.clone();
+    if let (Phase::AfterDrift, Some(drift)) = (phase, &scene.drift) {
+        let f = Pinhole::new(p.width, p.height, p.hfov_deg, &p.pose).f;
+        prj_pose.rotation_deg[0] += (drift.shift_px[0] / f).atan().to_degrees();
+        prj_pose.rotation_deg[1] -= (drift.shift_px[1] / f).atan().to_degrees();
+    }
+    prj_pose
+}

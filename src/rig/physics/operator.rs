@@ -1,0 +1,194 @@
+//! The linear part of the simulator's forward model (steps 1–4 of [`super`] between the
+//! projector's response curve and the sensor signal, without noise) and its adjoint, as the oracle
+//! ([`super::super::oracle`]) needs them.
+//!
+//! Spaces: drives and emitted light are projector images (projector pixels, interleaved linear
+//! RGB); sensor signals are camera images (camera pixels, interleaved linear RGB, not clipped).
+
+use super::kernels::{blur_rgb, level, mat3, par_pixels, transpose};
+use super::{Simulator, Tap};
+use crate::raster::PrjImage;
+
+impl Simulator {
+    /// Emitted light (linear, projector space, interleaved RGB) for an input image: 8-bit input,
+    /// response curves, primaries and black level.
+    pub(crate) fn emission(&self, prj: &PrjImage) -> Vec<f32> {
+        let src = prj.data();
+        par_pixels(src.len() / 3, |i| {
+            let px = &src[i * 3..i * 3 + 3];
+            let d = [0, 1, 2].map(|c| self.prj_lut[c][level(px[c])]);
+            let e = mat3(&self.prj_mix, d);
+            [
+                e[0] + self.prj_black[0],
+                e[1] + self.prj_black[1],
+                e[2] + self.prj_black[2],
+            ]
+        })
+    }
+
+    /// Emitted light for linear drives `d` (projector space): M_p·d, plus the black level when
+    /// `black` is set.
+    pub(crate) fn drive_to_emission(&self, d: &[f32], black: bool) -> Vec<f32> {
+        let b = if black { self.prj_black } else { [0.0; 3] };
+        let mut out = Vec::with_capacity(d.len());
+        for px in d.chunks_exact(3) {
+            let e = mat3(&self.prj_mix, [px[0], px[1], px[2]]);
+            out.extend_from_slice(&[e[0] + b[0], e[1] + b[1], e[2] + b[2]]);
+        }
+        out
+    }
+
+    /// Adjoint of [`Self::drive_to_emission`] without black level: M_pᵀ per pixel.
+    pub(crate) fn emission_to_drive_adjoint(&self, g: &[f32]) -> Vec<f32> {
+        let mt = transpose(&self.prj_mix);
+        let mut out = Vec::with_capacity(g.len());
+        for px in g.chunks_exact(3) {
+            out.extend_from_slice(&mat3(&mt, [px[0], px[1], px[2]]));
+        }
+        out
+    }
+
+    /// The linear part of the model: emitted light (projector space) to sensor signal (camera
+    /// space), without ambient light and glare.
+    pub(crate) fn sensor(&self, emitted: &[f32]) -> Vec<f32> {
+        let (pw, ph) = self.projector_size();
+        let blurred;
+        let e = match &self.defocus {
+            Some(k) => {
+                blurred = blur_rgb(emitted, pw, ph, k);
+                &blurred[..]
+            }
+            None => emitted,
+        };
+        let n = self.taps.len();
+        let camera = |i: usize, r: [f32; 3]| {
+            let s = mat3(&self.cam_mix, r);
+            let g = self.gain[i];
+            [g * s[0], g * s[1], g * s[2]]
+        };
+        // Gathered projector light E_i; direct radiance R_i = diffuse_i·E_i + spec_i·E_i.
+        let direct = |i: usize| {
+            let ei = gather(e, pw, &self.taps[i]);
+            let dg = self.diffuse[i];
+            let sp = self.spec[i];
+            let d = [dg[0] * ei[0], dg[1] * ei[1], dg[2] * ei[2]];
+            (d, [d[0] + sp * ei[0], d[1] + sp * ei[1], d[2] + sp * ei[2]])
+        };
+        let Some(bounce) = &self.bounce else {
+            return par_pixels(n, |i| camera(i, direct(i).1));
+        };
+        // With inter-reflection: the diffuse direct radiance feeds one bounce.
+        let diffuse = par_pixels(n, |i| direct(i).0);
+        let indirect = bounce.forward(&diffuse);
+        par_pixels(n, |i| {
+            let r = direct(i).1;
+            let a = self.albedo[i];
+            let k = &indirect[i * 3..i * 3 + 3];
+            camera(
+                i,
+                [r[0] + a[0] * k[0], r[1] + a[1] * k[1], r[2] + a[2] * k[2]],
+            )
+        })
+    }
+
+    /// Adjoint of [`Self::sensor`]: a camera-space signal gradient to a projector-space
+    /// emission gradient.
+    pub(crate) fn sensor_adjoint(&self, grad: &[f32]) -> Vec<f32> {
+        let (pw, ph) = self.projector_size();
+        let n = self.taps.len();
+        let mt = transpose(&self.cam_mix);
+        // Radiance gradient q_i = gain_i · M_cᵀ · r_i.
+        let mut q = Vec::with_capacity(n * 3);
+        for i in 0..n {
+            let r = mat3(&mt, [grad[i * 3], grad[i * 3 + 1], grad[i * 3 + 2]]);
+            let g = self.gain[i];
+            q.extend_from_slice(&[g * r[0], g * r[1], g * r[2]]);
+        }
+        // Gradient with respect to the diffuse direct radiance through the bounce.
+        let bounce_grad = self.bounce.as_ref().map(|b| {
+            let mut aq = q.clone();
+            for i in 0..n {
+                for c in 0..3 {
+                    aq[i * 3 + c] *= self.albedo[i][c];
+                }
+            }
+            b.adjoint(&aq)
+        });
+        let mut e = vec![0f32; pw * ph * 3];
+        for i in 0..n {
+            let dg = self.diffuse[i];
+            let sp = self.spec[i];
+            let mut ge = [0f32; 3];
+            for c in 0..3 {
+                let mut dd = q[i * 3 + c];
+                if let Some(bg) = &bounce_grad {
+                    dd += bg[i * 3 + c];
+                }
+                ge[c] = dg[c] * dd + sp * q[i * 3 + c];
+            }
+            scatter(&mut e, pw, &self.taps[i], ge);
+        }
+        match &self.defocus {
+            Some(k) => blur_rgb(&e, pw, ph, k),
+            None => e,
+        }
+    }
+
+    /// Adds ambient light and glare (sensor units) to a sensor signal.
+    pub(crate) fn add_constant(&self, s: &mut [f32]) {
+        for (px, c) in s.chunks_exact_mut(3).zip(&self.constant) {
+            px[0] += c[0];
+            px[1] += c[1];
+            px[2] += c[2];
+        }
+    }
+
+    /// Per camera pixel: the sensor signal per unit of gathered projector light in each channel
+    /// before camera mixing (ρ·g + spec), the pixel's gain, and the constant term; used by the
+    /// oracle's per-pixel inversion.
+    pub(crate) fn pixel_terms(&self, i: usize) -> ([f32; 3], f32, [f32; 3]) {
+        let d = self.diffuse[i];
+        let s = self.spec[i];
+        (
+            [d[0] + s, d[1] + s, d[2] + s],
+            self.gain[i],
+            self.constant[i],
+        )
+    }
+
+    pub(crate) fn cam_mix(&self) -> &[[f32; 3]; 3] {
+        &self.cam_mix
+    }
+    pub(crate) fn prj_mix(&self) -> &[[f32; 3]; 3] {
+        &self.prj_mix
+    }
+    pub(crate) fn prj_black(&self) -> [f32; 3] {
+        self.prj_black
+    }
+}
+
+#[inline]
+fn gather(e: &[f32], w: usize, t: &Tap) -> [f32; 3] {
+    let b = t.base as usize * 3;
+    let r = b + w * 3;
+    let mut out = [0f32; 3];
+    for (c, o) in out.iter_mut().enumerate() {
+        *o = t.w[0] * e[b + c] + t.w[1] * e[b + 3 + c] + t.w[2] * e[r + c] + t.w[3] * e[r + 3 + c];
+    }
+    out
+}
+
+#[inline]
+fn scatter(e: &mut [f32], w: usize, t: &Tap, g: [f32; 3]) {
+    if t.w == [0.0; 4] {
+        return;
+    }
+    let b = t.base as usize * 3;
+    let r = b + w * 3;
+    for (c, &gc) in g.iter().enumerate() {
+        e[b + c] += t.w[0] * gc;
+        e[b + 3 + c] += t.w[1] * gc;
+        e[r + c] += t.w[2] * gc;
+        e[r + 3 + c] += t.w[3] * gc;
+    }
+}

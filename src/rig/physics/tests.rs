@@ -1,0 +1,88 @@
+//! Unit tests of the simulator's taps, blurs, adjoints and noise.
+
+use super::bounce::Bounce;
+use super::kernels::{approx_normal, blur_rgb, gaussian_kernel, mix64};
+use super::pixel::tap;
+use super::*;
+
+#[test]
+fn taps_read_zeros_outside_and_sum_to_one_inside() {
+    let t = tap(2.25, 1.5, 5, 4);
+    assert_eq!(t.base, 5 + 2);
+    assert!((t.w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+    // Half a pixel left of the first column: half the weight is lost to the outside.
+    let t = tap(-0.5, 0.0, 5, 4);
+    assert_eq!(t.base, 0);
+    assert!((t.w.iter().sum::<f32>() - 0.5).abs() < 1e-6);
+    assert!((t.w[0] - 0.5).abs() < 1e-6);
+    // Half a pixel past the last row and column.
+    let t = tap(4.5, 3.5, 5, 4);
+    assert_eq!(t.base as usize, 2 * 5 + 3);
+    assert!((t.w[3] - 0.25).abs() < 1e-6 && t.w[0] == 0.0);
+    // Exactly on the last pixel centre.
+    let t = tap(4.0, 3.0, 5, 4);
+    assert!((t.w[3] - 1.0).abs() < 1e-6);
+}
+
+#[test]
+fn blur_is_self_adjoint_and_bounce_adjoint_matches() {
+    let (w, h) = (13, 9);
+    let a: Vec<f32> = (0..w * h * 3)
+        .map(|i| ((i * 37 % 101) as f32) / 101.0)
+        .collect();
+    let b: Vec<f32> = (0..w * h * 3)
+        .map(|i| ((i * 53 % 97) as f32) / 97.0)
+        .collect();
+    let k = gaussian_kernel(1.7);
+    let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
+    let lhs = dot(&blur_rgb(&a, w, h, &k), &b);
+    let rhs = dot(&a, &blur_rgb(&b, w, h, &k));
+    assert!((lhs - rhs).abs() < 1e-4 * lhs.abs(), "{lhs} {rhs}");
+
+    let (w, h) = (170, 45);
+    let bounce = Bounce::new(w, h, 0.3, 0.1);
+    assert!(bounce.block >= 2, "exercise partial blocks");
+    let a: Vec<f32> = (0..w * h * 3)
+        .map(|i| ((i * 37 % 101) as f32) / 101.0)
+        .collect();
+    let b: Vec<f32> = (0..w * h * 3)
+        .map(|i| ((i * 53 % 97) as f32) / 97.0)
+        .collect();
+    let lhs = dot(&bounce.forward(&a), &b);
+    let rhs = dot(&a, &bounce.adjoint(&b));
+    assert!((lhs - rhs).abs() < 1e-4 * lhs.abs(), "{lhs} {rhs}");
+}
+
+#[test]
+fn sensor_adjoint_matches_forward() {
+    // Every linear stage at once: defocus, specular, inter-reflection, colour mixing.
+    let mut scene = crate::rig::builtin("specular-corner")
+        .expect("built-in")
+        .with_resolution((90, 50), (70, 52));
+    scene.projector.defocus_px = 1.3;
+    let sim = Simulator::new(&scene, 3, Phase::Calibration).expect("builds");
+    let (pw, ph) = sim.projector_size();
+    let (cw, ch) = sim.camera_size();
+    let a: Vec<f32> = (0..pw * ph * 3)
+        .map(|i| ((i * 37 % 101) as f32) / 101.0)
+        .collect();
+    let b: Vec<f32> = (0..cw * ch * 3)
+        .map(|i| ((i * 53 % 97) as f32) / 97.0)
+        .collect();
+    let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
+    let fwd = sim.sensor(&sim.drive_to_emission(&a, false));
+    let adj = sim.emission_to_drive_adjoint(&sim.sensor_adjoint(&b));
+    let (lhs, rhs) = (dot(&fwd, &b), dot(&a, &adj));
+    assert!(lhs > 1.0, "the scene is lit: {lhs}");
+    assert!((lhs - rhs).abs() < 1e-4 * lhs, "{lhs} vs {rhs}");
+}
+
+#[test]
+fn approx_normal_has_unit_variance() {
+    let n = 200_000;
+    let v: Vec<f64> = (0..n).map(|i| approx_normal(mix64(i)) as f64).collect();
+    let mean = v.iter().sum::<f64>() / n as f64;
+    let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n as f64;
+    assert!(mean.abs() < 0.01, "mean {mean}");
+    assert!((var - 1.0).abs() < 0.02, "var {var}");
+}

@@ -1,0 +1,315 @@
+//! The built-in scenes, from easy to impossible (one function per scene on top of a shared
+//! base), and loading a scene by name or from a JSON file.
+//!
+//! Sizes: 640×480 camera pixels, 800×600 projector pixels; distances in metres (see [`super`]).
+
+use super::{
+    Albedo, Ambient, CameraModel, Drift, Glare, Interreflection, Latency, Noise, Pose,
+    ProjectorModel, Scene, Specular, Surface,
+};
+use crate::error::{Error, Result};
+
+/// Names of the built-in scenes, from easy to impossible.
+pub const BUILTIN: &[&str] = &[
+    "white-plane",
+    "textured-plane",
+    "curved",
+    "curved-ambient",
+    "dark-texture",
+    "specular-corner",
+    "defocus-noise",
+    "step",
+    "drift",
+];
+
+/// A built-in scene by name, or a scene description from a JSON file (as `compend sim show`
+/// prints it) when `name_or_path` is a path to a file.
+pub fn load(name_or_path: &str) -> Result<Scene> {
+    if BUILTIN.contains(&name_or_path) {
+        return builtin(name_or_path);
+    }
+    let path = std::path::Path::new(name_or_path);
+    if !path.is_file() {
+        return builtin(name_or_path);
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "read", e))?;
+    let scene: Scene = serde_json::from_str(&text).map_err(|e| {
+        Error::Input(format!(
+            "{}: not a scene description ({e}); `compend sim show NAME` prints one",
+            path.display()
+        ))
+    })?;
+    scene.validate()?;
+    Ok(scene)
+}
+
+/// The built-in scene called `name` (at 640×480 camera, 800×600 projector).
+pub fn builtin(name: &str) -> Result<Scene> {
+    let base = base_scene();
+    let scene = match name {
+        "white-plane" => white_plane(name, base),
+        "textured-plane" => textured_plane(name, base),
+        "curved" => curved(name, base),
+        "curved-ambient" => curved_ambient(name, base),
+        "dark-texture" => dark_texture(name, base),
+        "specular-corner" => specular_corner(name, base),
+        "defocus-noise" => defocus_noise(name, base),
+        "step" => step(name, base),
+        "drift" => drift(name, base),
+        other => {
+            return Err(Error::Input(format!(
+                "unknown scene {other:?} (neither a built-in scene nor a scene file); built-in \
+                 scenes: {}",
+                BUILTIN.join(", ")
+            )));
+        }
+    };
+    Ok(scene)
+}
+
+// One function per built-in scene, in the order of `BUILTIN`: `base` with the scene's name,
+// summary and what sets it apart.
+
+fn white_plane(name: &str, base: Scene) -> Scene {
+    Scene {
+        name: name.into(),
+        summary: "a white matte wall facing the camera: geometry and response curves only".into(),
+        ..base
+    }
+}
+
+fn textured_plane(name: &str, base: Scene) -> Scene {
+    Scene {
+        name: name.into(),
+        summary: "a flat, slightly turned wall with a colourful texture".into(),
+        surface: Surface::Plane {
+            distance: 2.0,
+            tilt_deg: [12.0, -3.0],
+        },
+        albedo: light_texture(),
+        ..base
+    }
+}
+
+fn curved(name: &str, base: Scene) -> Scene {
+    Scene {
+        name: name.into(),
+        summary: "a textured convex cylinder (a column or a bulging curtain)".into(),
+        surface: Surface::Cylinder {
+            distance: 1.9,
+            radius: 1.3,
+            convex: true,
+        },
+        albedo: light_texture(),
+        ..base
+    }
+}
+
+fn curved_ambient(name: &str, base: Scene) -> Scene {
+    Scene {
+        name: name.into(),
+        summary: "a textured curtain-like wave under strong warm ambient light from the left"
+            .into(),
+        surface: Surface::Wave {
+            distance: 2.0,
+            amplitude: 0.05,
+            period: 0.45,
+            angle_deg: 0.0,
+            phase_deg: 30.0,
+        },
+        albedo: light_texture(),
+        ambient: Ambient {
+            offset: [0.08, 0.06, 0.035],
+            gradient: [0.30, 0.16, 0.03],
+            direction_deg: 180.0,
+        },
+        ..base
+    }
+}
+
+fn dark_texture(name: &str, base: Scene) -> Scene {
+    Scene {
+        name: name.into(),
+        summary: "a dark, saturated texture: full compensation is physically impossible in \
+              places"
+            .into(),
+        surface: Surface::Plane {
+            distance: 2.0,
+            tilt_deg: [-6.0, 2.0],
+        },
+        albedo: Albedo::Texture {
+            palette: vec![
+                [0.45, 0.03, 0.02],
+                [0.04, 0.04, 0.03],
+                [0.03, 0.06, 0.42],
+                [0.05, 0.28, 0.05],
+                [0.30, 0.02, 0.30],
+                [0.40, 0.30, 0.02],
+            ],
+            scale: 0.22,
+            shade: 0.6,
+            sharpness: 3.0,
+        },
+        ..base
+    }
+}
+
+fn specular_corner(name: &str, base: Scene) -> Scene {
+    let mut s = Scene {
+        name: name.into(),
+        summary: "an inside corner with a glossy finish: projector highlights that clip, \
+                  light bouncing between the walls, and a reflected room lamp"
+            .into(),
+        surface: Surface::Corner {
+            distance: 2.1,
+            slope: 0.22,
+            edge_x: 0.05,
+        },
+        albedo: Albedo::Texture {
+            palette: vec![[0.80, 0.78, 0.72], [0.70, 0.74, 0.80], [0.82, 0.66, 0.60]],
+            scale: 0.3,
+            shade: 0.25,
+            sharpness: 1.5,
+        },
+        specular: Some(Specular {
+            strength: 0.6,
+            shininess: 150.0,
+        }),
+        interreflection: Some(Interreflection {
+            strength: 0.25,
+            radius: 0.12,
+        }),
+        glare: Some(Glare {
+            rgb: [0.10, 0.09, 0.07],
+            centre: [0.3, 0.35],
+            radius: 0.05,
+        }),
+        ..base
+    };
+    s.camera.exposure = 0.85;
+    s
+}
+
+fn defocus_noise(name: &str, base: Scene) -> Scene {
+    let mut s = Scene {
+        name: name.into(),
+        summary: "a textured concave surface with the projector out of focus and a noisy \
+                  camera (high gain)"
+            .into(),
+        surface: Surface::Cylinder {
+            distance: 2.1,
+            radius: 2.2,
+            convex: false,
+        },
+        albedo: light_texture(),
+        ..base
+    };
+    s.projector.defocus_px = 2.5;
+    s.camera.noise = Noise {
+        shot: 0.003,
+        read: 0.012,
+    };
+    s
+}
+
+fn step(name: &str, base: Scene) -> Scene {
+    let mut s = Scene {
+        name: name.into(),
+        summary: "a block standing in front of a wall: the projector cannot reach the \
+                  strip the block shadows (self-occlusion)"
+            .into(),
+        surface: Surface::Step {
+            distance: 2.2,
+            depth: 0.4,
+            edge_x: 0.08,
+        },
+        albedo: light_texture(),
+        ..base
+    };
+    // A wider baseline, so the shadow strip is clearly visible from the camera.
+    s.projector.pose = Pose::looking_at([0.35, -0.06, 0.0], [0.0, 0.0, 2.0], 0.4);
+    s
+}
+
+fn drift(name: &str, base: Scene) -> Scene {
+    let mut s = Scene {
+        name: name.into(),
+        summary: "the curved textured scene with a projector that moves by about 1.5 \
+                  pixels after calibration"
+            .into(),
+        surface: Surface::Cylinder {
+            distance: 1.9,
+            radius: 1.3,
+            convex: true,
+        },
+        albedo: light_texture(),
+        ..base
+    };
+    s.drift = Some(Drift {
+        shift_px: [1.5, -1.0],
+    });
+    s
+}
+
+/// The shared defaults: a white wall 2 m away, camera at the origin, projector 12 cm to the
+/// right and 5 cm up, aimed at the wall's centre; mild colour crosstalk on both devices.
+fn base_scene() -> Scene {
+    Scene {
+        name: String::new(),
+        summary: String::new(),
+        camera: CameraModel {
+            width: 640,
+            height: 480,
+            hfov_deg: 50.0,
+            pose: Pose::origin(),
+            mixing: [[0.94, 0.05, 0.01], [0.03, 0.94, 0.03], [0.01, 0.05, 0.94]],
+            exposure: 1.1,
+            gamma: 2.2,
+            vignetting: 0.15,
+            noise: Noise {
+                shot: 0.0004,
+                read: 0.002,
+            },
+        },
+        projector: ProjectorModel {
+            width: 800,
+            height: 600,
+            hfov_deg: 38.0,
+            pose: Pose::looking_at([0.12, -0.05, 0.0], [0.0, 0.0, 2.0], 0.4),
+            gamma: [2.2, 2.3, 2.1],
+            mixing: [[0.93, 0.06, 0.01], [0.03, 0.94, 0.03], [0.01, 0.04, 0.95]],
+            black: [0.002, 0.002, 0.003],
+            vignetting: 0.12,
+            defocus_px: 0.0,
+        },
+        surface: Surface::Plane {
+            distance: 2.0,
+            tilt_deg: [0.0, 0.0],
+        },
+        albedo: Albedo::Uniform {
+            rgb: [0.86, 0.85, 0.82],
+        },
+        ambient: Ambient::default(),
+        specular: None,
+        glare: None,
+        interreflection: None,
+        latency: Latency::default(),
+        drift: None,
+    }
+}
+
+/// A light, colourful texture (paper, fabric): compensable almost everywhere.
+fn light_texture() -> Albedo {
+    Albedo::Texture {
+        palette: vec![
+            [0.85, 0.80, 0.65],
+            [0.55, 0.70, 0.85],
+            [0.85, 0.55, 0.50],
+            [0.60, 0.80, 0.55],
+            [0.80, 0.75, 0.80],
+        ],
+        scale: 0.25,
+        shade: 0.35,
+        sharpness: 2.0,
+    }
+}

@@ -1,0 +1,439 @@
+//! Scene descriptions: every parameter of a simulated projector-camera setup, as plain serde
+//! structs (so a scene can be written to and read from JSON or TOML), and the built-in scenes
+//! ([`BUILTIN`], [`builtin`], [`load`]: the table of named scenes and loading a scene file).
+//!
+//! World coordinates are metres in the camera's frame of reference when the camera has the
+//! identity pose: x to the right, y down, z forward (away from the camera, towards the surface).
+//! Light quantities are linear and relative: a projector at full white with the identity
+//! primaries emits 1.0 per channel, which a white (albedo 1) frontal surface at the reference
+//! distance reflects as radiance 1.0.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+mod builtins;
+
+pub use builtins::{BUILTIN, builtin, load};
+
+/// A complete scene. Resolutions are part of it ([`Scene::with_resolution`] rescales every
+/// pixel-valued parameter so the physical scene stays the same).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Short identifier, kebab-case (e.g. `white-plane`).
+    pub name: String,
+    /// One sentence: what the scene tests.
+    pub summary: String,
+    pub camera: CameraModel,
+    pub projector: ProjectorModel,
+    pub surface: Surface,
+    pub albedo: Albedo,
+    #[serde(default)]
+    pub ambient: Ambient,
+    /// Highlight of the projector's own light (moves with nothing, scales with the projection).
+    #[serde(default)]
+    pub specular: Option<Specular>,
+    /// Static reflection of a room light in a glossy or glass surface (independent of the
+    /// projection).
+    #[serde(default)]
+    pub glare: Option<Glare>,
+    /// One bounce of projected light between parts of the surface (concave shapes).
+    #[serde(default)]
+    pub interreflection: Option<Interreflection>,
+    #[serde(default)]
+    pub latency: Latency,
+    /// How the projector moves after calibration (the drift scene); `None`: it stays put.
+    #[serde(default)]
+    pub drift: Option<Drift>,
+}
+
+/// Position and orientation of a camera or projector.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Pose {
+    /// Optical centre in world metres.
+    pub position: [f64; 3],
+    /// [yaw, pitch, roll] in degrees, applied as R = Ry(yaw)·Rx(pitch)·Rz(roll) (device to
+    /// world). Positive yaw turns the optical axis towards +x (right), positive pitch towards
+    /// -y (up), positive roll turns the image clockwise as seen by the device.
+    pub rotation_deg: [f64; 3],
+}
+
+impl Pose {
+    /// The identity pose at the world origin.
+    pub fn origin() -> Self {
+        Pose {
+            position: [0.0; 3],
+            rotation_deg: [0.0; 3],
+        }
+    }
+
+    /// A device at `position` whose optical axis points at `target`, with `roll_deg`. Angles
+    /// are rounded to 1e-4 degrees so descriptions stay readable (and exact through JSON).
+    pub fn looking_at(position: [f64; 3], target: [f64; 3], roll_deg: f64) -> Self {
+        let d = [
+            target[0] - position[0],
+            target[1] - position[1],
+            target[2] - position[2],
+        ];
+        let yaw = d[0].atan2(d[2]);
+        let pitch = (-d[1]).atan2((d[0] * d[0] + d[2] * d[2]).sqrt());
+        Pose {
+            position,
+            rotation_deg: [yaw.to_degrees(), pitch.to_degrees(), roll_deg]
+                .map(|a| (a * 1e4).round() / 1e4),
+        }
+    }
+}
+
+/// Camera: pinhole optics and the sensor pipeline (colour mixing, exposure, vignetting, noise,
+/// response curve, 8-bit quantisation and clipping).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraModel {
+    /// Frame size in camera pixels.
+    pub width: usize,
+    pub height: usize,
+    /// Horizontal field of view in degrees (square pixels, principal point at the centre).
+    pub hfov_deg: f64,
+    pub pose: Pose,
+    /// Sensor colour mixing: sensor RGB = mixing · scene radiance RGB (rows = sensor channels).
+    /// Entries must be non-negative.
+    pub mixing: [[f64; 3]; 3],
+    /// Linear gain from radiance to sensor signal (1.0 = full scale at radiance 1).
+    pub exposure: f64,
+    /// Response curve: encoded value = signal^(1/gamma) after clipping to \[0,1\].
+    pub gamma: f64,
+    /// Radial fall-off: gain × (1 − vignetting·r²), r = 1 at the frame corners.
+    pub vignetting: f64,
+    pub noise: Noise,
+}
+
+/// Poisson-Gaussian sensor noise on the linear signal s ∈ \[0,1\]: variance = shot·s + read².
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Noise {
+    pub shot: f64,
+    pub read: f64,
+}
+
+/// Projector: pinhole optics, per-channel response, primaries, black level, vignetting, defocus.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProjectorModel {
+    /// Frame size in projector pixels.
+    pub width: usize,
+    pub height: usize,
+    /// Horizontal field of view in degrees (square pixels, principal point at the centre).
+    pub hfov_deg: f64,
+    pub pose: Pose,
+    /// Per-channel response: drive = (input level)^gamma per channel, input quantised to 8 bits.
+    pub gamma: [f64; 3],
+    /// Primaries: emitted RGB = mixing · drive + black (rows = emitted channels). Non-negative.
+    pub mixing: [[f64; 3]; 3],
+    /// Light emitted for an all-black input (inside the projector frame only).
+    pub black: [f64; 3],
+    /// Radial fall-off of the emitted light: 1 − vignetting·r², r = 1 at the frame corners.
+    pub vignetting: f64,
+    /// Defocus blur: Gaussian standard deviation in projector pixels (0 = sharp).
+    pub defocus_px: f64,
+}
+
+/// Analytic surfaces, each a height field z = h(x, y) seen from the camera (the solid lies
+/// behind it, z ≥ h), evaluated on |x|, |y| ≤ [`SURFACE_EXTENT`] metres.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Surface {
+    /// z = distance + tan(tilt_x)·x + tan(tilt_y)·y.
+    Plane { distance: f64, tilt_deg: [f64; 2] },
+    /// Vertical cylinder of `radius` whose front (convex: nearest; concave: farthest) point is at
+    /// x = 0, z = `distance`.
+    Cylinder {
+        distance: f64,
+        radius: f64,
+        convex: bool,
+    },
+    /// z = distance + amplitude·sin(2π·(x·cos a + y·sin a)/period + phase), like a curtain.
+    Wave {
+        distance: f64,
+        amplitude: f64,
+        period: f64,
+        angle_deg: f64,
+        phase_deg: f64,
+    },
+    /// Inside corner of two walls meeting at a vertical edge at x = `edge_x`, z = `distance`:
+    /// z = distance − slope·|x − edge_x|.
+    Corner {
+        distance: f64,
+        slope: f64,
+        edge_x: f64,
+    },
+    /// A plane at `distance` for x < `edge_x` and a block `depth` metres nearer for x ≥ `edge_x`,
+    /// joined by a vertical face (the block casts a shadow when the projector is to the right).
+    Step {
+        distance: f64,
+        depth: f64,
+        edge_x: f64,
+    },
+}
+
+/// Half-size of the square on which surfaces are defined (metres). Beyond it the height field
+/// is extended by its value at the border.
+pub const SURFACE_EXTENT: f64 = 4.0;
+
+/// Surface reflectance (linear, in \[0,1\] per channel), fixed to the surface (x, y).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Albedo {
+    Uniform {
+        rgb: [f64; 3],
+    },
+    /// Procedural texture from the seed: smooth value noise picks colours along `palette`
+    /// (piecewise linear), a second noise field darkens by up to `shade`, and `sharpness`
+    /// (≥ 1) turns smooth blends into crisper patches. `scale` is the feature size in metres.
+    Texture {
+        palette: Vec<[f64; 3]>,
+        scale: f64,
+        shade: f64,
+        sharpness: f64,
+    },
+}
+
+/// Ambient light falling on the surface (irradiance, relative to a full-white projector):
+/// offset + gradient·ramp, where ramp goes from 0 to 1 across the camera view along
+/// `direction_deg` (0 = increasing to the right, 90 = increasing downwards).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ambient {
+    pub offset: [f64; 3],
+    pub gradient: [f64; 3],
+    pub direction_deg: f64,
+}
+
+impl Default for Ambient {
+    fn default() -> Self {
+        Ambient {
+            offset: [0.002, 0.002, 0.0025],
+            gradient: [0.0; 3],
+            direction_deg: 0.0,
+        }
+    }
+}
+
+/// Blinn-Phong highlight of the projector's light: radiance += strength·(N·H)^shininess ×
+/// incident projector light (untinted by the albedo).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Specular {
+    pub strength: f64,
+    pub shininess: f64,
+}
+
+/// Static glare: radiance += rgb·exp(−d²/(2·radius²)), d the distance in camera pixels from
+/// `centre`; `centre` and `radius` are fractions of the camera width and height.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Glare {
+    pub rgb: [f64; 3],
+    pub centre: [f64; 2],
+    pub radius: f64,
+}
+
+/// One bounce of diffusely reflected projector light: irradiance += strength × (Gaussian blur of
+/// the directly reflected radiance), blur σ = `radius` × camera width (camera space).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Interreflection {
+    pub strength: f64,
+    pub radius: f64,
+}
+
+/// Timing of the virtual camera: frame rate, frames of delay between exposure and delivery,
+/// and the probability that an exposure is dropped.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Latency {
+    pub fps: f64,
+    pub delay_frames: u32,
+    pub drop_rate: f64,
+}
+
+impl Default for Latency {
+    fn default() -> Self {
+        Latency {
+            fps: 30.0,
+            delay_frames: 2,
+            drop_rate: 0.02,
+        }
+    }
+}
+
+/// Projector movement after calibration: a rotation that shifts its image on the surface by
+/// about `shift_px` projector pixels (x right, y down).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Drift {
+    pub shift_px: [f64; 2],
+}
+
+impl Scene {
+    /// Rescales the scene to other camera and projector resolutions, keeping the physical
+    /// scene (fields of view, poses, surfaces) and the blur in physical terms (defocus and drift
+    /// scale with the projector width). Sizes must be at least 2×2.
+    pub fn with_resolution(mut self, camera: (usize, usize), projector: (usize, usize)) -> Self {
+        let k = projector.0 as f64 / self.projector.width as f64;
+        self.camera.width = camera.0;
+        self.camera.height = camera.1;
+        self.projector.width = projector.0;
+        self.projector.height = projector.1;
+        self.projector.defocus_px *= k;
+        if let Some(d) = &mut self.drift {
+            d.shift_px = [d.shift_px[0] * k, d.shift_px[1] * k];
+        }
+        self
+    }
+
+    /// Checks values the simulator relies on; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        self.validate_devices()?;
+        self.validate_albedo()?;
+        self.validate_surface()?;
+        self.validate_effects()
+    }
+
+    /// The error for field `what` of this scene: `Err` with `why` it is invalid.
+    fn bad(&self, what: &str, why: &str) -> Result<()> {
+        Err(Error::Input(format!("scene {:?}: {what} {why}", self.name)))
+    }
+
+    /// Camera and projector: sizes (pixels), fields of view (degrees), colour mixing, response,
+    /// vignetting, noise, defocus (projector pixels) and the latency model.
+    fn validate_devices(&self) -> Result<()> {
+        let c = &self.camera;
+        let p = &self.projector;
+        if c.width < 2 || c.height < 2 {
+            return self.bad("camera.width/height", "must be at least 2");
+        }
+        if p.width < 2 || p.height < 2 {
+            return self.bad("projector.width/height", "must be at least 2");
+        }
+        for (name, fov) in [
+            ("camera.hfov_deg", c.hfov_deg),
+            ("projector.hfov_deg", p.hfov_deg),
+        ] {
+            if !(fov > 1.0 && fov < 170.0) {
+                return self.bad(name, "must be between 1 and 170 degrees");
+            }
+        }
+        for (name, m) in [
+            ("camera.mixing", &c.mixing),
+            ("projector.mixing", &p.mixing),
+        ] {
+            if m.iter().flatten().any(|&v| !(v >= 0.0 && v.is_finite())) {
+                return self.bad(name, "entries must be finite and non-negative");
+            }
+            let det = nalgebra::Matrix3::from_fn(|r, k| m[r][k]).determinant();
+            if det.abs() < 1e-6 {
+                return self.bad(name, "must be invertible");
+            }
+        }
+        if !above(c.exposure, 0.0) || !above(c.gamma, 0.0) {
+            return self.bad("camera.exposure/gamma", "must be positive");
+        }
+        if p.gamma.iter().any(|&g| !above(g, 0.0)) {
+            return self.bad("projector.gamma", "must be positive");
+        }
+        if !(0.0..1.0).contains(&c.vignetting) || !(0.0..1.0).contains(&p.vignetting) {
+            return self.bad("vignetting", "must be in [0,1)");
+        }
+        if c.noise.shot < 0.0 || c.noise.read < 0.0 {
+            return self.bad("camera.noise", "must be non-negative");
+        }
+        if !(p.defocus_px >= 0.0 && p.defocus_px <= 64.0) {
+            return self.bad("projector.defocus_px", "must be in [0, 64]");
+        }
+        if !above(self.latency.fps, 0.0) || !(0.0..0.9).contains(&self.latency.drop_rate) {
+            return self.bad("latency", "needs fps > 0 and drop_rate in [0, 0.9)");
+        }
+        Ok(())
+    }
+
+    /// The albedo: colours in \[0,1\], a texture's scale (metres), shade and sharpness.
+    fn validate_albedo(&self) -> Result<()> {
+        match &self.albedo {
+            Albedo::Uniform { rgb } if rgb.iter().any(|v| !(0.0..=1.0).contains(v)) => {
+                return self.bad("albedo.rgb", "must be in [0,1]");
+            }
+            Albedo::Texture {
+                palette,
+                scale,
+                shade,
+                sharpness,
+            } => {
+                if palette.is_empty() || palette.iter().flatten().any(|v| !(0.0..=1.0).contains(v))
+                {
+                    return self.bad("albedo.palette", "needs colours in [0,1]");
+                }
+                if !above(*scale, 0.0) || !(0.0..=1.0).contains(shade) || !at_least(*sharpness, 1.0)
+                {
+                    return self.bad(
+                        "albedo",
+                        "needs scale > 0, shade in [0,1] and sharpness >= 1",
+                    );
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// The surface's distance, radius and period (metres).
+    fn validate_surface(&self) -> Result<()> {
+        let dist = match &self.surface {
+            Surface::Plane { distance, .. }
+            | Surface::Cylinder { distance, .. }
+            | Surface::Wave { distance, .. }
+            | Surface::Corner { distance, .. }
+            | Surface::Step { distance, .. } => *distance,
+        };
+        if !above(dist, 0.1) {
+            return self.bad("surface.distance", "must be more than 0.1 m");
+        }
+        match self.surface {
+            Surface::Cylinder { radius, .. } if !above(radius, 0.05) => {
+                return self.bad("surface.radius", "must be more than 0.05 m");
+            }
+            Surface::Wave { period, .. } if !above(period, 1e-3) => {
+                return self.bad("surface.period", "must be more than 1 mm");
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// Inter-reflection and specular highlights.
+    fn validate_effects(&self) -> Result<()> {
+        if let Some(ir) = &self.interreflection {
+            if !at_least(ir.strength, 0.0) || !above(ir.radius, 0.0) {
+                return self.bad("interreflection", "needs strength >= 0 and radius > 0");
+            }
+        }
+        if let Some(s) = &self.specular {
+            if !at_least(s.strength, 0.0) || !at_least(s.shininess, 1.0) {
+                return self.bad("specular", "needs strength >= 0 and shininess >= 1");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `v` is a number greater than `min` (false for NaN).
+fn above(v: f64, min: f64) -> bool {
+    v.is_finite() && v > min
+}
+
+/// `v` is a number of at least `min` (false for NaN).
+fn at_least(v: f64, min: f64) -> bool {
+    v.is_finite() && v >= min
+}

@@ -1,0 +1,265 @@
+//! The `compend sim` command line: listing and showing scenes, exporting setups (complete for
+//! the offline commands, byte-identical for one seed), contact sheets.
+
+use super::*;
+
+#[test]
+fn sim_list_and_show() {
+    use common_cli::*;
+    let o = compend(&["sim", "list"]);
+    assert_code(&o, 0);
+    let names: Vec<String> = stdout(&o).lines().map(str::to_string).collect();
+    assert_eq!(
+        names,
+        rig::BUILTIN
+            .iter()
+            .map(|s| s.to_string())
+            .collect::<Vec<_>>()
+    );
+
+    let o = compend(&["sim", "show", "step"]);
+    assert_code(&o, 0);
+    let scene: rig::Scene = serde_json::from_str(&stdout(&o)).expect("JSON scene");
+    assert_eq!(scene, rig::builtin("step").expect("built-in"));
+
+    let o = compend(&["sim", "show", "no-such-scene"]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("white-plane"),
+        "lists the scenes: {}",
+        stderr(&o)
+    );
+}
+
+/// Runs `compend sim export` for a tiny scene into `root`.
+fn export_tiny(root: &std::path::Path, scene: &str, seed: u64, extra: &[&str]) {
+    use common_cli::*;
+    let root = root.to_str().expect("utf-8 path");
+    let seed = seed.to_string();
+    let mut args = vec![
+        "sim",
+        "export",
+        "--scene",
+        scene,
+        "--out",
+        root,
+        "--ntrain",
+        "6",
+        "--ntest",
+        "2",
+        "--camera",
+        "80x60",
+        "--projector",
+        "100x75",
+        "--network",
+        "32",
+        "--seed",
+        &seed,
+    ];
+    args.extend_from_slice(extra);
+    let o = compend(&args);
+    assert_code(&o, 0);
+}
+
+/// Every file under `dir` (relative path, bytes), sorted.
+fn files(dir: &std::path::Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).expect("readable folder") {
+            let p = e.expect("entry").path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(dir).expect("under dir").to_path_buf();
+                out.push((rel, std::fs::read(&p).expect("readable file")));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// An exported setup is complete for the offline commands: `inspect` finds no problem, a
+/// model trains on it, compensates its desired images, and `sim score` scores them on the rig
+/// between the uncompensated row and the oracle.
+#[test]
+fn exported_setup_goes_through_the_offline_commands() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let root = dir.path();
+    export_tiny(root, "curved", 2, &[]);
+    let setup = root.join("curved");
+    let s = setup.to_str().expect("utf-8");
+    inspect_finds_no_problem(s);
+    desired_images_lie_in_the_lit_area(&setup);
+    train_and_compensate(&setup, s);
+    score_lies_between_uncompensated_and_oracle(s);
+}
+
+/// `compend inspect` on the exported setup `s`: no problem, every capture counted.
+fn inspect_finds_no_problem(s: &str) {
+    use common_cli::*;
+    let o = compend(&["inspect", "--setup", s, "--json"]);
+    assert_code(&o, 0);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(v["total_problems"], 0, "{v}");
+    assert_eq!(
+        v["captures"]["ref"], 126,
+        "whole colour cube and the gray image"
+    );
+    assert_eq!(v["captures"]["train"], 6);
+    assert_eq!(v["captures"]["sl"], v["projector_images"]["sl"]);
+    assert_eq!(v["desired_test"], 2);
+    assert_eq!(v["camera_size"]["width"], 80);
+}
+
+/// The record, and desired images placed in its displayable area (black elsewhere), which lies
+/// in the truly lit part of the camera view.
+fn desired_images_lie_in_the_lit_area(setup: &std::path::Path) {
+    let record = rig::export::read_record(setup).expect("rig.json");
+    assert_eq!(
+        record.scene,
+        rig::builtin("curved")
+            .expect("built-in")
+            .with_resolution(CAM, PRJ)
+    );
+    let area = record.displayable_area;
+    let set = compend::dataset::Setup::open(setup, None).expect("setup");
+    let z = &set.load_desired(None).expect("desired")[0];
+    let (mut inside, mut outside) = (0.0, 0.0);
+    for y in 0..CAM.1 {
+        for x in 0..CAM.0 {
+            let v: f32 = z.get(x, y).iter().sum();
+            if area.contains(x, y) {
+                inside += v;
+            } else {
+                outside += v;
+            }
+        }
+    }
+    assert!(inside > 0.0 && outside == 0.0);
+    let truth = tiny("curved", 2).lit_mask();
+    let lit_in_area = (area.y..area.y + area.height)
+        .flat_map(|y| (area.x..area.x + area.width).map(move |x| (x, y)))
+        .filter(|&(x, y)| truth.get(x, y))
+        .count();
+    assert!(
+        lit_in_area as f64 >= 0.97 * area.area() as f64,
+        "area {area} mostly lit"
+    );
+}
+
+/// Trains `linear` on the setup and compensates its desired test images into
+/// `prj/cmp/test/linear`.
+fn train_and_compensate(setup: &std::path::Path, s: &str) {
+    use common_cli::*;
+    let o = compend(&["train", "--setup", s, "--method", "linear"]);
+    assert_code(&o, 0);
+    let model = setup.join("models").join("linear");
+    let desire = setup.join("cam").join("desire").join("test");
+    let cmp = setup.join("prj").join("cmp").join("test").join("linear");
+    let o = compend(&[
+        "compensate",
+        "--model",
+        model.to_str().expect("utf-8"),
+        "--input",
+        desire.to_str().expect("utf-8"),
+        "--out",
+        cmp.to_str().expect("utf-8"),
+    ]);
+    assert_code(&o, 0);
+}
+
+/// `compend sim score`: the rows in order, the oracle on top, the trained model above the
+/// uncompensated row.
+fn score_lies_between_uncompensated_and_oracle(s: &str) {
+    use common_cli::*;
+    let o = compend(&["sim", "score", "--setup", s, "--json"]);
+    assert_code(&o, 0);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    let rows = v["rows"].as_array().expect("rows");
+    let names: Vec<&str> = rows
+        .iter()
+        .map(|r| r["name"].as_str().expect("name"))
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "uncompensated",
+            "geometry-only",
+            "linear",
+            "oracle @ 32x32",
+            "oracle"
+        ]
+    );
+    let psnr = |k: usize| rows[k]["psnr"].as_f64().expect("psnr");
+    assert_eq!(rows[4]["gap_db"].as_f64(), Some(0.0));
+    assert!(
+        psnr(4) > psnr(2) && psnr(4) > psnr(1) && psnr(1) > psnr(0),
+        "{v}"
+    );
+    // Limiting the oracle to the network resolution can only cost (up to noise).
+    assert!(psnr(3) <= psnr(4) + 0.1, "{v}");
+    assert!(
+        psnr(2) > psnr(0),
+        "a trained model beats no compensation: {v}"
+    );
+}
+
+#[test]
+fn identical_seeds_give_identical_files() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (a, b, c) = (
+        dir.path().join("a"),
+        dir.path().join("b"),
+        dir.path().join("c"),
+    );
+    export_tiny(&a, "defocus-noise", 7, &["--no-cube"]);
+    export_tiny(&b, "defocus-noise", 7, &["--no-cube"]);
+    export_tiny(&c, "defocus-noise", 8, &["--no-cube"]);
+    let (fa, fb, fc) = (files(&a), files(&b), files(&c));
+    assert!(fa.len() > 60, "{} files", fa.len());
+    assert!(fa == fb, "same seed, same bytes");
+    let capture = std::path::Path::new("defocus-noise/cam/raw/test/img_0001.png");
+    let get = |f: &[(std::path::PathBuf, Vec<u8>)]| {
+        f.iter()
+            .find(|(p, _)| p == capture)
+            .expect("test capture")
+            .1
+            .clone()
+    };
+    assert_ne!(get(&fa), get(&fc), "other seed, other capture");
+}
+
+#[test]
+fn contact_sheet_per_scene() {
+    use common_cli::*;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().to_str().expect("utf-8");
+    let o = compend(&[
+        "sim",
+        "sheet",
+        "--out",
+        out,
+        "--scene",
+        "step",
+        "--scene",
+        "white-plane",
+        "--camera",
+        "80x60",
+        "--projector",
+        "100x75",
+        "--network",
+        "32",
+    ]);
+    assert_code(&o, 0);
+    for name in ["step", "white-plane"] {
+        let p = dir.path().join(format!("{name}.png"));
+        let (w, h) = compend::pngio::png_size(&p).expect("a PNG per scene");
+        assert!(w > 5 * 80 && h > 60, "five panels and captions: {w}x{h}");
+    }
+    // One line of scores per scene after the header.
+    let text = stdout(&o);
+    assert_eq!(text.lines().count(), 3, "{text}");
+    assert!(text.lines().nth(1).expect("row").starts_with("step"));
+}

@@ -1,0 +1,249 @@
+//! The simulator and the virtual rig through the library: determinism, latency and drops,
+//! self-occlusion, drift, and the FOV mask against the simulator's ground truth.
+
+use super::*;
+
+#[test]
+fn same_seed_same_frames_other_seed_other_frames() {
+    let a = tiny("textured-plane", 11);
+    let b = tiny("textured-plane", 11);
+    let c = tiny("textured-plane", 12);
+    let img = on_canvas(&a, 1);
+    let fa = a.capture(&img, 3).expect("capture");
+    assert_eq!(
+        fa,
+        b.capture(&img, 3).expect("capture"),
+        "same seed, same frame"
+    );
+    assert_ne!(
+        fa,
+        a.capture(&img, 4).expect("capture"),
+        "next frame has fresh noise"
+    );
+    assert_ne!(
+        fa,
+        c.capture(&img, 3).expect("capture"),
+        "other seed: other texture and noise"
+    );
+    // The noise-free part depends on the seed only through the texture: the white wall's does
+    // not change with the seed, its noise does.
+    let w1 = tiny("white-plane", 1);
+    let w2 = tiny("white-plane", 2);
+    let white = PrjImage::filled(PRJ.0, PRJ.1, [1.0; 3]);
+    assert_eq!(
+        w1.expected(&white).expect("render"),
+        w2.expected(&white).expect("render")
+    );
+    assert_ne!(
+        w1.capture(&white, 0).expect("capture"),
+        w2.capture(&white, 0).expect("capture")
+    );
+
+    // The rig as devices: identical seeds give identical frame streams (images, numbers,
+    // times), drops included.
+    let stream = |seed: u64| {
+        let scene = rig::builtin("curved")
+            .expect("built-in")
+            .with_resolution(CAM, PRJ);
+        let mut prj = rig::VirtualRig::new(&scene, seed).expect("rig");
+        let mut cam = prj.clone();
+        let mut out = Vec::new();
+        for k in 0..6 {
+            prj.show(&on_canvas(&tiny("curved", seed), k))
+                .expect("show");
+            out.push(cam.grab().expect("grab"));
+        }
+        out
+    };
+    let s1 = stream(21);
+    assert_eq!(s1, stream(21));
+    assert_ne!(s1, stream(22));
+}
+
+#[test]
+fn frames_lag_behind_the_projector_and_drops_skip_numbers() {
+    let scene = rig::builtin("white-plane")
+        .expect("built-in")
+        .with_resolution(CAM, PRJ);
+    let white = PrjImage::filled(PRJ.0, PRJ.1, [1.0; 3]);
+    let lit = tiny("white-plane", 0).lit_mask();
+    let is_white = |f: &compend::device::Frame| mean(&f.image, Some(&lit)) > 0.5;
+
+    for delay in [0u32, 1, 3] {
+        let mut prj = rig::VirtualRig::new(&scene, 4).expect("rig");
+        prj.set_latency(rig::scene::Latency {
+            fps: 30.0,
+            delay_frames: delay,
+            drop_rate: 0.0,
+        })
+        .expect("latency");
+        let mut cam = prj.clone();
+        assert_eq!(DisplaySink::size(&prj), PRJ);
+        assert_eq!(FrameSource::size(&cam), CAM);
+        // Settle on black, then switch to white.
+        let mut last = None;
+        for _ in 0..4 {
+            let f = cam.grab().expect("grab");
+            assert!(!is_white(&f));
+            last = Some(f.seq);
+        }
+        prj.show(&white).expect("show");
+        let frames: Vec<_> = (0..delay + 2).map(|_| cam.grab().expect("grab")).collect();
+        for (k, f) in frames.iter().enumerate() {
+            assert_eq!(
+                Some(f.seq),
+                last.map(|l| l + 1 + k as u64),
+                "no drops: consecutive"
+            );
+            assert_eq!(
+                is_white(f),
+                k as u32 >= delay,
+                "delay {delay}: frame {k} after the switch"
+            );
+            assert!(
+                (f.timestamp.as_secs_f64() - f.seq as f64 / 30.0).abs() < 1e-9,
+                "timestamp is the exposure time"
+            );
+        }
+    }
+
+    // Drops: sequence numbers keep increasing but jump, about as often as the rate says.
+    let mut prj = rig::VirtualRig::new(&scene, 9).expect("rig");
+    prj.set_latency(rig::scene::Latency {
+        fps: 30.0,
+        delay_frames: 1,
+        drop_rate: 0.25,
+    })
+    .expect("latency");
+    let mut cam = prj.clone();
+    let seqs: Vec<u64> = (0..200).map(|_| cam.grab().expect("grab").seq).collect();
+    let gaps = seqs.windows(2).filter(|w| w[1] > w[0] + 1).count();
+    assert!(seqs.windows(2).all(|w| w[1] > w[0]));
+    let dropped = seqs[199] - seqs[0] + 1 - 200;
+    assert!(
+        gaps > 0 && (30..100).contains(&dropped),
+        "dropped {dropped} in {gaps} gaps"
+    );
+    // A frame shown after a drop still lags by the delay: the first frame after show is old.
+    prj.show(&white).expect("show");
+    assert!(!is_white(&cam.grab().expect("grab")));
+    // Wrong sizes are refused.
+    assert!(prj.show(&PrjImage::new(10, 10)).is_err());
+}
+
+#[test]
+fn step_scene_has_a_shadow_the_projector_cannot_reach() {
+    let sim = tiny("step", 1);
+    let shadow = sim.shadow_mask();
+    let lit = sim.lit_mask();
+    assert!(
+        shadow.count() >= 40,
+        "shadowed camera pixels: {}",
+        shadow.count()
+    );
+    // No pixel is both; shadowed pixels have no projector coordinate.
+    for i in 0..shadow.data().len() {
+        assert!(!(shadow.data()[i] && lit.data()[i]));
+        if shadow.data()[i] {
+            assert!(sim.projector_coords()[i][0].is_nan());
+        }
+    }
+    // Under full white the shadow stays as dark as under black; lit pixels brighten.
+    let white = sim
+        .expected(&PrjImage::filled(PRJ.0, PRJ.1, [1.0; 3]))
+        .expect("render");
+    let black = sim.expected(&PrjImage::new(PRJ.0, PRJ.1)).expect("render");
+    let gain = |m: &Mask<Camera>| mean(&white, Some(m)) - mean(&black, Some(m));
+    assert!(
+        gain(&shadow) < 0.01,
+        "shadow brightens by {}",
+        gain(&shadow)
+    );
+    assert!(gain(&lit) > 0.4, "lit area brightens by {}", gain(&lit));
+    // The other scenes have (almost) no shadow.
+    assert_eq!(tiny("white-plane", 1).shadow_mask().count(), 0);
+}
+
+#[test]
+fn drift_moves_the_projector_by_about_the_given_shift() {
+    // Full projector resolution so the shift is the scene's 1.5 px right, 1 px up.
+    let scene = rig::builtin("drift")
+        .expect("built-in")
+        .with_resolution(CAM, (800, 600));
+    let before = Simulator::new(&scene, 1, Phase::Calibration).expect("builds");
+    let after = Simulator::new(&scene, 1, Phase::AfterDrift).expect("builds");
+    let (mut dx, mut dy, mut n) = (0.0f64, 0.0f64, 0usize);
+    for (a, b) in before
+        .projector_coords()
+        .iter()
+        .zip(after.projector_coords())
+    {
+        if a[0].is_finite() && b[0].is_finite() {
+            dx += (a[0] - b[0]) as f64;
+            dy += (a[1] - b[1]) as f64;
+            n += 1;
+        }
+    }
+    // The image moved right and up on the surface (shift [1.5, -1]), so a fixed surface point
+    // is now lit by a projector pixel that far to the left and further down.
+    let (dx, dy) = (dx / n as f64, dy / n as f64);
+    assert!(
+        (dx - 1.5).abs() < 0.4 && (dy + 1.0).abs() < 0.4,
+        "mean shift {dx:.3}, {dy:.3}"
+    );
+    // The rig switches pose on request; a scene without drift is unaffected.
+    let rig = rig::VirtualRig::new(&scene, 1).expect("rig");
+    rig.set_phase(Phase::AfterDrift).expect("drift");
+    assert_eq!(rig.simulator().phase(), Phase::AfterDrift);
+    let plain = rig::builtin("curved")
+        .expect("built-in")
+        .with_resolution(CAM, PRJ);
+    let a = Simulator::new(&plain, 1, Phase::Calibration).expect("builds");
+    let b = Simulator::new(&plain, 1, Phase::AfterDrift).expect("builds");
+    let img = on_canvas(&a, 0);
+    assert_eq!(
+        a.expected(&img).expect("render"),
+        b.expected(&img).expect("render")
+    );
+}
+
+/// The FOV mask found from the black and white captures (`fov::fov_mask`) agrees with the
+/// simulator's ground truth on every scene, the dark texture and the shadowed step included
+/// (the dark scene is the case the FOV algorithm is built for: see `compend::fov`).
+#[test]
+fn fov_from_captures_matches_the_truth() {
+    for name in rig::BUILTIN {
+        let scene = rig::builtin(name)
+            .expect("built-in")
+            .with_resolution((160, 120), (200, 150));
+        let sim = Simulator::new(&scene, 4, Phase::Calibration).expect("builds");
+        let (pw, ph) = sim.projector_size();
+        let black = sim.capture(&PrjImage::new(pw, ph), 1).expect("capture");
+        let white = sim
+            .capture(&PrjImage::filled(pw, ph, [1.0; 3]), 2)
+            .expect("capture");
+        let found = compend::fov::fov_mask(&black, &white, name)
+            .expect("a FOV")
+            .mask;
+        let truth = sim.lit_mask();
+        let both = found
+            .data()
+            .iter()
+            .zip(truth.data())
+            .filter(|(a, b)| **a && **b)
+            .count();
+        let either = found
+            .data()
+            .iter()
+            .zip(truth.data())
+            .filter(|(a, b)| **a || **b)
+            .count();
+        let iou = both as f64 / either as f64;
+        eprintln!(
+            "{name}: FOV IoU {iou:.4} (found {}, true {})",
+            found.count(),
+            truth.count()
+        );
+        assert!(iou > 0.95, "{name}: IoU {iou:.3}");
+    }
+}
