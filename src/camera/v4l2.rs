@@ -130,8 +130,8 @@ fn decode(
 
 /// A driver timestamp as a duration since the clock's origin (negative fields count as zero).
 fn timestamp(ts: v4l::Timestamp) -> Duration {
-    let usec = (ts.usec as i64).clamp(0, 999_999) as u64;
-    Duration::from_secs((ts.sec as i64).max(0) as u64) + Duration::from_micros(usec)
+    let usec = ts.usec.clamp(0, 999_999) as u64;
+    Duration::from_secs(ts.sec.max(0) as u64) + Duration::from_micros(usec)
 }
 
 impl V4l2Camera {

@@ -54,8 +54,8 @@ pub struct Args {
     /// The rows to measure, comma-separated: `compennet++`, `compennet++-cpu`, `linear`.
     #[arg(
         long,
-        value_enum,
         value_delimiter = ',',
+        value_parser = parse_row,
         default_value = "compennet++,compennet++-cpu,linear"
     )]
     pub methods: Vec<Method>,
@@ -63,6 +63,18 @@ pub struct Args {
 
 /// The rows `bench-train` can measure, in table order.
 const METHODS: [Method; 3] = [Method::CompenNetPp, Method::CompenNetPpCpu, Method::Linear];
+
+/// A `--methods` entry: one of [`METHODS`].
+fn parse_row(s: &str) -> std::result::Result<Method, String> {
+    Method::from_name(s)
+        .filter(|m| METHODS.contains(m))
+        .ok_or_else(|| {
+            format!(
+                "unknown row {s:?}; expected some of {}",
+                METHODS.map(Method::name).join(", ")
+            )
+        })
+}
 
 /// The PyTorch twin of the training step (run by `--torch`).
 const TORCH_SCRIPT: &str = include_str!("../../scripts/bench_torch.py");
@@ -437,13 +449,6 @@ pub fn run(a: Args) -> Result<()> {
         return Err(compend::Error::Input(
             "--steps, --batch and --rounds must be at least 1".into(),
         )
-        .into());
-    }
-    if let Some(m) = a.methods.iter().find(|m| !METHODS.contains(m)) {
-        return Err(compend::Error::Input(format!(
-            "--methods: no bench-train row for {m}; expected some of {}",
-            METHODS.map(Method::name).join(", ")
-        ))
         .into());
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;

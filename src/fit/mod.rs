@@ -6,14 +6,18 @@
 //! and dispatches; `linear_rungs.rs` fits the linear rungs (and `auto`'s choice among them);
 //! `compennet.rs` prepares the data of a CompenNet++ rung, starts its geometry, trains it and
 //! brings its weights to the CPU. Each writes the model's record (docs/architecture.md, "Model
-//! directory").
+//! directory"). `device.rs` names the training device; the model record stores it, so it lives
+//! apart from the code that uses the record.
 
 mod compennet;
+mod device;
 mod linear_rungs;
+
+pub use device::TrainDevice;
 
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::dataset::{CaptureSet, Reference, Setup};
 use crate::error::{Error, Result};
@@ -56,51 +60,6 @@ pub struct Request {
 /// closed-loop gap to the oracle, 512² no more.
 pub fn default_lattice((w, h): (usize, usize)) -> (usize, usize) {
     ((w * 3 / 2).div_ceil(4) * 4, (h * 3 / 2).div_ceil(4) * 4)
-}
-
-/// The device CompenNet++ training runs on.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub enum TrainDevice {
-    #[default]
-    Cpu,
-    /// An NVIDIA GPU by CUDA ordinal; needs a build with the `cuda` cargo feature.
-    Cuda(usize),
-}
-
-impl std::str::FromStr for TrainDevice {
-    type Err = Error;
-    /// `cpu`, `cuda` (ordinal 0) or `cuda:N`.
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "cpu" => Ok(Self::Cpu),
-            "cuda" => Ok(Self::Cuda(0)),
-            _ => s
-                .strip_prefix("cuda:")
-                .and_then(|n| n.parse().ok())
-                .map(Self::Cuda)
-                .ok_or_else(|| {
-                    Error::Input(format!(
-                        "device `{s}`: expected `cpu`, `cuda` or `cuda:N` (N a GPU ordinal)"
-                    ))
-                }),
-        }
-    }
-}
-
-impl TrainDevice {
-    /// The candle device; an input error when this build has no CUDA or the GPU cannot be opened.
-    pub fn candle(self) -> Result<candle_core::Device> {
-        match self {
-            Self::Cpu => Ok(candle_core::Device::Cpu),
-            Self::Cuda(_) if !cfg!(feature = "cuda") => Err(Error::Input(
-                "--device cuda: this compend was built without CUDA; rebuild with \
-                 `cargo build --release --features cuda` (needs the CUDA toolkit's nvcc)"
-                    .into(),
-            )),
-            Self::Cuda(n) => candle_core::Device::new_cuda(n)
-                .map_err(|e| Error::Input(format!("--device cuda:{n}: cannot open the GPU: {e}"))),
-        }
-    }
 }
 
 /// What training reports besides the model.

@@ -262,7 +262,7 @@ pub fn synthetic_compennet_model(
     use crate::nn::compennetpp::{CompenNetPP, GeometryInit};
     use crate::raster::{CamImage, Mask};
 
-    if network.0 % 4 != 0 || network.1 % 4 != 0 || network.0 == 0 || network.1 == 0 {
+    if !network.0.is_multiple_of(4) || !network.1.is_multiple_of(4) || network.0 == 0 || network.1 == 0 {
         return Err(Error::Input(format!(
             "CompenNet network size {}x{}: sides must be positive multiples of 4",
             network.0, network.1

@@ -7,7 +7,7 @@
 
 use rayon::prelude::*;
 
-use super::colour::{IDENTITY, features, targets_linear};
+use super::normal::{IDENTITY, features, targets_linear};
 use super::model::Curves;
 use crate::raster::{CamImage, Camera, NetImage, Network};
 use crate::sample::Grid;

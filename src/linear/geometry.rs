@@ -8,9 +8,9 @@
 
 use rayon::prelude::*;
 
-use super::colour::{IDENTITY, Normal, global_solution, targets_linear};
+use super::normal::{IDENTITY, Normal, global_solution, targets_linear};
 use super::curve::fit_curves;
-use super::fit::FitSettings;
+use super::settings::FitSettings;
 use super::model::Curves;
 use crate::filter::gaussian_blur;
 use crate::raster::{CamImage, Camera, NetImage, Network, Rgb};

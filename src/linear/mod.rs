@@ -35,9 +35,12 @@ mod curve;
 mod fit;
 mod geometry;
 mod model;
+mod normal;
+mod settings;
 mod tensors;
 
-pub use fit::{FitReport, FitSettings, fit, fit_geometry, fit_on_grid};
+pub use fit::{FitReport, fit, fit_geometry, fit_on_grid};
+pub use settings::FitSettings;
 pub use model::{Coefficients, Curves, Geometry, LinearModel, SimplifiedLinear, apply_colour};
 
 use crate::error::Result;

@@ -131,6 +131,7 @@ fn lock<T>(m: &Mutex<T>) -> Result<MutexGuard<'_, T>> {
 }
 
 impl SeededInit {
+    /// An empty store whose random starts will be drawn from `seed`.
     pub fn new(seed: u64) -> Self {
         Self {
             varmap: VarMap::new(),

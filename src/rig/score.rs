@@ -4,8 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::physics::Simulator;
 use super::oracle::OracleOptions;
+use super::physics::Simulator;
 use crate::error::{Error, Result};
 use crate::metrics::{Accumulator, Scores};
 use crate::raster::{CamImage, Camera, Mask, PrjImage, Rect};

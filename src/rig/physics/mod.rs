@@ -191,10 +191,10 @@ impl Simulator {
         if p.defocus_px > 0.05 {
             sim.defocus = Some(gaussian_kernel(p.defocus_px));
         }
-        if let Some(ir) = &scene.interreflection {
-            if ir.strength > 0.0 {
-                sim.bounce = Some(Bounce::new(cw, chh, ir.strength, ir.radius));
-            }
+        if let Some(ir) = &scene.interreflection
+            && ir.strength > 0.0
+        {
+            sim.bounce = Some(Bounce::new(cw, chh, ir.strength, ir.radius));
         }
         // Quantisation thresholds of the encoded output: level k+1 starts where
         // s^(1/γ) = (k + ½)/255.

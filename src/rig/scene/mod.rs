@@ -414,15 +414,15 @@ impl Scene {
 
     /// Inter-reflection and specular highlights.
     fn validate_effects(&self) -> Result<()> {
-        if let Some(ir) = &self.interreflection {
-            if !at_least(ir.strength, 0.0) || !above(ir.radius, 0.0) {
-                return self.bad("interreflection", "needs strength >= 0 and radius > 0");
-            }
+        if let Some(ir) = &self.interreflection
+            && (!at_least(ir.strength, 0.0) || !above(ir.radius, 0.0))
+        {
+            return self.bad("interreflection", "needs strength >= 0 and radius > 0");
         }
-        if let Some(s) = &self.specular {
-            if !at_least(s.strength, 0.0) || !at_least(s.shininess, 1.0) {
-                return self.bad("specular", "needs strength >= 0 and shininess >= 1");
-            }
+        if let Some(s) = &self.specular
+            && (!at_least(s.strength, 0.0) || !at_least(s.shininess, 1.0))
+        {
+            return self.bad("specular", "needs strength >= 0 and shininess >= 1");
         }
         Ok(())
     }

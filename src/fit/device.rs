@@ -1,0 +1,52 @@
+//! The device CompenNet++ training runs on (`train --device`): the CPU or a CUDA GPU through
+//! candle. A file of its own because the model record (`model::store`) names it: the record
+//! depends on this type, not on the training code that writes the record.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// The device CompenNet++ training runs on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TrainDevice {
+    #[default]
+    Cpu,
+    /// An NVIDIA GPU by CUDA ordinal; needs a build with the `cuda` cargo feature.
+    Cuda(usize),
+}
+
+impl std::str::FromStr for TrainDevice {
+    type Err = Error;
+    /// `cpu`, `cuda` (ordinal 0) or `cuda:N`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "cpu" => Ok(Self::Cpu),
+            "cuda" => Ok(Self::Cuda(0)),
+            _ => s
+                .strip_prefix("cuda:")
+                .and_then(|n| n.parse().ok())
+                .map(Self::Cuda)
+                .ok_or_else(|| {
+                    Error::Input(format!(
+                        "device `{s}`: expected `cpu`, `cuda` or `cuda:N` (N a GPU ordinal)"
+                    ))
+                }),
+        }
+    }
+}
+
+impl TrainDevice {
+    /// The candle device; an input error when this build has no CUDA or the GPU cannot be opened.
+    pub fn candle(self) -> Result<candle_core::Device> {
+        match self {
+            Self::Cpu => Ok(candle_core::Device::Cpu),
+            Self::Cuda(_) if !cfg!(feature = "cuda") => Err(Error::Input(
+                "--device cuda: this compend was built without CUDA; rebuild with \
+                 `cargo build --release --features cuda` (needs the CUDA toolkit's nvcc)"
+                    .into(),
+            )),
+            Self::Cuda(n) => candle_core::Device::new_cuda(n)
+                .map_err(|e| Error::Input(format!("--device cuda:{n}: cannot open the GPU: {e}"))),
+        }
+    }
+}
