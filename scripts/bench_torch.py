@@ -2,7 +2,7 @@
 """The CompenNet++ training step of `compend bench-train`, in PyTorch, for the framework ratio.
 
 `compend bench-train --torch PYTHON` runs this script in the same run as its own measurement and
-reports candle's ms per sample against PyTorch's. It builds the same network (DESIGN.md 5.1-5.3:
+reports candle's ms per sample against PyTorch's. It builds the same network (docs/architecture.md, "Models":
 WarpingNet with affine + TPS + refinement, CompenNet at base width W), the same loss
 (L1 + 1 - SSIM, 11-tap Gaussian window, replicate padding) and the same optimiser (Adam, L2 weight
 decay 1e-4 on the gradient), on random data of the same sizes, and times `steps` training steps

@@ -12,13 +12,13 @@
 use std::time::Duration;
 
 use crate::error::Result;
-use crate::raster::{CamImage, PrjImage};
+use crate::raster::{CamImage, ImageSize, PrjImage};
 
 /// Something that shows projector-space frames: the projector window, or the virtual rig's
 /// projector.
 pub trait DisplaySink {
     /// (width, height) of the projector frame in projector pixels.
-    fn size(&self) -> (usize, usize);
+    fn size(&self) -> ImageSize;
 
     /// Shows `frame` from now on, replacing what was shown. The frame must be exactly
     /// [`DisplaySink::size`]; a different size is an error ([`crate::Error::Size`] or
@@ -42,7 +42,7 @@ pub struct Frame {
 /// Something that delivers camera frames: a camera, the virtual rig's camera, a recording.
 pub trait FrameSource {
     /// (width, height) of the frames in camera pixels.
-    fn size(&self) -> (usize, usize);
+    fn size(&self) -> ImageSize;
 
     /// Waits for the next frame the device delivers and returns it. Frames come in order;
     /// a frame may have been exposed before the latest [`DisplaySink::show`] (latency).
@@ -50,7 +50,7 @@ pub trait FrameSource {
 }
 
 impl<T: DisplaySink + ?Sized> DisplaySink for &mut T {
-    fn size(&self) -> (usize, usize) {
+    fn size(&self) -> ImageSize {
         (**self).size()
     }
     fn show(&mut self, frame: &PrjImage) -> Result<()> {
@@ -59,7 +59,7 @@ impl<T: DisplaySink + ?Sized> DisplaySink for &mut T {
 }
 
 impl<T: FrameSource + ?Sized> FrameSource for &mut T {
-    fn size(&self) -> (usize, usize) {
+    fn size(&self) -> ImageSize {
         (**self).size()
     }
     fn grab(&mut self) -> Result<Frame> {
@@ -68,7 +68,7 @@ impl<T: FrameSource + ?Sized> FrameSource for &mut T {
 }
 
 impl<T: DisplaySink + ?Sized> DisplaySink for Box<T> {
-    fn size(&self) -> (usize, usize) {
+    fn size(&self) -> ImageSize {
         (**self).size()
     }
     fn show(&mut self, frame: &PrjImage) -> Result<()> {
@@ -77,7 +77,7 @@ impl<T: DisplaySink + ?Sized> DisplaySink for Box<T> {
 }
 
 impl<T: FrameSource + ?Sized> FrameSource for Box<T> {
-    fn size(&self) -> (usize, usize) {
+    fn size(&self) -> ImageSize {
         (**self).size()
     }
     fn grab(&mut self) -> Result<Frame> {

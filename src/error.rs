@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+use crate::raster::ImageSize;
+
 /// Result alias used throughout the library.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
@@ -26,11 +28,11 @@ pub enum Error {
     Decode { path: PathBuf, reason: String },
 
     /// An image has the wrong dimensions.
-    #[error("{}: image is {}x{}, expected {}x{}{}", path.display(), got.0, got.1, expected.0, expected.1, if why.is_empty() { String::new() } else { format!(" ({why})") })]
+    #[error("{}: image is {got}, expected {expected}{}", path.display(), if why.is_empty() { String::new() } else { format!(" ({why})") })]
     Size {
         path: PathBuf,
-        got: (usize, usize),
-        expected: (usize, usize),
+        got: ImageSize,
+        expected: ImageSize,
         why: String,
     },
 
@@ -64,10 +66,9 @@ impl Error {
     /// Process exit code for this error: 2 for usage or input errors, 1 for failed operations.
     pub fn exit_code(&self) -> i32 {
         match self {
-            Error::Missing { .. }
-            | Error::Decode { .. }
-            | Error::Size { .. }
-            | Error::Input(_) => 2,
+            Error::Missing { .. } | Error::Decode { .. } | Error::Size { .. } | Error::Input(_) => {
+                2
+            }
             // I/O failures (disk full, permission denied) are the operation's, not the user's
             // input: a service manager restarts on 1 and gives up on 2.
             Error::Io { .. }

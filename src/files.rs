@@ -52,8 +52,7 @@ pub fn temp_sibling(path: &Path) -> Result<PathBuf> {
 /// The folder is created when missing.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     write_with(path, |w| {
-        w.write_all(bytes)
-            .map_err(|e| Error::io(path, "write", e))
+        w.write_all(bytes).map_err(|e| Error::io(path, "write", e))
     })
 }
 
@@ -95,7 +94,8 @@ pub fn temp_dir_for(dir: &Path) -> Result<PathBuf> {
     clean_stale_siblings(dir);
     let tmp = temp_sibling(dir)?;
     if tmp.exists() {
-        fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, "remove stale temporary folder", e))?;
+        fs::remove_dir_all(&tmp)
+            .map_err(|e| Error::io(&tmp, "remove stale temporary folder", e))?;
     }
     fs::create_dir(&tmp).map_err(|e| Error::io(&tmp, "create", e))?;
     Ok(tmp)

@@ -1,6 +1,6 @@
 //! Separable linear filters on single-channel planes with replicate (clamp-to-edge) padding.
 
-use crate::raster::{Plane, Space};
+use crate::raster::{ImageSize, Plane, Space};
 
 /// Normalised 1-D Gaussian kernel of `2 * radius + 1` taps with standard deviation `sigma` (pixels).
 pub fn gaussian_kernel(sigma: f64, radius: usize) -> Vec<f64> {
@@ -18,7 +18,10 @@ pub fn gaussian_kernel(sigma: f64, radius: usize) -> Vec<f64> {
 /// reading edge pixels for taps that fall outside (replicate padding). Output has the input size.
 /// Accumulates in f64 so that metric values do not depend on summation order at f32 precision.
 pub fn separable_replicate<S: Space>(src: &Plane<S>, kernel: &[f64]) -> Plane<S> {
-    let (w, h) = src.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = src.size();
     if w == 0 || h == 0 || kernel.is_empty() {
         return src.clone();
     }

@@ -8,8 +8,8 @@
 //!   [`pngio`], [`resize`], [`sample`], [`filter`], [`metrics`], [`morph`], [`device`] (the
 //!   display and camera traits);
 //! - geometry and data: [`fov`], [`warp`], [`patterns`], [`slgrid`], [`dataset`];
-//! - models: [`linear`], [`nn`] (CompenNet++ in candle), [`model`] (a loaded model;
-//!   `model::store`, the model directory), [`fit`] (training any rung);
+//! - models: [`linear`], [`nn`] (CompenNet++ in candle), [`model`] (a loaded model; the rung
+//!   names, `model::Method`; `model::store`, the model directory), [`fit`] (training any rung);
 //! - [`playback`]`::frame`: the per-frame path and its CPU reference;
 //! - [`rig`]: the virtual rig, a simulated projector, surface and camera.
 //!

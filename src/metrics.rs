@@ -1,4 +1,4 @@
-//! Image quality metrics with the paper's conventions (DESIGN.md section 6).
+//! Image quality metrics with the paper's conventions (docs/architecture.md, "Models").
 //!
 //! Over a set of image pairs: MSE is averaged over all pixels, channels and images (pooled);
 //! PSNR = 10·log10(1/MSE) of that pooled mean (peak 1.0); RMSE = √(3·MSE), i.e. the root of the

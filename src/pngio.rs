@@ -6,7 +6,7 @@ use std::fs;
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::raster::{Mask, Plane, Rgb, Space};
+use crate::raster::{ImageSize, Mask, Plane, Rgb, Space};
 
 /// Reads a PNG as an RGB f32 image in space `S`.
 pub fn read_rgb<S: Space>(path: &Path) -> Result<Rgb<S>> {
@@ -62,11 +62,7 @@ fn warn_if_translucent(path: &Path, img: &image::DynamicImage) {
 }
 
 /// Reads a PNG and checks its size, naming `why` (what the size is required for) on mismatch.
-pub fn read_rgb_sized<S: Space>(
-    path: &Path,
-    expected: (usize, usize),
-    why: &str,
-) -> Result<Rgb<S>> {
+pub fn read_rgb_sized<S: Space>(path: &Path, expected: ImageSize, why: &str) -> Result<Rgb<S>> {
     let img = read_rgb::<S>(path)?;
     if img.size() != expected {
         return Err(Error::Size {
@@ -80,7 +76,7 @@ pub fn read_rgb_sized<S: Space>(
 }
 
 /// Only the (width, height) of a PNG, from its header.
-pub fn png_size(path: &Path) -> Result<(usize, usize)> {
+pub fn png_size(path: &Path) -> Result<ImageSize> {
     let reader = image::ImageReader::open(path)
         .map_err(|e| Error::io(path, "open", e))?
         .with_guessed_format()
@@ -89,7 +85,7 @@ pub fn png_size(path: &Path) -> Result<(usize, usize)> {
         path: path.to_path_buf(),
         reason: e.to_string(),
     })?;
-    Ok((w as usize, h as usize))
+    Ok(ImageSize::new(w as usize, h as usize))
 }
 
 /// Converts a value in [0,1] to 8 bits, rounding to nearest and clamping.
@@ -158,11 +154,12 @@ fn write_png(path: &Path, bytes: &[u8], w: usize, h: usize, color: image::ColorT
             image::codecs::png::CompressionType::Fast,
             image::codecs::png::FilterType::Adaptive,
         );
-        image::ImageEncoder::write_image(encoder, bytes, w as u32, h as u32, color.into())
-            .map_err(|e| match e {
+        image::ImageEncoder::write_image(encoder, bytes, w as u32, h as u32, color.into()).map_err(
+            |e| match e {
                 image::ImageError::IoError(e) => Error::io(path, "write", e),
                 e => Error::Failed(format!("{}: PNG encoding failed: {e}", path.display())),
-            })
+            },
+        )
     })
 }
 

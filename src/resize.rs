@@ -7,7 +7,7 @@
 //!   fractional pixels weighted by their covered fraction. Use it to shrink; when enlarging it
 //!   reduces to nearest-neighbour replication.
 
-use crate::raster::{Plane, Rgb, Space};
+use crate::raster::{ImageSize, Plane, Rgb, Space};
 
 /// Per-axis bilinear taps: (lower index, upper index, weight of the upper one).
 fn bilinear_taps(src: usize, dst: usize) -> Vec<(usize, usize, f32)> {
@@ -45,7 +45,10 @@ fn area_taps(src: usize, dst: usize) -> Vec<Vec<(usize, f32)>> {
 /// Resizes interleaved data with `ch` channels through separable taps given as sparse rows.
 fn resample(
     src: &[f32],
-    (sw, sh): (usize, usize),
+    ImageSize {
+        width: sw,
+        height: sh,
+    }: ImageSize,
     ch: usize,
     xt: &[Vec<(usize, f32)>],
     yt: &[Vec<(usize, f32)>],
@@ -113,7 +116,7 @@ fn resize_with<S: Space>(
     height: usize,
     axis_taps: impl Fn(usize, usize) -> Vec<Vec<(usize, f32)>>,
 ) -> Rgb<S> {
-    if img.size() == (width, height) {
+    if img.size() == ImageSize::new(width, height) {
         return img.clone();
     }
     if img.width() == 0 || img.height() == 0 || width == 0 || height == 0 {
@@ -178,7 +181,7 @@ pub fn resize_plane<S: Space>(
     height: usize,
     filter: Filter,
 ) -> Plane<S> {
-    if img.size() == (width, height) {
+    if img.size() == ImageSize::new(width, height) {
         return img.clone();
     }
     if img.width() == 0 || img.height() == 0 || width == 0 || height == 0 {

@@ -1,7 +1,8 @@
 //! Sampling grids and bilinear grid sampling — the CPU reference that the models' differentiable
 //! sampler and the GPU compensation pass must match.
 //!
-//! Conventions (DESIGN.md section 2): a grid lives on the *destination* pixel lattice and holds, per
+//! Conventions (docs/architecture.md, "Spaces and conventions"): a grid lives on the
+//! *destination* pixel lattice and holds, per
 //! destination pixel, a position in the *source* image in normalised coordinates in [-1, 1] with
 //! align_corners = true: -1 and +1 are the centres of the first and last source pixels, so source
 //! pixel coordinate `u = (gx + 1) / 2 · (W − 1)`. Bilinear interpolation reads zero for the
@@ -11,7 +12,7 @@
 use std::marker::PhantomData;
 
 use crate::error::{Error, Result};
-use crate::raster::{Rgb, Space};
+use crate::raster::{ImageSize, Rgb, Space};
 
 /// A sampling grid from destination space `D` into source space `Src`: `width`×`height` positions
 /// `[x, y]` in normalised source coordinates (align_corners = true), row-major.
@@ -122,8 +123,8 @@ impl<D: Space, Src: Space> Grid<D, Src> {
     pub fn height(&self) -> usize {
         self.height
     }
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
     }
     pub fn data(&self) -> &[[f32; 2]] {
         &self.data
@@ -141,7 +142,10 @@ impl<D: Space, Src: Space> Grid<D, Src> {
     /// compose the TPS and affine grids: one image sampling at the end, not two). Positions of
     /// `self` outside M read zero weight for the missing neighbours, exactly as image sampling does.
     pub fn compose<Src2: Space>(&self, inner: &Grid<Src, Src2>) -> Grid<D, Src2> {
-        let (iw, ih) = inner.size();
+        let ImageSize {
+            width: iw,
+            height: ih,
+        } = inner.size();
         let data = self
             .data
             .iter()
@@ -191,7 +195,10 @@ pub fn for_each_tap(gx: f32, gy: f32, w: usize, h: usize, mut f: impl FnMut(usiz
 
 /// Bilinear grid sampling: output pixel (x, y) of space `D` = `src` at `grid(x, y)`, zero outside.
 pub fn grid_sample<D: Space, Src: Space>(src: &Rgb<Src>, grid: &Grid<D, Src>) -> Rgb<D> {
-    let (w, h) = src.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = src.size();
     let s = src.data();
     let mut out = Vec::with_capacity(grid.data.len() * 3);
     for &[gx, gy] in &grid.data {

@@ -14,7 +14,7 @@
 
 use crate::error::{Error, Result};
 use crate::patterns::Correspondence;
-use crate::raster::{Camera, Mask, Network, Rect};
+use crate::raster::{Camera, ImageSize, Mask, Network, Rect};
 use crate::sample::{Grid, pixel_to_norm};
 
 /// The grid and how much of it came from measurements.
@@ -33,10 +33,16 @@ const RADIUS: f64 = 1.5;
 pub fn grid_from_correspondence(
     corr: &Correspondence,
     canvas: Rect,
-    network: (usize, usize),
+    network: ImageSize,
 ) -> Result<SlGrid> {
-    let (nw, nh) = network;
-    let (pw, ph) = corr.projector;
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = network;
+    let ImageSize {
+        width: pw,
+        height: ph,
+    } = corr.projector;
     if canvas.width < 2
         || canvas.height < 2
         || canvas.x + canvas.width > pw
@@ -52,7 +58,10 @@ pub fn grid_from_correspondence(
     // Projector pixels per network pixel along each axis.
     let sx = (canvas.width - 1) as f64 / (nw - 1) as f64;
     let sy = (canvas.height - 1) as f64 / (nh - 1) as f64;
-    let (cw, ch) = corr.size();
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = corr.size();
     let (m, r) = local_moments(corr, canvas, network, (sx, sy));
     let pos = local_fits(&m, &r);
     let measured = Mask::from_fn(nw, nh, |i, j| pos[j * nw + i].is_some());
@@ -78,12 +87,18 @@ pub fn grid_from_correspondence(
 fn local_moments(
     corr: &Correspondence,
     canvas: Rect,
-    (nw, nh): (usize, usize),
+    ImageSize {
+        width: nw,
+        height: nh,
+    }: ImageSize,
     (sx, sy): (f64, f64),
 ) -> (Vec<[f64; 6]>, Vec<[f64; 6]>) {
     let mut m = vec![[0f64; 6]; nw * nh]; // Σw, Σw dx, Σw dy, Σw dx², Σw dx dy, Σw dy²
     let mut r = vec![[0f64; 6]; nw * nh]; // Σw q, Σw q dx, Σw q dy, for q = (cx, cy)
-    let (cw, ch) = corr.size();
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = corr.size();
     let reach = RADIUS.ceil() as i64;
     for cy in 0..ch {
         for cx in 0..cw {

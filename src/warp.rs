@@ -16,7 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::raster::{Camera, Network};
+use crate::raster::{Camera, ImageSize, Network};
 use crate::sample::{Grid, pixel_to_norm};
 
 /// Control points per side.
@@ -126,10 +126,10 @@ impl TpsBasis {
 
     /// The basis at the pixel centres of a `lattice` image stretched over the same canvas as a
     /// `network` image (see [`lattice_units`]); the warp keeps the network's domain.
-    pub fn on_lattice(network: (usize, usize), lattice: (usize, usize)) -> Self {
+    pub fn on_lattice(network: ImageSize, lattice: ImageSize) -> Self {
         let (us, vs) = (
-            lattice_units(network.0, lattice.0),
-            lattice_units(network.1, lattice.1),
+            lattice_units(network.width, lattice.width),
+            lattice_units(network.height, lattice.height),
         );
         let norm = |u: &[f64]| -> Vec<f32> { u.iter().map(|&u| (2.0 * u - 1.0) as f32).collect() };
         let (xs, ys) = (norm(&us), norm(&vs));
@@ -175,8 +175,8 @@ impl TpsBasis {
         }
     }
 
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
     }
 
     pub fn rows(&self) -> &[[f32; TPS_PARAMS]] {
@@ -291,7 +291,10 @@ impl OffsetField {
 
     /// Adds the interpolated offsets to every position of `grid`.
     pub fn apply(&self, grid: &mut Grid<Network, Camera>) {
-        let (nw, nh) = grid.size();
+        let ImageSize {
+            width: nw,
+            height: nh,
+        } = grid.size();
         for (p, g) in grid.data_mut().iter_mut().enumerate() {
             for (k, w) in self.taps(p % nw, p / nw, nw, nh) {
                 g[0] += w * self.offsets[k][0];
@@ -303,18 +306,21 @@ impl OffsetField {
     /// Adds the interpolated offsets to a grid on a `lattice` stretched over the same canvas as
     /// the `network` image the field was fitted on (see [`lattice_units`]); positions beyond the
     /// outer nodes take the outer nodes' offsets.
-    pub fn apply_on_lattice(&self, grid: &mut Grid<Network, Camera>, network: (usize, usize)) {
-        let (lw, lh) = grid.size();
+    pub fn apply_on_lattice(&self, grid: &mut Grid<Network, Camera>, network: ImageSize) {
+        let ImageSize {
+            width: lw,
+            height: lh,
+        } = grid.size();
         let node = |u: f64, nodes: usize| -> (usize, f32) {
             let t = (u * (nodes - 1) as f64).clamp(0.0, (nodes - 1) as f64);
             let i = (t.floor() as usize).min(nodes - 2);
             (i, (t - i as f64) as f32)
         };
-        let xs: Vec<_> = lattice_units(network.0, lw)
+        let xs: Vec<_> = lattice_units(network.width, lw)
             .into_iter()
             .map(|u| node(u, self.width))
             .collect();
-        let ys: Vec<_> = lattice_units(network.1, lh)
+        let ys: Vec<_> = lattice_units(network.height, lh)
             .into_iter()
             .map(|v| node(v, self.height))
             .collect();

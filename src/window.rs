@@ -28,7 +28,7 @@ use crate::device::DisplaySink;
 use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, FRAME_FORMAT, GpuContext};
 use crate::playback::player::{Refresh, Screen, Show};
-use crate::raster::PrjImage;
+use crate::raster::{ImageSize, PrjImage};
 
 const BLIT: &str = include_str!("../shaders/blit.wgsl");
 
@@ -439,7 +439,10 @@ impl ProjectorWindow {
 
     /// The texture [`DisplaySink::show`] uploads into, made on first use.
     fn upload_texture(&mut self) -> wgpu::Texture {
-        let (w, h) = DisplaySink::size(self);
+        let ImageSize {
+            width: w,
+            height: h,
+        } = DisplaySink::size(self);
         self.upload
             .get_or_insert_with(|| {
                 self.ctx.device.create_texture(&wgpu::TextureDescriptor {
@@ -462,13 +465,16 @@ impl ProjectorWindow {
 }
 
 impl DisplaySink for ProjectorWindow {
-    fn size(&self) -> (usize, usize) {
-        (self.config.width as usize, self.config.height as usize)
+    fn size(&self) -> ImageSize {
+        ImageSize::new(self.config.width as usize, self.config.height as usize)
     }
 
     fn show(&mut self, frame: &PrjImage) -> Result<()> {
-        let (w, h) = DisplaySink::size(self);
-        if frame.size() != (w, h) {
+        let ImageSize {
+            width: w,
+            height: h,
+        } = DisplaySink::size(self);
+        if frame.size() != ImageSize::new(w, h) {
             return Err(Error::Shape(format!(
                 "projector window is {w}x{h}, got a {}x{} frame",
                 frame.width(),

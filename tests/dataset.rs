@@ -9,17 +9,24 @@ use std::path::{Path, PathBuf};
 use compend::Error;
 use compend::dataset::{CaptureSet, DataRoot, ProjectorSet, Reference, Setup};
 use compend::pngio;
-use compend::raster::{CamImage, PrjImage, Rgb, Space};
+use compend::raster::{CamImage, ImageSize, PrjImage, Rgb, Space};
 
 use crate::common::{assert_code, compend, compend_in, stderr, stdout};
 
-const NET: (usize, usize) = (16, 16);
-const CAM: (usize, usize) = (24, 20);
+const NET: ImageSize = ImageSize::new(16, 16);
+const CAM: ImageSize = ImageSize::new(24, 20);
 const SETUP: &str = "light1/pos1/curves";
 
 /// A distinct image for each (set, index): a gradient whose colour depends on both, exactly
 /// representable in 8 bits so that loading returns what was written.
-fn pattern<S: Space>((w, h): (usize, usize), set: usize, index: usize) -> Rgb<S> {
+fn pattern<S: Space>(
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
+    set: usize,
+    index: usize,
+) -> Rgb<S> {
     Rgb::from_fn(w, h, |x, y| {
         let v = |k: usize| ((k * 37 + set * 53 + index * 11) % 256) as f32 / 255.0;
         [v(x), v(y), v(x + y + 7)]
@@ -51,7 +58,7 @@ fn fixture() -> Fixture {
         root.write(ProjectorSet::Test, i, &pattern::<_>(NET, 2, i))
             .unwrap();
     }
-    root.write_gray_input(&PrjImage::filled(NET.0, NET.1, [0.3; 3]))
+    root.write_gray_input(&PrjImage::filled(NET.width, NET.height, [0.3; 3]))
         .unwrap();
     let setup = Setup::create(&root, Path::new(SETUP)).expect("create setup");
     for r in Reference::ALL {
@@ -175,8 +182,8 @@ fn info_counts_and_sizes() {
     let info = setup.info().expect("info");
     assert_eq!(info.root, f.root);
     assert_eq!(info.setup, PathBuf::from(SETUP));
-    assert_eq!(info.camera_size.map(Into::into), Some(CAM));
-    assert_eq!(info.network_size.map(Into::into), Some(NET));
+    assert_eq!(info.camera_size, Some(CAM));
+    assert_eq!(info.network_size, Some(NET));
     assert_eq!(info.projector_size, None);
     assert_eq!(
         (
@@ -282,7 +289,7 @@ fn loading_reports_missing_corrupt_and_mis_sized_files() {
             ..
         } => {
             assert_eq!(path, odd);
-            assert_eq!(got, (30, 20));
+            assert_eq!(got, ImageSize::new(30, 20));
             assert_eq!(expected, CAM);
         }
         e => panic!("expected a size error, got {e:?}"),
@@ -331,7 +338,7 @@ fn a_gap_is_an_error_naming_the_first_missing_file() {
 fn writers_refuse_bad_names_and_index_zero() {
     let f = fixture();
     let setup = Setup::open(&f.setup, None).unwrap();
-    let img = PrjImage::new(NET.0, NET.1);
+    let img = PrjImage::new(NET.width, NET.height);
     for (model, name) in [
         ("../x", "img_0001.png"),
         ("m", "../img_0001.png"),
@@ -344,7 +351,7 @@ fn writers_refuse_bad_names_and_index_zero() {
     }
     assert!(
         setup
-            .write_capture(CaptureSet::Train, 0, &CamImage::new(CAM.0, CAM.1))
+            .write_capture(CaptureSet::Train, 0, &CamImage::new(CAM.width, CAM.height))
             .is_err()
     );
     assert!(Setup::create(setup.root(), Path::new("../out")).is_err());
@@ -358,7 +365,7 @@ fn validate_collects_every_problem() {
     pngio::write_rgb(&f.cam("test", "img_0002.png"), &CamImage::new(24, 21)).unwrap();
     pngio::write_rgb(
         &f.root.join("test/img_0001.png"),
-        &PrjImage::new(NET.0 + 4, NET.1),
+        &PrjImage::new(NET.width + 4, NET.height),
     )
     .unwrap();
     let setup = Setup::open(&f.setup, None).unwrap();

@@ -9,7 +9,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use compend::model::Model;
-use compend::raster::Rgb;
+use compend::raster::{ImageSize, Rgb};
 
 use crate::common::{assert_code, compend, stderr};
 use crate::train::make_setup;
@@ -69,14 +69,25 @@ fn train_out_refuses_anything_but_a_model_directory_before_any_work() {
         let o = train_to(&setup, out);
         assert_code(&o, 2);
         let err = stderr(&o);
-        assert!(err.contains(says) && err.contains(out.to_str().unwrap()), "{err}");
+        assert!(
+            err.contains(says) && err.contains(out.to_str().unwrap()),
+            "{err}"
+        );
         // Refused before the fit: no progress of a fit, no model written anywhere.
         assert!(!err.contains("trained"), "{err}");
     }
     assert_eq!(snapshot(&setup), before_setup);
-    assert_eq!(fs::read(notes.join("todo.txt")).unwrap(), b"calibrate on Monday");
+    assert_eq!(
+        fs::read(notes.join("todo.txt")).unwrap(),
+        b"calibrate on Monday"
+    );
     assert_eq!(fs::read(&file).unwrap(), b"precious");
-    assert!(fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+    assert!(
+        fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink()
+    );
     // No temporary sibling of any of them.
     for e in fs::read_dir(dir.path()).unwrap() {
         let name = e.unwrap().file_name().to_string_lossy().into_owned();
@@ -182,7 +193,10 @@ fn suspect_inputs_are_named_not_silently_accepted() {
     // A translucent RGBA capture is read without its alpha, with a warning naming it.
     let cap = setup.join("cam/raw/train/img_0002.png");
     let rgb = compend::pngio::read_rgb::<compend::raster::Camera>(&cap).unwrap();
-    let (w, h) = rgb.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = rgb.size();
     let mut rgba = image::RgbaImage::new(w as u32, h as u32);
     for (x, y, p) in rgba.enumerate_pixels_mut() {
         let c = rgb.get(x as usize, y as usize);
@@ -195,8 +209,14 @@ fn suspect_inputs_are_named_not_silently_accepted() {
     let o = train_to(&setup, &m);
     assert_code(&o, 0);
     let err = stderr(&o);
-    assert!(err.contains("img_0002.png") && err.contains("alpha"), "{err}");
-    assert!(err.contains("img_0126.png") && err.contains("missing"), "{err}");
+    assert!(
+        err.contains("img_0002.png") && err.contains("alpha"),
+        "{err}"
+    );
+    assert!(
+        err.contains("img_0126.png") && err.contains("missing"),
+        "{err}"
+    );
 
     // `metrics B A` with more PNGs in B than in A names the unpaired file.
     let a = dir.path().join("a");

@@ -8,22 +8,25 @@ use compend::linear::{Coefficients, Curves, Geometry, LinearModel};
 use compend::model::Model;
 use compend::model::store::{FORMAT_VERSION, ModelMeta};
 use compend::playback::{self, ContentFrame, Placement};
-use compend::raster::{Camera, Mask, Network, Rect, Rgb};
+use compend::raster::{Camera, ImageSize, Mask, Network, Rect, Rgb};
 use compend::sample::{Grid, pixel_to_norm};
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
 use crate::common::gpu;
 
-const CAM: (usize, usize) = (48, 40);
-const NET: (usize, usize) = (32, 24);
+const CAM: ImageSize = ImageSize::new(48, 40);
+const NET: ImageSize = ImageSize::new(32, 24);
 
 /// A `linear` model with everything the pass must get right: a bent grid that leaves the camera
 /// frame in places (zero padding), per-channel curves, per-pixel coefficients that push some
 /// values below 0 and above 1 (clamping), and an elliptic FOV mask.
 pub fn test_model(seed: u64) -> Model {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let (nw, nh) = NET;
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = NET;
     let grid: Grid<Network, Camera> = Grid::from_fn(nw, nh, |x, y| {
         let (u, v) = (pixel_to_norm(x as f32, nw), pixel_to_norm(y as f32, nh));
         [
@@ -57,9 +60,12 @@ pub fn test_model(seed: u64) -> Model {
             data,
         },
         camera_size: CAM,
-        geometry_size: (nw, nh),
+        geometry_size: ImageSize::new(nw, nh),
     };
-    let (cw, ch) = CAM;
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = CAM;
     let fov = Mask::from_fn(cw, ch, |x, y| {
         let (u, v) = (pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch));
         u * u / 0.9 + v * v / 0.85 < 1.0
@@ -67,8 +73,8 @@ pub fn test_model(seed: u64) -> Model {
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
         method: compend::model::Method::Linear,
-        network_size: NET.into(),
-        camera_size: CAM.into(),
+        network_size: NET,
+        camera_size: CAM,
         canvas: None,
         training: Default::default(),
         metrics: serde_json::Value::Null,
@@ -117,7 +123,7 @@ fn linear_pass_matches_the_cpu_reference() {
                 high: 0.85,
             },
             network_size: NET,
-            projector_size: (80, 60),
+            projector_size: ImageSize::new(80, 60),
             canvas: Rect {
                 x: 10,
                 y: 12,
@@ -126,7 +132,7 @@ fn linear_pass_matches_the_cpu_reference() {
             },
         },
         // The model's own placement on a full-frame canvas at full range.
-        Placement::for_model(&model, (72, 50), DisplayRange::FULL).unwrap(),
+        Placement::for_model(&model, ImageSize::new(72, 50), DisplayRange::FULL).unwrap(),
     ];
     for (k, p) in placements.iter().enumerate() {
         let mut pass = CompensationPass::new(&ctx, &model, *p).unwrap();
@@ -177,7 +183,7 @@ fn linear_pass_matches_the_cpu_reference() {
 fn pass_is_reused_across_frames() {
     let Some(ctx) = gpu() else { return };
     let model = test_model(2);
-    let p = Placement::for_model(&model, (64, 48), DisplayRange::FULL).unwrap();
+    let p = Placement::for_model(&model, ImageSize::new(64, 48), DisplayRange::FULL).unwrap();
     let mut pass = CompensationPass::new(&ctx, &model, p).unwrap();
     let a = random_content(5, 20, 15);
     let b = random_content(6, 20, 15);
@@ -247,7 +253,7 @@ fn bench_gpu_writes_ratios() {
 
 /// Network size of the CompenNet++ tests: the backbone's layer widths 36, 18, 9 are not all
 /// multiples of the kernels' 4 pixels per invocation.
-const CNET: (usize, usize) = (36, 28);
+const CNET: ImageSize = ImageSize::new(36, 28);
 
 /// A CompenNet++ model (fixed bent grid, as `compennet-sl` stores it) on the same camera and
 /// network sizes, with seeded weights, non-zero biases everywhere (the GPU must add them) and
@@ -257,7 +263,10 @@ pub fn compennet_test_model(seed: u64) -> Model {
     use candle_core::{Device, Tensor, Var};
     use compend::nn::compennetpp::{CompenNetPP, GeometryInit};
 
-    let (nw, nh) = CNET;
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = CNET;
     let grid: Vec<f32> = (0..nh)
         .flat_map(|y| (0..nw).map(move |x| (x, y)))
         .flat_map(|(x, y)| {
@@ -289,7 +298,10 @@ pub fn compennet_test_model(seed: u64) -> Model {
             .set(&Tensor::from_vec(b, n, &Device::Cpu).unwrap())
             .unwrap();
     }
-    let (cw, ch) = CAM;
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = CAM;
     let fov = Mask::from_fn(cw, ch, |x, y| {
         let (u, v) = (pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch));
         u * u / 0.9 + v * v / 0.85 < 1.0
@@ -307,8 +319,8 @@ pub fn compennet_test_model(seed: u64) -> Model {
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
         method: compend::model::Method::CompenNetSl,
-        network_size: CNET.into(),
-        camera_size: CAM.into(),
+        network_size: CNET,
+        camera_size: CAM,
         canvas: None,
         training: Default::default(),
         metrics: serde_json::Value::Null,
@@ -340,7 +352,7 @@ fn compennet_pass_matches_the_cpu_reference() {
                 high: 0.85,
             },
             network_size: CNET,
-            projector_size: (80, 60),
+            projector_size: ImageSize::new(80, 60),
             canvas: Rect {
                 x: 10,
                 y: 12,
@@ -348,7 +360,7 @@ fn compennet_pass_matches_the_cpu_reference() {
                 height: 41,
             },
         },
-        Placement::for_model(&model, (72, 50), DisplayRange::FULL).unwrap(),
+        Placement::for_model(&model, ImageSize::new(72, 50), DisplayRange::FULL).unwrap(),
     ];
     for (k, p) in placements.iter().enumerate() {
         let mut pass = CompensationPass::new(&ctx, &model, *p).unwrap();
@@ -408,7 +420,7 @@ fn compennet_layers_match_candle() {
 
     let Some(ctx) = gpu() else { return };
     let model = compennet_test_model(4);
-    let p = Placement::for_model(&model, (40, 30), DisplayRange::FULL).unwrap();
+    let p = Placement::for_model(&model, ImageSize::new(40, 30), DisplayRange::FULL).unwrap();
     let mut pass = CompensationPass::new(&ctx, &model, p).unwrap();
     let content = random_content(7, 30, 20);
     pass.run(&ctx, &content).unwrap();

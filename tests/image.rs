@@ -1,7 +1,7 @@
 //! The image core: PNG round trips, resizing and grid sampling conventions.
 
 use compend::pngio;
-use compend::raster::{Camera, Mask, Network, Rgb};
+use compend::raster::{Camera, ImageSize, Mask, Network, Rgb};
 use compend::resize::{resize_area, resize_bilinear, unstretch};
 use compend::sample::{Grid, grid_sample, norm_to_pixel, pixel_to_norm};
 
@@ -46,7 +46,7 @@ fn png_round_trip_rounds_to_nearest() {
         bytes,
         vec![11, 10, 0, 255, 0, 255, 128, 255, 255, 0, 128, 64]
     );
-    assert_eq!(pngio::png_size(&path).unwrap(), (2, 2));
+    assert_eq!(pngio::png_size(&path).unwrap(), ImageSize::new(2, 2));
     // No temporary file is left behind.
     let names: Vec<_> = std::fs::read_dir(path.parent().unwrap()).unwrap().collect();
     assert_eq!(names.len(), 1);
@@ -57,7 +57,8 @@ fn png_sized_read_names_the_file_and_sizes() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("cap.png");
     pngio::write_rgb(&path, &Rgb::<Camera>::new(5, 4)).unwrap();
-    let err = pngio::read_rgb_sized::<Camera>(&path, (6, 4), "camera size").unwrap_err();
+    let err =
+        pngio::read_rgb_sized::<Camera>(&path, ImageSize::new(6, 4), "camera size").unwrap_err();
     let msg = err.to_string();
     assert!(
         msg.contains("cap.png") && msg.contains("5x4") && msg.contains("6x4"),

@@ -2,14 +2,14 @@
 
 use compend::linear::{FitSettings, fit};
 use compend::metrics;
-use compend::raster::{CamImage, Camera, NetImage, Network, Rgb};
+use compend::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rgb};
 use compend::sample::{Grid, grid_sample, pixel_to_norm};
 use compend::warp::Warp;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
 pub const NET: usize = 32;
-const CAM: (usize, usize) = (48, 40);
+const CAM: ImageSize = ImageSize::new(48, 40);
 
 /// A smooth random colour image (sum of a few sinusoids per channel).
 pub fn texture(rng: &mut ChaCha8Rng) -> NetImage {
@@ -53,8 +53,11 @@ impl System {
 
     /// The system seen by a `cam`-sized camera; with `Some(side)`, a `side`² projector that
     /// stretches network images over its frame.
-    pub fn with(cam: (usize, usize), projector: Option<usize>) -> Self {
-        let (cw, ch) = cam;
+    pub fn with(cam: ImageSize, projector: Option<usize>) -> Self {
+        let ImageSize {
+            width: cw,
+            height: ch,
+        } = cam;
         let to_prj = Grid::from_fn(cw, ch, |x, y| {
             let (u, v) = (pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch));
             // The projector covers a central region of the camera view, slightly bent.
@@ -111,7 +114,7 @@ fn pairs(sys: &System, seed: u64) -> [Vec<(NetImage, CamImage)>; 2] {
 /// The fit's settings at the tests' network size: two geometry levels at full resolution.
 fn settings() -> FitSettings {
     FitSettings {
-        network_size: (NET, NET),
+        network_size: ImageSize::new(NET, NET),
         levels: vec![(NET, 150, 1.0), (NET, 100, 0.0)],
         ..FitSettings::default()
     }
@@ -176,27 +179,30 @@ fn linear_fit_generalises_and_compensates() {
 fn linear_fit_on_a_finer_lattice_matches_the_canvas_stretch() {
     // A camera finer than the lattice (as on the rig: 640×480 against a 384² lattice); a
     // lattice finer than the camera only interpolates between camera pixels.
-    let [tr, te] = pairs(&System::with((96, 80), Some(96)), 11);
+    let [tr, te] = pairs(&System::with(ImageSize::new(96, 80), Some(96)), 11);
     let (train, caps): (Vec<NetImage>, Vec<CamImage>) = tr.into_iter().unzip();
     let (test, test_caps): (Vec<NetImage>, Vec<CamImage>) = te.into_iter().unzip();
     let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
     let settings = settings();
     // Scored at the network size: the lattice output is brought back by `unstretch`.
-    let score = |lattice: Option<(usize, usize)>| {
+    let score = |lattice: Option<ImageSize>| {
         let s = FitSettings {
             lattice,
             ..settings.clone()
         };
         let (m, _) = fit(&caps, &train, init.clone(), &s, |_, _, _| {}).unwrap();
-        assert_eq!(m.network_size(), lattice.unwrap_or((NET, NET)));
+        assert_eq!(
+            m.network_size(),
+            lattice.unwrap_or(ImageSize::new(NET, NET))
+        );
         let simplified = m.simplify();
         let preds: Vec<NetImage> = test_caps
             .iter()
-            .map(|c| compend::model::at_size(simplified.apply(c), (NET, NET)))
+            .map(|c| compend::model::at_size(simplified.apply(c), ImageSize::new(NET, NET)))
             .collect();
         metrics::score_pairs(preds.iter().zip(&test)).unwrap()
     };
-    let (net, fine) = (score(None), score(Some((48, 48))));
+    let (net, fine) = (score(None), score(Some(ImageSize::new(48, 48))));
     eprintln!("network {net:?}; lattice 48² {fine:?}");
     assert!(net.psnr > 28.0, "network-size fit {:.2} dB", net.psnr);
     // Measured: 38.77 dB at the network size, 39.83 dB on the lattice (evaluating the warp at
@@ -238,7 +244,7 @@ fn sl_grid_inverts_a_known_correspondence() {
         }
     }
     let corr = Correspondence {
-        projector: (pw, ph),
+        projector: ImageSize::new(pw, ph),
         x,
         y,
         lit: valid.clone(),
@@ -252,7 +258,7 @@ fn sl_grid_inverts_a_known_correspondence() {
         height: ph,
     };
     let (nw, nh) = (32usize, 24usize);
-    let sl = grid_from_correspondence(&corr, canvas, (nw, nh)).unwrap();
+    let sl = grid_from_correspondence(&corr, canvas, ImageSize::new(nw, nh)).unwrap();
     assert!(
         sl.measured.count() > nw * nh * 9 / 10,
         "most of the canvas is seen"
@@ -304,12 +310,12 @@ fn degenerate_captures_give_a_finite_model() {
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let train: Vec<NetImage> = (0..12).map(|_| texture(&mut rng)).collect();
     let mut caps: Vec<CamImage> = train.iter().map(|t| sys.capture(t)).collect();
-    caps[0] = CamImage::filled(CAM.0, CAM.1, [1.0; 3]); // saturated
-    caps[1] = CamImage::new(CAM.0, CAM.1); // black
+    caps[0] = CamImage::filled(CAM.width, CAM.height, [1.0; 3]); // saturated
+    caps[1] = CamImage::new(CAM.width, CAM.height); // black
     caps[2] = caps[2].map(|v| (v * 4.0).min(1.0)); // mostly clipped
     let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
     let settings = FitSettings {
-        network_size: (NET, NET),
+        network_size: ImageSize::new(NET, NET),
         levels: vec![(NET, 20, 1.0)],
         ..FitSettings::default()
     };

@@ -11,7 +11,7 @@ mod pretrain;
 mod training;
 
 use candle_core::{DType, Device, Tensor};
-use compend::raster::{Camera, Network, Rgb};
+use compend::raster::{Camera, ImageSize, Network, Rgb};
 use compend::sample::Grid;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
@@ -21,8 +21,14 @@ use rand::{RngExt, SeedableRng};
 /// integers (the sampler's kinks) so finite differences are valid.
 fn case(
     seed: u64,
-    (w, h): (usize, usize),
-    (gw, gh): (usize, usize),
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
+    ImageSize {
+        width: gw,
+        height: gh,
+    }: ImageSize,
 ) -> (Rgb<Camera>, Grid<Network, Camera>) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let img = Rgb::from_fn(w, h, |_, _| {
@@ -49,7 +55,10 @@ fn to_tensor(img: &Rgb<Camera>, dtype: DType) -> Tensor {
 }
 
 fn grid_tensor(grid: &Grid<Network, Camera>, dtype: DType) -> Tensor {
-    let (w, h) = grid.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = grid.size();
     let flat: Vec<f32> = grid.data().iter().flatten().copied().collect();
     Tensor::from_vec(flat, (1, h, w, 2), &Device::Cpu)
         .unwrap()

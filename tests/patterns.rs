@@ -4,7 +4,7 @@
 use compend::patterns::{
     self, CUBE_COUNT, DecodeParams, GrayCode, Set, color_cube, gray_image, sampling_image,
 };
-use compend::raster::{CamImage, Camera, Plane, PrjImage};
+use compend::raster::{CamImage, Camera, ImageSize, Plane, PrjImage};
 use nalgebra::Matrix3;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
@@ -121,9 +121,9 @@ fn sampling_image_is_random_access_and_any_size() {
     let late = sampling_image(11, Set::Test, 199, 40, 24);
     let _ = sampling_image(11, Set::Test, 0, 40, 24);
     assert_eq!(late, sampling_image(11, Set::Test, 199, 40, 24));
-    assert_eq!(late.size(), (40, 24));
+    assert_eq!(late.size(), ImageSize::new(40, 24));
     let odd = sampling_image(11, Set::Train, 3, 7, 5);
-    assert_eq!(odd.size(), (7, 5));
+    assert_eq!(odd.size(), ImageSize::new(7, 5));
     assert!(odd.data().iter().all(|v| (0.0..=1.0).contains(v)));
 }
 
@@ -198,7 +198,7 @@ fn graycode_identity_decode_is_exact() {
         let caps: Vec<CamImage> = g.patterns().map(|p| p.into_space::<Camera>()).collect();
         assert_eq!(caps.len(), g.len());
         let c = g.decode(&caps).unwrap();
-        assert_eq!(c.projector, (w, h));
+        assert_eq!(c.projector, ImageSize::new(w, h));
         assert_eq!(c.valid.count(), w * h, "{w}x{h}: every pixel decodes");
         for y in 0..h {
             for x in 0..w {
@@ -498,11 +498,19 @@ fn cli_writes_a_deterministic_dataset() {
     let size = |p: std::path::PathBuf| compend::pngio::png_size(&p).unwrap();
     for dir in ["train", "test", "ref"] {
         for n in png_names(&a.join(dir)) {
-            assert_eq!(size(a.join(dir).join(&n)), (16, 8), "{dir}/{n}");
+            assert_eq!(
+                size(a.join(dir).join(&n)),
+                ImageSize::new(16, 8),
+                "{dir}/{n}"
+            );
         }
     }
     for n in png_names(&a.join("sl")) {
-        assert_eq!(size(a.join("sl").join(&n)), (20, 10), "sl/{n}");
+        assert_eq!(
+            size(a.join("sl").join(&n)),
+            ImageSize::new(20, 10),
+            "sl/{n}"
+        );
     }
     let gray: compend::raster::Rgb<compend::raster::Unspecified> =
         compend::pngio::read_rgb(&a.join("ref/img_gray.png")).unwrap();

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 use compend::playback::player::{PlayStats, Player, Refresh, Screen, Show};
+use compend::raster::ImageSize;
 
 use crate::common::{assert_code, compend, gpu, stderr};
 
@@ -139,7 +140,7 @@ fn raw_pipe_plays_through_the_virtual_rig() {
         let p = out.join(format!("cam_{i:06}.png"));
         assert_eq!(
             compend::pngio::png_size(&p).unwrap(),
-            (80, 60),
+            ImageSize::new(80, 60),
             "{}",
             p.display()
         );
@@ -387,7 +388,6 @@ impl Screen for Recorder<'_> {
 #[test]
 fn one_loop_paces_and_counts_for_every_screen() {
     use compend::fov::DisplayRange;
-    use compend::raster::ImageSize;
     use compend::source::{FeedMode, Pattern, SourceSpec};
 
     let Some(ctx) = gpu() else { return };
@@ -399,7 +399,7 @@ fn one_loop_paces_and_counts_for_every_screen() {
     };
     let pattern = |fps, frames| SourceSpec::Pattern {
         pattern: Pattern::Moving,
-        size: (32, 24),
+        size: ImageSize::new(32, 24),
         fps,
         frames,
     };

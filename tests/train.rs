@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use compend::dataset::{CaptureSet, DataRoot, ProjectorSet, Reference, Setup};
 use compend::patterns::GrayCode;
-use compend::raster::NetImage;
+use compend::raster::{ImageSize, NetImage};
 use rand::SeedableRng;
 use rand::rngs::ChaCha8Rng;
 
@@ -129,7 +129,7 @@ fn train_eval_compensate_linear_and_linear_sl() {
             let p = cmp.join(format!("img_{i:04}.png"));
             assert_eq!(
                 compend::pngio::png_size(&p).unwrap(),
-                (side, side),
+                ImageSize::new(side, side),
                 "{}",
                 p.display()
             );
@@ -167,7 +167,7 @@ fn inspect_reports_the_fov_and_display_area() {
     );
     let mask = compend::pngio::read_mask::<compend::raster::Camera>(&out_dir.join("fov_mask.png"))
         .unwrap();
-    assert_eq!(mask.size(), (48, 40));
+    assert_eq!(mask.size(), ImageSize::new(48, 40));
     assert!(out_dir.join("fov_overlay.png").is_file());
 }
 
@@ -254,7 +254,7 @@ fn compennet_faster_trains_and_compensates(dir: &Path, setup: &Path) -> PathBuf 
     compensate(&model, setup, &cmp);
     assert_eq!(
         compend::pngio::png_size(&cmp.join("img_0001.png")).unwrap(),
-        (NET, NET)
+        ImageSize::new(NET, NET)
     );
     model
 }
@@ -290,7 +290,7 @@ fn compennet_cpu_works_at_half_the_network_side(dir: &Path, setup: &Path) {
     compensate(&small, setup, &cmp_small);
     assert_eq!(
         compend::pngio::png_size(&cmp_small.join("img_0001.png")).unwrap(),
-        (NET / 2, NET / 2)
+        ImageSize::new(NET / 2, NET / 2)
     );
 }
 

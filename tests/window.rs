@@ -9,7 +9,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use compend::raster::{PrjImage, Rgb, Unspecified};
+use compend::raster::{ImageSize, PrjImage, Rgb, Unspecified};
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
@@ -124,17 +124,17 @@ impl Drop for Running {
     }
 }
 
-const SCREEN: (usize, usize) = (96, 64);
+const SCREEN: ImageSize = ImageSize::new(96, 64);
 
 #[test]
 fn window_shows_a_known_image_exactly() {
     let Some(_ctx) = gpu() else { return };
-    let Some(x) = Xvfb::start(SCREEN.0, SCREEN.1) else {
+    let Some(x) = Xvfb::start(SCREEN.width, SCREEN.height) else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(4);
-    let known: PrjImage = Rgb::from_fn(SCREEN.0, SCREEN.1, |x, y| {
+    let known: PrjImage = Rgb::from_fn(SCREEN.width, SCREEN.height, |x, y| {
         let n: f32 = rng.random_range(0.0..1.0);
         [x as f32 / 95.0, y as f32 / 63.0, n]
     });
@@ -154,7 +154,7 @@ fn window_shows_a_known_image_exactly() {
 #[test]
 fn window_presents_the_compensated_frame() {
     let Some(_ctx) = gpu() else { return };
-    let Some(x) = Xvfb::start(SCREEN.0, SCREEN.1) else {
+    let Some(x) = Xvfb::start(SCREEN.width, SCREEN.height) else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

@@ -16,11 +16,19 @@ pub use v4l2::V4l2Camera;
 
 use crate::error::{Error, Result};
 use crate::playback::ContentFrame;
+use crate::raster::ImageSize;
 
 /// YUYV (4:2:2, Y0 U Y1 V) to RGBA, BT.601 full range (what UVC webcams send; a device in
 /// limited range looks slightly washed out, not wrong). `size` is (width, height) in pixels;
 /// rows are `stride` bytes apart (at least `2 × width`).
-pub fn yuyv_to_rgba(src: &[u8], (w, h): (usize, usize), stride: usize) -> Result<ContentFrame> {
+pub fn yuyv_to_rgba(
+    src: &[u8],
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
+    stride: usize,
+) -> Result<ContentFrame> {
     let row = w * 2;
     if w % 2 != 0 || stride < row || src.len() < stride * h.saturating_sub(1) + row {
         return Err(Error::Failed(format!(
@@ -49,7 +57,14 @@ pub fn yuyv_to_rgba(src: &[u8], (w, h): (usize, usize), stride: usize) -> Result
 }
 
 /// Packed 8-bit RGB rows (`stride` bytes apart) to RGBA; `size` is (width, height) in pixels.
-pub fn rgb24_to_rgba(src: &[u8], (w, h): (usize, usize), stride: usize) -> Result<ContentFrame> {
+pub fn rgb24_to_rgba(
+    src: &[u8],
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
+    stride: usize,
+) -> Result<ContentFrame> {
     let row = w * 3;
     if stride < row || src.len() < stride * h.saturating_sub(1) + row {
         return Err(Error::Failed(format!(
@@ -89,10 +104,10 @@ mod tests {
     #[test]
     fn yuyv_gray_and_colour() {
         // Two pixels of Y=128 with neutral chroma: mid gray.
-        let f = yuyv_to_rgba(&[128, 128, 128, 128], (2, 1), 4).unwrap();
+        let f = yuyv_to_rgba(&[128, 128, 128, 128], ImageSize::new(2, 1), 4).unwrap();
         assert_eq!(f.rgba, vec![128, 128, 128, 255, 128, 128, 128, 255]);
         // Strong V: red up, green down.
-        let f = yuyv_to_rgba(&[100, 128, 100, 228], (2, 1), 4).unwrap();
+        let f = yuyv_to_rgba(&[100, 128, 100, 228], ImageSize::new(2, 1), 4).unwrap();
         assert!(f.rgba[0] > 200 && f.rgba[1] < 60);
     }
 
@@ -100,12 +115,12 @@ mod tests {
     fn padded_rows_are_skipped() {
         // 2x2 YUYV with 2 bytes of padding per row; the padding must not leak into the image.
         let src = [128, 128, 128, 128, 9, 9, 0, 128, 0, 128];
-        let f = yuyv_to_rgba(&src, (2, 2), 6).unwrap();
+        let f = yuyv_to_rgba(&src, ImageSize::new(2, 2), 6).unwrap();
         assert_eq!(&f.rgba[..4], &[128, 128, 128, 255]);
         assert_eq!(&f.rgba[8..12], &[0, 0, 0, 255]);
-        let f = rgb24_to_rgba(&[1, 2, 3, 0, 4, 5, 6], (1, 2), 4).unwrap();
+        let f = rgb24_to_rgba(&[1, 2, 3, 0, 4, 5, 6], ImageSize::new(1, 2), 4).unwrap();
         assert_eq!(f.rgba, vec![1, 2, 3, 255, 4, 5, 6, 255]);
-        assert!(rgb24_to_rgba(&[1, 2, 3, 0, 4, 5], (1, 2), 4).is_err());
+        assert!(rgb24_to_rgba(&[1, 2, 3, 0, 4, 5], ImageSize::new(1, 2), 4).is_err());
     }
 
     #[test]

@@ -19,6 +19,7 @@ use super::{Sequence, rgb24_to_rgba, yuyv_to_rgba};
 use crate::device::{Frame, FrameSource};
 use crate::error::{Error, Result};
 use crate::playback::ContentFrame;
+use crate::raster::ImageSize;
 
 /// Pixel formats compend decodes, in order of preference.
 const PREFERRED: [&[u8; 4]; 3] = [b"YUYV", b"RGB3", b"MJPG"];
@@ -30,7 +31,7 @@ const BUFFERS: u32 = 4;
 pub struct V4l2Camera {
     path: PathBuf,
     /// (width, height) of the frames, camera pixels.
-    size: (usize, usize),
+    size: ImageSize,
     fourcc: [u8; 4],
     /// Bytes from one row to the next in the driver's buffers (YUYV and RGB3).
     stride: usize,
@@ -100,13 +101,13 @@ fn pick_format(dev: &Device, path: &Path) -> Result<[u8; 4]> {
 fn decode(
     path: &Path,
     fourcc: &[u8; 4],
-    size: (usize, usize),
+    size: ImageSize,
     stride: usize,
     data: &[u8],
 ) -> Result<ContentFrame> {
     let frame = match fourcc {
-        b"YUYV" => yuyv_to_rgba(data, size, stride.max(size.0 * 2))?,
-        b"RGB3" => rgb24_to_rgba(data, size, stride.max(size.0 * 3))?,
+        b"YUYV" => yuyv_to_rgba(data, size, stride.max(size.width * 2))?,
+        b"RGB3" => rgb24_to_rgba(data, size, stride.max(size.width * 3))?,
         _ => {
             let img = image::load_from_memory_with_format(data, image::ImageFormat::Jpeg)
                 .map_err(|e| Error::Failed(format!("{}: MJPEG frame: {e}", path.display())))?
@@ -117,12 +118,11 @@ fn decode(
     };
     if frame.size() != size {
         return Err(Error::Failed(format!(
-            "{}: a {}x{} frame from a device set to {}x{}",
+            "{}: a {}x{} frame from a device set to {}",
             path.display(),
             frame.width,
             frame.height,
-            size.0,
-            size.1
+            size
         )));
     }
     Ok(frame)
@@ -141,14 +141,14 @@ impl V4l2Camera {
     /// Opens `path`, picks a pixel format the device offers and, when given, the frame size
     /// ((width, height), camera pixels; the driver may pick the nearest it has), and starts
     /// streaming.
-    pub fn open(path: &Path, size: Option<(usize, usize)>) -> Result<Self> {
+    pub fn open(path: &Path, size: Option<ImageSize>) -> Result<Self> {
         let dev = Device::with_path(path).map_err(|e| dev_err(path, "open", e))?;
         let fourcc = pick_format(&dev, path)?;
         let mut fmt = dev.format().map_err(|e| dev_err(path, "read format", e))?;
         fmt.fourcc = FourCC::new(&fourcc);
-        if let Some((w, h)) = size {
-            fmt.width = w as u32;
-            fmt.height = h as u32;
+        if let Some(size) = size {
+            fmt.width = size.width as u32;
+            fmt.height = size.height as u32;
         }
         let fmt = dev
             .set_format(&fmt)
@@ -164,7 +164,7 @@ impl V4l2Camera {
             .map_err(|e| dev_err(path, "start streaming", e))?;
         let mut camera = Self {
             path: path.to_path_buf(),
-            size: (fmt.width as usize, fmt.height as usize),
+            size: ImageSize::new(fmt.width as usize, fmt.height as usize),
             fourcc,
             stride: fmt.stride as usize,
             stream,
@@ -186,10 +186,9 @@ impl V4l2Camera {
     /// For messages: the device, its frame size and pixel format.
     pub fn describe(&self) -> String {
         format!(
-            "V4L2 device {} ({}x{} {})",
+            "V4L2 device {} ({} {})",
             self.path.display(),
-            self.size.0,
-            self.size.1,
+            self.size,
             fourcc_name(&self.fourcc)
         )
     }
@@ -226,7 +225,7 @@ impl V4l2Camera {
 }
 
 impl FrameSource for V4l2Camera {
-    fn size(&self) -> (usize, usize) {
+    fn size(&self) -> ImageSize {
         self.size
     }
 

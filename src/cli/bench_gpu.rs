@@ -23,7 +23,7 @@ use compend::rig::{Phase, Simulator, VirtualRig, scene};
 use compend::source::{FeedMode, Pattern, SourceSpec};
 use serde::Serialize;
 
-use super::patterns::{Size, parse_wxh};
+use super::patterns::parse_wxh;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -33,23 +33,23 @@ pub struct Args {
     /// Projector resolutions.
     #[arg(long, value_delimiter = ',', value_parser = parse_size,
           default_value = "640x480,800x600,1920x1080,3840x2160")]
-    pub sizes: Vec<Size>,
+    pub sizes: Vec<ImageSize>,
     /// Timed frames per measurement (after 5 warm-up frames); medians are reported.
     #[arg(long, default_value_t = 30)]
     pub iters: usize,
     /// Camera resolution of the model.
     #[arg(long, value_parser = parse_size, default_value = "640x480")]
-    pub camera: Size,
+    pub camera: ImageSize,
     /// Network resolution of the models (sides divisible by 4 for CompenNet).
     #[arg(long, value_parser = parse_size, default_value = "256x256")]
-    pub network: Size,
+    pub network: ImageSize,
     /// Timed frames per CompenNet measurement (after 2 warm-up frames; 0 = skip CompenNet): its
     /// backbone is ~3.2 GMAC per 256² frame, slow on software drivers.
     #[arg(long, default_value_t = 10)]
     pub compennet_iters: usize,
     /// Content frame resolution.
     #[arg(long, value_parser = parse_size, default_value = "1280x720")]
-    pub content: Size,
+    pub content: ImageSize,
     /// Seconds of playback at the display rate per size, with the pipeline alone and then on the
     /// virtual rig (0 = skip both).
     #[arg(long, default_value_t = 2.0)]
@@ -62,13 +62,14 @@ pub struct Args {
     pub fps: f64,
 }
 
-fn parse_size(s: &str) -> std::result::Result<Size, String> {
+fn parse_size(s: &str) -> std::result::Result<ImageSize, String> {
     parse_wxh(s, false)
 }
 
 #[derive(Serialize)]
 struct Row {
-    projector: (usize, usize),
+    #[serde(with = "compend::raster::as_pair")]
+    projector: ImageSize,
     copy: Timing,
     linear: Timing,
     /// linear / copy, GPU timestamps where available.
@@ -100,10 +101,7 @@ struct Bench<'a> {
 
 pub fn run(args: Args) -> Result<()> {
     let ctx = GpuContext::new()?;
-    let (cam, net) = (
-        (args.camera.width, args.camera.height),
-        (args.network.width, args.network.height),
-    );
+    let (cam, net) = (args.camera, args.network);
     let compennet = if args.compennet_iters > 0 {
         Some(synthetic_compennet_model(
             cam,
@@ -119,21 +117,22 @@ pub fn run(args: Args) -> Result<()> {
         args: &args,
         linear: synthetic_linear_model(cam, net, 0),
         compennet,
-        content: compend::source::pattern::render(
-            Pattern::Bars,
-            (args.content.width, args.content.height),
-            0,
-        )?,
+        content: compend::source::pattern::render(Pattern::Bars, args.content, 0)?,
     };
     eprintln!(
-        "bench-gpu: {} (camera {cam:?}, network {net:?}, content {:?})",
+        "bench-gpu: {} (camera ({}, {}), network ({}, {}), content ({}, {}))",
         ctx.describe(),
-        bench.content.size()
+        cam.width,
+        cam.height,
+        net.width,
+        net.height,
+        bench.content.size().width,
+        bench.content.size().height
     );
     let rows = args
         .sizes
         .iter()
-        .map(|s| bench.row(ImageSize::new(s.width, s.height)))
+        .map(|&s| bench.row(s))
         .collect::<Result<Vec<Row>>>()?;
     // A software adapter (lavapipe) reports timestamps, but its copies cost next to nothing on
     // them while the wall clock shows the real memcpy: its ratios are read from the wall clock.
@@ -148,10 +147,10 @@ pub fn run(args: Args) -> Result<()> {
         "software_adapter": software,
         "timing": timing,
         "iters": args.iters,
-        "camera": cam,
-        "network": net,
+        "camera": [cam.width, cam.height],
+        "network": [net.width, net.height],
         "compennet_iters": args.compennet_iters,
-        "content": bench.content.size(),
+        "content": [bench.content.size().width, bench.content.size().height],
         "fps": args.fps,
         "rows": rows,
     });
@@ -170,7 +169,7 @@ impl Bench<'_> {
     fn row(&self, prj: ImageSize) -> Result<Row> {
         let (ctx, args) = (self.ctx, self.args);
         let mut pass = CompensationPass::for_display(ctx, &self.linear, prj, DisplayRange::FULL)?;
-        let copy = time_copy(ctx, prj.into(), 5, args.iters)?;
+        let copy = time_copy(ctx, prj, 5, args.iters)?;
         let linear = time_pass(ctx, &mut pass, &self.content, 5, args.iters)?;
         let ratio = linear.best_ms() / copy.best_ms();
         eprintln!(
@@ -189,7 +188,7 @@ impl Bench<'_> {
             (None, None)
         };
         Ok(Row {
-            projector: prj.into(),
+            projector: prj,
             copy,
             linear,
             linear_over_copy: ratio,
@@ -232,7 +231,7 @@ impl Bench<'_> {
         let args = self.args;
         let spec = SourceSpec::Pattern {
             pattern: Pattern::Moving,
-            size: (args.content.width, args.content.height),
+            size: args.content,
             fps: args.fps,
             frames: None,
         };
@@ -258,8 +257,8 @@ impl Bench<'_> {
     /// counts.
     fn virtual_run(&self, prj: ImageSize) -> Result<PlayStats> {
         let args = self.args;
-        let scene = scene::builtin("textured-plane")?
-            .with_resolution(self.linear.camera_size(), prj.into());
+        let scene =
+            scene::builtin("textured-plane")?.with_resolution(self.linear.camera_size(), prj);
         let rig = VirtualRig::from_simulator(Simulator::new(&scene, 0, Phase::Calibration)?);
         rig.set_latency(scene::Latency {
             fps: args.fps,
@@ -287,20 +286,17 @@ impl Bench<'_> {
         let (ctx, args) = (self.ctx, self.args);
         let mut md = format!(
             "# compend bench-gpu\n\nAdapter: {}. Timing: {timing}, median of {} frames ({} for CompenNet). Models \
-             (synthetic, seeded): linear and the simplified CompenNet backbone, camera {}x{}, network {}x{}; \
-             content {}x{}. Times in ms as GPU timestamps / wall clock (submit to \
+             (synthetic, seeded): linear and the simplified CompenNet backbone, camera {}, network {}; \
+             content {}. Times in ms as GPU timestamps / wall clock (submit to \
              idle) where the adapter has timestamps, else wall clock.\n\n| projector | copy | linear | linear / copy | \
              within 3x | CompenNet | CompenNet / copy | virtual rig @ {} Hz: shown / dropped (source) / dropped (pipeline) | pipeline mean (ms) \
              | pipeline alone: shown / dropped (pipeline) / mean / max (ms) |\n|---|---|---|---|---|---|---|---|---|---|\n",
             ctx.describe(),
             args.iters,
             args.compennet_iters,
-            args.camera.width,
-            args.camera.height,
-            args.network.width,
-            args.network.height,
-            self.content.width,
-            self.content.height,
+            args.camera,
+            args.network,
+            self.content.size(),
             args.fps
         );
         for r in rows {
@@ -325,9 +321,8 @@ impl Bench<'_> {
 fn markdown_row(r: &Row) -> String {
     let v = r.virtual_rig.as_ref();
     format!(
-        "| {}x{} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
-        r.projector.0,
-        r.projector.1,
+        "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+        r.projector,
         both(&r.copy),
         both(&r.linear),
         match r.linear.gpu_ms {

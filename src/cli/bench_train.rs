@@ -7,16 +7,16 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use compend::model::Method;
 use anyhow::{Context, Result};
 use candle_core::{Device, Tensor};
+use compend::model::Method;
 use compend::nn::compennet::{backbone_macs, surface_macs};
 use compend::nn::compennetpp::{GeometryInit, Variant};
 use compend::nn::train::{Data, Settings};
-use compend::raster::{CamImage, NetImage};
+use compend::raster::{CamImage, ImageSize, NetImage};
 use serde::Serialize;
 
-use super::patterns::{Size, parse_wxh};
+use super::patterns::parse_wxh;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -34,7 +34,7 @@ pub struct Args {
     pub network: usize,
     /// Camera resolution of the synthetic captures.
     #[arg(long, value_parser = parse_camera, default_value = "640x480")]
-    pub camera: Size,
+    pub camera: ImageSize,
     /// Inference frames timed per model (after one untimed frame).
     #[arg(long, default_value_t = 3)]
     pub frames: usize,
@@ -85,7 +85,7 @@ fn torch_train_steps(
     python: &std::path::Path,
     side: usize,
     width: usize,
-    camera: (usize, usize),
+    camera: ImageSize,
     batch: usize,
     steps: usize,
 ) -> std::result::Result<(Vec<f64>, String), String> {
@@ -99,7 +99,7 @@ fn torch_train_steps(
             "--width",
             &width.to_string(),
         ])
-        .args(["--camera", &format!("{}x{}", camera.0, camera.1)])
+        .args(["--camera", &camera.to_string()])
         .args(["--batch", &batch.to_string(), "--steps", &steps.to_string()])
         .args(["--threads", &rayon::current_num_threads().to_string()])
         .stdin(Stdio::piped())
@@ -154,7 +154,7 @@ fn ratio_cell(r: &Row) -> String {
     }
 }
 
-fn parse_camera(s: &str) -> std::result::Result<Size, String> {
+fn parse_camera(s: &str) -> std::result::Result<ImageSize, String> {
     parse_wxh(s, false)
 }
 
@@ -252,13 +252,16 @@ fn median(v: &[f64]) -> f64 {
 fn compennet_train_steps(
     variant: Variant,
     side: usize,
-    camera: (usize, usize),
+    camera: ImageSize,
     batch: usize,
     steps: usize,
 ) -> compend::Result<Vec<f64>> {
     let ce = |e: candle_core::Error| compend::Error::Failed(format!("synthetic data: {e}"));
     let dev = Device::Cpu;
-    let (cw, ch) = camera;
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = camera;
     let data = Data {
         captures: Tensor::rand(0f32, 1.0, (batch, 3, ch, cw), &dev).map_err(ce)?,
         surface: Tensor::rand(0f32, 1.0, (1, 3, ch, cw), &dev).map_err(ce)?,
@@ -285,8 +288,11 @@ fn compennet_train_steps(
         .collect())
 }
 
-fn frame_ms(model: &compend::model::Model, camera: (usize, usize), frames: usize) -> Result<f64> {
-    let (cw, ch) = camera;
+fn frame_ms(model: &compend::model::Model, camera: ImageSize, frames: usize) -> Result<f64> {
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = camera;
     let img = CamImage::from_fn(cw, ch, |x, y| {
         let v = ((x * 7 + y * 3) % 17) as f32 / 16.0;
         [v, 0.5 * v + 0.25, 1.0 - v]
@@ -303,7 +309,7 @@ fn compennet_row(
     a: &Args,
     variant: Variant,
     side: usize,
-    camera: (usize, usize),
+    camera: ImageSize,
     m: &Machine,
 ) -> Result<Row> {
     let width = variant.width();
@@ -353,7 +359,12 @@ fn compennet_row(
     let train_ms = per_sample(&candle_steps);
     let torch_ms = per_sample(&torch_steps);
     let error = (!errors.is_empty()).then(|| errors.join("; "));
-    let model = compend::gpu::bench::synthetic_compennet_model(camera, (side, side), variant, 0)?;
+    let model = compend::gpu::bench::synthetic_compennet_model(
+        camera,
+        ImageSize::new(side, side),
+        variant,
+        0,
+    )?;
     let frame = frame_ms(&model, camera, a.frames)?;
     let rate = train_ms.map(|ms| gflop / (ms / 1e3));
     Ok(Row {
@@ -376,15 +387,18 @@ fn compennet_row(
 
 /// The `linear` fit on smooth synthetic pairs (its cost barely depends on the content) and the
 /// per-frame cost of its simplified form on the default lattice.
-fn linear_row(a: &Args, camera: (usize, usize)) -> Result<Row> {
+fn linear_row(a: &Args, camera: ImageSize) -> Result<Row> {
     let side = a.network;
-    let lattice = compend::fit::default_lattice((side, side));
+    let lattice = compend::fit::default_lattice(ImageSize::new(side, side));
     let train_ms = if a.linear_pairs > 0 {
         eprintln!(
             "bench-train: linear fit on {} synthetic pairs",
             a.linear_pairs
         );
-        let (cw, ch) = camera;
+        let ImageSize {
+            width: cw,
+            height: ch,
+        } = camera;
         let pairs: Vec<(CamImage, NetImage)> = (0..a.linear_pairs)
             .map(|i| {
                 let f = 1.0 + i as f32 * 0.37;
@@ -406,7 +420,7 @@ fn linear_row(a: &Args, camera: (usize, usize)) -> Result<Row> {
             .collect();
         let (caps, tgts): (Vec<_>, Vec<_>) = pairs.into_iter().unzip();
         let settings = compend::linear::FitSettings {
-            network_size: (side, side),
+            network_size: ImageSize::new(side, side),
             lattice: Some(lattice),
             ..Default::default()
         };
@@ -420,7 +434,7 @@ fn linear_row(a: &Args, camera: (usize, usize)) -> Result<Row> {
     let model = compend::gpu::bench::synthetic_linear_model(camera, lattice, 0);
     Ok(Row {
         method: compend::linear::METHOD.into(),
-        network: lattice.0,
+        network: lattice.width,
         width: None,
         train_ms_per_sample: train_ms,
         train_gflop_per_sample: None,
@@ -437,7 +451,7 @@ fn linear_row(a: &Args, camera: (usize, usize)) -> Result<Row> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if a.network < 8 || a.network % 8 != 0 {
+    if a.network < 8 || !a.network.is_multiple_of(8) {
         return Err(compend::Error::Input(format!(
             "--network {}: expected a multiple of 8 (the CPU rung works at half of it, which \
              CompenNet needs divisible by 4)",
@@ -452,7 +466,7 @@ pub fn run(a: Args) -> Result<()> {
         .into());
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let camera = (a.camera.width, a.camera.height);
+    let camera = a.camera;
     eprintln!("bench-train: measuring the machine's arithmetic rate");
     let m = machine()?;
     let mut rows = Vec::new();
@@ -466,7 +480,7 @@ pub fn run(a: Args) -> Result<()> {
             _ => linear_row(&a, camera)?,
         });
     }
-    let json = serde_json::json!({ "machine": m, "rows": rows, "camera": [camera.0, camera.1],
+    let json = serde_json::json!({ "machine": m, "rows": rows, "camera": [camera.width, camera.height],
                                    "steps": a.steps, "batch": a.batch, "rounds": a.rounds });
     let opt = |v: Option<f64>, p: usize| v.map_or("–".to_string(), |x| format!("{x:.p$}"));
     let mut md = format!(
@@ -510,7 +524,10 @@ pub fn run(a: Args) -> Result<()> {
         md += &format!("\nPyTorch: {t}.\n");
     }
     let jp = a.out.join("bench-train.json");
-    compend::files::write_atomically(&jp, (serde_json::to_string_pretty(&json)? + "\n").as_bytes())?;
+    compend::files::write_atomically(
+        &jp,
+        (serde_json::to_string_pretty(&json)? + "\n").as_bytes(),
+    )?;
     let mp = a.out.join("bench-train.md");
     compend::files::write_atomically(&mp, md.as_bytes())?;
     print!("{md}");

@@ -34,13 +34,11 @@ pub fn run(args: Args) -> Result<()> {
     let camera = setup.camera_size()?;
     if camera != model.camera_size() {
         return Err(compend::Error::Input(format!(
-            "{}: camera images are {}x{}, the model {} was trained on {}x{}",
+            "{}: camera images are {}, the model {} was trained on {}",
             setup.path().display(),
-            camera.0,
-            camera.1,
+            camera,
             args.model.display(),
-            model.camera_size().0,
-            model.camera_size().1
+            model.camera_size()
         ))
         .into());
     }
@@ -59,14 +57,14 @@ pub fn run(args: Args) -> Result<()> {
             println!("{name:<16} {:>9.4} {:>9.4} {:>9.4}", s.psnr, s.rmse, s.ssim);
         };
         row("uncompensated", &uncomp);
-        row(&method, &comp);
-        let (ow, oh) = model.network_size();
-        let (nw, nh) = pairs.inputs.first().map_or((ow, oh), |i| i.size());
-        if (ow, oh) == (nw, nh) {
-            println!("({} test pairs, network {nw}x{nh})", comp.n);
+        row(method, &comp);
+        let out = model.network_size();
+        let net = pairs.inputs.first().map_or(out, |i| i.size());
+        if out == net {
+            println!("({} test pairs, network {net})", comp.n);
         } else {
             println!(
-                "({} test pairs; model output {ow}x{oh}, scored at the network size {nw}x{nh})",
+                "({} test pairs; model output {out}, scored at the network size {net})",
                 comp.n
             );
         }

@@ -5,8 +5,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use compend::raster::ImageSize;
 use compend::dataset::{Reference, SetCounts, Setup, SetupInfo};
+use compend::raster::ImageSize;
 use compend::raster::{CamImage, Camera, Mask, Rect};
 use serde::Serialize;
 
@@ -104,7 +104,7 @@ fn fov_report(setup: &Setup, args: &Args) -> Result<Option<FovReport>> {
         None => setup
             .root()
             .network_size()
-            .map(|(w, h)| w as f64 / h as f64)
+            .map(ImageSize::aspect)
             .unwrap_or(1.0),
     };
     let area = compend::fov::displayable_area(&fov.mask, aspect).ok();

@@ -1,6 +1,7 @@
-//! `compend patterns --out ROOT`: writes the projector-side images of a dataset (DESIGN.md
-//! section 3): `train/` and `test/` sampling images and `ref/` (colour cube and gray image) at
-//! network size, `sl/` Gray-code structured light at projector resolution.
+//! `compend patterns --out ROOT`: writes the projector-side images of a dataset
+//! (docs/architecture.md, "Dataset layout"): `train/` and `test/` sampling images and `ref/`
+//! (colour cube and gray image) at network size, `sl/` Gray-code structured light at projector
+//! resolution.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -9,6 +10,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use compend::dataset::{DataRoot, ProjectorSet};
 use compend::patterns::{self, CUBE_COUNT, GrayCode, Set};
+use compend::raster::ImageSize;
 use rayon::prelude::*;
 
 #[derive(clap::Args, Debug)]
@@ -28,30 +30,17 @@ pub struct Args {
     pub seed: u64,
     /// Network size of the sampling and reference images: N (square) or WxH, sides divisible by 4.
     #[arg(long, default_value = "256", value_name = "N|WxH", value_parser = parse_network_size)]
-    pub size: Size,
+    pub size: ImageSize,
     /// Projector resolution of the structured-light patterns, WxH.
     #[arg(long, default_value = "800x600", value_name = "WxH", value_parser = parse_projector_size)]
-    pub projector: Size,
+    pub projector: ImageSize,
     /// 8-bit level of the gray image ROOT/ref/img_gray.png (the surface image x0).
     #[arg(long, default_value_t = patterns::DEFAULT_GRAY_LEVEL)]
     pub gray_level: u8,
 }
 
-/// An image size in pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Size {
-    pub width: usize,
-    pub height: usize,
-}
-
-impl std::fmt::Display for Size {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}x{}", self.width, self.height)
-    }
-}
-
 /// Parses `WxH` (or `N` for a square when `square_ok`), both sides at least 1.
-pub fn parse_wxh(s: &str, square_ok: bool) -> std::result::Result<Size, String> {
+pub fn parse_wxh(s: &str, square_ok: bool) -> std::result::Result<ImageSize, String> {
     let side = |t: &str| -> std::result::Result<usize, String> {
         match t.trim().parse::<usize>() {
             Ok(0) => Err("sides must be at least 1 pixel".to_string()),
@@ -62,22 +51,16 @@ pub fn parse_wxh(s: &str, square_ok: bool) -> std::result::Result<Size, String> 
     };
     let lower = s.to_ascii_lowercase();
     match lower.split_once('x') {
-        Some((w, h)) => Ok(Size {
-            width: side(w)?,
-            height: side(h)?,
-        }),
+        Some((w, h)) => Ok(ImageSize::new(side(w)?, side(h)?)),
         None if square_ok => {
             let n = side(&lower)?;
-            Ok(Size {
-                width: n,
-                height: n,
-            })
+            Ok(ImageSize::new(n, n))
         }
         None => Err("expected WIDTHxHEIGHT, e.g. 800x600".to_string()),
     }
 }
 
-fn parse_network_size(s: &str) -> std::result::Result<Size, String> {
+fn parse_network_size(s: &str) -> std::result::Result<ImageSize, String> {
     let size = parse_wxh(s, true)?;
     if size.width % 4 != 0 || size.height % 4 != 0 {
         return Err(format!(
@@ -87,7 +70,7 @@ fn parse_network_size(s: &str) -> std::result::Result<Size, String> {
     Ok(size)
 }
 
-fn parse_projector_size(s: &str) -> std::result::Result<Size, String> {
+fn parse_projector_size(s: &str) -> std::result::Result<ImageSize, String> {
     parse_wxh(s, false)
 }
 
@@ -155,7 +138,7 @@ fn parallel(
         .try_for_each(|i| {
             job(i)?;
             let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-            if d % step == 0 && d < n {
+            if d.is_multiple_of(step) && d < n {
                 eprintln!("patterns: {label} {d}/{n}");
             }
             Ok::<(), compend::Error>(())

@@ -112,19 +112,11 @@ fn play_window(
 ) -> Result<PlayStats> {
     let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
     let size = DisplaySink::size(&win);
-    let mut player = Player::start(
-        win.context(),
-        model,
-        size.into(),
-        DisplayRange::FULL,
-        source,
-        mode,
-    )?;
+    let mut player = Player::start(win.context(), model, size, DisplayRange::FULL, source, mode)?;
     eprintln!(
-        "play: {} on the projector window {}x{} at {:.1} Hz ({})",
+        "play: {} on the projector window {} at {:.1} Hz ({})",
         player.feed.describe(),
-        size.0,
-        size.1,
+        size,
         win.refresh_hz(),
         win.context().describe()
     );
@@ -143,24 +135,15 @@ fn play_virtual(
     let (rig, range) = virtual_rig(model, scene_name, args.seed)?;
     let ctx = GpuContext::new()?;
     let sim = rig.simulator();
-    let mut player = Player::start(
-        &ctx,
-        model,
-        sim.projector_size().into(),
-        range,
-        source,
-        mode,
-    )?;
+    let mut player = Player::start(&ctx, model, sim.projector_size(), range, source, mode)?;
     let placement = player.pass.placement();
     eprintln!(
-        "play: {} on the virtual rig (scene {:?}, camera {}x{}, projector {}x{}; area {}, canvas \
+        "play: {} on the virtual rig (scene {:?}, camera {}, projector {}; area {}, canvas \
          {}) with {}",
         args.source,
         sim.scene().name,
-        sim.camera_size().0,
-        sim.camera_size().1,
-        placement.projector_size.0,
-        placement.projector_size.1,
+        sim.camera_size(),
+        placement.projector_size,
         placement.area,
         placement.canvas,
         ctx.describe()
@@ -205,7 +188,7 @@ fn virtual_rig(
         .setup
         .as_deref()
         .and_then(|setup| rig::export::read_record(setup).ok());
-    let (cw, ch) = model.camera_size();
+    let cam = model.camera_size();
     let (scene, record_seed, range) = match (scene_name, &record) {
         (None, Some(r)) => (r.scene.clone(), r.seed, r.desired_range),
         (None, None) => {
@@ -221,24 +204,22 @@ fn virtual_rig(
             let s = scene::load(name)?;
             // The record's projector resolution when it is the same scene, else the scene's.
             let prj = match r {
-                Some(r) if r.scene.name == s.name => {
-                    (r.scene.projector.width, r.scene.projector.height)
-                }
-                _ => (s.projector.width, s.projector.height),
+                Some(r) if r.scene.name == s.name => r.scene.projector.size(),
+                _ => s.projector.size(),
             };
             let same = r.as_ref().filter(|r| r.scene.name == s.name);
             (
-                s.with_resolution((cw, ch), prj),
+                s.with_resolution(cam, prj),
                 same.map_or(0, |r| r.seed),
                 same.map_or(DisplayRange::FULL, |r| r.desired_range),
             )
         }
     };
     scene.validate()?;
-    if (scene.camera.width, scene.camera.height) != (cw, ch) {
+    if scene.camera.size() != cam {
         return Err(compend::Error::Input(format!(
-            "the model expects {cw}x{ch} camera images, the virtual rig's camera is {}x{}",
-            scene.camera.width, scene.camera.height
+            "the model expects {cam} camera images, the virtual rig's camera is {}",
+            scene.camera.size()
         ))
         .into());
     }

@@ -1,4 +1,5 @@
-//! `compend pretrain`: the photometric pre-initialisation of CompenNet (DESIGN.md 5.2).
+//! `compend pretrain`: the photometric pre-initialisation of CompenNet (docs/architecture.md,
+//! "Models").
 //!
 //! The shipped weights are reproduced by
 //! `compend pretrain --width 16 --out weights/compennet-pretrain-w16.safetensors` and the same

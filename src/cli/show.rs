@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Result;
 use compend::device::DisplaySink;
-use compend::raster::{PrjImage, Rect};
+use compend::raster::{ImageSize, PrjImage, Rect};
 use compend::window::ProjectorWindow;
 
 #[derive(clap::Args, Debug)]
@@ -24,8 +24,11 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let img: PrjImage = compend::pngio::read_rgb(&args.image)?;
     let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
-    let (w, h) = DisplaySink::size(&win);
-    let frame = if img.size() == (w, h) {
+    let ImageSize {
+        width: w,
+        height: h,
+    } = DisplaySink::size(&win);
+    let frame = if img.size() == ImageSize::new(w, h) {
         img
     } else {
         let full = Rect {
@@ -34,7 +37,7 @@ pub fn run(args: Args) -> Result<()> {
             width: w,
             height: h,
         };
-        compend::playback::place_on_canvas(&img, full, (w, h))?
+        compend::playback::place_on_canvas(&img, full, ImageSize::new(w, h))?
     };
     win.show(&frame)?;
     eprintln!(

@@ -19,7 +19,8 @@ use compend::dataset::DataRoot;
 use compend::patterns::{self, Set};
 use compend::rig::{self, ExportOptions, Phase, Simulator, scene};
 
-use super::patterns::{Size, parse_wxh};
+use super::patterns::parse_wxh;
+use compend::raster::ImageSize;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -80,13 +81,13 @@ pub struct SceneArgs {
     pub seed: u64,
     /// Camera resolution WxH (default: the scene's, 640x480 for built-in scenes).
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
-    pub camera: Option<Size>,
+    pub camera: Option<ImageSize>,
     /// Projector resolution WxH (default: the scene's, 800x600 for built-in scenes).
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
-    pub projector: Option<Size>,
+    pub projector: Option<ImageSize>,
     /// Network size of the sampling and test images: N (square) or WxH, sides divisible by 4.
     #[arg(long, default_value = "256", value_name = "N|WxH", value_parser = parse_network)]
-    pub network: Size,
+    pub network: ImageSize,
 }
 
 #[derive(clap::Args, Debug)]
@@ -142,11 +143,11 @@ pub struct SheetArgs {
     pub panel: usize,
 }
 
-fn parse_size(s: &str) -> std::result::Result<Size, String> {
+fn parse_size(s: &str) -> std::result::Result<ImageSize, String> {
     parse_wxh(s, false)
 }
 
-fn parse_network(s: &str) -> std::result::Result<Size, String> {
+fn parse_network(s: &str) -> std::result::Result<ImageSize, String> {
     let size = parse_wxh(s, true)?;
     if size.width % 4 != 0 || size.height % 4 != 0 {
         return Err(format!(
@@ -178,14 +179,8 @@ pub fn run(args: Args) -> Result<()> {
 /// The scene with the requested resolutions.
 pub fn resolve(name: &str, a: &SceneArgs) -> Result<scene::Scene> {
     let s = scene::load(name)?;
-    let cam = a
-        .camera
-        .map_or((s.camera.width, s.camera.height), |c| (c.width, c.height));
-    let prj = a
-        .projector
-        .map_or((s.projector.width, s.projector.height), |p| {
-            (p.width, p.height)
-        });
+    let cam = a.camera.unwrap_or(s.camera.size());
+    let prj = a.projector.unwrap_or(s.projector.size());
     let s = s.with_resolution(cam, prj);
     s.validate()?;
     Ok(s)
@@ -201,10 +196,7 @@ fn export(a: ExportArgs) -> Result<()> {
         ntest: a.ntest,
         seed: sa.seed,
         size: sa.network,
-        projector: Size {
-            width: scene.projector.width,
-            height: scene.projector.height,
-        },
+        projector: scene.projector.size(),
         gray_level: patterns::DEFAULT_GRAY_LEVEL,
     })?;
     let phase = if a.drifted {
@@ -213,12 +205,10 @@ fn export(a: ExportArgs) -> Result<()> {
         Phase::Calibration
     };
     eprintln!(
-        "sim: preparing scene {:?} (camera {}x{}, projector {}x{}, seed {})",
+        "sim: preparing scene {:?} (camera {}, projector {}, seed {})",
         scene.name,
-        scene.camera.width,
-        scene.camera.height,
-        scene.projector.width,
-        scene.projector.height,
+        scene.camera.size(),
+        scene.projector.size(),
         sa.seed
     );
     let sim = Simulator::new(&scene, sa.seed, phase)?;
@@ -408,11 +398,7 @@ fn score(a: ScoreArgs) -> Result<()> {
         net,
         FRAMES_SCORE,
     )?;
-    rows.push(Row::new(
-        &format!("oracle @ {}x{}", net.0, net.1),
-        &net_oracle,
-        ceiling,
-    ));
+    rows.push(Row::new(&format!("oracle @ {net}"), &net_oracle, ceiling));
     rows.push(Row::new("oracle", &refs.oracle, ceiling));
     print_scores(a.json, &record, phase, n, &rows);
     Ok(())
@@ -423,7 +409,7 @@ fn score(a: ScoreArgs) -> Result<()> {
 fn on_canvas(
     imgs: Vec<compend::raster::PrjImage>,
     canvas: compend::raster::Rect,
-    psize: (usize, usize),
+    psize: ImageSize,
 ) -> compend::Result<Vec<compend::raster::PrjImage>> {
     imgs.iter()
         .map(|i| compend::playback::place_on_canvas(i, canvas, psize))

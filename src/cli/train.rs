@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use compend::fit::{self, Request};
+use compend::raster::ImageSize;
 use serde_json::json;
 
 #[derive(clap::Args, Debug)]
@@ -44,7 +45,7 @@ pub struct Args {
     /// itself reproduces the paper's 256² output). Live playback stretches any lattice over the
     /// canvas; offline, `compensate` writes images of this size.
     #[arg(long, value_name = "N|WxH", value_parser = parse_lattice)]
-    pub lattice: Option<(usize, usize)>,
+    pub lattice: Option<ImageSize>,
     /// CompenNet++ variants: how CompenNet's weights start: `shipped` (the photometric
     /// pre-initialisation compiled into compend, see `compend pretrain`), `none` (Kaiming noise
     /// from --seed, as the paper without pre-training) or a `.safetensors` file written by
@@ -101,7 +102,6 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-fn parse_lattice(s: &str) -> std::result::Result<(usize, usize), String> {
-    let size = super::patterns::parse_wxh(s, true)?;
-    Ok((size.width, size.height))
+fn parse_lattice(s: &str) -> std::result::Result<ImageSize, String> {
+    super::patterns::parse_wxh(s, true)
 }

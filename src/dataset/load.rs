@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::pngio;
-use crate::raster::{Rgb, Space};
+use crate::raster::{ImageSize, Rgb, Space};
 
 /// Resolves a requested count against what `dir` holds.
 pub(super) fn take_count(
@@ -46,7 +46,7 @@ pub(crate) fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync 
 /// names the setter, not the good image.
 pub(super) fn read_all<S: Space>(
     paths: &[PathBuf],
-    size: (usize, usize),
+    size: ImageSize,
     why: &str,
     setter: &Path,
 ) -> Result<Vec<Rgb<S>>> {
@@ -73,10 +73,10 @@ pub(super) fn read_all<S: Space>(
 pub(super) fn blame_the_odd_one(
     err: Error,
     paths: &[PathBuf],
-    got: (usize, usize),
+    got: ImageSize,
     setter: &Path,
 ) -> Error {
-    let sizes: Vec<(usize, usize)> = paths
+    let sizes: Vec<ImageSize> = paths
         .iter()
         .filter(|p| p.as_path() != setter)
         .filter_map(|p| pngio::png_size(p).ok())

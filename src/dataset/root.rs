@@ -9,7 +9,7 @@ use super::load::{read_all, take_count};
 use super::names::{absolute, check_index, count_dir};
 use crate::error::{Error, Result};
 use crate::pngio;
-use crate::raster::PrjImage;
+use crate::raster::{ImageSize, PrjImage};
 
 /// File name of the gray projector image x0 in `ROOT/ref`.
 pub const GRAY_INPUT_NAME: &str = "img_gray.png";
@@ -128,7 +128,7 @@ impl DataRoot {
     }
 
     /// Network size: the size of `train/img_0001.png`, else of `test/img_0001.png`.
-    pub fn network_size(&self) -> Result<(usize, usize)> {
+    pub fn network_size(&self) -> Result<ImageSize> {
         let train = self.image_path(ProjectorSet::Train, 1);
         let test = self.image_path(ProjectorSet::Test, 1);
         if train.is_file() {
@@ -147,7 +147,7 @@ impl DataRoot {
     }
 
     /// Projector size: the size of the first structured-light pattern `sl/img_0001.png`.
-    pub fn projector_size(&self) -> Result<(usize, usize)> {
+    pub fn projector_size(&self) -> Result<ImageSize> {
         let p = self.image_path(ProjectorSet::Sl, 1);
         if !p.is_file() {
             return Err(Error::Missing {
@@ -160,7 +160,7 @@ impl DataRoot {
     }
 
     /// Expected size of the images of a set, why (for error messages) and the file that sets it.
-    fn expected_size(&self, set: ProjectorSet) -> Result<((usize, usize), String, PathBuf)> {
+    fn expected_size(&self, set: ProjectorSet) -> Result<(ImageSize, String, PathBuf)> {
         Ok(match set {
             ProjectorSet::Sl => {
                 let setter = self.image_path(ProjectorSet::Sl, 1);

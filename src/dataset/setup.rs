@@ -11,7 +11,7 @@ use super::names::{absolute, check_index, check_plain_name, count_dir, scan};
 use super::root::{DataRoot, ProjectorSet};
 use crate::error::{Error, Result};
 use crate::pngio;
-use crate::raster::{CamImage, PrjImage};
+use crate::raster::{CamImage, ImageSize, PrjImage};
 
 /// A capture set of a setup, `SETUP/cam/raw/<name>`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -227,7 +227,7 @@ impl Setup {
     }
 
     /// Camera size: the size of the black reference capture.
-    pub fn camera_size(&self) -> Result<(usize, usize)> {
+    pub fn camera_size(&self) -> Result<ImageSize> {
         let p = self.reference_path(Reference::Black);
         if !p.is_file() {
             return Err(Error::Missing {

@@ -89,7 +89,7 @@ impl Problems {
 /// The size every image of a group must have, and why.
 #[derive(Clone)]
 struct Expect {
-    size: (usize, usize),
+    size: ImageSize,
     why: String,
 }
 
@@ -112,7 +112,7 @@ fn space_size(
     {
         // The primary sets the size unless most of the other images disagree with it: then it
         // is the odd one out, and the majority's size is the one to check against.
-        let others: Vec<(usize, usize)> = paths
+        let others: Vec<ImageSize> = paths
             .iter()
             .filter(|q| *q != p)
             .filter_map(|q| pngio::png_size(q).ok())
@@ -297,7 +297,7 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
     check_pairing(root, &scans, &mut pr);
     check_network_sides(sizes.network.as_ref(), &mut pr);
 
-    let size = |x: &Option<Expect>| x.as_ref().map(|x| ImageSize::from(x.size));
+    let size = |x: &Option<Expect>| x.as_ref().map(|x| x.size);
     Validation {
         info: SetupInfo {
             root: root.path().to_path_buf(),
@@ -305,9 +305,7 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
             // The camera size is the black reference's size only; a stand-in used for checking
             // when it is unreadable is not reported as the camera size.
             camera_size: if scans.references.black {
-                pngio::png_size(&setup.reference_path(Reference::Black))
-                    .ok()
-                    .map(ImageSize::from)
+                pngio::png_size(&setup.reference_path(Reference::Black)).ok()
             } else {
                 None
             },
@@ -542,12 +540,12 @@ fn unpaired(pr: &mut Problems, dir: &Path, s: &Scan, prj_dir: &Path, prj_have: u
 /// The models halve the resolution twice: both network sides must be divisible by 4.
 fn check_network_sides(network: Option<&Expect>, pr: &mut Problems) {
     if let Some(n) = network
-        && (n.size.0 % 4 != 0 || n.size.1 % 4 != 0)
+        && (n.size.width % 4 != 0 || n.size.height % 4 != 0)
     {
         pr.push(Error::Input(format!(
-            "network size {}x{} ({}): both sides must be divisible by 4 (the models halve the \
+            "network size {} ({}): both sides must be divisible by 4 (the models halve the \
              resolution twice)",
-            n.size.0, n.size.1, n.why
+            n.size, n.why
         )));
     }
 }

@@ -12,7 +12,7 @@ use crate::fov;
 use crate::linear::FitSettings;
 use crate::model::store::{FORMAT_VERSION, ModelMeta, Timings, TrainingRecord};
 use crate::model::{Method, Model};
-use crate::raster::{CamImage, NetImage};
+use crate::raster::{CamImage, ImageSize, NetImage};
 
 /// Trains a CompenNet++ variant on already masked captures.
 pub(super) fn train_compennet(
@@ -58,8 +58,8 @@ pub(super) fn train_compennet(
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
         method,
-        network_size: size.into(),
-        camera_size: surface.size().into(),
+        network_size: size,
+        camera_size: surface.size(),
         canvas: None,
         training: TrainingRecord {
             iterations: Some(report.iterations),
@@ -95,7 +95,7 @@ struct CompenNetData {
     surface: CamImage,
     /// The rung's network size, (width, height) pixels: the data's, divided by the rung's
     /// network divisor.
-    size: (usize, usize),
+    size: ImageSize,
     device: candle_core::Device,
 }
 
@@ -116,14 +116,20 @@ fn prepare_compennet_data(
     let div = variant.network_divisor();
     let full_size = full_targets[0].size();
     let shrunk: Option<Vec<NetImage>> = (div > 1).then(|| {
-        let (w, h) = full_size;
+        let ImageSize {
+            width: w,
+            height: h,
+        } = full_size;
         full_targets
             .iter()
             .map(|t| crate::resize::resize_area(t, w / div, h / div))
             .collect()
     });
     let targets: &[NetImage] = shrunk.as_deref().unwrap_or(full_targets);
-    let (nw, nh) = targets[0].size();
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = targets[0].size();
     if nw % 4 != 0 || nh % 4 != 0 {
         return Err(Error::Input(format!(
             "{} needs network sides divisible by {}, the projector images are {}x{}",
@@ -146,7 +152,7 @@ fn prepare_compennet_data(
     Ok(CompenNetData {
         data,
         surface,
-        size: (nw, nh),
+        size: ImageSize::new(nw, nh),
         device,
     })
 }
@@ -163,9 +169,12 @@ fn geometry_start(
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> Result<(crate::nn::compennetpp::GeometryInit, &'static str)> {
     use crate::nn::compennetpp::GeometryInit;
-    let (nw, nh) = prepared.size;
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = prepared.size;
     let init = if variant.fixed_geometry() {
-        let grid = sl_grid(setup, (nw, nh))?;
+        let grid = sl_grid(setup, prepared.size)?;
         let flat: Vec<f32> = grid.data().iter().flatten().copied().collect();
         GeometryInit::Fixed(candle_core::Tensor::from_vec(
             flat,
@@ -203,7 +212,7 @@ fn geometry_start(
 fn weights_to_cpu(
     net: crate::nn::compennetpp::CompenNetPP,
     device: &candle_core::Device,
-    size: (usize, usize),
+    size: ImageSize,
     variant: crate::nn::compennetpp::Variant,
 ) -> Result<crate::nn::compennetpp::CompenNetPP> {
     if device.is_cpu() {

@@ -64,8 +64,8 @@ pub(super) fn fit_linear(
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
         method,
-        network_size: fitted.network_size().into(),
-        camera_size: cam_size.into(),
+        network_size: fitted.network_size(),
+        camera_size: cam_size,
         canvas: None,
         training: TrainingRecord {
             curves: Some(fitted.curves),

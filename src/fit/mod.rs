@@ -24,7 +24,7 @@ use crate::error::{Error, Result};
 use crate::fov;
 use crate::model::store::TrainingRecord;
 use crate::model::{Method, MethodChoice, Model};
-use crate::raster::{CamImage, Camera, NetImage, Network, Rect};
+use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rect};
 use crate::sample::Grid;
 
 /// Fewest training pairs the linear rungs accept.
@@ -47,7 +47,7 @@ pub struct Request {
     pub device: TrainDevice,
     /// The `linear` rungs only: the lattice of the colour model and of its output images;
     /// `None` = [`default_lattice`] of the network size.
-    pub lattice: Option<(usize, usize)>,
+    pub lattice: Option<ImageSize>,
     /// CompenNet++ variants: how CompenNet's weights start (default: the shipped
     /// pre-initialisation, docs/architecture.md, "Models").
     pub photometric: crate::nn::pretrain::PhotometricInit,
@@ -58,8 +58,13 @@ pub struct Request {
 /// 256² image stretched over the canvas has fewer pixels across the displayable area than the
 /// desired image: on the rig's curved scene (seed 1, 48 images) 384² closes 0.46 dB of the
 /// closed-loop gap to the oracle, 512² no more.
-pub fn default_lattice((w, h): (usize, usize)) -> (usize, usize) {
-    ((w * 3 / 2).div_ceil(4) * 4, (h * 3 / 2).div_ceil(4) * 4)
+pub fn default_lattice(
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
+) -> ImageSize {
+    ImageSize::new((w * 3 / 2).div_ceil(4) * 4, (h * 3 / 2).div_ceil(4) * 4)
 }
 
 /// What training reports besides the model.
@@ -99,9 +104,9 @@ pub fn fit(
 /// usable training device, all before anything is loaded.
 fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>) -> Result<()> {
     if variant.is_some() {
-        if let Some((w, h)) = req.lattice {
+        if let Some(lattice) = req.lattice {
             return Err(Error::Input(format!(
-                "--lattice {w}x{h}: only the linear rungs have an output lattice; {} works at \
+                "--lattice {lattice}: only the linear rungs have an output lattice; {} works at \
                  the network size",
                 req.method
             )));
@@ -124,11 +129,11 @@ fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>
             _ => {}
         }
     }
-    if let Some((w, h)) = req.lattice
-        && (w < 8 || h < 8)
+    if let Some(lattice) = req.lattice
+        && (lattice.width < 8 || lattice.height < 8)
     {
         return Err(Error::Input(format!(
-            "--lattice {w}x{h}: expected at least 8x8 pixels"
+            "--lattice {lattice}: expected at least 8x8 pixels"
         )));
     }
     Ok(())
@@ -159,11 +164,11 @@ struct TrainingData {
     /// The projector FOV mask (camera pixels) from the black and white references.
     fov: fov::FovMask,
     /// Camera size, (width, height) pixels: the black reference's.
-    cam_size: (usize, usize),
+    cam_size: ImageSize,
     /// The warp's affine start from the FOV's bounding box (network → camera, normalised).
     theta: [[f32; 3]; 2],
     /// Network size, (width, height) pixels: the first projector image's.
-    network_size: (usize, usize),
+    network_size: ImageSize,
     /// The first `ntrain` captures x̃_i, masked by the FOV (camera pixels).
     captures: Vec<CamImage>,
     /// Their projector images x_i (network pixels).
@@ -212,26 +217,25 @@ fn load_training(setup: &Setup, linear: bool, ntrain: usize) -> Result<TrainingD
 
 /// The network→camera grid from the setup's structured-light captures; the network image is
 /// assumed stretched over the whole projector frame (the size of the root's sl/ patterns).
-pub fn sl_grid(setup: &Setup, network_size: (usize, usize)) -> Result<Grid<Network, Camera>> {
+pub fn sl_grid(setup: &Setup, network_size: ImageSize) -> Result<Grid<Network, Camera>> {
     let projector = setup.root().projector_size()?;
-    let code = crate::patterns::GrayCode::new(projector.0, projector.1)?;
+    let code = crate::patterns::GrayCode::new(projector.width, projector.height)?;
     let captures = setup.load_captures(CaptureSet::Sl, None)?;
     if captures.len() != code.len() {
         return Err(Error::Input(format!(
-            "{}: {} structured-light captures, expected {} for a {}x{} projector",
+            "{}: {} structured-light captures, expected {} for a {} projector",
             setup.capture_dir(CaptureSet::Sl).display(),
             captures.len(),
             code.len(),
-            projector.0,
-            projector.1
+            projector
         )));
     }
     let corr = code.decode(&captures)?;
     let canvas = Rect {
         x: 0,
         y: 0,
-        width: projector.0,
-        height: projector.1,
+        width: projector.width,
+        height: projector.height,
     };
     Ok(crate::slgrid::grid_from_correspondence(&corr, canvas, network_size)?.grid)
 }

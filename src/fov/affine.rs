@@ -2,7 +2,7 @@
 //! coordinates to camera normalised coordinates, align-corners).
 
 use crate::error::{Error, Result};
-use crate::raster::Rect;
+use crate::raster::{ImageSize, Rect};
 
 /// A 2×3 affine matrix θ in the PyTorch `affine_grid` convention: a destination position
 /// (u, v) in normalised coordinates maps to the source position θ · (u, v, 1).
@@ -28,8 +28,11 @@ fn pixel_to_norm(i: f64, n: usize) -> f64 {
 /// camera column `bbox.x`, u = +1 ↦ column `bbox.x + bbox.width − 1` (likewise rows). Sampling
 /// the camera image with `affine_grid(θ)` at network resolution therefore crops the box and
 /// stretches it to the network size. The full frame gives the identity.
-pub fn affine_from_box(bbox: Rect, cam_size: (usize, usize)) -> Result<Theta> {
-    let (cw, ch) = cam_size;
+pub fn affine_from_box(bbox: Rect, cam_size: ImageSize) -> Result<Theta> {
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = cam_size;
     if bbox.width == 0 || bbox.height == 0 || bbox.x + bbox.width > cw || bbox.y + bbox.height > ch
     {
         return Err(Error::Shape(format!(

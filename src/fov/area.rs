@@ -6,7 +6,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::morph::IntegralMask;
-use crate::raster::{CamImage, Mask, Rect, Rgb, Space, check_same_size};
+use crate::raster::{CamImage, ImageSize, Mask, Rect, Rgb, Space, check_same_size};
 
 /// The optimal displayable area: the largest axis-aligned rectangle of aspect ratio `aspect`
 /// (width / height, the canvas aspect) whose pixels all lie in `mask` (camera view).
@@ -27,20 +27,26 @@ pub fn displayable_area<S: Space>(mask: &Mask<S>, aspect: f64) -> Result<Rect> {
             "displayable area: aspect ratio must be a positive number (width/height), got {aspect}"
         )));
     }
-    let (w, h) = mask.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = mask.size();
     let wide = aspect >= 1.0;
     // (width, height) of the rectangle whose longer side is s.
-    let dims = |s: usize| -> (usize, usize) {
+    let dims = |s: usize| -> ImageSize {
         if wide {
-            (s, (s as f64 / aspect).round() as usize)
+            ImageSize::new(s, (s as f64 / aspect).round() as usize)
         } else {
-            ((s as f64 * aspect).round() as usize, s)
+            ImageSize::new((s as f64 * aspect).round() as usize, s)
         }
     };
     let limit = if wide { w } else { h };
     let sat = IntegralMask::new(mask);
     let fits = |s: usize| -> bool {
-        let (rw, rh) = dims(s);
+        let ImageSize {
+            width: rw,
+            height: rh,
+        } = dims(s);
         if rw == 0 || rh == 0 || rw > w || rh > h {
             return false;
         }
@@ -49,13 +55,19 @@ pub fn displayable_area<S: Space>(mask: &Mask<S>, aspect: f64) -> Result<Rect> {
     // Smallest s whose shorter side rounds to at least one pixel.
     let mut lo = 1usize;
     while lo <= limit && {
-        let (rw, rh) = dims(lo);
+        let ImageSize {
+            width: rw,
+            height: rh,
+        } = dims(lo);
         rw == 0 || rh == 0
     } {
         lo += 1;
     }
     if lo > limit || !fits(lo) {
-        let (rw, rh) = dims(lo.min(limit.max(1)));
+        let ImageSize {
+            width: rw,
+            height: rh,
+        } = dims(lo.min(limit.max(1)));
         return Err(Error::Failed(format!(
             "displayable area: no {rw}x{rh} rectangle (aspect {aspect:.4}) fits in the FOV mask \
              ({} of {w}x{h} pixels set); expected a lit region",
@@ -72,7 +84,10 @@ pub fn displayable_area<S: Space>(mask: &Mask<S>, aspect: f64) -> Result<Rect> {
             hi = mid - 1;
         }
     }
-    let (rw, rh) = dims(lo);
+    let ImageSize {
+        width: rw,
+        height: rh,
+    } = dims(lo);
 
     // Centroid of the mask (pixel centres), and the placement whose centre is nearest to it.
     let (mut sx, mut sy, mut cnt) = (0f64, 0f64, 0f64);
@@ -116,9 +131,12 @@ pub fn displayable_area<S: Space>(mask: &Mask<S>, aspect: f64) -> Result<Rect> {
 pub fn place_in_area<T: Space>(
     img: &Rgb<T>,
     area: Rect,
-    canvas_size: (usize, usize),
+    canvas_size: ImageSize,
 ) -> Result<CamImage> {
-    let (cw, ch) = canvas_size;
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = canvas_size;
     if area.width == 0 || area.height == 0 || area.x + area.width > cw || area.y + area.height > ch
     {
         return Err(Error::Shape(format!(
@@ -183,7 +201,10 @@ pub fn display_range(
         white.size(),
         "display range: black vs white capture",
     )?;
-    let (w, h) = white.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = white.size();
     if area.width == 0 || area.height == 0 || area.x + area.width > w || area.y + area.height > h {
         return Err(Error::Shape(format!(
             "display range: area {area} does not fit in the {w}x{h} camera frame"

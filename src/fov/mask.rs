@@ -9,7 +9,7 @@ use serde::Serialize;
 use crate::error::{Error, Result};
 use crate::filter::gaussian_blur;
 use crate::morph::{self, Element};
-use crate::raster::{CamImage, Camera, Mask, Plane, Rect, Rgb};
+use crate::raster::{CamImage, Camera, ImageSize, Mask, Plane, Rect, Rgb};
 
 /// How the FOV mask is completed after thresholding.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -77,7 +77,8 @@ impl Default for FovOptions {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FovDiagnostics {
     /// Camera frame size (width, height).
-    pub size: (usize, usize),
+    #[serde(with = "crate::raster::as_pair")]
+    pub size: ImageSize,
     /// Blur σ used, camera pixels.
     pub blur_sigma: f64,
     /// Otsu threshold of the difference (defines the core).
@@ -132,7 +133,10 @@ pub fn fov_mask_with(
     opt: &FovOptions,
 ) -> Result<FovMask> {
     check_captures(black, white, label)?;
-    let (w, h) = white.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = white.size();
     let n = w * h;
     let short = w.min(h);
     let sigma = opt
@@ -159,19 +163,19 @@ pub fn fov_mask_with(
         t_low
     };
     let (refined, edge_trimmed, edge_grown) =
-        refine_edge(dv, (w, h), &support, band_w, noise_floor, opt);
+        refine_edge(dv, ImageSize::new(w, h), &support, band_w, noise_floor, opt);
     let parts = morph::connected_components(&refined);
     let part_labels = morph::major_labels(&parts, opt.min_part);
     let refined_count: usize = part_labels.iter().map(|&l| parts.size(l)).sum();
 
     // 6. Fill each part, keep the major parts of the union.
     let close_r = opt.close_radius.unwrap_or((short / 24).max(2));
-    let mask = fill_parts(&parts, &part_labels, (w, h), close_r, opt);
+    let mask = fill_parts(&parts, &part_labels, ImageSize::new(w, h), close_r, opt);
     let count = mask.count();
     let fill_added = count.saturating_sub(refined_count);
     let coverage = count as f64 / n as f64;
     let diagnostics = FovDiagnostics {
-        size: (w, h),
+        size: ImageSize::new(w, h),
         blur_sigma: sigma,
         otsu_threshold: t_otsu,
         lit_level,
@@ -206,7 +210,10 @@ pub fn fov_mask_with(
 
 /// Checks that the black and white captures have one size and are not empty.
 fn check_captures(black: &CamImage, white: &CamImage, label: &str) -> Result<()> {
-    let (w, h) = white.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = white.size();
     if black.size() != white.size() {
         return Err(Error::Input(format!(
             "{label}: black capture is {}x{} but white capture is {w}x{h}; they must come from \
@@ -226,7 +233,10 @@ fn check_captures(black: &CamImage, white: &CamImage, label: &str) -> Result<()>
 /// Step 1: `D`, the gray of max(white − black, 0) blurred with a Gaussian of `sigma` camera
 /// pixels (encoded units).
 fn blurred_difference(black: &CamImage, white: &CamImage, sigma: f64) -> Result<Plane<Camera>> {
-    let (w, h) = white.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = white.size();
     let diff = Rgb::<Camera>::from_vec(
         w,
         h,
@@ -333,7 +343,10 @@ fn hysteresis_support(
 /// refined mask and the pixels trimmed and grown.
 fn refine_edge(
     dv: &[f32],
-    (w, h): (usize, usize),
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
     support: &Mask<Camera>,
     band_w: usize,
     noise_floor: f32,
@@ -395,7 +408,10 @@ fn refine_edge(
 fn fill_parts(
     parts: &morph::Components,
     part_labels: &[u32],
-    (w, h): (usize, usize),
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
     close_r: usize,
     opt: &FovOptions,
 ) -> Mask<Camera> {

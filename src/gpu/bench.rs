@@ -16,6 +16,7 @@ use super::GpuContext;
 use super::pass::CompensationPass;
 use crate::error::{Error, Result};
 use crate::playback::ContentFrame;
+use crate::raster::ImageSize;
 
 /// Medians of one measurement, milliseconds.
 #[derive(Clone, Copy, Debug, Serialize)]
@@ -124,7 +125,10 @@ pub fn time_work(
 /// A plain copy of a projector-sized rgba8 texture into another (the bandwidth floor).
 pub fn time_copy(
     ctx: &GpuContext,
-    (w, h): (usize, usize),
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
     warmup: usize,
     iters: usize,
 ) -> Result<Timing> {
@@ -196,8 +200,8 @@ pub fn time_compennet_layers(
 /// A `linear` model with random per-pixel coefficients, a gently bent grid and a full FOV, for
 /// timing (its numbers do not matter, its shapes do): camera `camera`, network `network`.
 pub fn synthetic_linear_model(
-    camera: (usize, usize),
-    network: (usize, usize),
+    camera: ImageSize,
+    network: ImageSize,
     seed: u64,
 ) -> crate::model::Model {
     use rand::{RngExt, SeedableRng};
@@ -208,7 +212,10 @@ pub fn synthetic_linear_model(
     use crate::sample::{Grid, pixel_to_norm};
 
     let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(seed);
-    let (nw, nh) = network;
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = network;
     let grid = Grid::from_fn(nw, nh, |x, y| {
         let (u, v) = (pixel_to_norm(x as f32, nw), pixel_to_norm(y as f32, nh));
         [0.8 * u + 0.05 * v * v, 0.8 * v + 0.05 * u * u]
@@ -231,20 +238,20 @@ pub fn synthetic_linear_model(
             data,
         },
         camera_size: camera,
-        geometry_size: (nw, nh),
+        geometry_size: ImageSize::new(nw, nh),
     };
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
         method: crate::model::Method::Linear,
-        network_size: network.into(),
-        camera_size: camera.into(),
+        network_size: network,
+        camera_size: camera,
         canvas: None,
         training: Default::default(),
         metrics: serde_json::Value::Null,
         timings: Default::default(),
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
     };
-    crate::model::Model::linear(meta, Mask::full(camera.0, camera.1), model)
+    crate::model::Model::linear(meta, Mask::full(camera.width, camera.height), model)
 }
 
 /// A simplified CompenNet++ model with seeded weights (Kaiming normal, zero biases, as a fresh
@@ -253,19 +260,23 @@ pub fn synthetic_linear_model(
 /// by 4), the widths and refinement of `variant`. The surface branch is folded once here (on the
 /// CPU, candle), as after training.
 pub fn synthetic_compennet_model(
-    camera: (usize, usize),
-    network: (usize, usize),
+    camera: ImageSize,
+    network: ImageSize,
     variant: crate::nn::compennetpp::Variant,
     seed: u64,
 ) -> Result<crate::model::Model> {
     use crate::model::store::{FORMAT_VERSION, ModelMeta};
     use crate::nn::compennetpp::{CompenNetPP, GeometryInit};
-    use crate::raster::{CamImage, Mask};
+    use crate::raster::{CamImage, ImageSize, Mask};
 
-    if !network.0.is_multiple_of(4) || !network.1.is_multiple_of(4) || network.0 == 0 || network.1 == 0 {
+    if !network.width.is_multiple_of(4)
+        || !network.height.is_multiple_of(4)
+        || network.width == 0
+        || network.height == 0
+    {
         return Err(Error::Input(format!(
-            "CompenNet network size {}x{}: sides must be positive multiples of 4",
-            network.0, network.1
+            "CompenNet network size {}: sides must be positive multiples of 4",
+            network
         )));
     }
     let net = CompenNetPP::with_width(
@@ -277,7 +288,10 @@ pub fn synthetic_compennet_model(
         &candle_core::Device::Cpu,
     )
     .map_err(|e| Error::Failed(format!("synthetic CompenNet++: {e}")))?;
-    let (cw, ch) = camera;
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = camera;
     // A smooth gray-ish surface capture, camera pixels, values in [0.2, 0.4].
     let surface = CamImage::from_vec(
         cw,
@@ -293,8 +307,8 @@ pub fn synthetic_compennet_model(
         format_version: FORMAT_VERSION,
         method: crate::model::Method::from_name(variant.method())
             .ok_or_else(|| crate::Error::Shape(format!("no method named {}", variant.method())))?,
-        network_size: network.into(),
-        camera_size: camera.into(),
+        network_size: network,
+        camera_size: camera,
         canvas: None,
         training: Default::default(),
         metrics: serde_json::Value::Null,

@@ -6,6 +6,7 @@ use wgpu::util::DeviceExt;
 
 use super::GpuContext;
 use crate::error::Result;
+use crate::raster::ImageSize;
 
 /// What a binding of a compute stage is.
 #[derive(Clone, Copy, Debug)]
@@ -150,13 +151,13 @@ impl Stage {
         &self,
         pass: &mut wgpu::ComputePass<'_>,
         group: &wgpu::BindGroup,
-        (w, h): (u32, u32),
+        size: ImageSize,
     ) {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, group, &[]);
         pass.dispatch_workgroups(
-            w.div_ceil(self.workgroup.0),
-            h.div_ceil(self.workgroup.1),
+            (size.width as u32).div_ceil(self.workgroup.0),
+            (size.height as u32).div_ceil(self.workgroup.1),
             1,
         );
     }
@@ -178,15 +179,15 @@ impl Stage {
 pub fn image_texture(
     ctx: &GpuContext,
     label: &str,
-    (w, h): (u32, u32),
+    size: ImageSize,
     format: wgpu::TextureFormat,
     extra: wgpu::TextureUsages,
 ) -> wgpu::Texture {
     ctx.device.create_texture(&wgpu::TextureDescriptor {
         label: Some(label),
         size: wgpu::Extent3d {
-            width: w.max(1),
-            height: h.max(1),
+            width: (size.width as u32).max(1),
+            height: (size.height as u32).max(1),
             depth_or_array_layers: 1,
         },
         mip_level_count: 1,

@@ -8,6 +8,7 @@ use super::GpuContext;
 use super::kernel::{Slot, Stage, storage, uniform};
 use crate::error::{Error, Result};
 use crate::linear::SimplifiedLinear;
+use crate::raster::ImageSize;
 
 const SHADER: &str = include_str!("../../shaders/linear.wgsl");
 
@@ -26,18 +27,17 @@ pub struct LinearStage {
     params: wgpu::Buffer,
     grid: wgpu::Buffer,
     coeffs: wgpu::Buffer,
-    network_size: (u32, u32),
+    network_size: ImageSize,
 }
 
 impl LinearStage {
     /// Uploads the grid (network pixels → normalised camera positions) and the per-pixel
     /// coefficients once; `camera_size` is the desired view's size in camera pixels.
-    pub fn new(
-        ctx: &GpuContext,
-        model: &SimplifiedLinear,
-        camera_size: (usize, usize),
-    ) -> Result<Self> {
-        let (nw, nh) = model.grid.size();
+    pub fn new(ctx: &GpuContext, model: &SimplifiedLinear, camera_size: ImageSize) -> Result<Self> {
+        let ImageSize {
+            width: nw,
+            height: nh,
+        } = model.grid.size();
         if (model.coeffs.width, model.coeffs.height) != (nw, nh) {
             return Err(Error::Shape(format!(
                 "linear model: grid {nw}x{nh} but coefficients {}x{}",
@@ -48,7 +48,7 @@ impl LinearStage {
         // 1/γ in f32, exactly as Curves::projector_input computes it.
         let inv = |g: f32| 1.0 / g;
         let params = Params {
-            camera: [camera_size.0 as u32, camera_size.1 as u32],
+            camera: [camera_size.width as u32, camera_size.height as u32],
             network: [nw as u32, nh as u32],
             camera_gamma: [c.camera_gamma[0], c.camera_gamma[1], c.camera_gamma[2], 0.0],
             projector_inv_gamma: [
@@ -77,7 +77,7 @@ impl LinearStage {
             params: uniform(ctx, "linear params", &params),
             grid: storage(ctx, "linear grid", &grid),
             coeffs: storage(ctx, "linear coefficients", &coeffs),
-            network_size: (nw as u32, nh as u32),
+            network_size: ImageSize::new(nw, nh),
         })
     }
 

@@ -97,13 +97,13 @@ struct CanvasParams {
     size: [u32; 2],
 }
 
-fn u2((a, b): (usize, usize)) -> [u32; 2] {
-    [a as u32, b as u32]
+fn u2(size: ImageSize) -> [u32; 2] {
+    [size.width as u32, size.height as u32]
 }
 
 /// The content texture and the bind group of stage 1, rebuilt when the content size changes.
 struct Content {
-    size: (usize, usize),
+    size: ImageSize,
     texture: wgpu::Texture,
     group: wgpu::BindGroup,
 }
@@ -121,18 +121,11 @@ struct Images {
 impl Images {
     fn new(ctx: &GpuContext, p: &Placement) -> Self {
         let st = wgpu::TextureUsages::STORAGE_BINDING;
-        let size = |(w, h): (usize, usize)| (w as u32, h as u32);
         let f32x4 = wgpu::TextureFormat::Rgba32Float;
         Self {
-            desired: image_texture(ctx, "desired view", size(p.camera_size), f32x4, st),
-            network: image_texture(ctx, "compensation image", size(p.network_size), f32x4, st),
-            output: image_texture(
-                ctx,
-                "projector frame",
-                size(p.projector_size),
-                FRAME_FORMAT,
-                st,
-            ),
+            desired: image_texture(ctx, "desired view", p.camera_size, f32x4, st),
+            network: image_texture(ctx, "compensation image", p.network_size, f32x4, st),
+            output: image_texture(ctx, "projector frame", p.projector_size, FRAME_FORMAT, st),
         }
     }
 }
@@ -165,7 +158,7 @@ impl CompensationPass {
         display: ImageSize,
         range: DisplayRange,
     ) -> Result<Self> {
-        let placement = Placement::for_model(model, display.into(), range)?;
+        let placement = Placement::for_model(model, display, range)?;
         Self::new(ctx, model, placement)
     }
 
@@ -176,11 +169,15 @@ impl CompensationPass {
             || placement.network_size != model.network_size()
         {
             return Err(Error::Shape(format!(
-                "placement is for camera {:?} / network {:?}, the model for {:?} / {:?}",
-                placement.camera_size,
-                placement.network_size,
-                model.camera_size(),
-                model.network_size()
+                "placement is for camera ({}, {}) / network ({}, {}), the model for ({}, {}) / ({}, {})",
+                placement.camera_size.width,
+                placement.camera_size.height,
+                placement.network_size.width,
+                placement.network_size.height,
+                model.camera_size().width,
+                model.camera_size().height,
+                model.network_size().width,
+                model.network_size().height
             )));
         }
         let photometric = Photometric::for_model(ctx, model)?;
@@ -290,7 +287,7 @@ impl CompensationPass {
         Ok(())
     }
 
-    fn make_content(&self, ctx: &GpuContext, size: (usize, usize)) -> Content {
+    fn make_content(&self, ctx: &GpuContext, size: ImageSize) -> Content {
         let p = &self.placement;
         ctx.queue.write_buffer(
             &self.place_params,
@@ -307,7 +304,7 @@ impl CompensationPass {
         let texture = image_texture(
             ctx,
             "content frame",
-            (size.0 as u32, size.1 as u32),
+            size,
             wgpu::TextureFormat::Rgba8Unorm,
             wgpu::TextureUsages::COPY_DST,
         );
@@ -343,18 +340,12 @@ impl CompensationPass {
             label: Some("compensation"),
             timestamp_writes: timestamps,
         });
-        self.place.dispatch(
-            &mut pass,
-            &content.group,
-            (p.camera_size.0 as u32, p.camera_size.1 as u32),
-        );
+        self.place
+            .dispatch(&mut pass, &content.group, p.camera_size);
         self.photometric
             .dispatch(&mut pass, &self.photometric_groups);
-        self.canvas.dispatch(
-            &mut pass,
-            &self.canvas_group,
-            (p.projector_size.0 as u32, p.projector_size.1 as u32),
-        );
+        self.canvas
+            .dispatch(&mut pass, &self.canvas_group, p.projector_size);
         Ok(())
     }
 

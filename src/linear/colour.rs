@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use super::curve::{CURVE_SAMPLES, CURVE_SWEEPS, fit_curves};
 use super::model::{Coefficients, Curves};
 use super::normal::{Normal, features, global_solution, targets_linear};
-use crate::raster::{CamImage, Camera, NetImage, Network};
+use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
 
 /// Curves and per-pixel coefficients at full resolution on all images, for a fixed grid.
@@ -23,8 +23,8 @@ pub(super) fn fit_colour(
 ) -> (Curves, Coefficients, f64) {
     let stride = grid
         .size()
-        .0
-        .max(grid.size().1)
+        .width
+        .max(grid.size().height)
         .div_ceil(CURVE_SAMPLES)
         .max(1);
     let curves = fit_curves(captures, targets, grid, start, ridge, stride, CURVE_SWEEPS);
@@ -43,7 +43,10 @@ fn solve_colour(
     curves: &Curves,
     ridge: f32,
 ) -> (Coefficients, f64) {
-    let (w, h) = targets[0].size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = targets[0].size();
     let n = warped.len();
     let normals: Vec<Normal> = (0..w * h)
         .into_par_iter()

@@ -7,9 +7,9 @@
 
 use rayon::prelude::*;
 
-use super::normal::{IDENTITY, features, targets_linear};
 use super::model::Curves;
-use crate::raster::{CamImage, Camera, NetImage, Network};
+use super::normal::{IDENTITY, features, targets_linear};
+use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
 
 /// Weighted normal equations of one pixel for the forward model, one set per camera channel:
@@ -144,7 +144,10 @@ pub(super) fn fit_curves(
     sweeps: usize,
 ) -> Curves {
     // The curves are global: every `stride`-th pixel in each direction is plenty.
-    let (w, h) = grid.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = grid.size();
     let (sw, sh) = (w.div_ceil(stride), h.div_ceil(stride));
     let grid = Grid::<Network, Camera>::from_fn(sw, sh, |x, y| grid.get(x * stride, y * stride));
     let tgts: Vec<NetImage> = tgts
@@ -211,7 +214,10 @@ pub(super) fn fit_curves(
 /// Fits the weighted forward model per pixel and returns the summed squared residual of its
 /// prediction of the captures in camera-encoded values (clipped captures left out).
 fn forward_residual(warped: &[NetImage], targets: &[NetImage], curves: &Curves, ridge: f32) -> f64 {
-    let (w, h) = targets[0].size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = targets[0].size();
     let n = warped.len();
     let sample = |wi: &NetImage, ti: &NetImage, p: usize| {
         let x = &wi.data()[p * 3..p * 3 + 3];

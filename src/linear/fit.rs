@@ -11,11 +11,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::colour::fit_colour;
-use super::settings::FitSettings;
 use super::geometry::{fit_warp, refine_geometry};
 use super::model::{Curves, Geometry, LinearModel, learned_grid};
+use super::settings::FitSettings;
 use crate::error::{Error, Result};
-use crate::raster::{CamImage, Camera, NetImage, Network};
+use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
 use crate::warp::{TpsBasis, Warp};
 
@@ -41,7 +41,10 @@ pub fn fit(
     let start = Instant::now();
     check_pairs(captures, targets)?;
     let cam_size = captures[0].size();
-    let (nw, nh) = settings.network_size;
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = settings.network_size;
     let mut history = Vec::new();
     let (warp, curves) = fit_warp(
         captures,
@@ -68,9 +71,9 @@ pub fn fit(
         refine = Some(field);
     }
     let (curves, coeffs, loss) = match settings.lattice {
-        Some((lw, lh)) if (lw, lh) != (nw, nh) => {
-            let fine = learned_grid(&warp, refine.as_ref(), (nw, nh), (lw, lh));
-            let up = lattice_targets(targets, (lw, lh));
+        Some(lattice) if lattice != settings.network_size => {
+            let fine = learned_grid(&warp, refine.as_ref(), settings.network_size, lattice);
+            let up = lattice_targets(targets, lattice);
             let up = up.as_deref().unwrap_or(targets);
             fit_colour(captures, up, &fine, curves, settings.ridge)
         }
@@ -83,7 +86,7 @@ pub fn fit(
             curves,
             coeffs,
             camera_size: cam_size,
-            geometry_size: (nw, nh),
+            geometry_size: settings.network_size,
         },
         FitReport {
             final_loss: loss,
@@ -156,11 +159,11 @@ pub fn fit_on_grid(
 /// have that size). The projector shows an image stretched bilinearly over the canvas (half-pixel
 /// centres), so a bilinear resample with the same convention gives, at each lattice pixel, close
 /// to the value the projector showed there.
-fn lattice_targets(targets: &[NetImage], size: (usize, usize)) -> Option<Vec<NetImage>> {
+fn lattice_targets(targets: &[NetImage], size: ImageSize) -> Option<Vec<NetImage>> {
     (targets[0].size() != size).then(|| {
         targets
             .par_iter()
-            .map(|t| crate::resize::resize_bilinear(t, size.0, size.1))
+            .map(|t| crate::resize::resize_bilinear(t, size.width, size.height))
             .collect()
     })
 }
@@ -177,17 +180,21 @@ fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
     let cam_size = captures[0].size();
     if let Some(c) = captures.iter().find(|c| c.size() != cam_size) {
         return Err(Error::Shape(format!(
-            "captures differ in size: {:?} and {:?}",
-            cam_size,
-            c.size()
+            "captures differ in size: ({}, {}) and ({}, {})",
+            cam_size.width,
+            cam_size.height,
+            c.size().width,
+            c.size().height
         )));
     }
     let net_size = targets[0].size();
     if let Some(t) = targets.iter().find(|t| t.size() != net_size) {
         return Err(Error::Shape(format!(
-            "projector images differ in size: {:?} and {:?}",
-            net_size,
-            t.size()
+            "projector images differ in size: ({}, {}) and ({}, {})",
+            net_size.width,
+            net_size.height,
+            t.size().width,
+            t.size().height
         )));
     }
     Ok(())

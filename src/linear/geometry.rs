@@ -8,12 +8,12 @@
 
 use rayon::prelude::*;
 
-use super::normal::{IDENTITY, Normal, global_solution, targets_linear};
 use super::curve::fit_curves;
-use super::settings::FitSettings;
 use super::model::Curves;
+use super::normal::{IDENTITY, Normal, global_solution, targets_linear};
+use super::settings::FitSettings;
 use crate::filter::gaussian_blur;
-use crate::raster::{CamImage, Camera, NetImage, Network, Rgb};
+use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rgb};
 use crate::resize::resize_area;
 use crate::sample::{Grid, norm_to_pixel};
 use crate::warp::{OffsetField, TpsBasis, Warp};
@@ -29,7 +29,6 @@ pub(super) fn fit_warp(
     history: &mut Vec<f64>,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> (Warp, Curves) {
-    let (nw, nh) = settings.network_size;
     let mut warp = init;
     let mut curves = Curves::default();
     if settings.learn_geometry {
@@ -38,7 +37,10 @@ pub(super) fn fit_warp(
         let mut done = 0;
         let mut adam = Adam::new(warp.param_count());
         for (level, &(side, iters, sigma)) in settings.levels.iter().enumerate() {
-            let (lw, lh) = level_size((nw, nh), side);
+            let ImageSize {
+                width: lw,
+                height: lh,
+            } = level_size(settings.network_size, side);
             let caps: Vec<CamImage> = captures[..ng]
                 .par_iter()
                 .map(|c| blur_rgb(c, sigma))
@@ -106,7 +108,10 @@ pub(super) fn refine_geometry(
     history: &mut Vec<f64>,
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> OffsetField {
-    let (nw, nh) = base.size();
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = base.size();
     let ng = settings.geometry_images.clamp(1, captures.len());
     let caps = &captures[..ng];
     let lut = PowLut::new(curves.camera_gamma);
@@ -134,9 +139,15 @@ pub(super) fn refine_geometry(
 }
 
 /// Network size of a coarse level whose longer side is at most `side`.
-fn level_size((w, h): (usize, usize), side: usize) -> (usize, usize) {
+fn level_size(
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
+    side: usize,
+) -> ImageSize {
     let s = (side as f64 / w.max(h) as f64).min(1.0);
-    (
+    ImageSize::new(
         ((w as f64 * s).round() as usize).max(4),
         ((h as f64 * s).round() as usize).max(4),
     )
@@ -229,7 +240,10 @@ fn geometry_step(
     ridge: f32,
 ) -> (f64, Vec<[f32; 2]>, Normal) {
     let n = caps.len();
-    let (cw, ch) = caps[0].size();
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = caps[0].size();
     let (sx, sy) = (0.5 * (cw.max(2) - 1) as f32, 0.5 * (ch.max(2) - 1) as f32);
     let lambda = ridge as f64;
     let count = (n * grid.data().len() * 3) as f32;
@@ -294,7 +308,10 @@ fn geometry_step(
 /// The bilinear sample of `img` at normalised (gx, gy) and its derivatives w.r.t. the pixel
 /// coordinates (u, v), per channel, zero padding (as [`crate::sample::grid_sample`]).
 fn sample_with_gradient(img: &CamImage, gx: f32, gy: f32) -> ([f32; 3], [[f32; 3]; 2]) {
-    let (w, h) = img.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = img.size();
     let (u, v) = (norm_to_pixel(gx, w), norm_to_pixel(gy, h));
     if !u.is_finite() || !v.is_finite() {
         return ([0.0; 3], [[0.0; 3]; 2]);

@@ -40,8 +40,8 @@ mod settings;
 mod tensors;
 
 pub use fit::{FitReport, fit, fit_geometry, fit_on_grid};
-pub use settings::FitSettings;
 pub use model::{Coefficients, Curves, Geometry, LinearModel, SimplifiedLinear, apply_colour};
+pub use settings::FitSettings;
 
 use crate::error::Result;
 use crate::raster::{CamImage, Camera, Mask};

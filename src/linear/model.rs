@@ -7,7 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::raster::{CamImage, Camera, NetImage, Network};
+use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
 use crate::warp::{OffsetField, TpsBasis, Warp};
 
@@ -68,11 +68,11 @@ pub struct LinearModel {
     pub curves: Curves,
     pub coeffs: Coefficients,
     /// Camera image size the geometry refers to.
-    pub camera_size: (usize, usize),
+    pub camera_size: ImageSize,
     /// The network size a learned geometry was fitted at (its domain, align-corners); the
     /// coefficients' lattice can be finer (see
     /// [`FitSettings::lattice`](super::FitSettings::lattice)).
-    pub geometry_size: (usize, usize),
+    pub geometry_size: ImageSize,
 }
 
 /// The simplified form used for playback: one baked grid, the curves and the coefficients.
@@ -84,17 +84,19 @@ pub struct SimplifiedLinear {
 }
 
 impl LinearModel {
-    pub fn network_size(&self) -> (usize, usize) {
-        (self.coeffs.width, self.coeffs.height)
+    pub fn network_size(&self) -> ImageSize {
+        ImageSize::new(self.coeffs.width, self.coeffs.height)
     }
 
     /// The sampling grid from network pixels into the camera image.
     pub fn grid(&self) -> Grid<Network, Camera> {
-        let (w, h) = self.network_size();
         match &self.geometry {
-            Geometry::Learned(warp, refine) => {
-                learned_grid(warp, refine.as_ref(), self.geometry_size, (w, h))
-            }
+            Geometry::Learned(warp, refine) => learned_grid(
+                warp,
+                refine.as_ref(),
+                self.geometry_size,
+                self.network_size(),
+            ),
             Geometry::Fixed(grid) => grid.clone(),
         }
     }
@@ -114,11 +116,11 @@ impl LinearModel {
 pub(super) fn learned_grid(
     warp: &Warp,
     refine: Option<&OffsetField>,
-    network: (usize, usize),
-    lattice: (usize, usize),
+    network: ImageSize,
+    lattice: ImageSize,
 ) -> Grid<Network, Camera> {
     if network == lattice {
-        let mut grid = TpsBasis::new(lattice.0, lattice.1).grid(warp);
+        let mut grid = TpsBasis::new(lattice.width, lattice.height).grid(warp);
         if let Some(field) = refine {
             field.apply(&mut grid);
         }

@@ -1,12 +1,14 @@
 //! The settings of a `linear` fit (recorded in `model.json`'s `training.settings`).
 
+use crate::raster::ImageSize;
 use serde::{Deserialize, Serialize};
 
 /// Training settings.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FitSettings {
     /// Network (output) size.
-    pub network_size: (usize, usize),
+    #[serde(with = "crate::raster::as_pair")]
+    pub network_size: ImageSize,
     /// Optimise the warp (false keeps the initial affine, e.g. for geometry from structured light).
     pub learn_geometry: bool,
     /// (network side, Adam iterations, capture blur σ in camera pixels) per coarse-to-fine level.
@@ -36,13 +38,14 @@ pub struct FitSettings {
     /// has fewer pixels across the displayable area than the desired image it should reproduce:
     /// measured closed loop on the rig's curved scene (seed 1, 48 images), 384² instead of 256²
     /// gains 0.46 dB and 512² nothing more, for about 1 s more training.
-    pub lattice: Option<(usize, usize)>,
+    #[serde(with = "crate::raster::as_pair_opt")]
+    pub lattice: Option<ImageSize>,
 }
 
 impl Default for FitSettings {
     fn default() -> Self {
         Self {
-            network_size: (256, 256),
+            network_size: ImageSize::new(256, 256),
             learn_geometry: true,
             levels: vec![(64, 120, 2.0), (128, 60, 1.0), (256, 30, 0.0)],
             learning_rate: 2e-3,

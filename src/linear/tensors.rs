@@ -3,6 +3,7 @@
 
 use super::model::{Coefficients, Curves, Geometry, LinearModel};
 use crate::error::{Error, Result};
+use crate::raster::ImageSize;
 use crate::sample::Grid;
 use crate::warp::{OffsetField, Warp};
 
@@ -10,7 +11,10 @@ impl LinearModel {
     /// Numeric state for the model directory: the learnable geometry, the baked grid (what playback
     /// reads), the curves and the per-pixel coefficients.
     pub fn to_tensors(&self) -> Result<crate::model::store::Tensors> {
-        let (w, h) = self.network_size();
+        let ImageSize {
+            width: w,
+            height: h,
+        } = self.network_size();
         let mut t = crate::model::store::Tensors::default();
         if let Geometry::Learned(warp, refine) = &self.geometry {
             let theta = warp.theta.iter().flatten().copied().collect();
@@ -20,8 +24,11 @@ impl LinearModel {
             if let Some(f) = refine {
                 t.insert("warp.refine", vec![f.height, f.width, 2], f.to_params())?;
             }
-            if self.geometry_size != (w, h) {
-                let (gw, gh) = self.geometry_size;
+            if self.geometry_size != self.network_size() {
+                let ImageSize {
+                    width: gw,
+                    height: gh,
+                } = self.geometry_size;
                 t.insert("warp.network", vec![2], vec![gw as f32, gh as f32])?;
             }
         }
@@ -54,11 +61,14 @@ impl LinearModel {
     /// image size (camera pixels) the geometry refers to.
     pub fn from_tensors(
         t: &crate::model::store::Tensors,
-        network_size: (usize, usize),
-        camera_size: (usize, usize),
+        network_size: ImageSize,
+        camera_size: ImageSize,
         file: &std::path::Path,
     ) -> Result<Self> {
-        let (w, h) = network_size;
+        let ImageSize {
+            width: w,
+            height: h,
+        } = network_size;
         let cg = t.get("curves.camera_gamma", &[3], file)?;
         let pg = t.get("curves.projector_gamma", &[3], file)?;
         let co = t.get("colour.coeffs", &[h, w, 12], file)?;
@@ -119,17 +129,17 @@ fn bad(file: &std::path::Path, name: &str) -> Error {
 /// the lattice says so; earlier models (and every fixed geometry) have one size for both.
 fn read_geometry_size(
     t: &crate::model::store::Tensors,
-    (w, h): (usize, usize),
+    network_size: ImageSize,
     file: &std::path::Path,
-) -> Result<(usize, usize)> {
+) -> Result<ImageSize> {
     Ok(match t.shape("warp.network") {
-        None => (w, h),
+        None => network_size,
         Some(_) => {
             let v = t.get("warp.network", &[2], file)?;
             let side =
                 |x: f32| (x.is_finite() && (2.0..=65_536.0).contains(&x)).then_some(x as usize);
             match (side(v[0]), side(v[1])) {
-                (Some(gw), Some(gh)) => (gw, gh),
+                (Some(gw), Some(gh)) => ImageSize::new(gw, gh),
                 _ => return Err(bad(file, "warp.network")),
             }
         }

@@ -6,7 +6,17 @@ use serde::{Deserialize, Serialize};
 /// A model rung. The names (`linear`, `compennet++-cpu`, …) are what the command line takes and
 /// what `model.json`'s `method` holds.
 #[derive(
-    Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, clap::ValueEnum,
+    Clone,
+    Copy,
+    Debug,
+    PartialEq,
+    Eq,
+    Hash,
+    PartialOrd,
+    Ord,
+    Serialize,
+    Deserialize,
+    clap::ValueEnum,
 )]
 pub enum Method {
     /// Learned affine + TPS geometry, per-pixel linear colour model in linear light.
@@ -145,14 +155,12 @@ impl std::str::FromStr for MethodChoice {
         if s == "auto" {
             return Ok(MethodChoice::Auto);
         }
-        Method::from_str(s)
-            .map(MethodChoice::Rung)
-            .map_err(|_| {
-                crate::Error::Input(format!(
-                    "method `{s}`: not available; methods: {}, auto",
-                    Method::names()
-                ))
-            })
+        Method::from_str(s).map(MethodChoice::Rung).map_err(|_| {
+            crate::Error::Input(format!(
+                "method `{s}`: not available; methods: {}, auto",
+                Method::names()
+            ))
+        })
     }
 }
 

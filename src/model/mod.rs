@@ -10,9 +10,9 @@ use store::{ModelMeta, Tensors};
 pub mod method;
 pub mod store;
 
-pub use method::{Method, MethodChoice};
-use crate::raster::{CamImage, Camera, Mask, NetImage, Network};
+use crate::raster::{CamImage, Camera, ImageSize, Mask, NetImage, Network};
 use crate::sample::Grid;
+pub use method::{Method, MethodChoice};
 
 /// A loaded model with its metadata and the projector FOV mask its inputs are masked with.
 #[derive(Debug)]
@@ -69,7 +69,7 @@ impl Model {
         net: crate::nn::compennetpp::CompenNetPP,
         surface: CamImage,
     ) -> Result<Self> {
-        let grid = baked_grid(&net, meta.network_size.into())?;
+        let grid = baked_grid(&net, meta.network_size)?;
         let simplified = net.simplify(&crate::nn::images_to_tensor(std::slice::from_ref(
             &surface,
         ))?)?;
@@ -100,15 +100,18 @@ impl Model {
         }
         let (meta, tensors) = store::load(dir)?;
         let file = dir.join(store::WEIGHTS_FILE);
-        let (cw, ch) = meta.camera_size.into();
+        let ImageSize {
+            width: cw,
+            height: ch,
+        } = meta.camera_size;
         let fov = tensors.get("fov_mask", &[ch, cw], &file)?;
         let fov = Mask::from_vec(cw, ch, fov.iter().map(|&v| v >= 0.5).collect())?;
         match crate::nn::compennetpp::Variant::from_method(meta.method.name()) {
             None => {
                 let model = LinearModel::from_tensors(
                     &tensors,
-                    meta.network_size.into(),
-                    meta.camera_size.into(),
+                    meta.network_size,
+                    meta.camera_size,
                     &file,
                 )?;
                 Ok(Self::linear(meta, fov, model))
@@ -117,7 +120,7 @@ impl Model {
                 let surface = tensors.get("surface", &[ch, cw, 3], &file)?;
                 let surface = CamImage::from_vec(cw, ch, surface.to_vec())?;
                 let net = crate::nn::compennetpp::CompenNetPP::restore(
-                    meta.network_size.into(),
+                    meta.network_size,
                     variant,
                     &candle_core::Device::Cpu,
                     |name, shape| tensors.get(name, shape, &file).map(|v| v.to_vec()),
@@ -138,12 +141,18 @@ impl Model {
                     let data: Vec<f32> = value.flatten_all()?.to_vec1()?;
                     t.insert(&name, dims, data)?;
                 }
-                let (w, h) = surface.size();
+                let ImageSize {
+                    width: w,
+                    height: h,
+                } = surface.size();
                 t.insert("surface", vec![h, w, 3], surface.data().to_vec())?;
                 t
             }
         };
-        let (cw, ch) = self.fov.size();
+        let ImageSize {
+            width: cw,
+            height: ch,
+        } = self.fov.size();
         tensors.insert(
             "fov_mask",
             vec![ch, cw],
@@ -157,13 +166,13 @@ impl Model {
     }
 
     /// Camera size (width, height), camera pixels.
-    pub fn camera_size(&self) -> (usize, usize) {
-        self.meta.camera_size.into()
+    pub fn camera_size(&self) -> ImageSize {
+        self.meta.camera_size
     }
 
     /// Network size (width, height), network pixels.
-    pub fn network_size(&self) -> (usize, usize) {
-        self.meta.network_size.into()
+    pub fn network_size(&self) -> ImageSize {
+        self.meta.network_size
     }
 
     /// The baked sampling grid from network pixels into the camera image.
@@ -177,9 +186,8 @@ impl Model {
     fn check_input(&self, img: &CamImage) -> Result<()> {
         if img.size() != self.camera_size() {
             return Err(Error::Shape(format!(
-                "model expects {}x{} camera images, got {}x{}",
-                self.camera_size().0,
-                self.camera_size().1,
+                "model expects {} camera images, got {}x{}",
+                self.camera_size(),
                 img.width(),
                 img.height()
             )));
@@ -234,18 +242,21 @@ pub fn paper_protocol(
 /// model's output lattice can be finer than the network; the paper protocol scores at the
 /// network size): unchanged when it has that size, else the network-size image whose canvas
 /// stretch shows the same ([`crate::resize::unstretch`]).
-pub fn at_size(img: NetImage, size: (usize, usize)) -> NetImage {
+pub fn at_size(img: NetImage, size: ImageSize) -> NetImage {
     if img.size() == size {
         img
     } else {
-        crate::resize::unstretch(&img, size.0, size.1)
+        crate::resize::unstretch(&img, size.width, size.height)
     }
 }
 
 /// The network's current sampling grid as a core grid.
 fn baked_grid(
     net: &crate::nn::compennetpp::CompenNetPP,
-    (w, h): (usize, usize),
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
 ) -> Result<Grid<Network, Camera>> {
     let g: Vec<f32> = net.warp.grid()?.flatten_all()?.to_vec1()?;
     Grid::from_vec(w, h, g.chunks_exact(2).map(|c| [c[0], c[1]]).collect())

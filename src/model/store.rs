@@ -322,7 +322,9 @@ pub fn check_output(dir: &Path) -> Result<()> {
                 return refuse(&format!("holds `{other}`, so it is not a model directory"));
             }
             if !names.is_empty() && !is_model_meta(&dir.join(META_FILE)) {
-                return refuse(&format!("has no readable {META_FILE} with a format_version"));
+                return refuse(&format!(
+                    "has no readable {META_FILE} with a format_version"
+                ));
             }
         }
     }

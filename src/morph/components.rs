@@ -4,7 +4,7 @@ use image::Luma;
 use imageproc::region_labelling::{Connectivity, connected_components as ip_components};
 
 use super::to_gray;
-use crate::raster::{Mask, Space};
+use crate::raster::{ImageSize, Mask, Space};
 
 /// Connected components of a mask's set pixels under 8-connectivity.
 ///
@@ -68,7 +68,10 @@ pub fn connected_components<S: Space>(mask: &Mask<S>) -> Components {
 }
 
 fn label_impl<S: Space>(mask: &Mask<S>, invert: bool, conn: Connectivity) -> Components {
-    let (w, h) = mask.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = mask.size();
     if w == 0 || h == 0 {
         return Components {
             width: w,
@@ -144,7 +147,10 @@ pub fn major_components<S: Space>(mask: &Mask<S>, min_fraction: f64) -> Mask<S> 
 /// connected through their 4 edge neighbours (the dual of 8-connected foreground), so a diagonal
 /// chain of set pixels closes a hole.
 pub fn fill_holes<S: Space>(mask: &Mask<S>) -> Mask<S> {
-    let (w, h) = mask.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = mask.size();
     if w == 0 || h == 0 {
         return mask.clone();
     }

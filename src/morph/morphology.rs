@@ -4,7 +4,7 @@
 use imageproc::distance_transform::euclidean_squared_distance_transform;
 
 use super::to_gray;
-use crate::raster::{Mask, Space};
+use crate::raster::{ImageSize, Mask, Space};
 
 // ---------------------------------------------------------------------------------------------
 // Summed-area table
@@ -22,7 +22,10 @@ pub struct IntegralMask {
 
 impl IntegralMask {
     pub fn new<S: Space>(mask: &Mask<S>) -> Self {
-        let (w, h) = mask.size();
+        let ImageSize {
+            width: w,
+            height: h,
+        } = mask.size();
         let stride = w + 1;
         let mut sums = vec![0u32; stride * (h + 1)];
         for y in 0..h {
@@ -92,7 +95,10 @@ pub fn squared_distance<S: Space>(mask: &Mask<S>, to_unset: bool) -> Vec<f64> {
 
 /// Dilation: pixels within the element of a set pixel.
 pub fn dilate<S: Space>(mask: &Mask<S>, el: Element) -> Mask<S> {
-    let (w, h) = mask.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = mask.size();
     if w == 0 || h == 0 {
         return mask.clone();
     }
@@ -120,7 +126,10 @@ pub fn dilate<S: Space>(mask: &Mask<S>, el: Element) -> Mask<S> {
 /// Erosion: pixels whose whole element lies on set pixels. Pixels beyond the image edge count as
 /// unset, so pixels within `r` of the edge are always removed.
 pub fn erode<S: Space>(mask: &Mask<S>, el: Element) -> Mask<S> {
-    let (w, h) = mask.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = mask.size();
     if w == 0 || h == 0 {
         return mask.clone();
     }
@@ -144,7 +153,10 @@ pub fn erode<S: Space>(mask: &Mask<S>, el: Element) -> Mask<S> {
 
 /// Copies `mask` into the middle of a larger unset mask with `pad` pixels on every side.
 fn pad<S: Space>(mask: &Mask<S>, pad: usize) -> Mask<S> {
-    let (w, h) = mask.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = mask.size();
     let mut out = Mask::new(w + 2 * pad, h + 2 * pad);
     for y in 0..h {
         for x in 0..w {
@@ -163,7 +175,10 @@ fn unpad<S: Space>(mask: &Mask<S>, pad: usize, w: usize, h: usize) -> Mask<S> {
 /// Morphological closing (dilate, then erode): fills gaps and concavities narrower than the
 /// element. Computed on a copy padded with unset pixels so the result always contains the input.
 pub fn close<S: Space>(mask: &Mask<S>, el: Element) -> Mask<S> {
-    let (w, h) = mask.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = mask.size();
     if w == 0 || h == 0 {
         return mask.clone();
     }

@@ -19,6 +19,7 @@ use super::loss;
 use super::optim::l2_penalty;
 use super::warpingnet::WarpingNet;
 use crate::error::Result;
+use crate::raster::ImageSize;
 use crate::warp::TPS_PARAMS;
 
 /// The four variants of the paper's table.
@@ -164,7 +165,7 @@ impl CompenNetPP {
     /// weight drawn from `seed` as its layer's constructor says ([`SeededInit`]).
     pub fn new(
         init: GeometryInit,
-        size: (usize, usize),
+        size: ImageSize,
         refine: bool,
         seed: u64,
         device: &Device,
@@ -175,7 +176,7 @@ impl CompenNetPP {
     /// [`CompenNetPP::new`] with CompenNet's base channel width `width` (channels).
     pub fn with_width(
         init: GeometryInit,
-        size: (usize, usize),
+        size: ImageSize,
         refine: bool,
         width: usize,
         seed: u64,
@@ -202,8 +203,8 @@ impl CompenNetPP {
             }
             GeometryInit::Fixed(grid) => {
                 let (_, h, w, _) = grid.dims4()?;
-                if (w, h) != size {
-                    candle_core::bail!("fixed grid is {w}x{h}, the network {}x{}", size.0, size.1);
+                if ImageSize::new(w, h) != size {
+                    candle_core::bail!("fixed grid is {w}x{h}, the network {size}");
                 }
                 Geometry::Fixed(grid.to_dtype(DType::F32)?.detach())
             }
@@ -324,10 +325,10 @@ impl CompenNetPP {
         let value = parts.iter().map(|(v, _)| v).sum();
         // Back through the shared part: ∂/∂θ Σ t·∂t = ∂t/∂θ · ∂t for each shared output t.
         let mut through = l2;
-        if let Some(leaf) = &grid_leaf {
-            if let Some(dg) = summed(&parts, leaf.as_tensor())? {
-                through = (through + (&grid * dg)?.sum_all()?)?;
-            }
+        if let Some(leaf) = &grid_leaf
+            && let Some(dg) = summed(&parts, leaf.as_tensor())?
+        {
+            through = (through + (&grid * dg)?.sum_all()?)?;
         }
         for (t, leaf) in shared.iter().zip(&leaves) {
             if let Some(dt) = summed(&parts, leaf.as_tensor())? {
@@ -401,13 +402,13 @@ impl CompenNetPP {
     /// from `get(name, shape)`, which must return the stored values (it reports missing or
     /// mis-shaped tensors itself).
     pub fn restore(
-        size: (usize, usize),
+        size: ImageSize,
         variant: Variant,
         device: &Device,
         mut get: impl FnMut(&str, &[usize]) -> Result<Vec<f32>>,
     ) -> Result<Self> {
         let init = if variant.fixed_geometry() {
-            let dims = [1, size.1, size.0, 2];
+            let dims = [1, size.height, size.width, 2];
             let g = get(FIXED_GRID, &dims)?;
             GeometryInit::Fixed(Tensor::from_vec(g, dims.to_vec(), device)?)
         } else {

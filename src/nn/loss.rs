@@ -114,7 +114,7 @@ impl CustomOp1 for GaussianBlur {
 
     fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> Result<(CpuStorage, Shape)> {
         let (n, c, h, w) = layout.shape().dims4()?;
-        if h == 0 || w == 0 || self.taps.len() % 2 == 0 {
+        if h == 0 || w == 0 || self.taps.len().is_multiple_of(2) {
             bail!("gaussian blur: empty image {h}x{w} or an even tap count");
         }
         let Some((start, end)) = layout.contiguous_offsets() else {

@@ -26,19 +26,22 @@ pub use warpingnet::WarpingNet;
 
 use candle_core::{Device, Result, Tensor};
 
-use crate::raster::{Rgb, Space};
+use crate::raster::{ImageSize, Rgb, Space};
 
 /// Images of one size as an (N, 3, H, W) f32 tensor on the CPU.
 pub fn images_to_tensor<S: Space>(imgs: &[Rgb<S>]) -> Result<Tensor> {
     let Some(first) = imgs.first() else {
         candle_core::bail!("images_to_tensor: no images");
     };
-    let (w, h) = first.size();
-    if let Some(other) = imgs.iter().find(|i| i.size() != (w, h)) {
+    let ImageSize {
+        width: w,
+        height: h,
+    } = first.size();
+    if let Some(other) = imgs.iter().find(|i| i.size() != first.size()) {
         candle_core::bail!(
-            "images_to_tensor: sizes differ, {:?} and {:?}",
-            (w, h),
-            other.size()
+            "images_to_tensor: sizes differ, ({w}, {h}) and ({}, {})",
+            other.size().width,
+            other.size().height
         );
     }
     let data: Vec<f32> = imgs.iter().flat_map(|i| i.data().iter().copied()).collect();

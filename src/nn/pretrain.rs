@@ -85,7 +85,7 @@ impl PretrainSettings {
         if self.width == 0 {
             bad.push("width must be at least 1".to_string());
         }
-        if self.patch < 4 || self.patch % 4 != 0 {
+        if self.patch < 4 || !self.patch.is_multiple_of(4) {
             bad.push(format!(
                 "patch {} must be a positive multiple of 4",
                 self.patch

@@ -19,6 +19,7 @@ use super::compennetpp::{CompenNetPP, GeometryInit, Variant};
 use super::optim::{adam, check_loss};
 use super::pretrain::PhotometricInit;
 use crate::error::{Error, Result};
+use crate::raster::ImageSize;
 
 /// Settings of one training run.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -113,7 +114,7 @@ pub fn train(
         ));
     }
     let device = data.captures.device().clone();
-    let (model, photometric_init) = fresh_model(init, (wn, hn), settings, &device)?;
+    let (model, photometric_init) = fresh_model(init, ImageSize::new(wn, hn), settings, &device)?;
     let vars = model.varmap.all_vars();
     let mut opt = adam(vars.clone(), settings.learning_rate)?;
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
@@ -166,7 +167,7 @@ pub fn train(
 /// those weights came from (`kaiming`, or the pre-trained file's source).
 fn fresh_model(
     init: GeometryInit,
-    size: (usize, usize),
+    size: ImageSize,
     settings: &Settings,
     device: &Device,
 ) -> Result<(CompenNetPP, String)> {

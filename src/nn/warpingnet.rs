@@ -11,6 +11,7 @@ use candle_core::{D, DType, Device, Module, Result, Tensor};
 use candle_nn::{Conv2d, ConvTranspose2d, VarBuilder};
 
 use super::layers::{WeightInit, conv, tconv};
+use crate::raster::ImageSize;
 use crate::sample::pixel_to_norm;
 use crate::warp::{TPS_PARAMS, TpsBasis};
 
@@ -74,7 +75,7 @@ impl WarpingNet {
     pub fn new(
         vb: VarBuilder,
         init: Option<[[f32; 3]; 2]>,
-        (width, height): (usize, usize),
+        ImageSize { width, height }: ImageSize,
         refine: bool,
     ) -> Result<Self> {
         let dev = vb.device().clone();

@@ -83,7 +83,7 @@ mod tests {
     #[test]
     fn flat_images() {
         let img = color_cube(26, 4, 3).unwrap();
-        assert_eq!(img.size(), (4, 3));
+        assert_eq!(img.size(), crate::raster::ImageSize::new(4, 3));
         assert!(img.data().chunks(3).all(|p| p == [64.0 / 255.0, 0.0, 0.0]));
         let g = gray_image(77, 5, 2);
         assert!(g.data().iter().all(|&v| v == 77.0 / 255.0));

@@ -1,7 +1,7 @@
 //! Live playback in the core: where a content frame goes on its way to the projector, and the CPU
 //! reference of the whole per-frame path that the GPU pass ([`crate::gpu`]) must reproduce.
 //!
-//! The chain (DESIGN.md sections 2 and 4), per content frame:
+//! The chain (docs/architecture.md, "Playback" and "Spaces and conventions"), per content frame:
 //! 1. **Desired camera view** `z'` (camera pixels): the content frame (any size, 8-bit
 //!    sRGB-encoded values in \[0,1\]) is mapped into the display range (`low + (high − low)·v`),
 //!    stretched into the *displayable area* (a camera-space rectangle of the canvas aspect inside
@@ -21,22 +21,25 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::fov::{self, DisplayRange};
 use crate::model::Model;
-use crate::raster::{CamImage, NetImage, PrjImage, Rect, Rgb, Space};
+use crate::raster::{CamImage, ImageSize, NetImage, PrjImage, Rect, Rgb, Space};
 use crate::resize::resize_bilinear;
 
 /// Where frames go: the placement parameters of the chain above.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Placement {
     /// Camera size (width, height), camera pixels; the model's.
-    pub camera_size: (usize, usize),
+    #[serde(with = "crate::raster::as_pair")]
+    pub camera_size: ImageSize,
     /// The displayable area, camera pixels, where content frames are stretched.
     pub area: Rect,
     /// Range of camera values content is mapped into (see [`fov::display_range`]).
     pub range: DisplayRange,
     /// Network size (width, height), network pixels; the model's.
-    pub network_size: (usize, usize),
+    #[serde(with = "crate::raster::as_pair")]
+    pub network_size: ImageSize,
     /// Projector size (width, height), projector pixels; the display's native resolution.
-    pub projector_size: (usize, usize),
+    #[serde(with = "crate::raster::as_pair")]
+    pub projector_size: ImageSize,
     /// Where the compensation image is stretched, projector pixels.
     pub canvas: Rect,
 }
@@ -47,10 +50,13 @@ impl Placement {
     /// `range` for the content values.
     pub fn for_model(
         model: &Model,
-        projector_size: (usize, usize),
+        projector_size: ImageSize,
         range: DisplayRange,
     ) -> Result<Self> {
-        let (pw, ph) = projector_size;
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = projector_size;
         let canvas = model.meta.canvas.unwrap_or(Rect {
             x: 0,
             y: 0,
@@ -72,22 +78,26 @@ impl Placement {
 
     /// Checks that the rectangles fit their frames and nothing is empty.
     pub fn validate(&self) -> Result<()> {
-        let fits = |r: Rect, (w, h): (usize, usize)| {
+        let fits = |r: Rect,
+                    ImageSize {
+                        width: w,
+                        height: h,
+                    }: ImageSize| {
             r.width > 0 && r.height > 0 && r.x + r.width <= w && r.y + r.height <= h
         };
         if !fits(self.area, self.camera_size) {
             return Err(Error::Shape(format!(
-                "displayable area {} does not fit the {}x{} camera frame",
-                self.area, self.camera_size.0, self.camera_size.1
+                "displayable area {} does not fit the {} camera frame",
+                self.area, self.camera_size
             )));
         }
         if !fits(self.canvas, self.projector_size) {
             return Err(Error::Shape(format!(
-                "canvas {} does not fit the {}x{} projector frame",
-                self.canvas, self.projector_size.0, self.projector_size.1
+                "canvas {} does not fit the {} projector frame",
+                self.canvas, self.projector_size
             )));
         }
-        if self.network_size.0 == 0 || self.network_size.1 == 0 {
+        if self.network_size.width == 0 || self.network_size.height == 0 {
             return Err(Error::Shape("empty network size".into()));
         }
         Ok(())
@@ -169,8 +179,8 @@ impl ContentFrame {
         Rgb::from_vec(self.width, self.height, data).expect("checked size")
     }
 
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
     }
 }
 
@@ -194,12 +204,11 @@ pub fn reference_frame(model: &Model, content: &ContentFrame, p: &Placement) -> 
 
 /// Stretches `img` (e.g. a network-size projector image) over `canvas` of a black projector
 /// frame of `size` (width, height), with bilinear resizing.
-pub fn place_on_canvas<S: Space>(
-    img: &Rgb<S>,
-    canvas: Rect,
-    size: (usize, usize),
-) -> Result<PrjImage> {
-    let (w, h) = size;
+pub fn place_on_canvas<S: Space>(img: &Rgb<S>, canvas: Rect, size: ImageSize) -> Result<PrjImage> {
+    let ImageSize {
+        width: w,
+        height: h,
+    } = size;
     if canvas.width == 0
         || canvas.height == 0
         || canvas.x + canvas.width > w

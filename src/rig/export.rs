@@ -21,7 +21,7 @@ use crate::error::{Error, Result};
 use crate::fov;
 use crate::patterns::CUBE_COUNT;
 use crate::pngio;
-use crate::raster::{PrjImage, Rect};
+use crate::raster::{ImageSize, PrjImage, Rect};
 
 /// Name of the file in the setup folder that records how the setup was simulated.
 pub const RIG_FILE: &str = "rig.json";
@@ -90,7 +90,10 @@ pub struct ExportSummary {
 
 /// The full projector frame as a canvas.
 pub fn full_canvas(sim: &Simulator) -> Rect {
-    let (w, h) = sim.projector_size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = sim.projector_size();
     Rect {
         x: 0,
         y: 0,
@@ -132,7 +135,7 @@ pub fn export_setup(
     let (fov, area, range) = rig.desired(opts.ntest, opts.reachable_desired)?;
 
     let cam = sim.camera_size();
-    let frame = (cam.0 * cam.1) as f64;
+    let frame = (cam.width * cam.height) as f64;
     let record = RigRecord {
         scene: sim.scene().clone(),
         seed: sim.seed(),
@@ -163,9 +166,9 @@ struct Capturing<'a> {
     /// Where network-size images are stretched (projector pixels): the full frame.
     canvas: Rect,
     /// Projector size, (width, height) pixels.
-    psize: (usize, usize),
+    psize: ImageSize,
     /// Network size of the root's images, (width, height) pixels, and why (for size errors).
-    net: (usize, usize),
+    net: ImageSize,
     net_why: String,
 }
 

@@ -18,7 +18,7 @@ use super::physics::{Phase, Simulator, mix64};
 use super::scene::{Latency, Scene};
 use crate::device::{DisplaySink, Frame, FrameSource};
 use crate::error::{Error, Result};
-use crate::raster::PrjImage;
+use crate::raster::{ImageSize, PrjImage};
 
 /// A simulated projector-camera pair. Clones share one rig: give one clone to the code that
 /// projects and another to the code that captures.
@@ -59,7 +59,10 @@ impl VirtualRig {
 
     /// A rig around a prepared simulator (its phase is the rig's starting phase).
     pub fn from_simulator(sim: Simulator) -> Self {
-        let (pw, ph) = sim.projector_size();
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = sim.projector_size();
         let scene = sim.scene().clone();
         let phase = sim.phase();
         let seed = sim.seed();
@@ -149,7 +152,7 @@ impl State {
 }
 
 impl DisplaySink for VirtualRig {
-    fn size(&self) -> (usize, usize) {
+    fn size(&self) -> ImageSize {
         self.state().calibrated.projector_size()
     }
 
@@ -158,9 +161,8 @@ impl DisplaySink for VirtualRig {
         let expected = st.calibrated.projector_size();
         if frame.size() != expected {
             return Err(Error::Shape(format!(
-                "virtual projector is {}x{}, got a {}x{} frame",
-                expected.0,
-                expected.1,
+                "virtual projector is {}, got a {}x{} frame",
+                expected,
                 frame.width(),
                 frame.height()
             )));
@@ -183,7 +185,7 @@ impl DisplaySink for VirtualRig {
 }
 
 impl FrameSource for VirtualRig {
-    fn size(&self) -> (usize, usize) {
+    fn size(&self) -> ImageSize {
         self.state().calibrated.camera_size()
     }
 

@@ -22,8 +22,8 @@
 pub mod export;
 mod geom;
 pub mod live;
-mod physics;
 mod oracle;
+mod physics;
 pub mod scene;
 pub mod score;
 pub mod sheet;
@@ -31,7 +31,7 @@ mod texture;
 
 pub use export::{ExportOptions, export_setup};
 pub use live::VirtualRig;
-pub use physics::{Phase, Simulator};
 pub use oracle::OracleOptions;
+pub use physics::{Phase, Simulator};
 pub use scene::{BUILTIN, Scene, builtin};
 pub use score::{ReferenceScores, closed_loop, reference_scores};

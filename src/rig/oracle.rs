@@ -3,7 +3,7 @@
 
 use super::physics::{Simulator, mat3};
 use crate::error::{Error, Result};
-use crate::raster::{CamImage, Camera, Mask, PrjImage, check_same_size};
+use crate::raster::{CamImage, Camera, ImageSize, Mask, PrjImage, check_same_size};
 
 /// Settings of the oracle's solver.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -25,7 +25,10 @@ impl Simulator {
     /// sees it).
     pub fn geometry_only(&self, desired: &CamImage) -> Result<PrjImage> {
         self.check_cam(desired, "the desired image")?;
-        let (pw, ph) = self.projector_size();
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = self.projector_size();
         let coords = self.camera_coords();
         let mut data = Vec::with_capacity(pw * ph * 3);
         for xy in coords {
@@ -62,7 +65,10 @@ impl Simulator {
         let target: Vec<f32> = z.iter().map(|v| v.clamp(0.0, 1.0).powf(gamma_c)).collect();
 
         // Constant part c = A(black) + ambient + glare.
-        let (pw, ph) = self.projector_size();
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = self.projector_size();
         let zeros = vec![0f32; pw * ph * 3];
         let mut c = self.sensor(&self.drive_to_emission(&zeros, true));
         self.add_constant(&mut c);
@@ -96,7 +102,10 @@ impl Simulator {
         let inv_cam = invert3(self.cam_mix())?;
         let inv_prj = invert3(self.prj_mix())?;
         let black = self.prj_black();
-        let (cw, ch) = self.camera_size();
+        let ImageSize {
+            width: cw,
+            height: ch,
+        } = self.camera_size();
         let mut want = vec![0f32; cw * ch * 3];
         for i in 0..cw * ch {
             if !mask.data()[i] {
@@ -120,9 +129,10 @@ impl Simulator {
                 want[i * 3 + c] = d[c].clamp(0.0, 1.0);
             }
         }
-        let mut out = Vec::with_capacity(self.projector_size().0 * self.projector_size().1 * 3);
+        let mut out =
+            Vec::with_capacity(self.projector_size().width * self.projector_size().height * 3);
         for xy in self.camera_coords() {
-            out.extend_from_slice(&sample_cam(&want, (cw, ch), *xy));
+            out.extend_from_slice(&sample_cam(&want, ImageSize::new(cw, ch), *xy));
         }
         Ok(out)
     }
@@ -130,12 +140,11 @@ impl Simulator {
     fn check_cam(&self, img: &CamImage, what: &str) -> Result<()> {
         if img.size() != self.camera_size() {
             return Err(Error::Shape(format!(
-                "{what} is {}x{}, the virtual camera of scene {:?} is {}x{}",
+                "{what} is {}x{}, the virtual camera of scene {:?} is {}",
                 img.width(),
                 img.height(),
                 self.scene().name,
-                self.camera_size().0,
-                self.camera_size().1
+                self.camera_size()
             )));
         }
         Ok(())
@@ -284,7 +293,14 @@ impl Objective<'_> {
 
 /// Bilinear sample of an interleaved RGB camera image at pixel coordinate `xy` (centres at
 /// integers), zeros outside and for NaN coordinates.
-fn sample_cam(data: &[f32], (w, h): (usize, usize), xy: [f32; 2]) -> [f32; 3] {
+fn sample_cam(
+    data: &[f32],
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
+    xy: [f32; 2],
+) -> [f32; 3] {
     let [x, y] = xy;
     if !(x > -1.0 && y > -1.0 && x < w as f32 && y < h as f32) {
         return [0.0; 3];

@@ -8,7 +8,7 @@ use super::oracle::OracleOptions;
 use super::physics::Simulator;
 use crate::error::{Error, Result};
 use crate::metrics::{Accumulator, Scores};
-use crate::raster::{CamImage, Camera, Mask, PrjImage, Rect};
+use crate::raster::{CamImage, Camera, ImageSize, Mask, PrjImage, Rect};
 
 /// Captures each projector image (frame indices `first_frame`, `first_frame + 1`, …) and scores
 /// the captures against the desired camera images inside `area` (camera pixels).
@@ -45,7 +45,10 @@ pub struct ReferenceScores {
 
 /// The pixels of `area` as a camera-space mask of the simulator's camera size.
 pub fn area_mask(sim: &Simulator, area: Rect) -> Mask<Camera> {
-    let (w, h) = sim.camera_size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = sim.camera_size();
     Mask::from_fn(w, h, |x, y| area.contains(x, y))
 }
 
@@ -101,7 +104,7 @@ pub fn oracle_at_network(
     desired: &[CamImage],
     area: Rect,
     canvas: Rect,
-    network: (usize, usize),
+    network: ImageSize,
     first_frame: u64,
 ) -> Result<Scores> {
     let psize = sim.projector_size();
@@ -109,7 +112,7 @@ pub fn oracle_at_network(
         .iter()
         .map(|o| {
             let region = o.crop(canvas)?;
-            let small = crate::resize::resize_area(&region, network.0, network.1);
+            let small = crate::resize::resize_area(&region, network.width, network.height);
             crate::playback::place_on_canvas(&small, canvas, psize)
         })
         .collect::<Result<_>>()?;

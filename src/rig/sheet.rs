@@ -3,13 +3,13 @@
 //! with closed-loop scores under the panels.
 
 use super::export::full_canvas;
-use crate::playback::place_on_canvas;
-use super::physics::Simulator;
 use super::oracle::OracleOptions;
+use super::physics::Simulator;
 use super::score::{ReferenceScores, area_mask, closed_loop};
 use crate::error::Result;
 use crate::fov;
-use crate::raster::{CamImage, PrjImage, Rect, Rgb, Unspecified};
+use crate::playback::place_on_canvas;
+use crate::raster::{CamImage, ImageSize, PrjImage, Rect, Rgb, Unspecified};
 use crate::resize::resize_area;
 
 /// Frame indices of the sheet's captures (any fixed values; kept apart from the export's).
@@ -22,7 +22,10 @@ const FRAME_SHEET: u64 = 5_000_000;
 /// ([`fov::displayable_area`]), in camera pixels; and the reachable range of desired images
 /// there ([`fov::display_range`], as `sim export` scales them by default).
 pub fn display_target(sim: &Simulator) -> Result<(Rect, fov::DisplayRange)> {
-    let (pw, ph) = sim.projector_size();
+    let ImageSize {
+        width: pw,
+        height: ph,
+    } = sim.projector_size();
     let black = sim.capture(&PrjImage::new(pw, ph), FRAME_BLACK)?;
     let white = sim.capture(&PrjImage::filled(pw, ph, [1.0; 3]), FRAME_WHITE)?;
     let label = format!("virtual rig scene {:?}", sim.scene().name);
@@ -100,11 +103,13 @@ pub fn contact_sheet(
 /// Lays panels out in a row with two text lines under each.
 fn compose(
     panels: &[(CamImage, String, String)],
-    cam: (usize, usize),
+    cam: ImageSize,
     panel_width: usize,
 ) -> Rgb<Unspecified> {
-    let pw = cam.0.min(panel_width.max(16));
-    let ph = ((cam.1 * pw) as f64 / cam.0 as f64).round().max(1.0) as usize;
+    let pw = cam.width.min(panel_width.max(16));
+    let ph = ((cam.height * pw) as f64 / cam.width as f64)
+        .round()
+        .max(1.0) as usize;
     let scale = if pw >= 200 { 2 } else { 1 };
     let line = (GLYPH_H + 3) * scale;
     let gap = 6;

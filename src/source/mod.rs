@@ -19,6 +19,7 @@ pub use spec::{HELP, Pattern, RawFormat, SourceSpec};
 
 use crate::error::{Error, Result};
 use crate::playback::ContentFrame;
+use crate::raster::ImageSize;
 
 /// What a source delivers next.
 pub enum Next {
@@ -181,7 +182,7 @@ impl VideoSource for Slideshow {
 struct Raw {
     reader: Box<dyn Read + Send>,
     name: String,
-    size: (usize, usize),
+    size: ImageSize,
     format: RawFormat,
     frames: u64,
 }
@@ -189,13 +190,16 @@ struct Raw {
 impl VideoSource for Raw {
     fn describe(&self) -> String {
         format!(
-            "raw {:?} {}x{} frames from {}",
-            self.format, self.size.0, self.size.1, self.name
+            "raw {:?} {} frames from {}",
+            self.format, self.size, self.name
         )
     }
 
     fn next(&mut self) -> Result<Next> {
-        let (w, h) = self.size;
+        let ImageSize {
+            width: w,
+            height: h,
+        } = self.size;
         let len = w * h * self.format.bytes_per_pixel();
         let mut buf = vec![0u8; len];
         let mut got = 0;

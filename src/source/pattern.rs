@@ -5,6 +5,7 @@ use std::time::Duration;
 use super::{Next, Pattern, VideoSource};
 use crate::error::Result;
 use crate::playback::ContentFrame;
+use crate::raster::ImageSize;
 
 /// Colour bars, left to right.
 const BARS: [[u8; 3]; 8] = [
@@ -20,14 +21,14 @@ const BARS: [[u8; 3]; 8] = [
 
 pub struct Generator {
     pattern: Pattern,
-    size: (usize, usize),
+    size: ImageSize,
     period: Duration,
     frames: Option<u64>,
     index: u64,
 }
 
 impl Generator {
-    pub fn new(pattern: Pattern, size: (usize, usize), fps: f64, frames: Option<u64>) -> Self {
+    pub fn new(pattern: Pattern, size: ImageSize, fps: f64, frames: Option<u64>) -> Self {
         Self {
             pattern,
             size,
@@ -39,7 +40,14 @@ impl Generator {
 }
 
 /// Frame `index` of `pattern` at `size` ((width, height), content pixels).
-pub fn render(pattern: Pattern, (w, h): (usize, usize), index: u64) -> Result<ContentFrame> {
+pub fn render(
+    pattern: Pattern,
+    ImageSize {
+        width: w,
+        height: h,
+    }: ImageSize,
+    index: u64,
+) -> Result<ContentFrame> {
     let mut rgba = Vec::with_capacity(w * h * 4);
     // The moving square: side h/4, one pixel per frame left to right, wrapping.
     let side = (h / 4).max(1);
@@ -80,10 +88,9 @@ pub fn render(pattern: Pattern, (w, h): (usize, usize), index: u64) -> Result<Co
 impl VideoSource for Generator {
     fn describe(&self) -> String {
         format!(
-            "pattern {:?} {}x{} at {:.1} fps",
+            "pattern {:?} {} at {:.1} fps",
             self.pattern,
-            self.size.0,
-            self.size.1,
+            self.size,
             1.0 / self.period.as_secs_f64()
         )
     }

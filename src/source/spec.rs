@@ -4,6 +4,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use crate::error::{Error, Result};
+use crate::raster::ImageSize;
 
 /// The spellings, as `compend play --help` shows them.
 pub const HELP: &str = "\
@@ -67,16 +68,16 @@ pub enum SourceSpec {
     /// `path` None = standard input.
     Raw {
         path: Option<PathBuf>,
-        size: (usize, usize),
+        size: ImageSize,
         format: RawFormat,
     },
     V4l2 {
         device: PathBuf,
-        size: Option<(usize, usize)>,
+        size: Option<ImageSize>,
     },
     Pattern {
         pattern: Pattern,
-        size: (usize, usize),
+        size: ImageSize,
         fps: f64,
         frames: Option<u64>,
     },
@@ -88,7 +89,7 @@ fn bad(spec: &str, why: impl std::fmt::Display) -> Error {
     ))
 }
 
-fn parse_size(spec: &str, v: &str) -> Result<(usize, usize)> {
+fn parse_size(spec: &str, v: &str) -> Result<ImageSize> {
     let (w, h) = v
         .split_once(['x', 'X'])
         .ok_or_else(|| bad(spec, format!("size {v:?} is not WxH")))?;
@@ -104,7 +105,7 @@ fn parse_size(spec: &str, v: &str) -> Result<(usize, usize)> {
             format!("size {v:?} must be 1..16384 on each side"),
         ));
     }
-    Ok((w, h))
+    Ok(ImageSize::new(w, h))
 }
 
 /// `key=value&...` after the `?`; unknown keys are an error.
@@ -258,7 +259,7 @@ impl SourceSpec {
                 ));
             }
         };
-        let (mut size, mut fps, mut frames) = ((1280, 720), 60.0f64, None);
+        let (mut size, mut fps, mut frames) = (ImageSize::new(1280, 720), 60.0f64, None);
         for (k, v) in options(spec, query, &["size", "fps", "frames"])? {
             match k {
                 "size" => size = parse_size(spec, v)?,
@@ -297,7 +298,7 @@ mod tests {
             SourceSpec::parse("raw:-?size=1280x720&format=rgb24").unwrap(),
             SourceSpec::Raw {
                 path: None,
-                size: (1280, 720),
+                size: ImageSize::new(1280, 720),
                 format: RawFormat::Rgb24
             }
         );
@@ -305,7 +306,7 @@ mod tests {
             SourceSpec::parse("raw:/tmp/f?size=4x2&format=rgba").unwrap(),
             SourceSpec::Raw {
                 path: Some("/tmp/f".into()),
-                size: (4, 2),
+                size: ImageSize::new(4, 2),
                 format: RawFormat::Rgba
             }
         );
@@ -320,7 +321,10 @@ mod tests {
             SourceSpec::parse("pattern:moving?size=64x48&fps=30&frames=10").unwrap(),
             SourceSpec::Pattern {
                 pattern: Pattern::Moving,
-                size: (64, 48),
+                size: ImageSize {
+                    width: 64,
+                    height: 48
+                },
                 frames: Some(10),
                 ..
             }

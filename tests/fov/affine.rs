@@ -2,6 +2,7 @@
 //! coordinates, align-corners).
 
 use super::*;
+use compend::raster::ImageSize;
 
 /// Camera pixel coordinate of a normalised coordinate (align_corners = true), written out.
 fn to_pixel(g: f32, n: usize) -> f32 {
@@ -10,7 +11,7 @@ fn to_pixel(g: f32, n: usize) -> f32 {
 
 #[test]
 fn affine_maps_network_corners_to_box_corner_pixels() {
-    let cam = (640, 480);
+    let cam = ImageSize::new(640, 480);
     let bbox = Rect {
         x: 100,
         y: 50,
@@ -28,7 +29,7 @@ fn affine_maps_network_corners_to_box_corner_pixels() {
     ];
     for ((u, v), (px, py)) in corners {
         let (x, y) = apply_theta(&theta, u, v);
-        let (cx, cy) = (to_pixel(x, cam.0), to_pixel(y, cam.1));
+        let (cx, cy) = (to_pixel(x, cam.width), to_pixel(y, cam.height));
         assert!(
             (cx - px).abs() < 1e-3 && (cy - py).abs() < 1e-3,
             "({u},{v}) -> ({cx},{cy})"
@@ -65,7 +66,7 @@ fn affine_maps_network_corners_to_box_corner_pixels() {
 fn affine_from_a_detected_fov_covers_its_box() {
     let r = render(&Scene::plain(quad(QUAD)));
     let fov = fov_mask(&r.black, &r.white, "quad").unwrap();
-    let theta = affine_from_box(fov.bbox, (W, H)).unwrap();
+    let theta = affine_from_box(fov.bbox, ImageSize::new(W, H)).unwrap();
     let b = fov.bbox;
     let (x0, y0) = apply_theta(&theta, -1.0, -1.0);
     let (x1, y1) = apply_theta(&theta, 1.0, 1.0);

@@ -2,6 +2,7 @@
 //! placement of images into it, and the display range.
 
 use super::*;
+use compend::raster::ImageSize;
 
 fn mask_of(w: usize, h: usize, f: impl Fn(f64, f64) -> bool) -> Mask<Unspecified> {
     // Pixel centres.
@@ -55,7 +56,10 @@ fn all_inside(mask: &Mask<Unspecified>, r: Rect) -> bool {
 /// Largest area over every rectangle (every size and position, checked pixel by pixel) whose
 /// sides satisfy `admissible(width, height)`.
 fn brute_force(mask: &Mask<Unspecified>, admissible: impl Fn(usize, usize) -> bool) -> usize {
-    let (w, h) = mask.size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = mask.size();
     let mut best = 0;
     for rh in 1..=h {
         for rw in 1..=w {
@@ -203,8 +207,8 @@ fn place_in_area_fills_the_rectangle_and_leaves_black_around() {
         width: 12,
         height: 9,
     };
-    let out = place_in_area(&img, area, (20, 15)).unwrap();
-    assert_eq!(out.size(), (20, 15));
+    let out = place_in_area(&img, area, ImageSize::new(20, 15)).unwrap();
+    assert_eq!(out.size(), ImageSize::new(20, 15));
     for y in 0..15 {
         for x in 0..20 {
             let p = out.get(x, y);
@@ -229,7 +233,7 @@ fn place_in_area_fills_the_rectangle_and_leaves_black_around() {
         height: 4,
     };
     assert!(matches!(
-        place_in_area(&img, outside, (20, 15)),
+        place_in_area(&img, outside, ImageSize::new(20, 15)),
         Err(Error::Shape(_))
     ));
 }

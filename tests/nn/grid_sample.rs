@@ -7,10 +7,11 @@ use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
 use super::{case, grid_tensor, to_tensor};
+use compend::raster::ImageSize;
 
 #[test]
 fn candle_grid_sample_equals_the_cpu_reference() {
-    let (img, grid) = case(1, (13, 9), (11, 7));
+    let (img, grid) = case(1, ImageSize::new(13, 9), ImageSize::new(11, 7));
     let expected = cpu_grid_sample(&img, &grid);
     let got = compend::nn::grid_sample(
         &to_tensor(&img, DType::F32),
@@ -37,7 +38,7 @@ fn candle_grid_sample_equals_the_cpu_reference() {
 
 #[test]
 fn grid_sample_gradients_match_finite_differences() {
-    let (img, grid) = case(2, (7, 6), (5, 4));
+    let (img, grid) = case(2, ImageSize::new(7, 6), ImageSize::new(5, 4));
     let x = Var::from_tensor(&to_tensor(&img, DType::F64)).unwrap();
     let g = Var::from_tensor(&grid_tensor(&grid, DType::F64)).unwrap();
     // A random linear functional of the output, so every output element matters.

@@ -2,6 +2,7 @@
 //! the grid against the CPU warp, gradients through the chain, the simplified playback form.
 
 use candle_core::{DType, Device, Tensor};
+use compend::raster::ImageSize;
 
 fn count(varmap: &candle_nn::VarMap, prefix: &str) -> usize {
     varmap
@@ -69,7 +70,9 @@ fn warpingnet_grid_equals_the_cpu_warp_and_gradients_flow() {
     let theta = [[0.7f32, 0.05, 0.1], [-0.02, 0.8, -0.05]];
     let varmap = VarMap::new();
     let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
-    let wnet = compend::nn::WarpingNet::new(vb.pp("warp"), Some(theta), (w, h), false).unwrap();
+    let wnet =
+        compend::nn::WarpingNet::new(vb.pp("warp"), Some(theta), ImageSize::new(w, h), false)
+            .unwrap();
     assert_eq!(count(&varmap, "warp."), 6 + 76);
     // Same parameters on the CPU side.
     let tps: Vec<Vec<f32>> = wnet.tps.to_vec2().unwrap();
@@ -94,7 +97,9 @@ fn warpingnet_grid_equals_the_cpu_warp_and_gradients_flow() {
     // With refinement: 27 586 more parameters, and a near-identity start.
     let varmap2 = VarMap::new();
     let vb2 = VarBuilder::from_varmap(&varmap2, DType::F32, &Device::Cpu);
-    let wref = compend::nn::WarpingNet::new(vb2.pp("warp"), Some(theta), (w, h), true).unwrap();
+    let wref =
+        compend::nn::WarpingNet::new(vb2.pp("warp"), Some(theta), ImageSize::new(w, h), true)
+            .unwrap();
     assert_eq!(count(&varmap2, "warp.refine."), 27_586);
     let r: Vec<f32> = wref
         .grid()
@@ -106,7 +111,7 @@ fn warpingnet_grid_equals_the_cpu_warp_and_gradients_flow() {
     let t: Vec<f32> = compend::nn::WarpingNet::new(
         VarBuilder::from_varmap(&VarMap::new(), DType::F32, &Device::Cpu),
         Some(theta),
-        (w, h),
+        ImageSize::new(w, h),
         false,
     )
     .unwrap()
@@ -153,7 +158,7 @@ fn simplified_compennet_reproduces_the_full_network() {
     use compend::nn::compennetpp::CompenNetPP;
     let model = CompenNetPP::new(
         compend::nn::compennetpp::GeometryInit::Affine([[0.8, 0.05, 0.0], [0.0, 0.75, 0.02]]),
-        (24, 16),
+        ImageSize::new(24, 16),
         true,
         9,
         &Device::Cpu,

@@ -4,7 +4,7 @@
 use candle_core::{DType, Device, Tensor, Var};
 
 use super::{case, max_abs_diff, to_tensor};
-use compend::raster::Camera;
+use compend::raster::{Camera, ImageSize};
 
 /// Random variables of `dims` (normal, σ `std`) in `dtype`.
 fn random_var(dims: &[usize], std: f32, dtype: DType) -> Var {
@@ -231,7 +231,7 @@ fn gaussian_blur_op_equals_padded_convolutions_with_gradients() {
 fn ssim_loss_equals_the_metric_and_has_gradients() {
     // Two related images: the candle SSIM must equal compend::metrics::ssim (the same definition,
     // computed independently of candle).
-    let (a, _) = case(5, (23, 17), (1, 1));
+    let (a, _) = case(5, ImageSize::new(23, 17), ImageSize::new(1, 1));
     let b = a.map(|v| (0.7 * v + 0.1).min(1.0));
     let b = compend::raster::Rgb::<Camera>::from_fn(23, 17, |x, y| {
         let p = b.get(x, y);

@@ -6,6 +6,7 @@ use rand::SeedableRng;
 use rand::rngs::ChaCha8Rng;
 
 use super::{max_abs_diff, stack};
+use compend::raster::ImageSize;
 
 #[test]
 fn compennet_training_learns_reproduces_and_cancels() {
@@ -83,7 +84,8 @@ fn sharded_training_step_equals_the_unsharded_one() {
         ),
         ("fixed grid", GeometryInit::Fixed(fixed), false),
     ] {
-        let model = CompenNetPP::with_width(init, (w, h), refine, 4, 3, &dev).unwrap();
+        let model =
+            CompenNetPP::with_width(init, ImageSize::new(w, h), refine, 4, 3, &dev).unwrap();
         for batch in [3, 4] {
             let x = Tensor::rand(0f32, 1.0, (batch, 3, 20, 30), &dev).unwrap();
             let y = Tensor::rand(0f32, 1.0, (batch, 3, h, w), &dev).unwrap();

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent reference for `compend metrics` (DESIGN.md section 6), used to make the fixtures
+"""Independent reference for `compend metrics` (docs/architecture.md, "Models"), used to make the fixtures
 in tests/fixtures/metrics and the expected numbers in tests/metrics.rs.
 
 It shares no code with compend: images are read with Pillow, filtering is SciPy's

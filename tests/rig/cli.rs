@@ -2,6 +2,7 @@
 //! the offline commands, byte-identical for one seed), contact sheets.
 
 use super::*;
+use compend::raster::ImageSize;
 
 #[test]
 fn sim_list_and_show() {
@@ -127,8 +128,8 @@ fn desired_images_lie_in_the_lit_area(setup: &std::path::Path) {
     let set = compend::dataset::Setup::open(setup, None).expect("setup");
     let z = &set.load_desired(None).expect("desired")[0];
     let (mut inside, mut outside) = (0.0, 0.0);
-    for y in 0..CAM.1 {
-        for x in 0..CAM.0 {
+    for y in 0..CAM.height {
+        for x in 0..CAM.width {
             let v: f32 = z.get(x, y).iter().sum();
             if area.contains(x, y) {
                 inside += v;
@@ -255,7 +256,10 @@ fn contact_sheet_per_scene() {
     assert_code(&o, 0);
     for name in ["step", "white-plane"] {
         let p = dir.path().join(format!("{name}.png"));
-        let (w, h) = compend::pngio::png_size(&p).expect("a PNG per scene");
+        let ImageSize {
+            width: w,
+            height: h,
+        } = compend::pngio::png_size(&p).expect("a PNG per scene");
         assert!(w > 5 * 80 && h > 60, "five panels and captions: {w}x{h}");
     }
     // One line of scores per scene after the header.

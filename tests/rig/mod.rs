@@ -8,7 +8,7 @@
 
 use compend::device::{DisplaySink, FrameSource};
 use compend::metrics::Scores;
-use compend::raster::{CamImage, Camera, Mask, PrjImage, Rect};
+use compend::raster::{CamImage, Camera, ImageSize, Mask, PrjImage, Rect};
 use compend::rig::{self, OracleOptions, Phase, Simulator};
 
 mod cli;
@@ -16,8 +16,8 @@ mod reference;
 mod sim;
 
 /// Tiny sizes keep every test fast: camera 80×60, projector 100×75.
-const CAM: (usize, usize) = (80, 60);
-const PRJ: (usize, usize) = (100, 75);
+const CAM: ImageSize = ImageSize::new(80, 60);
+const PRJ: ImageSize = ImageSize::new(100, 75);
 
 fn tiny(name: &str, seed: u64) -> Simulator {
     let scene = rig::builtin(name)
@@ -49,7 +49,10 @@ fn test_pattern(k: usize, u: f32, v: f32) -> [f32; 3] {
 
 /// Test image k stretched over the whole projector frame (the canvas).
 fn on_canvas(sim: &Simulator, k: usize) -> PrjImage {
-    let (w, h) = sim.projector_size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = sim.projector_size();
     PrjImage::from_fn(w, h, |x, y| {
         test_pattern(k, x as f32 / (w - 1) as f32, y as f32 / (h - 1) as f32)
     })
@@ -57,7 +60,10 @@ fn on_canvas(sim: &Simulator, k: usize) -> PrjImage {
 
 /// Test image k placed in `area` of the camera view, black elsewhere.
 fn in_area(sim: &Simulator, k: usize, area: Rect) -> CamImage {
-    let (w, h) = sim.camera_size();
+    let ImageSize {
+        width: w,
+        height: h,
+    } = sim.camera_size();
     CamImage::from_fn(w, h, |x, y| {
         if !area.contains(x, y) {
             return [0.0; 3];
@@ -71,7 +77,10 @@ fn in_area(sim: &Simulator, k: usize, area: Rect) -> CamImage {
 /// The displayable area of the true lit region (the largest rectangle of the projector's
 /// aspect inside it).
 fn area_of(sim: &Simulator) -> Rect {
-    let (pw, ph) = sim.projector_size();
+    let ImageSize {
+        width: pw,
+        height: ph,
+    } = sim.projector_size();
     compend::fov::displayable_area(&sim.lit_mask(), pw as f64 / ph as f64).expect("an area")
 }
 

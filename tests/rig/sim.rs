@@ -2,6 +2,7 @@
 //! self-occlusion, drift, and the FOV mask against the simulator's ground truth.
 
 use super::*;
+use compend::raster::ImageSize;
 
 #[test]
 fn same_seed_same_frames_other_seed_other_frames() {
@@ -29,7 +30,7 @@ fn same_seed_same_frames_other_seed_other_frames() {
     // not change with the seed, its noise does.
     let w1 = tiny("white-plane", 1);
     let w2 = tiny("white-plane", 2);
-    let white = PrjImage::filled(PRJ.0, PRJ.1, [1.0; 3]);
+    let white = PrjImage::filled(PRJ.width, PRJ.height, [1.0; 3]);
     assert_eq!(
         w1.expected(&white).expect("render"),
         w2.expected(&white).expect("render")
@@ -65,7 +66,7 @@ fn frames_lag_behind_the_projector_and_drops_skip_numbers() {
     let scene = rig::builtin("white-plane")
         .expect("built-in")
         .with_resolution(CAM, PRJ);
-    let white = PrjImage::filled(PRJ.0, PRJ.1, [1.0; 3]);
+    let white = PrjImage::filled(PRJ.width, PRJ.height, [1.0; 3]);
     let lit = tiny("white-plane", 0).lit_mask();
     let is_white = |f: &compend::device::Frame| mean(&f.image, Some(&lit)) > 0.5;
 
@@ -150,9 +151,11 @@ fn step_scene_has_a_shadow_the_projector_cannot_reach() {
     }
     // Under full white the shadow stays as dark as under black; lit pixels brighten.
     let white = sim
-        .expected(&PrjImage::filled(PRJ.0, PRJ.1, [1.0; 3]))
+        .expected(&PrjImage::filled(PRJ.width, PRJ.height, [1.0; 3]))
         .expect("render");
-    let black = sim.expected(&PrjImage::new(PRJ.0, PRJ.1)).expect("render");
+    let black = sim
+        .expected(&PrjImage::new(PRJ.width, PRJ.height))
+        .expect("render");
     let gain = |m: &Mask<Camera>| mean(&white, Some(m)) - mean(&black, Some(m));
     assert!(
         gain(&shadow) < 0.01,
@@ -169,7 +172,7 @@ fn drift_moves_the_projector_by_about_the_given_shift() {
     // Full projector resolution so the shift is the scene's 1.5 px right, 1 px up.
     let scene = rig::builtin("drift")
         .expect("built-in")
-        .with_resolution(CAM, (800, 600));
+        .with_resolution(CAM, ImageSize::new(800, 600));
     let before = Simulator::new(&scene, 1, Phase::Calibration).expect("builds");
     let after = Simulator::new(&scene, 1, Phase::AfterDrift).expect("builds");
     let (mut dx, mut dy, mut n) = (0.0f64, 0.0f64, 0usize);
@@ -215,9 +218,12 @@ fn fov_from_captures_matches_the_truth() {
     for name in rig::BUILTIN {
         let scene = rig::builtin(name)
             .expect("built-in")
-            .with_resolution((160, 120), (200, 150));
+            .with_resolution(ImageSize::new(160, 120), ImageSize::new(200, 150));
         let sim = Simulator::new(&scene, 4, Phase::Calibration).expect("builds");
-        let (pw, ph) = sim.projector_size();
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = sim.projector_size();
         let black = sim.capture(&PrjImage::new(pw, ph), 1).expect("capture");
         let white = sim
             .capture(&PrjImage::filled(pw, ph, [1.0; 3]), 2)

@@ -1,4 +1,4 @@
-//! The benchmark's charts (DESIGN.md section 9): closed-loop accuracy against training time and
+//! The benchmark's charts: closed-loop accuracy against training time and
 //! against per-frame time, one point per benchmark row and one colour per method.
 
 use std::path::{Path, PathBuf};

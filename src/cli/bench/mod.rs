@@ -102,10 +102,7 @@ pub fn run(args: Args) -> Result<()> {
                 ntest: args.ntest as u64,
                 seed,
                 size: sa.network,
-                projector: super::patterns::Size {
-                    width: scene.projector.width,
-                    height: scene.projector.height,
-                },
+                projector: scene.projector.size(),
                 gray_level: compend::patterns::DEFAULT_GRAY_LEVEL,
             })?;
             let root = DataRoot::open(&root_dir)?;

@@ -26,6 +26,7 @@ use crate::nn::compennetpp::SimplifiedCompenNet;
 
 mod weights;
 
+use crate::raster::ImageSize;
 use weights::{Weights, values};
 
 const SHADER: &str = include_str!("../../../shaders/compennet.wgsl");
@@ -74,7 +75,7 @@ struct ConvParams {
 struct Act {
     buffer: wgpu::Buffer,
     channels: usize,
-    size: (usize, usize),
+    size: ImageSize,
 }
 
 /// One recorded layer: which kernel, its bind group, its workgroup counts.
@@ -103,7 +104,7 @@ pub struct CompenNetStage {
     /// Activations by layer name, kept for read-back in tests.
     acts: Vec<(&'static str, Act)>,
     /// (width, height) of the network image, network pixels.
-    network_size: (u32, u32),
+    network_size: ImageSize,
 }
 
 /// What is added to a layer's pre-activation.
@@ -222,7 +223,7 @@ fn plan(model: &SimplifiedCompenNet) -> Result<Vec<Planned<'_>>> {
 }
 
 /// (width, height) of the network image in network pixels, from the baked grid.
-fn network_size(model: &SimplifiedCompenNet) -> Result<(usize, usize)> {
+fn network_size(model: &SimplifiedCompenNet) -> Result<ImageSize> {
     let (_, nh, nw, two) = model
         .grid
         .dims4()
@@ -233,23 +234,23 @@ fn network_size(model: &SimplifiedCompenNet) -> Result<(usize, usize)> {
             model.grid.dims()
         )));
     }
-    Ok((nw, nh))
+    Ok(ImageSize::new(nw, nh))
 }
 
 /// Activation buffers, each within the device's storage binding limit.
-fn activation(ctx: &GpuContext, label: &str, channels: usize, size: (usize, usize)) -> Result<Act> {
+fn activation(ctx: &GpuContext, label: &str, channels: usize, size: ImageSize) -> Result<Act> {
     let limit = ctx.device.limits().max_storage_buffer_binding_size as usize;
-    let bytes = 4 * channels * size.0 * size.1;
+    let bytes = 4 * channels * size.width * size.height;
     if bytes > limit {
         return Err(Error::Input(format!(
             "CompenNet on the GPU: activation {label} ({channels}x{}x{}) needs {bytes} bytes, \
              more than this device's storage binding limit of {limit} (use a smaller network \
              size)",
-            size.1, size.0
+            size.height, size.width
         )));
     }
     Ok(Act {
-        buffer: scratch(ctx, label, channels * size.0 * size.1),
+        buffer: scratch(ctx, label, channels * size.width * size.height),
         channels,
         size,
     })
@@ -292,24 +293,18 @@ impl<'c> Builder<'c> {
     }
 
     /// The buffer added to layer `name`'s pre-activation of `cout` channels × `size` pixels.
-    fn added(
-        &self,
-        name: &str,
-        add: &Add,
-        cout: usize,
-        size: (usize, usize),
-    ) -> Result<wgpu::Buffer> {
+    fn added(&self, name: &str, add: &Add, cout: usize, size: ImageSize) -> Result<wgpu::Buffer> {
         match add {
             Add::None => Ok(self.no_add.clone()),
             Add::Constant(t) => {
                 let v = values(t, name)?;
-                if v.len() != cout * size.0 * size.1 {
+                if v.len() != cout * size.width * size.height {
                     return Err(Error::Shape(format!(
                         "CompenNet layer {name}: surface-bias map {:?}, the layer's output is \
                          ({cout}, {}, {})",
                         t.dims(),
-                        size.1,
-                        size.0
+                        size.height,
+                        size.width
                     )));
                 }
                 Ok(storage(self.ctx, name, &v))
@@ -319,7 +314,7 @@ impl<'c> Builder<'c> {
                 if (a.channels, a.size) != (cout, size) {
                     return Err(Error::Shape(format!(
                         "CompenNet layer {name}: skip {n} is {}x{}x{}, the output {cout}x{}x{}",
-                        a.channels, a.size.1, a.size.0, size.1, size.0
+                        a.channels, a.size.height, a.size.width, size.height, size.width
                     )));
                 }
                 Ok(a.buffer.clone())
@@ -385,8 +380,8 @@ impl<'c> Builder<'c> {
             cout: w.cout as u32,
             k: w.k as u32,
             stride: w.stride as u32,
-            in_size: [in_size.0 as u32, in_size.1 as u32],
-            out_size: [out_size.0 as u32, out_size.1 as u32],
+            in_size: [in_size.width as u32, in_size.height as u32],
+            out_size: [out_size.width as u32, out_size.height as u32],
             pad: w.pad as u32,
             flags,
             cout4,
@@ -412,8 +407,8 @@ impl<'c> Builder<'c> {
             kernel,
             group,
             groups: (
-                (out_size.0 as u32).div_ceil(per_x).div_ceil(WG),
-                (out_size.1 as u32).div_ceil(WG),
+                (out_size.width as u32).div_ceil(per_x).div_ceil(WG),
+                (out_size.height as u32).div_ceil(WG),
                 cout4 / block as u32,
             ),
         });
@@ -429,9 +424,12 @@ impl CompenNetStage {
     pub fn new(
         ctx: &GpuContext,
         model: &SimplifiedCompenNet,
-        camera_size: (usize, usize),
+        camera_size: ImageSize,
     ) -> Result<Self> {
-        let (nw, nh) = network_size(model)?;
+        let ImageSize {
+            width: nw,
+            height: nh,
+        } = network_size(model)?;
         // The sampling and storing pipelines (the convolutions' are compiled per layer kind).
         let slots = [
             Slot::Uniform,
@@ -443,7 +441,10 @@ impl CompenNetStage {
         let sample = Stage::new(ctx, "compennet sample", SHADER, "sample", &slots)?;
         let store = Stage::new(ctx, "compennet store", SHADER, "store", &slots)?;
         // The constants of the sampling stage: sizes and the baked grid.
-        let (cw, ch) = camera_size;
+        let ImageSize {
+            width: cw,
+            height: ch,
+        } = camera_size;
         let half = |n: usize| (n.max(1) - 1) as f32 / 2.0;
         let params = uniform(
             ctx,
@@ -458,7 +459,7 @@ impl CompenNetStage {
         );
         let grid = storage(ctx, "compennet grid", &values(&model.grid, "the grid")?);
         // The layers: activations, weights and bind groups, in forward order.
-        let mut built = Builder::new(ctx, activation(ctx, "x", 3, (nw, nh))?);
+        let mut built = Builder::new(ctx, activation(ctx, "x", 3, ImageSize::new(nw, nh))?);
         for step in plan(model)? {
             built.push(step)?;
         }
@@ -473,10 +474,10 @@ impl CompenNetStage {
             .pop()
             .map(|(_, a)| a)
             .ok_or_else(|| Error::Failed("CompenNet plan: no layers".into()))?;
-        if (output.channels, output.size) != (3, (nw, nh)) {
+        if (output.channels, output.size) != (3, ImageSize::new(nw, nh)) {
             return Err(Error::Shape(format!(
                 "CompenNet on the GPU: the backbone's output is {}x{}x{}, the network {}x{}x3",
-                output.channels, output.size.1, output.size.0, nh, nw
+                output.channels, output.size.height, output.size.width, nh, nw
             )));
         }
         Ok(Self {
@@ -489,7 +490,7 @@ impl CompenNetStage {
             output,
             layers,
             acts,
-            network_size: (nw as u32, nh as u32),
+            network_size: ImageSize::new(nw, nh),
         })
     }
 
@@ -568,6 +569,6 @@ impl CompenNetStage {
                 .ok_or_else(|| Error::Input(format!("no CompenNet activation `{name}`")))?,
         };
         let v = ctx.read_buffer(&act.buffer)?;
-        Ok((act.channels, act.size.1, act.size.0, v))
+        Ok((act.channels, act.size.height, act.size.width, v))
     }
 }

@@ -5,6 +5,7 @@ use candle_core::Tensor;
 
 use super::{LANES, WIDE_BLOCK};
 use crate::error::{Error, Result};
+use crate::raster::ImageSize;
 
 /// A tensor's values as f32, row-major.
 pub(super) fn values(t: &Tensor, what: &str) -> Result<Vec<f32>> {
@@ -102,7 +103,14 @@ impl Weights {
     }
 
     /// Output size (width, height) in pixels for an input of `(w, h)` pixels.
-    pub fn out_size(&self, (w, h): (usize, usize), name: &str) -> Result<(usize, usize)> {
+    pub fn out_size(
+        &self,
+        ImageSize {
+            width: w,
+            height: h,
+        }: ImageSize,
+        name: &str,
+    ) -> Result<ImageSize> {
         let (k, s, p) = (self.k, self.stride.max(1), self.pad);
         let size = |n: usize| -> Option<usize> {
             if self.transposed {
@@ -112,7 +120,7 @@ impl Weights {
             }
         };
         match (size(w), size(h)) {
-            (Some(a), Some(b)) if a > 0 && b > 0 => Ok((a, b)),
+            (Some(a), Some(b)) if a > 0 && b > 0 => Ok(ImageSize::new(a, b)),
             _ => Err(Error::Shape(format!(
                 "CompenNet layer {name}: no output for a {w}x{h} input"
             ))),

@@ -4,7 +4,7 @@
 
 use super::{GrayCode, PatternKind, from_gray};
 use crate::error::{Error, Result};
-use crate::raster::{CamImage, Camera, Mask, Plane, Projector};
+use crate::raster::{CamImage, Camera, ImageSize, Mask, Plane, Projector};
 
 /// Thresholds of the decoder. Intensities are channel means of captures in \[0,1\].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -57,7 +57,7 @@ impl DecodeParams {
 #[derive(Clone, Debug)]
 pub struct Correspondence {
     /// Projector (width, height) in pixels.
-    pub projector: (usize, usize),
+    pub projector: ImageSize,
     /// Projector column seen by each camera pixel (projector pixels, centres at integers); 0 where
     /// invalid.
     pub x: Plane<Camera>,
@@ -74,7 +74,7 @@ pub struct Correspondence {
 
 impl Correspondence {
     /// Camera (width, height) in pixels.
-    pub fn size(&self) -> (usize, usize) {
+    pub fn size(&self) -> ImageSize {
         self.valid.size()
     }
 
@@ -92,11 +92,17 @@ impl Correspondence {
     /// sees a projector pixel through no camera pixel (e.g. the camera is coarser than the
     /// projector), the mask is false.
     pub fn projector_to_camera(&self) -> (Plane<Projector>, Plane<Projector>, Mask<Projector>) {
-        let (pw, ph) = self.projector;
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = self.projector;
         let mut sx = vec![0f64; pw * ph];
         let mut sy = vec![0f64; pw * ph];
         let mut n = vec![0u32; pw * ph];
-        let (cw, ch) = self.size();
+        let ImageSize {
+            width: cw,
+            height: ch,
+        } = self.size();
         for cy in 0..ch {
             for cx in 0..cw {
                 if let Some([px, py]) = self.get(cx, cy) {
@@ -193,12 +199,11 @@ impl Decoder {
                 self.code.len()
             ))
         })?;
-        if capture.size() != (self.width, self.height) {
+        if capture.size() != ImageSize::new(self.width, self.height) {
             return Err(Error::Shape(format!(
-                "structured light capture {} is {}x{}, the first was {}x{}",
+                "structured light capture {} is {}, the first was {}x{}",
                 index + 1,
-                capture.width(),
-                capture.height(),
+                capture.size(),
                 self.width,
                 self.height
             )));
@@ -268,7 +273,10 @@ impl Decoder {
                  (99th percentile), below the threshold {lit_t:.4}; is the projector in the camera view?"
             )));
         }
-        let (pw, ph) = self.code.size();
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = self.code.size();
         let n = w * h;
         let mut xs = vec![0f32; n];
         let mut ys = vec![0f32; n];
@@ -289,7 +297,7 @@ impl Decoder {
             }
         }
         Ok(Correspondence {
-            projector: (pw, ph),
+            projector: ImageSize::new(pw, ph),
             x: Plane::from_vec(w, h, xs)?,
             y: Plane::from_vec(w, h, ys)?,
             valid: Mask::from_vec(w, h, valid)?,

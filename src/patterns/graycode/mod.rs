@@ -39,7 +39,7 @@
 //! ([`Decoder`], [`DecodeParams`]) and its result ([`Correspondence`]).
 
 use crate::error::{Error, Result};
-use crate::raster::{CamImage, PrjImage, Rgb};
+use crate::raster::{CamImage, ImageSize, PrjImage, Rgb};
 
 mod decode;
 #[cfg(test)]
@@ -123,8 +123,8 @@ impl GrayCode {
     }
 
     /// Projector (width, height) in pixels.
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
     }
     /// Number of column bits, `ceil(log2 W)`.
     pub fn col_bits(&self) -> usize {
@@ -169,9 +169,8 @@ impl GrayCode {
     pub fn pattern(&self, index: usize) -> Result<PrjImage> {
         let kind = self.kind(index).ok_or_else(|| {
             Error::Input(format!(
-                "structured light: pattern index {index} out of range (the {}x{} sequence has {} images)",
-                self.width,
-                self.height,
+                "structured light: pattern index {index} out of range (the {} sequence has {} images)",
+                self.size(),
                 self.len()
             ))
         })?;
@@ -218,10 +217,9 @@ impl GrayCode {
     ) -> Result<Correspondence> {
         if captures.len() != self.len() {
             return Err(Error::Input(format!(
-                "structured light: got {} captures, the {}x{} sequence needs {} (white, black, {} column and {} row bit pairs)",
+                "structured light: got {} captures, the {} sequence needs {} (white, black, {} column and {} row bit pairs)",
                 captures.len(),
-                self.width,
-                self.height,
+                self.size(),
                 self.len(),
                 self.col_bits,
                 self.row_bits

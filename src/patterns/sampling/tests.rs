@@ -3,13 +3,14 @@
 use super::compose::hsv_to_rgb;
 use super::field::value_noise;
 use super::*;
+use crate::raster::ImageSize;
 
 #[test]
 fn deterministic_and_independent_of_other_indices() {
     let a = sampling_image(3, Set::Train, 5, 24, 16);
     let b = sampling_image(3, Set::Train, 5, 24, 16);
     assert_eq!(a, b);
-    assert_eq!(a.size(), (24, 16));
+    assert_eq!(a.size(), ImageSize::new(24, 16));
     assert_ne!(a, sampling_image(3, Set::Train, 6, 24, 16));
     assert_ne!(a, sampling_image(3, Set::Test, 5, 24, 16));
     assert_ne!(a, sampling_image(4, Set::Train, 5, 24, 16));

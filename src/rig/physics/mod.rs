@@ -33,7 +33,7 @@ use std::sync::OnceLock;
 use super::geom::{Pinhole, Shape};
 use super::scene::{Pose, Scene};
 use crate::error::{Error, Result};
-use crate::raster::{CamImage, Camera, Mask, PrjImage};
+use crate::raster::{CamImage, Camera, ImageSize, Mask, PrjImage};
 use rayon::prelude::*;
 
 mod bounce;
@@ -155,7 +155,10 @@ impl Simulator {
     /// Moves the per-pixel maps into the simulator's camera-space arrays (row-major) and builds
     /// the surface preview from them.
     fn store_pixels(&mut self, pixels: Vec<PixelMaps>) -> Result<()> {
-        let (cw, chh) = self.camera_size();
+        let ImageSize {
+            width: cw,
+            height: chh,
+        } = self.camera_size();
         let n = cw * chh;
         let sim = self;
         let mut preview = Vec::with_capacity(n * 3);
@@ -219,12 +222,12 @@ impl Simulator {
         self.phase
     }
     /// (width, height) of the camera frame.
-    pub fn camera_size(&self) -> (usize, usize) {
-        (self.cam.width, self.cam.height)
+    pub fn camera_size(&self) -> ImageSize {
+        ImageSize::new(self.cam.width, self.cam.height)
     }
     /// (width, height) of the projector frame.
-    pub fn projector_size(&self) -> (usize, usize) {
-        (self.prj.width, self.prj.height)
+    pub fn projector_size(&self) -> ImageSize {
+        ImageSize::new(self.prj.width, self.prj.height)
     }
 
     /// One capture of projector image `prj`: noise drawn from (seed, `frame`), clipped, encoded
@@ -282,14 +285,20 @@ impl Simulator {
     /// Camera pixels whose surface point the projector frame lights (inside the frame, facing
     /// the projector, not shadowed): the true projector FOV mask.
     pub fn lit_mask(&self) -> Mask<Camera> {
-        let (w, h) = self.camera_size();
+        let ImageSize {
+            width: w,
+            height: h,
+        } = self.camera_size();
         Mask::from_vec(w, h, self.lit.clone()).expect("one entry per camera pixel")
     }
 
     /// Camera pixels whose surface point lies in the projector's frustum but is hidden from the
     /// projector by another part of the surface or faces away from it (self-occlusion).
     pub fn shadow_mask(&self) -> Mask<Camera> {
-        let (w, h) = self.camera_size();
+        let ImageSize {
+            width: w,
+            height: h,
+        } = self.camera_size();
         Mask::from_vec(w, h, self.shadow.clone()).expect("one entry per camera pixel")
     }
 
@@ -303,7 +312,10 @@ impl Simulator {
     /// (pixel centres at integers), or NaN where no camera pixel sees it. Computed on first use.
     pub fn camera_coords(&self) -> &[[f32; 2]] {
         self.prj_to_cam.get_or_init(|| {
-            let (pw, ph) = self.projector_size();
+            let ImageSize {
+                width: pw,
+                height: ph,
+            } = self.projector_size();
             par_rows(ph, |v| {
                 (0..pw)
                     .map(|u| self.camera_coord_of(u as f64, v as f64))
@@ -338,10 +350,9 @@ impl Simulator {
     fn check_prj(&self, prj: &PrjImage) -> Result<()> {
         if prj.size() != self.projector_size() {
             return Err(Error::Shape(format!(
-                "virtual projector of scene {:?} is {}x{}, got a {}x{} projector image",
+                "virtual projector of scene {:?} is {}, got a {}x{} projector image",
                 self.scene.name,
-                self.prj.width,
-                self.prj.height,
+                self.projector_size(),
                 prj.width(),
                 prj.height()
             )));

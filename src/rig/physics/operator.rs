@@ -7,7 +7,7 @@
 
 use super::kernels::{blur_rgb, level, mat3, par_pixels, transpose};
 use super::{Simulator, Tap};
-use crate::raster::PrjImage;
+use crate::raster::{ImageSize, PrjImage};
 
 impl Simulator {
     /// Emitted light (linear, projector space, interleaved RGB) for an input image: 8-bit input,
@@ -51,7 +51,10 @@ impl Simulator {
     /// The linear part of the model: emitted light (projector space) to sensor signal (camera
     /// space), without ambient light and glare.
     pub(crate) fn sensor(&self, emitted: &[f32]) -> Vec<f32> {
-        let (pw, ph) = self.projector_size();
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = self.projector_size();
         let blurred;
         let e = match &self.defocus {
             Some(k) => {
@@ -94,7 +97,10 @@ impl Simulator {
     /// Adjoint of [`Self::sensor`]: a camera-space signal gradient to a projector-space
     /// emission gradient.
     pub(crate) fn sensor_adjoint(&self, grad: &[f32]) -> Vec<f32> {
-        let (pw, ph) = self.projector_size();
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = self.projector_size();
         let n = self.taps.len();
         let mt = transpose(&self.cam_mix);
         // Radiance gradient q_i = gain_i · M_cᵀ · r_i.

@@ -4,6 +4,7 @@ use super::bounce::Bounce;
 use super::kernels::{approx_normal, blur_rgb, gaussian_kernel, mix64};
 use super::pixel::tap;
 use super::*;
+use crate::raster::ImageSize;
 
 #[test]
 fn taps_read_zeros_outside_and_sum_to_one_inside() {
@@ -58,11 +59,17 @@ fn sensor_adjoint_matches_forward() {
     // Every linear stage at once: defocus, specular, inter-reflection, colour mixing.
     let mut scene = crate::rig::builtin("specular-corner")
         .expect("built-in")
-        .with_resolution((90, 50), (70, 52));
+        .with_resolution(ImageSize::new(90, 50), ImageSize::new(70, 52));
     scene.projector.defocus_px = 1.3;
     let sim = Simulator::new(&scene, 3, Phase::Calibration).expect("builds");
-    let (pw, ph) = sim.projector_size();
-    let (cw, ch) = sim.camera_size();
+    let ImageSize {
+        width: pw,
+        height: ph,
+    } = sim.projector_size();
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = sim.camera_size();
     let a: Vec<f32> = (0..pw * ph * 3)
         .map(|i| ((i * 37 % 101) as f32) / 101.0)
         .collect();

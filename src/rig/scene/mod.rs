@@ -11,6 +11,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::raster::ImageSize;
 
 mod builtins;
 
@@ -277,16 +278,30 @@ pub struct Drift {
     pub shift_px: [f64; 2],
 }
 
+impl CameraModel {
+    /// The frame size, camera pixels.
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
+    }
+}
+
+impl ProjectorModel {
+    /// The frame size, projector pixels.
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
+    }
+}
+
 impl Scene {
     /// Rescales the scene to other camera and projector resolutions, keeping the physical
     /// scene (fields of view, poses, surfaces) and the blur in physical terms (defocus and drift
     /// scale with the projector width). Sizes must be at least 2×2.
-    pub fn with_resolution(mut self, camera: (usize, usize), projector: (usize, usize)) -> Self {
-        let k = projector.0 as f64 / self.projector.width as f64;
-        self.camera.width = camera.0;
-        self.camera.height = camera.1;
-        self.projector.width = projector.0;
-        self.projector.height = projector.1;
+    pub fn with_resolution(mut self, camera: ImageSize, projector: ImageSize) -> Self {
+        let k = projector.width as f64 / self.projector.width as f64;
+        self.camera.width = camera.width;
+        self.camera.height = camera.height;
+        self.projector.width = projector.width;
+        self.projector.height = projector.height;
         self.projector.defocus_px *= k;
         if let Some(d) = &mut self.drift {
             d.shift_px = [d.shift_px[0] * k, d.shift_px[1] * k];

@@ -8,69 +8,10 @@
 use std::fmt;
 use std::marker::PhantomData;
 
-use serde::{Deserialize, Serialize};
-
 use crate::error::{Error, Result};
 
-/// Image size in pixels (width × height) of the space it belongs to: the one size type of the
-/// crate. In `model.json` and `rig.json` a size is written as a `[width, height]` pair
-/// ([`ImageSize::as_pair`]), elsewhere as `{"width", "height"}`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub struct ImageSize {
-    pub width: usize,
-    pub height: usize,
-}
-
-impl ImageSize {
-    pub const fn new(width: usize, height: usize) -> Self {
-        Self { width, height }
-    }
-
-    /// Number of pixels.
-    pub const fn area(self) -> usize {
-        self.width * self.height
-    }
-
-    /// Width over height.
-    pub fn aspect(self) -> f64 {
-        self.width as f64 / self.height as f64
-    }
-}
-
-/// Serde for a size written as a `[width, height]` pair (`#[serde(with = "...")]`), the form
-/// of the model directory's sizes since format version 1.
-pub mod as_pair {
-    use super::ImageSize;
-    use serde::{Deserialize, Deserializer, Serialize, Serializer};
-
-    pub fn serialize<S: Serializer>(size: &ImageSize, s: S) -> Result<S::Ok, S::Error> {
-        (size.width, size.height).serialize(s)
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<ImageSize, D::Error> {
-        let (width, height) = <(usize, usize)>::deserialize(d)?;
-        Ok(ImageSize { width, height })
-    }
-}
-
-impl From<(usize, usize)> for ImageSize {
-    fn from((width, height): (usize, usize)) -> Self {
-        Self { width, height }
-    }
-}
-
-impl From<ImageSize> for (usize, usize) {
-    fn from(s: ImageSize) -> Self {
-        (s.width, s.height)
-    }
-}
-
-impl fmt::Display for ImageSize {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}x{}", self.width, self.height)
-    }
-}
-
+mod size;
+pub use size::{ImageSize, as_pair, as_pair_opt};
 
 /// A pixel space marker. Images of different spaces cannot be mixed by accident; conversions
 /// between spaces are explicit (a warp, a placement on the canvas, or [`Rgb::into_space`]).
@@ -183,9 +124,9 @@ impl<S: Space> Rgb<S> {
     pub fn height(&self) -> usize {
         self.height
     }
-    /// (width, height) in pixels.
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    /// Width × height in pixels.
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
     }
     pub fn data(&self) -> &[f32] {
         &self.data
@@ -251,10 +192,8 @@ impl<S: Space> Rgb<S> {
     pub fn from_channels(r: &Plane<S>, g: &Plane<S>, b: &Plane<S>) -> Result<Self> {
         if r.size() != g.size() || r.size() != b.size() {
             return Err(Error::Shape(format!(
-                "channel planes differ in size: {:?}, {:?}, {:?}",
-                r.size(),
-                g.size(),
-                b.size()
+                "channel planes differ in size: ({}, {}), ({}, {}), ({}, {})",
+                r.width, r.height, g.width, g.height, b.width, b.height
             )));
         }
         let mut data = Vec::with_capacity(r.data.len() * 3);
@@ -351,8 +290,8 @@ impl<S: Space> Plane<S> {
     pub fn height(&self) -> usize {
         self.height
     }
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
     }
     pub fn data(&self) -> &[f32] {
         &self.data
@@ -458,8 +397,8 @@ impl<S: Space> Mask<S> {
     pub fn height(&self) -> usize {
         self.height
     }
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    pub fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
     }
     pub fn data(&self) -> &[bool] {
         &self.data
@@ -539,13 +478,10 @@ impl Rect {
     }
 }
 
-/// Errors unless two (width, height) sizes are equal; `what` names the operation.
-pub fn check_same_size(a: (usize, usize), b: (usize, usize), what: &str) -> Result<()> {
+/// Errors unless two sizes are equal; `what` names the operation.
+pub fn check_same_size(a: ImageSize, b: ImageSize, what: &str) -> Result<()> {
     if a != b {
-        return Err(Error::Shape(format!(
-            "{what}: sizes differ, {}x{} vs {}x{}",
-            a.0, a.1, b.0, b.1
-        )));
+        return Err(Error::Shape(format!("{what}: sizes differ, {a} vs {b}")));
     }
     Ok(())
 }
