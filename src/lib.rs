@@ -17,7 +17,7 @@
 //! [`source`] (video sources), [`camera`] (the V4L2 camera), [`playback`]`::player` (the one
 //! playback loop); the binary's commands live in `src/main.rs` and `src/cli/`.
 //!
-//! Core modules never use shell modules; `tests/layout.rs` checks that this map, the module
+//! `tests/layout/` checks that core files never import shell files, that this map, the module
 //! table of docs/architecture.md and the `pub mod` lines below agree, and that no two files
 //! import each other in a circle.
 

@@ -209,9 +209,9 @@ fn module_map_and_table_match_the_tree() {
 /// `crate::`/`super::`/`compend::` paths depends on the file of the deepest module on that
 /// path (through re-exports to where the item is defined). A module using its own submodules is
 /// no circle (those edges are left out); a submodule that uses a sibling which uses it back is.
-#[test]
-fn no_import_circle_between_files() {
-    let tree = Tree::load();
+/// Edges file → file of `src/`, each with the first use that makes it (line, text); a
+/// module's uses of its own descendants are left out.
+fn file_edges(tree: &Tree) -> Edges {
     let sources: BTreeMap<ModKey, String> = tree
         .files
         .iter()
@@ -220,15 +220,14 @@ fn no_import_circle_between_files() {
     let mut uses = BTreeMap::new();
     let mut reexports = BTreeMap::new();
     for (key, src) in &sources {
-        let (u, r) = used_paths(&tree, key, src);
+        let (u, r) = used_paths(tree, key, src);
         uses.insert(key.clone(), u);
         reexports.insert(key.clone(), r);
     }
-    // Edges file → file, each with the first use that makes it.
-    let mut edges: BTreeMap<ModKey, BTreeMap<ModKey, (usize, String)>> = BTreeMap::new();
+    let mut edges: Edges = BTreeMap::new();
     for (from, list) in &uses {
         for u in list {
-            let Some(to) = resolve(&tree, &reexports, u.krate, &u.segments, 0) else {
+            let Some(to) = resolve(tree, &reexports, u.krate, &u.segments, 0) else {
                 continue;
             };
             let descendant = to.0 == from.0 && to.1.starts_with(&from.1);
@@ -242,6 +241,13 @@ fn no_import_circle_between_files() {
                 .or_insert((u.line, u.text.clone()));
         }
     }
+    edges
+}
+
+#[test]
+fn no_import_circle_between_files() {
+    let tree = Tree::load();
+    let edges = file_edges(&tree);
     let cycles = strongly_connected(&tree, &edges);
     if cycles.is_empty() {
         return;
@@ -283,6 +289,46 @@ fn no_import_circle_between_files() {
         "{} import circle(s) between files of src/ (docs/architecture.md, \"Layers\"):\n  {}",
         report.len(),
         report.join("\n  ")
+    );
+}
+
+/// The shell of the library (docs/architecture.md, "Layers"): the modules that talk to devices.
+const SHELL: [&[&str]; 5] = [
+    &["gpu"],
+    &["window"],
+    &["source"],
+    &["camera"],
+    &["playback", "player"],
+];
+
+/// (b') The pure core never uses the shell: no file of a core module of the library imports a
+/// file of a shell module.
+#[test]
+fn core_modules_never_use_the_shell() {
+    let tree = Tree::load();
+    let edges = file_edges(&tree);
+    let shell = |k: &ModKey| {
+        k.0 == Krate::Lib
+            && SHELL.iter().any(|s| {
+                k.1.starts_with(&s.iter().map(|x| x.to_string()).collect::<Vec<_>>())
+            })
+    };
+    let core = |k: &ModKey| k.0 == Krate::Lib && !k.1.is_empty() && !shell(k);
+    let mut found = Vec::new();
+    for (from, tos) in &edges {
+        for (to, (line, how)) in tos {
+            if core(from) && shell(to) {
+                found.push(format!(
+                    "{} → {}  ({}:{line}: {how})",
+                    tree.files[from], tree.files[to], tree.files[from]
+                ));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "core files use the shell (docs/architecture.md, \"Layers\"):\n  {}",
+        found.join("\n  ")
     );
 }
 
