@@ -11,6 +11,8 @@
 //! - models: [`linear`], [`nn`] (CompenNet++ in candle), [`model`] (a loaded model; the rung
 //!   names, `model::Method`; `model::store`, the model directory), [`fit`] (training any rung);
 //! - [`playback`]`::frame`: the per-frame path and its CPU reference;
+//! - [`calibrate`]: from a projector and a camera (the device traits) to a verified model:
+//!   latency, synchronised captures with resume, training, verification;
 //! - [`rig`]: the virtual rig, a simulated projector, surface and camera.
 //!
 //! **Shell** (devices): [`gpu`] (the compensation pass), [`window`] (the projector window),
@@ -21,6 +23,7 @@
 //! table of docs/architecture.md and the `pub mod` lines below agree, and that no two files
 //! import each other in a circle.
 
+pub mod calibrate;
 pub mod camera;
 pub mod dataset;
 pub mod device;

@@ -41,6 +41,9 @@ enum Command {
     /// Training and inference cost of the CompenNet++ rungs and `linear` on this CPU, against
     /// the machine's arithmetic rate measured in the same run.
     BenchTrain(cli::bench_train::Args),
+    /// Calibrate a rig: measure its latency, project and capture the patterns, train, verify
+    /// on held-out images and install the model only if it verified.
+    Calibrate(cli::calibrate::Args),
     /// Compensation images for desired camera-view images, with a trained model.
     Compensate(cli::compensate::Args),
     /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row.
@@ -124,7 +127,11 @@ fn main() -> ExitCode {
     init_logging();
     let compute = matches!(
         args.command,
-        Command::Bench(_) | Command::BenchTrain(_) | Command::Pretrain(_) | Command::Train(_)
+        Command::Bench(_)
+            | Command::BenchTrain(_)
+            | Command::Calibrate(_)
+            | Command::Pretrain(_)
+            | Command::Train(_)
     );
     if compute {
         no_candle_side_pool();
@@ -134,6 +141,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => cli::bench::run(a),
         Command::BenchGpu(a) => cli::bench_gpu::run(a),
         Command::BenchTrain(a) => cli::bench_train::run(a),
+        Command::Calibrate(a) => cli::calibrate::run(a),
         Command::Compensate(a) => cli::compensate::run(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Inspect(a) => cli::inspect::run(a),

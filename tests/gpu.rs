@@ -80,6 +80,7 @@ pub fn test_model(seed: u64) -> Model {
         metrics: serde_json::Value::Null,
         timings: Default::default(),
         written_by: "test".into(),
+        calibration: None,
     };
     Model::linear(meta, fov, linear)
 }
@@ -326,6 +327,7 @@ pub fn compennet_test_model(seed: u64) -> Model {
         metrics: serde_json::Value::Null,
         timings: Default::default(),
         written_by: "test".into(),
+        calibration: None,
     };
     Model::compennet(meta, fov, net, surface).unwrap()
 }

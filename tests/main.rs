@@ -2,6 +2,7 @@
 //! running the real `compend` binary.
 
 mod bench;
+mod calibrate;
 mod common;
 mod dataset;
 mod files;

@@ -77,6 +77,7 @@ pub(super) fn train_compennet(
             ms_per_sample: Some(report.ms_per_sample),
         },
         written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
+        calibration: None,
     };
     let summary = Summary {
         method,

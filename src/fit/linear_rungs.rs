@@ -79,6 +79,7 @@ pub(super) fn fit_linear(
             ms_per_sample: None,
         },
         written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
+        calibration: None,
     };
     let summary = Summary {
         method,

@@ -184,6 +184,10 @@ impl DisplayRange {
     }
 }
 
+/// Quantile for the display range of desired images: 95 % of the displayable area can show both
+/// ends of the range in every channel.
+pub const DESIRED_RANGE_QUANTILE: f64 = 0.05;
+
 /// The display range inside `area` from the black and white reference captures (camera space).
 /// Only pixels where the projector makes a difference count (white above black by at least
 /// 0.02 in every channel): shadows cannot be compensated at any range and must not set it. Over

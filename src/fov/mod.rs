@@ -50,5 +50,7 @@ mod area;
 mod mask;
 
 pub use affine::{Theta, affine_from_box, apply_theta};
-pub use area::{DisplayRange, display_range, displayable_area, place_in_area};
+pub use area::{
+    DESIRED_RANGE_QUANTILE, DisplayRange, display_range, displayable_area, place_in_area,
+};
 pub use mask::{FovDiagnostics, FovFill, FovMask, FovOptions, fov_mask, fov_mask_with};

@@ -250,6 +250,7 @@ pub fn synthetic_linear_model(
         metrics: serde_json::Value::Null,
         timings: Default::default(),
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
+        calibration: None,
     };
     crate::model::Model::linear(meta, Mask::full(camera.width, camera.height), model)
 }
@@ -314,6 +315,7 @@ pub fn synthetic_compennet_model(
         metrics: serde_json::Value::Null,
         timings: Default::default(),
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
+        calibration: None,
     };
     crate::model::Model::compennet(meta, Mask::full(cw, ch), net, surface)
 }

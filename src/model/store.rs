@@ -49,6 +49,55 @@ pub struct ModelMeta {
     pub timings: Timings,
     /// The compend version that wrote the model.
     pub written_by: String,
+    /// `compend calibrate`: latency, phase times and the verification that let it be installed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationRecord>,
+}
+
+/// How `compend calibrate` made and checked a model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationRecord {
+    /// What was calibrated: `virtual:SCENE` or a device.
+    pub rig: String,
+    /// Projector-to-camera latency measured at the start, camera exposures.
+    pub latency: crate::calibrate::Latency,
+    /// Captures taken in this run, captures found on disk from an interrupted one, retakes.
+    pub captured: usize,
+    pub resumed: usize,
+    pub retakes: usize,
+    /// Seconds per phase.
+    pub seconds: PhaseSeconds,
+    pub verification: Verification,
+}
+
+/// Seconds of each phase of a calibration.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PhaseSeconds {
+    pub latency: f64,
+    pub patterns: f64,
+    pub captures: f64,
+    pub training: f64,
+    pub verification: f64,
+    pub total: f64,
+}
+
+/// Held-out test images projected compensated and uncompensated, captured and scored inside
+/// the displayable area against the view they should give (camera pixels, encoded values).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Verification {
+    /// Test images projected.
+    pub images: usize,
+    /// PSNR (dB) and SSIM of the compensated projection.
+    pub psnr: f64,
+    pub ssim: f64,
+    /// The same for the test images projected as they are.
+    pub uncompensated_psnr: f64,
+    pub uncompensated_ssim: f64,
+    /// PSNR gain over the uncompensated projection, dB.
+    pub gain_db: f64,
+    /// The gain a model needs to be installed, dB.
+    pub required_gain_db: f64,
+    pub passed: bool,
 }
 
 /// How a model was trained (`model.json`'s `training`). Every field has a default, so the

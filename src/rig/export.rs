@@ -50,10 +50,6 @@ pub struct ExportOptions {
     pub reachable_desired: bool,
 }
 
-/// Quantile for the display range of desired images: 95 % of the displayable area can show both
-/// ends of the range in every channel.
-pub const DESIRED_RANGE_QUANTILE: f64 = 0.05;
-
 /// Record of a simulated setup (`SETUP/rig.json`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RigRecord {
@@ -255,7 +251,7 @@ impl Capturing<'_> {
         let aspect = self.canvas.width as f64 / self.canvas.height as f64;
         let area = fov::displayable_area(&fov.mask, aspect)?;
         let range = if reachable {
-            fov::display_range(&black, &white, area, DESIRED_RANGE_QUANTILE)?
+            fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?
         } else {
             fov::DisplayRange::FULL
         };

@@ -32,7 +32,7 @@ pub fn display_target(sim: &Simulator) -> Result<(Rect, fov::DisplayRange)> {
     let mask = fov::fov_mask(&black, &white, &label)?;
     let canvas = full_canvas(sim);
     let area = fov::displayable_area(&mask.mask, canvas.width as f64 / canvas.height as f64)?;
-    let range = fov::display_range(&black, &white, area, super::export::DESIRED_RANGE_QUANTILE)?;
+    let range = fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?;
     Ok((area, range))
 }
 

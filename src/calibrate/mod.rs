@@ -1,0 +1,320 @@
+//! Calibration (docs/architecture.md, "Data flow"): from a projector and a camera to a verified
+//! model, through the device traits, so the virtual rig and hardware run the same code.
+//!
+//! Phases, each timed:
+//! 1. **latency**: black/white alternations measure the projector-to-camera delay in camera
+//!    exposures ([`sync::measure_latency`]); every later capture skips that many frames;
+//! 2. **patterns**: the projector-side images of the dataset layout (sampling images, black,
+//!    white, the gray image) written to the data root, unless already there;
+//! 3. **captures**: each pattern stretched over the canvas (the whole projector frame), shown,
+//!    captured synchronised and averaged ([`sync::Capturer`]), written atomically in the
+//!    dataset layout as it arrives and recorded in the manifest ([`manifest`]); captures already
+//!    on disk for the same pattern set are not taken again (an interrupted run resumes);
+//! 4. **training**: the requested rung on the setup ([`crate::fit`]);
+//! 5. **verification**: held-out test images, compensated by the new model and as they are,
+//!    projected, captured and scored inside the displayable area against the view they should
+//!    give. The caller installs the model only when it passed.
+
+pub mod manifest;
+pub mod sync;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::dataset::{CaptureSet, DataRoot, ProjectorSet, Reference, Setup};
+use crate::device::{DisplaySink, FrameSource};
+use crate::error::{Error, Result};
+use crate::fit::{self, Request};
+use crate::fov;
+use crate::metrics::Accumulator;
+use crate::model::store::{CalibrationRecord, PhaseSeconds, Verification};
+use crate::model::{MethodChoice, Model};
+use crate::patterns::{self, Set};
+use crate::playback::place_on_canvas;
+use crate::raster::{CamImage, PrjImage, Rect};
+
+pub use manifest::{Manifest, PatternSet};
+pub use sync::{Capturer, Latency, SyncSettings};
+
+/// The setup folder's name under the data root.
+pub const SETUP_NAME: &str = "capture";
+
+/// What to calibrate and how.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// The projected images; `projector` must be the display's size.
+    pub patterns: PatternSet,
+    pub method: MethodChoice,
+    /// Seed of the fit.
+    pub fit_seed: u64,
+    pub sync: SyncSettings,
+    /// Test images projected in the verification.
+    pub verify_images: usize,
+    /// PSNR gain over the uncompensated projection a model needs, dB.
+    pub required_gain_db: f64,
+    /// What is calibrated, for the record (`virtual:curved`, a device path).
+    pub rig: String,
+}
+
+/// A trained model and how it was made and checked; install it only if
+/// `record.verification.passed`.
+pub struct Calibrated {
+    pub model: Model,
+    pub record: CalibrationRecord,
+    /// The setup the captures are in.
+    pub setup: PathBuf,
+}
+
+/// Progress: (phase, done, total).
+pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
+
+/// Runs the whole calibration into the data root `data` (created; its setup is
+/// `data/capture`). See the module documentation for the phases.
+pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    data: &Path,
+    opts: &Options,
+    progress: Progress,
+) -> Result<Calibrated> {
+    let total = Instant::now();
+    let mut seconds = PhaseSeconds::default();
+    if display.size() != opts.patterns.projector {
+        return Err(Error::Input(format!(
+            "the projector is {}, the pattern set is for {}",
+            display.size(),
+            opts.patterns.projector
+        )));
+    }
+    let setup_dir = data.join(SETUP_NAME);
+    // Before anything is written: captures of another pattern set are never mixed in.
+    let mut manifest = Manifest::open(&setup_dir, &opts.patterns)?;
+
+    let t = Instant::now();
+    progress("latency", 0, 1);
+    let latency = sync::measure_latency(display, camera, &opts.sync)?;
+    seconds.latency = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let root = DataRoot::create(data)?;
+    write_patterns(&root, &opts.patterns)?;
+    let setup = Setup::create(&root, Path::new(SETUP_NAME))?;
+    seconds.patterns = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let mut capturer = Capturer::new(display, camera, &latency, opts.sync);
+    let (captured, resumed) =
+        capture_all(&mut capturer, &root, &setup, &mut manifest, opts, progress)?;
+    seconds.captures = t.elapsed().as_secs_f64();
+
+    let desired = write_desired(&root, &setup, opts)?;
+
+    let t = Instant::now();
+    let setup = Setup::open(setup.path(), Some(root.path()))?;
+    let req = Request {
+        method: opts.method,
+        ntrain: Some(opts.patterns.ntrain),
+        seed: opts.fit_seed,
+        iters: None,
+        batch: None,
+        device: Default::default(),
+        lattice: None,
+        photometric: Default::default(),
+    };
+    let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
+    seconds.training = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let verification = verify(&mut capturer, &model, &root, &desired, opts, progress)?;
+    seconds.verification = t.elapsed().as_secs_f64();
+    seconds.total = total.elapsed().as_secs_f64();
+    let record = CalibrationRecord {
+        rig: opts.rig.clone(),
+        latency,
+        captured,
+        resumed,
+        retakes: capturer.retakes,
+        seconds,
+        verification,
+    };
+    Ok(Calibrated {
+        model,
+        record,
+        setup: setup.path().to_path_buf(),
+    })
+}
+
+/// Writes the projector-side images the calibration projects, where not already there:
+/// `train/`, `test/`, black and white of the colour cube and the gray image (network size).
+fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
+    let (w, h) = (p.network.width, p.network.height);
+    for (set, pset, n) in [
+        (Set::Train, ProjectorSet::Train, p.ntrain),
+        (Set::Test, ProjectorSet::Test, p.ntest),
+    ] {
+        for i in 1..=n {
+            if !root.image_path(pset, i).is_file() {
+                root.write(pset, i, &patterns::sampling_image(p.seed, set, i - 1, w, h))?;
+            }
+        }
+    }
+    for r in [Reference::Black, Reference::White] {
+        if !root.image_path(ProjectorSet::Ref, r.index()).is_file() {
+            root.write(
+                ProjectorSet::Ref,
+                r.index(),
+                &patterns::color_cube(r.index(), w, h)?,
+            )?;
+        }
+    }
+    if !root.gray_input_path().is_file() {
+        root.write_gray_input(&patterns::gray_image(p.gray_level, w, h))?;
+    }
+    Ok(())
+}
+
+/// One capture to take: where it goes (relative to the setup) and what is shown.
+struct Shot {
+    rel: PathBuf,
+    set: CaptureSet,
+    index: usize,
+    source: PathBuf,
+}
+
+/// Captures every pattern not yet on disk. Returns (captured now, found on disk).
+fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    capturer: &mut Capturer<'_, D, C>,
+    root: &DataRoot,
+    setup: &Setup,
+    manifest: &mut Manifest,
+    opts: &Options,
+    progress: Progress,
+) -> Result<(usize, usize)> {
+    let mut shots = Vec::new();
+    for r in Reference::ALL {
+        let source = match r {
+            Reference::Gray => root.gray_input_path(),
+            _ => root.image_path(ProjectorSet::Ref, r.index()),
+        };
+        shots.push((CaptureSet::Ref, r.index(), source));
+    }
+    for (set, pset, n) in [
+        (CaptureSet::Train, ProjectorSet::Train, opts.patterns.ntrain),
+        (CaptureSet::Test, ProjectorSet::Test, opts.patterns.ntest),
+    ] {
+        shots.extend((1..=n).map(|i| (set, i, root.image_path(pset, i))));
+    }
+    let shots: Vec<Shot> = shots
+        .into_iter()
+        .map(|(set, index, source)| {
+            let path = setup.capture_path(set, index);
+            let rel = path
+                .strip_prefix(setup.path())
+                .map(Path::to_path_buf)
+                .unwrap_or(path);
+            Shot {
+                rel,
+                set,
+                index,
+                source,
+            }
+        })
+        .collect();
+    let canvas = full_canvas(capturer.projector_size());
+    let (mut captured, mut resumed) = (0, 0);
+    for (k, shot) in shots.iter().enumerate() {
+        progress("captures", k, shots.len());
+        if manifest.has(setup.path(), &shot.rel) {
+            resumed += 1;
+            continue;
+        }
+        let img: PrjImage = crate::pngio::read_rgb(&shot.source)?;
+        let frame = place_on_canvas(&img, canvas, capturer.projector_size())?;
+        let cap = capturer.capture(&frame, true)?;
+        setup.write_capture(shot.set, shot.index, &cap)?;
+        manifest.record(setup.path(), shot.rel.clone())?;
+        captured += 1;
+    }
+    progress("captures", shots.len(), shots.len());
+    Ok((captured, resumed))
+}
+
+/// The whole projector frame as the canvas.
+fn full_canvas(size: crate::raster::ImageSize) -> Rect {
+    Rect {
+        x: 0,
+        y: 0,
+        width: size.width,
+        height: size.height,
+    }
+}
+
+/// What the verification compares with: the FOV, the displayable area, and the desired view of
+/// each test image (camera pixels), also written to `cam/desire/test`.
+struct Desired {
+    area: Rect,
+    views: Vec<CamImage>,
+}
+
+/// The desired views of the test images: each scaled into the display range and stretched into
+/// the displayable area, as `sim export` and playback place content.
+fn write_desired(root: &DataRoot, setup: &Setup, opts: &Options) -> Result<Desired> {
+    let black = setup.load_reference(Reference::Black)?;
+    let white = setup.load_reference(Reference::White)?;
+    let label = setup.capture_dir(CaptureSet::Ref).display().to_string();
+    let fov = fov::fov_mask(&black, &white, &label)?;
+    let projector = opts.patterns.projector;
+    let area = fov::displayable_area(&fov.mask, projector.aspect())?;
+    let range = fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?;
+    let mut views = Vec::new();
+    for i in 1..=opts.patterns.ntest {
+        let img: PrjImage = crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i))?;
+        let z = fov::place_in_area(&range.apply(&img), area, black.size())?;
+        setup.write_desired(i, &z)?;
+        views.push(z);
+    }
+    Ok(Desired { area, views })
+}
+
+/// Projects the first test images compensated and as they are, captures them and scores both
+/// inside the displayable area against their desired views.
+fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    capturer: &mut Capturer<'_, D, C>,
+    model: &Model,
+    root: &DataRoot,
+    desired: &Desired,
+    opts: &Options,
+    progress: Progress,
+) -> Result<Verification> {
+    let psize = capturer.projector_size();
+    let canvas = full_canvas(psize);
+    let n = opts.verify_images.min(desired.views.len());
+    if n == 0 {
+        return Err(Error::Input(
+            "verification needs at least one test image (--ntest)".into(),
+        ));
+    }
+    let (mut comp, mut unc) = (Accumulator::default(), Accumulator::default());
+    for (i, z) in desired.views.iter().take(n).enumerate() {
+        progress("verification", i, n);
+        let compensated = model.infer(z)?;
+        let seen = capturer.capture(&place_on_canvas(&compensated, canvas, psize)?, true)?;
+        comp.add(&seen.crop(desired.area)?, &z.crop(desired.area)?)?;
+        let plain: PrjImage = crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i + 1))?;
+        let seen = capturer.capture(&place_on_canvas(&plain, canvas, psize)?, true)?;
+        unc.add(&seen.crop(desired.area)?, &z.crop(desired.area)?)?;
+    }
+    progress("verification", n, n);
+    let (c, u) = (comp.finish()?, unc.finish()?);
+    let gain = c.psnr - u.psnr;
+    Ok(Verification {
+        images: n,
+        psnr: c.psnr,
+        ssim: c.ssim,
+        uncompensated_psnr: u.psnr,
+        uncompensated_ssim: u.ssim,
+        gain_db: gain,
+        required_gain_db: opts.required_gain_db,
+        passed: gain.is_finite() && c.psnr.is_finite() && gain >= opts.required_gain_db,
+    })
+}

@@ -1,0 +1,277 @@
+//! Synchronised capture (docs/architecture.md, "Data flow"): show a projector frame and capture
+//! only camera frames exposed after it was really on the surface.
+//!
+//! Time is counted in camera exposures, by the frames' sequence numbers, so dropped frames do
+//! not shorten the wait. After [`DisplaySink::show`], the first frame grabbed has sequence
+//! number `s1`; frames up to `s1 + settle` may still show the previous image, where `settle` is
+//! the worst projector-to-camera latency measured at the start ([`measure_latency`]) plus a
+//! margin. A capture averages a few frames after that against noise, and is retaken when those
+//! frames disagree (the image changed while they were taken) or when it does not differ from
+//! the previous capture (the new pattern was not on the surface yet).
+
+use crate::device::{DisplaySink, FrameSource};
+use crate::error::{Error, Result};
+use crate::raster::{CamImage, ImageSize, PrjImage};
+
+/// How captures are synchronised and averaged.
+#[derive(Clone, Copy, Debug)]
+pub struct SyncSettings {
+    /// Black/white alternations for the latency measurement.
+    pub latency_trials: usize,
+    /// Exposures added to the worst measured latency.
+    pub margin_frames: u64,
+    /// Frames averaged per capture.
+    pub average: usize,
+    /// Retakes of a capture that fails its checks before giving up.
+    pub retakes: usize,
+    /// Most exposures to wait for a change during the latency measurement.
+    pub max_wait_frames: u64,
+}
+
+impl Default for SyncSettings {
+    fn default() -> Self {
+        Self {
+            latency_trials: 4,
+            margin_frames: 2,
+            average: 3,
+            retakes: 3,
+            max_wait_frames: 120,
+        }
+    }
+}
+
+/// What the latency measurement found, in camera exposures.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Latency {
+    /// Exposures from the first frame after each switch to the first frame showing it.
+    pub trials: Vec<u64>,
+    /// The worst trial plus the margin: exposures skipped after every show.
+    pub settle_frames: u64,
+    /// Mean camera level (encoded, \[0,1\]) under black and under white.
+    pub black_level: f64,
+    pub white_level: f64,
+}
+
+/// Mean of all values of a camera image (encoded units).
+fn mean_level(img: &CamImage) -> f64 {
+    let d = img.data();
+    d.iter().map(|&v| v as f64).sum::<f64>() / d.len().max(1) as f64
+}
+
+/// Mean absolute difference of two camera images' block means (8×8-pixel blocks, encoded
+/// units): a change of the projected pattern moves block means, sensor noise mostly averages
+/// out of them.
+fn block_diff(a: &CamImage, b: &CamImage) -> f64 {
+    let (w, h) = ((a.width() / 8).max(1), (a.height() / 8).max(1));
+    mean_abs_diff(
+        &crate::resize::resize_area(a, w, h),
+        &crate::resize::resize_area(b, w, h),
+    )
+}
+
+/// Mean absolute difference of two camera images (encoded units).
+fn mean_abs_diff(a: &CamImage, b: &CamImage) -> f64 {
+    let (x, y) = (a.data(), b.data());
+    x.iter()
+        .zip(y)
+        .map(|(&p, &q)| (p - q).abs() as f64)
+        .sum::<f64>()
+        / x.len().max(1) as f64
+}
+
+/// Measures the projector-to-camera latency by alternating black and white frames and counting
+/// the exposures until the camera's mean level crosses half-way. An error when the camera does
+/// not see the projector change (no light reaches it, or it does not look at the surface).
+pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    settings: &SyncSettings,
+) -> Result<Latency> {
+    let size = display.size();
+    let black = PrjImage::new(size.width, size.height);
+    let white = PrjImage::filled(size.width, size.height, [1.0; 3]);
+    // Levels: settle on black, then on white, waiting generously.
+    let black_level = settled_level(display, camera, &black, settings.max_wait_frames)?;
+    let white_level = settled_level(display, camera, &white, settings.max_wait_frames)?;
+    if white_level - black_level < 0.02 {
+        return Err(Error::Input(format!(
+            "the camera does not see the projector: its mean level is {black_level:.3} under \
+             black and {white_level:.3} under white (encoded units); point the camera at the \
+             projected area, open its aperture or dim the room"
+        )));
+    }
+    let half = 0.5 * (black_level + white_level);
+    let mut trials = Vec::with_capacity(settings.latency_trials);
+    for t in 0..settings.latency_trials {
+        // Alternate: white is showing, so the first trial switches to black.
+        let (frame, rising) = if t % 2 == 0 {
+            (&black, false)
+        } else {
+            (&white, true)
+        };
+        display.show(frame)?;
+        let first = camera.grab()?;
+        let mut f = first.clone();
+        loop {
+            let level = mean_level(&f.image);
+            if (rising && level > half) || (!rising && level < half) {
+                break;
+            }
+            if f.seq - first.seq >= settings.max_wait_frames {
+                return Err(Error::Failed(format!(
+                    "the camera did not see the projector switch within {} frames; is the \
+                     projector on and the camera pointed at it?",
+                    settings.max_wait_frames
+                )));
+            }
+            f = camera.grab()?;
+        }
+        trials.push(f.seq - first.seq);
+    }
+    let worst = trials.iter().copied().max().unwrap_or(0);
+    Ok(Latency {
+        trials,
+        settle_frames: worst + settings.margin_frames,
+        black_level,
+        white_level,
+    })
+}
+
+/// Shows `frame` and waits until the camera's mean level stops changing; returns it.
+fn settled_level<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    frame: &PrjImage,
+    max_wait: u64,
+) -> Result<f64> {
+    display.show(frame)?;
+    let first = camera.grab()?;
+    let mut last = mean_level(&first.image);
+    let mut still = 0;
+    loop {
+        let f = camera.grab()?;
+        let level = mean_level(&f.image);
+        still = if (level - last).abs() < 0.002 {
+            still + 1
+        } else {
+            0
+        };
+        last = level;
+        // Steady for 4 exposures and past any plausible delay of the first show.
+        if still >= 4 && f.seq - first.seq >= 8 {
+            return Ok(level);
+        }
+        if f.seq - first.seq >= max_wait {
+            return Ok(level);
+        }
+    }
+}
+
+/// Captures through a display and a camera, synchronised by the measured latency.
+pub struct Capturer<'a, D: ?Sized, C: ?Sized> {
+    display: &'a mut D,
+    camera: &'a mut C,
+    settings: SyncSettings,
+    settle: u64,
+    previous: Option<CamImage>,
+    /// Captures retaken because a check failed.
+    pub retakes: usize,
+}
+
+impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
+    pub fn new(
+        display: &'a mut D,
+        camera: &'a mut C,
+        latency: &Latency,
+        settings: SyncSettings,
+    ) -> Self {
+        Self {
+            display,
+            camera,
+            settings,
+            settle: latency.settle_frames,
+            previous: None,
+            retakes: 0,
+        }
+    }
+
+    /// The projector size frames must have.
+    pub fn projector_size(&self) -> ImageSize {
+        self.display.size()
+    }
+
+    /// Shows `frame` and returns the average of `average` camera frames exposed after it was
+    /// on the surface. `differs`: the frame differs from the previously captured one, so the
+    /// capture must differ from the previous capture too.
+    pub fn capture(&mut self, frame: &PrjImage, differs: bool) -> Result<CamImage> {
+        let mut settle = self.settle;
+        for attempt in 0..=self.settings.retakes {
+            self.display.show(frame)?;
+            let mut f = self.camera.grab()?;
+            // Exposures up to `settle` after the first one may still show the previous frame.
+            let counts_from = f.seq + settle;
+            while f.seq < counts_from {
+                f = self.camera.grab()?;
+            }
+            let mut frames = vec![f.image];
+            while frames.len() < self.settings.average.max(1) {
+                frames.push(self.camera.grab()?.image);
+            }
+            // Block-mean disagreement between the first and last averaged frames: noise, or a
+            // change of the image while they were exposed.
+            let noise = block_diff(&frames[0], &frames[frames.len() - 1]);
+            let avg = average(&frames)?;
+            let stable = frames.len() < 2 || noise < 0.02;
+            tracing::debug!(
+                "capture attempt {attempt}: block noise {noise:.4}, change from the previous \
+                 capture {:?}, settle {settle}",
+                self.previous.as_ref().map(|p| block_diff(p, &avg))
+            );
+            let new = !differs
+                || self
+                    .previous
+                    .as_ref()
+                    .is_none_or(|p| block_diff(p, &avg) > (3.0 * noise).max(0.004));
+            if stable && new {
+                self.previous = Some(avg.clone());
+                return Ok(avg);
+            }
+            if attempt < self.settings.retakes {
+                self.retakes += 1;
+                settle += 1 + settle / 2;
+            }
+        }
+        Err(Error::Failed(format!(
+            "no stable capture of the new pattern after {} retakes (waited up to {settle} \
+             frames); the camera may be changing its exposure or the projector may have \
+             stopped showing",
+            self.settings.retakes
+        )))
+    }
+}
+
+/// The per-pixel mean of same-sized camera images.
+fn average(frames: &[CamImage]) -> Result<CamImage> {
+    let first = frames
+        .first()
+        .ok_or_else(|| Error::Failed("no frame to average".into()))?;
+    let n = frames.len() as f32;
+    let mut sum = vec![0f32; first.data().len()];
+    for f in frames {
+        if f.size() != first.size() {
+            return Err(Error::Shape(format!(
+                "camera frames of {} and {} in one capture",
+                first.size(),
+                f.size()
+            )));
+        }
+        for (s, &v) in sum.iter_mut().zip(f.data()) {
+            *s += v;
+        }
+    }
+    CamImage::from_vec(
+        first.width(),
+        first.height(),
+        sum.into_iter().map(|s| s / n).collect(),
+    )
+}

@@ -1,0 +1,185 @@
+//! `compend calibrate` on the virtual rig through the real binary: a verified model is
+//! installed and its record written; an interrupted calibration resumes from the captures on
+//! disk; a rig whose camera does not see the projector, captures of another pattern set and a
+//! bad output path are refused with exit 2, the installed model untouched.
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use crate::common::{assert_code, compend, stderr, stdout};
+
+/// Tiny sizes: a run takes seconds in the test profile.
+const TINY: [&str; 6] = [
+    "--camera",
+    "160x120",
+    "--projector",
+    "200x150",
+    "--network",
+    "64",
+];
+
+fn calibrate_args<'a>(data: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let ntrain = if extra.contains(&"--ntrain") {
+        &[][..]
+    } else {
+        &["--ntrain", "12"][..]
+    };
+    let mut a = vec!["calibrate", "--data", data];
+    a.extend_from_slice(ntrain);
+    a.extend_from_slice(&["--ntest", "4", "--verify", "3", "--json"]);
+    a.extend_from_slice(&TINY);
+    a.extend_from_slice(extra);
+    a
+}
+
+fn record(out: &std::process::Output) -> serde_json::Value {
+    serde_json::from_str(stdout(out).trim()).unwrap_or_else(|e| panic!("{e}: {}", stdout(out)))
+}
+
+#[test]
+fn calibrate_installs_a_verified_model_and_records_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("cal");
+    let d = data.to_str().unwrap();
+    let o = compend(&calibrate_args(
+        d,
+        &["--rig", "virtual:textured-plane", "--seed", "4"],
+    ));
+    assert_code(&o, 0);
+    let r = record(&o);
+    let v = &r["verification"];
+    assert_eq!(v["passed"], true, "{r}");
+    assert!(v["gain_db"].as_f64().unwrap() > 3.0, "{r}");
+    // The scene's camera delay is 2 frames: the measurement finds it, and waits a margin more.
+    assert!(
+        r["latency"]["trials"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|t| t.as_u64().unwrap() <= 3),
+        "{r}"
+    );
+    assert_eq!(r["captured"], 3 + 12 + 4);
+    let err = stderr(&o);
+    assert!(
+        err.contains("installed linear") && err.contains("verification"),
+        "{err}"
+    );
+    // The installed model carries the record, loads and evaluates on the captured test pairs.
+    let model = data.join("model");
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    assert_eq!(meta["calibration"]["verification"], *v);
+    assert_code(
+        &compend(&[
+            "eval",
+            "--model",
+            model.to_str().unwrap(),
+            "--setup",
+            data.join("capture").to_str().unwrap(),
+        ]),
+        0,
+    );
+}
+
+#[test]
+fn an_interrupted_calibration_resumes_without_recapturing() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("cal");
+    let d = data.to_str().unwrap();
+    let args = calibrate_args(d, &["--rig", "virtual:curved", "--ntrain", "40"]);
+    // Kill it once the manifest lists a few captures.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_compend"))
+        .args(&args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let manifest = data.join("capture/calibration.json");
+    let start = Instant::now();
+    let listed = |m: &Path| -> usize {
+        std::fs::read(m)
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .map_or(0, |v| v["captured"].as_array().map_or(0, |a| a.len()))
+    };
+    while listed(&manifest) < 6 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "finished before the kill"
+        );
+        assert!(start.elapsed() < Duration::from_secs(120), "no captures");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let before = listed(&manifest);
+    let first = data.join("capture/cam/raw/ref/img_0001.png");
+    let black = std::fs::read(&first).unwrap();
+
+    let o = compend(&args);
+    assert_code(&o, 0);
+    let r = record(&o);
+    let resumed = r["resumed"].as_u64().unwrap() as usize;
+    assert!(resumed >= before, "{resumed} resumed, {before} listed: {r}");
+    assert_eq!(
+        resumed + r["captured"].as_u64().unwrap() as usize,
+        3 + 40 + 4
+    );
+    // What was on disk was not captured again.
+    assert_eq!(std::fs::read(&first).unwrap(), black);
+    assert_eq!(r["verification"]["passed"], true, "{r}");
+}
+
+#[test]
+fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("cal");
+    let d = data.to_str().unwrap();
+    assert_code(&compend(&calibrate_args(d, &["--rig", "virtual"])), 0);
+    let model = data.join("model");
+    let installed = std::fs::read(model.join("model.safetensors")).unwrap();
+
+    // A projector turned away from the surface: the camera sees no change.
+    let scene = stdout(&compend(&["sim", "show", "curved"]));
+    let mut s: serde_json::Value = serde_json::from_str(&scene).unwrap();
+    s["projector"]["pose"]["rotation_deg"] = serde_json::json!([0.0, 120.0, 0.0]);
+    let away = dir.path().join("away.json");
+    std::fs::write(&away, s.to_string()).unwrap();
+    let rig = format!("virtual:{}", away.display());
+    let other = dir.path().join("other");
+    let o = compend(&calibrate_args(
+        other.to_str().unwrap(),
+        &["--rig", &rig, "--out", model.to_str().unwrap()],
+    ));
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("does not see the projector"),
+        "{}",
+        stderr(&o)
+    );
+
+    // Captures of another pattern set (another seed) in the same folder.
+    let o = compend(&calibrate_args(d, &["--rig", "virtual", "--seed", "9"]));
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("another pattern set"), "{}", stderr(&o));
+
+    // An output path holding something else, and a rig that is not one.
+    let notes = dir.path().join("notes.txt");
+    std::fs::write(&notes, b"keep").unwrap();
+    let o = compend(&calibrate_args(
+        d,
+        &["--rig", "virtual", "--out", notes.to_str().unwrap()],
+    ));
+    assert_code(&o, 2);
+    assert_eq!(std::fs::read(&notes).unwrap(), b"keep");
+    let o = compend(&calibrate_args(d, &["--rig", "usb"]));
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("virtual:SCENE"), "{}", stderr(&o));
+
+    assert_eq!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        installed
+    );
+}
