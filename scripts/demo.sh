@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# The main job on built-in data: simulate a projector-camera rig (a curved, textured surface),
-# capture a calibration set through it, train the `linear` compensation model, evaluate it, write
-# compensation images and score them closed-loop on the rig against the physical ceiling.
+# The main job on the built-in virtual rig (a simulated projector, a curved textured surface and a
+# camera with 2 frames of delay and dropped frames): `compend calibrate` measures the latency,
+# projects and captures the calibration patterns, trains the `linear` model, verifies it on
+# held-out images and installs it; `compend play` then compensates a moving test pattern on the
+# rig. Finally the installed model is scored closed-loop against the physical ceiling.
 #   bash scripts/demo.sh [OUT_DIR] [SCENE] [SEED]      (defaults: ./demo curved 1)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -11,16 +13,19 @@ seed=${3:-1}
 bash scripts/deps.sh
 cargo build --release --locked
 c=target/release/compend
-setup="$out/data/$scene"
 set -x
-"$c" sim export --scene "$scene" --out "$out/data" --ntrain 48 --ntest 10 --seed "$seed"
-"$c" inspect --setup "$setup" --out "$out/inspect"
-"$c" train --setup "$setup" --method linear --out "$out/models/linear"
-"$c" eval --model "$out/models/linear" --setup "$setup"
-"$c" compensate --model "$out/models/linear" --input "$setup/cam/desire/test" \
-    --out "$setup/prj/cmp/test/linear"
+"$c" calibrate --rig "virtual:$scene" --seed "$seed" --data "$out/calibration" --out "$out/model"
+"$c" eval --model "$out/model" --setup "$out/calibration/capture"
+"$c" inspect --setup "$out/calibration/capture" --out "$out/inspect"
+"$c" play --model "$out/model" --source 'pattern:moving?frames=30' --rig "virtual:$scene" \
+    --seed "$seed" --out "$out/play" --pace source
+# Closed loop against the physical ceiling: the same scene and seed exported with its oracle.
+setup="$out/score/$scene"
+"$c" sim export --scene "$scene" --out "$out/score" --ntrain 4 --ntest 10 --seed "$seed"
+"$c" compensate --model "$out/model" --input "$setup/cam/desire/test" \
+    --out "$setup/prj/cmp/test/calibrated"
 "$c" sim score --setup "$setup"
 "$c" sim sheet --scene "$scene" --out "$out/sheets"
 set +x
-echo "demo: pictures in $out/inspect (FOV mask, displayable area), $out/sheets (the scene)," \
-     "$setup/prj/cmp/test/linear (compensation images)"
+echo "demo: model in $out/model (model.json records the calibration), camera views of playback" \
+     "in $out/play, FOV and displayable area in $out/inspect, the scene in $out/sheets"

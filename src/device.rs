@@ -47,6 +47,29 @@ pub trait FrameSource {
     /// Waits for the next frame the device delivers and returns it. Frames come in order;
     /// a frame may have been exposed before the latest [`DisplaySink::show`] (latency).
     fn grab(&mut self) -> Result<Frame>;
+
+    /// The manual exposure, when the camera lets it be set: its value and range in the
+    /// camera's own units (100 µs for V4L2's absolute exposure; a factor of the scene's
+    /// exposure for the virtual camera). `None`: fixed or automatic only.
+    fn exposure(&self) -> Option<ExposureRange> {
+        None
+    }
+
+    /// Sets the manual exposure (clamped to the range); returns the value the camera
+    /// accepted. Frames exposed after the call use it.
+    fn set_exposure(&mut self, value: f64) -> Result<f64> {
+        Err(crate::Error::Input(format!(
+            "this camera has no manual exposure (asked for {value})"
+        )))
+    }
+}
+
+/// A camera's manual exposure: the current value and the range, in the camera's units.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ExposureRange {
+    pub value: f64,
+    pub min: f64,
+    pub max: f64,
 }
 
 impl<T: DisplaySink + ?Sized> DisplaySink for &mut T {
@@ -65,6 +88,12 @@ impl<T: FrameSource + ?Sized> FrameSource for &mut T {
     fn grab(&mut self) -> Result<Frame> {
         (**self).grab()
     }
+    fn exposure(&self) -> Option<ExposureRange> {
+        (**self).exposure()
+    }
+    fn set_exposure(&mut self, value: f64) -> Result<f64> {
+        (**self).set_exposure(value)
+    }
 }
 
 impl<T: DisplaySink + ?Sized> DisplaySink for Box<T> {
@@ -82,5 +111,11 @@ impl<T: FrameSource + ?Sized> FrameSource for Box<T> {
     }
     fn grab(&mut self) -> Result<Frame> {
         (**self).grab()
+    }
+    fn exposure(&self) -> Option<ExposureRange> {
+        (**self).exposure()
+    }
+    fn set_exposure(&mut self, value: f64) -> Result<f64> {
+        (**self).set_exposure(value)
     }
 }

@@ -12,6 +12,14 @@
 //! the monitor's vsync. Under Xvfb (no window manager) a fullscreen request keeps the default
 //! size, so the window is also placed at the monitor's origin and sized to the monitor
 //! explicitly.
+//!
+//! `show` honours the refresh rate itself: it presents at most once per refresh period, since a
+//! display without vsync (Xvfb) presents at once. With [`ProjectorWindow::record_presented`] the
+//! window reads back every frame it presents, with the moment it was presented, into a
+//! [`PresentLog`] ([`record`]): what a camera looking at the projection could see.
+
+mod blit;
+mod record;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -29,13 +37,16 @@ use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, FRAME_FORMAT, GpuContext};
 use crate::playback::player::{Refresh, Screen, Show};
 use crate::raster::{ImageSize, PrjImage};
-
-const BLIT: &str = include_str!("../shaders/blit.wgsl");
+use blit::Blit;
+use record::{Pending, Recorder};
+pub use record::{PresentLog, Presented, ShowTiming};
 
 /// How long the window system may take to open the window.
 const OPEN_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long the window may take to reach the monitor's size.
 const RESIZE_TIMEOUT: Duration = Duration::from_secs(2);
+/// Refreshes `show` tries before it gives up on a surface that skips them (occluded, resized).
+const SHOW_TRIES: usize = 10;
 
 #[derive(Default)]
 struct App {
@@ -137,123 +148,6 @@ impl ApplicationHandler for App {
     }
 }
 
-/// The blit: a fullscreen triangle drawing a projector frame texture onto the surface pixel for
-/// pixel (`shaders/blit.wgsl`).
-struct Blit {
-    pipeline: wgpu::RenderPipeline,
-    layout: wgpu::BindGroupLayout,
-    /// Bind group of the texture presented last (the pass output, reused every frame).
-    bound: Option<(wgpu::Texture, wgpu::BindGroup)>,
-}
-
-impl Blit {
-    /// The pipeline drawing into surfaces of `format`.
-    fn new(ctx: &GpuContext, format: wgpu::TextureFormat) -> Result<Self> {
-        let module = ctx.shader("blit", BLIT)?;
-        let layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("blit"),
-                entries: &[wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                        multisampled: false,
-                    },
-                    count: None,
-                }],
-            });
-        let pipeline_layout = ctx
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("blit"),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
-        let pipeline = ctx
-            .device
-            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("blit"),
-                layout: Some(&pipeline_layout),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("vs"),
-                    compilation_options: Default::default(),
-                    buffers: &[],
-                },
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: None,
-                multisample: wgpu::MultisampleState::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("fs"),
-                    compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
-            });
-        Ok(Self {
-            pipeline,
-            layout,
-            bound: None,
-        })
-    }
-
-    /// The bind group reading `frame`, made when the frame texture changes.
-    fn bind(&mut self, ctx: &GpuContext, frame: &wgpu::Texture) -> &wgpu::BindGroup {
-        let bound = match self.bound.take() {
-            Some((t, group)) if t == *frame => (t, group),
-            _ => {
-                let view = frame.create_view(&wgpu::TextureViewDescriptor::default());
-                let group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("blit"),
-                    layout: &self.layout,
-                    entries: &[wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::TextureView(&view),
-                    }],
-                });
-                (frame.clone(), group)
-            }
-        };
-        &self.bound.insert(bound).1
-    }
-
-    /// Records drawing `frame` onto `target`.
-    fn draw(
-        &mut self,
-        ctx: &GpuContext,
-        enc: &mut wgpu::CommandEncoder,
-        frame: &wgpu::Texture,
-        target: &wgpu::TextureView,
-    ) {
-        let group = self.bind(ctx, frame).clone();
-        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("present"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: target,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
-            ..Default::default()
-        });
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, &group, &[]);
-        pass.draw(0..3, 0..1);
-    }
-}
-
 /// The surface configuration for presenting exact bytes at vsync: a non-sRGB 8-bit format (the
 /// frame holds projector input values already), FIFO presentation, `size` in pixels.
 fn surface_config(
@@ -344,6 +238,13 @@ pub struct ProjectorWindow {
     /// Texture for [`DisplaySink::show`].
     upload: Option<wgpu::Texture>,
     refresh_hz: f64,
+    /// Usages the surface allows (a read-back needs `COPY_SRC`).
+    surface_usages: wgpu::TextureUsages,
+    /// Reads back every presented frame, once asked to.
+    recorder: Option<Recorder>,
+    /// When `show` presented last.
+    last_show: Option<Instant>,
+    timing: ShowTiming,
 }
 
 impl ProjectorWindow {
@@ -357,7 +258,8 @@ impl ProjectorWindow {
             .create_surface(window.clone())
             .map_err(|e| Error::gpu("cannot draw into the projector window", e))?;
         let ctx = GpuContext::with_instance(instance, Some(&surface))?;
-        let config = surface_config(&surface.get_capabilities(&ctx.adapter), window.inner_size())?;
+        let caps = surface.get_capabilities(&ctx.adapter);
+        let config = surface_config(&caps, window.inner_size())?;
         surface.configure(&ctx.device, &config);
         let blit = Blit::new(&ctx, config.format)?;
         let refresh_hz = chosen
@@ -374,7 +276,33 @@ impl ProjectorWindow {
             blit,
             upload: None,
             refresh_hz,
+            surface_usages: caps.usages,
+            recorder: None,
+            last_show: None,
+            timing: ShowTiming::default(),
         })
+    }
+
+    /// Reads back every frame presented from now on into the returned log, which keeps what
+    /// the screen showed over the last `keep` (shared with the log's clones). The read-back
+    /// waits for the GPU after each present.
+    pub fn record_presented(&mut self, keep: Duration) -> PresentLog {
+        if let Some(r) = &self.recorder {
+            return r.log.clone();
+        }
+        let log = PresentLog::new(keep);
+        let r = Recorder::new(log.clone(), self.config.format, self.surface_usages);
+        if r.surface_usage() != self.config.usage {
+            self.config.usage = r.surface_usage();
+            self.surface.configure(&self.ctx.device, &self.config);
+        }
+        self.recorder = Some(r);
+        log
+    }
+
+    /// Timing of [`DisplaySink::show`] so far.
+    pub fn show_timing(&self) -> ShowTiming {
+        self.timing.clone()
     }
 
     pub fn context(&self) -> &GpuContext {
@@ -431,10 +359,30 @@ impl ProjectorWindow {
             .create_view(&wgpu::TextureViewDescriptor::default());
         let mut enc = self.ctx.encoder("present");
         self.blit.draw(&self.ctx, &mut enc, frame, &view);
+        let pending: Option<Pending> = self
+            .recorder
+            .as_mut()
+            .and_then(|r| r.copy(&self.ctx, &mut enc, &target.texture, frame));
         self.ctx.queue.submit([enc.finish()]);
         self.window.pre_present_notify();
         self.ctx.queue.present(target);
+        let at = Instant::now();
+        if let (Some(r), Some(p)) = (self.recorder.as_mut(), pending) {
+            r.finish(&self.ctx, p, at, &mut self.timing)?;
+        }
         Ok(true)
+    }
+
+    /// Waits for the next refresh slot of `show`: one refresh period after its last present.
+    fn wait_for_refresh(&mut self) {
+        let period = Duration::from_secs_f64(1.0 / self.refresh_hz);
+        if let Some(last) = self.last_show {
+            let wait = (last + period).saturating_duration_since(Instant::now());
+            if !wait.is_zero() {
+                std::thread::sleep(wait);
+                self.timing.waited_s += wait.as_secs_f64();
+            }
+        }
     }
 
     /// The texture [`DisplaySink::show`] uploads into, made on first use.
@@ -456,7 +404,9 @@ impl ProjectorWindow {
                     sample_count: 1,
                     dimension: wgpu::TextureDimension::D2,
                     format: FRAME_FORMAT,
-                    usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                    usage: wgpu::TextureUsages::TEXTURE_BINDING
+                        | wgpu::TextureUsages::COPY_DST
+                        | wgpu::TextureUsages::COPY_SRC,
                     view_formats: &[],
                 })
             })
@@ -497,9 +447,30 @@ impl DisplaySink for ProjectorWindow {
             },
             tex.size(),
         );
-        self.pump();
-        self.present_texture(&tex)?;
-        Ok(())
+        if !self.pump() {
+            return Err(Error::Failed(
+                "the projector window was closed (Escape or the window system)".into(),
+            ));
+        }
+        self.timing.shows += 1;
+        for _ in 0..SHOW_TRIES {
+            self.wait_for_refresh();
+            if self.present_texture(&tex)? {
+                let now = Instant::now();
+                if let Some(last) = self.last_show.replace(now) {
+                    self.timing.interval(now - last);
+                }
+                return Ok(());
+            }
+            // The surface skipped this refresh: try at the next one.
+            self.timing.skipped += 1;
+            self.last_show = Some(Instant::now());
+            self.pump();
+        }
+        Err(Error::Failed(format!(
+            "the projector window presented nothing in {SHOW_TRIES} refreshes (is it hidden or \
+             minimised?)"
+        )))
     }
 }
 

@@ -61,6 +61,10 @@ fn calibrate_installs_a_verified_model_and_records_it() {
         "{r}"
     );
     assert_eq!(r["captured"], 3 + 12 + 4);
+    // The virtual camera has a manual exposure: ranging put the brightest lit pixels just below
+    // saturation.
+    let bright = r["exposure"]["bright_level"].as_f64().unwrap();
+    assert!((0.88..0.97).contains(&bright), "{r}");
     let err = stderr(&o);
     assert!(
         err.contains("installed linear") && err.contains("verification"),

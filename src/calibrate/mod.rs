@@ -2,6 +2,8 @@
 //! model, through the device traits, so the virtual rig and hardware run the same code.
 //!
 //! Phases, each timed:
+//! 0. **exposure**: where the camera has a manual exposure, it is set so that the brightest lit
+//!    pixels under white sit just below saturation ([`exposure::range_exposure`]);
 //! 1. **latency**: black/white alternations measure the projector-to-camera delay in camera
 //!    exposures ([`sync::measure_latency`]); every later capture skips that many frames;
 //! 2. **patterns**: the projector-side images of the dataset layout (sampling images, black,
@@ -15,6 +17,7 @@
 //!    projected, captured and scored inside the displayable area against the view they should
 //!    give. The caller installs the model only when it passed.
 
+pub mod exposure;
 pub mod manifest;
 pub mod sync;
 
@@ -91,9 +94,29 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let mut manifest = Manifest::open(&setup_dir, &opts.patterns)?;
 
     let t = Instant::now();
+    progress("exposure", 0, 1);
+    let exposure = exposure::range_exposure(display, camera)?;
+    if let Some(e) = &exposure {
+        tracing::info!(
+            "exposure: {} → {} (camera units) in {} steps; brightest lit pixels at {:.3}",
+            e.initial,
+            e.chosen,
+            e.steps,
+            e.bright_level
+        );
+    }
+    seconds.exposure = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
     progress("latency", 0, 1);
     let latency = sync::measure_latency(display, camera, &opts.sync)?;
     seconds.latency = t.elapsed().as_secs_f64();
+    tracing::info!(
+        "latency: {:?} camera exposures over {} switches; skipping {} per capture",
+        latency.trials,
+        latency.trials.len(),
+        latency.settle_frames
+    );
 
     let t = Instant::now();
     let root = DataRoot::create(data)?;
@@ -106,6 +129,11 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let (captured, resumed) =
         capture_all(&mut capturer, &root, &setup, &mut manifest, opts, progress)?;
     seconds.captures = t.elapsed().as_secs_f64();
+    tracing::info!(
+        "captures: {captured} taken, {resumed} found on disk, {} retaken, in {:.1} s",
+        capturer.retakes,
+        seconds.captures
+    );
 
     let desired = write_desired(&root, &setup, opts)?;
 
@@ -123,6 +151,11 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     };
     let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
     seconds.training = t.elapsed().as_secs_f64();
+    tracing::info!(
+        "training: {} in {:.1} s",
+        model.meta.method,
+        seconds.training
+    );
 
     let t = Instant::now();
     let verification = verify(&mut capturer, &model, &root, &desired, opts, progress)?;
@@ -130,6 +163,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     seconds.total = total.elapsed().as_secs_f64();
     let record = CalibrationRecord {
         rig: opts.rig.clone(),
+        exposure,
         latency,
         captured,
         resumed,

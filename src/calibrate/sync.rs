@@ -91,15 +91,11 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let black = PrjImage::new(size.width, size.height);
     let white = PrjImage::filled(size.width, size.height, [1.0; 3]);
     // Levels: settle on black, then on white, waiting generously.
-    let black_level = settled_level(display, camera, &black, settings.max_wait_frames)?;
-    let white_level = settled_level(display, camera, &white, settings.max_wait_frames)?;
-    if white_level - black_level < 0.02 {
-        return Err(Error::Input(format!(
-            "the camera does not see the projector: its mean level is {black_level:.3} under \
-             black and {white_level:.3} under white (encoded units); point the camera at the \
-             projected area, open its aperture or dim the room"
-        )));
-    }
+    let (black_level, under_black) =
+        settled_level(display, camera, &black, settings.max_wait_frames)?;
+    let (white_level, under_white) =
+        settled_level(display, camera, &white, settings.max_wait_frames)?;
+    check_exposure(black_level, white_level, &under_black, &under_white)?;
     let half = 0.5 * (black_level + white_level);
     let mut trials = Vec::with_capacity(settings.latency_trials);
     for t in 0..settings.latency_trials {
@@ -137,13 +133,65 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     })
 }
 
-/// Shows `frame` and waits until the camera's mean level stops changing; returns it.
+/// Whether the camera sees the projector well enough to calibrate, from its mean levels and a
+/// frame under black and under white (encoded units): an input error saying what to change when
+/// it does not see the projector at all, when the projector is too dim against ambient light,
+/// or when the projector drives the camera into saturation.
+fn check_exposure(
+    black_level: f64,
+    white_level: f64,
+    under_black: &CamImage,
+    under_white: &CamImage,
+) -> Result<()> {
+    let contrast = white_level - black_level;
+    if contrast < 0.02 {
+        return Err(Error::Input(format!(
+            "the camera does not see the projector: its mean level is {black_level:.3} under \
+             black and {white_level:.3} under white (encoded units); point the camera at the \
+             projected area, open its aperture or dim the room"
+        )));
+    }
+    if contrast < 0.08 && black_level > 0.25 {
+        return Err(Error::Input(format!(
+            "the projector is too dim against the ambient light: the camera's mean level is \
+             {black_level:.3} under black and only {white_level:.3} under white; dim the room \
+             or raise the projector's brightness"
+        )));
+    }
+    // Pixels the projector drives to full scale (not already there under black).
+    let full = 254.5 / 255.0;
+    let (mut lit, mut clipped) = (0usize, 0usize);
+    for (w, b) in under_white
+        .data()
+        .chunks_exact(3)
+        .zip(under_black.data().chunks_exact(3))
+    {
+        let rise = (0..3).map(|c| w[c] - b[c]).fold(f32::MIN, f32::max);
+        if rise > 0.05 {
+            lit += 1;
+            if (0..3).any(|c| w[c] >= full && b[c] < full) {
+                clipped += 1;
+            }
+        }
+    }
+    if lit > 0 && clipped * 10 > lit {
+        return Err(Error::Input(format!(
+            "the camera saturates under the projector's white: {:.0} % of the lit pixels are at \
+             full scale; lower the camera's exposure or gain (or the projector's brightness)",
+            100.0 * clipped as f64 / lit as f64
+        )));
+    }
+    Ok(())
+}
+
+/// Shows `frame` and waits until the camera's mean level stops changing; returns it and the
+/// last frame.
 fn settled_level<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
     frame: &PrjImage,
     max_wait: u64,
-) -> Result<f64> {
+) -> Result<(f64, CamImage)> {
     display.show(frame)?;
     let first = camera.grab()?;
     let mut last = mean_level(&first.image);
@@ -158,11 +206,8 @@ fn settled_level<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         };
         last = level;
         // Steady for 4 exposures and past any plausible delay of the first show.
-        if still >= 4 && f.seq - first.seq >= 8 {
-            return Ok(level);
-        }
-        if f.seq - first.seq >= max_wait {
-            return Ok(level);
+        if (still >= 4 && f.seq - first.seq >= 8) || f.seq - first.seq >= max_wait {
+            return Ok((level, f.image));
         }
     }
 }
@@ -241,10 +286,10 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
                 settle += 1 + settle / 2;
             }
         }
-        Err(Error::Failed(format!(
+        Err(Error::Input(format!(
             "no stable capture of the new pattern after {} retakes (waited up to {settle} \
-             frames); the camera may be changing its exposure or the projector may have \
-             stopped showing",
+             frames): the camera keeps changing its picture; lock its exposure, gain and white \
+             balance, and check that the projector shows every pattern",
             self.settings.retakes
         )))
     }

@@ -1,22 +1,37 @@
-//! `compend calibrate`: from a projector and a camera to a verified, installed model.
-//! Today the projector and camera are the virtual rig's (`--rig virtual[:SCENE]`); the V4L2
-//! camera and the projector window plug into the same flow (`compend::calibrate`).
+//! `compend calibrate`: from a projector and a camera to a verified, installed model, through
+//! the flow of `compend::calibrate`.
+//!
+//! Rigs: `--rig virtual[:SCENE]`, the virtual rig's projector and camera; `--rig window[:SCENE]`,
+//! the real projector window (on `--monitor`) watched by a virtual camera that sees what the
+//! window presented (read back from the GPU) through the scene's surface, camera and latency
+//! (`compend::rig::window_camera`). The V4L2 camera plugs into the same flow.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use anyhow::{Context, Result};
-use compend::calibrate::{self, Options, PatternSet, SyncSettings};
+use compend::calibrate::{self, Calibrated, Options, PatternSet, SyncSettings};
+use compend::device::{DisplaySink, FrameSource};
 use compend::model::MethodChoice;
-use compend::rig::{VirtualRig, scene};
+use compend::rig::VirtualRig;
+use compend::rig::scene::{self, Scene};
+use compend::rig::window_camera::{Shown, WindowCamera};
+use compend::window::ProjectorWindow;
 
 use super::sim::SceneArgs;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The rig to calibrate: `virtual` (the `curved` scene) or `virtual:SCENE` (a built-in scene
-    /// or scene JSON file; see `compend sim list`).
-    #[arg(long, value_name = "virtual[:SCENE]")]
+    /// The rig to calibrate: `virtual[:SCENE]`, the virtual rig; `window[:SCENE]`, the projector
+    /// window watched by a virtual camera that sees what the window presented through the
+    /// scene's surface and camera. SCENE: a built-in scene or scene JSON file (see `compend sim
+    /// list`) [default: curved].
+    #[arg(long, value_name = "virtual|window[:SCENE]")]
     pub rig: String,
+    /// `--rig window` only: the projector's monitor, its name or index [default: the primary
+    /// monitor]. The projector size is the monitor's.
+    #[arg(long)]
+    pub monitor: Option<String>,
     /// Folder for the patterns and captures (a data root; the captures go to DATA/capture). An
     /// interrupted calibration into the same folder resumes from the captures on disk.
     #[arg(long, default_value = "compend-calibration")]
@@ -43,10 +58,10 @@ pub struct Args {
     /// Frames averaged per capture.
     #[arg(long, default_value_t = 3)]
     pub average: usize,
-    /// Virtual rig only: projector-to-camera delay, milliseconds (default: the scene's).
+    /// Virtual camera only: projector-to-camera delay, milliseconds (default: the scene's).
     #[arg(long, value_name = "MS")]
     pub rig_latency_ms: Option<f64>,
-    /// Virtual rig only: camera frame rate, Hz (default: the scene's).
+    /// Virtual camera only: camera frame rate, Hz (default: the scene's).
     #[arg(long, value_name = "HZ")]
     pub rig_fps: Option<f64>,
     /// Network size of the sampling images, and the virtual rig's camera and projector sizes.
@@ -57,25 +72,65 @@ pub struct Args {
     pub json: bool,
 }
 
+/// Which display the patterns go to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum RigKind {
+    /// The virtual rig's projector.
+    Virtual,
+    /// The projector window.
+    Window,
+}
+
+/// `virtual[:SCENE]` or `window[:SCENE]`: the kind and the scene name.
+fn parse_rig(rig: &str) -> compend::Result<(RigKind, String)> {
+    let (kind, scene) = match rig.split_once(':') {
+        None => (rig, "curved"),
+        Some((k, s)) if !s.is_empty() => (k, s),
+        Some((k, _)) => (k, ""),
+    };
+    match (kind, scene.is_empty()) {
+        ("virtual", false) => Ok((RigKind::Virtual, scene.to_string())),
+        ("window", false) => Ok((RigKind::Window, scene.to_string())),
+        _ => Err(compend::Error::Input(format!(
+            "--rig {rig:?}: expected `virtual[:SCENE]` or `window[:SCENE]` (scenes: {}); real \
+             cameras are not supported by calibrate yet",
+            scene::BUILTIN.join(", ")
+        ))),
+    }
+}
+
 pub fn run(args: Args) -> Result<()> {
     let out = args.out.clone().unwrap_or_else(|| args.data.join("model"));
     // Before any work: where the model goes must take a model, and the numbers must make sense.
     compend::model::store::check_output(&out)?;
     check_counts(&args)?;
-    let scene_name = match args.rig.split_once(':') {
-        None if args.rig == "virtual" => "curved".to_string(),
-        Some(("virtual", s)) if !s.is_empty() => s.to_string(),
-        _ => {
-            return Err(compend::Error::Input(format!(
-                "--rig {:?}: expected `virtual` or `virtual:SCENE` (scenes: {}); real cameras \
-                 and projectors are not supported by calibrate yet",
-                args.rig,
-                scene::BUILTIN.join(", ")
-            ))
-            .into());
+    let (kind, scene_name) = parse_rig(&args.rig)?;
+    match kind {
+        RigKind::Virtual => {
+            if args.monitor.is_some() {
+                return Err(compend::Error::Input(
+                    "--monitor: only `--rig window` shows the patterns on a monitor".into(),
+                )
+                .into());
+            }
+            run_virtual(&args, &out, &scene_name)
         }
-    };
-    let mut scene = super::sim::resolve(&scene_name, &args.scene_args)?;
+        RigKind::Window => run_window(&args, &out, &scene_name),
+    }
+}
+
+/// The scene with the camera timing of `--rig-fps` and `--rig-latency-ms`, and the projector
+/// size `projector` when given (the window's).
+fn scene_for(
+    args: &Args,
+    name: &str,
+    projector: Option<compend::raster::ImageSize>,
+) -> Result<Scene> {
+    let mut scene = super::sim::resolve(name, &args.scene_args)?;
+    if let Some(p) = projector {
+        let camera = scene.camera.size();
+        scene = scene.with_resolution(camera, p);
+    }
     if let Some(fps) = args.rig_fps {
         scene.latency.fps = fps;
     }
@@ -83,9 +138,135 @@ pub fn run(args: Args) -> Result<()> {
         scene.latency.delay_frames = (ms / 1e3 * scene.latency.fps).round() as u32;
     }
     scene.validate()?;
+    Ok(scene)
+}
+
+/// The camera's timing for the log: fps, delay and drops.
+fn describe_camera(scene: &Scene) -> String {
+    let l = &scene.latency;
+    format!(
+        "camera {}, {} fps, {} frames ({:.0} ms) of delay, {:.0} % drops",
+        scene.camera.size(),
+        l.fps,
+        l.delay_frames,
+        l.delay_frames as f64 / l.fps * 1e3,
+        l.drop_rate * 100.0
+    )
+}
+
+/// Calibrates on the virtual rig.
+fn run_virtual(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
+    let scene = scene_for(args, scene_name, None)?;
     let rig = VirtualRig::new(&scene, args.scene_args.seed)
         .with_context(|| format!("preparing the virtual rig (scene {scene_name:?})"))?;
     let (mut display, mut camera) = (rig.clone(), rig);
+    eprintln!(
+        "calibrate: virtual rig {scene_name:?} (projector {}, {}) into {}",
+        scene.projector.size(),
+        describe_camera(&scene),
+        args.data.display()
+    );
+    let rig = format!("virtual:{scene_name}");
+    let done = calibrate_on(&mut display, &mut camera, args, &scene, rig)?;
+    install(done, out)
+}
+
+/// Calibrates through the projector window, watched by a virtual camera.
+fn run_window(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
+    let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
+    let size = DisplaySink::size(&win);
+    if let Some(p) = args.scene_args.projector
+        && p != size
+    {
+        return Err(compend::Error::Input(format!(
+            "--projector {p}: the projector window on {} is {size}; leave --projector out or \
+             pick the monitor of that size",
+            args.monitor.as_deref().unwrap_or("the primary monitor")
+        ))
+        .into());
+    }
+    let scene = scene_for(args, scene_name, Some(size))?;
+    // The camera looks back the delay; a second more covers a camera that renders late.
+    let l = &scene.latency;
+    let keep = Duration::from_secs_f64(1.0 + (l.delay_frames as f64 + 2.0) / l.fps);
+    let log = win.record_presented(keep);
+    let look = move |t| {
+        log.at(t).map(|p| Shown {
+            index: p.index,
+            at: p.at,
+            image: p.image,
+        })
+    };
+    let mut camera = WindowCamera::start(&scene, args.scene_args.seed, look)
+        .with_context(|| format!("preparing the virtual camera (scene {scene_name:?})"))?;
+    eprintln!(
+        "calibrate: projector window {size} at {} Hz on {} ({}), virtual camera on scene \
+         {scene_name:?} ({}) into {}",
+        win.refresh_hz(),
+        args.monitor.as_deref().unwrap_or("the primary monitor"),
+        win.context().describe(),
+        describe_camera(&scene),
+        args.data.display()
+    );
+    let rig = format!("window:{scene_name}");
+    let done = calibrate_on(&mut win, &mut camera, args, &scene, rig);
+    report_window_timing(&win, &camera, &scene);
+    if let Ok(d) = &done {
+        let trials = &d.record.latency.trials;
+        let worst = trials.iter().copied().max().unwrap_or(0);
+        eprintln!(
+            "calibrate: measured latency {worst} exposures = {:.0} ms at {} fps (scene delay \
+             {:.0} ms)",
+            worst as f64 / l.fps * 1e3,
+            l.fps,
+            l.delay_frames as f64 / l.fps * 1e3
+        );
+    }
+    drop(camera);
+    install(done?, out)
+}
+
+/// Prints how presenting and the camera went, as `key=value` pairs.
+fn report_window_timing(win: &ProjectorWindow, camera: &WindowCamera, scene: &Scene) {
+    let w = win.show_timing();
+    eprintln!(
+        "calibrate: window: shows={} skipped={} refresh_hz={} present_interval_ms={:.1}..{:.1} \
+         waited_s={:.2} readback_ms={:.2}/{:.2} recorded={}",
+        w.shows,
+        w.skipped,
+        win.refresh_hz(),
+        w.interval_ms_min,
+        w.interval_ms_max,
+        w.waited_s,
+        w.readback_ms_mean,
+        w.readback_ms_max,
+        w.recorded
+    );
+    let c = camera.timing();
+    eprintln!(
+        "calibrate: camera: fps={} exposures={} delivered={} dropped={} overflowed={} behind={} \
+         changes={} lag_ms={:.1}..{:.1} render_ms={:.2}",
+        scene.latency.fps,
+        c.exposures,
+        c.delivered,
+        c.dropped,
+        c.overflowed,
+        c.behind,
+        c.changes,
+        c.lag_ms_min,
+        c.lag_ms_max,
+        c.render_ms_mean
+    );
+}
+
+/// Runs the calibration flow on a display and a camera and prints its record.
+fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    args: &Args,
+    scene: &Scene,
+    rig: String,
+) -> Result<Calibrated> {
     let opts = Options {
         patterns: PatternSet {
             seed: args.scene_args.seed,
@@ -103,27 +284,23 @@ pub fn run(args: Args) -> Result<()> {
         },
         verify_images: args.verify,
         required_gain_db: args.min_gain,
-        rig: format!("virtual:{scene_name}"),
+        rig,
     };
-    eprintln!(
-        "calibrate: virtual rig {scene_name:?} (camera {}, projector {}, {} fps, {} frames of \
-         delay, {:.0} % drops) into {}",
-        scene.camera.size(),
-        scene.projector.size(),
-        scene.latency.fps,
-        scene.latency.delay_frames,
-        scene.latency.drop_rate * 100.0,
-        args.data.display()
-    );
     let bar = super::progress_bar(args.json);
     let mut progress = |stage: &str, done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
         bar.set_message(stage.to_string());
     };
-    let done = calibrate::calibrate(&mut display, &mut camera, &args.data, &opts, &mut progress)
+    let done = calibrate::calibrate(display, camera, &args.data, &opts, &mut progress)
         .with_context(|| format!("calibrating into {}", args.data.display()))?;
     bar.finish_and_clear();
+    print_record(&done, args.json)?;
+    Ok(done)
+}
+
+/// The phase times and verification figures on stderr; the record on stdout with `--json`.
+fn print_record(done: &Calibrated, json: bool) -> Result<()> {
     let r = &done.record;
     let v = &r.verification;
     let s = &r.seconds;
@@ -148,9 +325,15 @@ pub fn run(args: Args) -> Result<()> {
         v.gain_db,
         v.required_gain_db
     );
-    if args.json {
+    if json {
         println!("{}", serde_json::to_string(r)?);
     }
+    Ok(())
+}
+
+/// Installs the model into `out` if it verified; otherwise says why not, `out` unchanged.
+fn install(done: Calibrated, out: &Path) -> Result<()> {
+    let v = &done.record.verification;
     if !v.passed {
         return Err(compend::Error::Failed(format!(
             "the {} model did not verify ({:+.2} dB over the uncompensated projection, {:+.2} \
@@ -165,7 +348,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut model = done.model;
     model.meta.calibration = Some(done.record);
     model
-        .save(&out)
+        .save(out)
         .with_context(|| format!("installing the model into {}", out.display()))?;
     eprintln!(
         "calibrate: installed {} into {}",

@@ -59,6 +59,9 @@ pub struct ModelMeta {
 pub struct CalibrationRecord {
     /// What was calibrated: `virtual:SCENE` or a device.
     pub rig: String,
+    /// The manual exposure chosen, when the camera has one.
+    #[serde(default)]
+    pub exposure: Option<crate::calibrate::exposure::ExposureReport>,
     /// Projector-to-camera latency measured at the start, camera exposures.
     pub latency: crate::calibrate::Latency,
     /// Captures taken in this run, captures found on disk from an interrupted one, retakes.
@@ -73,6 +76,8 @@ pub struct CalibrationRecord {
 /// Seconds of each phase of a calibration.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PhaseSeconds {
+    #[serde(default)]
+    pub exposure: f64,
     pub latency: f64,
     pub patterns: f64,
     pub captures: f64,

@@ -20,6 +20,10 @@ use crate::device::{DisplaySink, Frame, FrameSource};
 use crate::error::{Error, Result};
 use crate::raster::{ImageSize, PrjImage};
 
+/// Range of the virtual camera's manual exposure, factors of the scene's exposure.
+const MIN_EXPOSURE: f64 = 1.0 / 16.0;
+const MAX_EXPOSURE: f64 = 4.0;
+
 /// A simulated projector-camera pair. Clones share one rig: give one clone to the code that
 /// projects and another to the code that captures.
 #[derive(Clone, Debug)]
@@ -47,6 +51,8 @@ struct State {
     shows: VecDeque<Shown>,
     /// Next exposure index that may be delivered.
     next: u64,
+    /// Manual exposure: a factor of the scene's camera exposure (1 = as the scene says).
+    exposure: f64,
 }
 
 impl VirtualRig {
@@ -87,6 +93,7 @@ impl VirtualRig {
                 phase,
                 shows,
                 next: 0,
+                exposure: 1.0,
             })),
         }
     }
@@ -189,6 +196,26 @@ impl FrameSource for VirtualRig {
         self.state().calibrated.camera_size()
     }
 
+    /// A factor of the scene's exposure, from 1/16 to 4.
+    fn exposure(&self) -> Option<crate::device::ExposureRange> {
+        Some(crate::device::ExposureRange {
+            value: self.state().exposure,
+            min: MIN_EXPOSURE,
+            max: MAX_EXPOSURE,
+        })
+    }
+
+    fn set_exposure(&mut self, value: f64) -> Result<f64> {
+        if !value.is_finite() {
+            return Err(Error::Input(format!(
+                "virtual camera exposure {value}: expected a factor of the scene's exposure"
+            )));
+        }
+        let accepted = value.clamp(MIN_EXPOSURE, MAX_EXPOSURE);
+        self.state().exposure = accepted;
+        Ok(accepted)
+    }
+
     fn grab(&mut self) -> Result<Frame> {
         let mut st = self.state();
         let mut k = st.next;
@@ -214,7 +241,14 @@ impl FrameSource for VirtualRig {
                 s
             }
         };
-        let image = sim.finish(&signal, Some(k));
+        let image = if st.exposure == 1.0 {
+            sim.finish(&signal, Some(k))
+        } else {
+            // Exposure time scales all light reaching the sensor, ambient included.
+            let e = st.exposure as f32;
+            let scaled: Vec<f32> = signal.iter().map(|&v| v * e).collect();
+            sim.finish(&scaled, Some(k))
+        };
         let timestamp = Duration::from_secs_f64(k as f64 / st.latency.fps);
         Ok(Frame {
             image,

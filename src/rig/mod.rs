@@ -28,6 +28,7 @@ pub mod scene;
 pub mod score;
 pub mod sheet;
 mod texture;
+pub mod window_camera;
 
 pub use export::{ExportOptions, export_setup};
 pub use live::VirtualRig;
