@@ -320,3 +320,78 @@ fn average(frames: &[CamImage]) -> Result<CamImage> {
         sum.into_iter().map(|s| s / n).collect(),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::Frame;
+    use std::time::Duration;
+
+    fn flat(v: f32) -> CamImage {
+        CamImage::filled(16, 12, [v; 3])
+    }
+
+    #[test]
+    fn exposure_checks_name_what_to_change() {
+        let err = |b: f32, w: f32| {
+            check_exposure(b as f64, w as f64, &flat(b), &flat(w)).map_err(|e| e.to_string())
+        };
+        assert!(
+            err(0.10, 0.11)
+                .unwrap_err()
+                .contains("does not see the projector")
+        );
+        assert!(err(0.40, 0.45).unwrap_err().contains("too dim"));
+        assert!(err(0.05, 1.0).unwrap_err().contains("saturates"));
+        assert!(err(0.05, 0.9).is_ok());
+    }
+
+    /// A projector and camera whose picture brightens a little with every frame, whatever is
+    /// shown: a camera with automatic exposure that never settles.
+    struct Drifting {
+        seq: u64,
+    }
+
+    impl DisplaySink for Drifting {
+        fn size(&self) -> ImageSize {
+            ImageSize::new(8, 6)
+        }
+        fn show(&mut self, _: &PrjImage) -> Result<()> {
+            Ok(())
+        }
+    }
+
+    impl FrameSource for Drifting {
+        fn size(&self) -> ImageSize {
+            ImageSize::new(16, 12)
+        }
+        fn grab(&mut self) -> Result<Frame> {
+            self.seq += 1;
+            Ok(Frame {
+                image: flat((0.2 + 0.01 * self.seq as f32).min(1.0)),
+                seq: self.seq,
+                timestamp: Duration::from_millis(33 * self.seq),
+            })
+        }
+    }
+
+    #[test]
+    fn a_picture_that_never_settles_is_retaken_then_refused() {
+        let (mut d, mut c) = (Drifting { seq: 0 }, Drifting { seq: 0 });
+        let latency = Latency {
+            trials: vec![1],
+            settle_frames: 2,
+            black_level: 0.0,
+            white_level: 1.0,
+        };
+        let settings = SyncSettings {
+            average: 8,
+            ..SyncSettings::default()
+        };
+        let mut cap = Capturer::new(&mut d, &mut c, &latency, settings);
+        let e = cap.capture(&PrjImage::new(8, 6), true).unwrap_err();
+        assert!(e.to_string().contains("keeps changing"), "{e}");
+        assert_eq!(e.exit_code(), 2);
+        assert_eq!(cap.retakes, settings.retakes);
+    }
+}
