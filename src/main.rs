@@ -41,6 +41,8 @@ enum Command {
     /// Training and inference cost of the CompenNet++ rungs and `linear` on this CPU, against
     /// the machine's arithmetic rate measured in the same run.
     BenchTrain(cli::bench_train::Args),
+    /// List the cameras (V4L2 devices): formats, sizes, frame rates and controls.
+    Cameras(cli::cameras::Args),
     /// Calibrate a rig: measure its latency, project and capture the patterns, train, verify
     /// on held-out images and install the model only if it verified.
     Calibrate(cli::calibrate::Args),
@@ -141,6 +143,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => cli::bench::run(a),
         Command::BenchGpu(a) => cli::bench_gpu::run(a),
         Command::BenchTrain(a) => cli::bench_train::run(a),
+        Command::Cameras(a) => cli::cameras::run(a),
         Command::Calibrate(a) => cli::calibrate::run(a),
         Command::Compensate(a) => cli::compensate::run(a),
         Command::Eval(a) => cli::eval::run(a),

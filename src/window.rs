@@ -38,7 +38,7 @@ use crate::gpu::{CompensationPass, FRAME_FORMAT, GpuContext};
 use crate::playback::player::{Refresh, Screen, Show};
 use crate::raster::{ImageSize, PrjImage};
 use blit::Blit;
-use record::{Pending, Recorder};
+use record::{Pacer, Pending, Recorder};
 pub use record::{PresentLog, Presented, ShowTiming};
 
 /// How long the window system may take to open the window.
@@ -242,8 +242,8 @@ pub struct ProjectorWindow {
     surface_usages: wgpu::TextureUsages,
     /// Reads back every presented frame, once asked to.
     recorder: Option<Recorder>,
-    /// When `show` presented last.
-    last_show: Option<Instant>,
+    /// Keeps `show` to the refresh rate.
+    pacer: Pacer,
     timing: ShowTiming,
 }
 
@@ -278,7 +278,7 @@ impl ProjectorWindow {
             refresh_hz,
             surface_usages: caps.usages,
             recorder: None,
-            last_show: None,
+            pacer: Pacer::new(refresh_hz),
             timing: ShowTiming::default(),
         })
     }
@@ -373,18 +373,6 @@ impl ProjectorWindow {
         Ok(true)
     }
 
-    /// Waits for the next refresh slot of `show`: one refresh period after its last present.
-    fn wait_for_refresh(&mut self) {
-        let period = Duration::from_secs_f64(1.0 / self.refresh_hz);
-        if let Some(last) = self.last_show {
-            let wait = (last + period).saturating_duration_since(Instant::now());
-            if !wait.is_zero() {
-                std::thread::sleep(wait);
-                self.timing.waited_s += wait.as_secs_f64();
-            }
-        }
-    }
-
     /// The texture [`DisplaySink::show`] uploads into, made on first use.
     fn upload_texture(&mut self) -> wgpu::Texture {
         let ImageSize {
@@ -454,17 +442,17 @@ impl DisplaySink for ProjectorWindow {
         }
         self.timing.shows += 1;
         for _ in 0..SHOW_TRIES {
-            self.wait_for_refresh();
-            if self.present_texture(&tex)? {
-                let now = Instant::now();
-                if let Some(last) = self.last_show.replace(now) {
-                    self.timing.interval(now - last);
+            self.timing.waited_s += self.pacer.wait().as_secs_f64();
+            let presented = self.present_texture(&tex)?;
+            let since = self.pacer.presented(Instant::now());
+            if presented {
+                if let Some(d) = since {
+                    self.timing.interval(d);
                 }
                 return Ok(());
             }
             // The surface skipped this refresh: try at the next one.
             self.timing.skipped += 1;
-            self.last_show = Some(Instant::now());
             self.pump();
         }
         Err(Error::Failed(format!(

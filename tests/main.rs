@@ -3,6 +3,8 @@
 
 mod bench;
 mod calibrate;
+mod calibrate_window;
+mod camera;
 mod common;
 mod dataset;
 mod files;

@@ -17,6 +17,7 @@
 //!    projected, captured and scored inside the displayable area against the view they should
 //!    give. The caller installs the model only when it passed.
 
+pub mod clock;
 pub mod exposure;
 pub mod manifest;
 pub mod sync;

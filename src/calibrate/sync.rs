@@ -8,7 +8,16 @@
 //! margin. A capture averages a few frames after that against noise, and is retaken when those
 //! frames disagree (the image changed while they were taken) or when it does not differ from
 //! the previous capture (the new pattern was not on the surface yet).
+//!
+//! Frames that waited in the camera's buffers (the reader paused, e.g. to write captures or to
+//! train) were exposed before the show whatever their sequence numbers: when the camera's clock
+//! runs in real time, the latency measurement maps it onto this machine's
+//! ([`super::clock::CameraClock`]) and each capture first skips the frames exposed before its
+//! show.
 
+use std::time::Instant;
+
+use super::clock::{CameraClock, Timed};
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
 use crate::raster::{CamImage, ImageSize, PrjImage};
@@ -50,6 +59,9 @@ pub struct Latency {
     /// Mean camera level (encoded, \[0,1\]) under black and under white.
     pub black_level: f64,
     pub white_level: f64,
+    /// The camera's clock, when it runs in real time (not recorded).
+    #[serde(skip)]
+    pub clock: Option<CameraClock>,
 }
 
 /// Mean of all values of a camera image (encoded units).
@@ -87,6 +99,7 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     camera: &mut C,
     settings: &SyncSettings,
 ) -> Result<Latency> {
+    let camera = &mut Timed::new(camera);
     let size = display.size();
     let black = PrjImage::new(size.width, size.height);
     let white = PrjImage::filled(size.width, size.height, [1.0; 3]);
@@ -130,6 +143,7 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         settle_frames: worst + settings.margin_frames,
         black_level,
         white_level,
+        clock: camera.clock(),
     })
 }
 
@@ -218,6 +232,7 @@ pub struct Capturer<'a, D: ?Sized, C: ?Sized> {
     camera: &'a mut C,
     settings: SyncSettings,
     settle: u64,
+    clock: Option<CameraClock>,
     previous: Option<CamImage>,
     /// Captures retaken because a check failed.
     pub retakes: usize,
@@ -235,6 +250,7 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
             camera,
             settings,
             settle: latency.settle_frames,
+            clock: latency.clock,
             previous: None,
             retakes: 0,
         }
@@ -245,22 +261,40 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
         self.display.size()
     }
 
+    /// The camera's next frame, its arrival refining the camera's clock.
+    fn grab(&mut self) -> Result<crate::device::Frame> {
+        let f = self.camera.grab()?;
+        if let Some(c) = &mut self.clock {
+            c.observe(&f, Instant::now());
+        }
+        Ok(f)
+    }
+
     /// Shows `frame` and returns the average of `average` camera frames exposed after it was
     /// on the surface. `differs`: the frame differs from the previously captured one, so the
     /// capture must differ from the previous capture too.
     pub fn capture(&mut self, frame: &PrjImage, differs: bool) -> Result<CamImage> {
         let mut settle = self.settle;
         for attempt in 0..=self.settings.retakes {
+            let shown_at = Instant::now();
             self.display.show(frame)?;
-            let mut f = self.camera.grab()?;
+            let mut f = self.grab()?;
+            // Frames exposed before the show waited in the camera's buffers: skip them.
+            let mut stale = 0;
+            while stale < self.settings.max_wait_frames
+                && self.clock.is_some_and(|c| c.exposed_before(&f, shown_at))
+            {
+                f = self.grab()?;
+                stale += 1;
+            }
             // Exposures up to `settle` after the first one may still show the previous frame.
             let counts_from = f.seq + settle;
             while f.seq < counts_from {
-                f = self.camera.grab()?;
+                f = self.grab()?;
             }
             let mut frames = vec![f.image];
             while frames.len() < self.settings.average.max(1) {
-                frames.push(self.camera.grab()?.image);
+                frames.push(self.grab()?.image);
             }
             // Block-mean disagreement between the first and last averaged frames: noise, or a
             // change of the image while they were exposed.
@@ -268,8 +302,8 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
             let avg = average(&frames)?;
             let stable = frames.len() < 2 || noise < 0.02;
             tracing::debug!(
-                "capture attempt {attempt}: block noise {noise:.4}, change from the previous \
-                 capture {:?}, settle {settle}",
+                "capture attempt {attempt}: {stale} stale frames skipped, block noise \
+                 {noise:.4}, change from the previous capture {:?}, settle {settle}",
                 self.previous.as_ref().map(|p| block_diff(p, &avg))
             );
             let new = !differs
@@ -383,6 +417,7 @@ mod tests {
             settle_frames: 2,
             black_level: 0.0,
             white_level: 1.0,
+            clock: None,
         };
         let settings = SyncSettings {
             average: 8,

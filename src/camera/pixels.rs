@@ -268,7 +268,7 @@ pub fn yuyv_to_rgba(
     colour: YCbCr,
 ) -> Result<ContentFrame> {
     let stride = check(PixelFormat::Yuyv, size, stride, src.len(), "YUYV")?;
-    if size.width % 2 != 0 {
+    if !size.width.is_multiple_of(2) {
         return Err(Error::Failed(format!(
             "YUYV frame {size}: the width must be even"
         )));
@@ -392,21 +392,27 @@ mod tests {
 
     #[test]
     fn primaries_decode_with_their_matrix() {
-        // BT.709 limited-range 75 % red is Y 63, Cb 102, Cr 240 (ITU-R BT.709 colour bars):
-        // R' = 0.75 · 255 ≈ 191, G' = B' = 0.
-        let f = yuyv_to_rgba(&[63, 102, 63, 240], ImageSize::new(2, 1), 0, BT709_LIMITED).unwrap();
+        // BT.709 limited-range red is Y 63, Cb 102, Cr 240; 75 % red is Y 51, Cb 109, Cr 212
+        // (R' = 0.75 · 255 ≈ 191).
+        let f = yuyv_to_rgba(&[63, 102, 51, 240], ImageSize::new(2, 1), 0, BT709_LIMITED).unwrap();
+        assert!(
+            f.rgba[0] >= 254 && f.rgba[1] <= 1 && f.rgba[2] <= 1,
+            "{:?}",
+            f.rgba
+        );
+        let f = yuyv_to_rgba(&[51, 109, 51, 212], ImageSize::new(2, 1), 0, BT709_LIMITED).unwrap();
         let px = &f.rgba[..3];
         assert!(
             (px[0] as i32 - 191).abs() <= 1 && px[1] <= 1 && px[2] <= 1,
             "{px:?}"
         );
-        // The same bytes through BT.601 give a visibly different colour (green goes up).
+        // The same bytes through BT.601 give a visibly different red (233, not 255).
         let c601 = YCbCr {
             matrix: Matrix::Bt601,
             range: Range::Limited,
         };
         let g = yuyv_to_rgba(&[63, 102, 63, 240], ImageSize::new(2, 1), 0, c601).unwrap();
-        assert!(g.rgba[1] > 5, "{:?}", &g.rgba[..3]);
+        assert!(g.rgba[0] < 240, "{:?}", &g.rgba[..3]);
         // JPEG (BT.601 full range) pure red: Y 76, Cb 85, Cr 255.
         let f = yuyv_to_rgba(&[76, 85, 76, 255], ImageSize::new(2, 1), 0, BT601_FULL).unwrap();
         assert!(

@@ -92,8 +92,8 @@ fn parse_rig(rig: &str) -> compend::Result<(RigKind, String)> {
         ("virtual", false) => Ok((RigKind::Virtual, scene.to_string())),
         ("window", false) => Ok((RigKind::Window, scene.to_string())),
         _ => Err(compend::Error::Input(format!(
-            "--rig {rig:?}: expected `virtual[:SCENE]` or `window[:SCENE]` (scenes: {}); real \
-             cameras are not supported by calibrate yet",
+            "--rig {rig:?}: expected `virtual`, `virtual:SCENE`, `window` or `window:SCENE` \
+             (scenes: {}); real cameras are not supported by calibrate yet",
             scene::BUILTIN.join(", ")
         ))),
     }
@@ -186,9 +186,10 @@ fn run_window(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
         .into());
     }
     let scene = scene_for(args, scene_name, Some(size))?;
-    // The camera looks back the delay; a second more covers a camera that renders late.
+    // The camera looks back the delay; a quarter second more covers a camera rendering late
+    // (one that falls further behind skips the exposures it missed).
     let l = &scene.latency;
-    let keep = Duration::from_secs_f64(1.0 + (l.delay_frames as f64 + 2.0) / l.fps);
+    let keep = Duration::from_secs_f64(0.25 + (l.delay_frames as f64 + 4.0) / l.fps);
     let log = win.record_presented(keep);
     let look = move |t| {
         log.at(t).map(|p| Shown {

@@ -5,6 +5,7 @@ pub mod bench;
 pub mod bench_gpu;
 pub mod bench_train;
 pub mod calibrate;
+pub mod cameras;
 pub mod compensate;
 pub mod eval;
 pub mod inspect;

@@ -11,7 +11,8 @@
 //!   the projector window, its log of presented frames read back from the GPU); before the
 //!   first present it sees black;
 //! - the image is what a private [`super::VirtualRig`] (no delay, no drops) shows for that
-//!   frame: the simulator's surface, camera response, noise and quantisation;
+//!   frame: the simulator's surface, camera response, noise and quantisation; its manual
+//!   exposure is the camera's ([`FrameSource::set_exposure`] applies from the next exposure);
 //! - frames wait in a queue of [`BUFFERS`] like a driver's buffers: while nobody takes them, the
 //!   queue fills up and newer frames are lost (their sequence numbers skipped), so a reader that
 //!   comes back after a pause first gets frames exposed during the pause (stale frames);
@@ -26,7 +27,7 @@ use std::time::{Duration, Instant};
 use super::live::VirtualRig;
 use super::physics::mix64;
 use super::scene::{Latency, Scene};
-use crate::device::{DisplaySink, Frame, FrameSource};
+use crate::device::{DisplaySink, ExposureRange, Frame, FrameSource};
 use crate::error::{Error, Result};
 use crate::raster::{ImageSize, PrjImage};
 
@@ -70,6 +71,8 @@ pub struct CameraTiming {
 /// The virtual camera; frames are rendered on its own thread, stopped on drop.
 pub struct WindowCamera {
     size: ImageSize,
+    /// The private rig the camera thread renders with (shared: its exposure is the camera's).
+    rig: VirtualRig,
     frames: Receiver<Result<Frame>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
@@ -125,7 +128,7 @@ impl WindowCamera {
         let stop = Arc::new(AtomicBool::new(false));
         let timing = Arc::new(Mutex::new(CameraTiming::default()));
         let exposer = Exposer {
-            rig,
+            rig: rig.clone(),
             look,
             latency,
             seed,
@@ -139,6 +142,7 @@ impl WindowCamera {
             .map_err(|e| Error::Failed(format!("cannot start the virtual camera: {e}")))?;
         Ok(Self {
             size,
+            rig,
             frames,
             stop,
             thread: Some(thread),
@@ -253,6 +257,15 @@ impl<L: FnMut(Instant) -> Option<Shown>> Exposer<L> {
 impl FrameSource for WindowCamera {
     fn size(&self) -> ImageSize {
         self.size
+    }
+
+    /// The private rig's: a factor of the scene's exposure.
+    fn exposure(&self) -> Option<ExposureRange> {
+        self.rig.exposure()
+    }
+
+    fn set_exposure(&mut self, value: f64) -> Result<f64> {
+        self.rig.set_exposure(value)
     }
 
     fn grab(&mut self) -> Result<Frame> {

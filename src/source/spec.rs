@@ -19,7 +19,7 @@ Video sources (SRC):
                              --source 'raw:-?size=1280x720&format=rgb24'
   raw:PATH?size=WxH[&format=..]
                            raw frames from a FIFO (or a file)
-  v4l2:DEVICE[?size=WxH]   a V4L2 capture device, e.g. v4l2:/dev/video2 (YUYV, RGB3 or MJPEG)
+  v4l2:DEVICE[?size=WxH]   a V4L2 capture device, e.g. v4l2:/dev/video2 (YUYV, NV12, RGB3 or MJPEG)
   pattern:NAME[?size=WxH&fps=F&frames=N]
                            a generated test pattern: bars, ramp, checker, gray, moving
                            (default 1280x720 at 60 fps, endless)";

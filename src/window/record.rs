@@ -95,7 +95,7 @@ pub struct ShowTiming {
     /// Time `show` waited for the next refresh slot (the refresh rate honoured by the window
     /// itself, since a display without vsync presents at once), s.
     pub waited_s: f64,
-    /// Shortest and longest time between two shows' presents, ms.
+    /// Shortest and longest time between two refreshes `show` used (presented or skipped), ms.
     pub interval_ms_min: f64,
     pub interval_ms_max: f64,
     /// Mean and worst time of the read-back after a present, ms (recording only).
@@ -120,6 +120,43 @@ impl ShowTiming {
         self.readback_ms_mean = (self.readback_ms_mean * n + ms) / (n + 1.0);
         self.readback_ms_max = self.readback_ms_max.max(ms);
         self.recorded += 1;
+    }
+}
+
+/// Keeps `show` to one present per refresh period, as a display with vsync would.
+#[derive(Debug)]
+pub(super) struct Pacer {
+    period: Duration,
+    last: Option<Instant>,
+}
+
+impl Pacer {
+    /// A pacer for a display refreshing at `hz`, Hz.
+    pub(super) fn new(hz: f64) -> Self {
+        Self {
+            period: Duration::from_secs_f64(1.0 / hz),
+            last: None,
+        }
+    }
+
+    /// Sleeps until one period after the last present; returns how long it slept.
+    pub(super) fn wait(&mut self) -> Duration {
+        let Some(last) = self.last else {
+            return Duration::ZERO;
+        };
+        let wait = (last + self.period).saturating_duration_since(Instant::now());
+        if !wait.is_zero() {
+            std::thread::sleep(wait);
+        }
+        wait
+    }
+
+    /// Notes a present (or a refresh the surface skipped) at `at`; returns the time since the
+    /// previous one.
+    pub(super) fn presented(&mut self, at: Instant) -> Option<Duration> {
+        self.last
+            .replace(at)
+            .map(|prev| at.saturating_duration_since(prev))
     }
 }
 
@@ -292,6 +329,20 @@ mod tests {
             at,
             image: Arc::new(PrjImage::new(2, 2)),
         }
+    }
+
+    #[test]
+    fn the_pacer_presents_at_most_once_per_refresh_period() {
+        let mut pacer = Pacer::new(100.0);
+        let start = Instant::now();
+        for _ in 0..5 {
+            pacer.wait();
+            pacer.presented(Instant::now());
+        }
+        // Four waits of a 10 ms period after the first present.
+        let took = start.elapsed();
+        assert!(took >= Duration::from_millis(40), "{took:?}");
+        assert!(pacer.presented(Instant::now()).is_some());
     }
 
     #[test]
