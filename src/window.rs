@@ -16,7 +16,7 @@
 //! `show` honours the refresh rate itself: it presents at most once per refresh period, since a
 //! display without vsync (Xvfb) presents at once. With [`ProjectorWindow::record_presented`] the
 //! window reads back every frame it presents, with the moment it was presented, into a
-//! [`PresentLog`] ([`record`]): what a camera looking at the projection could see.
+//! [`PresentLog`]: what a camera looking at the projection could see.
 
 mod blit;
 mod record;

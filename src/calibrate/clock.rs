@@ -18,12 +18,12 @@ use crate::raster::ImageSize;
 
 /// Fewest frames, and shortest time in seconds, to tell whether the camera's clock runs in
 /// real time.
-const MIN_FRAMES: usize = 8;
-const MIN_SPAN_S: f64 = 0.1;
+const MIN_FRAMES: usize = 9;
+const MIN_SPAN_S: f64 = 0.2;
 
-/// How far the camera's clock may run from real time (a ratio of elapsed times) and still be
+/// How far the camera's clock may run from real time (its rate, 1 = real time) and still be
 /// taken as real time.
-const RATE_RANGE: (f64, f64) = (0.5, 2.0);
+const MAX_DRIFT: f64 = 0.2;
 
 /// The camera's clock mapped onto this machine's.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -66,24 +66,28 @@ impl<'c, C: FrameSource + ?Sized> Timed<'c, C> {
 
     /// The camera's clock from the frames grabbed so far; None when there were too few or the
     /// camera's clock does not run in real time.
+    ///
+    /// The rate is judged by the smallest (arrival − timestamp) of the first and of the last
+    /// third of the frames, which frames that waited in buffers do not disturb: for a clock
+    /// running at rate r it changes by (r − 1) times the time between them.
     pub fn clock(&self) -> Option<CameraClock> {
+        let n = self.samples.len();
         let (first, last) = (self.samples.first()?, self.samples.last()?);
         let span = last.0 - first.0;
-        if self.samples.len() < MIN_FRAMES || span < MIN_SPAN_S {
+        if n < MIN_FRAMES || span < MIN_SPAN_S {
             return None;
         }
-        let rate = (last.1 - first.1) / span;
-        if !(RATE_RANGE.0..=RATE_RANGE.1).contains(&rate) {
+        let least = |s: &[(f64, f64)]| s.iter().map(|(a, t)| a - t).fold(f64::MAX, f64::min);
+        let (early, late) = (
+            least(&self.samples[..n / 3]),
+            least(&self.samples[n - n / 3..]),
+        );
+        if (early - late).abs() > MAX_DRIFT * span {
             return None;
         }
-        let offset = self
-            .samples
-            .iter()
-            .map(|(a, t)| a - t)
-            .fold(f64::MAX, f64::min);
         Some(CameraClock {
             base: self.base,
-            offset,
+            offset: least(&self.samples),
         })
     }
 }
@@ -116,11 +120,13 @@ mod tests {
     use super::*;
     use crate::raster::CamImage;
 
-    /// A camera whose timestamps advance `step` per grab, each grab taking `takes`.
+    /// A camera whose timestamps advance `step` per grab, each grab taking `takes`, except the
+    /// first `burst`, which waited in buffers and come at once.
     struct Stepping {
         k: u64,
         step: Duration,
         takes: Duration,
+        burst: u64,
     }
 
     impl FrameSource for Stepping {
@@ -128,7 +134,9 @@ mod tests {
             ImageSize::new(2, 2)
         }
         fn grab(&mut self) -> Result<Frame> {
-            std::thread::sleep(self.takes);
+            if self.k >= self.burst {
+                std::thread::sleep(self.takes);
+            }
             self.k += 1;
             Ok(Frame {
                 image: CamImage::new(2, 2),
@@ -138,37 +146,49 @@ mod tests {
         }
     }
 
+    fn timed_frames(camera: &mut Stepping, n: usize) -> Option<CameraClock> {
+        let mut timed = Timed::new(camera);
+        for _ in 0..n {
+            timed.grab().unwrap();
+        }
+        timed.clock()
+    }
+
     #[test]
     fn a_real_time_camera_gets_a_clock_and_a_virtual_one_none() {
         let ms = Duration::from_millis;
+        // 4 buffered frames, then one every 15 ms on a real-time clock.
         let mut real = Stepping {
             k: 0,
             step: ms(15),
             takes: ms(15),
+            burst: 4,
         };
-        let mut timed = Timed::new(&mut real);
-        for _ in 0..10 {
-            timed.grab().unwrap();
-        }
-        let clock = timed.clock().expect("a real-time clock");
-        // A frame with the last timestamp was exposed before now, and not before 0.1 s ago.
-        let last = Frame {
+        let start = Instant::now();
+        let clock = timed_frames(&mut real, 24).expect("a real-time clock");
+        let end = Instant::now();
+        let frame = |k: u32| Frame {
             image: CamImage::new(2, 2),
-            seq: 10,
-            timestamp: ms(150),
+            seq: u64::from(k),
+            timestamp: ms(15) * k,
         };
-        assert!(clock.exposed_before(&last, Instant::now() + ms(50)));
-        assert!(!clock.exposed_before(&last, Instant::now() - ms(100)));
+        // The last frame came in at `end`; the buffered ones were exposed before `start`.
+        assert!(clock.exposed_before(&frame(24), end + ms(10)));
+        assert!(!clock.exposed_before(&frame(24), end - ms(20)));
+        assert!(clock.exposed_before(&frame(2), start));
 
+        // The virtual rig's clock: a frame period per grab, whatever the grab takes.
         let mut virtual_rig = Stepping {
             k: 0,
             step: ms(33),
             takes: ms(12),
+            burst: 0,
         };
-        let mut timed = Timed::new(&mut virtual_rig);
-        for _ in 0..10 {
-            timed.grab().unwrap();
-        }
-        assert_eq!(timed.clock(), None);
+        assert_eq!(timed_frames(&mut virtual_rig, 24), None);
+        let mut slow_virtual_rig = Stepping {
+            takes: ms(50),
+            ..virtual_rig
+        };
+        assert_eq!(timed_frames(&mut slow_virtual_rig, 12), None);
     }
 }

@@ -22,6 +22,10 @@ use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
 use crate::raster::{CamImage, ImageSize, PrjImage};
 
+/// Most frames skipped as exposed before a show: more than a camera's capture buffers (4 for
+/// compend's V4L2 camera).
+const MAX_STALE_FRAMES: u64 = 16;
+
 /// How captures are synchronised and averaged.
 #[derive(Clone, Copy, Debug)]
 pub struct SyncSettings {
@@ -279,9 +283,10 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
             let shown_at = Instant::now();
             self.display.show(frame)?;
             let mut f = self.grab()?;
-            // Frames exposed before the show waited in the camera's buffers: skip them.
+            // Frames exposed before the show waited in the camera's buffers: skip them (no more
+            // than a camera buffers).
             let mut stale = 0;
-            while stale < self.settings.max_wait_frames
+            while stale < MAX_STALE_FRAMES
                 && self.clock.is_some_and(|c| c.exposed_before(&f, shown_at))
             {
                 f = self.grab()?;

@@ -17,7 +17,9 @@ use crate::raster::PrjImage;
 pub struct Presented {
     /// Number of the present, from 1, counting every present of the window while recording.
     pub index: u64,
-    /// When `present` returned (the frame was handed to the window system).
+    /// When `present` returned: the frame was handed to the window system. Under Xvfb it is on
+    /// the screen then; a display with vsync shows it at one of the next refreshes (FIFO, at
+    /// most two frames queued).
     pub at: Instant,
     /// The presented pixels as read back, projector pixels, 8-bit levels.
     pub image: Arc<PrjImage>,
