@@ -172,6 +172,14 @@ fn main() -> ExitCode {
 
 #[cfg(test)]
 mod tests {
+    /// clap's own consistency checks over every subcommand (unique names, valid conflicts and
+    /// requirements), which otherwise run only when a command is parsed in a debug build.
+    #[test]
+    fn the_command_line_is_consistent() {
+        use clap::CommandFactory;
+        super::Cli::command().debug_assert();
+    }
+
     /// The option id is mimalloc's purge delay: the bundled mimalloc (v3) defaults it to 1 000 ms.
     #[test]
     fn compute_commands_run_on_a_pool_worker() {

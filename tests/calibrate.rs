@@ -1,7 +1,8 @@
 //! `compend calibrate` on the virtual rig through the real binary: a verified model is
 //! installed and its record written; an interrupted calibration resumes from the captures on
-//! disk; a rig whose camera does not see the projector, captures of another pattern set and a
-//! bad output path are refused with exit 2, the installed model untouched.
+//! disk; a rig whose camera does not see the projector, captures of another pattern set, a
+//! camera that is not there and a bad output path are refused with exit 2, the installed model
+//! untouched.
 
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -11,7 +12,7 @@ use crate::common::{assert_code, compend, stderr, stdout};
 
 /// Tiny sizes: a run takes seconds in the test profile.
 const TINY: [&str; 6] = [
-    "--camera",
+    "--rig-camera",
     "160x120",
     "--projector",
     "200x150",
@@ -181,6 +182,28 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
     let o = compend(&calibrate_args(d, &["--rig", "usb"]));
     assert_code(&o, 2);
     assert!(stderr(&o).contains("virtual:SCENE"), "{}", stderr(&o));
+
+    // Hardware: no such camera, a file that is not one, and the two kinds of rig together.
+    for (camera, says) in [
+        ("/dev/video-none-here", "video-none-here"),
+        ("/etc/hostname", "/etc/hostname"),
+    ] {
+        let o = compend(&[
+            "calibrate",
+            "--camera",
+            camera,
+            "--data",
+            d,
+            "--out",
+            model.to_str().unwrap(),
+        ]);
+        assert_code(&o, 2);
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+    }
+    let o = compend(&["calibrate", "--camera", "/dev/video0", "--rig", "virtual"]);
+    assert_code(&o, 2);
+    let o = compend(&["calibrate", "--data", d]);
+    assert_code(&o, 2);
 
     assert_eq!(
         std::fs::read(model.join("model.safetensors")).unwrap(),

@@ -28,7 +28,7 @@ const SCENE: &str = "textured-plane";
 
 /// The tiny run of the brief: seconds in the test profile.
 const TINY: [&str; 15] = [
-    "--camera",
+    "--rig-camera",
     "160x120",
     "--projector",
     "200x150",
@@ -395,7 +395,7 @@ fn calibrate_on_a_real_projector() {
         &monitor,
         "--data",
         data.to_str().unwrap(),
-        "--camera",
+        "--rig-camera",
         "320x240",
         "--ntrain",
         "16",

@@ -26,8 +26,21 @@ pub struct Args {
     /// window watched by a virtual camera that sees what the window presented through the
     /// scene's surface and camera. SCENE: a built-in scene or scene JSON file (see `compend sim
     /// list`) [default: curved].
-    #[arg(long, value_name = "virtual|window[:SCENE]")]
-    pub rig: String,
+    #[arg(
+        long,
+        value_name = "virtual|window[:SCENE]",
+        required_unless_present = "camera"
+    )]
+    pub rig: Option<String>,
+    /// Calibrate real hardware: this V4L2 camera (e.g. /dev/video0 or a /dev/v4l/by-id/ path)
+    /// looking at the projector window on `--monitor`. Its exposure, gain, white balance, focus,
+    /// backlight compensation and power-line filter are locked first, and the values it
+    /// accepted are printed.
+    #[arg(long, value_name = "DEV", conflicts_with = "rig")]
+    pub camera: Option<PathBuf>,
+    /// `--camera` only: the capture size WxH [default: the camera's current size].
+    #[arg(long, value_name = "WxH", value_parser = parse_camera_size, requires = "camera")]
+    pub camera_size: Option<compend::raster::ImageSize>,
     /// `--rig window` only: the projector's monitor, its name or index [default: the primary
     /// monitor]. The projector size is the monitor's.
     #[arg(long)]
@@ -64,9 +77,20 @@ pub struct Args {
     /// Virtual camera only: camera frame rate, Hz (default: the scene's).
     #[arg(long, value_name = "HZ")]
     pub rig_fps: Option<f64>,
-    /// Network size of the sampling images, and the virtual rig's camera and projector sizes.
-    #[command(flatten)]
-    pub scene_args: SceneArgs,
+    /// Seed of the sampling images (and of the virtual rig's texture and noise).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Network size of the sampling images: N (square) or WxH, sides divisible by 4.
+    #[arg(long, default_value = "256", value_name = "N|WxH", value_parser = super::sim::parse_network)]
+    pub network: compend::raster::ImageSize,
+    /// Virtual camera only: its resolution WxH (default: the scene's, 640x480 for built-in
+    /// scenes).
+    #[arg(long, value_name = "WxH", value_parser = parse_camera_size)]
+    pub rig_camera: Option<compend::raster::ImageSize>,
+    /// Virtual rig only: the projector resolution WxH (default: the scene's, 800x600); the
+    /// window's is its monitor's.
+    #[arg(long, value_name = "WxH", value_parser = parse_camera_size)]
+    pub projector: Option<compend::raster::ImageSize>,
     /// Print the calibration record as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
@@ -104,7 +128,11 @@ pub fn run(args: Args) -> Result<()> {
     // Before any work: where the model goes must take a model, and the numbers must make sense.
     compend::model::store::check_output(&out)?;
     check_counts(&args)?;
-    let (kind, scene_name) = parse_rig(&args.rig)?;
+    let Some(rig) = &args.rig else {
+        let device = args.camera.clone().unwrap_or_default();
+        return run_hardware(&args, &out, &device);
+    };
+    let (kind, scene_name) = parse_rig(rig)?;
     match kind {
         RigKind::Virtual => {
             if args.monitor.is_some() {
@@ -126,7 +154,13 @@ fn scene_for(
     name: &str,
     projector: Option<compend::raster::ImageSize>,
 ) -> Result<Scene> {
-    let mut scene = super::sim::resolve(name, &args.scene_args)?;
+    let scene_args = SceneArgs {
+        seed: args.seed,
+        camera: args.rig_camera,
+        projector: args.projector,
+        network: args.network,
+    };
+    let mut scene = super::sim::resolve(name, &scene_args)?;
     if let Some(p) = projector {
         let camera = scene.camera.size();
         scene = scene.with_resolution(camera, p);
@@ -154,10 +188,51 @@ fn describe_camera(scene: &Scene) -> String {
     )
 }
 
+/// Calibrates real hardware: a V4L2 camera looking at the projector window.
+#[cfg(target_os = "linux")]
+fn run_hardware(args: &Args, out: &Path, device: &Path) -> Result<()> {
+    // The camera first: a missing or wrong device fails before a window opens.
+    let mut camera = compend::camera::V4l2Camera::open(device, args.camera_size)?;
+    let report = camera
+        .lock_for_calibration(&compend::camera::LockSettings::default())
+        .with_context(|| format!("locking the controls of {}", device.display()))?;
+    for line in report.lines() {
+        eprintln!("calibrate: {}: {line}", device.display());
+    }
+    let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
+    let size = DisplaySink::size(&win);
+    eprintln!(
+        "calibrate: projector window {size} at {} Hz on {} ({}), camera {} ({}) into {}",
+        win.refresh_hz(),
+        args.monitor.as_deref().unwrap_or("the primary monitor"),
+        win.context().describe(),
+        device.display(),
+        FrameSource::size(&camera),
+        args.data.display()
+    );
+    let done = calibrate_on(
+        &mut win,
+        &mut camera,
+        args,
+        size,
+        format!("camera:{}", device.display()),
+    );
+    install(done?, out)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn run_hardware(_: &Args, _: &Path, device: &Path) -> Result<()> {
+    Err(compend::Error::Input(format!(
+        "--camera {}: V4L2 cameras exist on Linux only",
+        device.display()
+    ))
+    .into())
+}
+
 /// Calibrates on the virtual rig.
 fn run_virtual(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
     let scene = scene_for(args, scene_name, None)?;
-    let rig = VirtualRig::new(&scene, args.scene_args.seed)
+    let rig = VirtualRig::new(&scene, args.seed)
         .with_context(|| format!("preparing the virtual rig (scene {scene_name:?})"))?;
     let (mut display, mut camera) = (rig.clone(), rig);
     eprintln!(
@@ -167,7 +242,7 @@ fn run_virtual(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
         args.data.display()
     );
     let rig = format!("virtual:{scene_name}");
-    let done = calibrate_on(&mut display, &mut camera, args, &scene, rig)?;
+    let done = calibrate_on(&mut display, &mut camera, args, scene.projector.size(), rig)?;
     install(done, out)
 }
 
@@ -175,7 +250,7 @@ fn run_virtual(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
 fn run_window(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
     let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
     let size = DisplaySink::size(&win);
-    if let Some(p) = args.scene_args.projector
+    if let Some(p) = args.projector
         && p != size
     {
         return Err(compend::Error::Input(format!(
@@ -198,7 +273,7 @@ fn run_window(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
             image: p.image,
         })
     };
-    let mut camera = WindowCamera::start(&scene, args.scene_args.seed, look)
+    let mut camera = WindowCamera::start(&scene, args.seed, look)
         .with_context(|| format!("preparing the virtual camera (scene {scene_name:?})"))?;
     eprintln!(
         "calibrate: projector window {size} at {} Hz on {} ({}), virtual camera on scene \
@@ -210,7 +285,7 @@ fn run_window(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
         args.data.display()
     );
     let rig = format!("window:{scene_name}");
-    let done = calibrate_on(&mut win, &mut camera, args, &scene, rig);
+    let done = calibrate_on(&mut win, &mut camera, args, scene.projector.size(), rig);
     report_window_timing(&win, &camera, &scene);
     if let Ok(d) = &done {
         let trials = &d.record.latency.trials;
@@ -265,16 +340,16 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
     args: &Args,
-    scene: &Scene,
+    projector: compend::raster::ImageSize,
     rig: String,
 ) -> Result<Calibrated> {
     let opts = Options {
         patterns: PatternSet {
-            seed: args.scene_args.seed,
+            seed: args.seed,
             ntrain: args.ntrain,
             ntest: args.ntest,
-            network: args.scene_args.network,
-            projector: scene.projector.size(),
+            network: args.network,
+            projector,
             gray_level: compend::patterns::DEFAULT_GRAY_LEVEL,
         },
         method: args.method,
@@ -395,4 +470,9 @@ fn check_counts(a: &Args) -> compend::Result<()> {
         }
     }
     Ok(())
+}
+
+/// `--camera-size`, `--rig-camera` and `--projector`: WxH.
+fn parse_camera_size(s: &str) -> std::result::Result<compend::raster::ImageSize, String> {
+    super::patterns::parse_wxh(s, false)
 }

@@ -147,7 +147,7 @@ fn parse_size(s: &str) -> std::result::Result<ImageSize, String> {
     parse_wxh(s, false)
 }
 
-fn parse_network(s: &str) -> std::result::Result<ImageSize, String> {
+pub fn parse_network(s: &str) -> std::result::Result<ImageSize, String> {
     let size = parse_wxh(s, true)?;
     if size.width % 4 != 0 || size.height % 4 != 0 {
         return Err(format!(
