@@ -11,8 +11,7 @@
 //! On a real projector (ignored here; run by hand on the projection PC, see
 //! [`calibrate_on_a_real_projector`]).
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -21,7 +20,8 @@ use compend::raster::{CamImage, ImageSize, PrjImage};
 use compend::rig::scene::{Latency, Scene};
 use compend::rig::window_camera::{BUFFERS, Shown, WindowCamera};
 
-use crate::common::{assert_code, compend, gpu, skip_or_fail, stderr, stdout};
+use crate::common::{assert_code, compend, gpu, stderr, stdout};
+use crate::window::Xvfb;
 
 /// The scene the CI run calibrates.
 const SCENE: &str = "textured-plane";
@@ -45,55 +45,14 @@ const TINY: [&str; 15] = [
     "--json",
 ];
 
-/// A running Xvfb on a free display, killed on drop.
-struct Xvfb {
-    child: Child,
-    display: String,
-}
-
-impl Xvfb {
-    /// A screen of `w`×`h`; None (after saying why) without Xvfb.
-    fn start(w: usize, h: usize) -> Option<Self> {
-        let spawned = Command::new("Xvfb")
-            .args(["-displayfd", "1", "-screen", "0", &format!("{w}x{h}x24")])
-            .args(["-nolisten", "tcp"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn();
-        let mut child = match spawned {
-            Ok(c) => c,
-            Err(e) => {
-                skip_or_fail(&format!("Xvfb is not installed ({e})"));
-                return None;
-            }
-        };
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let n: u32 = line.trim().parse().expect("Xvfb prints its display number");
-        Some(Self {
-            child,
-            display: format!(":{n}"),
-        })
-    }
-
-    /// `compend ARGS` on this display.
-    fn compend(&self, args: &[&str]) -> Output {
-        Command::new(env!("CARGO_BIN_EXE_compend"))
-            .args(args)
-            .env("DISPLAY", &self.display)
-            .env_remove("WAYLAND_DISPLAY")
-            .output()
-            .expect("the compend binary runs")
-    }
-}
-
-impl Drop for Xvfb {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// `compend ARGS` on the display of `x`.
+fn on_display(x: &Xvfb, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_compend"))
+        .args(args)
+        .env("DISPLAY", &x.display)
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("the compend binary runs")
 }
 
 /// The value of `key=` on the stderr line starting with `prefix`.
@@ -125,7 +84,7 @@ fn calibrate_through_the_projector_window_under_xvfb() {
     let rig = format!("window:{SCENE}");
     let mut args = vec!["calibrate", "--rig", &rig, "--data", data.to_str().unwrap()];
     args.extend_from_slice(&TINY);
-    let o = x.compend(&args);
+    let o = on_display(&x, &args);
     assert_code(&o, 0);
     let err = stderr(&o);
     let r: serde_json::Value = serde_json::from_str(stdout(&o).trim())
@@ -189,15 +148,18 @@ fn the_window_rig_refuses_a_projector_size_the_window_has_not() {
     };
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("cal");
-    let o = x.compend(&[
-        "calibrate",
-        "--rig",
-        "window",
-        "--data",
-        data.to_str().unwrap(),
-        "--projector",
-        "320x240",
-    ]);
+    let o = on_display(
+        &x,
+        &[
+            "calibrate",
+            "--rig",
+            "window",
+            "--data",
+            data.to_str().unwrap(),
+            "--projector",
+            "320x240",
+        ],
+    );
     assert_code(&o, 2);
     assert!(
         stderr(&o).contains("the projector window on the primary monitor is 200x150"),

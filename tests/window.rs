@@ -16,13 +16,15 @@ use rand::{RngExt, SeedableRng};
 use crate::common::{gpu, skip_or_fail};
 
 /// A running Xvfb, killed on drop.
-struct Xvfb {
+pub(crate) struct Xvfb {
     child: Child,
-    display: String,
+    /// The X display, e.g. `:5`.
+    pub(crate) display: String,
 }
 
 impl Xvfb {
-    fn start(w: usize, h: usize) -> Option<Self> {
+    /// A screen of `w`×`h` on a free display; None (after saying why) without Xvfb.
+    pub(crate) fn start(w: usize, h: usize) -> Option<Self> {
         let spawned = Command::new("Xvfb")
             .args([
                 "-displayfd",
