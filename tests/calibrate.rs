@@ -76,6 +76,11 @@ fn calibrate_installs_a_verified_model_and_records_it() {
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
     assert_eq!(meta["calibration"]["verification"], *v);
+    // The calibration folder is a complete setup in the dataset layout.
+    assert_code(
+        &compend(&["inspect", "--setup", data.join("capture").to_str().unwrap()]),
+        0,
+    );
     assert_code(
         &compend(&[
             "eval",

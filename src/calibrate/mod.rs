@@ -180,7 +180,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 }
 
 /// Writes the projector-side images the calibration projects, where not already there:
-/// `train/`, `test/`, black and white of the colour cube and the gray image (network size).
+/// `train/`, `test/`, the colour cube and the gray image (network size).
 fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
     let (w, h) = (p.network.width, p.network.height);
     for (set, pset, n) in [
@@ -193,13 +193,11 @@ fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
             }
         }
     }
-    for r in [Reference::Black, Reference::White] {
-        if !root.image_path(ProjectorSet::Ref, r.index()).is_file() {
-            root.write(
-                ProjectorSet::Ref,
-                r.index(),
-                &patterns::color_cube(r.index(), w, h)?,
-            )?;
+    // The whole colour cube, so the root is a complete one (`inspect` checks that `ref/` is
+    // numbered without gaps); only black (1) and white (125) are projected.
+    for i in 1..=patterns::CUBE_COUNT {
+        if !root.image_path(ProjectorSet::Ref, i).is_file() {
+            root.write(ProjectorSet::Ref, i, &patterns::color_cube(i, w, h)?)?;
         }
     }
     if !root.gray_input_path().is_file() {
