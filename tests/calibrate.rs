@@ -76,6 +76,12 @@ fn calibrate_installs_a_verified_model_and_records_it() {
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
     assert_eq!(meta["calibration"]["verification"], *v);
+    // Playback maps content into the range the calibration measured.
+    let range = &meta["calibration"]["display_range"];
+    assert!(
+        range["low"].as_f64().unwrap() < range["high"].as_f64().unwrap(),
+        "{range}"
+    );
     // The calibration folder is a complete setup in the dataset layout.
     assert_code(
         &compend(&["inspect", "--setup", data.join("capture").to_str().unwrap()]),

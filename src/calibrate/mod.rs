@@ -165,6 +165,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let record = CalibrationRecord {
         rig: opts.rig.clone(),
         exposure,
+        display_range: Some(desired.range),
         latency,
         captured,
         resumed,
@@ -286,6 +287,7 @@ fn full_canvas(size: crate::raster::ImageSize) -> Rect {
 /// each test image (camera pixels), also written to `cam/desire/test`.
 struct Desired {
     area: Rect,
+    range: fov::DisplayRange,
     views: Vec<CamImage>,
 }
 
@@ -306,7 +308,7 @@ fn write_desired(root: &DataRoot, setup: &Setup, opts: &Options) -> Result<Desir
         setup.write_desired(i, &z)?;
         views.push(z);
     }
-    Ok(Desired { area, views })
+    Ok(Desired { area, range, views })
 }
 
 /// Projects the first test images compensated and as they are, captures them and scores both

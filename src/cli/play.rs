@@ -112,7 +112,8 @@ fn play_window(
 ) -> Result<PlayStats> {
     let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
     let size = DisplaySink::size(&win);
-    let mut player = Player::start(win.context(), model, size, DisplayRange::FULL, source, mode)?;
+    let range = calibrated_range(model);
+    let mut player = Player::start(win.context(), model, size, range, source, mode)?;
     eprintln!(
         "play: {} on the projector window {} at {:.1} Hz ({})",
         player.feed.describe(),
@@ -211,7 +212,7 @@ fn virtual_rig(
             (
                 s.with_resolution(cam, prj),
                 same.map_or(0, |r| r.seed),
-                same.map_or(DisplayRange::FULL, |r| r.desired_range),
+                same.map_or_else(|| calibrated_range(model), |r| r.desired_range),
             )
         }
     };
@@ -225,7 +226,16 @@ fn virtual_rig(
     }
     let sim = Simulator::new(&scene, seed.unwrap_or(record_seed), Phase::Calibration)
         .with_context(|| format!("preparing virtual rig scene {:?}", scene.name))?;
-    let rig = VirtualRig::from_simulator(sim);
+    let mut rig = VirtualRig::from_simulator(sim);
+    // A model made by `compend calibrate` saw the camera at the exposure it chose.
+    if let Some(e) = model
+        .meta
+        .calibration
+        .as_ref()
+        .and_then(|c| c.exposure.as_ref())
+    {
+        compend::device::FrameSource::set_exposure(&mut rig, e.chosen)?;
+    }
     // An ideal camera for playback: no delay, no drops, one exposure per shown frame.
     rig.set_latency(rig::scene::Latency {
         fps: 60.0,
@@ -233,4 +243,15 @@ fn virtual_rig(
         drop_rate: 0.0,
     })?;
     Ok((rig, range))
+}
+
+/// The display range content is mapped into: the one `compend calibrate` measured for the
+/// model, else the full range.
+fn calibrated_range(model: &Model) -> DisplayRange {
+    model
+        .meta
+        .calibration
+        .as_ref()
+        .and_then(|c| c.display_range)
+        .unwrap_or(DisplayRange::FULL)
 }

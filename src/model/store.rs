@@ -62,6 +62,10 @@ pub struct CalibrationRecord {
     /// The manual exposure chosen, when the camera has one.
     #[serde(default)]
     pub exposure: Option<crate::calibrate::exposure::ExposureReport>,
+    /// The range of camera values the projector reaches across the displayable area (what the
+    /// verification's desired views were scaled into); playback maps content into it.
+    #[serde(default)]
+    pub display_range: Option<crate::fov::DisplayRange>,
     /// Projector-to-camera latency measured at the start, camera exposures.
     pub latency: crate::calibrate::Latency,
     /// Captures taken in this run, captures found on disk from an interrupted one, retakes.
