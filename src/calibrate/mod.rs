@@ -254,7 +254,7 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             }
         })
         .collect();
-    let canvas = full_canvas(capturer.projector_size());
+    let canvas = Rect::covering(capturer.projector_size());
     let (mut captured, mut resumed) = (0, 0);
     for (k, shot) in shots.iter().enumerate() {
         progress("captures", k, shots.len());
@@ -271,16 +271,6 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     }
     progress("captures", shots.len(), shots.len());
     Ok((captured, resumed))
-}
-
-/// The whole projector frame as the canvas.
-fn full_canvas(size: crate::raster::ImageSize) -> Rect {
-    Rect {
-        x: 0,
-        y: 0,
-        width: size.width,
-        height: size.height,
-    }
 }
 
 /// What the verification compares with: the FOV, the displayable area, and the desired view of
@@ -322,7 +312,7 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     progress: Progress,
 ) -> Result<Verification> {
     let psize = capturer.projector_size();
-    let canvas = full_canvas(psize);
+    let canvas = Rect::covering(psize);
     let n = opts.verify_images.min(desired.views.len());
     if n == 0 {
         return Err(Error::Input(

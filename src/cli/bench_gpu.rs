@@ -23,32 +23,30 @@ use compend::rig::{Phase, Simulator, VirtualRig, scene};
 use compend::source::{FeedMode, Pattern, SourceSpec};
 use serde::Serialize;
 
-use super::patterns::parse_wxh;
-
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Folder for bench-gpu.json and bench-gpu.md.
     #[arg(long)]
     pub out: PathBuf,
     /// Projector resolutions.
-    #[arg(long, value_delimiter = ',', value_parser = parse_size,
+    #[arg(long, value_delimiter = ',', value_parser = super::sim::parse_size,
           default_value = "640x480,800x600,1920x1080,3840x2160")]
     pub sizes: Vec<ImageSize>,
     /// Timed frames per measurement (after 5 warm-up frames); medians are reported.
     #[arg(long, default_value_t = 30)]
     pub iters: usize,
     /// Camera resolution of the model.
-    #[arg(long, value_parser = parse_size, default_value = "640x480")]
+    #[arg(long, value_parser = super::sim::parse_size, default_value = "640x480")]
     pub camera: ImageSize,
     /// Network resolution of the models (sides divisible by 4 for CompenNet).
-    #[arg(long, value_parser = parse_size, default_value = "256x256")]
+    #[arg(long, value_parser = super::sim::parse_size, default_value = "256x256")]
     pub network: ImageSize,
     /// Timed frames per CompenNet measurement (after 2 warm-up frames; 0 = skip CompenNet): its
     /// backbone is ~3.2 GMAC per 256² frame, slow on software drivers.
     #[arg(long, default_value_t = 10)]
     pub compennet_iters: usize,
     /// Content frame resolution.
-    #[arg(long, value_parser = parse_size, default_value = "1280x720")]
+    #[arg(long, value_parser = super::sim::parse_size, default_value = "1280x720")]
     pub content: ImageSize,
     /// Seconds of playback at the display rate per size, with the pipeline alone and then on the
     /// virtual rig (0 = skip both).
@@ -60,10 +58,6 @@ pub struct Args {
     /// Display rate of the virtual-rig run, Hz (the source runs at the same rate).
     #[arg(long, default_value_t = 60.0)]
     pub fps: f64,
-}
-
-fn parse_size(s: &str) -> std::result::Result<ImageSize, String> {
-    parse_wxh(s, false)
 }
 
 #[derive(Serialize)]

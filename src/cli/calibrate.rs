@@ -39,7 +39,7 @@ pub struct Args {
     #[arg(long, value_name = "DEV", conflicts_with = "rig")]
     pub camera: Option<PathBuf>,
     /// `--camera` only: the capture size WxH [default: the camera's current size].
-    #[arg(long, value_name = "WxH", value_parser = parse_camera_size, requires = "camera")]
+    #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size, requires = "camera")]
     pub camera_size: Option<compend::raster::ImageSize>,
     /// `--rig window` only: the projector's monitor, its name or index [default: the primary
     /// monitor]. The projector size is the monitor's.
@@ -85,11 +85,11 @@ pub struct Args {
     pub network: compend::raster::ImageSize,
     /// Virtual camera only: its resolution WxH (default: the scene's, 640x480 for built-in
     /// scenes).
-    #[arg(long, value_name = "WxH", value_parser = parse_camera_size)]
+    #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size)]
     pub rig_camera: Option<compend::raster::ImageSize>,
     /// Virtual rig only: the projector resolution WxH (default: the scene's, 800x600); the
     /// window's is its monitor's.
-    #[arg(long, value_name = "WxH", value_parser = parse_camera_size)]
+    #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size)]
     pub projector: Option<compend::raster::ImageSize>,
     /// Print the calibration record as one JSON object on stdout.
     #[arg(long)]
@@ -470,9 +470,4 @@ fn check_counts(a: &Args) -> compend::Result<()> {
         }
     }
     Ok(())
-}
-
-/// `--camera-size`, `--rig-camera` and `--projector`: WxH.
-fn parse_camera_size(s: &str) -> std::result::Result<compend::raster::ImageSize, String> {
-    super::patterns::parse_wxh(s, false)
 }

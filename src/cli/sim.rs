@@ -143,7 +143,7 @@ pub struct SheetArgs {
     pub panel: usize,
 }
 
-fn parse_size(s: &str) -> std::result::Result<ImageSize, String> {
+pub fn parse_size(s: &str) -> std::result::Result<ImageSize, String> {
     parse_wxh(s, false)
 }
 

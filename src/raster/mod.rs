@@ -470,6 +470,16 @@ impl fmt::Display for Rect {
 }
 
 impl Rect {
+    /// The whole of a frame of `size`, from its top-left pixel.
+    pub fn covering(size: ImageSize) -> Self {
+        Rect {
+            x: 0,
+            y: 0,
+            width: size.width,
+            height: size.height,
+        }
+    }
+
     pub fn area(&self) -> usize {
         self.width * self.height
     }

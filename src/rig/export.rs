@@ -86,16 +86,7 @@ pub struct ExportSummary {
 
 /// The full projector frame as a canvas.
 pub fn full_canvas(sim: &Simulator) -> Rect {
-    let ImageSize {
-        width: w,
-        height: h,
-    } = sim.projector_size();
-    Rect {
-        x: 0,
-        y: 0,
-        width: w,
-        height: h,
-    }
+    Rect::covering(sim.projector_size())
 }
 
 /// Captures a complete setup at `root/<setup>` (created) with the simulator's current phase:
