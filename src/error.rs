@@ -48,6 +48,11 @@ pub enum Error {
     #[error("{0}")]
     Failed(String),
 
+    /// The operation was stopped on request (a service shutting down, a client's `stop`);
+    /// what it wrote so far is consistent (captures are resumed, no model was installed).
+    #[error("{0} was cancelled")]
+    Cancelled(String),
+
     /// A tensor operation failed (candle): out of memory, a device error, or shapes that do not
     /// fit (a programming error). The cause is kept.
     #[error("tensor operation failed: {0}")]
@@ -74,6 +79,7 @@ impl Error {
             Error::Io { .. }
             | Error::Shape(_)
             | Error::Failed(_)
+            | Error::Cancelled(_)
             | Error::Candle(_)
             | Error::Gpu { .. } => 1,
         }

@@ -12,12 +12,14 @@
 //!   names, `model::Method`; `model::store`, the model directory), [`fit`] (training any rung);
 //! - [`playback`]`::frame`: the per-frame path and its CPU reference;
 //! - [`calibrate`]: from a projector and a camera (the device traits) to a verified model:
-//!   latency, synchronised captures with resume, training, verification;
+//!   latency, synchronised captures with resume, training, verification; run folders;
 //! - [`rig`]: the virtual rig, a simulated projector, surface and camera.
 //!
 //! **Shell** (devices): [`gpu`] (the compensation pass), [`window`] (the projector window),
 //! [`source`] (video sources), [`camera`] (the V4L2 camera), [`playback`]`::player` (the one
-//! playback loop); the binary's commands live in `src/main.rs` and `src/cli/`.
+//! playback loop), [`config`] (the service's TOML configuration), [`service`] (`compend serve`:
+//! the engine, the control socket, systemd notification); the binary's commands live in
+//! `src/main.rs` and `src/cli/`.
 //!
 //! `tests/layout/` checks that core files never import shell files, that this map, the module
 //! table of docs/architecture.md and the `pub mod` lines below agree, and that no two files
@@ -25,6 +27,7 @@
 
 pub mod calibrate;
 pub mod camera;
+pub mod config;
 pub mod dataset;
 pub mod device;
 pub mod error;
@@ -45,6 +48,7 @@ pub mod raster;
 pub mod resize;
 pub mod rig;
 pub mod sample;
+pub mod service;
 pub mod slgrid;
 pub mod source;
 pub mod warp;

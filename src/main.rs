@@ -48,13 +48,20 @@ enum Command {
     Calibrate(cli::calibrate::Args),
     /// Compensation images for desired camera-view images, with a trained model.
     Compensate(cli::compensate::Args),
+    /// The configuration file: `compend config check FILE`.
+    Config(cli::serve::ConfigArgs),
+    /// Send one raw request line to the service and print its JSON reply.
+    Ctl(cli::serve::CtlArgs),
     /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row.
     Eval(cli::eval::Args),
     /// Check a dataset setup (every image of every set) and print its summary.
     Inspect(cli::inspect::Args),
     /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
     Metrics(cli::metrics::Args),
-    /// Live compensation of a video source on the projector window or the virtual rig.
+    /// Pause the service's playback (the projector shows black).
+    Pause(cli::serve::ClientArgs),
+    /// Live compensation of a video source on the projector window or the virtual rig; without
+    /// --model, asks the running service to play the source.
     Play(cli::play::Args),
     /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
     /// gray image (ref/), Gray-code structured light (sl/).
@@ -62,6 +69,14 @@ enum Command {
     /// Pre-train CompenNet's photometric weights on synthetic pairs (no setup, no projection):
     /// how the shipped `weights/compennet-pretrain-w*.safetensors` were made.
     Pretrain(cli::pretrain::Args),
+    /// Ask the running service to calibrate again (install only if the new model verifies).
+    Recalibrate(cli::serve::RecalibrateArgs),
+    /// The service: calibrate when needed, play compensated video, answer the control socket.
+    Serve(cli::serve::ServeArgs),
+    /// The running service's state, model, source, frame counts and monitoring.
+    Status(cli::serve::StatusArgs),
+    /// Stop the running service.
+    Stop(cli::serve::ClientArgs),
     /// Fit a compensation model on a setup's training pairs and write the model directory.
     Train(cli::train::Args),
     /// Show a projector-space PNG on the projector window.
@@ -97,9 +112,25 @@ fn no_candle_side_pool() {
 /// Log lines (warnings about accepted-but-suspect input, progress of long operations) go to
 /// stderr as plain text. The level comes from `COMPEND_LOG` (tracing's filter syntax, e.g.
 /// `info` or `compend=debug`), `warn` by default.
-fn init_logging() {
+///
+/// The service (`serve`) logs at `info` by default (its startup line, the periodic frame counts,
+/// monitoring); under systemd (`$JOURNAL_STREAM` names our stderr) it writes to the journal
+/// natively, with the levels as journal priorities.
+fn init_logging(service: bool) {
+    let default = if service { "info" } else { "warn" };
     let filter = tracing_subscriber::EnvFilter::try_from_env("COMPEND_LOG")
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    if service && stderr_is_journal() {
+        use tracing_subscriber::layer::SubscriberExt;
+        use tracing_subscriber::util::SubscriberInitExt;
+        if let Ok(journal) = tracing_journald::layer() {
+            let _ = tracing_subscriber::registry()
+                .with(filter)
+                .with(journal.with_syslog_identifier("compend".into()))
+                .try_init();
+            return;
+        }
+    }
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -107,6 +138,22 @@ fn init_logging() {
         .without_time()
         .with_ansi(false)
         .try_init();
+}
+
+/// Whether stderr is connected to the journal: systemd sets `$JOURNAL_STREAM` to the
+/// `device:inode` of the stream it gave the service.
+fn stderr_is_journal() -> bool {
+    use std::os::unix::fs::MetadataExt;
+    let Some(v) = std::env::var_os("JOURNAL_STREAM") else {
+        return false;
+    };
+    let Some((dev, ino)) = v.to_str().and_then(|s| s.split_once(':')) else {
+        return false;
+    };
+    let Ok(meta) = std::fs::metadata("/proc/self/fd/2") else {
+        return false;
+    };
+    dev.parse() == Ok(meta.dev()) && ino.parse() == Ok(meta.ino())
 }
 
 /// The error and its causes on one line, each cause once: library errors already name their
@@ -126,7 +173,7 @@ fn error_chain(err: &anyhow::Error) -> String {
 
 fn main() -> ExitCode {
     let args = Cli::parse();
-    init_logging();
+    init_logging(matches!(args.command, Command::Serve(_)));
     let compute = matches!(
         args.command,
         Command::Bench(_)
@@ -139,6 +186,10 @@ fn main() -> ExitCode {
         no_candle_side_pool();
         keep_freed_memory();
     }
+    if matches!(args.command, Command::Serve(_)) {
+        // The service trains too, but runs for months: freed memory goes back to the OS.
+        no_candle_side_pool();
+    }
     let dispatch = move || match args.command {
         Command::Bench(a) => cli::bench::run(a),
         Command::BenchGpu(a) => cli::bench_gpu::run(a),
@@ -146,12 +197,19 @@ fn main() -> ExitCode {
         Command::Cameras(a) => cli::cameras::run(a),
         Command::Calibrate(a) => cli::calibrate::run(a),
         Command::Compensate(a) => cli::compensate::run(a),
+        Command::Config(a) => cli::serve::config(a),
+        Command::Ctl(a) => cli::serve::ctl(a),
         Command::Eval(a) => cli::eval::run(a),
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Metrics(a) => cli::metrics::run(a),
         Command::Patterns(a) => cli::patterns::run(a),
+        Command::Pause(a) => cli::serve::simple(&a, compend::service::protocol::Request::Pause),
         Command::Play(a) => cli::play::run(a),
         Command::Pretrain(a) => cli::pretrain::run(a),
+        Command::Recalibrate(a) => cli::serve::recalibrate(a),
+        Command::Serve(a) => cli::serve::serve(a),
+        Command::Status(a) => cli::serve::status(a),
+        Command::Stop(a) => cli::serve::simple(&a, compend::service::protocol::Request::Stop),
         Command::Train(a) => cli::train::run(a),
         Command::Show(a) => cli::show::run(a),
         Command::Sim(a) => cli::sim::run(a),

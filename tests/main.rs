@@ -18,6 +18,7 @@ mod nn;
 mod patterns;
 mod play;
 mod rig;
+mod service;
 mod train;
 mod train_cli;
 mod window;

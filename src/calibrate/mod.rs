@@ -20,9 +20,12 @@
 pub mod clock;
 pub mod exposure;
 pub mod manifest;
+pub mod runs;
 pub mod sync;
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::dataset::{CaptureSet, DataRoot, ProjectorSet, Reference, Setup};
@@ -58,6 +61,22 @@ pub struct Options {
     pub required_gain_db: f64,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
     pub rig: String,
+    /// Set by another thread to stop the calibration: checked before each capture, between the
+    /// phases and before the model is returned ([`Error::Cancelled`]). The captures on disk stay
+    /// and a later run resumes from them.
+    pub cancel: Option<Arc<AtomicBool>>,
+}
+
+impl Options {
+    /// [`Error::Cancelled`] once [`Options::cancel`] is set.
+    fn check_cancelled(&self) -> Result<()> {
+        match &self.cancel {
+            Some(flag) if flag.load(Ordering::Relaxed) => {
+                Err(Error::Cancelled("the calibration".into()))
+            }
+            _ => Ok(()),
+        }
+    }
 }
 
 /// A trained model and how it was made and checked; install it only if
@@ -108,6 +127,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     }
     seconds.exposure = t.elapsed().as_secs_f64();
 
+    opts.check_cancelled()?;
     let t = Instant::now();
     progress("latency", 0, 1);
     let latency = sync::measure_latency(display, camera, &opts.sync)?;
@@ -138,6 +158,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 
     let desired = write_desired(&root, &setup, opts)?;
 
+    opts.check_cancelled()?;
     let t = Instant::now();
     let setup = Setup::open(setup.path(), Some(root.path()))?;
     let req = Request {
@@ -158,9 +179,11 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         seconds.training
     );
 
+    opts.check_cancelled()?;
     let t = Instant::now();
     let verification = verify(&mut capturer, &model, &root, &desired, opts, progress)?;
     seconds.verification = t.elapsed().as_secs_f64();
+    opts.check_cancelled()?;
     seconds.total = total.elapsed().as_secs_f64();
     let record = CalibrationRecord {
         rig: opts.rig.clone(),
@@ -178,6 +201,27 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         record,
         setup: setup.path().to_path_buf(),
     })
+}
+
+/// Installs a calibration's model into the model directory `out`, its record in `model.json`,
+/// if it verified; the swap is atomic (the previous model is in place until it). A model that did
+/// not verify is an error ([`Error::Failed`]) saying why, and `out` is left as it was.
+pub fn install(done: Calibrated, out: &Path) -> Result<Model> {
+    let v = &done.record.verification;
+    if !v.passed {
+        return Err(Error::Failed(format!(
+            "the {} model did not verify ({:+.2} dB over the uncompensated projection, {:+.2} \
+             needed); it was not installed and {} is unchanged",
+            done.model.meta.method,
+            v.gain_db,
+            v.required_gain_db,
+            out.display()
+        )));
+    }
+    let mut model = done.model;
+    model.meta.calibration = Some(done.record);
+    model.save(out)?;
+    Ok(model)
 }
 
 /// Writes the projector-side images the calibration projects, where not already there:
@@ -258,6 +302,7 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let (mut captured, mut resumed) = (0, 0);
     for (k, shot) in shots.iter().enumerate() {
         progress("captures", k, shots.len());
+        opts.check_cancelled()?;
         if manifest.has(setup.path(), &shot.rel) {
             resumed += 1;
             continue;
@@ -322,6 +367,7 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let (mut comp, mut unc) = (Accumulator::default(), Accumulator::default());
     for (i, z) in desired.views.iter().take(n).enumerate() {
         progress("verification", i, n);
+        opts.check_cancelled()?;
         let compensated = model.infer(z)?;
         let seen = capturer.capture(&place_on_canvas(&compensated, canvas, psize)?, true)?;
         comp.add(&seen.crop(desired.area)?, &z.crop(desired.area)?)?;

@@ -10,9 +10,12 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
+use compend::calibrate::runs::Runs;
 use compend::calibrate::{self, Calibrated, Options, PatternSet, SyncSettings};
+use compend::config::{Config, RigKind};
 use compend::device::{DisplaySink, FrameSource};
 use compend::model::MethodChoice;
+use compend::raster::ImageSize;
 use compend::rig::VirtualRig;
 use compend::rig::scene::{self, Scene};
 use compend::rig::window_camera::{Shown, WindowCamera};
@@ -22,6 +25,13 @@ use super::sim::SceneArgs;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
+    /// Take the rig, the paths and the calibration settings from this configuration file (the
+    /// service's; config/compend.toml documents every key). Flags given here win over the file.
+    /// Without `--rig` or `--camera` the file's `[rig]` is calibrated, the captures go to its
+    /// `[paths] data` and the model is installed into its `[paths] model`, which is what
+    /// `compend serve` plays (stop the service first: the devices are not shared).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     /// The rig to calibrate: `virtual[:SCENE]`, the virtual rig; `window[:SCENE]`, the projector
     /// window watched by a virtual camera that sees what the window presented through the
     /// scene's surface and camera. SCENE: a built-in scene or scene JSON file (see `compend sim
@@ -29,7 +39,7 @@ pub struct Args {
     #[arg(
         long,
         value_name = "virtual|window[:SCENE]",
-        required_unless_present = "camera"
+        required_unless_present_any = ["camera", "config"]
     )]
     pub rig: Option<String>,
     /// Calibrate real hardware: this V4L2 camera (e.g. /dev/video0 or a /dev/v4l/by-id/ path)
@@ -39,66 +49,162 @@ pub struct Args {
     #[arg(long, value_name = "DEV", conflicts_with = "rig")]
     pub camera: Option<PathBuf>,
     /// `--camera` only: the capture size WxH [default: the camera's current size].
-    #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size, requires = "camera")]
-    pub camera_size: Option<compend::raster::ImageSize>,
-    /// `--rig window` only: the projector's monitor, its name or index [default: the primary
-    /// monitor]. The projector size is the monitor's.
+    #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size)]
+    pub camera_size: Option<ImageSize>,
+    /// `--rig window` and `--camera`: the projector's monitor, its name or index [default: the
+    /// primary monitor]. The projector size is the monitor's.
     #[arg(long)]
     pub monitor: Option<String>,
     /// Folder for the patterns and captures (a data root; the captures go to DATA/capture). An
-    /// interrupted calibration into the same folder resumes from the captures on disk.
-    #[arg(long, default_value = "compend-calibration")]
-    pub data: PathBuf,
-    /// Model directory to install the verified model into [default: DATA/model]. Only a model
-    /// directory there is replaced, and only by a model that verified.
+    /// interrupted calibration into the same folder resumes from the captures on disk
+    /// [default: compend-calibration, or the configuration's `[paths] data`].
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Model directory to install the verified model into [default: DATA/model, or the
+    /// configuration's `[paths] model`]. Only a model directory there is replaced, and only by a
+    /// model that verified.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// The rung to fit.
-    #[arg(long, value_enum, default_value = "linear")]
-    pub method: MethodChoice,
-    /// Sampling images to project for training.
-    #[arg(long, default_value_t = 48)]
-    pub ntrain: usize,
-    /// Test images to project: captured for `eval`, and the first few for the verification.
-    #[arg(long, default_value_t = 10)]
-    pub ntest: usize,
-    /// Test images projected compensated and uncompensated in the verification.
-    #[arg(long, default_value_t = 5)]
-    pub verify: usize,
-    /// PSNR gain over the uncompensated projection a model needs to be installed, dB.
-    #[arg(long, default_value_t = 1.0)]
-    pub min_gain: f64,
-    /// Frames averaged per capture.
-    #[arg(long, default_value_t = 3)]
-    pub average: usize,
+    /// The rung to fit [default: linear].
+    #[arg(long, value_enum)]
+    pub method: Option<MethodChoice>,
+    /// Sampling images to project for training [default: 48].
+    #[arg(long)]
+    pub ntrain: Option<usize>,
+    /// Test images to project: captured for `eval`, and the first few for the verification
+    /// [default: 10].
+    #[arg(long)]
+    pub ntest: Option<usize>,
+    /// Test images projected compensated and uncompensated in the verification [default: 5].
+    #[arg(long)]
+    pub verify: Option<usize>,
+    /// PSNR gain over the uncompensated projection a model needs to be installed, dB
+    /// [default: 1].
+    #[arg(long)]
+    pub min_gain: Option<f64>,
+    /// Frames averaged per capture [default: 3].
+    #[arg(long)]
+    pub average: Option<usize>,
     /// Virtual camera only: projector-to-camera delay, milliseconds (default: the scene's).
     #[arg(long, value_name = "MS")]
     pub rig_latency_ms: Option<f64>,
     /// Virtual camera only: camera frame rate, Hz (default: the scene's).
     #[arg(long, value_name = "HZ")]
     pub rig_fps: Option<f64>,
-    /// Seed of the sampling images (and of the virtual rig's texture and noise).
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Network size of the sampling images: N (square) or WxH, sides divisible by 4.
-    #[arg(long, default_value = "256", value_name = "N|WxH", value_parser = super::sim::parse_network)]
-    pub network: compend::raster::ImageSize,
+    /// Seed of the sampling images (and of the virtual rig's texture and noise) [default: 0].
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Network size of the sampling images: N (square) or WxH, sides divisible by 4
+    /// [default: 256].
+    #[arg(long, value_name = "N|WxH", value_parser = super::sim::parse_network)]
+    pub network: Option<ImageSize>,
     /// Virtual camera only: its resolution WxH (default: the scene's, 640x480 for built-in
     /// scenes).
     #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size)]
-    pub rig_camera: Option<compend::raster::ImageSize>,
+    pub rig_camera: Option<ImageSize>,
     /// Virtual rig only: the projector resolution WxH (default: the scene's, 800x600); the
     /// window's is its monitor's.
     #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size)]
-    pub projector: Option<compend::raster::ImageSize>,
+    pub projector: Option<ImageSize>,
     /// Print the calibration record as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
 }
 
+/// What one calibration runs with: the flags, then the configuration file, then the defaults
+/// (the configuration's, so `calibrate` and `serve` agree).
+#[derive(Debug)]
+struct Settings {
+    rig: Option<String>,
+    camera: Option<PathBuf>,
+    camera_size: Option<ImageSize>,
+    monitor: Option<String>,
+    data: PathBuf,
+    out: PathBuf,
+    method: MethodChoice,
+    ntrain: usize,
+    ntest: usize,
+    verify: usize,
+    min_gain: f64,
+    average: usize,
+    rig_latency_ms: Option<f64>,
+    rig_fps: Option<f64>,
+    seed: u64,
+    network: ImageSize,
+    rig_camera: Option<ImageSize>,
+    projector: Option<ImageSize>,
+    json: bool,
+    /// With `--config` and no `--data`: the runs folder (`[paths] data`) and how many runs to
+    /// keep; the calibration goes to a run folder of its own, as the service's do.
+    runs: Option<(Runs, usize)>,
+}
+
+impl Settings {
+    fn new(a: Args) -> Result<Self> {
+        let file = a.config.as_deref().map(Config::load).transpose()?;
+        let c = file.clone().unwrap_or_else(Config::defaults);
+        // The file's [rig] is the rig when the command line names none.
+        let rig_from_file = file.is_some() && a.rig.is_none() && a.camera.is_none();
+        let r = &c.rig;
+        let (rig, camera) = match (rig_from_file, r.kind) {
+            (false, _) => (a.rig, a.camera),
+            (true, RigKind::Virtual) => (Some(format!("virtual:{}", r.scene)), None),
+            (true, RigKind::Window) => (Some(format!("window:{}", r.scene)), None),
+            (true, RigKind::Camera) => (None, r.camera.clone()),
+        };
+        let from = |kinds: &[RigKind]| rig_from_file && kinds.contains(&r.kind);
+        let simulated = [RigKind::Virtual, RigKind::Window];
+        let runs = match (&a.data, &file) {
+            (None, Some(f)) => Some((Runs::new(&f.paths.data), f.calibration.keep_runs)),
+            _ => None,
+        };
+        // With runs, the data root is the run's, chosen when the calibration starts.
+        let data = a
+            .data
+            .unwrap_or_else(|| PathBuf::from("compend-calibration"));
+        let out = a
+            .out
+            .or_else(|| file.as_ref().map(|f| f.paths.model.clone()))
+            .unwrap_or_else(|| data.join("model"));
+        let k = &c.calibration;
+        Ok(Settings {
+            camera_size: a
+                .camera_size
+                .or(r.camera_size.filter(|_| from(&[RigKind::Camera]))),
+            monitor: a.monitor.or_else(|| {
+                r.monitor
+                    .clone()
+                    .filter(|_| from(&[RigKind::Window, RigKind::Camera]))
+            }),
+            rig_latency_ms: a
+                .rig_latency_ms
+                .or(r.latency_ms.filter(|_| from(&simulated))),
+            rig_fps: a.rig_fps.or(r.camera_fps.filter(|_| from(&simulated))),
+            rig_camera: a.rig_camera.or(r.camera_size.filter(|_| from(&simulated))),
+            projector: a
+                .projector
+                .or(r.projector.filter(|_| from(&[RigKind::Virtual]))),
+            rig,
+            camera,
+            data,
+            out,
+            method: a.method.unwrap_or(k.method),
+            ntrain: a.ntrain.unwrap_or(k.ntrain),
+            ntest: a.ntest.unwrap_or(k.ntest),
+            verify: a.verify.unwrap_or(k.verify),
+            min_gain: a.min_gain.unwrap_or(k.min_gain_db),
+            average: a.average.unwrap_or(k.average),
+            seed: a.seed.unwrap_or(r.seed),
+            network: a.network.unwrap_or(k.network),
+            json: a.json,
+            runs,
+        })
+    }
+}
+
 /// Which display the patterns go to.
 #[derive(Clone, Copy, Debug, PartialEq)]
-enum RigKind {
+enum Shows {
     /// The virtual rig's projector.
     Virtual,
     /// The projector window.
@@ -106,15 +212,15 @@ enum RigKind {
 }
 
 /// `virtual[:SCENE]` or `window[:SCENE]`: the kind and the scene name.
-fn parse_rig(rig: &str) -> compend::Result<(RigKind, String)> {
+fn parse_rig(rig: &str) -> compend::Result<(Shows, String)> {
     let (kind, scene) = match rig.split_once(':') {
         None => (rig, "curved"),
         Some((k, s)) if !s.is_empty() => (k, s),
         Some((k, _)) => (k, ""),
     };
     match (kind, scene.is_empty()) {
-        ("virtual", false) => Ok((RigKind::Virtual, scene.to_string())),
-        ("window", false) => Ok((RigKind::Window, scene.to_string())),
+        ("virtual", false) => Ok((Shows::Virtual, scene.to_string())),
+        ("window", false) => Ok((Shows::Window, scene.to_string())),
         _ => Err(compend::Error::Input(format!(
             "--rig {rig:?}: expected `virtual`, `virtual:SCENE`, `window` or `window:SCENE` \
              (scenes: {}); real cameras are not supported by calibrate yet",
@@ -124,36 +230,86 @@ fn parse_rig(rig: &str) -> compend::Result<(RigKind, String)> {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let out = args.out.clone().unwrap_or_else(|| args.data.join("model"));
+    let mut args = Settings::new(args)?;
+    let out = args.out.clone();
     // Before any work: where the model goes must take a model, and the numbers must make sense.
     compend::model::store::check_output(&out)?;
     check_counts(&args)?;
-    let Some(rig) = &args.rig else {
-        let device = args.camera.clone().unwrap_or_default();
-        return run_hardware(&args, &out, &device);
+    let Some((runs, keep)) = args.runs.take() else {
+        return dispatch(&args, &out);
     };
+    let rig = match (&args.rig, &args.camera) {
+        (Some(r), _) => r.clone(),
+        (None, Some(c)) => format!("camera:{}", c.display()),
+        (None, None) => String::new(),
+    };
+    let run = runs.begin(&rig, std::time::SystemTime::now())?;
+    if run.resumed {
+        eprintln!(
+            "calibrate: resuming the interrupted run {}",
+            run.data.display()
+        );
+    }
+    args.data = run.data;
+    let result = dispatch(&args, &out);
+    // A failed operation (a camera gone, a full disk) leaves the run marked, to resume; a
+    // finished or refused one is over.
+    if result
+        .as_ref()
+        .err()
+        .is_none_or(|e| super::exit_code(e) != 1)
+    {
+        runs.end();
+        runs.prune(keep);
+    }
+    result
+}
+
+/// Calibrates the rig the settings name and installs the model into `out`.
+fn dispatch(args: &Settings, out: &Path) -> Result<()> {
+    let Some(rig) = &args.rig else {
+        let Some(device) = args.camera.clone() else {
+            return Err(compend::Error::Input(
+                "no rig to calibrate: give --rig, --camera or a --config with a [rig]".into(),
+            )
+            .into());
+        };
+        if args.rig_camera.is_some() || args.projector.is_some() {
+            return Err(compend::Error::Input(
+                "--rig-camera and --projector size the virtual rig; with --camera, \
+                 --camera-size sets the capture size and the projector is the monitor's"
+                    .into(),
+            )
+            .into());
+        }
+        return run_hardware(args, out, &device);
+    };
+    if args.camera_size.is_some() {
+        return Err(compend::Error::Input(
+            "--camera-size is the V4L2 camera's capture size; the virtual camera's is \
+             --rig-camera"
+                .into(),
+        )
+        .into());
+    }
     let (kind, scene_name) = parse_rig(rig)?;
     match kind {
-        RigKind::Virtual => {
+        Shows::Virtual => {
             if args.monitor.is_some() {
                 return Err(compend::Error::Input(
                     "--monitor: only `--rig window` shows the patterns on a monitor".into(),
                 )
                 .into());
             }
-            run_virtual(&args, &out, &scene_name)
+            run_virtual(args, out, &scene_name)
         }
-        RigKind::Window => run_window(&args, &out, &scene_name),
+        Shows::Window => run_window(args, out, &scene_name),
     }
 }
 
 /// The scene with the camera timing of `--rig-fps` and `--rig-latency-ms`, and the projector
 /// size `projector` when given (the window's).
-fn scene_for(
-    args: &Args,
-    name: &str,
-    projector: Option<compend::raster::ImageSize>,
-) -> Result<Scene> {
+fn scene_for(args: &Settings, name: &str, projector: Option<ImageSize>) -> Result<Scene> {
     let scene_args = SceneArgs {
         seed: args.seed,
         camera: args.rig_camera,
@@ -190,7 +346,7 @@ fn describe_camera(scene: &Scene) -> String {
 
 /// Calibrates real hardware: a V4L2 camera looking at the projector window.
 #[cfg(target_os = "linux")]
-fn run_hardware(args: &Args, out: &Path, device: &Path) -> Result<()> {
+fn run_hardware(args: &Settings, out: &Path, device: &Path) -> Result<()> {
     // The camera first: a missing or wrong device fails before a window opens.
     let mut camera = compend::camera::V4l2Camera::open(device, args.camera_size)?;
     let report = camera
@@ -221,7 +377,7 @@ fn run_hardware(args: &Args, out: &Path, device: &Path) -> Result<()> {
 }
 
 #[cfg(not(target_os = "linux"))]
-fn run_hardware(_: &Args, _: &Path, device: &Path) -> Result<()> {
+fn run_hardware(_: &Settings, _: &Path, device: &Path) -> Result<()> {
     Err(compend::Error::Input(format!(
         "--camera {}: V4L2 cameras exist on Linux only",
         device.display()
@@ -230,7 +386,7 @@ fn run_hardware(_: &Args, _: &Path, device: &Path) -> Result<()> {
 }
 
 /// Calibrates on the virtual rig.
-fn run_virtual(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
+fn run_virtual(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
     let scene = scene_for(args, scene_name, None)?;
     let rig = VirtualRig::new(&scene, args.seed)
         .with_context(|| format!("preparing the virtual rig (scene {scene_name:?})"))?;
@@ -247,7 +403,7 @@ fn run_virtual(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
 }
 
 /// Calibrates through the projector window, watched by a virtual camera.
-fn run_window(args: &Args, out: &Path, scene_name: &str) -> Result<()> {
+fn run_window(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
     let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
     let size = DisplaySink::size(&win);
     if let Some(p) = args.projector
@@ -339,8 +495,8 @@ fn report_window_timing(win: &ProjectorWindow, camera: &WindowCamera, scene: &Sc
 fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
-    args: &Args,
-    projector: compend::raster::ImageSize,
+    args: &Settings,
+    projector: ImageSize,
     rig: String,
 ) -> Result<Calibrated> {
     let opts = Options {
@@ -361,6 +517,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         verify_images: args.verify,
         required_gain_db: args.min_gain,
         rig,
+        cancel: None,
     };
     let bar = super::progress_bar(args.json);
     let mut progress = |stage: &str, done: usize, total: usize| {
@@ -409,22 +566,7 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
 
 /// Installs the model into `out` if it verified; otherwise says why not, `out` unchanged.
 fn install(done: Calibrated, out: &Path) -> Result<()> {
-    let v = &done.record.verification;
-    if !v.passed {
-        return Err(compend::Error::Failed(format!(
-            "the {} model did not verify ({:+.2} dB over the uncompensated projection, {:+.2} \
-             needed); it was not installed and {} is unchanged",
-            done.model.meta.method,
-            v.gain_db,
-            v.required_gain_db,
-            out.display()
-        ))
-        .into());
-    }
-    let mut model = done.model;
-    model.meta.calibration = Some(done.record);
-    model
-        .save(out)
+    let model = calibrate::install(done, out)
         .with_context(|| format!("installing the model into {}", out.display()))?;
     eprintln!(
         "calibrate: installed {} into {}",
@@ -435,7 +577,7 @@ fn install(done: Calibrated, out: &Path) -> Result<()> {
 }
 
 /// The counts must allow a fit and a verification.
-fn check_counts(a: &Args) -> compend::Result<()> {
+fn check_counts(a: &Settings) -> compend::Result<()> {
     let bad = |what: String| Err(compend::Error::Input(what));
     if a.ntrain < compend::fit::MIN_TRAIN {
         return bad(format!(

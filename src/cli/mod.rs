@@ -13,6 +13,7 @@ pub mod metrics;
 pub mod patterns;
 pub mod play;
 pub mod pretrain;
+pub mod serve;
 pub mod show;
 pub mod sim;
 pub mod train;

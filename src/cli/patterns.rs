@@ -41,23 +41,7 @@ pub struct Args {
 
 /// Parses `WxH` (or `N` for a square when `square_ok`), both sides at least 1.
 pub fn parse_wxh(s: &str, square_ok: bool) -> std::result::Result<ImageSize, String> {
-    let side = |t: &str| -> std::result::Result<usize, String> {
-        match t.trim().parse::<usize>() {
-            Ok(0) => Err("sides must be at least 1 pixel".to_string()),
-            Ok(v) if v > 65_536 => Err(format!("{v} pixels is too large")),
-            Ok(v) => Ok(v),
-            Err(_) => Err(format!("'{t}' is not a whole number of pixels")),
-        }
-    };
-    let lower = s.to_ascii_lowercase();
-    match lower.split_once('x') {
-        Some((w, h)) => Ok(ImageSize::new(side(w)?, side(h)?)),
-        None if square_ok => {
-            let n = side(&lower)?;
-            Ok(ImageSize::new(n, n))
-        }
-        None => Err("expected WIDTHxHEIGHT, e.g. 800x600".to_string()),
-    }
+    ImageSize::parse(s, square_ok)
 }
 
 fn parse_network_size(s: &str) -> std::result::Result<ImageSize, String> {

@@ -17,12 +17,17 @@ use compend::window::ProjectorWindow;
 #[derive(clap::Args, Debug)]
 #[command(after_help = compend::source::HELP)]
 pub struct Args {
-    /// The model directory (any method: linear, linear-sl, the CompenNet++ family).
+    /// The model directory (any method: linear, linear-sl, the CompenNet++ family). Without it,
+    /// the running service (`compend serve`) is asked to play the source with its model.
     #[arg(long)]
-    pub model: PathBuf,
-    /// What to play (spellings below).
+    pub model: Option<PathBuf>,
+    /// Without --model: the service's socket (or --config, its configuration file).
+    #[command(flatten)]
+    pub client: super::serve::ClientArgs,
+    /// What to play (spellings below). Required with --model; without it, the service plays
+    /// this source, or its configured one when it is left out.
     #[arg(long, value_name = "SRC")]
-    pub source: String,
+    pub source: Option<String>,
     /// Stop after N display refreshes [default: when the source ends; on the window, still
     /// images and slideshows play until the window is closed or Escape is pressed].
     #[arg(long, value_name = "N")]
@@ -63,13 +68,28 @@ pub enum Pace {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    let Some(model_dir) = &args.model else {
+        return super::serve::simple(
+            &args.client,
+            compend::service::protocol::Request::Play {
+                source: args.source.clone(),
+            },
+        );
+    };
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(
             compend::Error::Input(format!("--fps must be positive, got {}", args.fps)).into(),
         );
     }
-    let spec = SourceSpec::parse(&args.source)?;
-    let model = Model::load(&args.model)?;
+    let Some(source_text) = args.source.as_deref() else {
+        return Err(compend::Error::Input(
+            "--source is required with --model (what to play; spellings in compend play --help)"
+                .into(),
+        )
+        .into());
+    };
+    let spec = SourceSpec::parse(source_text)?;
+    let model = Model::load(model_dir)?;
     let rig = args.rig.as_deref().map(parse_rig).transpose()?;
     // Open the source before the GPU so a bad source fails fast.
     let source = source::open(&spec)?;
@@ -141,7 +161,7 @@ fn play_virtual(
     eprintln!(
         "play: {} on the virtual rig (scene {:?}, camera {}, projector {}; area {}, canvas \
          {}) with {}",
-        args.source,
+        args.source.as_deref().unwrap_or_default(),
         sim.scene().name,
         sim.camera_size(),
         placement.projector_size,

@@ -119,6 +119,11 @@ pub trait Screen {
         true
     }
 
+    /// Called after each refresh with the counts so far (a service shows them live).
+    fn refreshed(&mut self, stats: &PlayStats) {
+        let _ = stats;
+    }
+
     /// Puts the pass's output on the display; for [`Show::New`] the pass was just submitted
     /// with a new frame, and the time from its upload to the end of this call is the frame's
     /// pipeline time.
@@ -336,6 +341,8 @@ impl Player {
                 Step::Ended => break,
             };
             self.stats.dropped_pipeline += pacer.end_refresh(presented);
+            self.count_feed();
+            screen.refreshed(&self.stats);
         }
         Ok(())
     }

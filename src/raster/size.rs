@@ -30,6 +30,28 @@ impl ImageSize {
     pub fn aspect(self) -> f64 {
         self.width as f64 / self.height as f64
     }
+
+    /// Parses `WxH` (e.g. `800x600`), or `N` for N×N when `square_ok`; sides from 1 to 65 536.
+    /// The error says what was expected.
+    pub fn parse(s: &str, square_ok: bool) -> Result<Self, String> {
+        let side = |t: &str| -> Result<usize, String> {
+            match t.trim().parse::<usize>() {
+                Ok(0) => Err("sides must be at least 1 pixel".to_string()),
+                Ok(v) if v > 65_536 => Err(format!("{v} pixels is too large")),
+                Ok(v) => Ok(v),
+                Err(_) => Err(format!("'{t}' is not a whole number of pixels")),
+            }
+        };
+        let lower = s.to_ascii_lowercase();
+        match lower.split_once('x') {
+            Some((w, h)) => Ok(Self::new(side(w)?, side(h)?)),
+            None if square_ok => {
+                let n = side(&lower)?;
+                Ok(Self::new(n, n))
+            }
+            None => Err("expected WIDTHxHEIGHT, e.g. 800x600".to_string()),
+        }
+    }
 }
 
 /// Serde for a size written as a `[width, height]` pair (`#[serde(with = "...")]`), the form

@@ -1,0 +1,274 @@
+//! Calibration runs under one folder (the service's `[paths] data`, and `compend calibrate
+//! --config`): each calibration captures into a run folder of its own,
+//! `ROOT/run-YYYYMMDD-HHMMSS` (UTC), so a recalibration (after drift, say) never reuses the
+//! captures of a surface that has changed.
+//!
+//! A run in progress is named by a marker file, `ROOT/calibrating.json`, written before the
+//! first capture and removed when the run ends (installed or refused). A calibration that starts
+//! and finds the marker resumes that run from its captures on disk, so a kill -9 or a power cut
+//! costs only the capture in flight. The newest `keep` runs are kept; older ones are removed,
+//! and only folders that are runs (a run name and a calibration manifest inside) are touched.
+
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// The marker of a run in progress, in the runs folder.
+pub const MARKER: &str = "calibrating.json";
+
+/// What the marker holds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct Marker {
+    /// The process that started the run (for the operator; not checked).
+    pid: u32,
+    /// What is calibrated (`virtual:curved`, `camera:/dev/video0`).
+    rig: String,
+    /// The run folder's name.
+    run: String,
+}
+
+/// The runs folder.
+#[derive(Clone, Debug)]
+pub struct Runs {
+    root: PathBuf,
+}
+
+/// A run: its data root, and whether it resumes an interrupted one.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Run {
+    pub data: PathBuf,
+    pub resumed: bool,
+}
+
+impl Runs {
+    pub fn new(root: &Path) -> Self {
+        Self {
+            root: root.to_path_buf(),
+        }
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    fn marker(&self) -> PathBuf {
+        self.root.join(MARKER)
+    }
+
+    /// The run an interrupted calibration left, if the marker names one.
+    pub fn interrupted(&self) -> Option<PathBuf> {
+        let path = self.marker();
+        let bytes = std::fs::read(&path).ok()?;
+        match serde_json::from_slice::<Marker>(&bytes) {
+            Ok(m) if is_run_name(&m.run) => Some(self.root.join(m.run)),
+            Ok(m) => {
+                tracing::warn!(
+                    "{}: {:?} is not a run folder name; a new run starts",
+                    path.display(),
+                    m.run
+                );
+                None
+            }
+            Err(e) => {
+                tracing::warn!("{}: unreadable ({e}); a new run starts", path.display());
+                None
+            }
+        }
+    }
+
+    /// Starts a run: the interrupted one if the marker names one, else a new one named after
+    /// `now`. The marker is written (atomically) before this returns.
+    pub fn begin(&self, rig: &str, now: SystemTime) -> Result<Run> {
+        std::fs::create_dir_all(&self.root)
+            .map_err(|e| Error::io(&self.root, "create folder", e))?;
+        let (data, resumed) = match self.interrupted() {
+            Some(d) => (d, true),
+            None => {
+                // Two runs in one second (or a clock set back): the next free second.
+                let mut t = now;
+                while self.root.join(run_name(t)).exists() {
+                    t += std::time::Duration::from_secs(1);
+                }
+                (self.root.join(run_name(t)), false)
+            }
+        };
+        let run = data
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or_default()
+            .to_string();
+        let marker = Marker {
+            pid: std::process::id(),
+            rig: rig.to_string(),
+            run,
+        };
+        let bytes = serde_json::to_vec(&marker).map_err(|e| Error::Failed(e.to_string()))?;
+        crate::files::write_atomically(&self.marker(), &bytes)?;
+        Ok(Run { data, resumed })
+    }
+
+    /// Ends the run in progress (installed or refused: it is not resumed again).
+    pub fn end(&self) {
+        let path = self.marker();
+        if let Err(e) = std::fs::remove_file(&path)
+            && e.kind() != std::io::ErrorKind::NotFound
+        {
+            tracing::warn!("{}: could not remove: {e}", path.display());
+        }
+    }
+
+    /// Removes the oldest runs beyond the newest `keep` (0: keeps all). Returns the folders
+    /// removed.
+    pub fn prune(&self, keep: usize) -> Vec<PathBuf> {
+        if keep == 0 {
+            return Vec::new();
+        }
+        let Ok(entries) = std::fs::read_dir(&self.root) else {
+            return Vec::new();
+        };
+        let mut runs: Vec<PathBuf> = entries
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_str().is_some_and(is_run_name))
+            .map(|e| e.path())
+            .filter(|p| {
+                p.join(super::SETUP_NAME)
+                    .join(super::manifest::MANIFEST_FILE)
+                    .is_file()
+            })
+            .collect();
+        runs.sort();
+        let n = runs.len().saturating_sub(keep);
+        let mut removed = Vec::new();
+        for old in runs.into_iter().take(n) {
+            match std::fs::remove_dir_all(&old) {
+                Ok(()) => {
+                    tracing::info!("removed the old calibration run {}", old.display());
+                    removed.push(old);
+                }
+                Err(e) => tracing::warn!("{}: could not remove the old run: {e}", old.display()),
+            }
+        }
+        removed
+    }
+}
+
+/// The run folder name of a calibration started at `now`: `run-YYYYMMDD-HHMMSS`, UTC.
+pub fn run_name(now: SystemTime) -> String {
+    let secs = now.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    let (days, rem) = (secs / 86_400, secs % 86_400);
+    // Civil date from days since 1970-01-01, proleptic Gregorian (H. Hinnant's algorithm).
+    let z = days as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1_460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "run-{year:04}{month:02}{day:02}-{:02}{:02}{:02}",
+        rem / 3_600,
+        rem % 3_600 / 60,
+        rem % 60
+    )
+}
+
+/// Whether `name` is a run folder name (and nothing else: no separators, no dots).
+pub fn is_run_name(name: &str) -> bool {
+    name.strip_prefix("run-").is_some_and(|rest| {
+        rest.len() == 15
+            && rest.bytes().enumerate().all(|(i, b)| {
+                if i == 8 {
+                    b == b'-'
+                } else {
+                    b.is_ascii_digit()
+                }
+            })
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn run_names_are_utc_dates_and_only_they_are_runs() {
+        let t = UNIX_EPOCH + Duration::from_secs(1_795_548_600); // 2026-11-24 19:30:00 UTC
+        assert_eq!(run_name(t), "run-20261124-193000");
+        assert_eq!(run_name(UNIX_EPOCH), "run-19700101-000000");
+        // 2000-02-29, a leap day.
+        let leap = UNIX_EPOCH + Duration::from_secs(951_782_400);
+        assert_eq!(run_name(leap), "run-20000229-000000");
+        assert!(is_run_name(&run_name(t)));
+        for bad in [
+            "run-2026112-193000",
+            "run-20261124_193000",
+            "model",
+            "run-../../etc",
+            "",
+        ] {
+            assert!(!is_run_name(bad), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_marked_run_is_resumed_and_old_runs_are_pruned() {
+        let dir = tempfile::tempdir().unwrap();
+        let runs = Runs::new(dir.path());
+        let t0 = UNIX_EPOCH + Duration::from_secs(1_795_548_600);
+        let a = runs.begin("virtual:curved", t0).unwrap();
+        assert!(!a.resumed);
+        // Interrupted: the next begin resumes it, whatever the time.
+        let again = runs
+            .begin("virtual:curved", t0 + Duration::from_secs(60))
+            .unwrap();
+        assert_eq!(
+            again,
+            Run {
+                data: a.data.clone(),
+                resumed: true
+            }
+        );
+        runs.end();
+        assert!(runs.interrupted().is_none());
+        // A run that began in the same second does not reuse the folder.
+        std::fs::create_dir_all(&a.data).unwrap();
+        let same = runs.begin("x", t0).unwrap();
+        assert!(same.data.ends_with("run-20261124-193001"), "{same:?}");
+        runs.end();
+        std::fs::remove_dir(&same.data).ok();
+        // Four runs with manifests, one folder that only looks like a run, one user file.
+        let mut made = vec![a.data.clone()];
+        for i in 1..4 {
+            let r = runs.begin("x", t0 + Duration::from_secs(i * 3600)).unwrap();
+            runs.end();
+            made.push(r.data);
+        }
+        for d in &made {
+            let setup = d.join(crate::calibrate::SETUP_NAME);
+            std::fs::create_dir_all(&setup).unwrap();
+            std::fs::write(setup.join(crate::calibrate::manifest::MANIFEST_FILE), "{}").unwrap();
+        }
+        let lookalike = dir.path().join("run-19990101-000000");
+        std::fs::create_dir_all(&lookalike).unwrap();
+        std::fs::write(dir.path().join("notes.txt"), "mine").unwrap();
+        let removed = runs.prune(2);
+        assert_eq!(removed, made[..2].to_vec());
+        assert!(made[2].is_dir() && made[3].is_dir());
+        assert!(
+            lookalike.is_dir(),
+            "a folder without a manifest is not ours"
+        );
+        assert!(dir.path().join("notes.txt").is_file());
+        // A garbled marker starts a new run.
+        std::fs::write(dir.path().join(MARKER), "{garbage").unwrap();
+        let r = runs.begin("x", t0 + Duration::from_secs(86_400)).unwrap();
+        assert!(!r.resumed);
+        assert!(r.data.ends_with("run-20261125-193000"));
+    }
+}

@@ -1,0 +1,305 @@
+//! `compend serve` (the service), its clients (`status`, `recalibrate`, `pause`, `stop`,
+//! `play` without `--model`, `ctl`) and `compend config check`.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use compend::config::{Config, RigKind};
+use compend::service::protocol::{Reply, Request, State, Status};
+use compend::service::socket;
+
+#[derive(clap::Args, Debug)]
+pub struct ServeArgs {
+    /// The configuration file (TOML; config/compend.toml documents every key) [default: every
+    /// key at its default: the virtual rig, state in $STATE_DIRECTORY or /var/lib/compend].
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Overrides [socket] path.
+    #[arg(long, value_name = "PATH")]
+    pub socket: Option<PathBuf>,
+    /// Overrides [paths] state (and the data and model folders under it, unless the file names
+    /// them).
+    #[arg(long, value_name = "DIR")]
+    pub state: Option<PathBuf>,
+    /// Overrides [rig]: `virtual[:SCENE]`.
+    #[arg(long, value_name = "virtual[:SCENE]")]
+    pub rig: Option<String>,
+    /// Overrides [playback] source.
+    #[arg(long, value_name = "SRC")]
+    pub source: Option<String>,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ClientArgs {
+    /// The service's socket [default: the one --config names, else /run/compend/compend.sock].
+    #[arg(long, value_name = "PATH")]
+    pub socket: Option<PathBuf>,
+    /// The service's configuration file, to find its socket.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct StatusArgs {
+    #[command(flatten)]
+    pub client: ClientArgs,
+    /// Print the status as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct RecalibrateArgs {
+    #[command(flatten)]
+    pub client: ClientArgs,
+    /// Wait until the calibration has ended and print its outcome (exit 1 if no new model was
+    /// installed).
+    #[arg(long)]
+    pub wait: bool,
+    /// With --wait: give up after this many seconds.
+    #[arg(long, default_value_t = 1800.0, value_name = "S")]
+    pub timeout: f64,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct CtlArgs {
+    #[command(flatten)]
+    pub client: ClientArgs,
+    /// One request line, e.g. '{"cmd":"model","path":"/var/lib/compend/model"}'.
+    pub request: String,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ConfigArgs {
+    #[command(subcommand)]
+    pub command: ConfigCommand,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum ConfigCommand {
+    /// Check a configuration file: every error at once, each with its line (exit 2 if any).
+    Check {
+        file: PathBuf,
+        /// Print the configuration with every default filled in, as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// The configuration with the command line's overrides.
+fn configure(a: &ServeArgs) -> Result<Config> {
+    let mut c = match &a.config {
+        Some(f) => Config::load(f)?,
+        None => Config::defaults(),
+    };
+    if let Some(s) = &a.socket {
+        c.socket.path = s.clone();
+    }
+    if let Some(dir) = &a.state {
+        let old = c.paths.state.clone();
+        if c.paths.data == old.join("calibration") {
+            c.paths.data = dir.join("calibration");
+        }
+        if c.paths.model == old.join("model") {
+            c.paths.model = dir.join("model");
+        }
+        c.paths.state = dir.clone();
+    }
+    if let Some(rig) = &a.rig {
+        let scene = match rig.split_once(':') {
+            None if rig == "virtual" => None,
+            Some(("virtual", s)) if !s.is_empty() => Some(s.to_string()),
+            _ => {
+                return Err(compend::Error::Input(format!(
+                    "--rig {rig:?}: expected `virtual` or `virtual:SCENE`; a camera rig is set \
+                     in the configuration file ([rig] kind = \"camera\")"
+                ))
+                .into());
+            }
+        };
+        c.rig.kind = RigKind::Virtual;
+        if let Some(s) = scene {
+            c.rig.scene = s;
+        }
+    }
+    if let Some(s) = &a.source {
+        compend::source::SourceSpec::parse(s)?;
+        c.playback.source = s.clone();
+    }
+    Ok(c)
+}
+
+pub fn serve(a: ServeArgs) -> Result<()> {
+    let config = configure(&a)?;
+    compend::service::serve(config, a.config.clone()).context("compend serve")
+}
+
+fn socket_of(c: &ClientArgs) -> Result<PathBuf> {
+    Ok(socket::resolve(c.socket.clone(), c.config.as_deref())?)
+}
+
+/// Sends a request; a refusal is an error (exit 1: the service said no).
+fn send(c: &ClientArgs, req: &Request) -> Result<Reply> {
+    let path = socket_of(c)?;
+    let reply = socket::request(&path, req)?;
+    if !reply.ok {
+        return Err(compend::Error::Failed(format!(
+            "the service refused: {}",
+            reply.error.as_deref().unwrap_or("no reason given")
+        ))
+        .into());
+    }
+    Ok(reply)
+}
+
+fn print_message(reply: &Reply) {
+    if let Some(m) = &reply.message {
+        println!("{m}");
+    }
+}
+
+pub fn status(a: StatusArgs) -> Result<()> {
+    let reply = send(&a.client, &Request::Status)?;
+    let status = reply
+        .status
+        .ok_or_else(|| compend::Error::Failed("the service sent no status".into()))?;
+    if a.json {
+        println!("{}", serde_json::to_string(&status)?);
+    } else {
+        print!("{}", describe(&status));
+    }
+    Ok(())
+}
+
+/// The status for a person.
+fn describe(s: &Status) -> String {
+    let mut out = format!(
+        "state: {}\nrig: {}\nuptime: {:.0} s (compend {}, pid {})\n",
+        s.state.name(),
+        s.rig,
+        s.uptime_s,
+        s.version,
+        s.pid
+    );
+    match &s.model {
+        Some(m) => {
+            out += &format!("model: {} ({})\n", m.path.display(), m.method);
+            if let Some(v) = &m.verification {
+                out += &format!(
+                    "  verified: {:.2} dB / SSIM {:.3} ({:+.2} dB over uncompensated)\n",
+                    v.psnr, v.ssim, v.gain_db
+                );
+            }
+        }
+        None => out += "model: none installed\n",
+    }
+    if let Some(c) = &s.calibration {
+        out += &format!(
+            "calibration: {} {}/{} ({:.0} s)\n",
+            c.phase, c.done, c.total, c.seconds
+        );
+    }
+    if let Some(src) = &s.source {
+        let f = &s.frames;
+        out += &format!(
+            "source: {src}\nframes: {} shown, {} held, {} dropped by the source, {} by the \
+             pipeline ({} shown in all)\n",
+            f.shown, f.held, f.dropped_source, f.dropped_pipeline, f.shown_total
+        );
+    }
+    let m = &s.monitoring;
+    if let Some(p) = m.psnr {
+        out += &format!(
+            "monitoring: {p:.2} dB (baseline {:.2} dB) {:.0} s ago, {} checks{}\n",
+            m.baseline_psnr.unwrap_or(f64::NAN),
+            m.age_s.unwrap_or(0.0),
+            m.checks,
+            if m.drift { ", DRIFT" } else { "" }
+        );
+    }
+    if let Some(e) = &s.last_error {
+        out += &format!("last error: {e}\n");
+    }
+    out
+}
+
+pub fn recalibrate(a: RecalibrateArgs) -> Result<()> {
+    let before = send(&a.client, &Request::Status)?
+        .status
+        .map_or(0, |s| s.calibrations);
+    let reply = send(&a.client, &Request::Recalibrate)?;
+    print_message(&reply);
+    if !a.wait {
+        return Ok(());
+    }
+    let deadline = Instant::now() + Duration::from_secs_f64(a.timeout.max(0.0));
+    loop {
+        std::thread::sleep(Duration::from_millis(250));
+        let s = send(&a.client, &Request::Status)?
+            .status
+            .ok_or_else(|| compend::Error::Failed("the service sent no status".into()))?;
+        let busy = matches!(
+            s.state,
+            State::Calibrating | State::Training | State::Verifying
+        );
+        if s.calibrations > before && !busy {
+            if let Some(e) = &s.last_error {
+                return Err(compend::Error::Failed(format!("recalibration: {e}")).into());
+            }
+            print!("{}", describe(&s));
+            return Ok(());
+        }
+        if Instant::now() > deadline {
+            return Err(compend::Error::Failed(format!(
+                "recalibration still running after {} s ({})",
+                a.timeout,
+                s.state.name()
+            ))
+            .into());
+        }
+    }
+}
+
+pub fn simple(c: &ClientArgs, req: Request) -> Result<()> {
+    print_message(&send(c, &req)?);
+    Ok(())
+}
+
+pub fn ctl(a: CtlArgs) -> Result<()> {
+    let req = Request::parse(a.request.as_bytes()).map_err(compend::Error::Input)?;
+    let path = socket_of(&a.client)?;
+    let reply = socket::request(&path, &req)?;
+    println!("{}", serde_json::to_string(&reply)?);
+    if !reply.ok {
+        // The reply (with its error) is on stdout; the exit code says it was refused.
+        return Err(compend::Error::Failed(format!(
+            "the service refused: {}",
+            reply.error.as_deref().unwrap_or("no reason given")
+        ))
+        .into());
+    }
+    Ok(())
+}
+
+pub fn config(a: ConfigArgs) -> Result<()> {
+    match a.command {
+        ConfigCommand::Check { file, json } => check(&file, json),
+    }
+}
+
+fn check(file: &Path, json: bool) -> Result<()> {
+    let c = Config::load(file)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&c)?);
+    } else {
+        println!(
+            "{}: OK (rig {}, state {}, socket {})",
+            file.display(),
+            compend::service::engine::rig_name(&c),
+            c.paths.state.display(),
+            c.socket.path.display()
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,855 @@
+//! The service's configuration (`compend serve --config F`, `compend calibrate --config F`,
+//! `compend config check F`): a TOML file, every key optional, unknown keys rejected, and every
+//! error in a file reported at once, each with its line.
+//!
+//! The shipped `config/compend.toml` documents every key; a test checks that it parses and that
+//! it names every key this parser knows ([`known_keys`]).
+//!
+//! How it reads: the document is parsed with spans ([`toml::de::DeTable`]), then each section is
+//! walked key by key: a key is taken out of its table, deserialised on its own and checked, and
+//! whatever is left in a table at the end is an unknown key (with the nearest known one
+//! suggested). So one bad value does not hide the next, and the typed [`Config`] below is the
+//! only statement of what the file may hold.
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+use toml::Spanned;
+use toml::de::{DeTable, DeValue, ValueDeserializer};
+
+use crate::error::{Error, Result};
+use crate::model::MethodChoice;
+use crate::raster::ImageSize;
+
+/// Where the projector and the camera come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RigKind {
+    /// The built-in virtual rig (simulated projector, surface and camera).
+    Virtual,
+    /// The projector window watched by a virtual camera (testing the display path).
+    Window,
+    /// The projector window and a V4L2 camera: real hardware.
+    Camera,
+}
+
+/// `[rig]`: the devices.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RigConfig {
+    pub kind: RigKind,
+    /// `virtual`/`window`: a built-in scene or a scene JSON file.
+    pub scene: String,
+    /// Seed of the sampling images (and of the virtual rig's texture and noise).
+    pub seed: u64,
+    /// `camera`: the V4L2 device (a /dev/v4l/by-id/ path survives re-plugging).
+    pub camera: Option<PathBuf>,
+    /// `camera`: the capture size; `virtual`/`window`: the virtual camera's resolution.
+    pub camera_size: Option<ImageSize>,
+    /// `virtual`: the projector resolution (the window's is its monitor's).
+    pub projector: Option<ImageSize>,
+    /// `window`/`camera`: the projector's monitor, by name or index.
+    pub monitor: Option<String>,
+    /// `virtual`: the display refresh rate playback is paced at, Hz.
+    pub fps: f64,
+    /// `virtual`/`window`: the virtual camera's frame rate, Hz (default: the scene's).
+    pub camera_fps: Option<f64>,
+    /// `virtual`/`window`: projector-to-camera delay, ms (default: the scene's).
+    pub latency_ms: Option<f64>,
+    /// `virtual`, scenes with drift: seconds after playback first starts at which the projector
+    /// is moved to the scene's drifted pose (a bump, for testing monitoring and recalibration).
+    pub drift_after_s: Option<f64>,
+}
+
+/// `[paths]`: where models and captures live.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PathsConfig {
+    /// The state directory: models and captures (systemd's `StateDirectory=`).
+    pub state: PathBuf,
+    /// The calibration data root [default: STATE/calibration].
+    pub data: PathBuf,
+    /// The installed model directory [default: STATE/model].
+    pub model: PathBuf,
+}
+
+/// When the service calibrates by itself.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OnStart {
+    /// At start when no model is installed (or an interrupted calibration is on disk).
+    IfNoModel,
+    /// Only when asked (`compend recalibrate`).
+    Never,
+}
+
+/// `[calibration]`: what `calibrate` projects and fits.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CalibrationConfig {
+    #[serde(serialize_with = "display")]
+    pub method: MethodChoice,
+    pub ntrain: usize,
+    pub ntest: usize,
+    pub verify: usize,
+    /// PSNR gain over the uncompensated projection a model needs to be installed, dB.
+    pub min_gain_db: f64,
+    /// Frames averaged per capture.
+    pub average: usize,
+    /// Network size of the sampling images.
+    pub network: ImageSize,
+    pub on_start: OnStart,
+    /// Calibration run folders the service keeps under `[paths] data` (0: all).
+    pub keep_runs: usize,
+}
+
+/// `[playback]`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PlaybackConfig {
+    /// What to play (`compend play --help` lists the spellings).
+    pub source: String,
+    /// Play the source as soon as a verified model is installed (at start and after each
+    /// calibration).
+    pub autoplay: bool,
+}
+
+/// What the service does when monitoring finds drift.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DriftPolicy {
+    /// Say so in `status` and the log, and keep playing.
+    Report,
+    /// Calibrate again (captures, fit, verification); install only if it verifies.
+    Recalibrate,
+}
+
+/// `[monitoring]`: scoring the compensated projection during playback.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MonitoringConfig {
+    pub enabled: bool,
+    /// Seconds between two monitoring captures.
+    pub period_s: f64,
+    /// Drop of the monitoring PSNR below the one measured at installation that counts as
+    /// drift, dB.
+    pub drift_threshold_db: f64,
+    pub on_drift: DriftPolicy,
+}
+
+/// `[socket]`: the control socket.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SocketConfig {
+    pub path: PathBuf,
+    /// File mode of the socket (octal in the file, e.g. "0660").
+    pub mode: u32,
+    /// Group the socket belongs to; its members may connect.
+    pub group: Option<String>,
+    /// User ids allowed besides root, the service's own user and the group's members.
+    pub allow_uids: Vec<u32>,
+}
+
+/// `[log]`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LogConfig {
+    /// Seconds between two frame-count lines in the log during playback.
+    pub stats_period_s: f64,
+}
+
+/// The whole configuration.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Config {
+    pub rig: RigConfig,
+    pub paths: PathsConfig,
+    pub calibration: CalibrationConfig,
+    pub playback: PlaybackConfig,
+    pub monitoring: MonitoringConfig,
+    pub socket: SocketConfig,
+    pub log: LogConfig,
+}
+
+fn display<T: std::fmt::Display, S: serde::Serializer>(
+    v: &T,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    s.collect_str(v)
+}
+
+/// The state directory when the file does not name one: systemd's `$STATE_DIRECTORY` (the
+/// first, when it lists several), else /var/lib/compend.
+fn default_state() -> PathBuf {
+    std::env::var_os("STATE_DIRECTORY")
+        .and_then(|v| {
+            v.to_str()
+                .and_then(|s| s.split(':').next())
+                .map(PathBuf::from)
+        })
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or_else(|| PathBuf::from("/var/lib/compend"))
+}
+
+/// The socket when the file does not name one: in systemd's `$RUNTIME_DIRECTORY`, else
+/// /run/compend/compend.sock.
+fn default_socket() -> PathBuf {
+    std::env::var_os("RUNTIME_DIRECTORY")
+        .and_then(|v| {
+            v.to_str()
+                .and_then(|s| s.split(':').next())
+                .map(PathBuf::from)
+        })
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or_else(|| PathBuf::from("/run/compend"))
+        .join("compend.sock")
+}
+
+impl Config {
+    /// Every key at its default (the state and socket paths from systemd's environment when it
+    /// sets them).
+    pub fn defaults() -> Self {
+        // Parsing an empty document yields exactly the defaults.
+        match Self::parse("", Path::new("(defaults)")) {
+            Ok(c) => c,
+            Err(e) => unreachable_defaults(e),
+        }
+    }
+
+    /// Reads and parses `path`.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read(path).map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => Error::Missing {
+                path: path.to_path_buf(),
+                expected: "a compend configuration file (TOML)".into(),
+            },
+            _ => Error::io(path, "read", e),
+        })?;
+        let text = String::from_utf8(text).map_err(|e| {
+            Error::Input(format!(
+                "{}: not a text file (invalid UTF-8 at byte {}); expected a TOML configuration",
+                path.display(),
+                e.utf8_error().valid_up_to()
+            ))
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses a configuration; `path` names the file in messages. Every problem is reported,
+    /// one per line, in one [`Error::Input`].
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let mut w = Walker::new(text, path);
+        let config = w.document();
+        match (config, w.errors.is_empty()) {
+            (Some(c), true) => Ok(c),
+            _ => Err(w.into_error()),
+        }
+    }
+}
+
+#[cold]
+fn unreachable_defaults(e: Error) -> Config {
+    // The defaults are constants checked by a test; reaching this is a bug in this file.
+    panic!("compend's built-in configuration defaults do not parse: {e}")
+}
+
+/// Every `section.key` the parser knows, in the order it reads them.
+pub fn known_keys() -> Vec<String> {
+    let mut w = Walker::new("", Path::new("(keys)"));
+    let _ = w.document();
+    w.asked
+}
+
+/// A table being read: what is left of it, its name and where it is.
+struct Table<'i> {
+    name: &'static str,
+    entries: Vec<(String, Range<usize>, Spanned<DeValue<'i>>)>,
+}
+
+/// The reader: collects errors and the keys it asked for.
+struct Walker<'t> {
+    text: &'t str,
+    file: String,
+    errors: Vec<(usize, String)>,
+    asked: Vec<String>,
+}
+
+impl<'t> Walker<'t> {
+    fn new(text: &'t str, path: &Path) -> Self {
+        Self {
+            text,
+            file: path.display().to_string(),
+            errors: Vec::new(),
+            asked: Vec::new(),
+        }
+    }
+
+    fn line(&self, offset: usize) -> usize {
+        let end = offset.min(self.text.len());
+        self.text.as_bytes()[..end]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count()
+            + 1
+    }
+
+    fn error(&mut self, span: Range<usize>, message: String) {
+        let line = self.line(span.start);
+        self.errors.push((line, message));
+    }
+
+    fn into_error(mut self) -> Error {
+        self.errors.sort_by_key(|(line, _)| *line);
+        let n = self.errors.len();
+        let lines: Vec<String> = self
+            .errors
+            .iter()
+            .map(|(line, m)| format!("  {}:{line}: {m}", self.file))
+            .collect();
+        Error::Input(format!(
+            "{}: {n} error{} in the configuration:\n{}",
+            self.file,
+            if n == 1 { "" } else { "s" },
+            lines.join("\n")
+        ))
+    }
+
+    /// Reads the whole document; `None` when it is not TOML at all.
+    fn document(&mut self) -> Option<Config> {
+        let (root, parse_errors) = DeTable::parse_recoverable(self.text);
+        for e in &parse_errors {
+            let span = e.span().unwrap_or(0..0);
+            self.error(span, format!("not valid TOML: {}", e.message().trim()));
+        }
+        if !parse_errors.is_empty() {
+            return None;
+        }
+        let mut root = Table {
+            name: "",
+            entries: entries(root.into_inner()),
+        };
+        let config = self.sections(&mut root);
+        self.finish(root);
+        Some(config)
+    }
+
+    fn sections(&mut self, root: &mut Table<'t>) -> Config {
+        let mut t = self.table(root, "rig");
+        let rig = self.rig(&mut t);
+        self.finish(t);
+
+        let mut t = self.table(root, "paths");
+        let state: PathBuf = self.get(&mut t, "state").unwrap_or_else(default_state);
+        let data = self
+            .get(&mut t, "data")
+            .unwrap_or_else(|| state.join("calibration"));
+        let model = self
+            .get(&mut t, "model")
+            .unwrap_or_else(|| state.join("model"));
+        let paths = PathsConfig { state, data, model };
+        self.finish(t);
+
+        let mut t = self.table(root, "calibration");
+        let calibration = self.calibration(&mut t);
+        self.finish(t);
+
+        let mut t = self.table(root, "playback");
+        let playback = PlaybackConfig {
+            source: self.checked(
+                &mut t,
+                "source",
+                "pattern:bars".to_string(),
+                |s: &String| {
+                    crate::source::SourceSpec::parse(s)
+                        .map(|_| ())
+                        .map_err(|e| e.to_string())
+                },
+            ),
+            autoplay: self.get(&mut t, "autoplay").unwrap_or(true),
+        };
+        self.finish(t);
+
+        let mut t = self.table(root, "monitoring");
+        let monitoring = MonitoringConfig {
+            enabled: self.get(&mut t, "enabled").unwrap_or(true),
+            period_s: self.positive(&mut t, "period_s", 30.0),
+            drift_threshold_db: self.positive(&mut t, "drift_threshold_db", 3.0),
+            on_drift: self.choice(
+                &mut t,
+                "on_drift",
+                DriftPolicy::Recalibrate,
+                &[
+                    ("report", DriftPolicy::Report),
+                    ("recalibrate", DriftPolicy::Recalibrate),
+                ],
+            ),
+        };
+        self.finish(t);
+
+        let mut t = self.table(root, "socket");
+        let socket = self.socket(&mut t);
+        self.finish(t);
+
+        let mut t = self.table(root, "log");
+        let log = LogConfig {
+            stats_period_s: self.positive(&mut t, "stats_period_s", 60.0),
+        };
+        self.finish(t);
+
+        Config {
+            rig,
+            paths,
+            calibration,
+            playback,
+            monitoring,
+            socket,
+            log,
+        }
+    }
+
+    fn rig(&mut self, t: &mut Table<'t>) -> RigConfig {
+        let kind = self.choice(
+            t,
+            "kind",
+            RigKind::Virtual,
+            &[
+                ("virtual", RigKind::Virtual),
+                ("window", RigKind::Window),
+                ("camera", RigKind::Camera),
+            ],
+        );
+        let rig = RigConfig {
+            kind,
+            scene: self.get(t, "scene").unwrap_or_else(|| "curved".to_string()),
+            seed: self.get(t, "seed").unwrap_or(0),
+            camera: self.get(t, "camera"),
+            camera_size: self.size(t, "camera_size", false),
+            projector: self.size(t, "projector", false),
+            monitor: self.get(t, "monitor"),
+            fps: self.positive(t, "fps", 60.0),
+            camera_fps: self.optional_positive(t, "camera_fps"),
+            latency_ms: self.optional_non_negative(t, "latency_ms"),
+            drift_after_s: self.optional_non_negative(t, "drift_after_s"),
+        };
+        if kind == RigKind::Camera && rig.camera.is_none() {
+            self.errors.push((
+                self.line(0),
+                "[rig] kind = \"camera\" needs `camera`, the V4L2 device (e.g. /dev/video0)".into(),
+            ));
+        }
+        rig
+    }
+
+    fn calibration(&mut self, t: &mut Table<'t>) -> CalibrationConfig {
+        let method = self.parsed(
+            t,
+            "method",
+            MethodChoice::Rung(crate::model::Method::Linear),
+        );
+        let ntrain = self.checked(t, "ntrain", 48usize, |&n| {
+            if n >= crate::fit::MIN_TRAIN {
+                Ok(())
+            } else {
+                Err(format!(
+                    "at least {} training images are needed",
+                    crate::fit::MIN_TRAIN
+                ))
+            }
+        });
+        let ntest = self.checked(t, "ntest", 10usize, |&n| at_least_one(n));
+        let verify = self.checked(t, "verify", 5usize, |&n| at_least_one(n));
+        if verify > ntest {
+            self.errors.push((
+                self.line(0),
+                format!("[calibration] verify = {verify} is more than ntest = {ntest}"),
+            ));
+        }
+        CalibrationConfig {
+            method,
+            ntrain,
+            ntest,
+            verify,
+            min_gain_db: self.checked(t, "min_gain_db", 1.0, |v: &f64| finite(*v)),
+            average: self.checked(t, "average", 3usize, |&n| at_least_one(n)),
+            network: self
+                .parsed_with(t, "network", |s| {
+                    let n = ImageSize::parse(s, true)?;
+                    if n.width % 4 == 0 && n.height % 4 == 0 {
+                        Ok(n)
+                    } else {
+                        Err(format!(
+                            "network size {n}: width and height must be divisible by 4"
+                        ))
+                    }
+                })
+                .unwrap_or(ImageSize::new(256, 256)),
+            on_start: self.choice(
+                t,
+                "on_start",
+                OnStart::IfNoModel,
+                &[
+                    ("if-no-model", OnStart::IfNoModel),
+                    ("never", OnStart::Never),
+                ],
+            ),
+            keep_runs: self.get(t, "keep_runs").unwrap_or(3),
+        }
+    }
+
+    fn socket(&mut self, t: &mut Table<'t>) -> SocketConfig {
+        let path = self.get(t, "path").unwrap_or_else(default_socket);
+        let mode = self
+            .parsed_with(t, "mode", |s: &str| {
+                let digits = s.strip_prefix("0o").unwrap_or(s);
+                match u32::from_str_radix(digits, 8) {
+                    Ok(m) if m <= 0o777 => Ok(m),
+                    _ => Err(format!(
+                        "\"{s}\" is not a file mode; expected octal digits such as \"0660\""
+                    )),
+                }
+            })
+            .unwrap_or(0o660);
+        SocketConfig {
+            path,
+            mode,
+            group: self.get(t, "group"),
+            allow_uids: self.get(t, "allow_uids").unwrap_or_default(),
+        }
+    }
+
+    /// Takes section `name` out of `root`; a missing one is empty.
+    fn table(&mut self, root: &mut Table<'t>, name: &'static str) -> Table<'t> {
+        let empty = Table {
+            name,
+            entries: Vec::new(),
+        };
+        let Some(i) = root.entries.iter().position(|(k, _, _)| k == name) else {
+            return empty;
+        };
+        let (_, span, value) = root.entries.remove(i);
+        match value.into_inner() {
+            DeValue::Table(t) => Table {
+                name,
+                entries: entries(t),
+            },
+            other => {
+                self.error(
+                    span,
+                    format!(
+                        "`{name}` must be a section ([{name}]), not a {}",
+                        other.type_str()
+                    ),
+                );
+                empty
+            }
+        }
+    }
+
+    /// Takes `key` out of `t` and deserialises it; `None` when absent or wrong (recorded).
+    fn get<T: DeserializeOwned>(&mut self, t: &mut Table<'t>, key: &str) -> Option<T> {
+        self.asked.push(format!("{}.{key}", t.name));
+        let i = t.entries.iter().position(|(k, _, _)| k == key)?;
+        let (_, _, value) = t.entries.remove(i);
+        let span = value.span();
+        let type_name = value.get_ref().type_str();
+        match T::deserialize(ValueDeserializer::from(value)) {
+            Ok(v) => Some(v),
+            Err(e) => {
+                let what = std::any::type_name::<T>();
+                self.error(
+                    span,
+                    format!(
+                        "[{}] {key}: {} (expected {}, got a {type_name})",
+                        t.name,
+                        e.message().trim(),
+                        expected_name(what)
+                    ),
+                );
+                None
+            }
+        }
+    }
+
+    /// `key` with `check`, else `default` (a failed check is recorded).
+    fn checked<T: DeserializeOwned>(
+        &mut self,
+        t: &mut Table<'t>,
+        key: &str,
+        default: T,
+        check: impl FnOnce(&T) -> std::result::Result<(), String>,
+    ) -> T {
+        let span = span_of(t, key);
+        match self.get::<T>(t, key) {
+            None => default,
+            Some(v) => match check(&v) {
+                Ok(()) => v,
+                Err(m) => {
+                    self.error(span, format!("[{}] {key}: {m}", t.name));
+                    default
+                }
+            },
+        }
+    }
+
+    /// A string parsed by `parse`; `None` when absent or wrong (recorded).
+    fn parsed_with<T>(
+        &mut self,
+        t: &mut Table<'t>,
+        key: &str,
+        parse: impl FnOnce(&str) -> std::result::Result<T, String>,
+    ) -> Option<T> {
+        let span = span_of(t, key);
+        let s: String = self.get(t, key)?;
+        match parse(&s) {
+            Ok(v) => Some(v),
+            Err(m) => {
+                self.error(span, format!("[{}] {key}: {m}", t.name));
+                None
+            }
+        }
+    }
+
+    fn parsed<T: FromStr>(&mut self, t: &mut Table<'t>, key: &str, default: T) -> T
+    where
+        T::Err: std::fmt::Display,
+    {
+        self.parsed_with(t, key, |s| T::from_str(s).map_err(|e| e.to_string()))
+            .unwrap_or(default)
+    }
+
+    fn choice<T: Copy>(
+        &mut self,
+        t: &mut Table<'t>,
+        key: &str,
+        default: T,
+        options: &[(&str, T)],
+    ) -> T {
+        self.parsed_with(t, key, |s| {
+            options
+                .iter()
+                .find(|(name, _)| *name == s)
+                .map(|(_, v)| *v)
+                .ok_or_else(|| {
+                    let names: Vec<String> =
+                        options.iter().map(|(n, _)| format!("\"{n}\"")).collect();
+                    format!("\"{s}\" is not one of {}", names.join(", "))
+                })
+        })
+        .unwrap_or(default)
+    }
+
+    fn size(&mut self, t: &mut Table<'t>, key: &str, square_ok: bool) -> Option<ImageSize> {
+        self.parsed_with(t, key, |s| ImageSize::parse(s, square_ok))
+    }
+
+    fn positive(&mut self, t: &mut Table<'t>, key: &str, default: f64) -> f64 {
+        self.optional_positive(t, key).unwrap_or(default)
+    }
+
+    fn optional_positive(&mut self, t: &mut Table<'t>, key: &str) -> Option<f64> {
+        let span = span_of(t, key);
+        let v: f64 = self.get(t, key)?;
+        if v.is_finite() && v > 0.0 {
+            Some(v)
+        } else {
+            self.error(
+                span,
+                format!("[{}] {key}: {v} must be a positive number", t.name),
+            );
+            None
+        }
+    }
+
+    fn optional_non_negative(&mut self, t: &mut Table<'t>, key: &str) -> Option<f64> {
+        let span = span_of(t, key);
+        let v: f64 = self.get(t, key)?;
+        if v.is_finite() && v >= 0.0 {
+            Some(v)
+        } else {
+            self.error(
+                span,
+                format!("[{}] {key}: {v} must be zero or more", t.name),
+            );
+            None
+        }
+    }
+
+    /// Whatever is left in `t` is unknown.
+    fn finish(&mut self, t: Table<'t>) {
+        let prefix = if t.name.is_empty() {
+            String::new()
+        } else {
+            format!("{}.", t.name)
+        };
+        let known: Vec<String> = self
+            .asked
+            .iter()
+            .filter_map(|k| k.strip_prefix(&prefix))
+            .filter(|k| !k.contains('.') || prefix.is_empty())
+            .map(str::to_string)
+            .collect();
+        for (key, span, _) in t.entries {
+            let place = if t.name.is_empty() {
+                "top level".to_string()
+            } else {
+                format!("[{}]", t.name)
+            };
+            let known_here: Vec<&str> = if t.name.is_empty() {
+                SECTIONS.to_vec()
+            } else {
+                known.iter().map(String::as_str).collect()
+            };
+            let hint = nearest(&key, &known_here)
+                .map(|k| format!("; did you mean `{k}`?"))
+                .unwrap_or_else(|| format!("; known: {}", known_here.join(", ")));
+            self.error(span, format!("unknown key `{key}` at the {place}{hint}"));
+        }
+    }
+}
+
+/// The sections, in the order of the shipped file.
+const SECTIONS: [&str; 7] = [
+    "rig",
+    "paths",
+    "calibration",
+    "playback",
+    "monitoring",
+    "socket",
+    "log",
+];
+
+fn entries(t: DeTable<'_>) -> Vec<(String, Range<usize>, Spanned<DeValue<'_>>)> {
+    t.into_iter()
+        .map(|(k, v)| {
+            let span = k.span();
+            (k.into_inner().into_owned(), span, v)
+        })
+        .collect()
+}
+
+fn span_of(t: &Table<'_>, key: &str) -> Range<usize> {
+    t.entries
+        .iter()
+        .find(|(k, _, _)| k == key)
+        .map_or(0..0, |(_, _, v)| v.span())
+}
+
+fn at_least_one(n: usize) -> std::result::Result<(), String> {
+    if n >= 1 {
+        Ok(())
+    } else {
+        Err("must be at least 1".into())
+    }
+}
+
+fn finite(v: f64) -> std::result::Result<(), String> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(format!("{v} is not a number of dB"))
+    }
+}
+
+/// What a Rust type is called in a TOML file.
+fn expected_name(type_name: &str) -> &'static str {
+    match type_name {
+        t if t.contains("PathBuf") => "a path string",
+        t if t.contains("String") => "a string",
+        "bool" => "true or false",
+        "f64" | "f32" => "a number",
+        "u64" | "u32" | "usize" => "a whole number",
+        t if t.contains("Vec<u32>") => "a list of whole numbers",
+        _ => "another type",
+    }
+}
+
+/// The known key closest to `key` by edit distance, when it is close.
+fn nearest<'a>(key: &str, known: &[&'a str]) -> Option<&'a str> {
+    known
+        .iter()
+        .map(|k| (edit_distance(key, k), *k))
+        .filter(|(d, k)| *d <= 2.max(k.len() / 3))
+        .min_by_key(|(d, _)| *d)
+        .map(|(_, k)| k)
+}
+
+/// Edits between `a` and `b`: insertions, deletions, substitutions and swaps of two neighbouring
+/// characters (a typed `sede` is one edit from `seed`, two from `scene`).
+fn edit_distance(a: &str, b: &str) -> usize {
+    let (a, b): (Vec<char>, Vec<char>) = (a.chars().collect(), b.chars().collect());
+    // d[i][j]: edits between the first i characters of a and the first j of b.
+    let mut d = vec![vec![0usize; b.len() + 1]; a.len() + 1];
+    for (i, row) in d.iter_mut().enumerate() {
+        row[0] = i;
+    }
+    for j in 0..=b.len() {
+        d[0][j] = j;
+    }
+    for i in 1..=a.len() {
+        for j in 1..=b.len() {
+            let cost = usize::from(a[i - 1] != b[j - 1]);
+            let mut best = (d[i - 1][j - 1] + cost)
+                .min(d[i - 1][j] + 1)
+                .min(d[i][j - 1] + 1);
+            if i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] {
+                best = best.min(d[i - 2][j - 2] + 1);
+            }
+            d[i][j] = best;
+        }
+    }
+    d[a.len()][b.len()]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Config> {
+        Config::parse(text, Path::new("t.toml"))
+    }
+
+    #[test]
+    fn an_empty_file_is_the_defaults() {
+        let c = parse("").unwrap();
+        assert_eq!(c.rig.kind, RigKind::Virtual);
+        assert_eq!(c.calibration.ntrain, 48);
+        assert_eq!(c.paths.model, c.paths.state.join("model"));
+        assert_eq!(c.socket.mode, 0o660);
+    }
+
+    #[test]
+    fn every_error_is_reported_with_its_line() {
+        let text = "[rig]\nkind = \"projector\"\nsede = 3\n[calibration]\nntrain = \"many\"\n\
+                    verify = 0\n[socket]\nmode = \"rw\"\n[sockets]\n";
+        let e = parse(text).unwrap_err().to_string();
+        for want in [
+            "t.toml:2: [rig] kind: \"projector\" is not one of",
+            "t.toml:3: unknown key `sede` at the [rig]; did you mean `seed`?",
+            "t.toml:5: [calibration] ntrain:",
+            "t.toml:6: [calibration] verify: must be at least 1",
+            "t.toml:8: [socket] mode: \"rw\" is not a file mode",
+            "t.toml:9: unknown key `sockets` at the top level; did you mean `socket`?",
+            "6 errors",
+        ] {
+            assert!(e.contains(want), "missing {want:?} in:\n{e}");
+        }
+    }
+
+    #[test]
+    fn broken_toml_is_named() {
+        let e = parse("[rig\nkind = 1").unwrap_err().to_string();
+        assert!(e.contains("t.toml:1: not valid TOML"), "{e}");
+    }
+
+    #[test]
+    fn a_camera_rig_needs_a_device() {
+        let e = parse("[rig]\nkind = \"camera\"\n").unwrap_err().to_string();
+        assert!(e.contains("needs `camera`"), "{e}");
+        let c = parse("[rig]\nkind = \"camera\"\ncamera = \"/dev/video0\"\n").unwrap();
+        assert_eq!(c.rig.camera.as_deref(), Some(Path::new("/dev/video0")));
+    }
+
+    #[test]
+    fn known_keys_cover_every_section() {
+        let keys = known_keys();
+        for s in SECTIONS {
+            assert!(keys.iter().any(|k| k.starts_with(&format!("{s}."))), "{s}");
+        }
+        assert!(keys.contains(&"monitoring.on_drift".to_string()));
+    }
+}

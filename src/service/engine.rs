@@ -1,0 +1,1114 @@
+//! The engine: the service's main thread. It owns the devices, the GPU pass and the model, and
+//! moves between the states of [`State`]; see [`super`] for the threads around it.
+//!
+//! What it does next is one of: wait for an event, calibrate, play, pause, stop. Events
+//! (requests, signals, a reload) are looked at between two refreshes while playing, between two
+//! captures while calibrating, and every half second while idle; a request that changes what
+//! the engine does ends the current playback (calibration answers "busy" except to `stop`).
+//!
+//! Each calibration captures into a run folder of its own under `[paths] data`
+//! ([`crate::calibrate::runs`]), so a recalibration (after drift, say) never reuses the
+//! captures of a surface that has changed; the newest `[calibration] keep_runs` are kept.
+//!
+//! Crash safety: a run in progress is named by a marker file (`DATA/calibrating.json`) until it
+//! ends; a service that starts and finds it resumes that run from the captures on disk, after
+//! putting the installed model back on the projector. Models are
+//! installed with an atomic swap ([`crate::model::store`]), so a kill at any moment leaves the
+//! previous verified model or the new one, complete.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, TryRecvError};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use super::notify::Notifier;
+use super::protocol::{
+    CalibrationProgress, Frames, ModelStatus, Monitoring, Reply, Request, State,
+};
+use super::{Event, Shared};
+use crate::calibrate::runs::Runs;
+use crate::calibrate::{self, Options, PatternSet, SyncSettings};
+use crate::config::{Config, DriftPolicy, RigKind};
+use crate::device::{DisplaySink, FrameSource};
+use crate::error::{Error, Result};
+use crate::fov::DisplayRange;
+use crate::gpu::{CompensationPass, GpuContext};
+use crate::metrics::Accumulator;
+use crate::model::Model;
+use crate::playback::player::{PlayStats, Player, Refresh, Screen, Show, ViewSink, WatchedSink};
+use crate::raster::{CamImage, ImageSize, PrjImage, Rect};
+use crate::rig::scene::{self, Latency, Scene};
+use crate::rig::{Phase, VirtualRig};
+use crate::source::{self, FeedMode, SourceSpec};
+
+/// `virtual:SCENE` or `camera:DEVICE`: what the service drives, for the status and the log.
+pub fn rig_name(config: &Config) -> String {
+    let r = &config.rig;
+    match r.kind {
+        RigKind::Virtual => format!("virtual:{}", r.scene),
+        RigKind::Window => format!("window:{}", r.scene),
+        RigKind::Camera => format!(
+            "camera:{}",
+            r.camera.as_deref().unwrap_or(Path::new("?")).display()
+        ),
+    }
+}
+
+/// The virtual rig: its projector and camera, the scene, and a GPU for the pass.
+struct VirtualDevices {
+    rig: VirtualRig,
+    scene: Scene,
+    ctx: GpuContext,
+    /// When the projector is moved to the scene's drifted pose (`[rig] drift_after_s`), once.
+    drift_at: Option<Instant>,
+}
+
+/// Real hardware: the projector window and a V4L2 camera.
+#[cfg(target_os = "linux")]
+struct Hardware {
+    win: crate::window::ProjectorWindow,
+    camera: crate::camera::V4l2Camera,
+}
+
+enum Devices {
+    Virtual(Box<VirtualDevices>),
+    #[cfg(target_os = "linux")]
+    Hardware(Box<Hardware>),
+}
+
+impl Devices {
+    fn open(config: &Config) -> Result<Self> {
+        let r = &config.rig;
+        match r.kind {
+            RigKind::Virtual => {
+                let mut scene = scene::load(&r.scene)?;
+                let cam = r.camera_size.unwrap_or(scene.camera.size());
+                let prj = r.projector.unwrap_or(scene.projector.size());
+                scene = scene.with_resolution(cam, prj);
+                if let Some(fps) = r.camera_fps {
+                    scene.latency.fps = fps;
+                }
+                if let Some(ms) = r.latency_ms {
+                    scene.latency.delay_frames = (ms / 1e3 * scene.latency.fps).round() as u32;
+                }
+                scene.validate()?;
+                if r.drift_after_s.is_some() && scene.drift.is_none() {
+                    tracing::warn!(
+                        "[rig] drift_after_s: scene {:?} has no drift; the projector stays put",
+                        scene.name
+                    );
+                }
+                let rig = VirtualRig::new(&scene, r.seed)?;
+                let ctx = GpuContext::new()?;
+                Ok(Devices::Virtual(Box::new(VirtualDevices {
+                    rig,
+                    scene,
+                    ctx,
+                    drift_at: None,
+                })))
+            }
+            RigKind::Window => Err(Error::Input(
+                "[rig] kind = \"window\" is for `compend calibrate --rig window`; the service \
+                 drives \"virtual\" or \"camera\""
+                    .into(),
+            )),
+            RigKind::Camera => open_hardware(config),
+        }
+    }
+
+    fn display_size(&self) -> ImageSize {
+        match self {
+            Devices::Virtual(v) => v.scene.projector.size(),
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => DisplaySink::size(&h.win),
+        }
+    }
+
+    fn camera_size(&self) -> ImageSize {
+        match self {
+            Devices::Virtual(v) => v.scene.camera.size(),
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => FrameSource::size(&h.camera),
+        }
+    }
+
+    fn describe(&self) -> String {
+        match self {
+            Devices::Virtual(v) => format!(
+                "virtual rig {:?} (projector {}, camera {} at {} fps, {} frames of delay); GPU: {}",
+                v.scene.name,
+                v.scene.projector.size(),
+                v.scene.camera.size(),
+                v.scene.latency.fps,
+                v.scene.latency.delay_frames,
+                v.ctx.describe()
+            ),
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => format!(
+                "projector window {} at {:.1} Hz, camera {}; GPU: {}",
+                DisplaySink::size(&h.win),
+                h.win.refresh_hz(),
+                FrameSource::size(&h.camera),
+                h.win.context().describe()
+            ),
+        }
+    }
+
+    /// Shows black (paused, stopping).
+    fn black(&mut self) -> Result<()> {
+        let black = PrjImage::new(self.display_size().width, self.display_size().height);
+        match self {
+            Devices::Virtual(v) => v.rig.show(&black),
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => h.win.show(&black),
+        }
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn open_hardware(config: &Config) -> Result<Devices> {
+    let r = &config.rig;
+    let device = r.camera.clone().unwrap_or_default();
+    let mut camera = crate::camera::V4l2Camera::open(&device, r.camera_size)?;
+    let report = camera.lock_for_calibration(&crate::camera::LockSettings::default())?;
+    for line in report.lines() {
+        tracing::info!("camera {}: {line}", device.display());
+    }
+    let win = crate::window::ProjectorWindow::open(r.monitor.as_deref())?;
+    Ok(Devices::Hardware(Box::new(Hardware { win, camera })))
+}
+
+#[cfg(not(target_os = "linux"))]
+fn open_hardware(config: &Config) -> Result<Devices> {
+    Err(Error::Input(format!(
+        "[rig] camera = {:?}: V4L2 cameras exist on Linux only",
+        config.rig.camera
+    )))
+}
+
+/// What the engine does next.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Next {
+    Wait,
+    Calibrate,
+    Play,
+    Pause,
+    Stop,
+}
+
+/// The engine's channel, shared state and systemd notifier.
+struct Io {
+    shared: Arc<Shared>,
+    rx: Receiver<Event>,
+    notify: Notifier,
+}
+
+impl Io {
+    fn state(&mut self, state: State, line: &str) {
+        self.shared.update(|s| s.state = state);
+        self.notify.status(line);
+    }
+
+    fn fail(&self, what: &str, e: &Error) {
+        tracing::error!("{what}: {e}");
+        let msg = format!("{what}: {e}");
+        self.shared.update(|s| s.last_error = Some(msg));
+    }
+}
+
+pub struct Engine {
+    config: Config,
+    devices: Devices,
+    io: Io,
+    model: Option<Model>,
+    /// Where the model being served came from.
+    model_path: PathBuf,
+    /// What `play` plays.
+    source: String,
+    next: Next,
+    /// The first monitoring score of the current model: what drift is measured against, dB.
+    baseline: Option<f64>,
+    /// A configuration that came while calibrating, applied after it.
+    reload: Option<Box<Config>>,
+}
+
+impl Engine {
+    /// Opens the devices, loads the installed model and decides what to do first.
+    pub fn start(
+        config: Config,
+        _config_path: Option<PathBuf>,
+        shared: Arc<Shared>,
+        rx: Receiver<Event>,
+    ) -> Result<Self> {
+        let devices = Devices::open(&config)?;
+        let mut engine = Engine {
+            model_path: config.paths.model.clone(),
+            source: config.playback.source.clone(),
+            config,
+            devices,
+            io: Io {
+                shared,
+                rx,
+                notify: Notifier::new(),
+            },
+            model: None,
+            next: Next::Wait,
+            baseline: None,
+            reload: None,
+        };
+        let path = engine.model_path.clone();
+        if path.join(crate::model::store::META_FILE).is_file() {
+            if let Err(e) = engine.use_model(&path) {
+                engine.io.fail("the installed model was not loaded", &e);
+            }
+        }
+        let runs = Runs::new(&engine.config.paths.data);
+        tracing::info!(
+            "compend {} serving {}; model: {}; source: {}",
+            env!("CARGO_PKG_VERSION"),
+            engine.devices.describe(),
+            engine
+                .model
+                .as_ref()
+                .map_or("none installed".to_string(), |m| format!(
+                    "{} from {}",
+                    m.meta.method,
+                    path.display()
+                )),
+            engine.source
+        );
+        engine.next = match (&engine.model, runs.interrupted()) {
+            (_, Some(run)) => {
+                tracing::info!(
+                    "an interrupted calibration is on disk ({}); resuming it",
+                    run.display()
+                );
+                Next::Calibrate
+            }
+            (None, None)
+                if engine.config.calibration.on_start == crate::config::OnStart::IfNoModel =>
+            {
+                Next::Calibrate
+            }
+            (Some(_), None) if engine.config.playback.autoplay => Next::Play,
+            _ => Next::Wait,
+        };
+        if engine.next == Next::Wait {
+            let line = match &engine.model {
+                None => "idle: no model installed; run compend recalibrate".to_string(),
+                Some(m) => format!("idle with model {}; run compend play", m.meta.method),
+            };
+            engine.io.notify.ready(&line);
+        }
+        Ok(engine)
+    }
+
+    /// Runs until stopped.
+    pub fn run(mut self) -> Result<()> {
+        loop {
+            match std::mem::replace(&mut self.next, Next::Wait) {
+                Next::Stop => break,
+                Next::Wait => self.wait(),
+                Next::Calibrate => self.calibrate(),
+                Next::Play => self.play(),
+                Next::Pause => {
+                    if let Err(e) = self.devices.black() {
+                        self.io.fail("pausing", &e);
+                    }
+                    self.io.state(State::Paused, "paused");
+                }
+            }
+            if let Some(c) = self.reload.take()
+                && !matches!(self.next, Next::Stop)
+            {
+                self.apply(*c);
+            }
+        }
+        self.io.shared.update(|s| s.state = State::Stopping);
+        self.io.notify.stopping();
+        if let Err(e) = self.devices.black() {
+            tracing::warn!("stopping: could not show black: {e}");
+        }
+        tracing::info!("stopped");
+        Ok(())
+    }
+
+    /// Idle or paused: waits for an event.
+    fn wait(&mut self) {
+        self.io.notify.ping();
+        match self.io.rx.recv_timeout(Duration::from_millis(500)) {
+            Ok(ev) => self.handle(ev),
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => self.next = Next::Stop,
+        }
+    }
+
+    fn handle(&mut self, ev: Event) {
+        match ev {
+            Event::Terminate(signal) => {
+                tracing::info!("{signal}: stopping");
+                self.next = Next::Stop;
+            }
+            Event::Reload(c) => {
+                self.io.notify.reloading();
+                self.apply(*c);
+                self.io.notify.reloaded();
+                // Playback picks up the new settings when it starts again.
+                if self.io.shared.status().state == State::Playing {
+                    self.next = Next::Play;
+                }
+            }
+            Event::Request(env) => {
+                let reply = self.request(&env.request);
+                env.answer(reply);
+            }
+        }
+    }
+
+    /// Applies a reloaded configuration: what can change while running does; the rest (the
+    /// devices, the paths, the socket) needs a restart, and the log says so.
+    fn apply(&mut self, c: Config) {
+        for (what, same) in [
+            ("[rig]", c.rig == self.config.rig),
+            ("[paths]", c.paths == self.config.paths),
+            ("[socket]", c.socket == self.config.socket),
+        ] {
+            if !same {
+                tracing::warn!("reload: {what} changed; it takes effect when the service restarts");
+            }
+        }
+        if c.playback.source != self.config.playback.source {
+            self.source = c.playback.source.clone();
+        }
+        self.config.calibration = c.calibration;
+        self.config.playback = c.playback;
+        self.config.monitoring = c.monitoring;
+        self.config.log = c.log;
+        tracing::info!("reload: configuration applied");
+    }
+
+    fn request(&mut self, r: &Request) -> Reply {
+        match r {
+            Request::Status => Reply::status(self.io.shared.status()),
+            Request::Calibrate | Request::Recalibrate => {
+                self.next = Next::Calibrate;
+                Reply::ok(format!(
+                    "calibrating into {}; compend status shows the progress",
+                    self.config.paths.data.display()
+                ))
+            }
+            Request::Play { source } => {
+                if let Some(s) = source {
+                    if let Err(e) = SourceSpec::parse(s) {
+                        return Reply::error(e.to_string());
+                    }
+                    self.source = s.clone();
+                }
+                if self.model.is_none() {
+                    return Reply::error(
+                        "no model to play with: calibrate first (compend recalibrate)",
+                    );
+                }
+                self.next = Next::Play;
+                Reply::ok(format!("playing {}", self.source))
+            }
+            Request::Pause => {
+                self.next = Next::Pause;
+                Reply::ok("paused")
+            }
+            Request::Model { path } => match self.use_model(path) {
+                Ok(()) => {
+                    self.next = Next::Play;
+                    Reply::ok(format!("playing {} with {}", self.source, path.display()))
+                }
+                Err(e) => Reply::error(e.to_string()),
+            },
+            Request::Stop => {
+                self.next = Next::Stop;
+                Reply::ok("stopping")
+            }
+        }
+    }
+
+    /// Loads the model directory `path` and serves it from now on; a model for another camera
+    /// size is refused.
+    fn use_model(&mut self, path: &Path) -> Result<()> {
+        let model = Model::load(path)?;
+        let cam = self.devices.camera_size();
+        if model.camera_size() != cam {
+            return Err(Error::Input(format!(
+                "{}: the model is for {} camera images, this rig's camera gives {cam}",
+                path.display(),
+                model.camera_size()
+            )));
+        }
+        if let (Devices::Virtual(v), Some(e)) = (
+            &mut self.devices,
+            model
+                .meta
+                .calibration
+                .as_ref()
+                .and_then(|c| c.exposure.as_ref()),
+        ) {
+            // A calibrated model saw the camera at the exposure its calibration chose.
+            v.rig.set_exposure(e.chosen)?;
+        }
+        self.io.shared.update(|s| {
+            s.model = Some(model_status(path, &model));
+            s.monitoring = fresh_monitoring(&s.monitoring);
+        });
+        self.model = Some(model);
+        self.model_path = path.to_path_buf();
+        self.baseline = None;
+        Ok(())
+    }
+
+    /// A whole calibration; installs the model if it verifies.
+    fn calibrate(&mut self) {
+        let cancel = self.io.shared.cancel.clone();
+        cancel.store(false, Ordering::Relaxed);
+        let runs = Runs::new(&self.config.paths.data);
+        let started = Instant::now();
+        let run = match runs.begin(&rig_name(&self.config), SystemTime::now()) {
+            Ok(r) => r,
+            Err(e) => {
+                self.io.fail("calibration", &e);
+                self.next = self.after_calibration();
+                return;
+            }
+        };
+        let data = run.data;
+        self.io.state(State::Calibrating, "calibrating");
+        tracing::info!("calibration into {}", data.display());
+        let result = self.run_calibration(&data, &cancel, started);
+        self.io.shared.update(|s| {
+            s.calibration = None;
+            s.calibrations += 1;
+        });
+        match result {
+            Ok(done) => {
+                let v = done.record.verification.clone();
+                let s = done.record.seconds.clone();
+                tracing::info!(
+                    "calibration: {} captures taken, {} found on disk; verification {:.2} dB / \
+                     SSIM {:.3} against {:.2} dB uncompensated ({:+.2} dB); {:.1} s",
+                    done.record.captured,
+                    done.record.resumed,
+                    v.psnr,
+                    v.ssim,
+                    v.uncompensated_psnr,
+                    v.gain_db,
+                    s.total
+                );
+                let out = self.config.paths.model.clone();
+                match calibrate::install(done, &out) {
+                    Ok(model) => {
+                        tracing::info!("installed {} into {}", model.meta.method, out.display());
+                        self.io.shared.update(|s| {
+                            s.model = Some(model_status(&out, &model));
+                            s.monitoring = fresh_monitoring(&s.monitoring);
+                            s.last_error = None;
+                        });
+                        self.model = Some(model);
+                        self.model_path = out;
+                        self.baseline = None;
+                    }
+                    Err(e) => self.io.fail("the new model was not installed", &e),
+                }
+                runs.end();
+                runs.prune(self.config.calibration.keep_runs);
+            }
+            Err(Error::Cancelled(_)) => {
+                tracing::info!(
+                    "calibration cancelled; its captures stay in {} for the next run",
+                    data.display()
+                );
+            }
+            Err(e) => {
+                self.io.fail("calibration failed", &e);
+                // A refused setup is not retried at every start; a failed operation (a camera
+                // gone, a full disk) is resumed by the next calibration.
+                if e.exit_code() != 1 {
+                    runs.end();
+                }
+            }
+        }
+        if self.next != Next::Stop {
+            self.next = self.after_calibration();
+        }
+    }
+
+    /// After a calibration: play if there is a model and the configuration says so.
+    fn after_calibration(&mut self) -> Next {
+        if self.model.is_some() && self.config.playback.autoplay {
+            Next::Play
+        } else {
+            let line = if self.model.is_some() {
+                "idle"
+            } else {
+                "idle: no model installed"
+            };
+            self.io.state(State::Idle, line);
+            self.io.notify.ready(line);
+            Next::Wait
+        }
+    }
+
+    fn run_calibration(
+        &mut self,
+        data: &Path,
+        cancel: &Arc<AtomicBool>,
+        started: Instant,
+    ) -> Result<calibrate::Calibrated> {
+        let c = &self.config.calibration;
+        let opts = Options {
+            patterns: PatternSet {
+                seed: self.config.rig.seed,
+                ntrain: c.ntrain,
+                ntest: c.ntest,
+                network: c.network,
+                projector: self.devices.display_size(),
+                gray_level: crate::patterns::DEFAULT_GRAY_LEVEL,
+            },
+            method: c.method,
+            fit_seed: 0,
+            sync: SyncSettings {
+                average: c.average,
+                ..SyncSettings::default()
+            },
+            verify_images: c.verify,
+            required_gain_db: c.min_gain_db,
+            rig: rig_name(&self.config),
+            cancel: Some(cancel.clone()),
+        };
+        let io = &mut self.io;
+        let next = &mut self.next;
+        let reload = &mut self.reload;
+        let mut progress = |phase: &str, done: usize, total: usize| {
+            let state = match phase {
+                "verification" => State::Verifying,
+                "exposure" | "latency" | "captures" => State::Calibrating,
+                _ => State::Training,
+            };
+            io.shared.update(|s| {
+                s.state = state;
+                s.calibration = Some(CalibrationProgress {
+                    phase: phase.to_string(),
+                    done,
+                    total,
+                    seconds: started.elapsed().as_secs_f64(),
+                });
+            });
+            io.notify
+                .status(&format!("{}: {phase} {done}/{total}", state.name()));
+            io.notify.ping();
+            while let Ok(ev) = io.rx.try_recv() {
+                busy(ev, phase, next, reload);
+            }
+        };
+        match &mut self.devices {
+            Devices::Virtual(v) => {
+                v.rig.set_latency(v.scene.latency.clone())?;
+                let (mut display, mut camera) = (v.rig.clone(), v.rig.clone());
+                calibrate::calibrate(&mut display, &mut camera, data, &opts, &mut progress)
+            }
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => {
+                let Hardware { win, camera } = &mut **h;
+                calibrate::calibrate(win, camera, data, &opts, &mut progress)
+            }
+        }
+    }
+
+    /// Plays the source through the model until an event asks for something else or the
+    /// source ends.
+    fn play(&mut self) {
+        let Some(model) = &self.model else {
+            self.next = Next::Wait;
+            return;
+        };
+        let opened = SourceSpec::parse(&self.source).and_then(|spec| source::open(&spec));
+        let source = match opened {
+            Ok(s) => s,
+            Err(e) => {
+                self.io.fail(&format!("cannot play {}", self.source), &e);
+                self.io.state(State::Idle, "idle: the source failed");
+                return;
+            }
+        };
+        let line = format!(
+            "playing {} with {}{}",
+            self.source,
+            model.meta.method,
+            model
+                .meta
+                .calibration
+                .as_ref()
+                .map_or(String::new(), |c| format!(
+                    " (verified {:.1} dB)",
+                    c.verification.psnr
+                ))
+        );
+        let src = self.source.clone();
+        let before = self.io.shared.status().frames;
+        self.io.shared.update(|s| {
+            s.source = Some(src);
+            s.frames.refreshes = 0;
+            s.frames.shown = 0;
+            s.frames.held = 0;
+            s.frames.dropped_source = 0;
+            s.frames.dropped_pipeline = 0;
+        });
+        self.io.state(State::Playing, &line);
+        tracing::info!("{line}");
+        let range = calibrated_range(model);
+        let m = &self.config.monitoring;
+        let monitor = m
+            .enabled
+            .then(|| Tap::new(self.baseline, m.drift_threshold_db));
+        let period = Duration::from_secs_f64(m.period_s);
+        let stats_every = Duration::from_secs_f64(self.config.log.stats_period_s);
+        let fps = self.config.rig.fps;
+        let drift_after = self.config.rig.drift_after_s;
+        let result = match &mut self.devices {
+            Devices::Virtual(v) => {
+                if v.drift_at.is_none()
+                    && let Some(s) = drift_after
+                    && v.scene.drift.is_some()
+                {
+                    v.drift_at = Some(Instant::now() + Duration::from_secs_f64(s));
+                }
+                play_virtual(
+                    v,
+                    model,
+                    range,
+                    source,
+                    fps,
+                    &mut self.io,
+                    monitor.clone(),
+                    period,
+                    stats_every,
+                    &before,
+                )
+            }
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => {
+                let win = &mut h.win;
+                let size = DisplaySink::size(win);
+                Player::start(win.context(), model, size, range, source, FeedMode::Latest).and_then(
+                    |mut player| {
+                        // Monitoring needs the camera frame of a known presented frame: not yet
+                        // on hardware (the virtual rig has it).
+                        let mut screen =
+                            ServiceScreen::new(win, &mut self.io, None, period, stats_every);
+                        screen.before = before.clone();
+                        let stats = player.run(&mut screen, None);
+                        let pending = screen.pending.take();
+                        stats.map(|s| (s, pending))
+                    },
+                )
+            }
+        };
+        if let Some(tap) = &monitor {
+            self.baseline = tap.baseline();
+        }
+        match result {
+            Ok((stats, pending)) => {
+                self.io
+                    .shared
+                    .update(|s| set_frames(&mut s.frames, &stats, &before));
+                match pending {
+                    Some(ev) => self.handle(ev),
+                    None if monitor.as_ref().is_some_and(|t| t.drifted()) => {
+                        self.on_drift();
+                    }
+                    None => {
+                        tracing::info!("{}: the source ended", self.source);
+                        self.io.state(State::Idle, "idle: the source ended");
+                    }
+                }
+            }
+            Err(e) => {
+                self.io.fail(&format!("playing {}", self.source), &e);
+                self.io.state(State::Idle, "idle: playback failed");
+            }
+        }
+    }
+
+    /// Drift was found while playing: what the configuration says.
+    fn on_drift(&mut self) {
+        match self.config.monitoring.on_drift {
+            DriftPolicy::Recalibrate => {
+                tracing::warn!("drift: recalibrating");
+                self.next = Next::Calibrate;
+            }
+            DriftPolicy::Report => self.next = Next::Play,
+        }
+    }
+}
+
+/// An event that came while calibrating: `stop` and signals stop it (the cancel flag is
+/// already set), a reload waits for its end, the rest is answered "busy".
+fn busy(ev: Event, phase: &str, next: &mut Next, reload: &mut Option<Box<Config>>) {
+    match ev {
+        Event::Terminate(signal) => {
+            tracing::info!("{signal}: stopping the calibration at its next capture");
+            *next = Next::Stop;
+        }
+        Event::Reload(c) => *reload = Some(c),
+        Event::Request(env) => {
+            let reply = match env.request {
+                Request::Stop => {
+                    *next = Next::Stop;
+                    Reply::ok("stopping the calibration at its next capture")
+                }
+                Request::Status => Reply::error("status is answered by the socket"),
+                Request::Calibrate | Request::Recalibrate => {
+                    Reply::ok(format!("already calibrating ({phase})"))
+                }
+                _ => Reply::error(format!(
+                    "busy calibrating ({phase}); ask again when compend status says playing or \
+                     idle"
+                )),
+            };
+            env.answer(reply);
+        }
+    }
+}
+
+/// Monitoring for a new model: no scores yet; the drift count is the service's.
+fn fresh_monitoring(old: &Monitoring) -> Monitoring {
+    Monitoring {
+        drifts: old.drifts,
+        ..Monitoring::default()
+    }
+}
+
+fn model_status(path: &Path, model: &Model) -> ModelStatus {
+    ModelStatus {
+        path: path.to_path_buf(),
+        method: model.meta.method.name().to_string(),
+        verification: model
+            .meta
+            .calibration
+            .as_ref()
+            .map(|c| c.verification.clone()),
+    }
+}
+
+/// The display range content is mapped into: the calibrated one, else the full range.
+fn calibrated_range(model: &Model) -> DisplayRange {
+    model
+        .meta
+        .calibration
+        .as_ref()
+        .and_then(|c| c.display_range)
+        .unwrap_or(DisplayRange::FULL)
+}
+
+/// The counts of the playback under way; `before` holds the totals of the playbacks before it.
+fn set_frames(f: &mut Frames, s: &PlayStats, before: &Frames) {
+    f.shown_total = before.shown_total + s.shown;
+    f.dropped_total = before.dropped_total + s.dropped_source + s.dropped_pipeline;
+    f.refreshes = s.refreshes;
+    f.shown = s.shown;
+    f.held = s.held;
+    f.dropped_source = s.dropped_source;
+    f.dropped_pipeline = s.dropped_pipeline;
+}
+
+/// Plays on the virtual rig: its projector shows the pass's output, its camera (set to one
+/// exposure per shown frame, no delay) watches on a thread of its own and feeds monitoring.
+#[allow(clippy::too_many_arguments)]
+fn play_virtual(
+    v: &mut VirtualDevices,
+    model: &Model,
+    range: DisplayRange,
+    source: Box<dyn source::VideoSource>,
+    fps: f64,
+    io: &mut Io,
+    monitor: Option<Arc<Tap>>,
+    period: Duration,
+    stats_every: Duration,
+    before: &Frames,
+) -> Result<(PlayStats, Option<Event>)> {
+    v.rig.set_latency(Latency {
+        fps,
+        delay_frames: 0,
+        drop_rate: 0.0,
+    })?;
+    let mut player = Player::start(
+        &v.ctx,
+        model,
+        v.scene.projector.size(),
+        range,
+        source,
+        FeedMode::Latest,
+    )?;
+    let area = player.pass.placement().area;
+    let views: ViewSink = match &monitor {
+        Some(tap) => {
+            let tap = tap.clone();
+            let shared = io.shared.clone();
+            Box::new(move |seq, _, view| {
+                tap.offer(seq, view, area, &shared);
+                Ok(())
+            })
+        }
+        None => Box::new(|_, _, _| Ok(())),
+    };
+    let mut sink = WatchedSink::new(&v.ctx, fps, v.rig.clone(), v.rig.clone(), views);
+    let mut screen = ServiceScreen::new(&mut sink, io, monitor, period, stats_every);
+    screen.before = before.clone();
+    if let Some(at) = v.drift_at {
+        screen.drift = Some((v.rig.clone(), at));
+    }
+    let stats = player.run(&mut screen, None);
+    let pending = screen.pending.take();
+    if screen.drift.is_none() {
+        // The rig moved during this playback: never again.
+        v.drift_at = None;
+    }
+    stats.map(|s| (s, pending))
+}
+
+/// Monitoring: the desired view of one presented frame waits here for the camera's view of it;
+/// the two are scored in the displayable area (camera pixels, encoded values).
+struct Tap {
+    want: Mutex<Option<(u64, CamImage)>>,
+    baseline: Mutex<Option<f64>>,
+    threshold_db: f64,
+    drift: AtomicBool,
+}
+
+impl Tap {
+    fn new(baseline: Option<f64>, threshold_db: f64) -> Arc<Self> {
+        Arc::new(Self {
+            want: Mutex::new(None),
+            baseline: Mutex::new(baseline),
+            threshold_db,
+            drift: AtomicBool::new(false),
+        })
+    }
+
+    fn baseline(&self) -> Option<f64> {
+        *self.baseline.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn drifted(&self) -> bool {
+        self.drift.load(Ordering::Relaxed)
+    }
+
+    /// Asks for the camera's view of frame `seq`, whose desired view is `desired`.
+    fn request(&self, seq: u64, desired: CamImage) {
+        *self.want.lock().unwrap_or_else(|e| e.into_inner()) = Some((seq, desired));
+    }
+
+    /// A camera view of frame `seq`: scored if it is the one asked for.
+    fn offer(&self, seq: u64, view: &CamImage, area: Rect, shared: &Shared) {
+        let desired = {
+            let mut want = self.want.lock().unwrap_or_else(|e| e.into_inner());
+            match &*want {
+                Some((s, _)) if *s == seq => want.take().map(|(_, d)| d),
+                // The asked-for view was skipped: ask again at the next period.
+                Some((s, _)) if *s < seq => {
+                    *want = None;
+                    None
+                }
+                _ => None,
+            }
+        };
+        let Some(desired) = desired else { return };
+        let scored = (|| -> Result<crate::metrics::Scores> {
+            let mut acc = Accumulator::default();
+            acc.add(&view.crop(area)?, &desired.crop(area)?)?;
+            acc.finish()
+        })();
+        let s = match scored {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!("monitoring: frame {seq} could not be scored: {e}");
+                return;
+            }
+        };
+        let baseline = {
+            let mut b = self.baseline.lock().unwrap_or_else(|e| e.into_inner());
+            *b.get_or_insert(s.psnr)
+        };
+        let drift = baseline - s.psnr > self.threshold_db;
+        tracing::info!(
+            "monitoring: frame {seq}: {:.2} dB / SSIM {:.3} in the displayable area (baseline \
+             {baseline:.2} dB){}",
+            s.psnr,
+            s.ssim,
+            if drift { "; DRIFT" } else { "" }
+        );
+        if drift && !self.drift.swap(true, Ordering::Relaxed) {
+            tracing::warn!(
+                "drift: the compensated projection scores {:.2} dB, {:.2} dB below the {:.2} dB \
+                 measured after installation (threshold {:.2} dB)",
+                s.psnr,
+                baseline - s.psnr,
+                baseline,
+                self.threshold_db
+            );
+        }
+        shared.update(|st| {
+            let m = &mut st.monitoring;
+            m.checks += 1;
+            m.psnr = Some(s.psnr);
+            m.ssim = Some(s.ssim);
+            m.baseline_psnr = Some(baseline);
+            m.age_s = Some(0.0);
+            if drift && !m.drift {
+                m.drifts += 1;
+            }
+            m.drift = drift;
+        });
+    }
+}
+
+/// A display in the service: the playback loop's screen with the engine's checks between
+/// refreshes (events, the watchdog, live counts, monitoring requests, the virtual rig's drift).
+struct ServiceScreen<'a, S: Screen + ?Sized> {
+    inner: &'a mut S,
+    io: &'a mut Io,
+    /// An event that ended the playback, for the engine.
+    pending: Option<Event>,
+    monitor: Option<Arc<Tap>>,
+    period: Duration,
+    next_check: Instant,
+    last_check: Option<Instant>,
+    stats_every: Duration,
+    last_stats: Instant,
+    last_counts: Instant,
+    /// The virtual rig and when its projector moves (`[rig] drift_after_s`).
+    drift: Option<(VirtualRig, Instant)>,
+    /// The frame totals before this playback.
+    before: Frames,
+}
+
+impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
+    fn new(
+        inner: &'a mut S,
+        io: &'a mut Io,
+        monitor: Option<Arc<Tap>>,
+        period: Duration,
+        stats_every: Duration,
+    ) -> Self {
+        let now = Instant::now();
+        Self {
+            inner,
+            io,
+            pending: None,
+            monitor,
+            period,
+            // The first check soon after the start: the baseline of a new model.
+            next_check: now + Duration::from_millis(500).min(period),
+            last_check: None,
+            stats_every,
+            last_stats: now,
+            last_counts: now,
+            drift: None,
+            before: Frames::default(),
+        }
+    }
+}
+
+impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
+    fn context(&self) -> &GpuContext {
+        self.inner.context()
+    }
+
+    fn refresh(&self) -> Refresh {
+        self.inner.refresh()
+    }
+
+    fn begin(&mut self, live: bool) -> Result<()> {
+        self.inner.begin(live)
+    }
+
+    fn keep_going(&mut self) -> bool {
+        self.io.notify.ping();
+        if self.pending.is_some() {
+            return false;
+        }
+        match self.io.rx.try_recv() {
+            Ok(ev) => {
+                self.pending = Some(ev);
+                return false;
+            }
+            Err(TryRecvError::Empty) => {}
+            Err(TryRecvError::Disconnected) => {
+                self.pending = Some(Event::Terminate("the control channel closed"));
+                return false;
+            }
+        }
+        if let Some((rig, at)) = &self.drift
+            && Instant::now() >= *at
+        {
+            match rig.set_phase(Phase::AfterDrift) {
+                Ok(()) => tracing::warn!(
+                    "virtual rig: the projector was moved to the scene's drifted pose"
+                ),
+                Err(e) => tracing::error!("virtual rig: could not move the projector: {e}"),
+            }
+            self.drift = None;
+        }
+        if self.monitor.as_ref().is_some_and(|t| t.drifted()) {
+            return false;
+        }
+        self.inner.keep_going()
+    }
+
+    fn refreshed(&mut self, stats: &PlayStats) {
+        let now = Instant::now();
+        if now.duration_since(self.last_counts) >= Duration::from_millis(100) {
+            self.last_counts = now;
+            let age = self.last_check.map(|t| t.elapsed().as_secs_f64());
+            self.io.shared.update(|s| {
+                set_frames(&mut s.frames, stats, &self.before);
+                if age.is_some() {
+                    s.monitoring.age_s = age;
+                }
+            });
+        }
+        if now.duration_since(self.last_stats) >= self.stats_every {
+            self.last_stats = now;
+            tracing::info!(
+                "playback: {} refreshes, {} frames shown, {} held, {} dropped (source), {} \
+                 dropped (pipeline); pipeline {:.2} ms mean, {:.2} ms worst",
+                stats.refreshes,
+                stats.shown,
+                stats.held,
+                stats.dropped_source,
+                stats.dropped_pipeline,
+                stats.pipeline_ms_mean,
+                stats.pipeline_ms_max
+            );
+        }
+    }
+
+    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
+        self.inner.present(pass, show)?;
+        if let Show::New { seq, .. } = show {
+            if !self.io.notify.is_ready() {
+                self.io.notify.ready("playing");
+            }
+            let now = Instant::now();
+            if let Some(tap) = &self.monitor
+                && now >= self.next_check
+            {
+                tap.request(seq, pass.read_desired(self.inner.context())?);
+                self.next_check = now + self.period;
+                self.last_check = Some(now);
+            }
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, stats: &mut PlayStats) -> Result<()> {
+        self.inner.finish(stats)
+    }
+}

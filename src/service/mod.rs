@@ -1,0 +1,192 @@
+//! `compend serve`: the service (docs/architecture.md, "Service").
+//!
+//! Threads:
+//! - the **main thread** runs the [`engine`]: it owns the devices (the projector window or the
+//!   virtual rig's projector, the camera), the GPU pass and the model, and moves between the
+//!   states idle, calibrating, training, verifying, playing and paused. Playback is the one
+//!   playback loop ([`crate::playback::player`]); between two refreshes (and between two
+//!   captures while calibrating) the engine looks at its event channel, so a request is answered
+//!   within a frame or a capture. Training runs on this thread too, off the async runtime;
+//!   a calibration is cancelled at the next capture or phase ([`crate::calibrate::Options`]).
+//! - a **tokio runtime** (two worker threads) serves the control socket ([`socket`]) and the
+//!   signals: SIGTERM and SIGINT stop the service (exit 0 within seconds: a calibration stops
+//!   at its next capture, nothing half-written, captures kept for the resume), SIGHUP reloads the
+//!   configuration.
+//! - the camera side of the virtual rig, and the video source, run on threads of their own
+//!   (the playback loop's).
+//!
+//! `status` is answered by the socket tasks from a shared snapshot ([`Shared`]) the engine
+//! updates, so it answers while the engine is busy training.
+
+pub mod engine;
+pub mod notify;
+pub mod protocol;
+pub mod socket;
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, mpsc};
+use std::time::Instant;
+
+use tokio::sync::oneshot;
+
+use crate::config::Config;
+use crate::error::{Error, Result};
+use protocol::{Reply, Request, State, Status};
+
+/// A request on its way to the engine, with where its reply goes.
+pub struct Envelope {
+    pub request: Request,
+    pub reply: Option<oneshot::Sender<Reply>>,
+}
+
+impl Envelope {
+    /// Sends the reply, if anyone still waits for it.
+    pub fn answer(self, reply: Reply) {
+        if let Some(tx) = self.reply {
+            let _ = tx.send(reply);
+        }
+    }
+}
+
+/// What the engine is told.
+pub enum Event {
+    Request(Envelope),
+    /// SIGHUP: the configuration file, parsed again.
+    Reload(Box<Config>),
+    /// SIGTERM or SIGINT.
+    Terminate(&'static str),
+}
+
+/// What the engine and the socket tasks share.
+pub struct Shared {
+    status: Mutex<Status>,
+    events: mpsc::Sender<Event>,
+    started: Instant,
+    /// Set to stop a calibration at its next capture (stop requests and signals).
+    pub cancel: Arc<AtomicBool>,
+    /// Set once the service is shutting down.
+    closing: AtomicBool,
+}
+
+impl Shared {
+    fn new(rig: String, events: mpsc::Sender<Event>) -> Self {
+        Self {
+            status: Mutex::new(Status {
+                state: State::Idle,
+                version: env!("CARGO_PKG_VERSION").to_string(),
+                pid: std::process::id(),
+                uptime_s: 0.0,
+                rig,
+                model: None,
+                source: None,
+                frames: Default::default(),
+                monitoring: Default::default(),
+                calibration: None,
+                calibrations: 0,
+                last_error: None,
+            }),
+            events,
+            started: Instant::now(),
+            cancel: Arc::new(AtomicBool::new(false)),
+            closing: AtomicBool::new(false),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Status> {
+        // Every update is a plain assignment: a panic mid-update leaves a usable snapshot.
+        self.status.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// A copy of the status, with the uptime.
+    pub fn status(&self) -> Status {
+        let mut s = self.lock().clone();
+        s.uptime_s = self.started.elapsed().as_secs_f64();
+        s
+    }
+
+    /// Changes the status.
+    pub fn update(&self, f: impl FnOnce(&mut Status)) {
+        f(&mut self.lock());
+    }
+
+    /// Sends a request to the engine; false once the service is shutting down. A `stop` also
+    /// cancels a running calibration at once.
+    pub fn send(&self, envelope: Envelope) -> bool {
+        if self.closing.load(Ordering::Relaxed) {
+            return false;
+        }
+        if envelope.request == Request::Stop {
+            self.cancel.store(true, Ordering::Relaxed);
+        }
+        self.events.send(Event::Request(envelope)).is_ok()
+    }
+
+    fn signal(&self, event: Event) {
+        if matches!(event, Event::Terminate(_)) {
+            self.cancel.store(true, Ordering::Relaxed);
+        }
+        let _ = self.events.send(event);
+    }
+}
+
+/// Runs the service until it is stopped (a `stop` request, SIGTERM, SIGINT). `config_path` is
+/// read again on SIGHUP.
+pub fn serve(config: Config, config_path: Option<PathBuf>) -> Result<()> {
+    let (tx, rx) = mpsc::channel();
+    let rig_name = engine::rig_name(&config);
+    let shared = Arc::new(Shared::new(rig_name, tx));
+    std::fs::create_dir_all(&config.paths.state)
+        .map_err(|e| Error::io(&config.paths.state, "create state directory", e))?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("compend-control")
+        .enable_all()
+        .build()
+        .map_err(|e| Error::Failed(format!("cannot start the async runtime: {e}")))?;
+    // The socket first: a second service, or a path that is not ours, fails before any device
+    // is opened.
+    let (listener, access) = {
+        let _guard = runtime.enter();
+        socket::bind(&config.socket)?
+    };
+    let socket_path = config.socket.path.clone();
+    runtime.spawn(socket::serve(listener, access, shared.clone()));
+    runtime.spawn(signals(shared.clone(), config_path.clone()));
+    let result = engine::Engine::start(config, config_path, shared.clone(), rx)
+        .and_then(|engine| engine.run());
+    shared.closing.store(true, Ordering::Relaxed);
+    runtime.shutdown_timeout(std::time::Duration::from_secs(1));
+    // The socket is ours (bind replaced only a dead one): remove it so clients see the service
+    // is gone.
+    let _ = std::fs::remove_file(&socket_path);
+    result
+}
+
+/// SIGTERM and SIGINT stop the service; SIGHUP reloads the configuration.
+async fn signals(shared: Arc<Shared>, config_path: Option<PathBuf>) {
+    use tokio::signal::unix::{SignalKind, signal};
+    let (Ok(mut term), Ok(mut int), Ok(mut hup)) = (
+        signal(SignalKind::terminate()),
+        signal(SignalKind::interrupt()),
+        signal(SignalKind::hangup()),
+    ) else {
+        tracing::error!("cannot install the signal handlers; stop the service with compend stop");
+        return;
+    };
+    loop {
+        tokio::select! {
+            _ = term.recv() => shared.signal(Event::Terminate("SIGTERM")),
+            _ = int.recv() => shared.signal(Event::Terminate("SIGINT")),
+            _ = hup.recv() => match &config_path {
+                None => tracing::warn!("SIGHUP: no --config file to reload; nothing changed"),
+                Some(path) => match Config::load(path) {
+                    Ok(c) => shared.signal(Event::Reload(Box::new(c))),
+                    Err(e) => tracing::error!(
+                        "SIGHUP: the configuration was not reloaded, the running one stays: {e}"
+                    ),
+                },
+            },
+        }
+    }
+}

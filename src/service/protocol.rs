@@ -1,0 +1,279 @@
+//! The control protocol: one JSON request per line in, one JSON reply per line out, on the
+//! service's Unix socket. Pure types and parsing; the socket is [`super::socket`].
+//!
+//! Requests (`cmd` names the request; unknown fields are refused):
+//!
+//! ```text
+//! {"cmd":"status"}                          the state, model, source, frame counts, monitoring
+//! {"cmd":"calibrate"}  {"cmd":"recalibrate"} calibrate now (resuming captures on disk)
+//! {"cmd":"play"}  {"cmd":"play","source":"pattern:bars"}
+//!                                           play the configured source, or this one
+//! {"cmd":"pause"}                           stop playing; the projector shows black
+//! {"cmd":"model","path":"/var/lib/compend/other-model"}
+//!                                           load and play another model directory
+//! {"cmd":"stop"}                            shut the service down (exit 0)
+//! ```
+//!
+//! Every reply has `ok`; a failed request has `error`, a status request `status`, others a
+//! `message` saying what happens now.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::store::Verification;
+
+/// The longest request line taken, bytes; a longer one gets an error reply and is skipped.
+pub const MAX_REQUEST_BYTES: usize = 64 * 1024;
+
+/// A request.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "cmd", rename_all = "lowercase", deny_unknown_fields)]
+pub enum Request {
+    Status,
+    Calibrate,
+    Recalibrate,
+    Play {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        source: Option<String>,
+    },
+    Pause,
+    Model {
+        path: PathBuf,
+    },
+    Stop,
+}
+
+impl Request {
+    /// Parses one request line (without its newline). The error says what was wrong and what
+    /// is expected, for the reply.
+    pub fn parse(line: &[u8]) -> Result<Self, String> {
+        let text = std::str::from_utf8(line)
+            .map_err(|e| format!("the request is not UTF-8 text (byte {})", e.valid_up_to()))?;
+        let text = text.trim();
+        if text.is_empty() {
+            return Err(
+                "empty request; expected a JSON object such as {\"cmd\":\"status\"}".into(),
+            );
+        }
+        const EXPECTED: &str = "expected a JSON object with \"cmd\": one of status, \
+                                calibrate, recalibrate, play, pause, model, stop";
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
+        // serde ignores `deny_unknown_fields` on the unit variants of an internally tagged
+        // enum, so the fields each request may carry are checked here.
+        if let Some(object) = value.as_object()
+            && let Some(cmd) = object.get("cmd").and_then(|c| c.as_str())
+        {
+            let allowed: &[&str] = match cmd {
+                "play" => &["cmd", "source"],
+                "model" => &["cmd", "path"],
+                _ => &["cmd"],
+            };
+            if let Some(extra) = object.keys().find(|k| !allowed.contains(&k.as_str())) {
+                return Err(format!(
+                    "bad request: unknown field `{extra}` for \"{cmd}\"; it takes {}",
+                    match allowed {
+                        [_] => "no fields besides cmd".to_string(),
+                        more => format!("`{}`", more[1..].join("`, `")),
+                    }
+                ));
+            }
+        }
+        serde_json::from_value(value).map_err(|e| format!("bad request: {e}; {EXPECTED}"))
+    }
+}
+
+/// The service's states.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum State {
+    /// Started, nothing to play (no model, or paused before anything played).
+    Idle,
+    /// Measuring latency and exposure, projecting and capturing patterns.
+    Calibrating,
+    /// Fitting the model on the captures.
+    Training,
+    /// Projecting held-out test images compensated and uncompensated, scoring them.
+    Verifying,
+    /// Playing the source through the model.
+    Playing,
+    /// Asked to pause; the projector shows black.
+    Paused,
+    /// Shutting down.
+    Stopping,
+}
+
+impl State {
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Idle => "idle",
+            State::Calibrating => "calibrating",
+            State::Training => "training",
+            State::Verifying => "verifying",
+            State::Playing => "playing",
+            State::Paused => "paused",
+            State::Stopping => "stopping",
+        }
+    }
+}
+
+/// The model being served.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ModelStatus {
+    pub path: PathBuf,
+    pub method: String,
+    /// Its verification figures, when `compend calibrate` (or the service) made it.
+    pub verification: Option<Verification>,
+}
+
+/// Frame counts of the current (or last) playback.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Frames {
+    pub refreshes: u64,
+    pub shown: u64,
+    pub held: u64,
+    pub dropped_source: u64,
+    pub dropped_pipeline: u64,
+    /// Over every playback since the service started.
+    pub shown_total: u64,
+    pub dropped_total: u64,
+}
+
+/// The last monitoring figures.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Monitoring {
+    /// Monitoring captures scored since the model started playing.
+    pub checks: u64,
+    /// PSNR of the last one in the displayable area against the view it should give, dB.
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+    /// The first score of this model's playback: what drift is measured against, dB.
+    pub baseline_psnr: Option<f64>,
+    /// Seconds since the last check.
+    pub age_s: Option<f64>,
+    /// The last check fell more than the threshold below the baseline.
+    pub drift: bool,
+    /// Drift detections since the service started.
+    pub drifts: u64,
+}
+
+/// Progress of a calibration.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationProgress {
+    pub phase: String,
+    pub done: usize,
+    pub total: usize,
+    pub seconds: f64,
+}
+
+/// What `status` answers.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Status {
+    pub state: State,
+    pub version: String,
+    pub pid: u32,
+    pub uptime_s: f64,
+    /// `virtual:curved`, `camera:/dev/video0`.
+    pub rig: String,
+    pub model: Option<ModelStatus>,
+    /// What is playing (or was last).
+    pub source: Option<String>,
+    pub frames: Frames,
+    pub monitoring: Monitoring,
+    pub calibration: Option<CalibrationProgress>,
+    /// Calibrations finished (installed or not) since the service started.
+    pub calibrations: u64,
+    /// The last thing that went wrong, for the operator.
+    pub last_error: Option<String>,
+}
+
+/// A reply.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Reply {
+    pub ok: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub message: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub status: Option<Box<Status>>,
+}
+
+impl Reply {
+    pub fn ok(message: impl Into<String>) -> Self {
+        Self {
+            ok: true,
+            error: None,
+            message: Some(message.into()),
+            status: None,
+        }
+    }
+
+    pub fn error(error: impl Into<String>) -> Self {
+        Self {
+            ok: false,
+            error: Some(error.into()),
+            message: None,
+            status: None,
+        }
+    }
+
+    pub fn status(status: Status) -> Self {
+        Self {
+            ok: true,
+            error: None,
+            message: None,
+            status: Some(Box::new(status)),
+        }
+    }
+
+    /// The reply as one line, newline included.
+    pub fn to_line(&self) -> String {
+        let mut s = serde_json::to_string(self).unwrap_or_else(|e| {
+            format!("{{\"ok\":false,\"error\":\"cannot encode the reply: {e}\"}}")
+        });
+        s.push('\n');
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requests_parse_and_bad_ones_say_why() {
+        assert_eq!(Request::parse(br#"{"cmd":"status"}"#), Ok(Request::Status));
+        assert_eq!(
+            Request::parse(br#" {"cmd":"play","source":"pattern:bars"} "#),
+            Ok(Request::Play {
+                source: Some("pattern:bars".into())
+            })
+        );
+        assert_eq!(
+            Request::parse(br#"{"cmd":"play"}"#),
+            Ok(Request::Play { source: None })
+        );
+        for bad in [
+            &b""[..],
+            b"status",
+            b"{\"cmd\":\"reboot\"}",
+            b"{\"cmd\":\"status\",\"x\":1}",
+            b"{\"cmd\":\"model\"}",
+            b"\xff\xfe",
+            b"[1,2]",
+        ] {
+            let e = Request::parse(bad).unwrap_err();
+            assert!(!e.is_empty());
+        }
+    }
+
+    #[test]
+    fn replies_are_one_line() {
+        let line = Reply::error("a\nb").to_line();
+        assert_eq!(line.matches('\n').count(), 1);
+        let back: Reply = serde_json::from_str(line.trim()).unwrap();
+        assert_eq!(back.error.as_deref(), Some("a\nb"));
+    }
+}

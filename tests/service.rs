@@ -1,0 +1,503 @@
+//! `compend serve` on the virtual rig, driven only through its control socket and its clients,
+//! as systemd and an operator would: it calibrates by itself, installs and plays; malformed
+//! requests get errors and it keeps answering; `stop`, SIGTERM end it with exit 0; a kill -9 in
+//! the middle of a recalibration leaves the previous model in place and the restarted service
+//! resumes the run from the captures on disk; drift on the rig is detected by monitoring and
+//! recalibrated; a bad configuration, a busy socket and a path that is not a socket exit 2.
+
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+use crate::common::{assert_code, compend, stderr, stdout};
+
+/// A configuration for tiny sizes: a calibration takes seconds in the test profile.
+fn write_config(dir: &Path, scene: &str, seed: u64, rig: &str, monitoring: &str) -> PathBuf {
+    let state = dir.join("state");
+    let socket = dir.join("compend.sock");
+    let text = format!(
+        r#"
+[rig]
+kind = "virtual"
+scene = "{scene}"
+seed = {seed}
+camera_size = "160x120"
+projector = "200x150"
+fps = 30.0
+{rig}
+
+[paths]
+state = "{state}"
+
+[calibration]
+ntrain = 12
+ntest = 4
+verify = 3
+network = "64"
+
+[playback]
+source = "pattern:bars?size=200x150&fps=30"
+
+[monitoring]
+period_s = 0.5
+{monitoring}
+
+[socket]
+path = "{socket}"
+
+[log]
+stats_period_s = 2.0
+"#,
+        state = state.display(),
+        socket = socket.display()
+    );
+    let path = dir.join("compend.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// A running `compend serve`; killed (and its log printed) if the test ends without stopping it.
+struct Service {
+    child: Option<Child>,
+    socket: PathBuf,
+    log: PathBuf,
+}
+
+impl Service {
+    fn start(config: &Path) -> Self {
+        let dir = config.parent().unwrap();
+        let log = dir.join(format!("serve-{}.log", Instant::now().elapsed().as_nanos()));
+        let log = unique(log);
+        let child = Command::new(env!("CARGO_BIN_EXE_compend"))
+            .args(["serve", "--config", config.to_str().unwrap()])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        Service {
+            child: Some(child),
+            socket: dir.join("compend.sock"),
+            log,
+        }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// One request line, one reply.
+    fn ask(&self, line: &str) -> Value {
+        let mut s = UnixStream::connect(&self.socket)
+            .unwrap_or_else(|e| panic!("connect: {e}\nlog:\n{}", self.log()));
+        s.set_read_timeout(Some(Duration::from_secs(40))).unwrap();
+        s.write_all(line.as_bytes()).unwrap();
+        s.write_all(b"\n").unwrap();
+        let mut reply = String::new();
+        BufReader::new(s).read_line(&mut reply).unwrap();
+        serde_json::from_str(reply.trim()).unwrap_or_else(|e| panic!("{e}: {reply:?}"))
+    }
+
+    fn status(&self) -> Value {
+        let r = self.ask(r#"{"cmd":"status"}"#);
+        assert_eq!(r["ok"], true, "{r}");
+        r["status"].clone()
+    }
+
+    /// Polls the status until `done` holds; panics with the log after `secs`. The process must
+    /// stay alive meanwhile.
+    fn wait_for(&mut self, what: &str, secs: u64, done: impl Fn(&Value) -> bool) -> Value {
+        let start = Instant::now();
+        loop {
+            if let Some(code) = self.child.as_mut().unwrap().try_wait().unwrap() {
+                panic!(
+                    "the service exited ({code}) waiting for {what}; log:\n{}",
+                    self.log()
+                );
+            }
+            if self.socket.exists()
+                && let Ok(mut s) = UnixStream::connect(&self.socket)
+            {
+                s.set_read_timeout(Some(Duration::from_secs(40))).unwrap();
+                s.write_all(b"{\"cmd\":\"status\"}\n").unwrap();
+                let mut reply = String::new();
+                if BufReader::new(s).read_line(&mut reply).is_ok()
+                    && let Ok(v) = serde_json::from_str::<Value>(reply.trim())
+                    && done(&v["status"])
+                {
+                    return v["status"].clone();
+                }
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(secs),
+                "no {what} within {secs} s; log:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// Waits for the process to exit; its code.
+    fn wait_exit(&mut self, secs: u64) -> Option<i32> {
+        let start = Instant::now();
+        let child = self.child.as_mut().unwrap();
+        loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                self.child = None;
+                return status.code();
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(secs),
+                "still running {secs} s after it was told to stop; log:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    fn pid(&self) -> i32 {
+        self.child.as_ref().unwrap().id() as i32
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+            if std::thread::panicking() {
+                eprintln!("service log:\n{}", self.log());
+            }
+        }
+    }
+}
+
+fn unique(p: PathBuf) -> PathBuf {
+    let mut p = p;
+    while p.exists() {
+        p.set_extension("1.log");
+    }
+    p
+}
+
+fn playing(s: &Value) -> bool {
+    s["state"] == "playing" && s["frames"]["shown"].as_u64().unwrap_or(0) > 5
+}
+
+fn client(args: &[&str], socket: &Path) -> std::process::Output {
+    let mut a = args.to_vec();
+    a.extend_from_slice(&["--socket", socket.to_str().unwrap()]);
+    compend(&a)
+}
+
+fn gpu_or_skip() -> bool {
+    crate::common::gpu().is_some()
+}
+
+#[test]
+fn the_service_calibrates_plays_and_answers_its_socket() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), "textured-plane", 3, "", "");
+    let mut svc = Service::start(&config);
+    // No model: it calibrates at start, installs the model and plays.
+    let s = svc.wait_for("playback after the first calibration", 300, playing);
+    assert_eq!(s["calibrations"], 1, "{s}");
+    assert_eq!(s["model"]["method"], "linear", "{s}");
+    let v = &s["model"]["verification"];
+    assert_eq!(v["passed"], true, "{s}");
+    assert!(v["gain_db"].as_f64().unwrap() > 1.0, "{s}");
+    let model = dir.path().join("state/model");
+    assert!(model.join("model.json").is_file());
+    let runs: Vec<_> = std::fs::read_dir(dir.path().join("state/calibration"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    assert_eq!(runs.len(), 1, "one run folder and no marker left: {runs:?}");
+    assert!(runs[0].starts_with("run-"), "{runs:?}");
+
+    // Monitoring scores the compensated view against the intended one.
+    let s = svc.wait_for("a monitoring check", 60, |s| {
+        s["monitoring"]["checks"].as_u64().unwrap_or(0) >= 2
+    });
+    let psnr = s["monitoring"]["psnr"].as_f64().unwrap();
+    assert!(psnr > 15.0, "monitoring {psnr} dB: {s}");
+    assert_eq!(s["monitoring"]["drift"], false, "{s}");
+
+    // Bad requests get errors; the connection and the service go on.
+    let r = svc.ask("hello");
+    assert_eq!(r["ok"], false);
+    assert!(r["error"].as_str().unwrap().contains("bad request"), "{r}");
+    let r = svc.ask(r#"{"cmd":"reboot"}"#);
+    assert_eq!(r["ok"], false, "{r}");
+    let r = svc.ask(r#"{"cmd":"play","source":"nonsense:x"}"#);
+    assert_eq!(r["ok"], false, "{r}");
+    let r = svc.ask(r#"{"cmd":"model","path":"/nonexistent/model"}"#);
+    assert_eq!(r["ok"], false, "{r}");
+    assert!(
+        r["error"].as_str().unwrap().contains("/nonexistent/model"),
+        "{r}"
+    );
+    {
+        let mut s = UnixStream::connect(&svc.socket).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+        let huge = vec![b'x'; 100_000];
+        s.write_all(&huge).unwrap();
+        s.write_all(b"\n{\"cmd\":\"status\"}\n").unwrap();
+        let mut r = BufReader::new(s);
+        let mut line = String::new();
+        r.read_line(&mut line).unwrap();
+        assert!(line.contains("longer than"), "{line}");
+        line.clear();
+        r.read_line(&mut line).unwrap();
+        assert!(
+            line.contains("\"state\""),
+            "the same connection answers next: {line}"
+        );
+    }
+    // Half a request, then a hang-up: nothing breaks.
+    {
+        let mut s = UnixStream::connect(&svc.socket).unwrap();
+        s.write_all(b"{\"cmd\":\"sta").unwrap();
+    }
+    assert_eq!(svc.status()["state"], "playing");
+
+    // The clients.
+    let o = client(&["status", "--json"], &svc.socket);
+    assert_code(&o, 0);
+    let s: Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert_eq!(s["state"], "playing");
+    let o = client(&["status"], &svc.socket);
+    assert_code(&o, 0);
+    assert!(stdout(&o).contains("state: playing"), "{}", stdout(&o));
+    assert_code(&client(&["pause"], &svc.socket), 0);
+    svc.wait_for("pause", 20, |s| s["state"] == "paused");
+    assert_code(&client(&["play"], &svc.socket), 0);
+    svc.wait_for("playback again", 30, playing);
+    let o = client(
+        &["ctl", r#"{"cmd":"play","source":"pattern:nope"}"#],
+        &svc.socket,
+    );
+    assert_code(&o, 1);
+    assert!(stdout(&o).contains("\"ok\":false"), "{}", stdout(&o));
+
+    assert_code(&client(&["stop"], &svc.socket), 0);
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+    assert!(!svc.socket.exists(), "the socket is removed at exit");
+    let o = client(&["status"], &svc.socket);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("is `compend serve` running"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // ntrain 12 captures in a blink: the kill must land in the middle of the captures, so this
+    // run captures more.
+    let config = write_config(dir.path(), "curved", 5, "", "enabled = false");
+    let text = std::fs::read_to_string(&config)
+        .unwrap()
+        .replace("ntrain = 12", "ntrain = 40");
+    std::fs::write(&config, text).unwrap();
+    // The first model from `compend calibrate --config`, which installs where the service
+    // serves from.
+    let o = compend(&["calibrate", "--config", config.to_str().unwrap(), "--json"]);
+    assert_code(&o, 0);
+    let model = dir.path().join("state/model");
+    let weights = std::fs::read(model.join("model.safetensors")).unwrap();
+    let meta = std::fs::read(model.join("model.json")).unwrap();
+
+    let mut svc = Service::start(&config);
+    svc.wait_for("playback of the installed model", 120, playing);
+    let r = svc.ask(r#"{"cmd":"recalibrate"}"#);
+    assert_eq!(r["ok"], true, "{r}");
+    let s = svc.wait_for("captures of the recalibration", 120, |s| {
+        s["calibration"]["phase"] == "captures" && s["calibration"]["done"].as_u64() >= Some(8)
+    });
+    // While calibrating, status answers and other requests are refused politely.
+    assert_eq!(s["state"], "calibrating", "{s}");
+    let r = svc.ask(r#"{"cmd":"pause"}"#);
+    assert_eq!(r["ok"], false, "{r}");
+    assert!(r["error"].as_str().unwrap().contains("busy"), "{r}");
+    // kill -9.
+    let pid = svc.pid();
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    assert_eq!(svc.wait_exit(10), None, "killed by a signal");
+    assert_eq!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        weights
+    );
+    assert_eq!(std::fs::read(model.join("model.json")).unwrap(), meta);
+    let marker = dir.path().join("state/calibration/calibrating.json");
+    assert!(
+        marker.is_file(),
+        "the marker says a calibration was interrupted"
+    );
+
+    // The restarted service (the socket file is stale: replaced) resumes the run.
+    let mut svc = Service::start(&config);
+    let s = svc.wait_for("playback after the resumed calibration", 300, |s| {
+        playing(s) && s["calibrations"] == 1
+    });
+    assert!(!marker.exists());
+    let meta: Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    let resumed = meta["calibration"]["resumed"].as_u64().unwrap();
+    assert!(
+        resumed >= 8,
+        "{resumed} captures resumed: {}",
+        meta["calibration"]
+    );
+    assert_eq!(s["model"]["verification"]["passed"], true, "{s}");
+    assert_ne!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        weights
+    );
+
+    // SIGTERM: exit 0, promptly.
+    unsafe { libc::kill(svc.pid(), libc::SIGTERM) };
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+}
+
+#[test]
+fn drift_is_detected_and_recalibrated() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // The built-in drift scene moves its projector by 1.5 of 800 pixels, which at this test's
+    // 200-pixel projector is a third of a pixel: monitoring sees 0.5 dB of it. A bump, here, is
+    // 24 of 800 pixels (6 at this size), as a scene file.
+    let o = compend(&["sim", "show", "drift"]);
+    assert_code(&o, 0);
+    let mut scene: Value = serde_json::from_str(&stdout(&o)).unwrap();
+    scene["drift"]["shift_px"] = serde_json::json!([24.0, -16.0]);
+    let scene_file = dir.path().join("bumped.json");
+    std::fs::write(&scene_file, scene.to_string()).unwrap();
+    let config = write_config(
+        dir.path(),
+        scene_file.to_str().unwrap(),
+        2,
+        "drift_after_s = 2.0",
+        "drift_threshold_db = 2.0\non_drift = \"recalibrate\"",
+    );
+    let mut svc = Service::start(&config);
+    let s = svc.wait_for("a recalibration after drift", 420, |s| {
+        s["calibrations"].as_u64() >= Some(2) && playing(s)
+    });
+    assert!(s["monitoring"]["drifts"].as_u64() >= Some(1), "{s}");
+    let log = svc.log();
+    assert!(log.contains("drift: recalibrating"), "{log}");
+    // Two run folders: the recalibration captured afresh.
+    let runs = std::fs::read_dir(dir.path().join("state/calibration"))
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .starts_with("run-")
+        })
+        .count();
+    assert_eq!(runs, 2);
+    // The new model scores near its own baseline after the move.
+    let s = svc.wait_for("monitoring of the new model", 60, |s| {
+        s["monitoring"]["checks"].as_u64() >= Some(2)
+    });
+    assert_eq!(s["monitoring"]["drift"], false, "{s}");
+    unsafe { libc::kill(svc.pid(), libc::SIGINT) };
+    assert_eq!(svc.wait_exit(20), Some(0));
+}
+
+#[test]
+fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        "[rig]\nkind = \"virtual\"\nscnee = \"curved\"\n[calibration]\nntrain = -3\n\
+         [monitoring]\nperiod_s = 0\n",
+    )
+    .unwrap();
+    for args in [
+        vec!["serve", "--config", bad.to_str().unwrap()],
+        vec!["config", "check", bad.to_str().unwrap()],
+        vec!["calibrate", "--config", bad.to_str().unwrap()],
+    ] {
+        let o = compend(&args);
+        assert_code(&o, 2);
+        let e = stderr(&o);
+        for want in [
+            "bad.toml:3: unknown key `scnee` at the [rig]; did you mean `scene`?",
+            "bad.toml:5: [calibration] ntrain",
+            "bad.toml:7: [monitoring] period_s",
+            "3 errors",
+        ] {
+            assert!(e.contains(want), "{args:?}: missing {want:?} in:\n{e}");
+        }
+    }
+    let o = compend(&[
+        "serve",
+        "--config",
+        dir.path().join("none.toml").to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("none.toml"), "{}", stderr(&o));
+
+    // The socket path holds a file: refused, the file kept.
+    let config = write_config(dir.path(), "curved", 0, "", "");
+    let socket = dir.path().join("compend.sock");
+    std::fs::write(&socket, "not a socket").unwrap();
+    let o = compend(&["serve", "--config", config.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("is not a socket"), "{}", stderr(&o));
+    assert_eq!(std::fs::read_to_string(&socket).unwrap(), "not a socket");
+    std::fs::remove_file(&socket).unwrap();
+
+    // A second service on a live socket is refused; the first goes on.
+    let listener = std::os::unix::net::UnixListener::bind(&socket).unwrap();
+    let o = compend(&["serve", "--config", config.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("another compend service"),
+        "{}",
+        stderr(&o)
+    );
+    drop(listener);
+    assert!(socket.exists());
+
+    // The shipped example parses and documents every key the parser knows.
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/compend.toml");
+    let o = compend(&["config", "check", shipped.to_str().unwrap(), "--json"]);
+    assert_code(&o, 0);
+    let text = std::fs::read_to_string(&shipped).unwrap();
+    for key in compend::config::known_keys() {
+        let (section, name) = key.split_once('.').unwrap();
+        let at = text
+            .find(&format!("[{section}]"))
+            .unwrap_or_else(|| panic!("config/compend.toml has no [{section}]"));
+        let rest = &text[at..];
+        let end = rest[1..].find("\n[").map_or(rest.len(), |i| i + 1);
+        let body = &rest[..end];
+        assert!(
+            body.lines().any(|l| {
+                let l = l.trim_start_matches(['#', ' ']);
+                l.starts_with(&format!("{name} ="))
+            }),
+            "config/compend.toml does not document {key}"
+        );
+    }
+}
