@@ -258,10 +258,10 @@ impl Engine {
             reload: None,
         };
         let path = engine.model_path.clone();
-        if path.join(crate::model::store::META_FILE).is_file() {
-            if let Err(e) = engine.use_model(&path) {
-                engine.io.fail("the installed model was not loaded", &e);
-            }
+        if path.join(crate::model::store::META_FILE).is_file()
+            && let Err(e) = engine.use_model(&path)
+        {
+            engine.io.fail("the installed model was not loaded", &e);
         }
         let runs = Runs::new(&engine.config.paths.data);
         tracing::info!(
