@@ -261,12 +261,34 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
             "the same connection answers next: {line}"
         );
     }
+    // A model swapped in while playing: the reply comes once it plays, and the playback goes on
+    // (a restarted one would count its frames from zero again).
+    let shown = svc.status()["frames"]["shown"].as_u64().unwrap();
+    let r = svc.ask(&format!(
+        r#"{{"cmd":"model","path":"{}"}}"#,
+        model.display()
+    ));
+    assert_eq!(r["ok"], true, "{r}");
+    assert!(r["message"].as_str().unwrap().contains("swapped in"), "{r}");
+    let s = svc.status();
+    assert_eq!(s["state"], "playing", "{s}");
+    assert!(
+        s["frames"]["shown"].as_u64().unwrap() >= shown,
+        "{shown} then {s}"
+    );
+    assert!(svc.log().contains("swapped in"), "{}", svc.log());
+
     // Half a request, then a hang-up: nothing breaks.
     {
         let mut s = UnixStream::connect(&svc.socket).unwrap();
         s.write_all(b"{\"cmd\":\"sta").unwrap();
     }
-    assert_eq!(svc.status()["state"], "playing");
+    // None of that stopped the playback: frames are still being shown.
+    let a = svc.status()["frames"]["shown"].as_u64().unwrap();
+    std::thread::sleep(Duration::from_millis(700));
+    let s = svc.status();
+    assert_eq!(s["state"], "playing");
+    assert!(s["frames"]["shown"].as_u64().unwrap() > a, "{a} then {s}");
 
     // The clients.
     let o = client(&["status", "--json"], &svc.socket);

@@ -132,7 +132,7 @@ fn play_window(
 ) -> Result<PlayStats> {
     let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
     let size = DisplaySink::size(&win);
-    let range = calibrated_range(model);
+    let range = model.display_range();
     let mut player = Player::start(win.context(), model, size, range, source, mode)?;
     eprintln!(
         "play: {} on the projector window {} at {:.1} Hz ({})",
@@ -232,7 +232,7 @@ fn virtual_rig(
             (
                 s.with_resolution(cam, prj),
                 same.map_or(0, |r| r.seed),
-                same.map_or_else(|| calibrated_range(model), |r| r.desired_range),
+                same.map_or_else(|| model.display_range(), |r| r.desired_range),
             )
         }
     };
@@ -263,15 +263,4 @@ fn virtual_rig(
         drop_rate: 0.0,
     })?;
     Ok((rig, range))
-}
-
-/// The display range content is mapped into: the one `compend calibrate` measured for the
-/// model, else the full range.
-fn calibrated_range(model: &Model) -> DisplayRange {
-    model
-        .meta
-        .calibration
-        .as_ref()
-        .and_then(|c| c.display_range)
-        .unwrap_or(DisplayRange::FULL)
 }

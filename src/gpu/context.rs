@@ -11,7 +11,10 @@ use crate::error::{Error, Result};
 const NO_ADAPTER_HINT: &str =
     "live compensation needs a GPU or a software Vulkan driver (Mesa lavapipe)";
 
-/// An open GPU device.
+/// An open GPU device. Cloning it clones wgpu's reference-counted handles: the clone is the same
+/// device (a pass built on a clone runs on the original), e.g. for building a pass on another
+/// thread.
+#[derive(Clone)]
 pub struct GpuContext {
     pub instance: wgpu::Instance,
     pub adapter: wgpu::Adapter,

@@ -50,6 +50,16 @@ impl std::fmt::Debug for Kind {
 }
 
 impl Model {
+    /// The range of camera values content is mapped into when this model plays: the one
+    /// `compend calibrate` measured for it, else the full range.
+    pub fn display_range(&self) -> crate::fov::DisplayRange {
+        self.meta
+            .calibration
+            .as_ref()
+            .and_then(|c| c.display_range)
+            .unwrap_or(crate::fov::DisplayRange::FULL)
+    }
+
     pub fn linear(meta: ModelMeta, fov: Mask<Camera>, model: LinearModel) -> Self {
         let simplified = model.simplify();
         Self {

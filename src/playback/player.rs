@@ -119,6 +119,12 @@ pub trait Screen {
         true
     }
 
+    /// Called before each refresh: a pass to play from the next new frame on (a model swapped in
+    /// while playing). Refreshes until that frame present the current pass's output.
+    fn take_pass(&mut self) -> Option<CompensationPass> {
+        None
+    }
+
     /// Called after each refresh with the counts so far (a service shows them live).
     fn refreshed(&mut self, stats: &PlayStats) {
         let _ = stats;
@@ -238,6 +244,8 @@ enum Step {
 pub struct Player {
     pub pass: CompensationPass,
     pub feed: Feed,
+    /// A pass handed over by the screen, in use from the next new frame on.
+    next_pass: Option<CompensationPass>,
     stats: PlayStats,
     /// Sum of the pipeline times of the frames shown, s.
     pipeline_total: f64,
@@ -268,6 +276,7 @@ impl Player {
         Self {
             pass,
             feed,
+            next_pass: None,
             stats,
             pipeline_total: 0.0,
         }
@@ -324,6 +333,9 @@ impl Player {
         };
         let holds_stills = matches!(pacer.refresh, Refresh::Vsync(_)) && !self.feed.ends_playback();
         while screen.keep_going() && refreshes.is_none_or(|n| self.stats.refreshes < n) {
+            if let Some(pass) = screen.take_pass() {
+                self.next_pass = Some(pass);
+            }
             let t = Instant::now();
             let presented = match self.next(screen.context(), wait)? {
                 Step::New(seq) => {
@@ -358,6 +370,9 @@ impl Player {
         self.count_feed();
         match poll {
             Poll::Frame { seq, frame } => {
+                if let Some(pass) = self.next_pass.take() {
+                    self.pass = pass;
+                }
                 self.pass.run(ctx, &frame)?;
                 Ok(Step::New(seq))
             }

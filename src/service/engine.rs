@@ -17,175 +17,32 @@
 //! previous verified model or the new one, complete.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError, TryRecvError};
-use std::sync::{Arc, Mutex};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant, SystemTime};
 
+#[cfg(target_os = "linux")]
+use super::devices::Hardware;
+pub use super::devices::rig_name;
+use super::devices::{Devices, VirtualDevices, load_model, match_exposure};
+use super::monitor::Tap;
 use super::notify::Notifier;
 use super::protocol::{
     CalibrationProgress, Frames, ModelStatus, Monitoring, Reply, Request, State,
 };
-use super::{Event, Shared};
+use super::screen::{ServiceScreen, set_frames};
+use super::{Event, Io, Shared};
 use crate::calibrate::runs::Runs;
 use crate::calibrate::{self, Options, PatternSet, SyncSettings};
-use crate::config::{Config, DriftPolicy, RigKind};
+use crate::config::{Config, DriftPolicy};
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
 use crate::fov::DisplayRange;
-use crate::gpu::{CompensationPass, GpuContext};
-use crate::metrics::Accumulator;
 use crate::model::Model;
-use crate::playback::player::{PlayStats, Player, Refresh, Screen, Show, ViewSink, WatchedSink};
-use crate::raster::{CamImage, ImageSize, PrjImage, Rect};
-use crate::rig::scene::{self, Latency, Scene};
-use crate::rig::{Phase, VirtualRig};
+use crate::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
+use crate::rig::scene::Latency;
 use crate::source::{self, FeedMode, SourceSpec};
-
-/// `virtual:SCENE` or `camera:DEVICE`: what the service drives, for the status and the log.
-pub fn rig_name(config: &Config) -> String {
-    let r = &config.rig;
-    match r.kind {
-        RigKind::Virtual => format!("virtual:{}", r.scene),
-        RigKind::Window => format!("window:{}", r.scene),
-        RigKind::Camera => format!(
-            "camera:{}",
-            r.camera.as_deref().unwrap_or(Path::new("?")).display()
-        ),
-    }
-}
-
-/// The virtual rig: its projector and camera, the scene, and a GPU for the pass.
-struct VirtualDevices {
-    rig: VirtualRig,
-    scene: Scene,
-    ctx: GpuContext,
-    /// When the projector is moved to the scene's drifted pose (`[rig] drift_after_s`), once.
-    drift_at: Option<Instant>,
-}
-
-/// Real hardware: the projector window and a V4L2 camera.
-#[cfg(target_os = "linux")]
-struct Hardware {
-    win: crate::window::ProjectorWindow,
-    camera: crate::camera::V4l2Camera,
-}
-
-enum Devices {
-    Virtual(Box<VirtualDevices>),
-    #[cfg(target_os = "linux")]
-    Hardware(Box<Hardware>),
-}
-
-impl Devices {
-    fn open(config: &Config) -> Result<Self> {
-        let r = &config.rig;
-        match r.kind {
-            RigKind::Virtual => {
-                let mut scene = scene::load(&r.scene)?;
-                let cam = r.camera_size.unwrap_or(scene.camera.size());
-                let prj = r.projector.unwrap_or(scene.projector.size());
-                scene = scene.with_resolution(cam, prj);
-                if let Some(fps) = r.camera_fps {
-                    scene.latency.fps = fps;
-                }
-                if let Some(ms) = r.latency_ms {
-                    scene.latency.delay_frames = (ms / 1e3 * scene.latency.fps).round() as u32;
-                }
-                scene.validate()?;
-                if r.drift_after_s.is_some() && scene.drift.is_none() {
-                    tracing::warn!(
-                        "[rig] drift_after_s: scene {:?} has no drift; the projector stays put",
-                        scene.name
-                    );
-                }
-                let rig = VirtualRig::new(&scene, r.seed)?;
-                let ctx = GpuContext::new()?;
-                Ok(Devices::Virtual(Box::new(VirtualDevices {
-                    rig,
-                    scene,
-                    ctx,
-                    drift_at: None,
-                })))
-            }
-            RigKind::Window => Err(Error::Input(
-                "[rig] kind = \"window\" is for `compend calibrate --rig window`; the service \
-                 drives \"virtual\" or \"camera\""
-                    .into(),
-            )),
-            RigKind::Camera => open_hardware(config),
-        }
-    }
-
-    fn display_size(&self) -> ImageSize {
-        match self {
-            Devices::Virtual(v) => v.scene.projector.size(),
-            #[cfg(target_os = "linux")]
-            Devices::Hardware(h) => DisplaySink::size(&h.win),
-        }
-    }
-
-    fn camera_size(&self) -> ImageSize {
-        match self {
-            Devices::Virtual(v) => v.scene.camera.size(),
-            #[cfg(target_os = "linux")]
-            Devices::Hardware(h) => FrameSource::size(&h.camera),
-        }
-    }
-
-    fn describe(&self) -> String {
-        match self {
-            Devices::Virtual(v) => format!(
-                "virtual rig {:?} (projector {}, camera {} at {} fps, {} frames of delay); GPU: {}",
-                v.scene.name,
-                v.scene.projector.size(),
-                v.scene.camera.size(),
-                v.scene.latency.fps,
-                v.scene.latency.delay_frames,
-                v.ctx.describe()
-            ),
-            #[cfg(target_os = "linux")]
-            Devices::Hardware(h) => format!(
-                "projector window {} at {:.1} Hz, camera {}; GPU: {}",
-                DisplaySink::size(&h.win),
-                h.win.refresh_hz(),
-                FrameSource::size(&h.camera),
-                h.win.context().describe()
-            ),
-        }
-    }
-
-    /// Shows black (paused, stopping).
-    fn black(&mut self) -> Result<()> {
-        let black = PrjImage::new(self.display_size().width, self.display_size().height);
-        match self {
-            Devices::Virtual(v) => v.rig.show(&black),
-            #[cfg(target_os = "linux")]
-            Devices::Hardware(h) => h.win.show(&black),
-        }
-    }
-}
-
-#[cfg(target_os = "linux")]
-fn open_hardware(config: &Config) -> Result<Devices> {
-    let r = &config.rig;
-    let device = r.camera.clone().unwrap_or_default();
-    let mut camera = crate::camera::V4l2Camera::open(&device, r.camera_size)?;
-    let report = camera.lock_for_calibration(&crate::camera::LockSettings::default())?;
-    for line in report.lines() {
-        tracing::info!("camera {}: {line}", device.display());
-    }
-    let win = crate::window::ProjectorWindow::open(r.monitor.as_deref())?;
-    Ok(Devices::Hardware(Box::new(Hardware { win, camera })))
-}
-
-#[cfg(not(target_os = "linux"))]
-fn open_hardware(config: &Config) -> Result<Devices> {
-    Err(Error::Input(format!(
-        "[rig] camera = {:?}: V4L2 cameras exist on Linux only",
-        config.rig.camera
-    )))
-}
 
 /// What the engine does next.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -195,26 +52,6 @@ enum Next {
     Play,
     Pause,
     Stop,
-}
-
-/// The engine's channel, shared state and systemd notifier.
-struct Io {
-    shared: Arc<Shared>,
-    rx: Receiver<Event>,
-    notify: Notifier,
-}
-
-impl Io {
-    fn state(&mut self, state: State, line: &str) {
-        self.shared.update(|s| s.state = state);
-        self.notify.status(line);
-    }
-
-    fn fail(&self, what: &str, e: &Error) {
-        tracing::error!("{what}: {e}");
-        let msg = format!("{what}: {e}");
-        self.shared.update(|s| s.last_error = Some(msg));
-    }
 }
 
 pub struct Engine {
@@ -434,29 +271,13 @@ impl Engine {
     /// Loads the model directory `path` and serves it from now on; a model for another camera
     /// size is refused.
     fn use_model(&mut self, path: &Path) -> Result<()> {
-        let model = Model::load(path)?;
-        let cam = self.devices.camera_size();
-        if model.camera_size() != cam {
-            return Err(Error::Input(format!(
-                "{}: the model is for {} camera images, this rig's camera gives {cam}",
-                path.display(),
-                model.camera_size()
-            )));
-        }
-        if let (Devices::Virtual(v), Some(e)) = (
-            &mut self.devices,
-            model
-                .meta
-                .calibration
-                .as_ref()
-                .and_then(|c| c.exposure.as_ref()),
-        ) {
-            // A calibrated model saw the camera at the exposure its calibration chose.
-            v.rig.set_exposure(e.chosen)?;
+        let model = load_model(path, self.devices.camera_size())?;
+        if let Devices::Virtual(v) = &mut self.devices {
+            match_exposure(&mut v.rig, &model)?;
         }
         self.io.shared.update(|s| {
-            s.model = Some(model_status(path, &model));
-            s.monitoring = fresh_monitoring(&s.monitoring);
+            s.model = Some(ModelStatus::of(path, &model));
+            s.monitoring = Monitoring::fresh(&s.monitoring);
         });
         self.model = Some(model);
         self.model_path = path.to_path_buf();
@@ -506,8 +327,8 @@ impl Engine {
                     Ok(model) => {
                         tracing::info!("installed {} into {}", model.meta.method, out.display());
                         self.io.shared.update(|s| {
-                            s.model = Some(model_status(&out, &model));
-                            s.monitoring = fresh_monitoring(&s.monitoring);
+                            s.model = Some(ModelStatus::of(&out, &model));
+                            s.monitoring = Monitoring::fresh(&s.monitoring);
                             s.last_error = None;
                         });
                         self.model = Some(model);
@@ -662,7 +483,7 @@ impl Engine {
         });
         self.io.state(State::Playing, &line);
         tracing::info!("{line}");
-        let range = calibrated_range(model);
+        let range = model.display_range();
         let m = &self.config.monitoring;
         let monitor = m
             .enabled
@@ -682,44 +503,73 @@ impl Engine {
                 play_virtual(
                     v,
                     model,
-                    range,
-                    source,
-                    fps,
+                    (range, source, fps),
                     &mut self.io,
                     monitor.clone(),
-                    period,
-                    stats_every,
+                    (period, stats_every),
                     &before,
                 )
             }
             #[cfg(target_os = "linux")]
             Devices::Hardware(h) => {
+                let camera = FrameSource::size(&h.camera);
                 let win = &mut h.win;
                 let size = DisplaySink::size(win);
                 Player::start(win.context(), model, size, range, source, FeedMode::Latest).and_then(
                     |mut player| {
                         // Monitoring needs the camera frame of a known presented frame: not yet
                         // on hardware (the virtual rig has it).
-                        let mut screen =
-                            ServiceScreen::new(win, &mut self.io, None, period, stats_every);
+                        let mut screen = ServiceScreen::new(
+                            win,
+                            &mut self.io,
+                            None,
+                            (period, stats_every),
+                            (camera, size),
+                        );
                         screen.before = before.clone();
                         let stats = player.run(&mut screen, None);
-                        let pending = screen.pending.take();
-                        stats.map(|s| (s, pending))
+                        screen.settle();
+                        stats.map(|stats| Ended {
+                            stats,
+                            pending: screen.pending.take(),
+                            swapped: screen.swapped.take(),
+                        })
                     },
                 )
             }
         };
+        // A model swapped in while playing is the one served from now on (also when the
+        // playback then failed).
+        let swapped = match &result {
+            Ok(ended) => ended.swapped.is_some(),
+            Err(_) => false,
+        };
+        let result = result.map(|mut ended| {
+            if let Some((path, model)) = ended.swapped.take() {
+                self.model = Some(model);
+                self.model_path = path;
+            }
+            ended
+        });
+        if swapped {
+            self.baseline = None;
+        }
         if let Some(tap) = &monitor {
             self.baseline = tap.baseline();
         }
         match result {
-            Ok((stats, pending)) => {
+            Ok(Ended { stats, pending, .. }) => {
                 self.io
                     .shared
                     .update(|s| set_frames(&mut s.frames, &stats, &before));
                 match pending {
-                    Some(ev) => self.handle(ev),
+                    Some(ev) => {
+                        self.handle(ev);
+                        // A request that was refused changed nothing: play on.
+                        if self.next == Next::Wait {
+                            self.next = Next::Play;
+                        }
+                    }
                     None if monitor.as_ref().is_some_and(|t| t.drifted()) => {
                         self.on_drift();
                     }
@@ -777,62 +627,19 @@ fn busy(ev: Event, phase: &str, next: &mut Next, reload: &mut Option<Box<Config>
     }
 }
 
-/// Monitoring for a new model: no scores yet; the drift count is the service's.
-fn fresh_monitoring(old: &Monitoring) -> Monitoring {
-    Monitoring {
-        drifts: old.drifts,
-        ..Monitoring::default()
-    }
-}
-
-fn model_status(path: &Path, model: &Model) -> ModelStatus {
-    ModelStatus {
-        path: path.to_path_buf(),
-        method: model.meta.method.name().to_string(),
-        verification: model
-            .meta
-            .calibration
-            .as_ref()
-            .map(|c| c.verification.clone()),
-    }
-}
-
-/// The display range content is mapped into: the calibrated one, else the full range.
-fn calibrated_range(model: &Model) -> DisplayRange {
-    model
-        .meta
-        .calibration
-        .as_ref()
-        .and_then(|c| c.display_range)
-        .unwrap_or(DisplayRange::FULL)
-}
-
-/// The counts of the playback under way; `before` holds the totals of the playbacks before it.
-fn set_frames(f: &mut Frames, s: &PlayStats, before: &Frames) {
-    f.shown_total = before.shown_total + s.shown;
-    f.dropped_total = before.dropped_total + s.dropped_source + s.dropped_pipeline;
-    f.refreshes = s.refreshes;
-    f.shown = s.shown;
-    f.held = s.held;
-    f.dropped_source = s.dropped_source;
-    f.dropped_pipeline = s.dropped_pipeline;
-}
-
 /// Plays on the virtual rig: its projector shows the pass's output, its camera (set to one
 /// exposure per shown frame, no delay) watches on a thread of its own and feeds monitoring.
-#[allow(clippy::too_many_arguments)]
+/// `(range, source, fps)`: content mapped into `range`, from `source`, shown at `fps`;
+/// `timing`: the monitoring and log periods.
 fn play_virtual(
     v: &mut VirtualDevices,
     model: &Model,
-    range: DisplayRange,
-    source: Box<dyn source::VideoSource>,
-    fps: f64,
+    (range, source, fps): (DisplayRange, Box<dyn source::VideoSource>, f64),
     io: &mut Io,
     monitor: Option<Arc<Tap>>,
-    period: Duration,
-    stats_every: Duration,
+    timing: (Duration, Duration),
     before: &Frames,
-) -> Result<(PlayStats, Option<Event>)> {
+) -> Result<Ended> {
     v.rig.set_latency(Latency {
         fps,
         delay_frames: 0,
@@ -846,269 +653,42 @@ fn play_virtual(
         source,
         FeedMode::Latest,
     )?;
-    let area = player.pass.placement().area;
     let views: ViewSink = match &monitor {
         Some(tap) => {
             let tap = tap.clone();
             let shared = io.shared.clone();
             Box::new(move |seq, _, view| {
-                tap.offer(seq, view, area, &shared);
+                tap.offer(seq, view, &shared);
                 Ok(())
             })
         }
         None => Box::new(|_, _, _| Ok(())),
     };
     let mut sink = WatchedSink::new(&v.ctx, fps, v.rig.clone(), v.rig.clone(), views);
-    let mut screen = ServiceScreen::new(&mut sink, io, monitor, period, stats_every);
+    let sizes = (v.scene.camera.size(), v.scene.projector.size());
+    let mut screen = ServiceScreen::new(&mut sink, io, monitor, timing, sizes);
     screen.before = before.clone();
+    screen.rig = Some(v.rig.clone());
     if let Some(at) = v.drift_at {
         screen.drift = Some((v.rig.clone(), at));
     }
     let stats = player.run(&mut screen, None);
-    let pending = screen.pending.take();
+    screen.settle();
     if screen.drift.is_none() {
         // The rig moved during this playback: never again.
         v.drift_at = None;
     }
-    stats.map(|s| (s, pending))
+    stats.map(|stats| Ended {
+        stats,
+        pending: screen.pending.take(),
+        swapped: screen.swapped.take(),
+    })
 }
 
-/// Monitoring: the desired view of one presented frame waits here for the camera's view of it;
-/// the two are scored in the displayable area (camera pixels, encoded values).
-struct Tap {
-    want: Mutex<Option<(u64, CamImage)>>,
-    baseline: Mutex<Option<f64>>,
-    threshold_db: f64,
-    drift: AtomicBool,
-}
-
-impl Tap {
-    fn new(baseline: Option<f64>, threshold_db: f64) -> Arc<Self> {
-        Arc::new(Self {
-            want: Mutex::new(None),
-            baseline: Mutex::new(baseline),
-            threshold_db,
-            drift: AtomicBool::new(false),
-        })
-    }
-
-    fn baseline(&self) -> Option<f64> {
-        *self.baseline.lock().unwrap_or_else(|e| e.into_inner())
-    }
-
-    fn drifted(&self) -> bool {
-        self.drift.load(Ordering::Relaxed)
-    }
-
-    /// Asks for the camera's view of frame `seq`, whose desired view is `desired`.
-    fn request(&self, seq: u64, desired: CamImage) {
-        *self.want.lock().unwrap_or_else(|e| e.into_inner()) = Some((seq, desired));
-    }
-
-    /// A camera view of frame `seq`: scored if it is the one asked for.
-    fn offer(&self, seq: u64, view: &CamImage, area: Rect, shared: &Shared) {
-        let desired = {
-            let mut want = self.want.lock().unwrap_or_else(|e| e.into_inner());
-            match &*want {
-                Some((s, _)) if *s == seq => want.take().map(|(_, d)| d),
-                // The asked-for view was skipped: ask again at the next period.
-                Some((s, _)) if *s < seq => {
-                    *want = None;
-                    None
-                }
-                _ => None,
-            }
-        };
-        let Some(desired) = desired else { return };
-        let scored = (|| -> Result<crate::metrics::Scores> {
-            let mut acc = Accumulator::default();
-            acc.add(&view.crop(area)?, &desired.crop(area)?)?;
-            acc.finish()
-        })();
-        let s = match scored {
-            Ok(s) => s,
-            Err(e) => {
-                tracing::warn!("monitoring: frame {seq} could not be scored: {e}");
-                return;
-            }
-        };
-        let baseline = {
-            let mut b = self.baseline.lock().unwrap_or_else(|e| e.into_inner());
-            *b.get_or_insert(s.psnr)
-        };
-        let drift = baseline - s.psnr > self.threshold_db;
-        tracing::info!(
-            "monitoring: frame {seq}: {:.2} dB / SSIM {:.3} in the displayable area (baseline \
-             {baseline:.2} dB){}",
-            s.psnr,
-            s.ssim,
-            if drift { "; DRIFT" } else { "" }
-        );
-        if drift && !self.drift.swap(true, Ordering::Relaxed) {
-            tracing::warn!(
-                "drift: the compensated projection scores {:.2} dB, {:.2} dB below the {:.2} dB \
-                 measured after installation (threshold {:.2} dB)",
-                s.psnr,
-                baseline - s.psnr,
-                baseline,
-                self.threshold_db
-            );
-        }
-        shared.update(|st| {
-            let m = &mut st.monitoring;
-            m.checks += 1;
-            m.psnr = Some(s.psnr);
-            m.ssim = Some(s.ssim);
-            m.baseline_psnr = Some(baseline);
-            m.age_s = Some(0.0);
-            if drift && !m.drift {
-                m.drifts += 1;
-            }
-            m.drift = drift;
-        });
-    }
-}
-
-/// A display in the service: the playback loop's screen with the engine's checks between
-/// refreshes (events, the watchdog, live counts, monitoring requests, the virtual rig's drift).
-struct ServiceScreen<'a, S: Screen + ?Sized> {
-    inner: &'a mut S,
-    io: &'a mut Io,
-    /// An event that ended the playback, for the engine.
+/// How a playback ended: its counts, the event that ended it (none: the source ended or
+/// monitoring found drift), and a model swapped in while it played.
+struct Ended {
+    stats: PlayStats,
     pending: Option<Event>,
-    monitor: Option<Arc<Tap>>,
-    period: Duration,
-    next_check: Instant,
-    last_check: Option<Instant>,
-    stats_every: Duration,
-    last_stats: Instant,
-    last_counts: Instant,
-    /// The virtual rig and when its projector moves (`[rig] drift_after_s`).
-    drift: Option<(VirtualRig, Instant)>,
-    /// The frame totals before this playback.
-    before: Frames,
-}
-
-impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
-    fn new(
-        inner: &'a mut S,
-        io: &'a mut Io,
-        monitor: Option<Arc<Tap>>,
-        period: Duration,
-        stats_every: Duration,
-    ) -> Self {
-        let now = Instant::now();
-        Self {
-            inner,
-            io,
-            pending: None,
-            monitor,
-            period,
-            // The first check soon after the start: the baseline of a new model.
-            next_check: now + Duration::from_millis(500).min(period),
-            last_check: None,
-            stats_every,
-            last_stats: now,
-            last_counts: now,
-            drift: None,
-            before: Frames::default(),
-        }
-    }
-}
-
-impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
-    fn context(&self) -> &GpuContext {
-        self.inner.context()
-    }
-
-    fn refresh(&self) -> Refresh {
-        self.inner.refresh()
-    }
-
-    fn begin(&mut self, live: bool) -> Result<()> {
-        self.inner.begin(live)
-    }
-
-    fn keep_going(&mut self) -> bool {
-        self.io.notify.ping();
-        if self.pending.is_some() {
-            return false;
-        }
-        match self.io.rx.try_recv() {
-            Ok(ev) => {
-                self.pending = Some(ev);
-                return false;
-            }
-            Err(TryRecvError::Empty) => {}
-            Err(TryRecvError::Disconnected) => {
-                self.pending = Some(Event::Terminate("the control channel closed"));
-                return false;
-            }
-        }
-        if let Some((rig, at)) = &self.drift
-            && Instant::now() >= *at
-        {
-            match rig.set_phase(Phase::AfterDrift) {
-                Ok(()) => tracing::warn!(
-                    "virtual rig: the projector was moved to the scene's drifted pose"
-                ),
-                Err(e) => tracing::error!("virtual rig: could not move the projector: {e}"),
-            }
-            self.drift = None;
-        }
-        if self.monitor.as_ref().is_some_and(|t| t.drifted()) {
-            return false;
-        }
-        self.inner.keep_going()
-    }
-
-    fn refreshed(&mut self, stats: &PlayStats) {
-        let now = Instant::now();
-        if now.duration_since(self.last_counts) >= Duration::from_millis(100) {
-            self.last_counts = now;
-            let age = self.last_check.map(|t| t.elapsed().as_secs_f64());
-            self.io.shared.update(|s| {
-                set_frames(&mut s.frames, stats, &self.before);
-                if age.is_some() {
-                    s.monitoring.age_s = age;
-                }
-            });
-        }
-        if now.duration_since(self.last_stats) >= self.stats_every {
-            self.last_stats = now;
-            tracing::info!(
-                "playback: {} refreshes, {} frames shown, {} held, {} dropped (source), {} \
-                 dropped (pipeline); pipeline {:.2} ms mean, {:.2} ms worst",
-                stats.refreshes,
-                stats.shown,
-                stats.held,
-                stats.dropped_source,
-                stats.dropped_pipeline,
-                stats.pipeline_ms_mean,
-                stats.pipeline_ms_max
-            );
-        }
-    }
-
-    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
-        self.inner.present(pass, show)?;
-        if let Show::New { seq, .. } = show {
-            if !self.io.notify.is_ready() {
-                self.io.notify.ready("playing");
-            }
-            let now = Instant::now();
-            if let Some(tap) = &self.monitor
-                && now >= self.next_check
-            {
-                tap.request(seq, pass.read_desired(self.inner.context())?);
-                self.next_check = now + self.period;
-                self.last_check = Some(now);
-            }
-        }
-        Ok(())
-    }
-
-    fn finish(&mut self, stats: &mut PlayStats) -> Result<()> {
-        self.inner.finish(stats)
-    }
+    swapped: Option<(PathBuf, Model)>,
 }

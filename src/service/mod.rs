@@ -18,13 +18,17 @@
 //! `status` is answered by the socket tasks from a shared snapshot ([`Shared`]) the engine
 //! updates, so it answers while the engine is busy training.
 
+mod devices;
 pub mod engine;
+mod monitor;
 pub mod notify;
 pub mod protocol;
+mod screen;
 pub mod socket;
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::Receiver;
 use std::sync::{Arc, Mutex, MutexGuard, mpsc};
 use std::time::Instant;
 
@@ -32,6 +36,7 @@ use tokio::sync::oneshot;
 
 use crate::config::Config;
 use crate::error::{Error, Result};
+use notify::Notifier;
 use protocol::{Reply, Request, State, Status};
 
 /// A request on its way to the engine, with where its reply goes.
@@ -127,6 +132,26 @@ impl Shared {
             self.cancel.store(true, Ordering::Relaxed);
         }
         let _ = self.events.send(event);
+    }
+}
+
+/// The engine's channel, shared state and systemd notifier.
+struct Io {
+    shared: Arc<Shared>,
+    rx: Receiver<Event>,
+    notify: Notifier,
+}
+
+impl Io {
+    fn state(&mut self, state: State, line: &str) {
+        self.shared.update(|s| s.state = state);
+        self.notify.status(line);
+    }
+
+    fn fail(&self, what: &str, e: &Error) {
+        tracing::error!("{what}: {e}");
+        let msg = format!("{what}: {e}");
+        self.shared.update(|s| s.last_error = Some(msg));
     }
 }
 

@@ -21,6 +21,7 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
+use crate::model::Model;
 use crate::model::store::Verification;
 
 /// The longest request line taken, bytes; a longer one gets an error reply and is skipped.
@@ -127,6 +128,21 @@ pub struct ModelStatus {
     pub verification: Option<Verification>,
 }
 
+impl ModelStatus {
+    /// The status of `model`, served from `path`.
+    pub fn of(path: &std::path::Path, model: &Model) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            method: model.meta.method.name().to_string(),
+            verification: model
+                .meta
+                .calibration
+                .as_ref()
+                .map(|c| c.verification.clone()),
+        }
+    }
+}
+
 /// Frame counts of the current (or last) playback.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Frames {
@@ -156,6 +172,16 @@ pub struct Monitoring {
     pub drift: bool,
     /// Drift detections since the service started.
     pub drifts: u64,
+}
+
+impl Monitoring {
+    /// Monitoring for a new model: no scores yet; the drift count is the service's.
+    pub fn fresh(old: &Monitoring) -> Self {
+        Self {
+            drifts: old.drifts,
+            ..Self::default()
+        }
+    }
 }
 
 /// Progress of a calibration.

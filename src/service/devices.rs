@@ -1,0 +1,187 @@
+//! The devices the service drives: the virtual rig (its projector and camera, a GPU for the
+//! pass) or real hardware (the projector window and a V4L2 camera), opened from `[rig]`.
+
+use std::path::Path;
+use std::time::Instant;
+
+use crate::config::{Config, RigKind};
+use crate::device::{DisplaySink, FrameSource};
+use crate::error::{Error, Result};
+use crate::gpu::GpuContext;
+use crate::model::Model;
+use crate::raster::{ImageSize, PrjImage};
+use crate::rig::VirtualRig;
+use crate::rig::scene::{self, Scene};
+
+/// `virtual:SCENE` or `camera:DEVICE`: what the service drives, for the status and the log.
+pub fn rig_name(config: &Config) -> String {
+    let r = &config.rig;
+    match r.kind {
+        RigKind::Virtual => format!("virtual:{}", r.scene),
+        RigKind::Window => format!("window:{}", r.scene),
+        RigKind::Camera => format!(
+            "camera:{}",
+            r.camera.as_deref().unwrap_or(Path::new("?")).display()
+        ),
+    }
+}
+
+/// The virtual rig: its projector and camera, the scene, and a GPU for the pass.
+pub(super) struct VirtualDevices {
+    pub(super) rig: VirtualRig,
+    pub(super) scene: Scene,
+    pub(super) ctx: GpuContext,
+    /// When the projector is moved to the scene's drifted pose (`[rig] drift_after_s`), once.
+    pub(super) drift_at: Option<Instant>,
+}
+
+/// Real hardware: the projector window and a V4L2 camera.
+#[cfg(target_os = "linux")]
+pub(super) struct Hardware {
+    pub(super) win: crate::window::ProjectorWindow,
+    pub(super) camera: crate::camera::V4l2Camera,
+}
+
+pub(super) enum Devices {
+    Virtual(Box<VirtualDevices>),
+    #[cfg(target_os = "linux")]
+    Hardware(Box<Hardware>),
+}
+
+impl Devices {
+    pub(super) fn open(config: &Config) -> Result<Self> {
+        let r = &config.rig;
+        match r.kind {
+            RigKind::Virtual => {
+                let mut scene = scene::load(&r.scene)?;
+                let cam = r.camera_size.unwrap_or(scene.camera.size());
+                let prj = r.projector.unwrap_or(scene.projector.size());
+                scene = scene.with_resolution(cam, prj);
+                if let Some(fps) = r.camera_fps {
+                    scene.latency.fps = fps;
+                }
+                if let Some(ms) = r.latency_ms {
+                    scene.latency.delay_frames = (ms / 1e3 * scene.latency.fps).round() as u32;
+                }
+                scene.validate()?;
+                if r.drift_after_s.is_some() && scene.drift.is_none() {
+                    tracing::warn!(
+                        "[rig] drift_after_s: scene {:?} has no drift; the projector stays put",
+                        scene.name
+                    );
+                }
+                let rig = VirtualRig::new(&scene, r.seed)?;
+                let ctx = GpuContext::new()?;
+                Ok(Devices::Virtual(Box::new(VirtualDevices {
+                    rig,
+                    scene,
+                    ctx,
+                    drift_at: None,
+                })))
+            }
+            RigKind::Window => Err(Error::Input(
+                "[rig] kind = \"window\" is for `compend calibrate --rig window`; the service \
+                 drives \"virtual\" or \"camera\""
+                    .into(),
+            )),
+            RigKind::Camera => open_hardware(config),
+        }
+    }
+
+    pub(super) fn display_size(&self) -> ImageSize {
+        match self {
+            Devices::Virtual(v) => v.scene.projector.size(),
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => DisplaySink::size(&h.win),
+        }
+    }
+
+    pub(super) fn camera_size(&self) -> ImageSize {
+        match self {
+            Devices::Virtual(v) => v.scene.camera.size(),
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => FrameSource::size(&h.camera),
+        }
+    }
+
+    pub(super) fn describe(&self) -> String {
+        match self {
+            Devices::Virtual(v) => format!(
+                "virtual rig {:?} (projector {}, camera {} at {} fps, {} frames of delay); GPU: {}",
+                v.scene.name,
+                v.scene.projector.size(),
+                v.scene.camera.size(),
+                v.scene.latency.fps,
+                v.scene.latency.delay_frames,
+                v.ctx.describe()
+            ),
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => format!(
+                "projector window {} at {:.1} Hz, camera {}; GPU: {}",
+                DisplaySink::size(&h.win),
+                h.win.refresh_hz(),
+                FrameSource::size(&h.camera),
+                h.win.context().describe()
+            ),
+        }
+    }
+
+    /// Shows black (paused, stopping).
+    pub(super) fn black(&mut self) -> Result<()> {
+        let black = PrjImage::new(self.display_size().width, self.display_size().height);
+        match self {
+            Devices::Virtual(v) => v.rig.show(&black),
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => h.win.show(&black),
+        }
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn open_hardware(config: &Config) -> Result<Devices> {
+    let r = &config.rig;
+    let device = r.camera.clone().unwrap_or_default();
+    let mut camera = crate::camera::V4l2Camera::open(&device, r.camera_size)?;
+    let report = camera.lock_for_calibration(&crate::camera::LockSettings::default())?;
+    for line in report.lines() {
+        tracing::info!("camera {}: {line}", device.display());
+    }
+    let win = crate::window::ProjectorWindow::open(r.monitor.as_deref())?;
+    Ok(Devices::Hardware(Box::new(Hardware { win, camera })))
+}
+
+#[cfg(not(target_os = "linux"))]
+fn open_hardware(config: &Config) -> Result<Devices> {
+    Err(Error::Input(format!(
+        "[rig] camera = {:?}: V4L2 cameras exist on Linux only",
+        config.rig.camera
+    )))
+}
+
+/// Loads the model directory `path` for a rig whose camera gives `camera`-sized images; a model
+/// for another camera size is an input error naming both.
+pub(super) fn load_model(path: &Path, camera: ImageSize) -> Result<Model> {
+    let model = Model::load(path)?;
+    if model.camera_size() != camera {
+        return Err(Error::Input(format!(
+            "{}: the model is for {} camera images, this rig's camera gives {camera}",
+            path.display(),
+            model.camera_size()
+        )));
+    }
+    Ok(model)
+}
+
+/// Sets the virtual camera to the exposure `model` was calibrated at (a calibrated model saw
+/// the camera there); nothing for an uncalibrated model.
+pub(super) fn match_exposure(rig: &mut VirtualRig, model: &Model) -> Result<()> {
+    if let Some(e) = model
+        .meta
+        .calibration
+        .as_ref()
+        .and_then(|c| c.exposure.as_ref())
+    {
+        rig.set_exposure(e.chosen)?;
+    }
+    Ok(())
+}

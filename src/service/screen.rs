@@ -1,0 +1,335 @@
+//! The service's screen: the playback loop's display wrapped with the engine's checks between
+//! two refreshes: events, the watchdog, live counts, monitoring requests, the virtual rig's
+//! drift, and models swapped in while playing.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::mpsc::{self, TryRecvError};
+use std::time::{Duration, Instant};
+
+use super::devices::{load_model, match_exposure};
+use super::monitor::Tap;
+use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request};
+use super::{Envelope, Event, Io};
+use crate::error::{Error, Result};
+use crate::gpu::{CompensationPass, GpuContext};
+use crate::model::Model;
+use crate::playback::player::{PlayStats, Refresh, Screen, Show};
+use crate::raster::ImageSize;
+use crate::rig::{Phase, VirtualRig};
+use crate::source::SourceSpec;
+
+/// A model being loaded, and its pass built, on a thread of its own while playback goes on.
+struct Loading {
+    path: PathBuf,
+    envelope: Envelope,
+    started: Instant,
+    result: mpsc::Receiver<Result<(Model, CompensationPass)>>,
+}
+
+impl Loading {
+    /// Starts loading the model directory `path` for a rig with this camera and display: the
+    /// model, checked against the camera, and its pass on (a clone of) `ctx`.
+    fn start(
+        path: PathBuf,
+        envelope: Envelope,
+        ctx: GpuContext,
+        camera: ImageSize,
+        display: ImageSize,
+    ) -> Self {
+        let (tx, result) = mpsc::channel();
+        let from = path.clone();
+        let spawned = std::thread::Builder::new()
+            .name("compend-load".into())
+            .spawn(move || {
+                let built = load_model(&from, camera).and_then(|model| {
+                    let range = model.display_range();
+                    let pass = CompensationPass::for_display(&ctx, &model, display, range)?;
+                    Ok((model, pass))
+                });
+                let _ = tx.send(built);
+            });
+        if let Err(e) = spawned {
+            // The receiver then sees a closed channel, answered as a failed load.
+            tracing::error!("cannot start a thread to load {}: {e}", path.display());
+        }
+        Self {
+            path,
+            envelope,
+            started: Instant::now(),
+            result,
+        }
+    }
+}
+
+/// A display in the service: the playback loop's screen with the engine's checks between
+/// refreshes (events, the watchdog, live counts, monitoring requests, the virtual rig's drift).
+pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
+    inner: &'a mut S,
+    io: &'a mut Io,
+    /// An event that ended the playback, for the engine.
+    pub(super) pending: Option<Event>,
+    monitor: Option<Arc<Tap>>,
+    period: Duration,
+    next_check: Instant,
+    last_check: Option<Instant>,
+    stats_every: Duration,
+    last_stats: Instant,
+    last_counts: Instant,
+    /// The virtual rig and when its projector moves (`[rig] drift_after_s`).
+    pub(super) drift: Option<(VirtualRig, Instant)>,
+    /// The frame totals before this playback.
+    pub(super) before: Frames,
+    /// The virtual rig, whose camera exposure follows the model (a model swapped in).
+    pub(super) rig: Option<VirtualRig>,
+    /// The rig's camera and display sizes, for a model swapped in.
+    camera: ImageSize,
+    display: ImageSize,
+    loading: Option<Loading>,
+    /// A model swapped in during this playback, and where it came from: the engine serves it
+    /// from now on.
+    pub(super) swapped: Option<(PathBuf, Model)>,
+}
+
+impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
+    pub(super) fn new(
+        inner: &'a mut S,
+        io: &'a mut Io,
+        monitor: Option<Arc<Tap>>,
+        (period, stats_every): (Duration, Duration),
+        (camera, display): (ImageSize, ImageSize),
+    ) -> Self {
+        let now = Instant::now();
+        Self {
+            inner,
+            io,
+            pending: None,
+            monitor,
+            period,
+            // The first check soon after the start: the baseline of a new model.
+            next_check: now + Duration::from_millis(500).min(period),
+            last_check: None,
+            stats_every,
+            last_stats: now,
+            last_counts: now,
+            drift: None,
+            before: Frames::default(),
+            rig: None,
+            camera,
+            display,
+            loading: None,
+            swapped: None,
+        }
+    }
+
+    /// An event while playing: a `model` request starts loading it beside the playback (and
+    /// playback goes on); anything else ends the playback and goes to the engine.
+    fn event(&mut self, ev: Event) -> bool {
+        let Event::Request(envelope) = ev else {
+            self.pending = Some(ev);
+            return false;
+        };
+        // A play request for a source that cannot be parsed changes nothing: answered here, so
+        // the playback goes on.
+        if let Request::Play { source: Some(text) } = &envelope.request
+            && let Err(e) = SourceSpec::parse(text)
+        {
+            envelope.answer(Reply::error(e.to_string()));
+            return true;
+        }
+        let Request::Model { path } = &envelope.request else {
+            self.pending = Some(Event::Request(envelope));
+            return false;
+        };
+        if let Some(l) = &self.loading {
+            let busy = format!(
+                "busy: still loading {}; ask again when it is swapped in",
+                l.path.display()
+            );
+            envelope.answer(Reply::error(busy));
+            return true;
+        }
+        tracing::info!("loading {} to swap in while playing", path.display());
+        let ctx = self.inner.context().clone();
+        self.loading = Some(Loading::start(
+            path.clone(),
+            envelope,
+            ctx,
+            self.camera,
+            self.display,
+        ));
+        true
+    }
+
+    /// The model being loaded, once it is ready: recorded, announced and answered; its pass for
+    /// the player. A failed load is answered and playback goes on with the current model.
+    fn loaded(&mut self, wait: bool) -> Option<CompensationPass> {
+        let l = self.loading.as_ref()?;
+        let got = if wait {
+            l.result.recv().map_err(|_| TryRecvError::Disconnected)
+        } else {
+            l.result.try_recv()
+        };
+        let built = match got {
+            Err(TryRecvError::Empty) => return None,
+            Ok(built) => built,
+            Err(TryRecvError::Disconnected) => Err(Error::Failed(
+                "the thread loading the model ended without an answer".into(),
+            )),
+        };
+        let l = self.loading.take()?;
+        let (model, pass) = match built.and_then(|(model, pass)| {
+            if let Some(rig) = &mut self.rig {
+                match_exposure(rig, &model)?;
+            }
+            Ok((model, pass))
+        }) {
+            Ok(done) => done,
+            Err(e) => {
+                tracing::warn!("{} was not swapped in: {e}", l.path.display());
+                l.envelope.answer(Reply::error(e.to_string()));
+                return None;
+            }
+        };
+        let seconds = l.started.elapsed().as_secs_f64();
+        tracing::info!(
+            "swapped in {} ({}) while playing, loaded in {seconds:.2} s",
+            l.path.display(),
+            model.meta.method
+        );
+        self.io.shared.update(|s| {
+            s.model = Some(ModelStatus::of(&l.path, &model));
+            s.monitoring = Monitoring::fresh(&s.monitoring);
+        });
+        if let Some(tap) = &self.monitor {
+            tap.reset();
+            self.next_check = Instant::now() + Duration::from_millis(500).min(self.period);
+        }
+        l.envelope.answer(Reply::ok(format!(
+            "swapped in {} while playing (loaded in {seconds:.2} s)",
+            l.path.display()
+        )));
+        self.swapped = Some((l.path, model));
+        Some(pass)
+    }
+
+    /// Ends the playback's business: a model still loading is waited for, so its request is
+    /// answered and, loaded, it is served from the next playback on.
+    pub(super) fn settle(&mut self) {
+        let _ = self.loaded(true);
+    }
+}
+
+impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
+    fn context(&self) -> &GpuContext {
+        self.inner.context()
+    }
+
+    fn refresh(&self) -> Refresh {
+        self.inner.refresh()
+    }
+
+    fn begin(&mut self, live: bool) -> Result<()> {
+        self.inner.begin(live)
+    }
+
+    fn keep_going(&mut self) -> bool {
+        self.io.notify.ping();
+        if self.pending.is_some() {
+            return false;
+        }
+        match self.io.rx.try_recv() {
+            Ok(ev) => {
+                if !self.event(ev) {
+                    return false;
+                }
+            }
+            Err(TryRecvError::Empty) => {}
+            Err(TryRecvError::Disconnected) => {
+                self.pending = Some(Event::Terminate("the control channel closed"));
+                return false;
+            }
+        }
+        if let Some((rig, at)) = &self.drift
+            && Instant::now() >= *at
+        {
+            match rig.set_phase(Phase::AfterDrift) {
+                Ok(()) => tracing::warn!(
+                    "virtual rig: the projector was moved to the scene's drifted pose"
+                ),
+                Err(e) => tracing::error!("virtual rig: could not move the projector: {e}"),
+            }
+            self.drift = None;
+        }
+        if self.monitor.as_ref().is_some_and(|t| t.drifted()) {
+            return false;
+        }
+        self.inner.keep_going()
+    }
+
+    fn take_pass(&mut self) -> Option<CompensationPass> {
+        self.loaded(false)
+    }
+
+    fn refreshed(&mut self, stats: &PlayStats) {
+        let now = Instant::now();
+        if now.duration_since(self.last_counts) >= Duration::from_millis(100) {
+            self.last_counts = now;
+            let age = self.last_check.map(|t| t.elapsed().as_secs_f64());
+            self.io.shared.update(|s| {
+                set_frames(&mut s.frames, stats, &self.before);
+                if age.is_some() {
+                    s.monitoring.age_s = age;
+                }
+            });
+        }
+        if now.duration_since(self.last_stats) >= self.stats_every {
+            self.last_stats = now;
+            tracing::info!(
+                "playback: {} refreshes, {} frames shown, {} held, {} dropped (source), {} \
+                 dropped (pipeline); pipeline {:.2} ms mean, {:.2} ms worst",
+                stats.refreshes,
+                stats.shown,
+                stats.held,
+                stats.dropped_source,
+                stats.dropped_pipeline,
+                stats.pipeline_ms_mean,
+                stats.pipeline_ms_max
+            );
+        }
+    }
+
+    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
+        self.inner.present(pass, show)?;
+        if let Show::New { seq, .. } = show {
+            if !self.io.notify.is_ready() {
+                self.io.notify.ready("playing");
+            }
+            let now = Instant::now();
+            if let Some(tap) = &self.monitor
+                && now >= self.next_check
+            {
+                let area = pass.placement().area;
+                tap.request(seq, pass.read_desired(self.inner.context())?, area);
+                self.next_check = now + self.period;
+                self.last_check = Some(now);
+            }
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, stats: &mut PlayStats) -> Result<()> {
+        self.inner.finish(stats)
+    }
+}
+
+/// The counts of the playback under way; `before` holds the totals of the playbacks before it.
+pub(super) fn set_frames(f: &mut Frames, s: &PlayStats, before: &Frames) {
+    f.shown_total = before.shown_total + s.shown;
+    f.dropped_total = before.dropped_total + s.dropped_source + s.dropped_pipeline;
+    f.refreshes = s.refreshes;
+    f.shown = s.shown;
+    f.held = s.held;
+    f.dropped_source = s.dropped_source;
+    f.dropped_pipeline = s.dropped_pipeline;
+}
