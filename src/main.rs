@@ -38,6 +38,9 @@ enum Command {
     /// Per-frame GPU time of the compensation pass against a plain texture copy, and frames
     /// dropped at 60 Hz on the virtual rig and by the pipeline alone.
     BenchGpu(cli::bench_gpu::Args),
+    /// The service's targets on the virtual rig, driven through its socket: status while
+    /// training, a flood of malformed requests, drops during model swaps, drift detection.
+    BenchServe(cli::bench_serve::Args),
     /// Training and inference cost of the CompenNet++ rungs and `linear` on this CPU, against
     /// the machine's arithmetic rate measured in the same run.
     BenchTrain(cli::bench_train::Args),
@@ -193,6 +196,7 @@ fn main() -> ExitCode {
     let dispatch = move || match args.command {
         Command::Bench(a) => cli::bench::run(a),
         Command::BenchGpu(a) => cli::bench_gpu::run(a),
+        Command::BenchServe(a) => cli::bench_serve::run(a),
         Command::BenchTrain(a) => cli::bench_train::run(a),
         Command::Cameras(a) => cli::cameras::run(a),
         Command::Calibrate(a) => cli::calibrate::run(a),

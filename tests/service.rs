@@ -523,3 +523,59 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
         );
     }
 }
+
+#[test]
+fn bench_serve_measures_the_targets_on_a_tiny_rig() {
+    let dir = tempfile::tempdir().unwrap();
+    // A folder that holds something is refused before any work.
+    std::fs::write(dir.path().join("notes.txt"), "mine").unwrap();
+    let o = compend(&["bench-serve", "--out", dir.path().to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("not empty"), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("notes.txt")).unwrap(),
+        "mine"
+    );
+    if !gpu_or_skip() {
+        return;
+    }
+    let out = dir.path().join("bench");
+    let o = compend(&[
+        "bench-serve",
+        "--out",
+        out.to_str().unwrap(),
+        "--camera",
+        "160x120",
+        "--projector",
+        "200x150",
+        "--ntrain",
+        "12",
+        "--malformed",
+        "400",
+        "--swaps",
+        "1",
+        "--window",
+        "0.5",
+        "--period",
+        "0.5",
+    ]);
+    assert_code(&o, 0);
+    let r: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench-serve.json")).unwrap())
+            .unwrap();
+    assert_eq!(r["flood"]["error_replies"], 400, "{r}");
+    assert_eq!(r["flood"]["still_playing"], true, "{r}");
+    assert!(r["status"]["training"]["n"].as_u64().unwrap() > 0, "{r}");
+    assert!(
+        r["swaps"][0]["reply"]
+            .as_str()
+            .unwrap()
+            .contains("swapped in"),
+        "{r}"
+    );
+    assert!(r["drift"]["detected_after_s"].is_number(), "{r}");
+    for stop in r["stops"].as_array().unwrap() {
+        assert_eq!(stop["exit_code"], 0, "{r}");
+    }
+    assert!(out.join("bench-serve.md").is_file());
+}
