@@ -101,6 +101,15 @@ pub struct CalibrationConfig {
     pub on_start: OnStart,
     /// Calibration run folders the service keeps under `[paths] data` (0: all).
     pub keep_runs: usize,
+    /// Progressive calibration: the rung trained in the background, on the same captures, once
+    /// a calibration has installed its model and playback has started; `None`: no climb.
+    #[serde(serialize_with = "display_or_none")]
+    pub climb: Option<crate::model::Method>,
+    /// PSNR gain on the held-out test pairs (paper protocol, dB) the climbed rung needs over
+    /// the installed model to be swapped in and installed.
+    pub climb_gain_db: f64,
+    /// Iterations of the climbed rung's training; `None`: its own schedule.
+    pub climb_iters: Option<usize>,
 }
 
 /// `[playback]`.
@@ -164,6 +173,16 @@ pub struct Config {
     pub monitoring: MonitoringConfig,
     pub socket: SocketConfig,
     pub log: LogConfig,
+}
+
+fn display_or_none<T: std::fmt::Display, S: serde::Serializer>(
+    v: &Option<T>,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    match v {
+        Some(v) => s.collect_str(v),
+        None => s.serialize_str("none"),
+    }
 }
 
 fn display<T: std::fmt::Display, S: serde::Serializer>(
@@ -488,6 +507,16 @@ impl<'t> Walker<'t> {
                 ],
             ),
             keep_runs: self.get(t, "keep_runs").unwrap_or(3),
+            climb: self
+                .parsed_with(t, "climb", |s| match s {
+                    "none" => Ok(None),
+                    rung => crate::model::Method::from_str(rung)
+                        .map(Some)
+                        .map_err(|e| format!("{e}; or \"none\"")),
+                })
+                .unwrap_or(None),
+            climb_gain_db: self.checked(t, "climb_gain_db", 0.5, |v: &f64| finite(*v)),
+            climb_iters: self.get::<usize>(t, "climb_iters").filter(|&n| n > 0),
         }
     }
 

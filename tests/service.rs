@@ -579,3 +579,77 @@ fn bench_serve_measures_the_targets_on_a_tiny_rig() {
     }
     assert!(out.join("bench-serve.md").is_file());
 }
+
+#[test]
+fn progressive_calibration_climbs_only_when_the_held_out_pairs_say_so() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), "curved-ambient", 6, "", "enabled = false");
+    let base = std::fs::read_to_string(&config).unwrap();
+    let climbing = |gain: &str| {
+        base.replace(
+            "network = \"64\"",
+            &format!(
+                "network = \"64\"\nclimb = \"compennet++-cpu\"\nclimb_iters = 8\n\
+                 climb_gain_db = {gain}"
+            ),
+        )
+    };
+    // A margin no rung can show: the climb trains, is judged and changes nothing.
+    std::fs::write(&config, climbing("100.0")).unwrap();
+    let mut svc = Service::start(&config);
+    svc.wait_for("playback of the calibrated model", 300, playing);
+    let model = dir.path().join("state/model");
+    let weights = std::fs::read(model.join("model.safetensors")).unwrap();
+    let start = Instant::now();
+    while !svc.log().contains("progressive calibration: kept linear") {
+        assert!(
+            start.elapsed() < Duration::from_secs(300),
+            "log:\n{}",
+            svc.log()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    assert_eq!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        weights
+    );
+    assert_eq!(svc.status()["model"]["method"], "linear");
+
+    // Any gain will do (reloaded with SIGHUP), and a recalibration: the climbed rung is installed
+    // and swapped in while playing, with its evidence.
+    std::fs::write(&config, climbing("-100.0")).unwrap();
+    unsafe { libc::kill(svc.pid(), libc::SIGHUP) };
+    let start = Instant::now();
+    while !svc.log().contains("reload: configuration applied") {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "log:\n{}",
+            svc.log()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(svc.ask(r#"{"cmd":"recalibrate"}"#)["ok"], true);
+    let s = svc.wait_for("the climbed model playing", 300, |s| {
+        playing(s) && s["model"]["method"] == "compennet++-cpu"
+    });
+    assert_eq!(s["calibrations"], 2, "{s}");
+    let climb = &s["model"]["climb"];
+    assert_eq!(climb["replaced"], "linear", "{s}");
+    assert!(
+        climb["psnr"].is_number() && climb["replaced_psnr"].is_number(),
+        "{s}"
+    );
+    let meta: Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    assert_eq!(meta["method"], "compennet++-cpu", "{meta}");
+    assert_eq!(meta["calibration"]["climb"]["replaced"], "linear", "{meta}");
+    // It plays on: frames keep coming after the swap.
+    let a = svc.status()["frames"]["shown"].as_u64().unwrap();
+    std::thread::sleep(Duration::from_millis(700));
+    assert!(svc.status()["frames"]["shown"].as_u64().unwrap() > a);
+    unsafe { libc::kill(svc.pid(), libc::SIGTERM) };
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+}

@@ -195,6 +195,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         retakes: capturer.retakes,
         seconds,
         verification,
+        climb: None,
     };
     Ok(Calibrated {
         model,

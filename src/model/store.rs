@@ -74,7 +74,28 @@ pub struct CalibrationRecord {
     pub retakes: usize,
     /// Seconds per phase.
     pub seconds: PhaseSeconds,
+    /// The closed-loop verification of the model this calibration installed (for a climbed
+    /// model: of the rung it replaced; its own evidence is in `climb`).
     pub verification: Verification,
+    /// Set when this model was climbed to after the calibration (progressive calibration): how
+    /// it beat the model it replaced on the calibration's held-out test pairs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub climb: Option<ClimbRecord>,
+}
+
+/// Progressive calibration's evidence: the climbed rung and the model it replaced, scored on the
+/// calibration's held-out test pairs (paper protocol: network pixels, encoded values).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ClimbRecord {
+    /// The method of the model it replaced.
+    pub replaced: String,
+    /// Held-out PSNR of this model and of the one it replaced, dB.
+    pub psnr: f64,
+    pub replaced_psnr: f64,
+    /// The gain it needed, dB.
+    pub required_gain_db: f64,
+    /// Training and scoring, seconds.
+    pub seconds: f64,
 }
 
 /// Seconds of each phase of a calibration.

@@ -22,6 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant, SystemTime};
 
+use super::climb;
 #[cfg(target_os = "linux")]
 use super::devices::Hardware;
 pub use super::devices::rig_name;
@@ -68,6 +69,9 @@ pub struct Engine {
     baseline: Option<f64>,
     /// A configuration that came while calibrating, applied after it.
     reload: Option<Box<Config>>,
+    /// Progressive calibration: the climb to start with the next playback, or the one under way.
+    climb_plan: Option<climb::Plan>,
+    climb: Option<climb::Climb>,
 }
 
 impl Engine {
@@ -93,6 +97,8 @@ impl Engine {
             next: Next::Wait,
             baseline: None,
             reload: None,
+            climb_plan: None,
+            climb: None,
         };
         let path = engine.model_path.clone();
         if path.join(crate::model::store::META_FILE).is_file()
@@ -272,6 +278,9 @@ impl Engine {
     /// size is refused.
     fn use_model(&mut self, path: &Path) -> Result<()> {
         let model = load_model(path, self.devices.camera_size())?;
+        // A climb from the model it replaces would install over the operator's choice.
+        self.climb = None;
+        self.climb_plan = None;
         if let Devices::Virtual(v) = &mut self.devices {
             match_exposure(&mut v.rig, &model)?;
         }
@@ -289,6 +298,9 @@ impl Engine {
     fn calibrate(&mut self) {
         let cancel = self.io.shared.cancel.clone();
         cancel.store(false, Ordering::Relaxed);
+        // A climb from the previous calibration is moot (and must not install over this one).
+        self.climb = None;
+        self.climb_plan = None;
         let runs = Runs::new(&self.config.paths.data);
         let started = Instant::now();
         let run = match runs.begin(&rig_name(&self.config), SystemTime::now()) {
@@ -323,9 +335,26 @@ impl Engine {
                     s.total
                 );
                 let out = self.config.paths.model.clone();
-                match calibrate::install(done, &out) {
+                let setup = done.setup.clone();
+                let installed = {
+                    let _guard = climb::INSTALL.lock().unwrap_or_else(|e| e.into_inner());
+                    calibrate::install(done, &out)
+                };
+                match installed {
                     Ok(model) => {
                         tracing::info!("installed {} into {}", model.meta.method, out.display());
+                        let c = &self.config.calibration;
+                        self.climb_plan =
+                            c.climb
+                                .filter(|m| *m != model.meta.method)
+                                .map(|method| climb::Plan {
+                                    method,
+                                    iters: c.climb_iters,
+                                    gain_db: c.climb_gain_db,
+                                    root: data.clone(),
+                                    setup,
+                                    model: out.clone(),
+                                });
                         self.io.shared.update(|s| {
                             s.model = Some(ModelStatus::of(&out, &model));
                             s.monitoring = Monitoring::fresh(&s.monitoring);
@@ -492,6 +521,13 @@ impl Engine {
         let stats_every = Duration::from_secs_f64(self.config.log.stats_period_s);
         let fps = self.config.rig.fps;
         let drift_after = self.config.rig.drift_after_s;
+        if let Some(plan) = self.climb_plan.take() {
+            let display = self.devices.display_size();
+            match climb::Climb::start(plan, self.devices.context().clone(), display) {
+                Ok(c) => self.climb = Some(c),
+                Err(e) => self.io.fail("progressive calibration", &e),
+            }
+        }
         let result = match &mut self.devices {
             Devices::Virtual(v) => {
                 if v.drift_at.is_none()
@@ -504,9 +540,8 @@ impl Engine {
                     v,
                     model,
                     (range, source, fps),
-                    &mut self.io,
-                    monitor.clone(),
-                    (period, stats_every),
+                    (&mut self.io, &mut self.climb),
+                    (monitor.clone(), (period, stats_every)),
                     &before,
                 )
             }
@@ -527,8 +562,10 @@ impl Engine {
                             (camera, size),
                         );
                         screen.before = before.clone();
+                        screen.climb = self.climb.take();
                         let stats = player.run(&mut screen, None);
                         screen.settle();
+                        self.climb = screen.climb.take();
                         stats.map(|stats| Ended {
                             stats,
                             pending: screen.pending.take(),
@@ -630,14 +667,14 @@ fn busy(ev: Event, phase: &str, next: &mut Next, reload: &mut Option<Box<Config>
 /// Plays on the virtual rig: its projector shows the pass's output, its camera (set to one
 /// exposure per shown frame, no delay) watches on a thread of its own and feeds monitoring.
 /// `(range, source, fps)`: content mapped into `range`, from `source`, shown at `fps`;
-/// `timing`: the monitoring and log periods.
+/// `timing`: the monitoring and log periods. A climb under way goes on during the playback and
+/// stays in `climb` if it has not ended.
 fn play_virtual(
     v: &mut VirtualDevices,
     model: &Model,
     (range, source, fps): (DisplayRange, Box<dyn source::VideoSource>, f64),
-    io: &mut Io,
-    monitor: Option<Arc<Tap>>,
-    timing: (Duration, Duration),
+    (io, climb): (&mut Io, &mut Option<climb::Climb>),
+    (monitor, timing): (Option<Arc<Tap>>, (Duration, Duration)),
     before: &Frames,
 ) -> Result<Ended> {
     v.rig.set_latency(Latency {
@@ -669,11 +706,13 @@ fn play_virtual(
     let mut screen = ServiceScreen::new(&mut sink, io, monitor, timing, sizes);
     screen.before = before.clone();
     screen.rig = Some(v.rig.clone());
+    screen.climb = climb.take();
     if let Some(at) = v.drift_at {
         screen.drift = Some((v.rig.clone(), at));
     }
     let stats = player.run(&mut screen, None);
     screen.settle();
+    *climb = screen.climb.take();
     if screen.drift.is_none() {
         // The rig moved during this playback: never again.
         v.drift_at = None;

@@ -18,6 +18,7 @@
 //! `status` is answered by the socket tasks from a shared snapshot ([`Shared`]) the engine
 //! updates, so it answers while the engine is busy training.
 
+mod climb;
 mod devices;
 pub mod engine;
 mod monitor;

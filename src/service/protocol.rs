@@ -22,7 +22,7 @@ use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 
 use crate::model::Model;
-use crate::model::store::Verification;
+use crate::model::store::{ClimbRecord, Verification};
 
 /// The longest request line taken, bytes; a longer one gets an error reply and is skipped.
 pub const MAX_REQUEST_BYTES: usize = 64 * 1024;
@@ -126,6 +126,10 @@ pub struct ModelStatus {
     pub method: String,
     /// Its verification figures, when `compend calibrate` (or the service) made it.
     pub verification: Option<Verification>,
+    /// Set when progressive calibration climbed to it: its held-out figures against the model
+    /// it replaced.
+    #[serde(default)]
+    pub climb: Option<ClimbRecord>,
 }
 
 impl ModelStatus {
@@ -139,6 +143,11 @@ impl ModelStatus {
                 .calibration
                 .as_ref()
                 .map(|c| c.verification.clone()),
+            climb: model
+                .meta
+                .calibration
+                .as_ref()
+                .and_then(|c| c.climb.clone()),
         }
     }
 }

@@ -7,6 +7,7 @@ use std::sync::Arc;
 use std::sync::mpsc::{self, TryRecvError};
 use std::time::{Duration, Instant};
 
+use super::climb::{Climb, Outcome};
 use super::devices::{load_model, match_exposure};
 use super::monitor::Tap;
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request};
@@ -86,6 +87,8 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     camera: ImageSize,
     display: ImageSize,
     loading: Option<Loading>,
+    /// Progressive calibration under way (it outlives a playback: the engine keeps it).
+    pub(super) climb: Option<Climb>,
     /// A model swapped in during this playback, and where it came from: the engine serves it
     /// from now on.
     pub(super) swapped: Option<(PathBuf, Model)>,
@@ -118,6 +121,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             camera,
             display,
             loading: None,
+            climb: None,
             swapped: None,
         }
     }
@@ -210,6 +214,71 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             l.path.display()
         )));
         self.swapped = Some((l.path, model));
+        // A climb from the model it replaced would install over the operator's choice.
+        self.climb = None;
+        Some(pass)
+    }
+
+    /// The climb's outcome, once there is one: a better model installed is swapped in (its
+    /// pass for the player); otherwise the log says why nothing changed.
+    fn climbed(&mut self) -> Option<CompensationPass> {
+        let outcome = self.climb.as_ref()?.poll()?;
+        let climb = self.climb.take()?;
+        let (method, seconds) = (climb.plan.method, climb.seconds());
+        let (model, pass) = match outcome {
+            Err(Error::Cancelled(_)) => return None,
+            Err(e) => {
+                let msg = format!("progressive calibration: climbing to {method} failed: {e}");
+                tracing::warn!("{msg}");
+                self.io.shared.update(|s| s.last_error = Some(msg));
+                return None;
+            }
+            Ok(Outcome::Kept(r)) => {
+                tracing::info!(
+                    "progressive calibration: kept {}: {method} scored {:.2} dB on the held-out \
+                     pairs against {:.2} dB ({:+.2} dB, {:+.2} needed); {seconds:.0} s",
+                    r.replaced,
+                    r.psnr,
+                    r.replaced_psnr,
+                    r.psnr - r.replaced_psnr,
+                    r.required_gain_db
+                );
+                return None;
+            }
+            Ok(Outcome::Installed(done)) => *done,
+        };
+        if let Some(rig) = &mut self.rig
+            && let Err(e) = match_exposure(rig, &model)
+        {
+            tracing::warn!("progressive calibration: {e}");
+        }
+        if let Some(r) = model
+            .meta
+            .calibration
+            .as_ref()
+            .and_then(|c| c.climb.as_ref())
+        {
+            tracing::info!(
+                "progressive calibration: installed {method} into {} and swapped it in while \
+                 playing: {:.2} dB on the held-out pairs against {:.2} dB for {} ({:+.2} dB); \
+                 {seconds:.0} s",
+                climb.plan.model.display(),
+                r.psnr,
+                r.replaced_psnr,
+                r.replaced,
+                r.psnr - r.replaced_psnr
+            );
+        }
+        let path = climb.plan.model.clone();
+        self.io.shared.update(|s| {
+            s.model = Some(ModelStatus::of(&path, &model));
+            s.monitoring = Monitoring::fresh(&s.monitoring);
+        });
+        if let Some(tap) = &self.monitor {
+            tap.reset();
+            self.next_check = Instant::now() + Duration::from_millis(500).min(self.period);
+        }
+        self.swapped = Some((path, model));
         Some(pass)
     }
 
@@ -268,7 +337,7 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
     }
 
     fn take_pass(&mut self) -> Option<CompensationPass> {
-        self.loaded(false)
+        self.loaded(false).or_else(|| self.climbed())
     }
 
     fn refreshed(&mut self, stats: &PlayStats) {
