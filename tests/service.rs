@@ -369,7 +369,22 @@ fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
         "the marker says a calibration was interrupted"
     );
 
-    // The restarted service (the socket file is stale: replaced) resumes the run.
+    // The restarted service (the socket file is stale: replaced) resumes the run; kill -9 again
+    // while it trains.
+    let mut svc = Service::start(&config);
+    svc.wait_for("training in the resumed calibration", 120, |s| {
+        s["state"] == "training"
+    });
+    unsafe { libc::kill(svc.pid(), libc::SIGKILL) };
+    assert_eq!(svc.wait_exit(10), None, "killed by a signal");
+    assert_eq!(
+        std::fs::read(model.join("model.safetensors")).unwrap(),
+        weights
+    );
+    assert_eq!(std::fs::read(model.join("model.json")).unwrap(), meta);
+    assert!(marker.is_file());
+
+    // Restarted once more, it resumes again (every capture on disk) and installs.
     let mut svc = Service::start(&config);
     let s = svc.wait_for("playback after the resumed calibration", 300, |s| {
         playing(s) && s["calibrations"] == 1
@@ -379,7 +394,7 @@ fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
         serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
     let resumed = meta["calibration"]["resumed"].as_u64().unwrap();
     assert!(
-        resumed >= 8,
+        resumed >= 40,
         "{resumed} captures resumed: {}",
         meta["calibration"]
     );
