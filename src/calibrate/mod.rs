@@ -170,6 +170,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         device: Default::default(),
         lattice: None,
         photometric: Default::default(),
+        cancel: opts.cancel.clone(),
     };
     let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
     seconds.training = t.elapsed().as_secs_f64();

@@ -71,6 +71,7 @@ pub fn run(args: Args) -> Result<()> {
         device: args.device,
         lattice: args.lattice,
         photometric: args.photometric_init.clone(),
+        cancel: None,
     };
     let bar = super::progress_bar(args.json);
     let (model, summary) = fit::fit(&setup, &req, |stage, done, total| {

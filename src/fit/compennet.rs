@@ -38,6 +38,7 @@ pub(super) fn train_compennet(
     settings.batch = req.batch;
     settings.photometric = req.photometric.clone();
     let never = std::sync::atomic::AtomicBool::new(false);
+    let cancel = req.cancel.as_deref().unwrap_or(&never);
     let (init, geometry_init) = geometry_start(
         setup,
         variant,
@@ -48,7 +49,7 @@ pub(super) fn train_compennet(
         &mut progress,
     )?;
     let (net, report) =
-        crate::nn::train::train(&prepared.data, init, &settings, &never, |done, total, _| {
+        crate::nn::train::train(&prepared.data, init, &settings, cancel, |done, total, _| {
             progress("training", done, total)
         })?;
     let net = weights_to_cpu(net, &prepared.device, prepared.size, variant)?;

@@ -51,6 +51,9 @@ pub struct Request {
     /// CompenNet++ variants: how CompenNet's weights start (default: the shipped
     /// pre-initialisation, docs/architecture.md, "Models").
     pub photometric: crate::nn::pretrain::PhotometricInit,
+    /// Set by another thread to stop a CompenNet++ training at its next iteration
+    /// ([`crate::Error::Cancelled`]); the closed-form `linear` rungs run to their end.
+    pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 /// The default output lattice of the `linear` rungs: 1.5× the network size, rounded up to a

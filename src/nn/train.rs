@@ -122,8 +122,8 @@ pub fn train(
     let mut losses = Vec::with_capacity(iters);
     for it in 0..iters {
         if cancel.load(Ordering::Relaxed) {
-            return Err(Error::Failed(format!(
-                "training cancelled at iteration {it} of {iters}"
+            return Err(Error::Cancelled(format!(
+                "the training (at iteration {it} of {iters})"
             )));
         }
         if it == lr_step {

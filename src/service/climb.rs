@@ -104,7 +104,12 @@ impl Drop for Climb {
 }
 
 /// Trains, judges and, if better, installs.
-fn climb(p: &Plan, cancel: &AtomicBool, ctx: &GpuContext, display: ImageSize) -> Result<Outcome> {
+fn climb(
+    p: &Plan,
+    cancel: &Arc<AtomicBool>,
+    ctx: &GpuContext,
+    display: ImageSize,
+) -> Result<Outcome> {
     let t = Instant::now();
     let setup = Setup::open(&p.setup, Some(&p.root))?;
     let req = fit::Request {
@@ -116,6 +121,7 @@ fn climb(p: &Plan, cancel: &AtomicBool, ctx: &GpuContext, display: ImageSize) ->
         device: Default::default(),
         lattice: None,
         photometric: Default::default(),
+        cancel: Some(cancel.clone()),
     };
     let (mut model, _) = fit::fit(&setup, &req, |_, _, _| {})?;
     let pairs = setup.load_test(None)?;

@@ -65,8 +65,9 @@ pub struct Engine {
     /// What `play` plays.
     source: String,
     next: Next,
-    /// The first monitoring score of the current model: what drift is measured against, dB.
-    baseline: Option<f64>,
+    /// The first monitoring score of the current model and the source it was measured on: what
+    /// drift is measured against, dB.
+    baseline: Option<(String, f64)>,
     /// A configuration that came while calibrating, applied after it.
     reload: Option<Box<Config>>,
     /// Progressive calibration: the climb to start with the next playback, or the one under way.
@@ -514,9 +515,14 @@ impl Engine {
         tracing::info!("{line}");
         let range = model.display_range();
         let m = &self.config.monitoring;
-        let monitor = m
-            .enabled
-            .then(|| Tap::new(self.baseline, m.drift_threshold_db));
+        let monitor = m.enabled.then(|| {
+            let recalibrate = m.on_drift == DriftPolicy::Recalibrate;
+            Tap::new(
+                self.baseline_for_source(),
+                m.drift_threshold_db,
+                recalibrate,
+            )
+        });
         let period = Duration::from_secs_f64(m.period_s);
         let stats_every = Duration::from_secs_f64(self.config.log.stats_period_s);
         let fps = self.config.rig.fps;
@@ -592,7 +598,7 @@ impl Engine {
             self.baseline = None;
         }
         if let Some(tap) = &monitor {
-            self.baseline = tap.baseline();
+            self.baseline = tap.baseline().map(|b| (self.source.clone(), b));
         }
         match result {
             Ok(Ended { stats, pending, .. }) => {
@@ -607,7 +613,7 @@ impl Engine {
                             self.next = Next::Play;
                         }
                     }
-                    None if monitor.as_ref().is_some_and(|t| t.drifted()) => {
+                    None if monitor.as_ref().is_some_and(|t| t.ends_playback()) => {
                         self.on_drift();
                     }
                     None => {
@@ -623,15 +629,19 @@ impl Engine {
         }
     }
 
-    /// Drift was found while playing: what the configuration says.
+    /// The current model's first monitoring score, if it was measured on the source about to
+    /// play: scores depend on the content, so another source starts a new baseline.
+    fn baseline_for_source(&self) -> Option<f64> {
+        self.baseline
+            .as_ref()
+            .filter(|(source, _)| *source == self.source)
+            .map(|(_, b)| *b)
+    }
+
+    /// Drift ended the playback (`on_drift = "recalibrate"`; with "report" it plays on).
     fn on_drift(&mut self) {
-        match self.config.monitoring.on_drift {
-            DriftPolicy::Recalibrate => {
-                tracing::warn!("drift: recalibrating");
-                self.next = Next::Calibrate;
-            }
-            DriftPolicy::Report => self.next = Next::Play,
-        }
+        tracing::warn!("drift: recalibrating");
+        self.next = Next::Calibrate;
     }
 }
 

@@ -2,7 +2,7 @@
 //! camera's view of that same frame, in the displayable area; a score that falls more than a
 //! threshold below the model's first one is drift.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 
 use super::Shared;
@@ -18,15 +18,37 @@ pub(super) struct Tap {
     want: Mutex<Option<(u64, CamImage, Rect)>>,
     baseline: Mutex<Option<f64>>,
     threshold_db: f64,
+    ends_playback: bool,
+    /// Consecutive checks below the baseline by more than the threshold.
+    below: AtomicU32,
     drift: AtomicBool,
 }
 
+/// Consecutive checks past the threshold that make drift: one hard frame of content is not a
+/// moved projector; a move is still reported within two monitoring periods.
+pub(super) const CONFIRM_CHECKS: u32 = 2;
+
+/// The run of checks past the threshold after one scoring `psnr` (dB) against `baseline`, given
+/// the run before it, and whether that run is drift.
+fn judge(baseline: f64, psnr: f64, threshold_db: f64, run: u32) -> (u32, bool) {
+    let run = if baseline - psnr > threshold_db {
+        run + 1
+    } else {
+        0
+    };
+    (run, run >= CONFIRM_CHECKS)
+}
+
 impl Tap {
-    pub(super) fn new(baseline: Option<f64>, threshold_db: f64) -> Arc<Self> {
+    /// `ends_playback`: drift ends the playback (the engine recalibrates); otherwise it is
+    /// reported and playback goes on.
+    pub(super) fn new(baseline: Option<f64>, threshold_db: f64, ends_playback: bool) -> Arc<Self> {
         Arc::new(Self {
             want: Mutex::new(None),
             baseline: Mutex::new(baseline),
             threshold_db,
+            ends_playback,
+            below: AtomicU32::new(0),
             drift: AtomicBool::new(false),
         })
     }
@@ -35,8 +57,9 @@ impl Tap {
         *self.baseline.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    pub(super) fn drifted(&self) -> bool {
-        self.drift.load(Ordering::Relaxed)
+    /// Drift was found and it ends the playback.
+    pub(super) fn ends_playback(&self) -> bool {
+        self.ends_playback && self.drift.load(Ordering::Relaxed)
     }
 
     /// Asks for the camera's view of frame `seq`, whose desired view is `desired`, to be scored
@@ -50,6 +73,7 @@ impl Tap {
     pub(super) fn reset(&self) {
         *self.baseline.lock().unwrap_or_else(|e| e.into_inner()) = None;
         *self.want.lock().unwrap_or_else(|e| e.into_inner()) = None;
+        self.below.store(0, Ordering::Relaxed);
         self.drift.store(false, Ordering::Relaxed);
     }
 
@@ -86,18 +110,26 @@ impl Tap {
             let mut b = self.baseline.lock().unwrap_or_else(|e| e.into_inner());
             *b.get_or_insert(s.psnr)
         };
-        let drift = baseline - s.psnr > self.threshold_db;
+        let run = self.below.load(Ordering::Relaxed);
+        let (run, drift) = judge(baseline, s.psnr, self.threshold_db, run);
+        self.below.store(run, Ordering::Relaxed);
         tracing::info!(
             "monitoring: frame {seq}: {:.2} dB / SSIM {:.3} in the displayable area (baseline \
              {baseline:.2} dB){}",
             s.psnr,
             s.ssim,
-            if drift { "; DRIFT" } else { "" }
+            match (drift, run) {
+                (true, _) => "; DRIFT".to_string(),
+                (false, 0) => String::new(),
+                (false, n) =>
+                    format!("; below by more than the threshold ({n} of {CONFIRM_CHECKS})"),
+            }
         );
         if drift && !self.drift.swap(true, Ordering::Relaxed) {
             tracing::warn!(
                 "drift: the compensated projection scores {:.2} dB, {:.2} dB below the {:.2} dB \
-                 measured after installation (threshold {:.2} dB)",
+                 measured after installation ({CONFIRM_CHECKS} checks in a row past the \
+                 threshold of {:.2} dB)",
                 s.psnr,
                 baseline - s.psnr,
                 baseline,
@@ -116,5 +148,27 @@ impl Tap {
             }
             m.drift = drift;
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn drift_needs_consecutive_checks_past_the_threshold() {
+        // baseline 30 dB, threshold 3 dB.
+        let mut run = 0;
+        let mut drifts = Vec::new();
+        for psnr in [29.0, 26.5, 29.5, 26.9, 26.0, 25.0, 29.0] {
+            let (r, d) = judge(30.0, psnr, 3.0, run);
+            run = r;
+            drifts.push(d);
+        }
+        // One hard frame (26.5) is not drift; two in a row (26.9, 26.0) are, and so on until a
+        // check comes back within the threshold.
+        assert_eq!(drifts, [false, false, false, false, true, true, false]);
+        // Exactly at the threshold is not past it.
+        assert_eq!(judge(30.0, 27.0, 3.0, 1), (0, false));
     }
 }

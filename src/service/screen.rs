@@ -330,7 +330,7 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
             }
             self.drift = None;
         }
-        if self.monitor.as_ref().is_some_and(|t| t.drifted()) {
+        if self.monitor.as_ref().is_some_and(|t| t.ends_playback()) {
             return false;
         }
         self.inner.keep_going()

@@ -262,6 +262,7 @@ impl SceneBench<'_> {
             device: Default::default(),
             lattice: None,
             photometric: Default::default(),
+            cancel: None,
         };
         let mut row = Row {
             scene: scene.into(),
