@@ -369,12 +369,14 @@ fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
         "the marker says a calibration was interrupted"
     );
 
-    // The restarted service (the socket file is stale: replaced) resumes the run; kill -9 again
-    // while it trains.
+    // The restarted service (the socket file is stale: replaced) resumes the run: the captures
+    // it lacks, then the training beside playback of the installed model. Kill -9 again while
+    // it trains.
     let mut svc = Service::start(&config);
-    svc.wait_for("training in the resumed calibration", 120, |s| {
-        s["state"] == "training"
+    let s = svc.wait_for("training beside playback", 120, |s| {
+        s["state"] == "playing" && !s["calibration"].is_null()
     });
+    assert_eq!(s["model"]["method"], "linear", "the old model plays: {s}");
     unsafe { libc::kill(svc.pid(), libc::SIGKILL) };
     assert_eq!(svc.wait_exit(10), None, "killed by a signal");
     assert_eq!(
@@ -438,6 +440,11 @@ fn drift_is_detected_and_recalibrated() {
     assert!(s["monitoring"]["drifts"].as_u64() >= Some(1), "{s}");
     let log = svc.log();
     assert!(log.contains("drift: recalibrating"), "{log}");
+    // The old model played while the new one trained.
+    assert!(
+        log.contains("training linear beside playback of the current model"),
+        "{log}"
+    );
     // Two run folders: the recalibration captured afresh.
     let runs = std::fs::read_dir(dir.path().join("state/calibration"))
         .unwrap()

@@ -92,7 +92,8 @@ pub struct Calibrated {
 pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
 
 /// Runs the whole calibration into the data root `data` (created; its setup is
-/// `data/capture`). See the module documentation for the phases.
+/// `data/capture`). See the module documentation for the phases: [`capture`], [`train`] and
+/// [`verify_model`] in a row.
 pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
@@ -100,7 +101,42 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     opts: &Options,
     progress: Progress,
 ) -> Result<Calibrated> {
-    let total = Instant::now();
+    let mut captured = capture(display, camera, data, opts, progress)?;
+    let model = train(&mut captured, opts, progress)?;
+    verify_model(display, camera, captured, model, opts, progress)
+}
+
+/// What the capture phases leave for training and verification.
+pub struct Captured {
+    root: DataRoot,
+    setup: PathBuf,
+    desired: Desired,
+    exposure: Option<exposure::ExposureReport>,
+    latency: Latency,
+    captured: usize,
+    resumed: usize,
+    retakes: usize,
+    seconds: PhaseSeconds,
+    started: Instant,
+}
+
+impl Captured {
+    /// The setup folder the captures are in.
+    pub fn setup(&self) -> &Path {
+        &self.setup
+    }
+}
+
+/// Phases 0–3: exposure, latency, patterns and captures into the data root `data` (created;
+/// its setup is `data/capture`), and the desired views the verification compares with.
+pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    data: &Path,
+    opts: &Options,
+    progress: Progress,
+) -> Result<Captured> {
+    let started = Instant::now();
     let mut seconds = PhaseSeconds::default();
     if display.size() != opts.patterns.projector {
         return Err(Error::Input(format!(
@@ -155,12 +191,28 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         capturer.retakes,
         seconds.captures
     );
-
+    let retakes = capturer.retakes;
     let desired = write_desired(&root, &setup, opts)?;
+    Ok(Captured {
+        setup: setup.path().to_path_buf(),
+        root,
+        desired,
+        exposure,
+        latency,
+        captured,
+        resumed,
+        retakes,
+        seconds,
+        started,
+    })
+}
 
+/// Phase 4: fits the requested rung on the captures. Uses no device, so it may run on another
+/// thread while the projector shows something else.
+pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Result<Model> {
     opts.check_cancelled()?;
     let t = Instant::now();
-    let setup = Setup::open(setup.path(), Some(root.path()))?;
+    let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
     let req = Request {
         method: opts.method,
         ntrain: Some(opts.patterns.ntrain),
@@ -173,19 +225,45 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         cancel: opts.cancel.clone(),
     };
     let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
-    seconds.training = t.elapsed().as_secs_f64();
+    captured.seconds.training = t.elapsed().as_secs_f64();
     tracing::info!(
         "training: {} in {:.1} s",
         model.meta.method,
-        seconds.training
+        captured.seconds.training
     );
+    Ok(model)
+}
 
+/// Phase 5: projects held-out test images compensated by `model` and as they are, scores them
+/// and writes the record. The projector may have shown other things since the captures (the
+/// service plays while it trains): synchronisation starts afresh from the measured latency.
+pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    captured: Captured,
+    model: Model,
+    opts: &Options,
+    progress: Progress,
+) -> Result<Calibrated> {
+    let Captured {
+        root,
+        setup,
+        desired,
+        exposure,
+        latency,
+        captured,
+        resumed,
+        retakes,
+        mut seconds,
+        started,
+    } = captured;
     opts.check_cancelled()?;
     let t = Instant::now();
+    let mut capturer = Capturer::new(display, camera, &latency, opts.sync);
     let verification = verify(&mut capturer, &model, &root, &desired, opts, progress)?;
     seconds.verification = t.elapsed().as_secs_f64();
     opts.check_cancelled()?;
-    seconds.total = total.elapsed().as_secs_f64();
+    seconds.total = started.elapsed().as_secs_f64();
     let record = CalibrationRecord {
         rig: opts.rig.clone(),
         exposure,
@@ -193,7 +271,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         latency,
         captured,
         resumed,
-        retakes: capturer.retakes,
+        retakes: retakes + capturer.retakes,
         seconds,
         verification,
         climb: None,
@@ -201,7 +279,7 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     Ok(Calibrated {
         model,
         record,
-        setup: setup.path().to_path_buf(),
+        setup,
     })
 }
 

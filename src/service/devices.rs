@@ -33,6 +33,8 @@ pub(super) struct VirtualDevices {
     pub(super) ctx: GpuContext,
     /// When the projector is moved to the scene's drifted pose (`[rig] drift_after_s`), once.
     pub(super) drift_at: Option<Instant>,
+    /// The projector was moved: it is not moved again.
+    pub(super) moved: bool,
 }
 
 /// Real hardware: the projector window and a V4L2 camera.
@@ -77,6 +79,7 @@ impl Devices {
                     scene,
                     ctx,
                     drift_at: None,
+                    moved: false,
                 })))
             }
             RigKind::Window => Err(Error::Input(

@@ -4,6 +4,7 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, TryRecvError};
 use std::time::{Duration, Instant};
 
@@ -89,6 +90,8 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     loading: Option<Loading>,
     /// Progressive calibration under way (it outlives a playback: the engine keeps it).
     pub(super) climb: Option<Climb>,
+    /// Ends the playback once set (a calibration's training beside it has ended).
+    pub(super) end_when: Option<Arc<AtomicBool>>,
     /// A model swapped in during this playback, and where it came from: the engine serves it
     /// from now on.
     pub(super) swapped: Option<(PathBuf, Model)>,
@@ -122,6 +125,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             display,
             loading: None,
             climb: None,
+            end_when: None,
             swapped: None,
         }
     }
@@ -330,7 +334,12 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
             }
             self.drift = None;
         }
-        if self.monitor.as_ref().is_some_and(|t| t.ends_playback()) {
+        if self.monitor.as_ref().is_some_and(|t| t.ends_playback())
+            || self
+                .end_when
+                .as_ref()
+                .is_some_and(|f| f.load(Ordering::Relaxed))
+        {
             return false;
         }
         self.inner.keep_going()

@@ -18,27 +18,24 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use super::climb;
-#[cfg(target_os = "linux")]
-use super::devices::Hardware;
+mod calibration;
+
 pub use super::devices::rig_name;
 use super::devices::{Devices, VirtualDevices, load_model, match_exposure};
 use super::monitor::Tap;
 use super::notify::Notifier;
-use super::protocol::{
-    CalibrationProgress, Frames, ModelStatus, Monitoring, Reply, Request, State,
-};
+use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::screen::{ServiceScreen, set_frames};
 use super::{Event, Io, Shared};
 use crate::calibrate::runs::Runs;
-use crate::calibrate::{self, Options, PatternSet, SyncSettings};
 use crate::config::{Config, DriftPolicy};
 use crate::device::{DisplaySink, FrameSource};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::fov::DisplayRange;
 use crate::model::Model;
 use crate::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
@@ -73,6 +70,10 @@ pub struct Engine {
     /// Progressive calibration: the climb to start with the next playback, or the one under way.
     climb_plan: Option<climb::Plan>,
     climb: Option<climb::Climb>,
+    /// A calibration's model training beside playback.
+    training: Option<calibration::Training>,
+    /// When the calibration under way began.
+    calibration_started: Instant,
 }
 
 impl Engine {
@@ -100,6 +101,8 @@ impl Engine {
             reload: None,
             climb_plan: None,
             climb: None,
+            training: None,
+            calibration_started: Instant::now(),
         };
         let path = engine.model_path.clone();
         if path.join(crate::model::store::META_FILE).is_file()
@@ -185,6 +188,25 @@ impl Engine {
             Ok(ev) => self.handle(ev),
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => self.next = Next::Stop,
+        }
+        if self.next == Next::Wait {
+            self.training_ended();
+        }
+    }
+
+    /// A training beside playback that has ended goes on to its verification.
+    fn training_ended(&mut self) -> bool {
+        let Some(t) = &self.training else {
+            return false;
+        };
+        if let Some((captured, model)) = t.poll() {
+            self.trained(captured, model);
+            true
+        } else if t.lost() {
+            self.training_lost();
+            true
+        } else {
+            false
         }
     }
 
@@ -295,183 +317,6 @@ impl Engine {
         Ok(())
     }
 
-    /// A whole calibration; installs the model if it verifies.
-    fn calibrate(&mut self) {
-        let cancel = self.io.shared.cancel.clone();
-        cancel.store(false, Ordering::Relaxed);
-        // A climb from the previous calibration is moot (and must not install over this one).
-        self.climb = None;
-        self.climb_plan = None;
-        let runs = Runs::new(&self.config.paths.data);
-        let started = Instant::now();
-        let run = match runs.begin(&rig_name(&self.config), SystemTime::now()) {
-            Ok(r) => r,
-            Err(e) => {
-                self.io.fail("calibration", &e);
-                self.next = self.after_calibration();
-                return;
-            }
-        };
-        let data = run.data;
-        self.io.state(State::Calibrating, "calibrating");
-        tracing::info!("calibration into {}", data.display());
-        let result = self.run_calibration(&data, &cancel, started);
-        self.io.shared.update(|s| {
-            s.calibration = None;
-            s.calibrations += 1;
-        });
-        match result {
-            Ok(done) => {
-                let v = done.record.verification.clone();
-                let s = done.record.seconds.clone();
-                tracing::info!(
-                    "calibration: {} captures taken, {} found on disk; verification {:.2} dB / \
-                     SSIM {:.3} against {:.2} dB uncompensated ({:+.2} dB); {:.1} s",
-                    done.record.captured,
-                    done.record.resumed,
-                    v.psnr,
-                    v.ssim,
-                    v.uncompensated_psnr,
-                    v.gain_db,
-                    s.total
-                );
-                let out = self.config.paths.model.clone();
-                let setup = done.setup.clone();
-                let installed = {
-                    let _guard = climb::INSTALL.lock().unwrap_or_else(|e| e.into_inner());
-                    calibrate::install(done, &out)
-                };
-                match installed {
-                    Ok(model) => {
-                        tracing::info!("installed {} into {}", model.meta.method, out.display());
-                        let c = &self.config.calibration;
-                        self.climb_plan =
-                            c.climb
-                                .filter(|m| *m != model.meta.method)
-                                .map(|method| climb::Plan {
-                                    method,
-                                    iters: c.climb_iters,
-                                    gain_db: c.climb_gain_db,
-                                    root: data.clone(),
-                                    setup,
-                                    model: out.clone(),
-                                });
-                        self.io.shared.update(|s| {
-                            s.model = Some(ModelStatus::of(&out, &model));
-                            s.monitoring = Monitoring::fresh(&s.monitoring);
-                            s.last_error = None;
-                        });
-                        self.model = Some(model);
-                        self.model_path = out;
-                        self.baseline = None;
-                    }
-                    Err(e) => self.io.fail("the new model was not installed", &e),
-                }
-                runs.end();
-                runs.prune(self.config.calibration.keep_runs);
-            }
-            Err(Error::Cancelled(_)) => {
-                tracing::info!(
-                    "calibration cancelled; its captures stay in {} for the next run",
-                    data.display()
-                );
-            }
-            Err(e) => {
-                self.io.fail("calibration failed", &e);
-                // A refused setup is not retried at every start; a failed operation (a camera
-                // gone, a full disk) is resumed by the next calibration.
-                if e.exit_code() != 1 {
-                    runs.end();
-                }
-            }
-        }
-        if self.next != Next::Stop {
-            self.next = self.after_calibration();
-        }
-    }
-
-    /// After a calibration: play if there is a model and the configuration says so.
-    fn after_calibration(&mut self) -> Next {
-        if self.model.is_some() && self.config.playback.autoplay {
-            Next::Play
-        } else {
-            let line = if self.model.is_some() {
-                "idle"
-            } else {
-                "idle: no model installed"
-            };
-            self.io.state(State::Idle, line);
-            self.io.notify.ready(line);
-            Next::Wait
-        }
-    }
-
-    fn run_calibration(
-        &mut self,
-        data: &Path,
-        cancel: &Arc<AtomicBool>,
-        started: Instant,
-    ) -> Result<calibrate::Calibrated> {
-        let c = &self.config.calibration;
-        let opts = Options {
-            patterns: PatternSet {
-                seed: self.config.rig.seed,
-                ntrain: c.ntrain,
-                ntest: c.ntest,
-                network: c.network,
-                projector: self.devices.display_size(),
-                gray_level: crate::patterns::DEFAULT_GRAY_LEVEL,
-            },
-            method: c.method,
-            fit_seed: 0,
-            sync: SyncSettings {
-                average: c.average,
-                ..SyncSettings::default()
-            },
-            verify_images: c.verify,
-            required_gain_db: c.min_gain_db,
-            rig: rig_name(&self.config),
-            cancel: Some(cancel.clone()),
-        };
-        let io = &mut self.io;
-        let next = &mut self.next;
-        let reload = &mut self.reload;
-        let mut progress = |phase: &str, done: usize, total: usize| {
-            let state = match phase {
-                "verification" => State::Verifying,
-                "exposure" | "latency" | "captures" => State::Calibrating,
-                _ => State::Training,
-            };
-            io.shared.update(|s| {
-                s.state = state;
-                s.calibration = Some(CalibrationProgress {
-                    phase: phase.to_string(),
-                    done,
-                    total,
-                    seconds: started.elapsed().as_secs_f64(),
-                });
-            });
-            io.notify
-                .status(&format!("{}: {phase} {done}/{total}", state.name()));
-            io.notify.ping();
-            while let Ok(ev) = io.rx.try_recv() {
-                busy(ev, phase, next, reload);
-            }
-        };
-        match &mut self.devices {
-            Devices::Virtual(v) => {
-                v.rig.set_latency(v.scene.latency.clone())?;
-                let (mut display, mut camera) = (v.rig.clone(), v.rig.clone());
-                calibrate::calibrate(&mut display, &mut camera, data, &opts, &mut progress)
-            }
-            #[cfg(target_os = "linux")]
-            Devices::Hardware(h) => {
-                let Hardware { win, camera } = &mut **h;
-                calibrate::calibrate(win, camera, data, &opts, &mut progress)
-            }
-        }
-    }
-
     /// Plays the source through the model until an event asks for something else or the
     /// source ends.
     fn play(&mut self) {
@@ -516,7 +361,9 @@ impl Engine {
         let range = model.display_range();
         let m = &self.config.monitoring;
         let monitor = m.enabled.then(|| {
-            let recalibrate = m.on_drift == DriftPolicy::Recalibrate;
+            // A calibration already under way (training beside this playback) is not started
+            // again: drift is reported only.
+            let recalibrate = m.on_drift == DriftPolicy::Recalibrate && self.training.is_none();
             Tap::new(
                 self.baseline_for_source(),
                 m.drift_threshold_db,
@@ -534,9 +381,12 @@ impl Engine {
                 Err(e) => self.io.fail("progressive calibration", &e),
             }
         }
+        // A calibration's model training beside this playback ends it when it is trained.
+        let end_when = self.training.as_ref().map(|t| t.done.clone());
         let result = match &mut self.devices {
             Devices::Virtual(v) => {
                 if v.drift_at.is_none()
+                    && !v.moved
                     && let Some(s) = drift_after
                     && v.scene.drift.is_some()
                 {
@@ -548,7 +398,7 @@ impl Engine {
                     (range, source, fps),
                     (&mut self.io, &mut self.climb),
                     (monitor.clone(), (period, stats_every)),
-                    &before,
+                    (&before, end_when),
                 )
             }
             #[cfg(target_os = "linux")]
@@ -569,6 +419,7 @@ impl Engine {
                         );
                         screen.before = before.clone();
                         screen.climb = self.climb.take();
+                        screen.end_when = end_when;
                         let stats = player.run(&mut screen, None);
                         screen.settle();
                         self.climb = screen.climb.take();
@@ -616,6 +467,7 @@ impl Engine {
                     None if monitor.as_ref().is_some_and(|t| t.ends_playback()) => {
                         self.on_drift();
                     }
+                    None if self.training_ended() => {}
                     None => {
                         tracing::info!("{}: the source ended", self.source);
                         self.io.state(State::Idle, "idle: the source ended");
@@ -645,35 +497,6 @@ impl Engine {
     }
 }
 
-/// An event that came while calibrating: `stop` and signals stop it (the cancel flag is
-/// already set), a reload waits for its end, the rest is answered "busy".
-fn busy(ev: Event, phase: &str, next: &mut Next, reload: &mut Option<Box<Config>>) {
-    match ev {
-        Event::Terminate(signal) => {
-            tracing::info!("{signal}: stopping the calibration at its next capture");
-            *next = Next::Stop;
-        }
-        Event::Reload(c) => *reload = Some(c),
-        Event::Request(env) => {
-            let reply = match env.request {
-                Request::Stop => {
-                    *next = Next::Stop;
-                    Reply::ok("stopping the calibration at its next capture")
-                }
-                Request::Status => Reply::error("status is answered by the socket"),
-                Request::Calibrate | Request::Recalibrate => {
-                    Reply::ok(format!("already calibrating ({phase})"))
-                }
-                _ => Reply::error(format!(
-                    "busy calibrating ({phase}); ask again when compend status says playing or \
-                     idle"
-                )),
-            };
-            env.answer(reply);
-        }
-    }
-}
-
 /// Plays on the virtual rig: its projector shows the pass's output, its camera (set to one
 /// exposure per shown frame, no delay) watches on a thread of its own and feeds monitoring.
 /// `(range, source, fps)`: content mapped into `range`, from `source`, shown at `fps`;
@@ -685,7 +508,7 @@ fn play_virtual(
     (range, source, fps): (DisplayRange, Box<dyn source::VideoSource>, f64),
     (io, climb): (&mut Io, &mut Option<climb::Climb>),
     (monitor, timing): (Option<Arc<Tap>>, (Duration, Duration)),
-    before: &Frames,
+    (before, end_when): (&Frames, Option<Arc<AtomicBool>>),
 ) -> Result<Ended> {
     v.rig.set_latency(Latency {
         fps,
@@ -717,15 +540,17 @@ fn play_virtual(
     screen.before = before.clone();
     screen.rig = Some(v.rig.clone());
     screen.climb = climb.take();
+    screen.end_when = end_when;
     if let Some(at) = v.drift_at {
         screen.drift = Some((v.rig.clone(), at));
     }
     let stats = player.run(&mut screen, None);
     screen.settle();
     *climb = screen.climb.take();
-    if screen.drift.is_none() {
+    if v.drift_at.is_some() && screen.drift.is_none() {
         // The rig moved during this playback: never again.
         v.drift_at = None;
+        v.moved = true;
     }
     stats.map(|stats| Ended {
         stats,

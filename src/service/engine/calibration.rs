@@ -1,0 +1,422 @@
+//! The engine's calibrations. A calibration runs in three steps (`crate::calibrate`): the
+//! captures (exposure, latency, patterns) on the engine thread with the projector; the training
+//! on a thread of its own; the verification on the engine thread with the projector again, and
+//! the install if it verified. When a model is already serving and `autoplay` is on (a
+//! recalibration, after drift say), the projector plays the old model while the new one trains,
+//! so the picture is interrupted only for the captures and the verification.
+//!
+//! Each calibration captures into a run folder of its own under `[paths] data`
+//! (`crate::calibrate::runs`), named in a marker until it ends, so a service killed at any point
+//! resumes it from the captures on disk at its next start.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, mpsc};
+use std::time::{Instant, SystemTime};
+
+use super::super::climb;
+use super::super::protocol::{CalibrationProgress, ModelStatus, Monitoring, Reply, Request, State};
+use super::super::{Event, Shared};
+use super::{Engine, Next, rig_name};
+use crate::calibrate::runs::Runs;
+use crate::calibrate::{self, Options, PatternSet, SyncSettings};
+use crate::config::Config;
+use crate::error::{Error, Result};
+use crate::model::Model;
+
+use super::super::devices::Devices;
+#[cfg(target_os = "linux")]
+use super::super::devices::Hardware;
+
+/// A model training on its own thread while the old one plays; dropped, it cancels the training
+/// (a CompenNet++ rung stops at its next iteration, `linear` at its end).
+pub(super) struct Training {
+    /// The run's data root.
+    data: PathBuf,
+    cancel: Arc<AtomicBool>,
+    /// Set once the result is sent: the playback beside it ends.
+    pub(super) done: Arc<AtomicBool>,
+    result: mpsc::Receiver<(calibrate::Captured, Result<Model>)>,
+}
+
+impl Training {
+    /// The captures and the trained model (or why not), once training has ended.
+    pub(super) fn poll(&self) -> Option<(calibrate::Captured, Result<Model>)> {
+        self.result.try_recv().ok()
+    }
+
+    /// Whether its thread is gone without an answer.
+    pub(super) fn lost(&self) -> bool {
+        matches!(
+            self.result.try_recv(),
+            Err(mpsc::TryRecvError::Disconnected)
+        )
+    }
+}
+
+impl Drop for Training {
+    fn drop(&mut self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+impl Engine {
+    /// The calibration's options from `[calibration]`, stopped by `cancel`.
+    fn calibration_options(&self, cancel: Arc<AtomicBool>) -> Options {
+        let c = &self.config.calibration;
+        Options {
+            patterns: PatternSet {
+                seed: self.config.rig.seed,
+                ntrain: c.ntrain,
+                ntest: c.ntest,
+                network: c.network,
+                projector: self.devices.display_size(),
+                gray_level: crate::patterns::DEFAULT_GRAY_LEVEL,
+            },
+            method: c.method,
+            fit_seed: 0,
+            sync: SyncSettings {
+                average: c.average,
+                ..SyncSettings::default()
+            },
+            verify_images: c.verify,
+            required_gain_db: c.min_gain_db,
+            rig: rig_name(&self.config),
+            cancel: Some(cancel),
+        }
+    }
+
+    /// A calibration: captures, then training (beside playback of the current model when there
+    /// is one to play), then verification and install ([`Engine::finish_calibration`]).
+    pub(super) fn calibrate(&mut self) {
+        let cancel = self.io.shared.cancel.clone();
+        cancel.store(false, Ordering::Relaxed);
+        // A climb or a training from the previous calibration is moot (and must not install
+        // over this one).
+        self.climb = None;
+        self.climb_plan = None;
+        self.training = None;
+        let runs = Runs::new(&self.config.paths.data);
+        self.calibration_started = Instant::now();
+        let run = match runs.begin(&rig_name(&self.config), SystemTime::now()) {
+            Ok(r) => r,
+            Err(e) => {
+                self.io.fail("calibration", &e);
+                self.next = self.after_calibration();
+                return;
+            }
+        };
+        let data = run.data;
+        self.io.state(State::Calibrating, "calibrating");
+        tracing::info!("calibration into {}", data.display());
+        let opts = self.calibration_options(cancel);
+        let captured = self.with_devices("captures", |display, camera, progress| {
+            calibrate::capture(display, camera, &data, &opts, progress)
+        });
+        let mut captured = match captured {
+            Ok(c) => c,
+            Err(e) => return self.calibration_failed(&data, e),
+        };
+        if self.next == Next::Stop {
+            return;
+        }
+        if self.model.is_some() && self.config.playback.autoplay {
+            // Train beside the playback of the current model; the playback ends when training
+            // does, and the verification follows.
+            self.training = Some(self.start_training(data, captured, &opts));
+            self.next = Next::Play;
+            return;
+        }
+        let trained = {
+            let shared = self.io.shared.clone();
+            let mut progress = training_progress(shared, self.calibration_started);
+            calibrate::train(&mut captured, &opts, &mut progress)
+        };
+        self.finish_calibration(data, captured, trained);
+    }
+
+    /// Starts training on its own thread.
+    fn start_training(
+        &mut self,
+        data: PathBuf,
+        mut captured: calibrate::Captured,
+        opts: &Options,
+    ) -> Training {
+        let cancel = Arc::new(AtomicBool::new(false));
+        let mut opts = opts.clone();
+        opts.cancel = Some(cancel.clone());
+        let (tx, result) = mpsc::channel();
+        let done = Arc::new(AtomicBool::new(false));
+        let finished = done.clone();
+        let shared = self.io.shared.clone();
+        let started = self.calibration_started;
+        tracing::info!(
+            "training {} beside playback of the current model",
+            opts.method
+        );
+        let spawned = std::thread::Builder::new()
+            .name("compend-train".into())
+            .spawn(move || {
+                let mut progress = training_progress(shared, started);
+                let model = calibrate::train(&mut captured, &opts, &mut progress);
+                let _ = tx.send((captured, model));
+                finished.store(true, Ordering::Relaxed);
+            });
+        if let Err(e) = spawned {
+            // The receiver sees a closed channel: `lost()`, reported by the engine.
+            tracing::error!("cannot start the training thread: {e}");
+            done.store(true, Ordering::Relaxed);
+        }
+        Training {
+            data,
+            cancel,
+            done,
+            result,
+        }
+    }
+
+    /// A training that ended beside playback (or in the engine's wait): verification and
+    /// install.
+    pub(super) fn trained(&mut self, captured: calibrate::Captured, model: Result<Model>) {
+        let data = match self.training.take() {
+            Some(t) => t.data.clone(),
+            None => return,
+        };
+        self.finish_calibration(data, captured, model);
+    }
+
+    /// A training whose thread ended without an answer.
+    pub(super) fn training_lost(&mut self) {
+        if let Some(t) = self.training.take() {
+            let e = Error::Failed("the training thread ended without an answer".into());
+            self.calibration_failed(&t.data, e);
+        }
+    }
+
+    /// Verifies a trained model on the projector and installs it if it passed.
+    fn finish_calibration(
+        &mut self,
+        data: PathBuf,
+        captured: calibrate::Captured,
+        model: Result<Model>,
+    ) {
+        let model = match model {
+            Ok(m) => m,
+            Err(e) => return self.calibration_failed(&data, e),
+        };
+        let setup = captured.setup().to_path_buf();
+        let opts = self.calibration_options(self.io.shared.cancel.clone());
+        let mut captured = Some(captured);
+        let mut model = Some(model);
+        let verified = self.with_devices("verification", |display, camera, progress| {
+            match (captured.take(), model.take()) {
+                (Some(c), Some(m)) => {
+                    calibrate::verify_model(display, camera, c, m, &opts, progress)
+                }
+                _ => Err(Error::Failed("the verification ran twice".into())),
+            }
+        });
+        let done = match verified {
+            Ok(d) => d,
+            Err(e) => return self.calibration_failed(&data, e),
+        };
+        self.io.shared.update(|s| {
+            s.calibration = None;
+            s.calibrations += 1;
+        });
+        let v = done.record.verification.clone();
+        tracing::info!(
+            "calibration: {} captures taken, {} found on disk; verification {:.2} dB / SSIM {:.3} \
+             against {:.2} dB uncompensated ({:+.2} dB); {:.1} s",
+            done.record.captured,
+            done.record.resumed,
+            v.psnr,
+            v.ssim,
+            v.uncompensated_psnr,
+            v.gain_db,
+            done.record.seconds.total
+        );
+        let out = self.config.paths.model.clone();
+        let installed = {
+            let _guard = climb::INSTALL.lock().unwrap_or_else(|e| e.into_inner());
+            calibrate::install(done, &out)
+        };
+        match installed {
+            Ok(model) => {
+                tracing::info!("installed {} into {}", model.meta.method, out.display());
+                let c = &self.config.calibration;
+                self.climb_plan =
+                    c.climb
+                        .filter(|m| *m != model.meta.method)
+                        .map(|method| climb::Plan {
+                            method,
+                            iters: c.climb_iters,
+                            gain_db: c.climb_gain_db,
+                            root: data.clone(),
+                            setup,
+                            model: out.clone(),
+                        });
+                self.io.shared.update(|s| {
+                    s.model = Some(ModelStatus::of(&out, &model));
+                    s.monitoring = Monitoring::fresh(&s.monitoring);
+                    s.last_error = None;
+                });
+                self.model = Some(model);
+                self.model_path = out;
+                self.baseline = None;
+            }
+            Err(e) => self.io.fail("the new model was not installed", &e),
+        }
+        let runs = Runs::new(&self.config.paths.data);
+        runs.end();
+        runs.prune(self.config.calibration.keep_runs);
+        if self.next != Next::Stop {
+            self.next = self.after_calibration();
+        }
+    }
+
+    /// A calibration that stopped: cancelled (its captures stay for the next run), refused (the
+    /// run ends) or failed (the marker stays, so the next calibration resumes it).
+    fn calibration_failed(&mut self, data: &std::path::Path, e: Error) {
+        self.io.shared.update(|s| {
+            s.calibration = None;
+            s.calibrations += 1;
+        });
+        match e {
+            Error::Cancelled(_) => tracing::info!(
+                "calibration cancelled; its captures stay in {} for the next run",
+                data.display()
+            ),
+            e => {
+                self.io.fail("calibration failed", &e);
+                // A refused setup is not retried at every start; a failed operation (a camera
+                // gone, a full disk) is resumed by the next calibration.
+                if e.exit_code() != 1 {
+                    Runs::new(&self.config.paths.data).end();
+                }
+            }
+        }
+        if self.next != Next::Stop {
+            self.next = self.after_calibration();
+        }
+    }
+
+    /// After a calibration: play if there is a model and the configuration says so.
+    pub(super) fn after_calibration(&mut self) -> Next {
+        if self.model.is_some() && self.config.playback.autoplay {
+            Next::Play
+        } else {
+            let line = if self.model.is_some() {
+                "idle"
+            } else {
+                "idle: no model installed"
+            };
+            self.io.state(State::Idle, line);
+            self.io.notify.ready(line);
+            Next::Wait
+        }
+    }
+
+    /// Runs `step` on the devices (the projector and the camera) with a progress callback that
+    /// keeps the status, systemd and the event channel served between two captures.
+    fn with_devices<T>(
+        &mut self,
+        what: &str,
+        step: impl FnOnce(
+            &mut dyn crate::device::DisplaySink,
+            &mut dyn crate::device::FrameSource,
+            calibrate::Progress,
+        ) -> Result<T>,
+    ) -> Result<T> {
+        let started = self.calibration_started;
+        let io = &mut self.io;
+        let next = &mut self.next;
+        let reload = &mut self.reload;
+        let mut progress = |phase: &str, done: usize, total: usize| {
+            let state = match phase {
+                "verification" => State::Verifying,
+                "exposure" | "latency" | "captures" => State::Calibrating,
+                _ => State::Training,
+            };
+            io.shared.update(|s| {
+                s.state = state;
+                s.calibration = Some(CalibrationProgress {
+                    phase: phase.to_string(),
+                    done,
+                    total,
+                    seconds: started.elapsed().as_secs_f64(),
+                });
+            });
+            io.notify
+                .status(&format!("{}: {phase} {done}/{total}", state.name()));
+            io.notify.ping();
+            while let Ok(ev) = io.rx.try_recv() {
+                busy(ev, phase, next, reload);
+            }
+        };
+        tracing::debug!("calibration: {what}");
+        match &mut self.devices {
+            Devices::Virtual(v) => {
+                // The scene's delay and drops (playback sets a camera that watches every frame).
+                v.rig.set_latency(v.scene.latency.clone())?;
+                let (mut display, mut camera) = (v.rig.clone(), v.rig.clone());
+                step(&mut display, &mut camera, &mut progress)
+            }
+            #[cfg(target_os = "linux")]
+            Devices::Hardware(h) => {
+                let Hardware { win, camera } = &mut **h;
+                step(win, camera, &mut progress)
+            }
+        }
+    }
+}
+
+/// The progress of a training, for the status (beside playback the state stays `playing`; the
+/// calibration's phase says what trains).
+fn training_progress(
+    shared: Arc<Shared>,
+    started: Instant,
+) -> impl FnMut(&str, usize, usize) + Send {
+    move |phase: &str, done: usize, total: usize| {
+        shared.update(|s| {
+            if s.state != State::Playing {
+                s.state = State::Training;
+            }
+            s.calibration = Some(CalibrationProgress {
+                phase: phase.to_string(),
+                done,
+                total,
+                seconds: started.elapsed().as_secs_f64(),
+            });
+        });
+    }
+}
+
+/// An event that came while calibrating: `stop` and signals stop it (the cancel flag is
+/// already set), a reload waits for its end, the rest is answered "busy".
+fn busy(ev: Event, phase: &str, next: &mut Next, reload: &mut Option<Box<Config>>) {
+    match ev {
+        Event::Terminate(signal) => {
+            tracing::info!("{signal}: stopping the calibration at its next capture");
+            *next = Next::Stop;
+        }
+        Event::Reload(c) => *reload = Some(c),
+        Event::Request(env) => {
+            let reply = match env.request {
+                Request::Stop => {
+                    *next = Next::Stop;
+                    Reply::ok("stopping the calibration at its next capture")
+                }
+                Request::Status => Reply::error("status is answered by the socket"),
+                Request::Calibrate | Request::Recalibrate => {
+                    Reply::ok(format!("already calibrating ({phase})"))
+                }
+                _ => Reply::error(format!(
+                    "busy calibrating ({phase}); ask again when compend status says playing or \
+                     idle"
+                )),
+            };
+            env.answer(reply);
+        }
+    }
+}
