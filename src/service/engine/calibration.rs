@@ -1,9 +1,10 @@
 //! The engine's calibrations. A calibration runs in three steps (`crate::calibrate`): the
 //! captures (exposure, latency, patterns) on the engine thread with the projector; the training
 //! on a thread of its own; the verification on the engine thread with the projector again, and
-//! the install if it verified. When a model is already serving and `autoplay` is on (a
-//! recalibration, after drift say), the projector plays the old model while the new one trains,
-//! so the picture is interrupted only for the captures and the verification.
+//! the install if it verified. The engine meanwhile feeds the watchdog and answers requests.
+//! When a model is already serving and `autoplay` is on (a recalibration, after drift say), the
+//! projector plays the old model while the new one trains (unless playback was paused), so the
+//! picture is interrupted only for the captures and the verification.
 //!
 //! Each calibration captures into a run folder of its own under `[paths] data`
 //! (`crate::calibrate::runs`), named in a marker until it ends, so a service killed at any point
@@ -89,6 +90,7 @@ impl Engine {
     /// A calibration: captures, then training (beside playback of the current model when there
     /// is one to play), then verification and install ([`Engine::finish_calibration`]).
     pub(super) fn calibrate(&mut self) {
+        let paused = self.io.shared.status().state == State::Paused;
         let cancel = self.io.shared.cancel.clone();
         cancel.store(false, Ordering::Relaxed);
         // A climb or a training from the previous calibration is moot (and must not install
@@ -113,26 +115,24 @@ impl Engine {
         let captured = self.with_devices("captures", |display, camera, progress| {
             calibrate::capture(display, camera, &data, &opts, progress)
         });
-        let mut captured = match captured {
+        let captured = match captured {
             Ok(c) => c,
             Err(e) => return self.calibration_failed(&data, e),
         };
         if self.next == Next::Stop {
             return;
         }
-        if self.model.is_some() && self.config.playback.autoplay {
-            // Train beside the playback of the current model; the playback ends when training
-            // does, and the verification follows.
-            self.training = Some(self.start_training(data, captured, &opts));
+        // Training runs on a thread of its own, so the engine goes on feeding the watchdog and
+        // answering requests. The current model plays meanwhile unless playback is paused or
+        // off; the playback (or the wait) ends when training does, and the verification
+        // follows.
+        self.training = Some(self.start_training(data, captured, &opts));
+        if self.model.is_some() && self.config.playback.autoplay && !paused {
             self.next = Next::Play;
-            return;
+        } else {
+            self.io.state(State::Training, "training");
+            self.next = Next::Wait;
         }
-        let trained = {
-            let shared = self.io.shared.clone();
-            let mut progress = training_progress(shared, self.calibration_started);
-            calibrate::train(&mut captured, &opts, &mut progress)
-        };
-        self.finish_calibration(data, captured, trained);
     }
 
     /// Starts training on its own thread.
@@ -371,15 +371,15 @@ impl Engine {
     }
 }
 
-/// The progress of a training, for the status (beside playback the state stays `playing`; the
-/// calibration's phase says what trains).
+/// The progress of a training, for the status (beside playback the state stays `playing` and
+/// paused stays `paused`; the calibration's phase says what trains).
 fn training_progress(
     shared: Arc<Shared>,
     started: Instant,
 ) -> impl FnMut(&str, usize, usize) + Send {
     move |phase: &str, done: usize, total: usize| {
         shared.update(|s| {
-            if s.state != State::Playing {
+            if !matches!(s.state, State::Playing | State::Paused) {
                 s.state = State::Training;
             }
             s.calibration = Some(CalibrationProgress {
