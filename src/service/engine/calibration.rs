@@ -55,6 +55,15 @@ impl Training {
     }
 }
 
+/// Sets its flag when dropped.
+struct SetOnDrop(Arc<AtomicBool>);
+
+impl Drop for SetOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
 impl Drop for Training {
     fn drop(&mut self) {
         self.cancel.store(true, Ordering::Relaxed);
@@ -157,10 +166,12 @@ impl Engine {
         let spawned = std::thread::Builder::new()
             .name("compend-train".into())
             .spawn(move || {
+                // Set however the thread ends (a panic included): the playback beside it ends
+                // and the engine finds the answer, or its absence.
+                let _done = SetOnDrop(finished);
                 let mut progress = training_progress(shared, started);
                 let model = calibrate::train(&mut captured, &opts, &mut progress);
                 let _ = tx.send((captured, model));
-                finished.store(true, Ordering::Relaxed);
             });
         if let Err(e) = spawned {
             // The receiver sees a closed channel: `lost()`, reported by the engine.
