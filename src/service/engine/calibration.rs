@@ -137,8 +137,13 @@ impl Engine {
         // follows.
         self.training = Some(self.start_training(data, captured, &opts));
         if self.model.is_some() && self.config.playback.autoplay && !paused {
+            tracing::info!(
+                "training {} beside playback of the current model",
+                opts.method
+            );
             self.next = Next::Play;
         } else {
+            tracing::info!("training {}", opts.method);
             self.io.state(State::Training, "training");
             self.next = Next::Wait;
         }
@@ -159,10 +164,6 @@ impl Engine {
         let finished = done.clone();
         let shared = self.io.shared.clone();
         let started = self.calibration_started;
-        tracing::info!(
-            "training {} beside playback of the current model",
-            opts.method
-        );
         let spawned = std::thread::Builder::new()
             .name("compend-train".into())
             .spawn(move || {
