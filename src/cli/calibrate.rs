@@ -321,12 +321,7 @@ fn scene_for(args: &Settings, name: &str, projector: Option<ImageSize>) -> Resul
         let camera = scene.camera.size();
         scene = scene.with_resolution(camera, p);
     }
-    if let Some(fps) = args.rig_fps {
-        scene.latency.fps = fps;
-    }
-    if let Some(ms) = args.rig_latency_ms {
-        scene.latency.delay_frames = (ms / 1e3 * scene.latency.fps).round() as u32;
-    }
+    scene = scene.with_timing(args.rig_fps, args.rig_latency_ms);
     scene.validate()?;
     Ok(scene)
 }

@@ -101,17 +101,7 @@ pub fn run(args: Args) -> Result<()> {
         Some(scene_name) => play_virtual(&args, &model, scene_name.as_deref(), source, mode)?,
         None => play_window(&args, &model, source, mode)?,
     };
-    eprintln!(
-        "play: {} refreshes, {} frames shown, {} held, {} dropped (source faster), {} dropped by \
-         the pipeline; pipeline {:.2} ms mean, {:.2} ms worst",
-        stats.refreshes,
-        stats.shown,
-        stats.held,
-        stats.dropped_source,
-        stats.dropped_pipeline,
-        stats.pipeline_ms_mean,
-        stats.pipeline_ms_max
-    );
+    eprintln!("play: {}", stats.summary());
     let json = serde_json::to_string(&stats)?;
     if let Some(dir) = &args.out {
         compend::files::write_atomically(&dir.join("play.json"), format!("{json}\n").as_bytes())?;

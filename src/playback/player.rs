@@ -68,6 +68,23 @@ pub struct PlayStats {
     pub seconds: f64,
 }
 
+impl PlayStats {
+    /// The counts on one line, for a person (the log, the command's summary).
+    pub fn summary(&self) -> String {
+        format!(
+            "{} refreshes, {} frames shown, {} held, {} dropped by the source (faster than the \
+             display), {} dropped by the pipeline; pipeline {:.2} ms mean, {:.2} ms worst",
+            self.refreshes,
+            self.shown,
+            self.held,
+            self.dropped_source,
+            self.dropped_pipeline,
+            self.pipeline_ms_mean,
+            self.pipeline_ms_max
+        )
+    }
+}
+
 /// How a display refreshes.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Refresh {

@@ -58,13 +58,9 @@ impl Devices {
                 let mut scene = scene::load(&r.scene)?;
                 let cam = r.camera_size.unwrap_or(scene.camera.size());
                 let prj = r.projector.unwrap_or(scene.projector.size());
-                scene = scene.with_resolution(cam, prj);
-                if let Some(fps) = r.camera_fps {
-                    scene.latency.fps = fps;
-                }
-                if let Some(ms) = r.latency_ms {
-                    scene.latency.delay_frames = (ms / 1e3 * scene.latency.fps).round() as u32;
-                }
+                scene = scene
+                    .with_resolution(cam, prj)
+                    .with_timing(r.camera_fps, r.latency_ms);
                 scene.validate()?;
                 if r.drift_after_s.is_some() && scene.drift.is_none() {
                     tracing::warn!(

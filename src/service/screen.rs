@@ -363,17 +363,7 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
         }
         if now.duration_since(self.last_stats) >= self.stats_every {
             self.last_stats = now;
-            tracing::info!(
-                "playback: {} refreshes, {} frames shown, {} held, {} dropped (source), {} \
-                 dropped (pipeline); pipeline {:.2} ms mean, {:.2} ms worst",
-                stats.refreshes,
-                stats.shown,
-                stats.held,
-                stats.dropped_source,
-                stats.dropped_pipeline,
-                stats.pipeline_ms_mean,
-                stats.pipeline_ms_max
-            );
+            tracing::info!("playback: {}", stats.summary());
         }
     }
 

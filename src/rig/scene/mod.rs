@@ -309,6 +309,18 @@ impl Scene {
         self
     }
 
+    /// Overrides the virtual camera's frame rate (Hz) and the projector-to-camera delay (ms,
+    /// rounded to whole camera frames at the resulting rate).
+    pub fn with_timing(mut self, fps: Option<f64>, latency_ms: Option<f64>) -> Self {
+        if let Some(fps) = fps {
+            self.latency.fps = fps;
+        }
+        if let Some(ms) = latency_ms {
+            self.latency.delay_frames = (ms / 1e3 * self.latency.fps).round() as u32;
+        }
+        self
+    }
+
     /// Checks values the simulator relies on; the error names the field.
     pub fn validate(&self) -> Result<()> {
         self.validate_devices()?;
