@@ -24,6 +24,10 @@ use crate::error::{Error, Result};
 use crate::model::MethodChoice;
 use crate::raster::ImageSize;
 
+/// The largest value a number of seconds, hertz or milliseconds may take (about 31 years in
+/// seconds): beyond it, durations overflow.
+const LARGEST: f64 = 1e9;
+
 /// Where the projector and the camera come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -673,12 +677,15 @@ impl<'t> Walker<'t> {
     fn optional_positive(&mut self, t: &mut Table<'t>, key: &str) -> Option<f64> {
         let span = span_of(t, key);
         let v: f64 = self.get(t, key)?;
-        if v.is_finite() && v > 0.0 {
+        if v.is_finite() && v > 0.0 && v <= LARGEST {
             Some(v)
         } else {
             self.error(
                 span,
-                format!("[{}] {key}: {v} must be a positive number", t.name),
+                format!(
+                    "[{}] {key}: {v} must be a positive number, at most {LARGEST:e}",
+                    t.name
+                ),
             );
             None
         }
@@ -687,12 +694,15 @@ impl<'t> Walker<'t> {
     fn optional_non_negative(&mut self, t: &mut Table<'t>, key: &str) -> Option<f64> {
         let span = span_of(t, key);
         let v: f64 = self.get(t, key)?;
-        if v.is_finite() && v >= 0.0 {
+        if v.is_finite() && (0.0..=LARGEST).contains(&v) {
             Some(v)
         } else {
             self.error(
                 span,
-                format!("[{}] {key}: {v} must be zero or more", t.name),
+                format!(
+                    "[{}] {key}: {v} must be zero or more, at most {LARGEST:e}",
+                    t.name
+                ),
             );
             None
         }
@@ -871,6 +881,16 @@ mod tests {
         assert!(e.contains("needs `camera`"), "{e}");
         let c = parse("[rig]\nkind = \"camera\"\ncamera = \"/dev/video0\"\n").unwrap();
         assert_eq!(c.rig.camera.as_deref(), Some(Path::new("/dev/video0")));
+    }
+
+    #[test]
+    fn durations_too_large_to_count_are_refused() {
+        let e = parse("[monitoring]\nperiod_s = 1e30\n[rig]\ndrift_after_s = 1e300\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("t.toml:2: [monitoring] period_s"), "{e}");
+        assert!(e.contains("t.toml:4: [rig] drift_after_s"), "{e}");
+        assert!(parse("[monitoring]\nperiod_s = 86400\n").is_ok());
     }
 
     #[test]

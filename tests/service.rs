@@ -300,6 +300,12 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     assert!(stdout(&o).contains("state: playing"), "{}", stdout(&o));
     assert_code(&client(&["pause"], &svc.socket), 0);
     svc.wait_for("pause", 20, |s| s["state"] == "paused");
+    // A recalibration while paused keeps the projector dark before, during and after it.
+    assert_code(&client(&["recalibrate"], &svc.socket), 0);
+    let s = svc.wait_for("the recalibration while paused", 120, |s| {
+        s["calibrations"] == 2 && s["calibration"].is_null() && s["state"] != "calibrating"
+    });
+    assert_eq!(s["state"], "paused", "{s}");
     assert_code(&client(&["play"], &svc.socket), 0);
     svc.wait_for("playback again", 30, playing);
     let o = client(

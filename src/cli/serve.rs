@@ -225,6 +225,13 @@ fn describe(s: &Status) -> String {
 }
 
 pub fn recalibrate(a: RecalibrateArgs) -> Result<()> {
+    if !(a.timeout.is_finite() && (0.0..=1e9).contains(&a.timeout)) {
+        return Err(compend::Error::Input(format!(
+            "--timeout {}: expected seconds from 0 to 1e9",
+            a.timeout
+        ))
+        .into());
+    }
     let before = send(&a.client, &Request::Status)?
         .status
         .map_or(0, |s| s.calibrations);
@@ -233,7 +240,7 @@ pub fn recalibrate(a: RecalibrateArgs) -> Result<()> {
     if !a.wait {
         return Ok(());
     }
-    let deadline = Instant::now() + Duration::from_secs_f64(a.timeout.max(0.0));
+    let deadline = Instant::now() + Duration::from_secs_f64(a.timeout);
     loop {
         std::thread::sleep(Duration::from_millis(250));
         let s = send(&a.client, &Request::Status)?

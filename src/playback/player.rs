@@ -32,6 +32,7 @@ use crate::error::{Error, Result};
 use crate::fov::DisplayRange;
 use crate::gpu::{CompensationPass, GpuContext};
 use crate::model::Model;
+use crate::playback::ContentFrame;
 use crate::raster::{CamImage, ImageSize, PrjImage};
 use crate::source::{Feed, FeedMode, Poll, VideoSource};
 
@@ -261,8 +262,11 @@ enum Step {
 pub struct Player {
     pub pass: CompensationPass,
     pub feed: Feed,
-    /// A pass handed over by the screen, in use from the next new frame on.
+    /// A pass handed over by the screen, in use from the next new frame on (or at once on the
+    /// last frame, when the display holds it).
     next_pass: Option<CompensationPass>,
+    /// The last frame run through the pass (moved here, not copied).
+    last: Option<ContentFrame>,
     stats: PlayStats,
     /// Sum of the pipeline times of the frames shown, s.
     pipeline_total: f64,
@@ -294,6 +298,7 @@ impl Player {
             pass,
             feed,
             next_pass: None,
+            last: None,
             stats,
             pipeline_total: 0.0,
         }
@@ -391,6 +396,7 @@ impl Player {
                     self.pass = pass;
                 }
                 self.pass.run(ctx, &frame)?;
+                self.last = Some(frame);
                 Ok(Step::New(seq))
             }
             Poll::Nothing => Ok(Step::Held),
@@ -405,6 +411,13 @@ impl Player {
         self.stats.held += 1;
         if self.stats.shown == 0 {
             return Ok(false);
+        }
+        // A pass handed over while the display holds a still: the still through it.
+        if let Some(frame) = &self.last
+            && let Some(pass) = self.next_pass.take()
+        {
+            self.pass = pass;
+            self.pass.run(screen.context(), frame)?;
         }
         screen.present(&self.pass, Show::Again)?;
         Ok(true)

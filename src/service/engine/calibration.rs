@@ -41,17 +41,14 @@ pub(super) struct Training {
 }
 
 impl Training {
-    /// The captures and the trained model (or why not), once training has ended.
-    pub(super) fn poll(&self) -> Option<(calibrate::Captured, Result<Model>)> {
-        self.result.try_recv().ok()
-    }
-
-    /// Whether its thread is gone without an answer.
-    pub(super) fn lost(&self) -> bool {
-        matches!(
-            self.result.try_recv(),
-            Err(mpsc::TryRecvError::Disconnected)
-        )
+    /// `None` while it trains; then the captures and the trained model (or why not), or
+    /// `Some(None)` when its thread is gone without an answer.
+    pub(super) fn poll(&self) -> Option<Option<(calibrate::Captured, Result<Model>)>> {
+        match self.result.try_recv() {
+            Ok(done) => Some(Some(done)),
+            Err(mpsc::TryRecvError::Empty) => None,
+            Err(mpsc::TryRecvError::Disconnected) => Some(None),
+        }
     }
 }
 
@@ -100,6 +97,7 @@ impl Engine {
     /// is one to play), then verification and install ([`Engine::finish_calibration`]).
     pub(super) fn calibrate(&mut self) {
         let paused = self.io.shared.status().state == State::Paused;
+        self.stay_paused = paused;
         let cancel = self.io.shared.cancel.clone();
         cancel.store(false, Ordering::Relaxed);
         // A climb or a training from the previous calibration is moot (and must not install
@@ -108,6 +106,10 @@ impl Engine {
         self.climb_plan = None;
         self.training = None;
         let runs = Runs::new(&self.config.paths.data);
+        if std::mem::take(&mut self.fresh_run) {
+            // After drift the surface is not what an interrupted run captured: start afresh.
+            runs.end();
+        }
         self.calibration_started = Instant::now();
         let run = match runs.begin(&rig_name(&self.config), SystemTime::now()) {
             Ok(r) => r,
@@ -313,9 +315,14 @@ impl Engine {
         }
     }
 
-    /// After a calibration: play if there is a model and the configuration says so.
+    /// After a calibration: play if there is a model and the configuration says so, unless the
+    /// projector was paused before or during the calibration.
     pub(super) fn after_calibration(&mut self) -> Next {
-        if self.model.is_some() && self.config.playback.autoplay {
+        let paused =
+            std::mem::take(&mut self.stay_paused) || self.io.shared.status().state == State::Paused;
+        if paused && self.model.is_some() {
+            Next::Pause
+        } else if self.model.is_some() && self.config.playback.autoplay {
             Next::Play
         } else {
             let line = if self.model.is_some() {
@@ -363,7 +370,7 @@ impl Engine {
                 .status(&format!("{}: {phase} {done}/{total}", state.name()));
             io.notify.ping();
             while let Ok(ev) = io.rx.try_recv() {
-                busy(ev, phase, next, reload);
+                busy(ev, phase, next, reload, &io.shared.cancel);
             }
         };
         tracing::debug!("calibration: {what}");
@@ -406,16 +413,26 @@ fn training_progress(
 
 /// An event that came while calibrating: `stop` and signals stop it (the cancel flag is
 /// already set), a reload waits for its end, the rest is answered "busy".
-fn busy(ev: Event, phase: &str, next: &mut Next, reload: &mut Option<Box<Config>>) {
+/// `cancel` is set again for a stop: a stop queued before the calibration began finds the flag
+/// reset by it.
+fn busy(
+    ev: Event,
+    phase: &str,
+    next: &mut Next,
+    reload: &mut Option<Box<Config>>,
+    cancel: &AtomicBool,
+) {
     match ev {
         Event::Terminate(signal) => {
             tracing::info!("{signal}: stopping the calibration at its next capture");
+            cancel.store(true, Ordering::Relaxed);
             *next = Next::Stop;
         }
         Event::Reload(c) => *reload = Some(c),
         Event::Request(env) => {
             let reply = match env.request {
                 Request::Stop => {
+                    cancel.store(true, Ordering::Relaxed);
                     *next = Next::Stop;
                     Reply::ok("stopping the calibration at its next capture")
                 }

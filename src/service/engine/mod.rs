@@ -74,6 +74,10 @@ pub struct Engine {
     training: Option<calibration::Training>,
     /// When the calibration under way began.
     calibration_started: Instant,
+    /// The projector was paused when the calibration began: it stays dark after it.
+    stay_paused: bool,
+    /// The next calibration starts a new run (after drift), never resuming an interrupted one.
+    fresh_run: bool,
 }
 
 impl Engine {
@@ -103,6 +107,8 @@ impl Engine {
             climb: None,
             training: None,
             calibration_started: Instant::now(),
+            stay_paused: false,
+            fresh_run: false,
         };
         let path = engine.model_path.clone();
         if path.join(crate::model::store::META_FILE).is_file()
@@ -194,19 +200,31 @@ impl Engine {
         }
     }
 
+    /// Drops a calibration's training (the operator chose another model): its run ends, so it
+    /// is not resumed at the next start either.
+    fn abandon_training(&mut self, why: &str) {
+        if self.training.take().is_some() {
+            crate::calibrate::runs::Runs::new(&self.config.paths.data).end();
+            self.io.shared.update(|s| s.calibration = None);
+            tracing::info!("calibration abandoned: {why}");
+        }
+    }
+
     /// A training beside playback that has ended goes on to its verification.
     fn training_ended(&mut self) -> bool {
         let Some(t) = &self.training else {
             return false;
         };
-        if let Some((captured, model)) = t.poll() {
-            self.trained(captured, model);
-            true
-        } else if t.lost() {
-            self.training_lost();
-            true
-        } else {
-            false
+        match t.poll() {
+            None => false,
+            Some(Some((captured, model))) => {
+                self.trained(captured, model);
+                true
+            }
+            Some(None) => {
+                self.training_lost();
+                true
+            }
         }
     }
 
@@ -265,16 +283,18 @@ impl Engine {
                 ))
             }
             Request::Play { source } => {
-                if let Some(s) = source {
-                    if let Err(e) = SourceSpec::parse(s) {
-                        return Reply::error(e.to_string());
-                    }
-                    self.source = s.clone();
+                if let Some(s) = source
+                    && let Err(e) = SourceSpec::parse(s)
+                {
+                    return Reply::error(e.to_string());
                 }
                 if self.model.is_none() {
                     return Reply::error(
                         "no model to play with: calibrate first (compend recalibrate)",
                     );
+                }
+                if let Some(s) = source {
+                    self.source = s.clone();
                 }
                 self.next = Next::Play;
                 Reply::ok(format!("playing {}", self.source))
@@ -301,9 +321,11 @@ impl Engine {
     /// size is refused.
     fn use_model(&mut self, path: &Path) -> Result<()> {
         let model = load_model(path, self.devices.camera_size())?;
-        // A climb from the model it replaces would install over the operator's choice.
+        // A climb from the model it replaces, or a calibration training beside playback, would
+        // install over the operator's choice.
         self.climb = None;
         self.climb_plan = None;
+        self.abandon_training("another model was chosen");
         if let Devices::Virtual(v) = &mut self.devices {
             match_exposure(&mut v.rig, &model)?;
         }
@@ -406,7 +428,7 @@ impl Engine {
                 let camera = FrameSource::size(&h.camera);
                 let win = &mut h.win;
                 let size = DisplaySink::size(win);
-                Player::start(win.context(), model, size, range, source, FeedMode::Latest).and_then(
+                Player::start(win.context(), model, size, range, source, FeedMode::Latest).map(
                     |mut player| {
                         // Monitoring needs the camera frame of a known presented frame: not yet
                         // on hardware (the virtual rig has it).
@@ -423,11 +445,11 @@ impl Engine {
                         let stats = player.run(&mut screen, None);
                         screen.settle();
                         self.climb = screen.climb.take();
-                        stats.map(|stats| Ended {
+                        Ended {
                             stats,
                             pending: screen.pending.take(),
                             swapped: screen.swapped.take(),
-                        })
+                        }
                     },
                 )
             }
@@ -446,13 +468,20 @@ impl Engine {
             ended
         });
         if swapped {
+            self.abandon_training("another model was swapped in");
+        }
+        if swapped {
             self.baseline = None;
         }
         if let Some(tap) = &monitor {
             self.baseline = tap.baseline().map(|b| (self.source.clone(), b));
         }
         match result {
-            Ok(Ended { stats, pending, .. }) => {
+            Ok(Ended {
+                stats: Ok(stats),
+                pending,
+                ..
+            }) => {
                 self.io
                     .shared
                     .update(|s| set_frames(&mut s.frames, &stats, &before));
@@ -474,7 +503,7 @@ impl Engine {
                     }
                 }
             }
-            Err(e) => {
+            Ok(Ended { stats: Err(e), .. }) | Err(e) => {
                 self.io.fail(&format!("playing {}", self.source), &e);
                 self.io.state(State::Idle, "idle: playback failed");
             }
@@ -493,6 +522,7 @@ impl Engine {
     /// Drift ended the playback (`on_drift = "recalibrate"`; with "report" it plays on).
     fn on_drift(&mut self) {
         tracing::warn!("drift: recalibrating");
+        self.fresh_run = true;
         self.next = Next::Calibrate;
     }
 }
@@ -552,7 +582,7 @@ fn play_virtual(
         v.drift_at = None;
         v.moved = true;
     }
-    stats.map(|stats| Ended {
+    Ok(Ended {
         stats,
         pending: screen.pending.take(),
         swapped: screen.swapped.take(),
@@ -562,7 +592,8 @@ fn play_virtual(
 /// How a playback ended: its counts, the event that ended it (none: the source ended or
 /// monitoring found drift), and a model swapped in while it played.
 struct Ended {
-    stats: PlayStats,
+    /// The counts, or how the playback failed (a model swapped in before still counts).
+    stats: Result<PlayStats>,
     pending: Option<Event>,
     swapped: Option<(PathBuf, Model)>,
 }
