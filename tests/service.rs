@@ -300,12 +300,19 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     assert!(stdout(&o).contains("state: playing"), "{}", stdout(&o));
     assert_code(&client(&["pause"], &svc.socket), 0);
     svc.wait_for("pause", 20, |s| s["state"] == "paused");
-    // A recalibration while paused keeps the projector dark before, during and after it.
-    assert_code(&client(&["recalibrate"], &svc.socket), 0);
-    let s = svc.wait_for("the recalibration while paused", 120, |s| {
-        s["calibrations"] == 2 && s["calibration"].is_null() && s["state"] != "calibrating"
-    });
+    // A recalibration while paused keeps the projector dark before, during and after it;
+    // `--wait` reports its outcome.
+    let o = client(&["recalibrate", "--wait", "--timeout", "120"], &svc.socket);
+    assert_code(&o, 0);
+    assert!(
+        stdout(&o).contains("last calibration: installed linear"),
+        "{}",
+        stdout(&o)
+    );
+    let s = svc.status();
     assert_eq!(s["state"], "paused", "{s}");
+    assert_eq!(s["calibrations"], 2, "{s}");
+    assert_eq!(s["last_calibration"]["installed"], true, "{s}");
     assert_code(&client(&["play"], &svc.socket), 0);
     svc.wait_for("playback again", 30, playing);
     let o = client(

@@ -218,6 +218,9 @@ fn describe(s: &Status) -> String {
             if m.drift { ", DRIFT" } else { "" }
         );
     }
+    if let Some(c) = &s.last_calibration {
+        out += &format!("last calibration: {}\n", c.message);
+    }
     if let Some(e) = &s.last_error {
         out += &format!("last error: {e}\n");
     }
@@ -251,8 +254,19 @@ pub fn recalibrate(a: RecalibrateArgs) -> Result<()> {
             State::Calibrating | State::Training | State::Verifying
         );
         if s.calibrations > before && !busy {
-            if let Some(e) = &s.last_error {
-                return Err(compend::Error::Failed(format!("recalibration: {e}")).into());
+            match &s.last_calibration {
+                Some(o) if o.installed => {}
+                Some(o) => {
+                    return Err(
+                        compend::Error::Failed(format!("recalibration: {}", o.message)).into(),
+                    );
+                }
+                None => {
+                    return Err(compend::Error::Failed(
+                        "recalibration: the service reports no outcome".into(),
+                    )
+                    .into());
+                }
             }
             print!("{}", describe(&s));
             return Ok(());

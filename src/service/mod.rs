@@ -90,6 +90,7 @@ impl Shared {
                 monitoring: Default::default(),
                 calibration: None,
                 calibrations: 0,
+                last_calibration: None,
                 last_error: None,
             }),
             events,

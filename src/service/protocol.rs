@@ -202,6 +202,15 @@ pub struct CalibrationProgress {
     pub seconds: f64,
 }
 
+/// How a calibration ended.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationOutcome {
+    /// Its model verified and was installed.
+    pub installed: bool,
+    /// What happened, for the operator.
+    pub message: String,
+}
+
 /// What `status` answers.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Status {
@@ -219,6 +228,9 @@ pub struct Status {
     pub calibration: Option<CalibrationProgress>,
     /// Calibrations finished (installed or not) since the service started.
     pub calibrations: u64,
+    /// How the last of them ended.
+    #[serde(default)]
+    pub last_calibration: Option<CalibrationOutcome>,
     /// The last thing that went wrong, for the operator.
     pub last_error: Option<String>,
 }

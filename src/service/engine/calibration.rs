@@ -16,7 +16,9 @@ use std::sync::{Arc, mpsc};
 use std::time::{Instant, SystemTime};
 
 use super::super::climb;
-use super::super::protocol::{CalibrationProgress, ModelStatus, Monitoring, Reply, Request, State};
+use super::super::protocol::{
+    CalibrationOutcome, CalibrationProgress, ModelStatus, Monitoring, Reply, Request, State,
+};
 use super::super::{Event, Shared};
 use super::{Engine, Next, rig_name};
 use crate::calibrate::runs::Runs;
@@ -234,10 +236,6 @@ impl Engine {
             Ok(d) => d,
             Err(e) => return self.calibration_failed(&data, e),
         };
-        self.io.shared.update(|s| {
-            s.calibration = None;
-            s.calibrations += 1;
-        });
         let v = done.record.verification.clone();
         tracing::info!(
             "calibration: {} captures taken, {} found on disk; verification {:.2} dB / SSIM {:.3} \
@@ -270,16 +268,39 @@ impl Engine {
                             setup,
                             model: out.clone(),
                         });
+                let message = format!(
+                    "installed {} into {} (verified {:.2} dB, {:+.2} dB over uncompensated)",
+                    model.meta.method,
+                    out.display(),
+                    v.psnr,
+                    v.gain_db
+                );
                 self.io.shared.update(|s| {
                     s.model = Some(ModelStatus::of(&out, &model));
                     s.monitoring = Monitoring::fresh(&s.monitoring);
                     s.last_error = None;
+                    s.calibration = None;
+                    s.calibrations += 1;
+                    s.last_calibration = Some(CalibrationOutcome {
+                        installed: true,
+                        message,
+                    });
                 });
                 self.model = Some(model);
                 self.model_path = out;
                 self.baseline = None;
             }
-            Err(e) => self.io.fail("the new model was not installed", &e),
+            Err(e) => {
+                self.io.fail("the new model was not installed", &e);
+                self.io.shared.update(|s| {
+                    s.calibration = None;
+                    s.calibrations += 1;
+                    s.last_calibration = Some(CalibrationOutcome {
+                        installed: false,
+                        message: format!("the new model was not installed: {e}"),
+                    });
+                });
+            }
         }
         let runs = Runs::new(&self.config.paths.data);
         runs.end();
@@ -292,9 +313,18 @@ impl Engine {
     /// A calibration that stopped: cancelled (its captures stay for the next run), refused (the
     /// run ends) or failed (the marker stays, so the next calibration resumes it).
     fn calibration_failed(&mut self, data: &std::path::Path, e: Error) {
+        let message = match &e {
+            Error::Cancelled(_) => format!("cancelled; its captures stay in {}", data.display()),
+            e => format!("failed: {e}"),
+        };
+        // One update: a client never sees the count without its outcome.
         self.io.shared.update(|s| {
             s.calibration = None;
             s.calibrations += 1;
+            s.last_calibration = Some(CalibrationOutcome {
+                installed: false,
+                message,
+            });
         });
         match e {
             Error::Cancelled(_) => tracing::info!(
