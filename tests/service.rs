@@ -514,8 +514,25 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
     assert_code(&o, 2);
     assert!(stderr(&o).contains("none.toml"), "{}", stderr(&o));
 
-    // The socket path holds a file: refused, the file kept.
+    // The model path holds something that is not a model: refused at start, the file kept.
     let config = write_config(dir.path(), "curved", 0, "", "");
+    let model = dir.path().join("state/model");
+    std::fs::create_dir_all(&model).unwrap();
+    std::fs::write(model.join("notes.txt"), "mine").unwrap();
+    let o = compend(&["serve", "--config", config.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("not a model directory"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        std::fs::read_to_string(model.join("notes.txt")).unwrap(),
+        "mine"
+    );
+    std::fs::remove_dir_all(&model).unwrap();
+
+    // The socket path holds a file: refused, the file kept.
     let socket = dir.path().join("compend.sock");
     std::fs::write(&socket, "not a socket").unwrap();
     let o = compend(&["serve", "--config", config.to_str().unwrap()]);

@@ -138,6 +138,7 @@ impl Runs {
                     .join(super::manifest::MANIFEST_FILE)
                     .is_file()
             })
+            .filter(|p| holds_only_calibration(p))
             .collect();
         runs.sort();
         let n = runs.len().saturating_sub(keep);
@@ -153,6 +154,33 @@ impl Runs {
         }
         removed
     }
+}
+
+/// What a calibration writes at the top of its run folder: the patterns and the captures.
+const RUN_ENTRIES: [&str; 4] = [super::SETUP_NAME, "ref", "test", "train"];
+
+/// Whether the run folder `dir` holds nothing but what a calibration writes there: a folder that
+/// holds anything else (a model someone put there, notes) is not removed.
+fn holds_only_calibration(dir: &Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    for e in entries {
+        let name = e.ok().map(|e| e.file_name());
+        if !name
+            .as_ref()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| RUN_ENTRIES.contains(&n))
+        {
+            tracing::warn!(
+                "{}: holds {:?}, which a calibration does not write; the old run is kept",
+                dir.display(),
+                name.unwrap_or_default()
+            );
+            return false;
+        }
+    }
+    true
 }
 
 /// The run folder name of a calibration started at `now`: `run-YYYYMMDD-HHMMSS`, UTC.
@@ -260,6 +288,10 @@ mod tests {
         let removed = runs.prune(2);
         assert_eq!(removed, made[..2].to_vec());
         assert!(made[2].is_dir() && made[3].is_dir());
+        // An old run that holds something calibration did not write stays.
+        std::fs::write(made[2].join("notes.txt"), "mine").unwrap();
+        assert!(runs.prune(1).is_empty());
+        assert!(made[2].join("notes.txt").is_file());
         assert!(
             lookalike.is_dir(),
             "a folder without a manifest is not ours"

@@ -165,6 +165,9 @@ pub fn serve(config: Config, config_path: Option<PathBuf>) -> Result<()> {
     let shared = Arc::new(Shared::new(rig_name, tx));
     std::fs::create_dir_all(&config.paths.state)
         .map_err(|e| Error::io(&config.paths.state, "create state directory", e))?;
+    // Only a model directory is ever replaced: a `[paths] model` that holds anything else is
+    // refused now, not after a whole calibration.
+    crate::model::store::check_output(&config.paths.model)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("compend-control")
