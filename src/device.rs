@@ -62,6 +62,14 @@ pub trait FrameSource {
             "this camera has no manual exposure (asked for {value})"
         )))
     }
+
+    /// After a [`FrameSource::grab`] failed: when the device went away (unplugged, a USB
+    /// reset), opens it again with the same format and controls, retrying for a while.
+    /// `Ok(true)`: frames flow again; `Ok(false)`: the device did not go away or cannot be
+    /// reopened by this source, so the grab's error stands; `Err`: every reopen failed.
+    fn reconnect(&mut self) -> Result<bool> {
+        Ok(false)
+    }
 }
 
 /// A camera's manual exposure: the current value and the range, in the camera's units.
@@ -94,6 +102,9 @@ impl<T: FrameSource + ?Sized> FrameSource for &mut T {
     fn set_exposure(&mut self, value: f64) -> Result<f64> {
         (**self).set_exposure(value)
     }
+    fn reconnect(&mut self) -> Result<bool> {
+        (**self).reconnect()
+    }
 }
 
 impl<T: DisplaySink + ?Sized> DisplaySink for Box<T> {
@@ -117,5 +128,8 @@ impl<T: FrameSource + ?Sized> FrameSource for Box<T> {
     }
     fn set_exposure(&mut self, value: f64) -> Result<f64> {
         (**self).set_exposure(value)
+    }
+    fn reconnect(&mut self) -> Result<bool> {
+        (**self).reconnect()
     }
 }

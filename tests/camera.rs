@@ -10,13 +10,14 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use compend::calibrate::sync::{Capturer, Latency, MAX_RECONNECTS, SyncSettings};
 use compend::camera::controls::{Outcome, Role, cid};
 use compend::camera::format::v4l2_codes::QUANTIZATION_FULL_RANGE;
 use compend::camera::{
     Camera, LockSettings, Matrix, OpenOptions, PixelFormat, PowerLine, Range, Reconnect,
 };
-use compend::device::FrameSource;
-use compend::raster::ImageSize;
+use compend::device::{DisplaySink, FrameSource};
+use compend::raster::{ImageSize, PrjImage};
 
 use crate::common::{assert_code, compend, stderr, stdout};
 use fake::{Event, FakeOpener, Shared, offer, script};
@@ -231,6 +232,104 @@ fn an_unplugged_camera_is_survived_and_reconnect_applies_format_and_lock_again()
         .and_then(|c| c.value);
     assert_eq!(exposure, Some(300));
     assert_eq!(FrameSource::exposure(&cam).map(|r| r.value), Some(300.0));
+}
+
+/// A projector that shows anything it is given (the fake camera's frames are scripted).
+struct Wall;
+
+impl DisplaySink for Wall {
+    fn size(&self) -> ImageSize {
+        ImageSize::new(4, 4)
+    }
+    fn show(&mut self, _frame: &PrjImage) -> compend::Result<()> {
+        Ok(())
+    }
+}
+
+fn capturer_settings() -> (Latency, SyncSettings) {
+    let latency = Latency {
+        trials: vec![0],
+        settle_frames: 0,
+        black_level: 0.0,
+        white_level: 1.0,
+        clock: None,
+    };
+    let sync = SyncSettings {
+        average: 2,
+        retakes: 0,
+        ..SyncSettings::default()
+    };
+    (latency, sync)
+}
+
+#[test]
+fn a_capture_survives_the_camera_going_away_and_is_taken_again_after_it_is_back() {
+    let s = script();
+    let mut cam = open(&s, (8, 4));
+    let (latency, sync) = capturer_settings();
+    let mut wall = Wall;
+    let pattern = PrjImage::filled(4, 4, [1.0; 3]);
+    // The camera goes away after the first of the two averaged frames; the first reopen fails.
+    {
+        let mut script = s.borrow_mut();
+        script.events.push_back(frame(yuyv(16), 7));
+        script.events.push_back(Event::Gone);
+        script.failing_opens = 1;
+        script.events.push_back(frame(yuyv(235), 0));
+        script.events.push_back(frame(yuyv(235), 1));
+    }
+    let mut cap = Capturer::new(&mut wall, &mut cam, &latency, sync);
+    let img = cap.capture(&pattern, false).unwrap();
+    assert_eq!(cap.reconnects, 1);
+    // Both averaged frames come from after the reconnect (white), none from before (black).
+    assert!(
+        img.data().iter().all(|&v| v > 0.95),
+        "{:?}",
+        &img.data()[..3]
+    );
+    drop(cap);
+    assert!(cam.is_connected());
+    assert_eq!(cam.reconnects(), 1);
+
+    // A camera that stays away: the capture fails with the reason and the device, no hang.
+    s.borrow_mut().events.push_back(Event::Gone);
+    s.borrow_mut().failing_opens = 100;
+    let mut wall = Wall;
+    let mut cap = Capturer::new(&mut wall, &mut cam, &latency, sync);
+    let msg = cap.capture(&pattern, false).unwrap_err().to_string();
+    assert!(
+        msg.contains(DEV) && msg.contains("gone") && msg.contains("could not reopen"),
+        "{msg}"
+    );
+    assert_eq!(cap.reconnects, 0);
+}
+
+#[test]
+fn a_camera_that_keeps_going_away_fails_the_capture_after_a_few_reconnects() {
+    let s = script();
+    let mut cam = open(&s, (8, 4));
+    let (latency, sync) = capturer_settings();
+    let mut wall = Wall;
+    for _ in 0..=MAX_RECONNECTS {
+        s.borrow_mut().events.push_back(Event::Gone);
+    }
+    let mut cap = Capturer::new(&mut wall, &mut cam, &latency, sync);
+    let msg = cap
+        .capture(&PrjImage::filled(4, 4, [0.5; 3]), false)
+        .unwrap_err()
+        .to_string();
+    assert_eq!(cap.reconnects, MAX_RECONNECTS);
+    assert!(msg.contains("gone"), "{msg}");
+    // A timeout is not a reason to reopen: the camera is still there.
+    let mut cam = open(&script(), (8, 4));
+    let mut wall = Wall;
+    let mut cap = Capturer::new(&mut wall, &mut cam, &latency, sync);
+    let msg = cap
+        .capture(&PrjImage::filled(4, 4, [0.5; 3]), false)
+        .unwrap_err()
+        .to_string();
+    assert_eq!(cap.reconnects, 0);
+    assert!(msg.contains("no good frame"), "{msg}");
 }
 
 #[test]

@@ -111,6 +111,10 @@ impl<C: FrameSource + ?Sized> FrameSource for Timed<'_, C> {
     fn set_exposure(&mut self, value: f64) -> Result<f64> {
         self.camera.set_exposure(value)
     }
+
+    fn reconnect(&mut self) -> Result<bool> {
+        self.camera.reconnect()
+    }
 }
 
 #[cfg(test)]

@@ -116,6 +116,7 @@ pub struct Captured {
     captured: usize,
     resumed: usize,
     retakes: usize,
+    reconnects: usize,
     seconds: PhaseSeconds,
     started: Instant,
 }
@@ -187,11 +188,13 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         capture_all(&mut capturer, &root, &setup, &mut manifest, opts, progress)?;
     seconds.captures = t.elapsed().as_secs_f64();
     tracing::info!(
-        "captures: {captured} taken, {resumed} found on disk, {} retaken, in {:.1} s",
+        "captures: {captured} taken, {resumed} found on disk, {} retaken, camera reopened {} \
+         times, in {:.1} s",
         capturer.retakes,
+        capturer.reconnects,
         seconds.captures
     );
-    let retakes = capturer.retakes;
+    let (retakes, reconnects) = (capturer.retakes, capturer.reconnects);
     let desired = write_desired(&root, &setup, opts)?;
     Ok(Captured {
         setup: setup.path().to_path_buf(),
@@ -202,6 +205,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         captured,
         resumed,
         retakes,
+        reconnects,
         seconds,
         started,
     })
@@ -254,6 +258,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         captured,
         resumed,
         retakes,
+        reconnects,
         mut seconds,
         started,
     } = captured;
@@ -272,6 +277,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         captured,
         resumed,
         retakes: retakes + capturer.retakes,
+        reconnects: reconnects + capturer.reconnects,
         seconds,
         verification,
         climb: None,

@@ -240,7 +240,14 @@ pub struct Capturer<'a, D: ?Sized, C: ?Sized> {
     previous: Option<CamImage>,
     /// Captures retaken because a check failed.
     pub retakes: usize,
+    /// Times the camera went away during a capture and was opened again (the capture was
+    /// then taken again from the start).
+    pub reconnects: usize,
 }
+
+/// Most reconnects of the camera in one calibration's captures: a camera that keeps going away
+/// (a bad cable, a hub short of power) fails the calibration instead of stretching it forever.
+pub const MAX_RECONNECTS: usize = 3;
 
 impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
     pub fn new(
@@ -257,6 +264,7 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
             clock: latency.clock,
             previous: None,
             retakes: 0,
+            reconnects: 0,
         }
     }
 
@@ -276,8 +284,36 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
 
     /// Shows `frame` and returns the average of `average` camera frames exposed after it was
     /// on the surface. `differs`: the frame differs from the previously captured one, so the
-    /// capture must differ from the previous capture too.
+    /// capture must differ from the previous capture too. A camera that goes away meanwhile
+    /// (unplugged, a USB reset) is opened again and the capture taken again from the start, up
+    /// to [`MAX_RECONNECTS`] times in all; then the error is reported.
     pub fn capture(&mut self, frame: &PrjImage, differs: bool) -> Result<CamImage> {
+        loop {
+            let error = match self.capture_once(frame, differs) {
+                Ok(image) => return Ok(image),
+                Err(e) => e,
+            };
+            if self.reconnects >= MAX_RECONNECTS {
+                return Err(error);
+            }
+            match self.camera.reconnect() {
+                Ok(true) => {
+                    self.reconnects += 1;
+                    tracing::warn!(
+                        "{error}; the camera is back (reconnect {} of at most \
+                         {MAX_RECONNECTS}); taking the capture again",
+                        self.reconnects
+                    );
+                }
+                Ok(false) => return Err(error),
+                Err(again) => {
+                    return Err(Error::Failed(format!("{error}; then: {again}")));
+                }
+            }
+        }
+    }
+
+    fn capture_once(&mut self, frame: &PrjImage, differs: bool) -> Result<CamImage> {
         let mut settle = self.settle;
         for attempt in 0..=self.settings.retakes {
             let shown_at = Instant::now();

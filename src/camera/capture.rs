@@ -457,4 +457,13 @@ impl<O: Opener> FrameSource for Camera<O> {
         let units = value.round().clamp(i64::MIN as f64, i64::MAX as f64) as i64;
         Ok(self.set_exposure_100us(units)? as f64)
     }
+
+    /// Reopens the device ([`Camera::reconnect`]) when a grab found it gone; a camera still
+    /// open (a timeout, a corrupt stream) is not reopened.
+    fn reconnect(&mut self) -> Result<bool> {
+        if self.is_connected() {
+            return Ok(false);
+        }
+        Camera::reconnect(self).map(|()| true)
+    }
 }

@@ -534,8 +534,16 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
     let s = &r.seconds;
     eprintln!(
         "calibrate: latency {:?} exposures (skipping {} per capture); {} captures taken, {} \
-         found on disk, {} retaken",
-        r.latency.trials, r.latency.settle_frames, r.captured, r.resumed, r.retakes
+         found on disk, {} retaken{}",
+        r.latency.trials,
+        r.latency.settle_frames,
+        r.captured,
+        r.resumed,
+        r.retakes,
+        match r.reconnects {
+            0 => String::new(),
+            n => format!("; the camera went away and was reopened {n} times"),
+        }
     );
     eprintln!(
         "calibrate: seconds: latency {:.1}, patterns {:.1}, captures {:.1}, training {:.1}, \

@@ -72,6 +72,9 @@ pub struct CalibrationRecord {
     pub captured: usize,
     pub resumed: usize,
     pub retakes: usize,
+    /// Times the camera went away during a capture and was opened again.
+    #[serde(default)]
+    pub reconnects: usize,
     /// Seconds per phase.
     pub seconds: PhaseSeconds,
     /// The closed-loop verification of the model this calibration installed (for a climbed
