@@ -457,6 +457,21 @@ fn cameras_refuses_a_path_that_is_not_a_camera_with_exit_2() {
         let err = stderr(&o);
         assert!(err.contains(path) && err.contains(says), "{path}: {err}");
     }
+    // A camera named by an index or a name that no camera found has: exit 2, and what to give.
+    for name in ["4096", "no-such-camera-name"] {
+        for args in [
+            vec!["cameras", "--device", name],
+            vec!["calibrate", "--camera", name, "--out", "/nonexistent/model"],
+        ] {
+            let o = compend(&args);
+            assert_code(&o, 2);
+            let err = stderr(&o);
+            assert!(
+                err.contains(&format!("camera \"{name}\"")) && err.contains("compend cameras"),
+                "{args:?}: {err}"
+            );
+        }
+    }
 }
 
 /// By hand, with a UVC camera at /dev/video0 (override with `COMPEND_TEST_CAMERA`):

@@ -9,14 +9,19 @@
 //! - [`v4l2`] (Linux): the V4L2 device on the `v4l` crate's bindings, [`V4l2Camera`]; it also
 //!   plays as a video source (`v4l2:/dev/videoN`, [`crate::source`]).
 //! - [`list`]: what `compend cameras` prints: devices, formats, sizes, rates and controls.
+//! - [`find`]: which cameras there are (index, name, device node), through nokhwa; what a
+//!   `--camera` value (a path, an index, part of a name) names.
 //!
-//! Which crate does what: `v4l` (its ioctl bindings and wrappers) finds, opens and drives V4L2
-//! devices: formats, controls by ID and memory-mapped buffers with their sequence numbers and
-//! timestamps. nokhwa is not used: on Linux its finding is the same `/dev/video*` scan (which
-//! panics on a node name without digits, e.g. a udev symlink `/dev/video-cam`), and its
-//! opening hides what calibration needs (sequence numbers, timestamps, row strides,
-//! colorimetry, exposure by `V4L2_CID_EXPOSURE_ABSOLUTE`). It remains the way to other
-//! platforms, behind [`Device`]. The high-level parts of `v4l` are avoided too: its mmap
+//! Which crate does what: nokhwa finds cameras ([`find`]): its query of the platform's native
+//! camera API is the same call on Linux, macOS and Windows, so the listing and naming of
+//! cameras is portable, and its camera type is the way to capture on other platforms later
+//! (behind [`Device`]). On Linux each camera found is opened at its device node through `v4l`
+//! (its ioctl bindings and wrappers): formats, controls by ID and memory-mapped buffers with
+//! their sequence numbers and timestamps. Calibration needs what nokhwa's capture hides there
+//! (sequence numbers, exposure timestamps, row strides, colorimetry, exposure by
+//! `V4L2_CID_EXPOSURE_ABSOLUTE`), so nokhwa does not stream here. nokhwa's Linux query panics
+//! on a `/dev/video*` name without a number (a udev link `/dev/video-cam`); such a `/dev` is
+//! scanned by [`find`] itself. The high-level parts of `v4l` are avoided too: its mmap
 //! stream cannot resume after a poll timeout and panics when dropped after an I/O error
 //! other than ENODEV, and its control and capability readers panic on unknown control types
 //! and on names that are not UTF-8.
@@ -27,6 +32,7 @@
 
 pub mod capture;
 pub mod controls;
+pub mod find;
 pub mod format;
 pub mod list;
 pub mod mjpeg;

@@ -49,16 +49,18 @@ impl Camera<V4l2> {
     /// How long a grab waits for a frame unless told otherwise.
     pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(5);
 
-    /// Opens the V4L2 device at `path` in the format [`super::format::choose_format`] picks for
-    /// `size` ((width, height), camera pixels; `None`: the device's current size), and starts
-    /// streaming.
-    pub fn open(path: &Path, size: Option<ImageSize>) -> Result<Self> {
+    /// Opens the V4L2 device `camera` names (a device path, or a camera's index or name as
+    /// [`super::find::resolve`] reads them) in the format [`super::format::choose_format`] picks
+    /// for `size` ((width, height), camera pixels; `None`: the device's current size), and
+    /// starts streaming.
+    pub fn open(camera: &Path, size: Option<ImageSize>) -> Result<Self> {
+        let path = super::find::resolve(camera)?;
         let options = OpenOptions {
             size,
             timeout: Self::DEFAULT_TIMEOUT,
             ..OpenOptions::default()
         };
-        Camera::open_with(V4l2, path, options)
+        Camera::open_with(V4l2, &path, options)
     }
 }
 
@@ -481,13 +483,14 @@ pub fn describe(path: &Path) -> Result<CameraListing> {
     Ok(l)
 }
 
-/// Every V4L2 node under /dev (`/dev/videoN`, in number order), described. Nodes that cannot
-/// be opened are listed with the reason.
-pub fn list() -> Vec<CameraListing> {
-    super::list::video_nodes(Path::new("/dev"))
+/// Every camera [`super::find::find`] finds (`/dev/videoN`, in number order), described at its
+/// device node. Nodes that cannot be opened are listed with the reason.
+pub fn list() -> Result<Vec<CameraListing>> {
+    Ok(super::find::find()?
         .into_iter()
+        .filter_map(|c| c.path)
         .map(|p| describe(&p).unwrap_or_else(|e| CameraListing::unreadable(&p, &e)))
-        .collect()
+        .collect())
 }
 
 #[cfg(test)]

@@ -42,8 +42,8 @@ pub struct Args {
         required_unless_present_any = ["camera", "config"]
     )]
     pub rig: Option<String>,
-    /// Calibrate real hardware: this V4L2 camera (e.g. /dev/video0 or a /dev/v4l/by-id/ path)
-    /// looking at the projector window on `--monitor`. Its exposure, gain, white balance, focus,
+    /// Calibrate real hardware: this V4L2 camera (a path such as /dev/video0 or a
+    /// /dev/v4l/by-id/ link, or a camera's index or part of its name) looking at the projector window on `--monitor`. Its exposure, gain, white balance, focus,
     /// backlight compensation and power-line filter are locked first, and the values it
     /// accepted are printed.
     #[arg(long, value_name = "DEV", conflicts_with = "rig")]

@@ -15,7 +15,8 @@ pub struct Args {
     /// text.
     #[arg(long)]
     pub json: bool,
-    /// Show this device only: a /dev/videoN or a stable /dev/v4l/by-id/... link.
+    /// Show this device only: a /dev/videoN, a stable /dev/v4l/by-id/... link, or a camera's
+    /// index or part of its name.
     #[arg(long, value_name = "PATH")]
     pub device: Option<PathBuf>,
 }
@@ -24,8 +25,8 @@ pub struct Args {
 fn read(device: Option<&std::path::Path>) -> compend::Result<Vec<CameraListing>> {
     use compend::camera::v4l2;
     Ok(match device {
-        Some(p) => vec![v4l2::describe(p)?],
-        None => v4l2::list(),
+        Some(p) => vec![v4l2::describe(&compend::camera::find::resolve(p)?)?],
+        None => v4l2::list()?,
     })
 }
 
@@ -36,7 +37,18 @@ fn read(device: Option<&std::path::Path>) -> compend::Result<Vec<CameraListing>>
             "{}: cameras are read through V4L2, which only Linux has",
             p.display()
         ))),
-        None => Ok(Vec::new()),
+        // Found (through nokhwa), but not opened: formats and controls come from V4L2.
+        None => Ok(compend::camera::find::find()?
+            .into_iter()
+            .map(|c| {
+                let why = compend::Error::Input(
+                    "formats and controls are read through V4L2, which only Linux has".into(),
+                );
+                let mut l = CameraListing::unreadable(&PathBuf::from(c.index.to_string()), &why);
+                l.card = c.name;
+                l
+            })
+            .collect()),
     }
 }
 
