@@ -514,12 +514,18 @@ impl<'t> Walker<'t> {
             climb: self
                 .parsed_with(t, "climb", |s| match s {
                     "none" => Ok(None),
+                    "auto" => Ok(Some(crate::fit::climb_rung(Default::default()))),
                     rung => crate::model::Method::from_str(rung)
                         .map(Some)
-                        .map_err(|e| format!("{e}; or \"none\"")),
+                        .map_err(|e| format!("{e}; or \"auto\" or \"none\"")),
                 })
                 .unwrap_or(None),
-            climb_gain_db: self.checked(t, "climb_gain_db", 0.5, |v: &f64| finite(*v)),
+            climb_gain_db: self.checked(
+                t,
+                "climb_gain_db",
+                crate::fit::DEFAULT_CLIMB_GAIN_DB,
+                |v: &f64| finite(*v),
+            ),
             climb_iters: self.get::<usize>(t, "climb_iters").filter(|&n| n > 0),
         }
     }

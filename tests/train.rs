@@ -317,68 +317,106 @@ fn wrong_tensor_shape_names_the_tensor(dir: &Path, model: &Path, setup: &Path) {
     );
 }
 
-#[test]
-fn auto_picks_the_linear_rung_with_the_best_held_out_score_and_records_why() {
-    let dir = tempfile::tempdir().unwrap();
-    let setup = make_setup(dir.path(), 16, 2);
-    let s = setup.to_str().unwrap();
-    let model = dir.path().join("auto");
-    let out = compend(&[
+/// `compend train --method auto` on the test setup with extra flags; the model's `training.auto`.
+fn train_auto(setup: &Path, model: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec![
         "train",
         "--setup",
-        s,
+        setup.to_str().unwrap(),
         "--method",
         "auto",
         "--out",
         model.to_str().unwrap(),
         "--json",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let out = compend(&args);
     assert_code(&out, 0);
     let summary: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    // What was chosen is what was saved and reported.
+    assert_eq!(meta["method"], meta["training"]["auto"]["chosen"], "{meta}");
+    assert_eq!(summary["method"], meta["method"]);
+    meta
+}
+
+#[test]
+fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 16, 2);
+    let model = dir.path().join("auto");
+    // A CompenNet++ rung trained for 3 iterations cannot beat the linear rungs by 0.5 dB.
+    let meta = train_auto(&setup, &model, &["--iters", "3"]);
     let auto = &meta["training"]["auto"];
     let cands = auto["candidates"].as_array().unwrap();
     let methods: Vec<&str> = cands
         .iter()
         .map(|c| c["method"].as_str().unwrap())
         .collect();
-    assert_eq!(methods, ["linear", "linear-sl"], "{auto}");
+    assert_eq!(
+        methods,
+        ["linear", "linear-sl", "compennet++-cpu"],
+        "{auto}"
+    );
     assert_eq!(auto["held_out"], 4);
     assert_eq!(auto["fitted_on"], 12);
-    // The choice is the candidate with the highest held-out PSNR, and it is what was saved.
-    let best = cands
+    assert_eq!(auto["required_gain_db"], 0.5);
+    let psnr = |c: &serde_json::Value| c["held_out_psnr"].as_f64().unwrap();
+    assert!(
+        cands
+            .iter()
+            .all(|c| c["fit_seconds"].as_f64().unwrap() > 0.0)
+    );
+    // The choice is the linear candidate with the highest held-out PSNR.
+    let best_linear = cands[..2]
         .iter()
-        .max_by(|a, b| {
-            let p = |c: &serde_json::Value| c["held_out_psnr"].as_f64().unwrap();
-            p(a).total_cmp(&p(b))
-        })
+        .max_by(|a, b| psnr(a).total_cmp(&psnr(b)))
         .unwrap();
-    assert_eq!(auto["chosen"], best["method"]);
-    assert_eq!(meta["method"], best["method"]);
-    assert_eq!(summary["method"], best["method"]);
-    // The saved model loads and runs like any linear model.
+    assert!(psnr(&cands[2]) < psnr(best_linear) + 0.5, "{auto}");
+    assert_eq!(auto["chosen"], best_linear["method"]);
+    // The saved model loads and runs like any linear model, refitted on all 16 pairs.
+    assert_eq!(meta["training"]["ntrain"], 16);
     let ev = eval_json(&model, &setup);
     assert!(
         ev["compensated"]["psnr"].as_f64().unwrap() > ev["uncompensated"]["psnr"].as_f64().unwrap()
     );
 
-    // Without structured-light captures, `linear` is the only candidate, and the record says so.
+    // With no margin to clear, the CompenNet++ rung is kept as trained on the 12 pairs.
+    let climbed = dir.path().join("climbed");
+    let meta = train_auto(&setup, &climbed, &["--iters", "3", "--climb-gain", "-1000"]);
+    assert_eq!(meta["method"], "compennet++-cpu", "{meta}");
+    assert_eq!(meta["training"]["auto"]["required_gain_db"], -1000.0);
+    assert_eq!(meta["training"]["ntrain"], 12);
+    assert_eq!(meta["training"]["iterations"], 3);
+    eval_json(&climbed, &setup);
+
+    // Without structured-light captures, `linear` is the only linear candidate; without the
+    // gray surface capture there is no CompenNet++ rung to climb to, and the record says why.
     std::fs::remove_dir_all(setup.join("cam/raw/sl")).unwrap();
-    let out = compend(&[
-        "train",
-        "--setup",
-        s,
-        "--method",
-        "auto",
-        "--out",
-        model.to_str().unwrap(),
-        "--json",
-    ]);
-    assert_code(&out, 0);
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    std::fs::remove_file(setup.join("cam/raw/ref/img_0126.png")).unwrap();
+    let meta = train_auto(&setup, &model, &[]);
     assert_eq!(meta["method"], "linear");
-    let why = meta["training"]["auto"]["why"].as_str().unwrap();
-    assert!(why.contains("structured-light"), "{why}");
+    let auto = &meta["training"]["auto"];
+    assert_eq!(auto["candidates"].as_array().unwrap().len(), 1, "{auto}");
+    let why = auto["why"].as_str().unwrap();
+    assert!(why.contains("gray surface"), "{why}");
+
+    // A margin is only for `auto`, and must be a number.
+    for (method, gain, says) in [
+        ("linear", "0.5", "only `auto` climbs"),
+        ("auto", "NaN", "expected a number"),
+    ] {
+        let out = compend(&[
+            "train",
+            "--setup",
+            setup.to_str().unwrap(),
+            "--method",
+            method,
+            "--climb-gain",
+            gain,
+        ]);
+        assert_code(&out, 2);
+        assert!(stderr(&out).contains(says), "{}", stderr(&out));
+    }
 }

@@ -59,6 +59,9 @@ pub struct Options {
     pub verify_images: usize,
     /// PSNR gain over the uncompensated projection a model needs, dB.
     pub required_gain_db: f64,
+    /// `method = auto`: the PSNR gain (dB, held-out pairs) a CompenNet++ rung needs over the
+    /// best linear rung ([`crate::fit::ClimbRule`]).
+    pub climb_gain_db: f64,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
     pub rig: String,
     /// Set by another thread to stop the calibration: checked before each capture, between the
@@ -227,6 +230,7 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
         lattice: None,
         photometric: Default::default(),
         cancel: opts.cancel.clone(),
+        climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
     };
     let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
     captured.seconds.training = t.elapsed().as_secs_f64();

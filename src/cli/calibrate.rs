@@ -126,6 +126,8 @@ struct Settings {
     ntest: usize,
     verify: usize,
     min_gain: f64,
+    /// `auto`: the margin of the climb to a CompenNet++ rung (the config's `climb_gain_db`).
+    climb_gain: f64,
     average: usize,
     rig_latency_ms: Option<f64>,
     rig_fps: Option<f64>,
@@ -193,6 +195,7 @@ impl Settings {
             ntest: a.ntest.unwrap_or(k.ntest),
             verify: a.verify.unwrap_or(k.verify),
             min_gain: a.min_gain.unwrap_or(k.min_gain_db),
+            climb_gain: k.climb_gain_db,
             average: a.average.unwrap_or(k.average),
             seed: a.seed.unwrap_or(r.seed),
             network: a.network.unwrap_or(k.network),
@@ -511,6 +514,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         },
         verify_images: args.verify,
         required_gain_db: args.min_gain,
+        climb_gain_db: args.climb_gain,
         rig,
         cancel: None,
     };
@@ -550,6 +554,9 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
          verification {:.1}, total {:.1}",
         s.latency, s.patterns, s.captures, s.training, s.verification, s.total
     );
+    for line in done.model.meta.training.auto.iter().flat_map(|a| a.lines()) {
+        eprintln!("calibrate: {line}");
+    }
     eprintln!(
         "calibrate: verification on {} test images in the displayable area: {:.2} dB / SSIM \
          {:.3} compensated, {:.2} dB / SSIM {:.3} uncompensated: {:+.2} dB (needs {:+.2})",

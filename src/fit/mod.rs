@@ -9,10 +9,12 @@
 //! directory"). `device.rs` names the training device; the model record stores it, so it lives
 //! apart from the code that uses the record.
 
+mod auto;
 mod compennet;
 mod device;
 mod linear_rungs;
 
+pub use auto::{ClimbRule, DEFAULT_CLIMB_GAIN_DB, climb_rung};
 pub use device::TrainDevice;
 
 use std::time::Instant;
@@ -54,6 +56,9 @@ pub struct Request {
     /// Set by another thread to stop a CompenNet++ training at its next iteration
     /// ([`crate::Error::Cancelled`]); the closed-form `linear` rungs run to their end.
     pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    /// `auto` only: the PSNR gain (dB, held-out pairs) a CompenNet++ rung needs over the best
+    /// linear rung to be chosen; `None` = [`DEFAULT_CLIMB_GAIN_DB`].
+    pub climb_gain_db: Option<f64>,
 }
 
 /// The default output lattice of the `linear` rungs: 1.5× the network size, rounded up to a
@@ -96,16 +101,39 @@ pub fn fit(
     check_request(req, variant)?;
     let ntrain = train_count(setup, req, variant)?;
     let data = load_training(setup, variant.is_none(), ntrain)?;
-    if let (Some(variant), MethodChoice::Rung(method)) = (variant, req.method) {
-        return compennet::train_compennet(setup, req, method, variant, data, start, progress);
+    match (variant, req.method) {
+        (Some(variant), MethodChoice::Rung(method)) => {
+            compennet::train_compennet(setup, req, method, variant, data, start, progress)
+        }
+        (None, MethodChoice::Rung(method)) => {
+            linear_rungs::fit_linear(setup, req, method, None, ntrain, data, start, progress)
+        }
+        (_, MethodChoice::Auto) => auto::fit_auto(setup, req, ntrain, data, start, progress),
     }
-    linear_rungs::fit_linear(setup, req, ntrain, data, start, progress)
 }
 
-/// The argument checks that need no data: `--lattice` only for the linear rungs and at least
-/// 8×8 pixels, `--iters` and `--batch` only for the CompenNet++ rungs and at least 1, and a
-/// usable training device, all before anything is loaded.
+/// The argument checks that need no data: `--lattice` only for the linear rungs (and `auto`'s)
+/// and at least 8×8 pixels, `--iters` and `--batch` only for the CompenNet++ rungs (and the one
+/// `auto` climbs to) and at least 1, a usable training device, and a climbing margin that is a
+/// number, all before anything is loaded.
 fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>) -> Result<()> {
+    let auto = req.method == MethodChoice::Auto;
+    if let Some(gain) = req.climb_gain_db {
+        if !auto {
+            return Err(Error::Input(format!(
+                "--climb-gain {gain}: only `auto` climbs the ladder; {} is one rung",
+                req.method
+            )));
+        }
+        if !gain.is_finite() {
+            return Err(Error::Input(format!(
+                "--climb-gain {gain}: expected a number of dB"
+            )));
+        }
+    }
+    if auto {
+        req.device.candle()?;
+    }
     if variant.is_some() {
         if let Some(lattice) = req.lattice {
             return Err(Error::Input(format!(
@@ -122,7 +150,7 @@ fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>
             Some(0) => {
                 return Err(Error::Input(format!("{flag} 0: expected at least 1")));
             }
-            Some(n) if variant.is_none() => {
+            Some(n) if variant.is_none() && !auto => {
                 return Err(Error::Input(format!(
                     "{flag} {n}: only the CompenNet++ rungs train in iterations and batches; \
                      {} is a closed-form fit",

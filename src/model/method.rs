@@ -114,8 +114,8 @@ impl std::str::FromStr for Method {
     }
 }
 
-/// What `train --method` (and `bench --methods`) accept: a rung, or `auto`, which fits the
-/// cheap rungs and keeps the best on held-out pairs (the rule is in [`crate::fit`]).
+/// What `train --method` (and `bench --methods`) accept: a rung, or `auto`, which climbs the
+/// ladder only as far as held-out pairs show a gain (the rule is in [`crate::fit::ClimbRule`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum MethodChoice {
     Auto,
@@ -172,7 +172,8 @@ impl clap::ValueEnum for MethodChoice {
     fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
         let help = match self {
             MethodChoice::Auto => {
-                "the better linear rung on held-out training pairs (evidence in model.json)"
+                "the best linear rung on held-out pairs, or the CompenNet++ rung the device \
+                 affords if it scores --climb-gain dB higher (evidence in model.json)"
             }
             MethodChoice::Rung(Method::Linear) => "learned affine+TPS geometry, per-pixel colour",
             MethodChoice::Rung(Method::LinearSl) => "structured-light geometry, per-pixel colour",

@@ -205,9 +205,44 @@ pub struct AutoEvidence {
     /// Training pairs the candidates were fitted on.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fitted_on: Option<usize>,
+    /// The PSNR gain (dB) the CompenNet++ rung needed over the best linear rung.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub required_gain_db: Option<f64>,
     /// Each candidate's held-out figures.
     #[serde(default)]
     pub candidates: Vec<AutoCandidate>,
+}
+
+impl AutoEvidence {
+    /// The evidence for a person: each candidate's held-out figures and time, the choice and
+    /// the rule.
+    pub fn lines(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if let (Some(held), Some(fitted)) = (self.held_out, self.fitted_on) {
+            let figures: Vec<String> = self
+                .candidates
+                .iter()
+                .map(|c| {
+                    format!(
+                        "{} {:.2} dB / SSIM {:.3} ({:.1} s)",
+                        c.method, c.held_out_psnr, c.held_out_ssim, c.fit_seconds
+                    )
+                })
+                .collect();
+            out.push(format!(
+                "auto: on {held} held-out pairs (fitted on {fitted}): {}",
+                figures.join(", ")
+            ));
+        }
+        if let Some(why) = &self.why {
+            out.push(format!("auto: {why}"));
+        }
+        out.push(format!(
+            "auto: chose {} by the rule: {}",
+            self.chosen, self.rule
+        ));
+        out
+    }
 }
 
 /// One candidate rung of `--method auto` on the held-out pairs (paper protocol).
@@ -217,7 +252,7 @@ pub struct AutoCandidate {
     /// PSNR in dB.
     pub held_out_psnr: f64,
     pub held_out_ssim: f64,
-    /// Time to fit the candidate, seconds.
+    /// Time to fit (or train) the candidate, seconds.
     pub fit_seconds: f64,
 }
 

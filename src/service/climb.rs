@@ -1,8 +1,8 @@
 //! Progressive calibration: once a calibration has installed its model and playback has
 //! started, the next rung (`[calibration] climb`) trains on a thread of its own on the same
 //! captures. It is judged on the calibration's held-out test pairs (captured, never trained on;
-//! the paper protocol) against the installed model; only if it beats it by `climb_gain_db` is
-//! it installed (the atomic model-directory swap) and its pass built, for the playback loop to
+//! the paper protocol) against the installed model; only if it beats it by `climb_gain_db`
+//! ([`fit::ClimbRule`], the rule of `--method auto`) is it installed (the atomic model-directory swap) and its pass built, for the playback loop to
 //! swap in at its next frame. The viewer sees the cheap rung within a minute, and the better one
 //! when, and only if, it is better.
 
@@ -122,6 +122,7 @@ fn climb(
         lattice: None,
         photometric: Default::default(),
         cancel: Some(cancel.clone()),
+        climb_gain_db: None,
     };
     let (mut model, _) = fit::fit(&setup, &req, |_, _, _| {})?;
     let pairs = setup.load_test(None)?;
@@ -135,7 +136,8 @@ fn climb(
         required_gain_db: p.gain_db,
         seconds: t.elapsed().as_secs_f64(),
     };
-    if new.psnr - old.psnr < p.gain_db {
+    let rule = fit::ClimbRule { gain_db: p.gain_db };
+    if !rule.climbs(new.psnr, old.psnr) {
         return Ok(Outcome::Kept(record));
     }
     // The climbed model plays with the calibration it was trained on (its exposure and range).

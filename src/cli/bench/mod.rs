@@ -263,6 +263,7 @@ impl SceneBench<'_> {
             lattice: None,
             photometric: Default::default(),
             cancel: None,
+            climb_gain_db: None,
         };
         let mut row = Row {
             scene: scene.into(),

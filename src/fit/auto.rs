@@ -1,0 +1,233 @@
+//! `--method auto`: the ladder climbed only as far as the scene needs (docs/architecture.md,
+//! "Models").
+//!
+//! 1. The last sixth of the training pairs (at least 4) is held out; every linear rung
+//!    (`linear`, and `linear-sl` when the setup has structured light) is fitted on the rest and
+//!    scored on them with the paper protocol.
+//! 2. The CompenNet++ rung the machine can afford ([`climb_rung`]: `compennet++-cpu` on the
+//!    CPU, the full `compennet++` on a GPU) is trained on the same pairs and scored the same
+//!    way. It is kept only if it beats the best linear rung by the climbing rule's margin
+//!    ([`ClimbRule`]); the service's progressive calibration applies the same rule to a
+//!    calibration's test pairs.
+//! 3. A kept CompenNet++ rung is the model as trained (on all but the held-out pairs: training
+//!    it again on every pair would double the dearest step). Otherwise the best linear rung is
+//!    fitted again on every pair, which costs seconds.
+//!
+//! The rule, every candidate's held-out figures and the time each took go into `model.json`
+//! (`training.auto`).
+
+use std::time::Instant;
+
+use super::{MIN_TRAIN, Request, Summary, TrainDevice, TrainingData, compennet, linear_rungs};
+use crate::dataset::{Reference, Setup};
+use crate::error::Result;
+use crate::model::store::{AutoCandidate, AutoEvidence};
+use crate::model::{Method, MethodChoice, Model};
+
+/// When a rung replaces the one below it: its PSNR on pairs neither was trained on must beat
+/// the lower rung's by `gain_db`. The margin pays for the dearer rung's cost (training time,
+/// a frame pass several times slower) and sits above the spread of held-out scores between
+/// seeds of the same rung.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClimbRule {
+    /// Required gain in PSNR, dB.
+    pub gain_db: f64,
+}
+
+impl Default for ClimbRule {
+    fn default() -> Self {
+        Self {
+            gain_db: DEFAULT_CLIMB_GAIN_DB,
+        }
+    }
+}
+
+/// The default margin of [`ClimbRule`], dB.
+pub const DEFAULT_CLIMB_GAIN_DB: f64 = 0.5;
+
+impl ClimbRule {
+    /// Whether a rung scoring `upper_psnr` replaces one scoring `lower_psnr` (dB, the same
+    /// pairs). A score that is not a number never climbs.
+    pub fn climbs(&self, upper_psnr: f64, lower_psnr: f64) -> bool {
+        upper_psnr.is_finite() && upper_psnr - lower_psnr >= self.gain_db
+    }
+
+    /// The rule in words, for records and output.
+    pub fn describe(&self, on: &str) -> String {
+        format!(
+            "the best linear rung on {on}, replaced by the CompenNet++ rung the machine can \
+             afford only if that one's paper-protocol PSNR is at least {} dB higher",
+            self.gain_db
+        )
+    }
+}
+
+/// The CompenNet++ rung a training device can afford: the CPU-sized one on the CPU, the full
+/// one on a GPU.
+pub fn climb_rung(device: TrainDevice) -> Method {
+    match device {
+        TrainDevice::Cpu => Method::CompenNetPpCpu,
+        TrainDevice::Cuda(_) => Method::CompenNetPp,
+    }
+}
+
+/// Pairs held out of `n` for `auto`'s comparisons: the last sixth, at least 4.
+fn held_out(n: usize) -> usize {
+    (n / 6).max(4)
+}
+
+/// `--method auto` on loaded training data (see the module documentation).
+pub(super) fn fit_auto(
+    setup: &Setup,
+    req: &Request,
+    ntrain: usize,
+    data: TrainingData,
+    start: Instant,
+    mut progress: impl FnMut(&str, usize, usize),
+) -> Result<(Model, Summary)> {
+    let rule = ClimbRule {
+        gain_db: req.climb_gain_db.unwrap_or(DEFAULT_CLIMB_GAIN_DB),
+    };
+    let n = data.captures.len();
+    let held = held_out(n);
+    if n < held + MIN_TRAIN {
+        let evidence = AutoEvidence {
+            rule: rule.describe("held-out training pairs"),
+            chosen: Method::Linear,
+            why: Some(format!(
+                "{n} training pairs are too few to hold {held} out: `linear` without comparison"
+            )),
+            held_out: None,
+            fitted_on: None,
+            required_gain_db: Some(rule.gain_db),
+            candidates: Vec::new(),
+        };
+        return linear_rungs::fit_linear(
+            setup,
+            req,
+            Method::Linear,
+            Some(evidence),
+            ntrain,
+            data,
+            start,
+            progress,
+        );
+    }
+    let cut = n - held;
+    let (fit_pairs, held_pairs) = (
+        (&data.captures[..cut], &data.targets[..cut]),
+        (&data.captures[cut..], &data.targets[cut..]),
+    );
+    let mut candidates = linear_rungs::score_linear_rungs(
+        setup,
+        req,
+        fit_pairs,
+        held_pairs,
+        data.theta,
+        &mut progress,
+    )?;
+    let best_linear = candidates
+        .iter()
+        .max_by(|a, b| a.held_out_psnr.total_cmp(&b.held_out_psnr))
+        .map_or((Method::Linear, f64::NAN), |c| (c.method, c.held_out_psnr));
+
+    let rung = climb_rung(req.device);
+    let mut why = None;
+    let mut climbed = None;
+    if !setup.reference_path(Reference::Gray).is_file() {
+        why = Some(format!(
+            "no gray surface capture ({}): {rung} cannot be trained",
+            setup.reference_path(Reference::Gray).display()
+        ));
+    } else if let Some(variant) = crate::nn::compennetpp::Variant::from_method(rung.name()) {
+        let t0 = Instant::now();
+        let sub_req = Request {
+            method: MethodChoice::Rung(rung),
+            ntrain: Some(cut),
+            lattice: None,
+            ..req.clone()
+        };
+        let sub = TrainingData {
+            fov: data.fov.clone(),
+            cam_size: data.cam_size,
+            theta: data.theta,
+            network_size: data.network_size,
+            captures: fit_pairs.0.to_vec(),
+            targets: fit_pairs.1.to_vec(),
+        };
+        let (model, summary) =
+            compennet::train_compennet(setup, &sub_req, rung, variant, sub, t0, &mut progress)?;
+        let mut acc = crate::metrics::Accumulator::default();
+        for (c, t) in held_pairs.0.iter().zip(held_pairs.1) {
+            acc.add(&crate::model::at_size(model.infer(c)?, t.size()), t)?;
+        }
+        let scores = acc.finish()?;
+        candidates.push(AutoCandidate {
+            method: rung,
+            held_out_psnr: scores.psnr,
+            held_out_ssim: scores.ssim,
+            fit_seconds: t0.elapsed().as_secs_f64(),
+        });
+        tracing::info!(
+            "auto: {rung} {:.2} dB against {} {:.2} dB on {held} held-out pairs (climbs at \
+             +{} dB)",
+            scores.psnr,
+            best_linear.0,
+            best_linear.1,
+            rule.gain_db
+        );
+        if rule.climbs(scores.psnr, best_linear.1) {
+            climbed = Some((model, summary));
+        }
+    }
+    let chosen = climbed
+        .as_ref()
+        .map_or(best_linear.0, |(m, _)| m.meta.method);
+    let evidence = AutoEvidence {
+        rule: rule.describe("held-out training pairs"),
+        chosen,
+        why,
+        held_out: Some(held),
+        fitted_on: Some(cut),
+        required_gain_db: Some(rule.gain_db),
+        candidates,
+    };
+    match climbed {
+        Some((mut model, summary)) => {
+            model.meta.training.auto = Some(evidence);
+            let seconds = start.elapsed().as_secs_f64();
+            model.meta.timings.train_seconds = seconds;
+            Ok((model, Summary { seconds, ..summary }))
+        }
+        None => linear_rungs::fit_linear(
+            setup,
+            req,
+            best_linear.0,
+            Some(evidence),
+            ntrain,
+            data,
+            start,
+            progress,
+        ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_rung_climbs_only_past_the_margin_and_never_on_a_non_number() {
+        let rule = ClimbRule { gain_db: 0.5 };
+        assert!(rule.climbs(25.5, 25.0));
+        assert!(!rule.climbs(25.49, 25.0));
+        assert!(!rule.climbs(f64::NAN, 25.0));
+        assert!(!rule.climbs(f64::INFINITY, 25.0));
+        // Nor against a lower rung with no score: nothing to compare with.
+        assert!(!rule.climbs(20.0, f64::NAN));
+        assert_eq!(climb_rung(TrainDevice::Cpu), Method::CompenNetPpCpu);
+        assert_eq!(climb_rung(TrainDevice::Cuda(0)), Method::CompenNetPp);
+        assert_eq!(held_out(48), 8);
+        assert_eq!(held_out(12), 4);
+    }
+}
