@@ -9,7 +9,9 @@
 //!   display and camera traits);
 //! - geometry and data: [`fov`], [`warp`], [`patterns`], [`slgrid`], [`dataset`];
 //! - models: [`linear`], [`nn`] (CompenNet++ in candle), [`model`] (a loaded model; the rung
-//!   names, `model::Method`; `model::store`, the model directory), [`fit`] (training any rung);
+//!   names, `model::Method`; `model::store`, the model directory), [`fit`] (training any rung;
+//!   `auto`'s climb), [`failure`] (how a trained model failed: diverged, collapsed, worse than
+//!   uncompensated);
 //! - [`playback`]`::frame`: the per-frame path and its CPU reference;
 //! - [`calibrate`]: from a projector and a camera (the device traits) to a verified model:
 //!   latency, synchronised captures with resume, training, verification; run folders;
@@ -31,6 +33,7 @@ pub mod config;
 pub mod dataset;
 pub mod device;
 pub mod error;
+pub mod failure;
 pub mod files;
 pub mod filter;
 pub mod fit;

@@ -49,8 +49,21 @@ fn bench_writes_rows_for_references_and_methods() {
     assert_eq!(lin["captures"], 9);
     assert!(lin["train_seconds"].as_f64().unwrap() > 0.0);
     assert!(lin["paper"]["psnr"].as_f64().unwrap() > 10.0);
+    // A working model is not marked as failed.
+    assert!(lin["failure"].is_null(), "{lin}");
     let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
     assert!(md.contains("| textured-plane | 0 | linear | 6 |"), "{md}");
+    // What no model can fix, per scene and seed, with its picture in the setup.
+    let reach = &v["unreachable"][0];
+    assert_eq!(reach["scene"], "textured-plane", "{v}");
+    let share = reach["unreachable_percent"].as_f64().unwrap();
+    assert!((0.0..=100.0).contains(&share), "{reach}");
+    assert!(md.contains("| textured-plane | 0 | "), "{md}");
+    assert!(md.contains("| scene | seed | unreachable % |"), "{md}");
+    assert!(
+        out.join("data/seed0/textured-plane/cam/unreachable.png")
+            .is_file()
+    );
     // Both charts are drawn: real PNGs of the chart size with more than the white background.
     for chart in ["accuracy-vs-training.png", "accuracy-vs-frame.png"] {
         let img = image::open(out.join(chart)).unwrap().to_rgb8();

@@ -52,6 +52,25 @@ fn calibrate_installs_a_verified_model_and_records_it() {
     let v = &r["verification"];
     assert_eq!(v["passed"], true, "{r}");
     assert!(v["gain_db"].as_f64().unwrap() > 3.0, "{r}");
+    assert!(v.get("failure").is_none(), "{r}");
+    // What no model can fix is reported: a textured plane in full view has little of it, and
+    // every reason's share adds up to the whole.
+    let u = &r["unreachable"];
+    let pc = |k: &str| u[k].as_f64().unwrap();
+    assert!(pc("unreachable_percent") < 10.0, "{u}");
+    let parts = [
+        "shadowed_percent",
+        "saturated_percent",
+        "too_dark_percent",
+        "too_bright_percent",
+    ];
+    let sum: f64 = parts.iter().map(|k| pc(k)).sum();
+    assert!((sum - pc("unreachable_percent")).abs() < 1e-9, "{u}");
+    let picture = data.join("capture/cam/unreachable.png");
+    assert_eq!(
+        compend::pngio::png_size(&picture).unwrap(),
+        compend::raster::ImageSize::new(160, 120)
+    );
     // The scene's camera delay is 2 frames: the measurement finds it, and waits a margin more.
     assert!(
         r["latency"]["trials"]
@@ -68,7 +87,9 @@ fn calibrate_installs_a_verified_model_and_records_it() {
     assert!((0.88..0.97).contains(&bright), "{r}");
     let err = stderr(&o);
     assert!(
-        err.contains("installed linear") && err.contains("verification"),
+        err.contains("installed linear")
+            && err.contains("verification")
+            && err.contains("of the displayable area cannot be compensated"),
         "{err}"
     );
     // The installed model carries the record, loads and evaluates on the captured test pairs.
@@ -82,11 +103,23 @@ fn calibrate_installs_a_verified_model_and_records_it() {
         range["low"].as_f64().unwrap() < range["high"].as_f64().unwrap(),
         "{range}"
     );
-    // The calibration folder is a complete setup in the dataset layout.
-    assert_code(
-        &compend(&["inspect", "--setup", data.join("capture").to_str().unwrap()]),
-        0,
-    );
+    // The calibration folder is a complete setup in the dataset layout; inspect, given the
+    // projector's aspect, reports the same share of the area out of reach and draws where.
+    let shown = dir.path().join("inspect");
+    let o = compend(&[
+        "inspect",
+        "--setup",
+        data.join("capture").to_str().unwrap(),
+        "--out",
+        shown.to_str().unwrap(),
+        "--aspect",
+        &(200.0f64 / 150.0).to_string(),
+        "--json",
+    ]);
+    assert_code(&o, 0);
+    let report: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert_eq!(report["fov"]["unreachable"], *u, "{report}");
+    assert!(shown.join("unreachable.png").is_file());
     assert_code(
         &compend(&[
             "eval",

@@ -277,6 +277,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         rig: opts.rig.clone(),
         exposure,
         display_range: Some(desired.range),
+        unreachable: Some(desired.unreachable.clone()),
         latency,
         captured,
         resumed,
@@ -299,9 +300,12 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 pub fn install(done: Calibrated, out: &Path) -> Result<Model> {
     let v = &done.record.verification;
     if !v.passed {
+        let failure = v
+            .failure
+            .map_or(String::new(), |f| format!(" ({}: {})", f, f.explain()));
         return Err(Error::Failed(format!(
             "the {} model did not verify ({:+.2} dB over the uncompensated projection, {:+.2} \
-             needed); it was not installed and {} is unchanged",
+             needed){failure}; it was not installed and {} is unchanged",
             done.model.meta.method,
             v.gain_db,
             v.required_gain_db,
@@ -414,6 +418,8 @@ struct Desired {
     area: Rect,
     range: fov::DisplayRange,
     views: Vec<CamImage>,
+    /// The share of the area no model can compensate.
+    unreachable: fov::ReachSummary,
 }
 
 /// The desired views of the test images: each scaled into the display range and stretched into
@@ -426,6 +432,10 @@ fn write_desired(root: &DataRoot, setup: &Setup, opts: &Options) -> Result<Desir
     let projector = opts.patterns.projector;
     let area = fov::displayable_area(&fov.mask, projector.aspect())?;
     let range = fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?;
+    let reach = fov::reach(&black, &white, area, range)?;
+    crate::pngio::write_rgb(&setup.unreachable_path(), &reach.picture(&white)?)?;
+    let unreachable = reach.summary();
+    tracing::info!("{}", unreachable.line());
     let mut views = Vec::new();
     for i in 1..=opts.patterns.ntest {
         let img: PrjImage = crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i))?;
@@ -433,7 +443,12 @@ fn write_desired(root: &DataRoot, setup: &Setup, opts: &Options) -> Result<Desir
         setup.write_desired(i, &z)?;
         views.push(z);
     }
-    Ok(Desired { area, range, views })
+    Ok(Desired {
+        area,
+        range,
+        views,
+        unreachable,
+    })
 }
 
 /// Projects the first test images compensated and as they are, captures them and scores both
@@ -455,11 +470,13 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         ));
     }
     let (mut comp, mut unc) = (Accumulator::default(), Accumulator::default());
+    let mut outputs = Vec::with_capacity(n);
     for (i, z) in desired.views.iter().take(n).enumerate() {
         progress("verification", i, n);
         opts.check_cancelled()?;
         let compensated = model.infer(z)?;
         let seen = capturer.capture(&place_on_canvas(&compensated, canvas, psize)?, true)?;
+        outputs.push(compensated);
         comp.add(&seen.crop(desired.area)?, &z.crop(desired.area)?)?;
         let plain: PrjImage = crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i + 1))?;
         let seen = capturer.capture(&place_on_canvas(&plain, canvas, psize)?, true)?;
@@ -468,6 +485,9 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     progress("verification", n, n);
     let (c, u) = (comp.finish()?, unc.finish()?);
     let gain = c.psnr - u.psnr;
+    let inputs: Vec<&CamImage> = desired.views.iter().take(n).collect();
+    let failure =
+        crate::failure::classify(&inputs, &outputs.iter().collect::<Vec<_>>(), c.psnr, u.psnr);
     Ok(Verification {
         images: n,
         psnr: c.psnr,
@@ -476,6 +496,7 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         uncompensated_ssim: u.ssim,
         gain_db: gain,
         required_gain_db: opts.required_gain_db,
-        passed: gain.is_finite() && c.psnr.is_finite() && gain >= opts.required_gain_db,
+        failure,
+        passed: failure.is_none() && gain.is_finite() && gain >= opts.required_gain_db,
     })
 }

@@ -554,6 +554,9 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
          verification {:.1}, total {:.1}",
         s.latency, s.patterns, s.captures, s.training, s.verification, s.total
     );
+    if let Some(u) = &r.unreachable {
+        eprintln!("calibrate: {}", u.line());
+    }
     for line in done.model.meta.training.auto.iter().flat_map(|a| a.lines()) {
         eprintln!("calibrate: {line}");
     }

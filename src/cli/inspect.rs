@@ -21,7 +21,9 @@ pub struct Args {
     #[arg(long)]
     pub json: bool,
     /// Write the projector FOV mask (fov_mask.png) and an overlay of the mask, its bounding box
-    /// and the displayable area on the white capture (fov_overlay.png) into this folder.
+    /// and the displayable area on the white capture (fov_overlay.png), and where no model can
+    /// compensate (unreachable.png: blue shadowed, magenta saturated, red too dark, yellow too
+    /// bright) into this folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Canvas aspect ratio (width/height) for the displayable area [default: the network
@@ -40,6 +42,9 @@ pub struct FovReport {
     /// Largest rectangle of the canvas aspect inside the mask, camera pixels.
     pub displayable_area: Option<compend::raster::Rect>,
     pub aspect: f64,
+    /// The share of the displayable area no model can compensate (against the display range
+    /// calibration would choose), and why.
+    pub unreachable: Option<compend::fov::ReachSummary>,
     pub diagnostics: compend::fov::FovDiagnostics,
 }
 
@@ -108,16 +113,27 @@ fn fov_report(setup: &Setup, args: &Args) -> Result<Option<FovReport>> {
             .unwrap_or(1.0),
     };
     let area = compend::fov::displayable_area(&fov.mask, aspect).ok();
+    // The display range fails when too little of the area responds: then there is no reach.
+    let reach = area.and_then(|a| {
+        let range =
+            compend::fov::display_range(&black, &white, a, compend::fov::DESIRED_RANGE_QUANTILE)
+                .ok()?;
+        compend::fov::reach(&black, &white, a, range).ok()
+    });
     if let Some(dir) = &args.out {
         compend::pngio::write_mask(&dir.join("fov_mask.png"), &fov.mask)?;
         let overlay = overlay(&white, &fov.mask, fov.bbox, area);
         compend::pngio::write_rgb(&dir.join("fov_overlay.png"), &overlay)?;
+        if let Some(r) = &reach {
+            compend::pngio::write_rgb(&dir.join("unreachable.png"), &r.picture(&white)?)?;
+        }
     }
     Ok(Some(FovReport {
         bbox: fov.bbox,
         coverage: fov.diagnostics.coverage,
         displayable_area: area,
         aspect,
+        unreachable: reach.map(|r| r.summary()),
         diagnostics: fov.diagnostics,
     }))
 }
@@ -230,6 +246,9 @@ fn print_human(r: &Report) {
         match f.displayable_area {
             Some(a) => println!("display area  {a} (aspect {:.3})", f.aspect),
             None => println!("display area  none fits (aspect {:.3})", f.aspect),
+        }
+        if let Some(u) = &f.unreachable {
+            println!("reach         {}", u.line());
         }
     }
     println!(

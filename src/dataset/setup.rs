@@ -191,6 +191,12 @@ impl Setup {
         self.capture_path(CaptureSet::Ref, r.index())
     }
 
+    /// `cam/unreachable.png`: where in the displayable area no model can compensate, and why
+    /// ([`crate::fov::Reach::picture`]), as calibration found it.
+    pub fn unreachable_path(&self) -> PathBuf {
+        self.path.join("cam").join("unreachable.png")
+    }
+
     /// `cam/desire/test`: desired viewer images z' in camera view.
     pub fn desired_dir(&self) -> PathBuf {
         self.path.join("cam").join("desire").join("test")

@@ -184,6 +184,10 @@ impl DisplayRange {
     }
 }
 
+/// Least rise from the black to the white capture (encoded, every channel) at a pixel the
+/// projector reaches; below it the pixel is in shadow for compensation.
+pub const MIN_CONTRAST: f32 = 0.02;
+
 /// Quantile for the display range of desired images: 95 % of the displayable area can show both
 /// ends of the range in every channel.
 pub const DESIRED_RANGE_QUANTILE: f64 = 0.05;
@@ -214,7 +218,6 @@ pub fn display_range(
             "display range: area {area} does not fit in the {w}x{h} camera frame"
         )));
     }
-    const MIN_CONTRAST: f32 = 0.02;
     let mut lows = Vec::with_capacity(area.area());
     let mut highs = Vec::with_capacity(area.area());
     for y in area.y..area.y + area.height {

@@ -43,14 +43,18 @@
 //! (its middle stays above the low threshold) and ends up inside the mask.
 //!
 //! Modules: `mask` (the FOV mask, steps 1–6 above), `affine` (the affine initialisation),
-//! `area` (the displayable area, placement and display range).
+//! `area` (the displayable area, placement and display range), `reach` (the pixels of the
+//! displayable area no model can compensate, and why).
 
 mod affine;
 mod area;
 mod mask;
+mod reach;
 
 pub use affine::{Theta, affine_from_box, apply_theta};
 pub use area::{
-    DESIRED_RANGE_QUANTILE, DisplayRange, display_range, displayable_area, place_in_area,
+    DESIRED_RANGE_QUANTILE, DisplayRange, MIN_CONTRAST, display_range, displayable_area,
+    place_in_area,
 };
 pub use mask::{FovDiagnostics, FovFill, FovMask, FovOptions, fov_mask, fov_mask_with};
+pub use reach::{Reach, ReachSummary, Unreachable, reach};

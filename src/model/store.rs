@@ -66,6 +66,10 @@ pub struct CalibrationRecord {
     /// verification's desired views were scaled into); playback maps content into it.
     #[serde(default)]
     pub display_range: Option<crate::fov::DisplayRange>,
+    /// The share of the displayable area no model can compensate, and why
+    /// (`capture/cam/unreachable.png` shows where).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unreachable: Option<crate::fov::ReachSummary>,
     /// Projector-to-camera latency measured at the start, camera exposures.
     pub latency: crate::calibrate::Latency,
     /// Captures taken in this run, captures found on disk from an interrupted one, retakes.
@@ -130,6 +134,9 @@ pub struct Verification {
     pub gain_db: f64,
     /// The gain a model needs to be installed, dB.
     pub required_gain_db: f64,
+    /// How the model failed, if it did ([`crate::failure`]); a failed model never passes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failure: Option<crate::failure::Failure>,
     pub passed: bool,
 }
 

@@ -19,7 +19,7 @@ use anyhow::{Context, Result};
 use compend::dataset::{DataRoot, ProjectorSet, Setup};
 use compend::fit::{self, Request};
 use compend::model::paper_protocol;
-use compend::raster::PrjImage;
+use compend::raster::{CamImage, PrjImage};
 use compend::rig::{self, ExportOptions, OracleOptions, Phase, Simulator};
 
 use crate::cli::sim::SceneArgs;
@@ -85,6 +85,7 @@ pub fn run(args: Args) -> Result<()> {
         .into());
     }
     let mut rows = Vec::new();
+    let mut reach = Vec::new();
     for &seed in &args.seeds {
         let sa = SceneArgs {
             seed,
@@ -128,6 +129,7 @@ pub fn run(args: Args) -> Result<()> {
                 &setup,
                 &exported.record,
             )?);
+            reach.push(scene_reach(&scene.name, seed, &setup, &exported.record)?);
         }
     }
     std::fs::create_dir_all(&args.out)
@@ -138,11 +140,12 @@ pub fn run(args: Args) -> Result<()> {
         "seconds": start.elapsed().as_secs_f64(),
         "ntest": args.ntest,
         "rows": rows,
+        "unreachable": reach,
     });
     let jpath = args.out.join("bench.json");
     compend::files::write_atomically(&jpath, &serde_json::to_vec_pretty(&json)?)?;
     let mpath = args.out.join("bench.md");
-    compend::files::write_atomically(&mpath, markdown(&rows).as_bytes())?;
+    compend::files::write_atomically(&mpath, markdown(&rows, &reach).as_bytes())?;
     let charts = chart::write_charts(&rows, &args.out)?;
     eprintln!(
         "bench: {} rows in {:.0} s; wrote {}, {} and {} chart(s)",
@@ -153,6 +156,40 @@ pub fn run(args: Args) -> Result<()> {
         charts.len()
     );
     Ok(())
+}
+
+/// Where no model can compensate in one scene and seed: the share of the displayable area by
+/// reason (from the calibration's black and white captures against the desired range), and
+/// the picture written as the setup's `cam/unreachable.png`.
+#[derive(serde::Serialize)]
+struct SceneReach {
+    scene: String,
+    seed: u64,
+    #[serde(flatten)]
+    summary: compend::fov::ReachSummary,
+}
+
+fn scene_reach(
+    scene: &str,
+    seed: u64,
+    setup: &Setup,
+    record: &rig::export::RigRecord,
+) -> Result<SceneReach> {
+    use compend::dataset::Reference;
+    let black = setup.load_reference(Reference::Black)?;
+    let white = setup.load_reference(Reference::White)?;
+    let reach = compend::fov::reach(
+        &black,
+        &white,
+        record.displayable_area,
+        record.desired_range,
+    )?;
+    compend::pngio::write_rgb(&setup.unreachable_path(), &reach.picture(&white)?)?;
+    Ok(SceneReach {
+        scene: scene.into(),
+        seed,
+        summary: reach.summary(),
+    })
 }
 
 fn bench_scene(
@@ -173,10 +210,12 @@ fn bench_scene(
         desired: setup.load_desired(Some(args.ntest))?,
     };
     let (mut rows, ceiling) = bench.reference_rows()?;
+    let uncompensated = rows[0].closed_loop.map_or(f64::NAN, |s| s.psnr);
     let test_pairs = setup.load_test(Some(args.ntest))?;
     for &method in &args.methods {
         for &n in &args.ntrain {
-            rows.push(bench.method_row(method, n, &test_pairs, ceiling)?);
+            let refs = (ceiling, uncompensated);
+            rows.push(bench.method_row(method, n, &test_pairs, refs)?);
         }
     }
     Ok(rows)
@@ -243,14 +282,15 @@ impl SceneBench<'_> {
     }
 
     /// Trains `method` on the first `n` pairs and scores it: the paper protocol on the test
-    /// pairs, the CPU time per frame (ms), and closed loop on the rig with its gap to `ceiling`
-    /// (dB). A failed training is a row that says so.
+    /// pairs, the CPU time per frame (ms), closed loop on the rig with its gap to `ceiling`
+    /// (dB), and how it failed ([`compend::failure`], against the `uncompensated` closed-loop
+    /// PSNR). A failed training is a row that says so.
     fn method_row(
         &self,
         method: compend::model::MethodChoice,
         n: usize,
         test_pairs: &compend::dataset::Pairs,
-        ceiling: f64,
+        (ceiling, uncompensated): (f64, f64),
     ) -> Result<Row> {
         let (args, scene, seed) = (self.args, self.scene, self.seed);
         let req = Request {
@@ -284,6 +324,8 @@ impl SceneBench<'_> {
             closed_loop: None,
             gap_db: None,
             failed: None,
+            failure: None,
+            chosen: None,
         };
         match fit::fit(self.setup, &req, |_, _, _| {}) {
             Err(e) => {
@@ -310,11 +352,25 @@ impl SceneBench<'_> {
                 )?;
                 row.gap_db = Some(ceiling - s.psnr);
                 row.closed_loop = Some(s);
+                let inputs: Vec<&CamImage> = desired.iter().collect();
+                let outputs: Vec<&PrjImage> = shown.iter().collect();
+                row.failure = compend::failure::classify(&inputs, &outputs, s.psnr, uncompensated);
+                row.chosen = model
+                    .meta
+                    .training
+                    .auto
+                    .as_ref()
+                    .map(|a| a.chosen.to_string());
                 eprintln!(
-                    "bench: {scene} {method} n={n}: {:.1} s, closed loop {:.2} dB (gap {:.2} dB)",
+                    "bench: {scene} {method}{} n={n}: {:.1} s, closed loop {:.2} dB (gap {:.2} \
+                     dB){}",
+                    row.chosen
+                        .as_ref()
+                        .map_or(String::new(), |c| format!(" → {c}")),
                     summary.seconds,
                     s.psnr,
-                    ceiling - s.psnr
+                    ceiling - s.psnr,
+                    row.failure.map_or(String::new(), |f| format!(", {f}"))
                 );
             }
         }
@@ -322,12 +378,15 @@ impl SceneBench<'_> {
     }
 }
 
-/// Tables: one row per scene × seed × method × ntrain.
-fn markdown(rows: &[Row]) -> String {
+/// Tables: one row per scene × seed × method × ntrain, then what no model can fix per scene
+/// and seed.
+fn markdown(rows: &[Row], reach: &[SceneReach]) -> String {
     let mut md = String::from(
         "# compend bench\n\nClosed loop: PSNR/SSIM of what the rig's camera sees inside the displayable \
          area against the desired image; gap: oracle PSNR minus the row's. Paper: the model's output \
-         for test captures against the projector inputs (network space).\n\n\
+         for test captures against the projector inputs (network space). A method marked \
+         (diverged), (collapsed) or (worse than uncompensated) failed so; `auto → R` chose rung \
+         R.\n\n\
          | scene | seed | method | #train | train s | captures | ms/frame (CPU) | closed-loop PSNR | SSIM | gap dB | paper PSNR | paper SSIM |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
@@ -338,10 +397,11 @@ fn markdown(rows: &[Row]) -> String {
             "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             r.scene,
             r.seed,
-            if r.failed.is_some() {
-                format!("{} (failed)", r.method)
-            } else {
-                r.method.clone()
+            match (&r.failed, r.failure, &r.chosen) {
+                (Some(_), _, _) => format!("{} (failed)", r.method),
+                (None, Some(f), _) => format!("{} ({f})", r.method),
+                (None, None, Some(c)) => format!("{} → {c}", r.method),
+                (None, None, None) => r.method.clone(),
             },
             r.ntrain.map_or("–".into(), |n| n.to_string()),
             f(r.train_seconds, 1),
@@ -352,6 +412,28 @@ fn markdown(rows: &[Row]) -> String {
             f(r.gap_db, 2),
             f(r.paper.map(|s| s.psnr), 2),
             f(r.paper.map(|s| s.ssim), 3),
+        );
+    }
+    md.push_str(
+        "\nWhere no model can compensate (percent of the displayable area; \
+         SETUP/cam/unreachable.png shows where): the projector does not reach the pixel \
+         (shadowed), the camera clips under white (saturated), white stays below the top of \
+         the desired range (too dark) or black above its bottom (too bright).\n\n\
+         | scene | seed | unreachable % | shadowed % | saturated % | too dark % | too bright % |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    for r in reach {
+        let u = &r.summary;
+        let _ = writeln!(
+            md,
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
+            r.scene,
+            r.seed,
+            u.unreachable_percent,
+            u.shadowed_percent,
+            u.saturated_percent,
+            u.too_dark_percent,
+            u.too_bright_percent
         );
     }
     md

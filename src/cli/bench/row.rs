@@ -26,6 +26,11 @@ pub struct Row {
     pub gap_db: Option<f64>,
     /// Why the method produced no model (training failed or diverged), if it did not.
     pub failed: Option<String>,
+    /// How the model it produced failed (diverged, collapsed, worse than uncompensated), if
+    /// it did.
+    pub failure: Option<compend::failure::Failure>,
+    /// `auto`: the rung it chose.
+    pub chosen: Option<String>,
 }
 
 impl Row {
@@ -42,6 +47,8 @@ impl Row {
             closed_loop: Some(s),
             gap_db: Some(oracle - s.psnr),
             failed: None,
+            failure: None,
+            chosen: None,
         }
     }
 }
