@@ -134,6 +134,10 @@ pub enum DriftPolicy {
     Report,
     /// Calibrate again (captures, fit, verification); install only if it verifies.
     Recalibrate,
+    /// Refit fast: a calibration from `refit_ntrain` sampling images (seconds of captures
+    /// instead of a minute), geometry and colour of the `linear` rung; installed only if it
+    /// verifies. `calibrate`/`recalibrate` requests still run the full calibration.
+    Refit,
 }
 
 /// `[monitoring]`: scoring the compensated projection during playback.
@@ -146,6 +150,8 @@ pub struct MonitoringConfig {
     /// drift, dB.
     pub drift_threshold_db: f64,
     pub on_drift: DriftPolicy,
+    /// `on_drift = "refit"`: sampling images the refit projects and fits on.
+    pub refit_ntrain: usize,
 }
 
 /// `[socket]`: the control socket.
@@ -399,8 +405,19 @@ impl<'t> Walker<'t> {
                 &[
                     ("report", DriftPolicy::Report),
                     ("recalibrate", DriftPolicy::Recalibrate),
+                    ("refit", DriftPolicy::Refit),
                 ],
             ),
+            refit_ntrain: self.checked(&mut t, "refit_ntrain", 8usize, |&n| {
+                if n >= crate::fit::MIN_TRAIN {
+                    Ok(())
+                } else {
+                    Err(format!(
+                        "at least {} sampling images are needed",
+                        crate::fit::MIN_TRAIN
+                    ))
+                }
+            }),
         };
         self.finish(t);
 
@@ -879,6 +896,27 @@ mod tests {
     fn broken_toml_is_named() {
         let e = parse("[rig\nkind = 1").unwrap_err().to_string();
         assert!(e.contains("t.toml:1: not valid TOML"), "{e}");
+    }
+
+    #[test]
+    fn drift_refits_and_climbs_are_read_and_checked() {
+        let c = parse(
+            "[monitoring]\non_drift = \"refit\"\nrefit_ntrain = 5\n\
+             [calibration]\nclimb = \"auto\"\n",
+        )
+        .unwrap();
+        assert_eq!(c.monitoring.on_drift, DriftPolicy::Refit);
+        assert_eq!(c.monitoring.refit_ntrain, 5);
+        assert_eq!(
+            c.calibration.climb,
+            Some(crate::model::Method::CompenNetPpCpu)
+        );
+        assert_eq!(c.calibration.climb_gain_db, crate::fit::DEFAULT_CLIMB_GAIN_DB);
+        let e = parse("[monitoring]\nrefit_ntrain = 2\n[calibration]\nclimb = \"up\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("t.toml:2: [monitoring] refit_ntrain: at least 4"), "{e}");
+        assert!(e.contains("t.toml:4: [calibration] climb:") && e.contains("\"auto\""), "{e}");
     }
 
     #[test]

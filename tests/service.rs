@@ -3,7 +3,7 @@
 //! requests get errors and it keeps answering; `stop`, SIGTERM end it with exit 0; a kill -9 in
 //! the middle of a recalibration leaves the previous model in place and the restarted service
 //! resumes the run from the captures on disk; drift on the rig is detected by monitoring and
-//! recalibrated; a bad configuration, a busy socket and a path that is not a socket exit 2.
+//! refitted from a handful of captures; a bad configuration, a busy socket and a path that is not a socket exit 2.
 
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
@@ -425,7 +425,7 @@ fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
 }
 
 #[test]
-fn drift_is_detected_and_recalibrated() {
+fn drift_is_detected_and_refitted_from_a_handful_of_captures() {
     if !gpu_or_skip() {
         return;
     }
@@ -444,15 +444,29 @@ fn drift_is_detected_and_recalibrated() {
         scene_file.to_str().unwrap(),
         2,
         "drift_after_s = 2.0",
-        "drift_threshold_db = 2.0\non_drift = \"recalibrate\"",
+        "drift_threshold_db = 2.0\non_drift = \"refit\"\nrefit_ntrain = 6",
     );
     let mut svc = Service::start(&config);
-    let s = svc.wait_for("a recalibration after drift", 420, |s| {
+    let s = svc.wait_for("a refit after drift", 420, |s| {
         s["calibrations"].as_u64() >= Some(2) && playing(s)
     });
     assert!(s["monitoring"]["drifts"].as_u64() >= Some(1), "{s}");
     let log = svc.log();
-    assert!(log.contains("drift: recalibrating"), "{log}");
+    assert!(
+        log.contains("drift: refitting the linear rung from 6 sampling images"),
+        "{log}"
+    );
+    // The refit projected 6 sampling images and the 3 verified test images (12 captures with
+    // black, white and gray, against 19 for the first calibration) and fitted on the 6.
+    let meta: Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("state/model/model.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["training"]["ntrain"], 6, "{meta}");
+    assert_eq!(meta["calibration"]["captured"], 12, "{meta}");
+    assert_eq!(
+        meta["calibration"]["verification"]["passed"], true,
+        "{meta}"
+    );
     // The old model played while the new one trained.
     assert!(
         log.contains("training linear beside playback of the current model"),

@@ -28,6 +28,9 @@ struct Marker {
     rig: String,
     /// The run folder's name.
     run: String,
+    /// A drift refit (few sampling images), resumed as one.
+    #[serde(default)]
+    refit: bool,
 }
 
 /// The runs folder.
@@ -41,6 +44,8 @@ pub struct Runs {
 pub struct Run {
     pub data: PathBuf,
     pub resumed: bool,
+    /// A drift refit: asked for, or the interrupted run was one.
+    pub refit: bool,
 }
 
 impl Runs {
@@ -60,10 +65,15 @@ impl Runs {
 
     /// The run an interrupted calibration left, if the marker names one.
     pub fn interrupted(&self) -> Option<PathBuf> {
+        self.interrupted_marker().map(|(p, _)| p)
+    }
+
+    /// The interrupted run and whether it was a refit.
+    fn interrupted_marker(&self) -> Option<(PathBuf, bool)> {
         let path = self.marker();
         let bytes = std::fs::read(&path).ok()?;
         match serde_json::from_slice::<Marker>(&bytes) {
-            Ok(m) if is_run_name(&m.run) => Some(self.root.join(m.run)),
+            Ok(m) if is_run_name(&m.run) => Some((self.root.join(m.run), m.refit)),
             Ok(m) => {
                 tracing::warn!(
                     "{}: {:?} is not a run folder name; a new run starts",
@@ -82,17 +92,23 @@ impl Runs {
     /// Starts a run: the interrupted one if the marker names one, else a new one named after
     /// `now`. The marker is written (atomically) before this returns.
     pub fn begin(&self, rig: &str, now: SystemTime) -> Result<Run> {
+        self.begin_with(rig, now, false)
+    }
+
+    /// [`Runs::begin`]; a new run is a drift refit when `refit` says so, a resumed one when it
+    /// was one (its captures are of the refit's pattern set).
+    pub fn begin_with(&self, rig: &str, now: SystemTime, refit: bool) -> Result<Run> {
         std::fs::create_dir_all(&self.root)
             .map_err(|e| Error::io(&self.root, "create folder", e))?;
-        let (data, resumed) = match self.interrupted() {
-            Some(d) => (d, true),
+        let (data, resumed, refit) = match self.interrupted_marker() {
+            Some((d, was)) => (d, true, was),
             None => {
                 // Two runs in one second (or a clock set back): the next free second.
                 let mut t = now;
                 while self.root.join(run_name(t)).exists() {
                     t += std::time::Duration::from_secs(1);
                 }
-                (self.root.join(run_name(t)), false)
+                (self.root.join(run_name(t)), false, refit)
             }
         };
         let run = data
@@ -104,10 +120,15 @@ impl Runs {
             pid: std::process::id(),
             rig: rig.to_string(),
             run,
+            refit,
         };
         let bytes = serde_json::to_vec(&marker).map_err(|e| Error::Failed(e.to_string()))?;
         crate::files::write_atomically(&self.marker(), &bytes)?;
-        Ok(Run { data, resumed })
+        Ok(Run {
+            data,
+            resumed,
+            refit,
+        })
     }
 
     /// Ends the run in progress (installed or refused: it is not resumed again).
@@ -259,11 +280,29 @@ mod tests {
             again,
             Run {
                 data: a.data.clone(),
-                resumed: true
+                resumed: true,
+                refit: false
             }
         );
         runs.end();
         assert!(runs.interrupted().is_none());
+        // A drift refit is resumed as a refit, whatever the next begin asks for.
+        let r = runs
+            .begin_with("x", t0 + Duration::from_secs(120), true)
+            .unwrap();
+        assert!(r.refit && !r.resumed);
+        let again = runs
+            .begin_with("x", t0 + Duration::from_secs(180), false)
+            .unwrap();
+        assert!(again.refit && again.resumed && again.data == r.data);
+        runs.end();
+        assert!(
+            !runs
+                .begin("x", t0 + Duration::from_secs(240))
+                .unwrap()
+                .refit
+        );
+        runs.end();
         // A run that began in the same second does not reuse the folder.
         std::fs::create_dir_all(&a.data).unwrap();
         let same = runs.begin("x", t0).unwrap();

@@ -65,6 +65,10 @@ pub struct Args {
     /// built-in drift scene moves 1.5).
     #[arg(long, default_value_t = 24.0)]
     pub bump: f64,
+    /// The drift run's policy (`[monitoring] on_drift`): `report` measures detection only;
+    /// `refit` and `recalibrate` also how long until the new model plays and how it scores.
+    #[arg(long, default_value = "report", value_parser = ["report", "refit", "recalibrate"])]
+    pub on_drift: String,
 }
 
 /// Quantiles of a set of durations, ms.
@@ -141,6 +145,14 @@ struct Drift {
     /// time allowed (ten periods).
     detected_after_s: Option<f64>,
     detected_after_periods: Option<f64>,
+    on_drift: String,
+    /// `refit`/`recalibrate`: seconds from the detection until the new model plays.
+    recovered_after_s: Option<f64>,
+    /// The new model's first monitoring score, dB.
+    psnr_recovered: Option<f64>,
+    /// Its verification PSNR and sampling images (from its calibration record).
+    verified_psnr: Option<f64>,
+    sampling_images: Option<usize>,
 }
 
 #[derive(Serialize, Debug)]
@@ -311,11 +323,14 @@ pub fn run(args: Args) -> Result<()> {
     let second = args.out.join("drift");
     let scene_file = bumped_scene(&args, &second)?;
     let rig = "drift_after_s = 6.0";
-    let monitoring = format!("period_s = {}\non_drift = \"report\"", args.period);
+    let monitoring = format!(
+        "period_s = {}\non_drift = \"{}\"",
+        args.period, args.on_drift
+    );
     let config = write_config(&args, &second, &scene_file, (rig, &monitoring))?;
     let mut svc = Service::start(&config, &args.out.join("serve-drift.log"))?;
     eprintln!("bench-serve: the drift run (bump {} px)", args.bump);
-    let drift = drift(&mut svc, &args, 6.0)?;
+    let drift = drift(&mut svc, &args, 6.0, &second.join("state/model"))?;
     stops.push(svc.stop("SIGINT")?);
 
     let report = Report {
@@ -510,8 +525,9 @@ fn bumped_scene(args: &Args, dir: &Path) -> Result<String> {
 }
 
 /// Waits for playback, then for the first status that reports drift after the bump
-/// `bump_after` seconds into the playback.
-fn drift(svc: &mut Service, args: &Args, bump_after: f64) -> Result<Drift> {
+/// `bump_after` seconds into the playback; with a policy that acts on drift, then for the new
+/// model (installed at `model`) to play and be scored.
+fn drift(svc: &mut Service, args: &Args, bump_after: f64, model: &Path) -> Result<Drift> {
     let start = Instant::now();
     let played = loop {
         if start.elapsed() > Duration::from_secs(1800) {
@@ -528,18 +544,43 @@ fn drift(svc: &mut Service, args: &Args, bump_after: f64) -> Result<Drift> {
     let mut baseline = None;
     let mut detected = None;
     let mut psnr_after = None;
+    let mut calibrations = 0;
     while Instant::now() < bump + Duration::from_secs_f64(10.0 * args.period) {
         std::thread::sleep(Duration::from_millis(20));
         let Some((_, s)) = svc.status()? else {
             continue;
         };
         baseline = baseline.or(s.monitoring.baseline_psnr);
+        calibrations = s.calibrations;
         if s.monitoring.drifts > 0 {
-            detected = Some(Instant::now().saturating_duration_since(bump).as_secs_f64());
+            detected = Some(Instant::now());
             psnr_after = s.monitoring.psnr;
             break;
         }
     }
+    let (mut recovered, mut psnr_recovered) = (None, None);
+    if let Some(at) = detected
+        && args.on_drift != "report"
+    {
+        // The new model plays, then its first monitoring check.
+        while at.elapsed() < Duration::from_secs(1800) {
+            std::thread::sleep(Duration::from_millis(20));
+            let Some((_, s)) = svc.status()? else {
+                continue;
+            };
+            if s.calibrations > calibrations && s.state == State::Playing {
+                recovered.get_or_insert(at.elapsed().as_secs_f64());
+                if s.monitoring.checks > 0 && s.monitoring.psnr.is_some() {
+                    psnr_recovered = s.monitoring.psnr;
+                    break;
+                }
+            }
+        }
+    }
+    let record = recovered
+        .and_then(|_| compend::model::store::load(model).ok())
+        .and_then(|(meta, _)| meta.calibration.map(|c| (c, meta.training.ntrain)));
+    let detected = detected.map(|at| at.saturating_duration_since(bump).as_secs_f64());
     Ok(Drift {
         period_s: args.period,
         bump_px: args.bump,
@@ -547,6 +588,11 @@ fn drift(svc: &mut Service, args: &Args, bump_after: f64) -> Result<Drift> {
         psnr_after,
         detected_after_s: detected,
         detected_after_periods: detected.map(|d| d / args.period),
+        on_drift: args.on_drift.clone(),
+        recovered_after_s: recovered,
+        psnr_recovered,
+        verified_psnr: record.as_ref().map(|(c, _)| c.verification.psnr),
+        sampling_images: record.map(|(_, n)| n),
     })
 }
 
@@ -606,6 +652,16 @@ fn markdown(r: &Report) -> String {
             _ => "not within ten periods".into(),
         }
     );
+    if let Some(t) = d.recovered_after_s {
+        md += &format!(
+            "On drift \"{}\": the new model ({} sampling images, verified {} dB) played {t:.1} s \
+             after the detection; its first monitoring score {} dB.\n",
+            d.on_drift,
+            d.sampling_images.map_or("-".into(), |n| n.to_string()),
+            d.verified_psnr.map_or("-".into(), |v| format!("{v:.2}")),
+            d.psnr_recovered.map_or("-".into(), |v| format!("{v:.2}")),
+        );
+    }
     md += "\n## Stops\n\n";
     for st in &r.stops {
         md += &format!(

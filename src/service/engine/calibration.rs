@@ -25,7 +25,7 @@ use crate::calibrate::runs::Runs;
 use crate::calibrate::{self, Options, PatternSet, SyncSettings};
 use crate::config::Config;
 use crate::error::{Error, Result};
-use crate::model::Model;
+use crate::model::{Method, MethodChoice, Model};
 
 use super::super::devices::Devices;
 #[cfg(target_os = "linux")]
@@ -70,19 +70,30 @@ impl Drop for Training {
 }
 
 impl Engine {
-    /// The calibration's options from `[calibration]`, stopped by `cancel`.
+    /// The calibration's options from `[calibration]`, stopped by `cancel`. For a drift refit
+    /// (`on_drift = "refit"`, [`Engine::refitting`]): `[monitoring] refit_ntrain` sampling
+    /// images, only the test images the verification projects, and the `linear` rung.
     fn calibration_options(&self, cancel: Arc<AtomicBool>) -> Options {
         let c = &self.config.calibration;
+        let (ntrain, ntest, method) = if self.refitting {
+            (
+                self.config.monitoring.refit_ntrain,
+                c.verify,
+                MethodChoice::Rung(Method::Linear),
+            )
+        } else {
+            (c.ntrain, c.ntest, c.method)
+        };
         Options {
             patterns: PatternSet {
                 seed: self.config.rig.seed,
-                ntrain: c.ntrain,
-                ntest: c.ntest,
+                ntrain,
+                ntest,
                 network: c.network,
                 projector: self.devices.display_size(),
                 gray_level: crate::patterns::DEFAULT_GRAY_LEVEL,
             },
-            method: c.method,
+            method,
             fit_seed: 0,
             sync: SyncSettings {
                 average: c.average,
@@ -109,12 +120,13 @@ impl Engine {
         self.climb_plan = None;
         self.training = None;
         let runs = Runs::new(&self.config.paths.data);
+        let refit = std::mem::take(&mut self.refit);
         if std::mem::take(&mut self.fresh_run) {
             // After drift the surface is not what an interrupted run captured: start afresh.
             runs.end();
         }
         self.calibration_started = Instant::now();
-        let run = match runs.begin(&rig_name(&self.config), SystemTime::now()) {
+        let run = match runs.begin_with(&rig_name(&self.config), SystemTime::now(), refit) {
             Ok(r) => r,
             Err(e) => {
                 self.io.fail("calibration", &e);
@@ -123,8 +135,14 @@ impl Engine {
             }
         };
         let data = run.data;
-        self.io.state(State::Calibrating, "calibrating");
-        tracing::info!("calibration into {}", data.display());
+        self.refitting = run.refit;
+        let what = if run.refit {
+            "refitting"
+        } else {
+            "calibrating"
+        };
+        self.io.state(State::Calibrating, what);
+        tracing::info!("{what} into {}", data.display());
         let opts = self.calibration_options(cancel);
         let captured = self.with_devices("captures", |display, camera, progress| {
             calibrate::capture(display, camera, &data, &opts, progress)

@@ -78,6 +78,12 @@ pub struct Engine {
     stay_paused: bool,
     /// The next calibration starts a new run (after drift), never resuming an interrupted one.
     fresh_run: bool,
+    /// The next calibration is a drift refit (`on_drift = "refit"`): few sampling images,
+    /// the `linear` rung.
+    refit: bool,
+    /// The calibration in progress is a refit (asked for, or the interrupted run resumed was
+    /// one).
+    refitting: bool,
 }
 
 impl Engine {
@@ -109,6 +115,8 @@ impl Engine {
             calibration_started: Instant::now(),
             stay_paused: false,
             fresh_run: false,
+            refit: false,
+            refitting: false,
         };
         let path = engine.model_path.clone();
         if path.join(crate::model::store::META_FILE).is_file()
@@ -385,7 +393,7 @@ impl Engine {
         let monitor = m.enabled.then(|| {
             // A calibration already under way (training beside this playback) is not started
             // again: drift is reported only.
-            let recalibrate = m.on_drift == DriftPolicy::Recalibrate && self.training.is_none();
+            let recalibrate = m.on_drift != DriftPolicy::Report && self.training.is_none();
             Tap::new(
                 self.baseline_for_source(),
                 m.drift_threshold_db,
@@ -519,9 +527,19 @@ impl Engine {
             .map(|(_, b)| *b)
     }
 
-    /// Drift ended the playback (`on_drift = "recalibrate"`; with "report" it plays on).
+    /// Drift ended the playback (`on_drift = "recalibrate"` or `"refit"`; with "report" it
+    /// plays on).
     fn on_drift(&mut self) {
-        tracing::warn!("drift: recalibrating");
+        let m = &self.config.monitoring;
+        self.refit = m.on_drift == DriftPolicy::Refit;
+        if self.refit {
+            tracing::warn!(
+                "drift: refitting the linear rung from {} sampling images",
+                m.refit_ntrain
+            );
+        } else {
+            tracing::warn!("drift: recalibrating");
+        }
         self.fresh_run = true;
         self.next = Next::Calibrate;
     }
