@@ -911,12 +911,21 @@ mod tests {
             c.calibration.climb,
             Some(crate::model::Method::CompenNetPpCpu)
         );
-        assert_eq!(c.calibration.climb_gain_db, crate::fit::DEFAULT_CLIMB_GAIN_DB);
+        assert_eq!(
+            c.calibration.climb_gain_db,
+            crate::fit::DEFAULT_CLIMB_GAIN_DB
+        );
         let e = parse("[monitoring]\nrefit_ntrain = 2\n[calibration]\nclimb = \"up\"\n")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("t.toml:2: [monitoring] refit_ntrain: at least 4"), "{e}");
-        assert!(e.contains("t.toml:4: [calibration] climb:") && e.contains("\"auto\""), "{e}");
+        assert!(
+            e.contains("t.toml:2: [monitoring] refit_ntrain: at least 4"),
+            "{e}"
+        );
+        assert!(
+            e.contains("t.toml:4: [calibration] climb:") && e.contains("\"auto\""),
+            "{e}"
+        );
     }
 
     #[test]

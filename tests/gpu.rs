@@ -412,6 +412,88 @@ fn compennet_pass_matches_the_cpu_reference() {
     }
 }
 
+/// A `compennet++-res` model: [`test_model`]'s `linear` part (its 32×24 lattice) plus the
+/// CompenNet of [`compennet_test_model`] (36×28: the correction is resampled, not just
+/// enlarged) with the residual tail and a last layer of random weights, so the correction is
+/// far from zero and signed.
+fn residual_test_model(seed: u64) -> Model {
+    use candle_core::{Device, Tensor, Var};
+    use compend::model::Kind;
+    let Kind::Linear { model: linear, .. } = test_model(seed).kind else {
+        unreachable!("test_model is linear")
+    };
+    let cnn = compennet_test_model(seed);
+    let fov = cnn.fov.clone();
+    let Kind::CompenNet {
+        mut net, surface, ..
+    } = cnn.kind
+    else {
+        unreachable!("compennet_test_model is a CompenNet")
+    };
+    net.make_residual().unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed + 7);
+    let w = net.compen.backbone.conv6.weight().clone();
+    let n = w.elem_count();
+    let values: Vec<f32> = (0..n).map(|_| rng.random_range(-0.2..0.2)).collect();
+    Var::from_tensor(&w)
+        .unwrap()
+        .set(&Tensor::from_vec(values, w.dims(), &Device::Cpu).unwrap())
+        .unwrap();
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method: compend::model::Method::CompenNetPpRes,
+        network_size: NET,
+        camera_size: CAM,
+        canvas: None,
+        training: Default::default(),
+        metrics: serde_json::Value::Null,
+        timings: Default::default(),
+        written_by: "test".into(),
+        calibration: None,
+    };
+    Model::residual(meta, fov, *linear, *net, surface).unwrap()
+}
+
+/// The residual rung's pass (linear, the correction network, their sum) against the CPU
+/// reference ([`compend::model::add_correction`] of the two parts), with the CompenNet
+/// tolerances: the compensation image within 1e-4, the frame within one 8-bit step.
+#[test]
+fn residual_pass_matches_the_cpu_reference() {
+    let Some(ctx) = gpu() else { return };
+    let model = residual_test_model(5);
+    let p = Placement::for_model(&model, ImageSize::new(72, 50), DisplayRange::FULL).unwrap();
+    assert_eq!(p.network_size, NET);
+    let mut pass = CompensationPass::new(&ctx, &model, p).unwrap();
+    let content = random_content(41, 37, 29);
+    pass.run(&ctx, &content).unwrap();
+    let net_cpu = playback::reference_network(&model, &content, &p).unwrap();
+    let net_gpu = pass.read_network(&ctx).unwrap();
+    let e_net = max_abs(&net_cpu, &net_gpu);
+    // The correction matters: the result is not the linear part's.
+    let desired = playback::desired_view(&content, &p).unwrap();
+    let compend::model::Kind::Residual { base, .. } = &model.kind else {
+        unreachable!()
+    };
+    let linear_only = base.apply(&desired.masked(&model.fov).unwrap());
+    let moved = max_abs(&net_cpu, &linear_only);
+    let frame_cpu = playback::reference_frame(&model, &content, &p).unwrap();
+    let frame_gpu = pass.read_output(&ctx).unwrap();
+    let worst = frame_cpu
+        .data()
+        .iter()
+        .zip(frame_gpu.data())
+        .map(|(c, g)| (compend::pngio::to_u8(*c) as i32 - (g * 255.0).round() as i32).abs())
+        .max()
+        .unwrap();
+    eprintln!(
+        "residual: network max |Δ| {e_net:.2e} (correction moves it by up to {moved:.2}), \
+         frame worst {worst} step(s)"
+    );
+    assert!(moved > 0.05, "the correction changed nothing ({moved})");
+    assert!(e_net <= 1e-4, "compensation image differs by {e_net}");
+    assert!(worst <= 1, "projector frame differs by {worst} 8-bit steps");
+}
+
 /// Each layer's activation on the GPU against candle's, layer by layer, on one frame (a failure
 /// names the first layer that differs).
 #[test]

@@ -266,6 +266,7 @@ fn compennet_train_steps(
         captures: Tensor::rand(0f32, 1.0, (batch, 3, ch, cw), &dev).map_err(ce)?,
         surface: Tensor::rand(0f32, 1.0, (1, 3, ch, cw), &dev).map_err(ce)?,
         targets: Tensor::rand(0f32, 1.0, (batch, 3, side, side), &dev).map_err(ce)?,
+        base: None,
     };
     let mut settings = Settings::new(variant, 0);
     // Costs only: the starting weights do not change them.

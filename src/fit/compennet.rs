@@ -32,7 +32,36 @@ pub(super) fn train_compennet(
         targets,
         ..
     } = data;
-    let prepared = prepare_compennet_data(setup, req, variant, &fov, &captures, &targets)?;
+    let mut prepared = prepare_compennet_data(setup, req, variant, &fov, &captures, &targets)?;
+    // The residual rung stands on the `linear` rung: fitted here on the same pairs, its output
+    // for each capture (brought to the network) is what the network corrects.
+    let linear = if variant.residual() {
+        let settings = FitSettings {
+            network_size: targets[0].size(),
+            lattice: Some(super::default_lattice(targets[0].size())),
+            ..FitSettings::default()
+        };
+        let (linear, _) = crate::linear::fit(
+            &captures,
+            &targets,
+            crate::warp::Warp::from_affine(theta),
+            &settings,
+            &mut progress,
+        )?;
+        let simplified = linear.simplify();
+        let ImageSize {
+            width: nw,
+            height: nh,
+        } = prepared.size;
+        let base: Vec<NetImage> = captures
+            .iter()
+            .map(|c| crate::resize::unstretch(&simplified.apply(c), nw, nh))
+            .collect();
+        prepared.data.base = Some(crate::nn::images_to_tensor(&base)?.to_device(&prepared.device)?);
+        Some(linear)
+    } else {
+        None
+    };
     let mut settings = Settings::new(variant, req.seed);
     settings.iters = req.iters;
     settings.batch = req.batch;
@@ -41,7 +70,7 @@ pub(super) fn train_compennet(
     let cancel = req.cancel.as_deref().unwrap_or(&never);
     let (init, geometry_init) = geometry_start(
         setup,
-        variant,
+        (variant, linear.as_ref()),
         &prepared,
         theta,
         &captures,
@@ -56,10 +85,12 @@ pub(super) fn train_compennet(
     let final_loss = report.losses.last().copied().unwrap_or(f64::NAN);
     let seconds = start.elapsed().as_secs_f64();
     let CompenNetData { surface, size, .. } = prepared;
+    // The residual rung's output is on `linear`'s lattice.
+    let network_size = linear.as_ref().map_or(size, |l| l.network_size());
     let meta = ModelMeta {
         format_version: FORMAT_VERSION,
         method,
-        network_size: size,
+        network_size,
         camera_size: surface.size(),
         canvas: None,
         training: TrainingRecord {
@@ -87,7 +118,11 @@ pub(super) fn train_compennet(
         fit_seconds: report.seconds,
         final_loss,
     };
-    Ok((Model::compennet(meta, fov.mask, net, surface)?, summary))
+    let model = match linear {
+        Some(linear) => Model::residual(meta, fov.mask, linear, net, surface)?,
+        None => Model::compennet(meta, fov.mask, net, surface)?,
+    };
+    Ok((model, summary))
 }
 
 /// A CompenNet++ rung's training data, on its device.
@@ -150,6 +185,7 @@ fn prepare_compennet_data(
         captures: on_device(crate::nn::images_to_tensor(captures)?)?,
         surface: on_device(crate::nn::images_to_tensor(std::slice::from_ref(&surface))?)?,
         targets: on_device(crate::nn::images_to_tensor(targets)?)?,
+        base: None,
     };
     Ok(CompenNetData {
         data,
@@ -159,11 +195,15 @@ fn prepare_compennet_data(
     })
 }
 
-/// Where the WarpingNet starts: the structured-light grid for the fixed-geometry rung, else the
-/// `linear` rung's affine + TPS fit. Returns the start and its description for the record.
+/// Where the WarpingNet starts: for a fixed-geometry rung the grid of `linear` (the residual
+/// rung's, given) or of structured light, else the `linear` rung's affine + TPS fit. Returns
+/// the start and its description for the record.
 fn geometry_start(
     setup: &Setup,
-    variant: crate::nn::compennetpp::Variant,
+    (variant, linear): (
+        crate::nn::compennetpp::Variant,
+        Option<&crate::linear::LinearModel>,
+    ),
     prepared: &CompenNetData,
     theta: [[f32; 3]; 2],
     captures: &[CamImage],
@@ -176,7 +216,10 @@ fn geometry_start(
         height: nh,
     } = prepared.size;
     let init = if variant.fixed_geometry() {
-        let grid = sl_grid(setup, prepared.size)?;
+        let grid = match linear {
+            Some(l) => l.grid_at(prepared.size)?,
+            None => sl_grid(setup, prepared.size)?,
+        };
         let flat: Vec<f32> = grid.data().iter().flatten().copied().collect();
         GeometryInit::Fixed(candle_core::Tensor::from_vec(
             flat,
@@ -202,6 +245,7 @@ fn geometry_start(
         )?)
     };
     let description = match &init {
+        GeometryInit::Fixed(_) if linear.is_some() => "the linear rung's grid (fixed)",
         GeometryInit::Fixed(_) => "structured light (fixed)",
         GeometryInit::Warp(_) => "the linear rung's affine + TPS fit",
         GeometryInit::Affine(_) => "the FOV bounding box's affine",

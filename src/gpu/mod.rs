@@ -4,7 +4,8 @@
 //!   that [`is_no_adapter`] recognises, so callers can skip instead of failing.
 //! - [`pass`]: the compensation pass (content frame → projector frame at native resolution),
 //!   with its stages in `shaders/*.wgsl`; the model's photometric stage is a [`pass::Photometric`]
-//!   variant ([`linear`] for the `linear` rung, [`compennet`] for the CompenNet++ family).
+//!   variant ([`linear`] for the `linear` rung, [`compennet`] for the CompenNet++ family,
+//!   [`residual`] for `compennet++-res`, which runs both and adds).
 //! - [`bench`]: per-frame GPU time of the pass against a plain texture copy of the same size.
 //!
 //! Every stage has a CPU reference in the core ([`crate::playback`]), and tests compare them.
@@ -15,6 +16,7 @@ pub mod context;
 mod kernel;
 pub mod linear;
 pub mod pass;
+pub mod residual;
 
 pub use context::{GpuContext, NoAdapter, is_no_adapter};
 pub use pass::{CompensationPass, FRAME_FORMAT, Photometric};

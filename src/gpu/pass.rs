@@ -16,6 +16,7 @@ use super::GpuContext;
 use super::compennet::CompenNetStage;
 use super::kernel::{Slot, Stage, image_texture, storage, uniform, view};
 use super::linear::LinearStage;
+use super::residual::ResidualStage;
 use crate::error::{Error, Result};
 use crate::fov::DisplayRange;
 use crate::model::{Kind, Model};
@@ -36,6 +37,8 @@ pub enum Photometric {
     /// The CompenNet++ family (`compennet++*`, `compennet-sl`): grid sample + the simplified
     /// CompenNet backbone (surface branch folded into constant bias maps).
     CompenNet(Box<CompenNetStage>),
+    /// `compennet++-res`: the `linear` stage, the CompenNet correction, and their sum.
+    Residual(Box<ResidualStage>),
 }
 
 impl Photometric {
@@ -50,6 +53,14 @@ impl Photometric {
             Kind::CompenNet { simplified, .. } => Ok(Self::CompenNet(Box::new(
                 CompenNetStage::new(ctx, simplified, model.camera_size())?,
             ))),
+            Kind::Residual {
+                base, correction, ..
+            } => Ok(Self::Residual(Box::new(ResidualStage::new(
+                ctx,
+                base,
+                correction,
+                model.camera_size(),
+            )?))),
         }
     }
 
@@ -62,6 +73,7 @@ impl Photometric {
         match self {
             Self::Linear(s) => vec![s.bind(ctx, desired, network)],
             Self::CompenNet(s) => s.bind(ctx, desired, network),
+            Self::Residual(s) => s.bind(ctx, desired, network),
         }
     }
 
@@ -73,6 +85,7 @@ impl Photometric {
                 }
             }
             Self::CompenNet(s) => s.dispatch(pass, groups),
+            Self::Residual(s) => s.dispatch(pass, groups),
         }
     }
 }

@@ -101,6 +101,24 @@ impl LinearModel {
         }
     }
 
+    /// The sampling grid at the pixel centres of a `size` image stretched over the same canvas
+    /// (a coarser network on top of this model). A fixed grid is only available at its own size.
+    pub fn grid_at(&self, size: ImageSize) -> crate::error::Result<Grid<Network, Camera>> {
+        match &self.geometry {
+            Geometry::Learned(warp, refine) => Ok(learned_grid(
+                warp,
+                refine.as_ref(),
+                self.geometry_size,
+                size,
+            )),
+            Geometry::Fixed(grid) if grid.size() == size => Ok(grid.clone()),
+            Geometry::Fixed(grid) => Err(crate::error::Error::Shape(format!(
+                "a fixed {} grid cannot be resampled to {size}",
+                grid.size()
+            ))),
+        }
+    }
+
     /// Bakes the geometry into one sampling grid.
     pub fn simplify(&self) -> SimplifiedLinear {
         SimplifiedLinear {

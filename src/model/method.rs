@@ -51,11 +51,16 @@ pub enum Method {
     #[serde(rename = "compennet++-cpu")]
     #[value(name = "compennet++-cpu")]
     CompenNetPpCpu,
+    /// `linear` plus a correction learned by the CPU-sized CompenNet on `linear`'s geometry,
+    /// starting at zero: it starts where `linear` ends.
+    #[serde(rename = "compennet++-res")]
+    #[value(name = "compennet++-res")]
+    CompenNetPpRes,
 }
 
 impl Method {
     /// Every rung, cheapest family first.
-    pub const ALL: [Method; 8] = [
+    pub const ALL: [Method; 9] = [
         Method::Linear,
         Method::LinearSl,
         Method::CompenNetPpFaster,
@@ -64,6 +69,7 @@ impl Method {
         Method::CompenNetPp,
         Method::CompenNetSl,
         Method::CompenNetPpCpu,
+        Method::CompenNetPpRes,
     ];
 
     /// The name on the command line and in `model.json`.
@@ -77,6 +83,7 @@ impl Method {
             Method::CompenNetPp => "compennet++",
             Method::CompenNetSl => "compennet-sl",
             Method::CompenNetPpCpu => "compennet++-cpu",
+            Method::CompenNetPpRes => "compennet++-res",
         }
     }
 
@@ -123,7 +130,7 @@ pub enum MethodChoice {
 }
 
 impl MethodChoice {
-    const ALL: [MethodChoice; 9] = [
+    const ALL: [MethodChoice; 10] = [
         MethodChoice::Auto,
         MethodChoice::Rung(Method::Linear),
         MethodChoice::Rung(Method::LinearSl),
@@ -133,6 +140,7 @@ impl MethodChoice {
         MethodChoice::Rung(Method::CompenNetPp),
         MethodChoice::Rung(Method::CompenNetSl),
         MethodChoice::Rung(Method::CompenNetPpCpu),
+        MethodChoice::Rung(Method::CompenNetPpRes),
     ];
 
     pub fn name(self) -> &'static str {
@@ -184,6 +192,9 @@ impl clap::ValueEnum for MethodChoice {
             MethodChoice::Rung(Method::CompenNetSl) => "CompenNet on the structured-light grid",
             MethodChoice::Rung(Method::CompenNetPpCpu) => {
                 "the CPU-sized rung: half side, half widths, 1000 iterations of 4"
+            }
+            MethodChoice::Rung(Method::CompenNetPpRes) => {
+                "linear plus a CPU-sized CompenNet correction that starts at zero"
             }
         };
         Some(clap::builder::PossibleValue::new(self.name()).help(help))

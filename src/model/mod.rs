@@ -38,13 +38,27 @@ pub enum Kind {
         /// Baked grid and folded surface branch: what runs per frame.
         simplified: Box<crate::nn::compennetpp::SimplifiedCompenNet>,
     },
+    /// `compennet++-res`: a `linear` model (its output lattice is the model's) plus the
+    /// CPU-sized CompenNet on `linear`'s grid, whose signed correction (on the coarser network)
+    /// is stretched over the lattice and added.
+    Residual {
+        linear: Box<LinearModel>,
+        base: crate::linear::SimplifiedLinear,
+        net: Box<crate::nn::compennetpp::CompenNetPP>,
+        surface: CamImage,
+        correction: Box<crate::nn::compennetpp::SimplifiedCompenNet>,
+    },
 }
+
+/// Prefix of the `linear` part's tensors in a `compennet++-res` model directory.
+const RESIDUAL_LINEAR: &str = "linear.";
 
 impl std::fmt::Debug for Kind {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Kind::Linear { .. } => write!(f, "Kind::Linear"),
             Kind::CompenNet { .. } => write!(f, "Kind::CompenNet"),
+            Kind::Residual { .. } => write!(f, "Kind::Residual"),
         }
     }
 }
@@ -95,6 +109,31 @@ impl Model {
         })
     }
 
+    /// A `compennet++-res` model: `linear` and the correction network `net` trained on top of
+    /// it; `surface` is the masked gray surface capture (camera space).
+    pub fn residual(
+        meta: ModelMeta,
+        fov: Mask<Camera>,
+        linear: LinearModel,
+        net: crate::nn::compennetpp::CompenNetPP,
+        surface: CamImage,
+    ) -> Result<Self> {
+        let correction = net.simplify(&crate::nn::images_to_tensor(std::slice::from_ref(
+            &surface,
+        ))?)?;
+        Ok(Self {
+            meta,
+            fov,
+            kind: Kind::Residual {
+                base: linear.simplify(),
+                linear: Box::new(linear),
+                net: Box::new(net),
+                surface,
+                correction: Box::new(correction),
+            },
+        })
+    }
+
     /// Loads a model directory; an unknown method, a version mismatch, a missing or mis-shaped
     /// tensor is an input error naming the file.
     pub fn load(dir: &Path) -> Result<Self> {
@@ -129,12 +168,37 @@ impl Model {
             Some(variant) => {
                 let surface = tensors.get("surface", &[ch, cw, 3], &file)?;
                 let surface = CamImage::from_vec(cw, ch, surface.to_vec())?;
+                // The residual rung's network is on the coarser grid it stores; its output
+                // lattice (the model's network size) is the `linear` part's.
+                let net_size = if variant.residual() {
+                    match tensors.shape(crate::nn::compennetpp::FIXED_GRID) {
+                        Some(&[1, h, w, 2]) => ImageSize::new(w, h),
+                        _ => {
+                            return Err(Error::Input(format!(
+                                "{}: tensor `{}` is missing or not (1, H, W, 2)",
+                                file.display(),
+                                crate::nn::compennetpp::FIXED_GRID
+                            )));
+                        }
+                    }
+                } else {
+                    meta.network_size
+                };
                 let net = crate::nn::compennetpp::CompenNetPP::restore(
-                    meta.network_size,
+                    net_size,
                     variant,
                     &candle_core::Device::Cpu,
                     |name, shape| tensors.get(name, shape, &file).map(|v| v.to_vec()),
                 )?;
+                if variant.residual() {
+                    let linear = LinearModel::from_tensors(
+                        &tensors.under(RESIDUAL_LINEAR),
+                        meta.network_size,
+                        meta.camera_size,
+                        &file,
+                    )?;
+                    return Self::residual(meta, fov, linear, net, surface);
+                }
                 Self::compennet(meta, fov, net, surface)
             }
         }
@@ -142,9 +206,8 @@ impl Model {
 
     /// Saves the model directory atomically (an existing model is replaced only when complete).
     pub fn save(&self, dir: &Path) -> Result<()> {
-        let mut tensors: Tensors = match &self.kind {
-            Kind::Linear { model, .. } => model.to_tensors()?,
-            Kind::CompenNet { net, surface, .. } => {
+        let network_tensors =
+            |net: &crate::nn::compennetpp::CompenNetPP, surface: &CamImage| -> Result<Tensors> {
                 let mut t = Tensors::default();
                 for (name, value) in net.named_tensors() {
                     let dims = value.dims().to_vec();
@@ -156,6 +219,19 @@ impl Model {
                     height: h,
                 } = surface.size();
                 t.insert("surface", vec![h, w, 3], surface.data().to_vec())?;
+                Ok(t)
+            };
+        let mut tensors: Tensors = match &self.kind {
+            Kind::Linear { model, .. } => model.to_tensors()?,
+            Kind::CompenNet { net, surface, .. } => network_tensors(net, surface)?,
+            Kind::Residual {
+                linear,
+                net,
+                surface,
+                ..
+            } => {
+                let mut t = network_tensors(net, surface)?;
+                t.insert_all(RESIDUAL_LINEAR, linear.to_tensors()?);
                 t
             }
         };
@@ -190,6 +266,7 @@ impl Model {
         match &self.kind {
             Kind::Linear { simplified, .. } => &simplified.grid,
             Kind::CompenNet { grid, .. } => grid,
+            Kind::Residual { base, .. } => &base.grid,
         }
     }
 
@@ -216,6 +293,13 @@ impl Model {
                 let x = crate::nn::images_to_tensor(std::slice::from_ref(&masked))?;
                 let out = simplified.forward(&x)?;
                 Ok(crate::nn::tensor_to_image(&out, 0)?)
+            }
+            Kind::Residual {
+                base, correction, ..
+            } => {
+                let x = crate::nn::images_to_tensor(std::slice::from_ref(&masked))?;
+                let r: NetImage = crate::nn::tensor_to_image(&correction.forward(&x)?, 0)?;
+                add_correction(&base.apply(&masked), &r)
             }
         }
     }
@@ -246,6 +330,21 @@ pub fn paper_protocol(
         uncomp.add(&at_size(model.warp_only(cap)?, target.size()), &target)?;
     }
     Ok((comp.finish()?, uncomp.finish()?))
+}
+
+/// The residual rung's output: `linear`'s image (network pixels on its lattice) plus the
+/// correction `r` (network pixels, a coarser network over the same canvas) stretched over the
+/// lattice bilinearly (half-pixel centres, as the canvas stretches), clamped to [0, 1]. The CPU
+/// reference of the GPU pass's residual stage.
+pub fn add_correction(linear: &NetImage, r: &NetImage) -> Result<NetImage> {
+    let up = crate::resize::resize_bilinear(r, linear.width(), linear.height());
+    let data = linear
+        .data()
+        .iter()
+        .zip(up.data())
+        .map(|(a, b)| (a + b).clamp(0.0, 1.0))
+        .collect();
+    NetImage::from_vec(linear.width(), linear.height(), data)
 }
 
 /// A model output brought to `size` for scoring against network-space images (a `linear`

@@ -320,6 +320,24 @@ impl Tensors {
         self.map.keys().map(|s| s.as_str())
     }
 
+    /// Adds every tensor of `other` under `prefix` + its name (a part of a composite model).
+    pub fn insert_all(&mut self, prefix: &str, other: Tensors) {
+        for (k, v) in other.map {
+            self.map.insert(format!("{prefix}{k}"), v);
+        }
+    }
+
+    /// The tensors named `prefix` + something, named by the something.
+    pub fn under(&self, prefix: &str) -> Tensors {
+        Tensors {
+            map: self
+                .map
+                .iter()
+                .filter_map(|(k, v)| Some((k.strip_prefix(prefix)?.to_string(), v.clone())))
+                .collect(),
+        }
+    }
+
     /// The arrays as a safetensors file's bytes (f32, little-endian).
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
         let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = self

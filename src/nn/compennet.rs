@@ -100,6 +100,9 @@ pub struct Backbone {
     pub tconv1: ConvTranspose2d,
     pub tconv2: ConvTranspose2d,
     pub conv6: Conv2d,
+    /// The residual rung's tail: the output is `conv6` alone, a signed correction (no input
+    /// skip, no ReLU, no clamp); otherwise the paper's `clamp(relu(conv6 + skip1(x)), 0, 1)`.
+    pub residual: bool,
 }
 
 impl Backbone {
@@ -118,12 +121,12 @@ impl Backbone {
             tconv1: tconv(vb.pp("tconv1"), 4 * w, 2 * w, 2, k)?,
             tconv2: tconv(vb.pp("tconv2"), 2 * w, w, 2, k)?,
             conv6: conv(vb.pp("conv6"), w, 3, 3, 1, 1, k)?,
+            residual: false,
         })
     }
 
     /// `x` (N, 3, H, W); the surface features broadcast over the batch.
     pub fn forward(&self, x: &Tensor, s: &SurfaceFeatures) -> Result<Tensor> {
-        let res1 = self.skip1.forward(x)?;
         use super::conv::{add_relu, conv_transpose2d, conv2d, relu};
         let a1 = add_relu(&conv2d(&self.conv1, x)?, &s.s1)?;
         let res2 = conv2d(&self.skip2, &a1)?;
@@ -134,6 +137,10 @@ impl Backbone {
         let a5 = add_relu(&conv2d(&self.conv5, &a4)?, &res3)?;
         let a6 = add_relu(&conv_transpose2d(&self.tconv1, &a5)?, &res2)?;
         let a7 = relu(&conv_transpose2d(&self.tconv2, &a6)?)?;
+        if self.residual {
+            return conv2d(&self.conv6, &a7);
+        }
+        let res1 = self.skip1.forward(x)?;
         add_relu(&conv2d(&self.conv6, &a7)?, &res1)?.clamp(0.0, 1.0)
     }
 }

@@ -35,6 +35,10 @@ pub enum Variant {
     /// widths, for projection PCs without a GPU (its output is stretched over the canvas like
     /// any network image).
     Cpu,
+    /// The residual rung: the CPU-sized CompenNet on `linear`'s geometry (a fixed grid) learns a
+    /// signed correction added to `linear`'s output; its last layer starts at zero, so training
+    /// starts from `linear`'s result.
+    Res,
 }
 
 /// A variant's training schedule (docs/architecture.md, "Models": the schedule table).
@@ -52,13 +56,14 @@ pub struct Schedule {
 }
 
 impl Variant {
-    pub const ALL: [Variant; 6] = [
+    pub const ALL: [Variant; 7] = [
         Variant::Full,
         Variant::NoRefine,
         Variant::Fast,
         Variant::Faster,
         Variant::Sl,
         Variant::Cpu,
+        Variant::Res,
     ];
 
     pub fn method(self) -> &'static str {
@@ -69,13 +74,14 @@ impl Variant {
             Variant::Faster => "compennet++-faster",
             Variant::Sl => "compennet-sl",
             Variant::Cpu => "compennet++-cpu",
+            Variant::Res => "compennet++-res",
         }
     }
 
     /// The base channel width of CompenNet, channels (the paper's: 32).
     pub fn width(self) -> usize {
         match self {
-            Variant::Cpu => PAPER_WIDTH / 2,
+            Variant::Cpu | Variant::Res => PAPER_WIDTH / 2,
             _ => PAPER_WIDTH,
         }
     }
@@ -83,7 +89,7 @@ impl Variant {
     /// The network side, pixels, is the data root's divided by this.
     pub fn network_divisor(self) -> usize {
         match self {
-            Variant::Cpu => 2,
+            Variant::Cpu | Variant::Res => 2,
             _ => 1,
         }
     }
@@ -100,7 +106,7 @@ impl Variant {
             Variant::Full | Variant::NoRefine => (500, 48, 1500, 1000),
             Variant::Fast => (48, 24, 1000, 800),
             Variant::Faster | Variant::Sl => (48, 16, 500, 400),
-            Variant::Cpu => (48, 4, 1000, 800),
+            Variant::Cpu | Variant::Res => (48, 4, 1000, 800),
         };
         Schedule {
             train_pairs,
@@ -111,12 +117,19 @@ impl Variant {
     }
 
     pub fn refine(self) -> bool {
-        !matches!(self, Variant::NoRefine | Variant::Sl)
+        !matches!(self, Variant::NoRefine | Variant::Sl | Variant::Res)
     }
 
-    /// Whether the geometry is a fixed grid (from structured light) rather than learned.
+    /// Whether the geometry is a fixed grid (from structured light, or `linear`'s for the
+    /// residual rung) rather than learned.
     pub fn fixed_geometry(self) -> bool {
-        self == Variant::Sl
+        matches!(self, Variant::Sl | Variant::Res)
+    }
+
+    /// Whether the network learns a correction added to `linear`'s output (its last layer
+    /// starts at zero, its output is signed) rather than the projector image itself.
+    pub fn residual(self) -> bool {
+        self == Variant::Res
     }
 }
 
@@ -230,7 +243,22 @@ impl CompenNetPP {
         })
     }
 
-    /// π†: captures (B, 3, Hc, Wc) and surface (1, 3, Hc, Wc) → projector images (B, 3, Hn, Wn).
+    /// Makes this the residual rung's network ([`Variant::residual`]): the backbone outputs a
+    /// signed correction, and its last layer (`compen.backbone.conv6`) starts at zero, so the
+    /// first output is no correction at all.
+    pub fn make_residual(&mut self) -> candle_core::Result<()> {
+        self.compen.backbone.residual = true;
+        let conv6 = &self.compen.backbone.conv6;
+        let w = conv6.weight();
+        Var::from_tensor(w)?.set(&w.zeros_like()?)?;
+        if let Some(b) = conv6.bias() {
+            Var::from_tensor(b)?.set(&b.zeros_like()?)?;
+        }
+        Ok(())
+    }
+
+    /// π†: captures (B, 3, Hc, Wc) and surface (1, 3, Hc, Wc) → projector images (B, 3, Hn, Wn)
+    /// (the residual rung: corrections to add to `linear`'s output).
     pub fn forward(&self, captures: &Tensor, surface: &Tensor) -> candle_core::Result<Tensor> {
         let b = captures.dim(0)?;
         let grid = self.warp.grid()?;
@@ -244,7 +272,9 @@ impl CompenNetPP {
 
     /// One training step's loss and gradients for captures `x` (B, 3, Hc, Wc), targets `y`
     /// (B, 3, Hn, Wn) and the surface image (1, 3, Hc, Wc): the fit `L1 + (1 − SSIM)` over the
-    /// batch (its value is returned) plus the L2 term `(wd/2)·Σw²` over every variable.
+    /// batch (its value is returned) plus the L2 term `(wd/2)·Σw²` over every variable. `base`
+    /// (B, 3, Hn, Wn), the residual rung's: `linear`'s outputs, to which the network's
+    /// corrections are added before the fit.
     ///
     /// With `shards` > 1 the batch is split into that many contiguous parts whose backbone
     /// passes, forward and backward, run in parallel (one rayon task each). On a small CPU this
@@ -259,6 +289,7 @@ impl CompenNetPP {
         &self,
         x: &Tensor,
         y: &Tensor,
+        base: Option<&Tensor>,
         surface: &Tensor,
         weight_decay: f64,
         shards: usize,
@@ -269,19 +300,22 @@ impl CompenNetPP {
         let device = x.device().clone();
         let l2 = l2_penalty(&vars, &device)?.affine(0.5 * weight_decay, 0.0)?;
         if shards == 1 {
-            let out = self.forward(x, surface)?;
+            let mut out = self.forward(x, surface)?;
+            if let Some(b) = base {
+                out = (out + b)?;
+            }
             let fit = loss::l1_ssim(&out, y)?;
             let value = to_f64(&fit)?;
             return Ok((value, (&fit + l2)?.backward()?));
         }
-        self.sharded_gradients(x, y, surface, l2, &vars, shards)
+        self.sharded_gradients(x, (y, base), surface, l2, &vars, shards)
     }
 
     /// [`CompenNetPP::gradients`] for `shards` ≥ 2 shards of the batch, `l2` the weighted L2 term.
     fn sharded_gradients(
         &self,
         x: &Tensor,
-        y: &Tensor,
+        (y, base): (&Tensor, Option<&Tensor>),
         surface: &Tensor,
         l2: Tensor,
         vars: &[Var],
@@ -316,7 +350,10 @@ impl CompenNetPP {
             let len = (k + 1) * b / shards - lo;
             let gb = g.broadcast_as((len, h, w, 2))?.contiguous()?;
             let xw = grid_sample(&x.narrow(0, lo, len)?, &gb)?;
-            let out = self.compen.forward_with(&xw, &features)?;
+            let mut out = self.compen.forward_with(&xw, &features)?;
+            if let Some(base) = base {
+                out = (out + base.narrow(0, lo, len)?)?;
+            }
             let share = len as f64 / b as f64;
             let fit = loss::l1_ssim(&out, &y.narrow(0, lo, len)?)?.affine(share, 0.0)?;
             Ok((to_f64(&fit)?, fit.backward()?))
@@ -414,7 +451,10 @@ impl CompenNetPP {
         } else {
             GeometryInit::Affine([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
         };
-        let model = Self::with_width(init, size, variant.refine(), variant.width(), 0, device)?;
+        let mut model = Self::with_width(init, size, variant.refine(), variant.width(), 0, device)?;
+        if variant.residual() {
+            model.make_residual()?;
+        }
         for (name, t) in model.named_tensors() {
             if !t.is_variable() {
                 continue; // constants (the fixed grid) were set above

@@ -69,6 +69,9 @@ pub struct Data {
     pub captures: Tensor,
     pub surface: Tensor,
     pub targets: Tensor,
+    /// The residual rung: `linear`'s output for each capture (N, 3, Hn, Wn), which the network
+    /// corrects.
+    pub base: Option<Tensor>,
 }
 
 /// How many shards a training step of `batch` samples is split into on `device`: two on the CPU
@@ -134,9 +137,14 @@ pub fn train(
         let idx = Tensor::from_vec(order[..batch].to_vec(), batch, &device)?;
         let x = data.captures.index_select(&idx, 0)?;
         let y = data.targets.index_select(&idx, 0)?;
+        let base = match &data.base {
+            Some(b) => Some(b.index_select(&idx, 0)?),
+            None => None,
+        };
         let (value, grads) = model.gradients(
             &x,
             &y,
+            base.as_ref(),
             &data.surface,
             settings.weight_decay,
             shards_for(&device, batch),
@@ -171,7 +179,7 @@ fn fresh_model(
     settings: &Settings,
     device: &Device,
 ) -> Result<(CompenNetPP, String)> {
-    let model = CompenNetPP::with_width(
+    let mut model = CompenNetPP::with_width(
         init,
         size,
         settings.variant.refine(),
@@ -186,6 +194,10 @@ fn fresh_model(
         }
         None => "kaiming".to_string(),
     };
+    // After the pre-initialisation: the correction starts at zero whatever it set.
+    if settings.variant.residual() {
+        model.make_residual()?;
+    }
     Ok((model, photometric_init))
 }
 
@@ -194,7 +206,10 @@ fn fresh_model(
 /// (images in [0, 1]).
 fn check_not_collapsed(model: &CompenNetPP, data: &Data, n: usize) -> Result<()> {
     let probe = data.captures.narrow(0, 0, n.min(4))?;
-    let out = model.forward(&probe, &data.surface)?;
+    let mut out = model.forward(&probe, &data.surface)?;
+    if let Some(b) = &data.base {
+        out = (out + b.narrow(0, 0, n.min(4))?)?;
+    }
     let spread: f64 = out
         .flatten_from(1)?
         .var_keepdim(1)?

@@ -22,6 +22,7 @@ fn compennet_training_learns_reproduces_and_cancels() {
         captures: stack(&caps),
         surface: stack(&[sys.capture(&gray)]),
         targets: stack(&train_imgs),
+        base: None,
     };
     let theta = [[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]];
     let mut settings = Settings::new(Variant::Faster, 4);
@@ -90,9 +91,9 @@ fn sharded_training_step_equals_the_unsharded_one() {
             let x = Tensor::rand(0f32, 1.0, (batch, 3, 20, 30), &dev).unwrap();
             let y = Tensor::rand(0f32, 1.0, (batch, 3, h, w), &dev).unwrap();
             let s = Tensor::rand(0f32, 1.0, (1, 3, 20, 30), &dev).unwrap();
-            let (v1, g1) = model.gradients(&x, &y, &s, 1e-4, 1).unwrap();
+            let (v1, g1) = model.gradients(&x, &y, None, &s, 1e-4, 1).unwrap();
             for shards in [2, batch] {
-                let (vk, gk) = model.gradients(&x, &y, &s, 1e-4, shards).unwrap();
+                let (vk, gk) = model.gradients(&x, &y, None, &s, 1e-4, shards).unwrap();
                 let what = format!("{name}, batch {batch}, {shards} shards");
                 assert!(
                     (v1 - vk).abs() < 1e-6 * v1.abs(),

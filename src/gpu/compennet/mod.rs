@@ -139,28 +139,47 @@ fn plan(model: &SimplifiedCompenNet) -> Result<Vec<Planned<'_>>> {
     };
     let (conv, tconv) = (Weights::conv, Weights::tconv);
     let relu_add = FLAG_ADD | FLAG_RELU;
-    Ok(vec![
+    // The residual rung's tail is conv6 alone (a signed correction): no input skip to compute.
+    let tail = if b.residual {
+        step("out", conv(&b.conv6, "conv6")?, "a7", Add::None, 0)
+    } else {
         step(
-            "skip1.0",
-            conv(&b.skip1.convs[0], "skip1.0")?,
-            "x",
-            Add::None,
-            FLAG_RELU,
-        ),
-        step(
-            "skip1.1",
-            conv(&b.skip1.convs[1], "skip1.1")?,
-            "skip1.0",
-            Add::None,
-            FLAG_RELU,
-        ),
-        step(
-            "res1",
-            conv(&b.skip1.convs[2], "skip1.2")?,
-            "skip1.1",
-            Add::None,
-            FLAG_RELU,
-        ),
+            "out",
+            conv(&b.conv6, "conv6")?,
+            "a7",
+            Add::Skip("res1"),
+            relu_add | FLAG_CLAMP1,
+        )
+    };
+    let skip = if b.residual {
+        Vec::new()
+    } else {
+        vec![
+            step(
+                "skip1.0",
+                conv(&b.skip1.convs[0], "skip1.0")?,
+                "x",
+                Add::None,
+                FLAG_RELU,
+            ),
+            step(
+                "skip1.1",
+                conv(&b.skip1.convs[1], "skip1.1")?,
+                "skip1.0",
+                Add::None,
+                FLAG_RELU,
+            ),
+            step(
+                "res1",
+                conv(&b.skip1.convs[2], "skip1.2")?,
+                "skip1.1",
+                Add::None,
+                FLAG_RELU,
+            ),
+        ]
+    };
+    let mut steps = skip;
+    steps.extend([
         step(
             "a1",
             conv(&b.conv1, "conv1")?,
@@ -212,14 +231,9 @@ fn plan(model: &SimplifiedCompenNet) -> Result<Vec<Planned<'_>>> {
             Add::None,
             FLAG_RELU,
         ),
-        step(
-            "out",
-            conv(&b.conv6, "conv6")?,
-            "a7",
-            Add::Skip("res1"),
-            relu_add | FLAG_CLAMP1,
-        ),
-    ])
+        tail,
+    ]);
+    Ok(steps)
 }
 
 /// (width, height) of the network image in network pixels, from the baked grid.
@@ -492,6 +506,11 @@ impl CompenNetStage {
             acts,
             network_size: ImageSize::new(nw, nh),
         })
+    }
+
+    /// (width, height) of the network image it writes, network pixels.
+    pub fn network_size(&self) -> ImageSize {
+        self.network_size
     }
 
     /// The bind groups reading the desired view `desired` and writing the network image
