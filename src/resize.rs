@@ -22,6 +22,21 @@ fn bilinear_taps(src: usize, dst: usize) -> Vec<(usize, usize, f32)> {
         .collect()
 }
 
+/// The bilinear resize of one axis from `src` to `dst` samples as a `dst`×`src` matrix
+/// (row-major): row `i` holds the weights of output sample `i`, the taps of [`resize_bilinear`].
+/// A differentiable framework resizes with it by matrix products.
+pub fn bilinear_matrix(src: usize, dst: usize) -> Vec<f32> {
+    let mut m = vec![0f32; dst * src];
+    if src == 0 {
+        return m;
+    }
+    for (i, (i0, i1, w)) in bilinear_taps(src, dst).into_iter().enumerate() {
+        m[i * src + i0] += 1.0 - w;
+        m[i * src + i1] += w;
+    }
+    m
+}
+
 /// Per-axis box taps: for each output pixel, the (source index, weight) pairs, weights summing to 1.
 fn area_taps(src: usize, dst: usize) -> Vec<Vec<(usize, f32)>> {
     let scale = src as f64 / dst as f64;

@@ -178,7 +178,56 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
     compennet_sl_saves_its_fixed_grid(dir.path(), &setup);
     let model = compennet_faster_trains_and_compensates(dir.path(), &setup);
     compennet_cpu_works_at_half_the_network_side(dir.path(), &setup);
+    residual_rung_starts_where_linear_ends(dir.path(), &setup);
     wrong_tensor_shape_names_the_tensor(dir.path(), &model, &setup);
+}
+
+/// `compennet++-res`: after one step it is `linear` (its correction starts at zero), its
+/// images are on linear's lattice, and after a short training it is no worse than `linear`.
+fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
+    let linear = dir.join("linear-for-res");
+    let out = compend(&[
+        "train",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--method",
+        "linear",
+        "--out",
+        linear.to_str().unwrap(),
+    ]);
+    assert_code(&out, 0);
+    let (lin, _) = compensated_and_uncompensated(&eval_json(&linear, setup));
+    let res1 = dir.join("res-1");
+    train_cnn(setup, "compennet++-res", "1", &res1, false);
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(res1.join("model.json")).unwrap()).unwrap();
+    // The model's output lattice is linear's (1.5× the network), not the network's half.
+    assert_eq!(
+        meta["network_size"],
+        serde_json::json!([NET * 3 / 2, NET * 3 / 2])
+    );
+    assert_eq!(
+        meta["training"]["geometry_init"],
+        "the linear rung's grid (fixed)"
+    );
+    let (one, _) = compensated_and_uncompensated(&eval_json(&res1, setup));
+    assert!(
+        (one - lin).abs() < 0.3,
+        "after one step compennet++-res {one:.2} dB, linear {lin:.2} dB"
+    );
+    let res = dir.join("res-60");
+    train_cnn(setup, "compennet++-res", "60", &res, false);
+    let (trained, u) = compensated_and_uncompensated(&eval_json(&res, setup));
+    assert!(
+        trained > lin - 0.3 && trained > u,
+        "compennet++-res {trained:.2} dB, linear {lin:.2} dB, uncompensated {u:.2} dB"
+    );
+    let cmp = dir.join("cmp-res");
+    compensate(&res, setup, &cmp);
+    assert_eq!(
+        compend::pngio::png_size(&cmp.join("img_0001.png")).unwrap(),
+        ImageSize::new(NET * 3 / 2, NET * 3 / 2)
+    );
 }
 
 /// Trains `method` through the CLI with `--iters` and batch 4 into `out`, expecting success;

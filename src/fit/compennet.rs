@@ -14,6 +14,10 @@ use crate::model::store::{FORMAT_VERSION, ModelMeta, Timings, TrainingRecord};
 use crate::model::{Method, Model};
 use crate::raster::{CamImage, ImageSize, NetImage};
 
+/// The residual rung's learning rate (Adam's step size before the lr step): a fifth of the
+/// paper's, as for fine-tuning.
+const RESIDUAL_LEARNING_RATE: f64 = 2e-4;
+
 /// Trains a CompenNet++ variant on already masked captures.
 pub(super) fn train_compennet(
     setup: &Setup,
@@ -52,7 +56,7 @@ pub(super) fn train_compennet(
         let ImageSize {
             width: nw,
             height: nh,
-        } = prepared.size;
+        } = targets[0].size();
         let base: Vec<NetImage> = captures
             .iter()
             .map(|c| crate::resize::unstretch(&simplified.apply(c), nw, nh))
@@ -66,6 +70,12 @@ pub(super) fn train_compennet(
     settings.iters = req.iters;
     settings.batch = req.batch;
     settings.photometric = req.photometric.clone();
+    if variant.residual() {
+        // Adam's first steps move every weight by about the learning rate whatever the
+        // gradient's size: from a last layer at zero, the paper's 1e-3 makes the first
+        // corrections large enough to undo part of what `linear` got right.
+        settings.learning_rate = RESIDUAL_LEARNING_RATE;
+    }
     let never = std::sync::atomic::AtomicBool::new(false);
     let cancel = req.cancel.as_deref().unwrap_or(&never);
     let (init, geometry_init) = geometry_start(
@@ -152,7 +162,9 @@ fn prepare_compennet_data(
     // canvas stretch shows the same picture, a little blurred).
     let div = variant.network_divisor();
     let full_size = full_targets[0].size();
-    let shrunk: Option<Vec<NetImage>> = (div > 1).then(|| {
+    // The residual rung's loss is at the data's network size (its corrections are stretched
+    // over `linear`'s outputs there), so its targets stay whole.
+    let shrunk: Option<Vec<NetImage>> = (div > 1 && !variant.residual()).then(|| {
         let ImageSize {
             width: w,
             height: h,
@@ -166,7 +178,11 @@ fn prepare_compennet_data(
     let ImageSize {
         width: nw,
         height: nh,
-    } = targets[0].size();
+    } = if variant.residual() {
+        ImageSize::new(full_size.width / div, full_size.height / div)
+    } else {
+        targets[0].size()
+    };
     if nw % 4 != 0 || nh % 4 != 0 {
         return Err(Error::Input(format!(
             "{} needs network sides divisible by {}, the projector images are {}x{}",

@@ -302,7 +302,7 @@ impl CompenNetPP {
         if shards == 1 {
             let mut out = self.forward(x, surface)?;
             if let Some(b) = base {
-                out = (out + b)?;
+                out = with_base(&out, b)?;
             }
             let fit = loss::l1_ssim(&out, y)?;
             let value = to_f64(&fit)?;
@@ -352,7 +352,7 @@ impl CompenNetPP {
             let xw = grid_sample(&x.narrow(0, lo, len)?, &gb)?;
             let mut out = self.compen.forward_with(&xw, &features)?;
             if let Some(base) = base {
-                out = (out + base.narrow(0, lo, len)?)?;
+                out = with_base(&out, &base.narrow(0, lo, len)?)?;
             }
             let share = len as f64 / b as f64;
             let fit = loss::l1_ssim(&out, &y.narrow(0, lo, len)?)?.affine(share, 0.0)?;
@@ -385,6 +385,14 @@ impl CompenNetPP {
         }
         Ok((value, grads))
     }
+}
+
+/// The residual rung's output in training: the corrections `r` (B, 3, h, w) stretched
+/// bilinearly over `base` (B, 3, H, W: `linear`'s outputs at the data's network size) and
+/// added, so the loss sees what the paper protocol scores.
+pub fn with_base(r: &Tensor, base: &Tensor) -> candle_core::Result<Tensor> {
+    let (_, _, h, w) = base.dims4()?;
+    super::stretch(r, ImageSize::new(w, h))? + base
 }
 
 /// A scalar tensor's value as f64.

@@ -29,6 +29,31 @@ use candle_core::{Device, Result, Tensor};
 use crate::raster::{ImageSize, Rgb, Space};
 
 /// Images of one size as an (N, 3, H, W) f32 tensor on the CPU.
+/// Bilinear resize of (B, C, H, W) images to `size` (half-pixel centres, as
+/// [`crate::resize::resize_bilinear`]), as two matrix products, so gradients flow through it.
+pub fn stretch(x: &Tensor, size: ImageSize) -> Result<Tensor> {
+    let (_, _, h, w) = x.dims4()?;
+    if (w, h) == (size.width, size.height) {
+        return Ok(x.clone());
+    }
+    let dev = x.device();
+    let ah = Tensor::from_vec(
+        crate::resize::bilinear_matrix(h, size.height),
+        (size.height, h),
+        dev,
+    )?;
+    let awt = Tensor::from_vec(
+        crate::resize::bilinear_matrix(w, size.width),
+        (size.width, w),
+        dev,
+    )?
+    .t()?
+    .contiguous()?;
+    // Rows: (B, C, H, W)·(W, W') → (B, C, H, W'); columns: (H', H)·(B, C, H, W') → (B, C, H', W').
+    let rows = x.broadcast_matmul(&awt)?;
+    ah.broadcast_matmul(&rows)
+}
+
 pub fn images_to_tensor<S: Space>(imgs: &[Rgb<S>]) -> Result<Tensor> {
     let Some(first) = imgs.first() else {
         candle_core::bail!("images_to_tensor: no images");

@@ -69,8 +69,8 @@ pub struct Data {
     pub captures: Tensor,
     pub surface: Tensor,
     pub targets: Tensor,
-    /// The residual rung: `linear`'s output for each capture (N, 3, Hn, Wn), which the network
-    /// corrects.
+    /// The residual rung: `linear`'s output for each capture at the targets' size, which the
+    /// network's corrections (on its own, coarser network) are stretched over and added to.
     pub base: Option<Tensor>,
 }
 
@@ -117,7 +117,15 @@ pub fn train(
         ));
     }
     let device = data.captures.device().clone();
-    let (model, photometric_init) = fresh_model(init, ImageSize::new(wn, hn), settings, &device)?;
+    // A fixed grid sets the network's size: the residual rung's is coarser than its targets.
+    let size = match &init {
+        GeometryInit::Fixed(g) => {
+            let (_, h, w, _) = g.dims4()?;
+            ImageSize::new(w, h)
+        }
+        _ => ImageSize::new(wn, hn),
+    };
+    let (model, photometric_init) = fresh_model(init, size, settings, &device)?;
     let vars = model.varmap.all_vars();
     let mut opt = adam(vars.clone(), settings.learning_rate)?;
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
@@ -208,7 +216,7 @@ fn check_not_collapsed(model: &CompenNetPP, data: &Data, n: usize) -> Result<()>
     let probe = data.captures.narrow(0, 0, n.min(4))?;
     let mut out = model.forward(&probe, &data.surface)?;
     if let Some(b) = &data.base {
-        out = (out + b.narrow(0, 0, n.min(4))?)?;
+        out = super::compennetpp::with_base(&out, &b.narrow(0, 0, n.min(4))?)?;
     }
     let spread: f64 = out
         .flatten_from(1)?

@@ -191,3 +191,54 @@ fn simplified_compennet_reproduces_the_full_network() {
     assert_eq!(backbone_params, 736_063);
     assert_eq!(simple.bias.s4.dims(), &[1, 256, 4, 6]);
 }
+
+/// The residual rung's network outputs nothing at first (its last layer starts at zero, with no
+/// input skip, no ReLU, no clamp), and once that layer moves its output is signed.
+#[test]
+fn a_residual_network_starts_at_zero_and_its_correction_is_signed() {
+    use candle_core::Var;
+    use compend::nn::compennetpp::{CompenNetPP, GeometryInit};
+    let grid = Tensor::rand(-0.9f32, 0.9, (1, 8, 12, 2), &Device::Cpu).unwrap();
+    let mut model = CompenNetPP::with_width(
+        GeometryInit::Fixed(grid),
+        ImageSize::new(12, 8),
+        false,
+        16,
+        3,
+        &Device::Cpu,
+    )
+    .unwrap();
+    model.make_residual().unwrap();
+    let surface = Tensor::rand(0f32, 1.0, (1, 3, 20, 30), &Device::Cpu).unwrap();
+    let x = Tensor::rand(0f32, 1.0, (2, 3, 20, 30), &Device::Cpu).unwrap();
+    let at_start: f32 = model
+        .forward(&x, &surface)
+        .unwrap()
+        .abs()
+        .unwrap()
+        .max_all()
+        .unwrap()
+        .to_scalar()
+        .unwrap();
+    assert_eq!(at_start, 0.0);
+    let w = model.compen.backbone.conv6.weight().clone();
+    Var::from_tensor(&w)
+        .unwrap()
+        .set(&Tensor::randn(0f32, 0.3, w.dims(), &Device::Cpu).unwrap())
+        .unwrap();
+    let out = model.forward(&x, &surface).unwrap();
+    let min: f32 = out.min_all().unwrap().to_scalar().unwrap();
+    let max: f32 = out.max_all().unwrap().to_scalar().unwrap();
+    assert!(min < 0.0 && max > 0.0, "correction in [{min}, {max}]");
+    // The playback form agrees.
+    let fast = model.simplify(&surface).unwrap().forward(&x).unwrap();
+    let diff: f32 = (out - fast)
+        .unwrap()
+        .abs()
+        .unwrap()
+        .max_all()
+        .unwrap()
+        .to_scalar()
+        .unwrap();
+    assert!(diff < 1e-5, "simplified residual differs by {diff}");
+}
