@@ -242,3 +242,41 @@ fn a_residual_network_starts_at_zero_and_its_correction_is_signed() {
         .unwrap();
     assert!(diff < 1e-5, "simplified residual differs by {diff}");
 }
+
+/// `nn::stretch` (matrix products, for training) resizes as `resize::resize_bilinear` does,
+/// enlarging and shrinking, and gradients flow through it.
+#[test]
+fn stretch_equals_the_bilinear_resize() {
+    use compend::raster::NetImage;
+    let img = NetImage::from_fn(7, 5, |x, y| {
+        [x as f32 * 0.1, y as f32 * 0.2, ((x * y) % 3) as f32 * 0.3]
+    });
+    for (w, h) in [(16, 12), (5, 3), (7, 5)] {
+        let t = compend::nn::images_to_tensor(std::slice::from_ref(&img)).unwrap();
+        let s = compend::nn::stretch(&t, ImageSize::new(w, h)).unwrap();
+        let got: NetImage = compend::nn::tensor_to_image(&s, 0).unwrap();
+        let want = compend::resize::resize_bilinear(&img, w, h);
+        let worst = got
+            .data()
+            .iter()
+            .zip(want.data())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        assert!(worst < 1e-5, "{w}x{h}: differs by {worst}");
+    }
+    let v = candle_core::Var::from_tensor(
+        &Tensor::ones((1, 3, 4, 4), DType::F32, &Device::Cpu).unwrap(),
+    )
+    .unwrap();
+    let out = compend::nn::stretch(v.as_tensor(), ImageSize::new(8, 8)).unwrap();
+    let grads = out.sum_all().unwrap().backward().unwrap();
+    // Each source pixel's weights over the enlargement sum to its share: 64 / 16 = 4.
+    let g: Vec<f32> = grads
+        .get(v.as_tensor())
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    assert!(g.iter().all(|x| (x - 4.0).abs() < 1e-4), "{g:?}");
+}
