@@ -909,7 +909,7 @@ mod tests {
         assert_eq!(c.monitoring.refit_ntrain, 5);
         assert_eq!(
             c.calibration.climb,
-            Some(crate::model::Method::CompenNetPpCpu)
+            Some(crate::model::Method::CompenNetPpRes)
         );
         assert_eq!(
             c.calibration.climb_gain_db,

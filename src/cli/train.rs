@@ -15,7 +15,7 @@ pub struct Args {
     /// 256² sample (`compennet++-cpu`: about 4–4.5 minutes in all): see --iters. `auto` fits
     /// `linear` and `linear-sl` on all but a sixth of the pairs and scores them on the held-out
     /// pairs (paper-protocol PSNR); then trains the CompenNet++ rung the device affords
-    /// (`compennet++-cpu` on the CPU, `compennet++` on a GPU) on the same pairs and keeps it
+    /// (`compennet++-res` on the CPU, `compennet++` on a GPU) on the same pairs and keeps it
     /// only if it beats the best linear rung by --climb-gain; otherwise that linear rung is
     /// refitted on all pairs. The evidence goes into model.json.
     #[arg(long, value_enum)]

@@ -4,8 +4,8 @@
 //! 1. The last sixth of the training pairs (at least 4) is held out; every linear rung
 //!    (`linear`, and `linear-sl` when the setup has structured light) is fitted on the rest and
 //!    scored on them with the paper protocol.
-//! 2. The CompenNet++ rung the machine can afford ([`climb_rung`]: `compennet++-cpu` on the
-//!    CPU, the full `compennet++` on a GPU) is trained on the same pairs and scored the same
+//! 2. The CompenNet++ rung the machine can afford ([`climb_rung`]: `compennet++-res`, `linear`
+//!    plus a CPU-sized correction, on the CPU; the full `compennet++` on a GPU) is trained on the same pairs and scored the same
 //!    way. It is kept only if it beats the best linear rung by the climbing rule's margin
 //!    ([`ClimbRule`]); the service's progressive calibration applies the same rule to a
 //!    calibration's test pairs.
@@ -62,11 +62,12 @@ impl ClimbRule {
     }
 }
 
-/// The CompenNet++ rung a training device can afford: the CPU-sized one on the CPU, the full
-/// one on a GPU.
+/// The CompenNet++ rung a training device can afford: on the CPU the residual rung (`linear`
+/// plus a CPU-sized CompenNet correction, which starts where `linear` ends), the full one on a
+/// GPU.
 pub fn climb_rung(device: TrainDevice) -> Method {
     match device {
-        TrainDevice::Cpu => Method::CompenNetPpCpu,
+        TrainDevice::Cpu => Method::CompenNetPpRes,
         TrainDevice::Cuda(_) => Method::CompenNetPp,
     }
 }
@@ -225,7 +226,7 @@ mod tests {
         assert!(!rule.climbs(f64::INFINITY, 25.0));
         // Nor against a lower rung with no score: nothing to compare with.
         assert!(!rule.climbs(20.0, f64::NAN));
-        assert_eq!(climb_rung(TrainDevice::Cpu), Method::CompenNetPpCpu);
+        assert_eq!(climb_rung(TrainDevice::Cpu), Method::CompenNetPpRes);
         assert_eq!(climb_rung(TrainDevice::Cuda(0)), Method::CompenNetPp);
         assert_eq!(held_out(48), 8);
         assert_eq!(held_out(12), 4);

@@ -181,7 +181,8 @@ impl clap::ValueEnum for MethodChoice {
         let help = match self {
             MethodChoice::Auto => {
                 "the best linear rung on held-out pairs, or the CompenNet++ rung the device \
-                 affords if it scores --climb-gain dB higher (evidence in model.json)"
+                 affords (compennet++-res on the CPU) if it scores --climb-gain dB higher \
+                 (evidence in model.json)"
             }
             MethodChoice::Rung(Method::Linear) => "learned affine+TPS geometry, per-pixel colour",
             MethodChoice::Rung(Method::LinearSl) => "structured-light geometry, per-pixel colour",
