@@ -79,6 +79,53 @@ fn bench_writes_rows_for_references_and_methods() {
 }
 
 #[test]
+fn bench_gives_the_spread_across_seeds() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    let o = compend(&[
+        "bench",
+        "--out",
+        out.to_str().unwrap(),
+        "--scenes",
+        "white-plane",
+        "--methods",
+        "linear",
+        "--ntrain",
+        "5",
+        "--ntest",
+        "2",
+        "--seeds",
+        "3,4",
+        "--camera",
+        "64x48",
+        "--projector",
+        "80x60",
+        "--network",
+        "32",
+    ]);
+    assert_code(&o, 0);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    let psnr: Vec<f64> = v["rows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["method"] == "linear")
+        .map(|r| r["closed_loop"]["psnr"].as_f64().unwrap())
+        .collect();
+    assert_eq!(psnr.len(), 2);
+    let mean = (psnr[0] + psnr[1]) / 2.0;
+    let (lo, hi) = (psnr[0].min(psnr[1]), psnr[0].max(psnr[1]));
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    let row = format!("| white-plane | linear | 5 | 2 | {mean:.2} ({lo:.2}–{hi:.2}) |");
+    assert!(
+        md.contains("Across seeds") && md.contains(&row),
+        "{row}\n{md}"
+    );
+    assert_eq!(v["unreachable"].as_array().map(Vec::len), Some(2));
+}
+
+#[test]
 fn bench_train_measures_the_chosen_rows_in_rounds() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bt");

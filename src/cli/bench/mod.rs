@@ -378,8 +378,63 @@ impl SceneBench<'_> {
     }
 }
 
-/// Tables: one row per scene × seed × method × ntrain, then what no model can fix per scene
-/// and seed.
+/// Across seeds, per scene × method × ntrain: the closed-loop PSNR and the gap to the oracle
+/// as mean and range, and how many seeds failed (no model, or a failure class). Only when some
+/// scene was run with more than one seed.
+fn spread_table(rows: &[Row]) -> String {
+    use std::collections::BTreeMap;
+    let mut groups: BTreeMap<(&str, &str, Option<usize>), Vec<&Row>> = BTreeMap::new();
+    for r in rows {
+        groups
+            .entry((r.scene.as_str(), r.method.as_str(), r.ntrain))
+            .or_default()
+            .push(r);
+    }
+    if groups.values().all(|g| g.len() < 2) {
+        return String::new();
+    }
+    let mut md = String::from(
+        "\nAcross seeds: closed-loop PSNR and gap to the oracle, mean (min–max); failed: seeds \
+         whose model failed or was classified as failed.\n\n\
+         | scene | method | #train | seeds | closed-loop PSNR | gap dB | failed |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    let stat = |v: &[f64]| -> String {
+        if v.is_empty() {
+            return "–".into();
+        }
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        format!("{mean:.2} ({lo:.2}–{hi:.2})")
+    };
+    for ((scene, method, ntrain), g) in groups {
+        let psnr: Vec<f64> = g
+            .iter()
+            .filter_map(|r| r.closed_loop.map(|s| s.psnr))
+            .collect();
+        let gap: Vec<f64> = g.iter().filter_map(|r| r.gap_db).collect();
+        let failed = g
+            .iter()
+            .filter(|r| r.failed.is_some() || r.failure.is_some())
+            .count();
+        let _ = writeln!(
+            md,
+            "| {scene} | {method} | {} | {} | {} | {} | {failed} |",
+            ntrain.map_or("–".into(), |n| n.to_string()),
+            g.len(),
+            stat(&psnr),
+            stat(&gap)
+        );
+    }
+    md
+}
+
+/// Tables: one row per scene × seed × method × ntrain, the spread across seeds, then what no
+/// model can fix per scene and seed.
 fn markdown(rows: &[Row], reach: &[SceneReach]) -> String {
     let mut md = String::from(
         "# compend bench\n\nClosed loop: PSNR/SSIM of what the rig's camera sees inside the displayable \
@@ -414,6 +469,7 @@ fn markdown(rows: &[Row], reach: &[SceneReach]) -> String {
             f(r.paper.map(|s| s.ssim), 3),
         );
     }
+    md.push_str(&spread_table(rows));
     md.push_str(
         "\nWhere no model can compensate (percent of the displayable area; \
          SETUP/cam/unreachable.png shows where): the projector does not reach the pixel \
