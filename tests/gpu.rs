@@ -18,6 +18,22 @@ use crate::common::gpu;
 const CAM: ImageSize = ImageSize::new(48, 40);
 const NET: ImageSize = ImageSize::new(32, 24);
 
+/// The metadata of a test model of `method` whose output is `network` pixels (camera: [`CAM`]).
+fn test_meta(method: compend::model::Method, network: ImageSize) -> ModelMeta {
+    ModelMeta {
+        format_version: FORMAT_VERSION,
+        method,
+        network_size: network,
+        camera_size: CAM,
+        canvas: None,
+        training: Default::default(),
+        metrics: serde_json::Value::Null,
+        timings: Default::default(),
+        written_by: "test".into(),
+        calibration: None,
+    }
+}
+
 /// A `linear` model with everything the pass must get right: a bent grid that leaves the camera
 /// frame in places (zero padding), per-channel curves, per-pixel coefficients that push some
 /// values below 0 and above 1 (clamping), and an elliptic FOV mask.
@@ -70,18 +86,7 @@ pub fn test_model(seed: u64) -> Model {
         let (u, v) = (pixel_to_norm(x as f32, cw), pixel_to_norm(y as f32, ch));
         u * u / 0.9 + v * v / 0.85 < 1.0
     });
-    let meta = ModelMeta {
-        format_version: FORMAT_VERSION,
-        method: compend::model::Method::Linear,
-        network_size: NET,
-        camera_size: CAM,
-        canvas: None,
-        training: Default::default(),
-        metrics: serde_json::Value::Null,
-        timings: Default::default(),
-        written_by: "test".into(),
-        calibration: None,
-    };
+    let meta = test_meta(compend::model::Method::Linear, NET);
     Model::linear(meta, fov, linear)
 }
 
@@ -317,18 +322,7 @@ pub fn compennet_test_model(seed: u64) -> Model {
     .unwrap()
     .masked(&fov)
     .unwrap();
-    let meta = ModelMeta {
-        format_version: FORMAT_VERSION,
-        method: compend::model::Method::CompenNetSl,
-        network_size: CNET,
-        camera_size: CAM,
-        canvas: None,
-        training: Default::default(),
-        metrics: serde_json::Value::Null,
-        timings: Default::default(),
-        written_by: "test".into(),
-        calibration: None,
-    };
+    let meta = test_meta(compend::model::Method::CompenNetSl, CNET);
     Model::compennet(meta, fov, net, surface).unwrap()
 }
 
@@ -439,18 +433,7 @@ fn residual_test_model(seed: u64) -> Model {
         .unwrap()
         .set(&Tensor::from_vec(values, w.dims(), &Device::Cpu).unwrap())
         .unwrap();
-    let meta = ModelMeta {
-        format_version: FORMAT_VERSION,
-        method: compend::model::Method::CompenNetPpRes,
-        network_size: NET,
-        camera_size: CAM,
-        canvas: None,
-        training: Default::default(),
-        metrics: serde_json::Value::Null,
-        timings: Default::default(),
-        written_by: "test".into(),
-        calibration: None,
-    };
+    let meta = test_meta(compend::model::Method::CompenNetPpRes, NET);
     Model::residual(meta, fov, *linear, *net, surface).unwrap()
 }
 
