@@ -228,6 +228,25 @@ fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
         compend::pngio::png_size(&cmp.join("img_0001.png")).unwrap(),
         ImageSize::new(NET * 3 / 2, NET * 3 / 2)
     );
+    // Its linear part takes --lattice as the linear rungs do.
+    let fine = dir.join("res-lattice");
+    let out = compend(&[
+        "train",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--method",
+        "compennet++-res",
+        "--iters",
+        "1",
+        "--lattice",
+        "40",
+        "--out",
+        fine.to_str().unwrap(),
+    ]);
+    assert_code(&out, 0);
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(fine.join("model.json")).unwrap()).unwrap();
+    assert_eq!(meta["network_size"], serde_json::json!([40, 40]));
 }
 
 /// Trains `method` through the CLI with `--iters` and batch 4 into `out`, expecting success;

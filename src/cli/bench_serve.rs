@@ -181,6 +181,7 @@ struct Report {
 struct Service {
     child: Option<Child>,
     socket: PathBuf,
+    log: PathBuf,
 }
 
 impl Service {
@@ -201,21 +202,49 @@ impl Service {
         Ok(Self {
             child: Some(child),
             socket,
+            log: log.to_path_buf(),
         })
+    }
+
+    /// An error when the service has exited: its code and the end of its log.
+    fn exited(&mut self) -> Result<()> {
+        if let Some(child) = self.child.as_mut()
+            && let Some(code) = child.try_wait()?
+        {
+            let log = std::fs::read_to_string(&self.log).unwrap_or_default();
+            let tail: Vec<&str> = log.lines().rev().take(8).collect();
+            let tail: Vec<&str> = tail.into_iter().rev().collect();
+            bail!(
+                "the service exited ({code}); the end of {}:\n{}",
+                self.log.display(),
+                tail.join("\n")
+            );
+        }
+        Ok(())
     }
 
     /// A status round trip: its time, ms, and the status (`None` while the socket is not up).
     fn status(&mut self) -> Result<Option<(f64, Status)>> {
-        if let Some(child) = self.child.as_mut()
-            && let Some(code) = child.try_wait()?
-        {
-            bail!("the service exited ({code}); see its log");
-        }
-        let t = Instant::now();
-        match socket::request(&self.socket, &Request::Status) {
-            Ok(reply) => Ok(reply.status.map(|s| (t.elapsed().as_secs_f64() * 1e3, *s))),
-            Err(_) if !self.socket.exists() => Ok(None),
-            Err(e) => Err(e.into()),
+        let mut attempt = 0;
+        loop {
+            self.exited()?;
+            let t = Instant::now();
+            match socket::request(&self.socket, &Request::Status) {
+                Ok(reply) => {
+                    return Ok(reply.status.map(|s| (t.elapsed().as_secs_f64() * 1e3, *s)));
+                }
+                Err(_) if !self.socket.exists() => return Ok(None),
+                Err(e) => {
+                    // The service may have ended between the check and the request; a live one
+                    // that refused gets two more tries, 50 ms apart, before the bench gives up.
+                    self.exited()?;
+                    attempt += 1;
+                    if attempt >= 3 {
+                        return Err(e.into());
+                    }
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+            }
         }
     }
 

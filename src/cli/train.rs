@@ -48,9 +48,9 @@ pub struct Args {
     /// build with `--features cuda`). The `linear` rungs always fit on the CPU.
     #[arg(long, default_value = "cpu")]
     pub device: compend::fit::TrainDevice,
-    /// The linear rungs: the lattice of the per-pixel colour model and of the compensation
-    /// images, `N` or `WxH` (default: 1.5× the network size, 384 for 256²; the network size
-    /// itself reproduces the paper's 256² output). Live playback stretches any lattice over the
+    /// The linear rungs (and `compennet++-res`'s linear part): the lattice of the per-pixel
+    /// colour model and of the compensation images, `N` or `WxH` (default: 1.5× the network
+    /// size, 384 for 256²; the network size itself reproduces the paper's 256² output). Live playback stretches any lattice over the
     /// canvas; offline, `compensate` writes images of this size.
     #[arg(long, value_name = "N|WxH", value_parser = parse_lattice)]
     pub lattice: Option<ImageSize>,

@@ -145,7 +145,8 @@ pub(super) fn fit_auto(
         let sub_req = Request {
             method: MethodChoice::Rung(rung),
             ntrain: Some(cut),
-            lattice: None,
+            // The residual rung's linear part uses the request's lattice, as the linear rungs.
+            lattice: req.lattice.filter(|_| variant.residual()),
             ..req.clone()
         };
         let sub = TrainingData {

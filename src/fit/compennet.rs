@@ -42,7 +42,10 @@ pub(super) fn train_compennet(
     let linear = if variant.residual() {
         let settings = FitSettings {
             network_size: targets[0].size(),
-            lattice: Some(super::default_lattice(targets[0].size())),
+            lattice: Some(
+                req.lattice
+                    .unwrap_or_else(|| super::default_lattice(targets[0].size())),
+            ),
             ..FitSettings::default()
         };
         let (linear, _) = crate::linear::fit(

@@ -134,8 +134,10 @@ fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>
     if auto {
         req.device.candle()?;
     }
-    if variant.is_some() {
-        if let Some(lattice) = req.lattice {
+    if let Some(v) = variant {
+        if let Some(lattice) = req.lattice
+            && !v.residual()
+        {
             return Err(Error::Input(format!(
                 "--lattice {lattice}: only the linear rungs have an output lattice; {} works at \
                  the network size",
