@@ -488,3 +488,37 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
         assert!(stderr(&out).contains(says), "{}", stderr(&out));
     }
 }
+
+#[test]
+fn a_native_lattice_is_the_projectors_resolution() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 6, 1);
+    let model = dir.path().join("native");
+    let run = |out: &Path| {
+        compend(&[
+            "train",
+            "--setup",
+            setup.to_str().unwrap(),
+            "--method",
+            "linear",
+            "--lattice",
+            "native",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    assert_code(&run(&model), 0);
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    // The test setup's structured light is NET×NET: the projector frame is the canvas.
+    assert_eq!(meta["network_size"], serde_json::json!([NET, NET]));
+    // Without the patterns that give the projector's size: exit 2, naming what is missing.
+    std::fs::remove_dir_all(dir.path().join("sl")).unwrap();
+    let o = run(&dir.path().join("native2"));
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--lattice native") && stderr(&o).contains("img_0001.png"),
+        "{}",
+        stderr(&o)
+    );
+}
