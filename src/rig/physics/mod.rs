@@ -12,7 +12,9 @@
 //!    g_i = visibility × cos(incidence) × distance fall-off × projector vignetting, spec_i the
 //!    projector highlight, I_i one inter-reflection bounce (strength × wide blur of ρ·g·E),
 //!    A_i ambient irradiance;
-//! 4. camera: sensor s_i = exposure·vignetting_i·M_c·R_i; Poisson-Gaussian noise; clip to \[0,1\];
+//! 4. camera: sensor s_i = exposure·vignetting_i·M_c·R_i, optionally blurred by the optics
+//!    (Gaussian, camera pixels, zero padding; ambient light and glare are not blurred: they are
+//!    smooth); Poisson-Gaussian noise; clip to \[0,1\];
 //!    encoded value s^(1/γ); 8-bit quantisation (round to nearest level).
 //!
 //! Steps 1 (after the response curve) to the sensor signal are linear in the drive d; the oracle
@@ -91,6 +93,8 @@ pub struct Simulator {
     prj_black: [f32; 3],
     cam_mix: [[f32; 3]; 3],
     defocus: Option<Vec<f32>>,
+    /// The camera optics' blur kernel (camera pixels), when the scene has one.
+    cam_blur: Option<Vec<f32>>,
     bounce: Option<Bounce>,
     /// Sensor signal at which the encoded output reaches level k + ½, k = 0..254.
     thresholds: Vec<f32>,
@@ -141,6 +145,7 @@ impl Simulator {
             prj_black: p.black.map(|v| v as f32),
             cam_mix,
             defocus: None,
+            cam_blur: None,
             bounce: None,
             thresholds: Vec::new(),
             bucket_level: Vec::new(),
@@ -193,6 +198,9 @@ impl Simulator {
         }
         if p.defocus_px > 0.05 {
             sim.defocus = Some(gaussian_kernel(p.defocus_px));
+        }
+        if c.blur_px > 0.05 {
+            sim.cam_blur = Some(gaussian_kernel(c.blur_px));
         }
         if let Some(ir) = &scene.interreflection
             && ir.strength > 0.0

@@ -77,13 +77,23 @@ impl Simulator {
             let d = [dg[0] * ei[0], dg[1] * ei[1], dg[2] * ei[2]];
             (d, [d[0] + sp * ei[0], d[1] + sp * ei[1], d[2] + sp * ei[2]])
         };
+        let blur = |s: Vec<f32>| match &self.cam_blur {
+            Some(k) => {
+                let ImageSize {
+                    width: cw,
+                    height: ch,
+                } = self.camera_size();
+                blur_rgb(&s, cw, ch, k)
+            }
+            None => s,
+        };
         let Some(bounce) = &self.bounce else {
-            return par_pixels(n, |i| camera(i, direct(i).1));
+            return blur(par_pixels(n, |i| camera(i, direct(i).1)));
         };
         // With inter-reflection: the diffuse direct radiance feeds one bounce.
         let diffuse = par_pixels(n, |i| direct(i).0);
         let indirect = bounce.forward(&diffuse);
-        par_pixels(n, |i| {
+        blur(par_pixels(n, |i| {
             let r = direct(i).1;
             let a = self.albedo[i];
             let k = &indirect[i * 3..i * 3 + 3];
@@ -91,7 +101,7 @@ impl Simulator {
                 i,
                 [r[0] + a[0] * k[0], r[1] + a[1] * k[1], r[2] + a[2] * k[2]],
             )
-        })
+        }))
     }
 
     /// Adjoint of [`Self::sensor`]: a camera-space signal gradient to a projector-space
@@ -103,6 +113,19 @@ impl Simulator {
         } = self.projector_size();
         let n = self.taps.len();
         let mt = transpose(&self.cam_mix);
+        // The optics' blur is its own adjoint (symmetric kernel, zero padding).
+        let blurred;
+        let grad = match &self.cam_blur {
+            Some(k) => {
+                let ImageSize {
+                    width: cw,
+                    height: ch,
+                } = self.camera_size();
+                blurred = blur_rgb(grad, cw, ch, k);
+                &blurred[..]
+            }
+            None => grad,
+        };
         // Radiance gradient q_i = gain_i · M_cᵀ · r_i.
         let mut q = Vec::with_capacity(n * 3);
         for i in 0..n {

@@ -61,6 +61,7 @@ fn sensor_adjoint_matches_forward() {
         .expect("built-in")
         .with_resolution(ImageSize::new(90, 50), ImageSize::new(70, 52));
     scene.projector.defocus_px = 1.3;
+    scene.camera.blur_px = 0.8;
     let sim = Simulator::new(&scene, 3, Phase::Calibration).expect("builds");
     let ImageSize {
         width: pw,
@@ -82,6 +83,25 @@ fn sensor_adjoint_matches_forward() {
     let (lhs, rhs) = (dot(&fwd, &b), dot(&a, &adj));
     assert!(lhs > 1.0, "the scene is lit: {lhs}");
     assert!((lhs - rhs).abs() < 1e-4 * lhs, "{lhs} vs {rhs}");
+    // The camera's blur is in the forward model: without it the signal differs, and its total
+    // (light is only moved, not lost, away from the frame's edge) nearly does not.
+    scene.camera.blur_px = 0.0;
+    let sharp = Simulator::new(&scene, 3, Phase::Calibration).expect("builds");
+    let fwd_sharp = sharp.sensor(&sharp.drive_to_emission(&a, false));
+    let moved: f64 = fwd
+        .iter()
+        .zip(&fwd_sharp)
+        .map(|(p, q)| (p - q).abs() as f64)
+        .sum();
+    let (total, total_sharp) = (
+        fwd.iter().map(|&v| v as f64).sum::<f64>(),
+        fwd_sharp.iter().map(|&v| v as f64).sum::<f64>(),
+    );
+    assert!(moved > 1e-3 * total, "the blur moved {moved} of {total}");
+    assert!(
+        (total - total_sharp).abs() < 0.05 * total,
+        "{total} vs {total_sharp}"
+    );
 }
 
 #[test]

@@ -270,6 +270,7 @@ fn base_scene() -> Scene {
                 shot: 0.0004,
                 read: 0.002,
             },
+            blur_px: 0.0,
         },
         projector: ProjectorModel {
             width: 800,
