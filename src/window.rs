@@ -300,6 +300,29 @@ impl ProjectorWindow {
         log
     }
 
+    /// A virtual camera looking at this window: it sees what the window really presented
+    /// (read back from now on) through `scene`'s surface and camera, with its latency (the
+    /// scene's projector must be the window's size); texture and noise seed `seed`.
+    pub fn watched_by(
+        &mut self,
+        scene: &crate::rig::scene::Scene,
+        seed: u64,
+    ) -> Result<crate::rig::window_camera::WindowCamera> {
+        // The camera looks back the delay; a quarter second more covers a camera rendering late
+        // (one that falls further behind skips the exposures it missed).
+        let l = &scene.latency;
+        let keep = Duration::from_secs_f64(0.25 + (l.delay_frames as f64 + 4.0) / l.fps);
+        let log = self.record_presented(keep);
+        let look = move |t| {
+            log.at(t).map(|p| crate::rig::window_camera::Shown {
+                index: p.index,
+                at: p.at,
+                image: p.image,
+            })
+        };
+        crate::rig::window_camera::WindowCamera::start(scene, seed, look)
+    }
+
     /// Timing of [`DisplaySink::show`] so far.
     pub fn show_timing(&self) -> ShowTiming {
         self.timing.clone()

@@ -40,6 +40,13 @@ impl CameraClock {
         frame.timestamp.as_secs_f64() + self.offset < t
     }
 
+    /// When `frame`'s exposure began, on this machine's clock: an estimate never earlier than
+    /// the real start.
+    pub fn exposed_at(&self, frame: &Frame) -> Instant {
+        let t = frame.timestamp.as_secs_f64() + self.offset;
+        self.base + std::time::Duration::try_from_secs_f64(t).unwrap_or_default()
+    }
+
     /// Takes into account `frame`, which arrived at `arrival`.
     pub fn observe(&mut self, frame: &Frame, arrival: Instant) {
         let a = arrival.saturating_duration_since(self.base).as_secs_f64();
@@ -47,24 +54,40 @@ impl CameraClock {
     }
 }
 
-/// A camera whose grabs are timed, to find its clock.
-pub struct Timed<'c, C: ?Sized> {
-    camera: &'c mut C,
+/// The arrival times and timestamps of frames, to find the camera's clock.
+#[derive(Clone, Debug)]
+pub struct ClockFinder {
     base: Instant,
     /// (arrival, timestamp) of each frame, seconds.
     samples: Vec<(f64, f64)>,
 }
 
-impl<'c, C: FrameSource + ?Sized> Timed<'c, C> {
-    pub fn new(camera: &'c mut C) -> Self {
+impl Default for ClockFinder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl ClockFinder {
+    pub fn new() -> Self {
         Self {
-            camera,
             base: Instant::now(),
             samples: Vec::new(),
         }
     }
 
-    /// The camera's clock from the frames grabbed so far; None when there were too few or the
+    /// Notes `frame`, which arrived at `arrival`.
+    pub fn observe(&mut self, frame: &Frame, arrival: Instant) {
+        let a = arrival.saturating_duration_since(self.base).as_secs_f64();
+        self.samples.push((a, frame.timestamp.as_secs_f64()));
+    }
+
+    /// Frames noted so far.
+    pub fn frames(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// The camera's clock from the frames noted so far; None when there were too few or the
     /// camera's clock does not run in real time.
     ///
     /// The rate is judged by the smallest (arrival − timestamp) of the first and of the last
@@ -92,6 +115,26 @@ impl<'c, C: FrameSource + ?Sized> Timed<'c, C> {
     }
 }
 
+/// A camera whose grabs are timed, to find its clock.
+pub struct Timed<'c, C: ?Sized> {
+    camera: &'c mut C,
+    finder: ClockFinder,
+}
+
+impl<'c, C: FrameSource + ?Sized> Timed<'c, C> {
+    pub fn new(camera: &'c mut C) -> Self {
+        Self {
+            camera,
+            finder: ClockFinder::new(),
+        }
+    }
+
+    /// The camera's clock from the frames grabbed so far ([`ClockFinder::clock`]).
+    pub fn clock(&self) -> Option<CameraClock> {
+        self.finder.clock()
+    }
+}
+
 impl<C: FrameSource + ?Sized> FrameSource for Timed<'_, C> {
     fn size(&self) -> ImageSize {
         self.camera.size()
@@ -99,8 +142,7 @@ impl<C: FrameSource + ?Sized> FrameSource for Timed<'_, C> {
 
     fn grab(&mut self) -> Result<Frame> {
         let f = self.camera.grab()?;
-        let arrival = self.base.elapsed().as_secs_f64();
-        self.samples.push((arrival, f.timestamp.as_secs_f64()));
+        self.finder.observe(&f, Instant::now());
         Ok(f)
     }
 

@@ -7,7 +7,6 @@
 //! (`compend::rig::window_camera`). The V4L2 camera plugs into the same flow.
 
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 use anyhow::{Context, Result};
 use compend::calibrate::runs::Runs;
@@ -18,7 +17,7 @@ use compend::model::MethodChoice;
 use compend::raster::ImageSize;
 use compend::rig::VirtualRig;
 use compend::rig::scene::{self, Scene};
-use compend::rig::window_camera::{Shown, WindowCamera};
+use compend::rig::window_camera::WindowCamera;
 use compend::window::ProjectorWindow;
 
 use super::sim::SceneArgs;
@@ -415,19 +414,9 @@ fn run_window(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
         .into());
     }
     let scene = scene_for(args, scene_name, Some(size))?;
-    // The camera looks back the delay; a quarter second more covers a camera rendering late
-    // (one that falls further behind skips the exposures it missed).
     let l = &scene.latency;
-    let keep = Duration::from_secs_f64(0.25 + (l.delay_frames as f64 + 4.0) / l.fps);
-    let log = win.record_presented(keep);
-    let look = move |t| {
-        log.at(t).map(|p| Shown {
-            index: p.index,
-            at: p.at,
-            image: p.image,
-        })
-    };
-    let mut camera = WindowCamera::start(&scene, args.seed, look)
+    let mut camera = win
+        .watched_by(&scene, args.seed)
         .with_context(|| format!("preparing the virtual camera (scene {scene_name:?})"))?;
     eprintln!(
         "calibrate: projector window {size} at {} Hz on {} ({}), virtual camera on scene \

@@ -218,6 +218,13 @@ fn describe(s: &Status) -> String {
             if m.drift { ", DRIFT" } else { "" }
         );
     }
+    if m.unseen > 0 {
+        out += &format!(
+            "monitoring: {} checks unseen (the content changed within the projector-to-camera \
+             latency)\n",
+            m.unseen
+        );
+    }
     if let Some(c) = &s.last_calibration {
         out += &format!("last calibration: {}\n", c.message);
     }

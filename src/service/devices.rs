@@ -37,16 +37,17 @@ pub(super) struct VirtualDevices {
     pub(super) moved: bool,
 }
 
-/// Real hardware: the projector window and a V4L2 camera.
-#[cfg(target_os = "linux")]
+/// The projector window and a camera that streams on its own clock: a V4L2 camera (real
+/// hardware) or the window rig's virtual camera looking at the window's presented frames.
 pub(super) struct Hardware {
     pub(super) win: crate::window::ProjectorWindow,
-    pub(super) camera: crate::camera::V4l2Camera,
+    pub(super) camera: Box<dyn FrameSource + Send>,
+    /// What the camera is, for the log.
+    pub(super) camera_name: String,
 }
 
 pub(super) enum Devices {
     Virtual(Box<VirtualDevices>),
-    #[cfg(target_os = "linux")]
     Hardware(Box<Hardware>),
 }
 
@@ -78,11 +79,7 @@ impl Devices {
                     moved: false,
                 })))
             }
-            RigKind::Window => Err(Error::Input(
-                "[rig] kind = \"window\" is for `compend calibrate --rig window`; the service \
-                 drives \"virtual\" or \"camera\""
-                    .into(),
-            )),
+            RigKind::Window => open_window(config),
             RigKind::Camera => open_hardware(config),
         }
     }
@@ -90,7 +87,6 @@ impl Devices {
     pub(super) fn display_size(&self) -> ImageSize {
         match self {
             Devices::Virtual(v) => v.scene.projector.size(),
-            #[cfg(target_os = "linux")]
             Devices::Hardware(h) => DisplaySink::size(&h.win),
         }
     }
@@ -98,7 +94,6 @@ impl Devices {
     pub(super) fn camera_size(&self) -> ImageSize {
         match self {
             Devices::Virtual(v) => v.scene.camera.size(),
-            #[cfg(target_os = "linux")]
             Devices::Hardware(h) => FrameSource::size(&h.camera),
         }
     }
@@ -107,7 +102,6 @@ impl Devices {
     pub(super) fn context(&self) -> &GpuContext {
         match self {
             Devices::Virtual(v) => &v.ctx,
-            #[cfg(target_os = "linux")]
             Devices::Hardware(h) => h.win.context(),
         }
     }
@@ -123,11 +117,11 @@ impl Devices {
                 v.scene.latency.delay_frames,
                 v.ctx.describe()
             ),
-            #[cfg(target_os = "linux")]
             Devices::Hardware(h) => format!(
-                "projector window {} at {:.1} Hz, camera {}; GPU: {}",
+                "projector window {} at {:.1} Hz, camera {} ({}); GPU: {}",
                 DisplaySink::size(&h.win),
                 h.win.refresh_hz(),
+                h.camera_name,
                 FrameSource::size(&h.camera),
                 h.win.context().describe()
             ),
@@ -139,7 +133,6 @@ impl Devices {
         let black = PrjImage::new(self.display_size().width, self.display_size().height);
         match self {
             Devices::Virtual(v) => v.rig.show(&black),
-            #[cfg(target_os = "linux")]
             Devices::Hardware(h) => h.win.show(&black),
         }
     }
@@ -155,7 +148,11 @@ fn open_hardware(config: &Config) -> Result<Devices> {
         tracing::info!("camera {}: {line}", device.display());
     }
     let win = crate::window::ProjectorWindow::open(r.monitor.as_deref())?;
-    Ok(Devices::Hardware(Box::new(Hardware { win, camera })))
+    Ok(Devices::Hardware(Box::new(Hardware {
+        win,
+        camera: Box::new(camera),
+        camera_name: device.display().to_string(),
+    })))
 }
 
 #[cfg(not(target_os = "linux"))]
@@ -164,6 +161,43 @@ fn open_hardware(config: &Config) -> Result<Devices> {
         "[rig] camera = {:?}: V4L2 cameras exist on Linux only",
         config.rig.camera
     )))
+}
+
+/// The window rig: the projector window, watched by a virtual camera that sees what the window
+/// really presented through the scene's surface and camera, with its latency (testing the
+/// hardware path without hardware).
+fn open_window(config: &Config) -> Result<Devices> {
+    let r = &config.rig;
+    let mut win = crate::window::ProjectorWindow::open(r.monitor.as_deref())?;
+    let size = DisplaySink::size(&win);
+    if let Some(p) = r.projector
+        && p != size
+    {
+        return Err(Error::Input(format!(
+            "[rig] projector = \"{p}\": the projector window on {} is {size}; leave it out \
+             or pick the monitor of that size",
+            r.monitor.as_deref().unwrap_or("the primary monitor")
+        )));
+    }
+    let mut scene = scene::load(&r.scene)?;
+    let cam = r.camera_size.unwrap_or(scene.camera.size());
+    scene = scene
+        .with_resolution(cam, size)
+        .with_timing(r.camera_fps, r.latency_ms);
+    scene.validate()?;
+    if r.drift_after_s.is_some() {
+        tracing::warn!("[rig] drift_after_s: only the virtual rig's projector is moved");
+    }
+    let camera = win.watched_by(&scene, r.seed)?;
+    let l = &scene.latency;
+    Ok(Devices::Hardware(Box::new(Hardware {
+        win,
+        camera: Box::new(camera),
+        camera_name: format!(
+            "virtual, scene {:?} at {} fps, {} frames of delay",
+            scene.name, l.fps, l.delay_frames
+        ),
+    })))
 }
 
 /// Loads the model directory `path` for a rig whose camera gives `camera`-sized images; a model
@@ -180,16 +214,17 @@ pub(super) fn load_model(path: &Path, camera: ImageSize) -> Result<Model> {
     Ok(model)
 }
 
-/// Sets the virtual camera to the exposure `model` was calibrated at (a calibrated model saw
-/// the camera there); nothing for an uncalibrated model.
-pub(super) fn match_exposure(rig: &mut VirtualRig, model: &Model) -> Result<()> {
+/// Sets the camera to the exposure `model` was calibrated at (a calibrated model saw the
+/// camera there; monitoring compares against that); nothing for an uncalibrated model. The
+/// caller makes sure the model was calibrated with this camera.
+pub(super) fn match_exposure<C: FrameSource + ?Sized>(camera: &mut C, model: &Model) -> Result<()> {
     if let Some(e) = model
         .meta
         .calibration
         .as_ref()
         .and_then(|c| c.exposure.as_ref())
     {
-        rig.set_exposure(e.chosen)?;
+        camera.set_exposure(e.chosen)?;
     }
     Ok(())
 }

@@ -1,11 +1,22 @@
 //! Monitoring during playback: the desired view of a presented frame is scored against the
 //! camera's view of that same frame, in the displayable area; a score that falls more than a
 //! threshold below the model's first one is drift.
+//!
+//! On the virtual rig the camera sees every presented frame by construction. A real camera (or
+//! the window rig's) streams on its own clock, a latency behind the projector: [`Sighting`]
+//! tells which presented content a camera frame saw alone, by the rule of the capture protocol
+//! ([`crate::calibrate::sync`]), and content that changes faster than the latency is never
+//! scored (the check is counted as unseen).
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::mpsc::Receiver;
 use std::sync::{Arc, Mutex};
+use std::time::Instant;
 
 use super::Shared;
+use crate::calibrate::clock::{CameraClock, ClockFinder};
+use crate::device::{Frame, FrameSource};
 use crate::error::Result;
 use crate::metrics::Accumulator;
 use crate::raster::{CamImage, Rect};
@@ -63,9 +74,25 @@ impl Tap {
     }
 
     /// Asks for the camera's view of frame `seq`, whose desired view is `desired`, to be scored
-    /// in `area`.
-    pub(super) fn request(&self, seq: u64, desired: CamImage, area: Rect) {
-        *self.want.lock().unwrap_or_else(|e| e.into_inner()) = Some((seq, desired, area));
+    /// in `area`. A check still waiting for its view is given up (counted as unseen).
+    pub(super) fn request(&self, seq: u64, desired: CamImage, area: Rect, shared: &Shared) {
+        let old = self
+            .want
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .replace((seq, desired, area));
+        if let Some((old, _, _)) = old {
+            unseen(old, shared);
+        }
+    }
+
+    /// The frame whose view a check waits for.
+    pub(super) fn wanted(&self) -> Option<u64> {
+        self.want
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_ref()
+            .map(|(s, _, _)| *s)
     }
 
     /// Another model plays from now on: its first score is the new baseline, and a drift of the
@@ -85,6 +112,7 @@ impl Tap {
                 Some((s, _, _)) if *s == seq => want.take().map(|(_, d, a)| (d, a)),
                 // The asked-for view was skipped: ask again at the next period.
                 Some((s, _, _)) if *s < seq => {
+                    unseen(*s, shared);
                     *want = None;
                     None
                 }
@@ -151,9 +179,196 @@ impl Tap {
     }
 }
 
+/// A check whose frame the camera never saw alone: counted, and said once per playback-worth
+/// of service (the first time), then at debug level.
+fn unseen(seq: u64, shared: &Shared) {
+    let mut first = false;
+    shared.update(|st| {
+        st.monitoring.unseen += 1;
+        first = st.monitoring.unseen == 1;
+    });
+    if first {
+        tracing::warn!(
+            "monitoring: frame {seq} was not seen alone by the camera (the content changed, or \
+             frames were dropped, before the projector-to-camera latency had passed); checks \
+             score only content that stays up that long, and `status` counts the others as \
+             unseen"
+        );
+    } else {
+        tracing::debug!("monitoring: frame {seq} was not seen alone by the camera");
+    }
+}
+
+/// Which presented content a camera frame saw alone, from the order of content changes and
+/// exposures; the rule of the capture protocol ([`crate::calibrate::sync`]): after content
+/// first presented at T, the first exposure that began at or after T has sequence number s1,
+/// and exposures from s1 + `settle` on show that content (settle: the worst projector-to-camera
+/// latency measured at calibration plus a margin, in exposures), as long as the next change
+/// came after the exposure ended.
+///
+/// Times are this machine's ([`std::time::Instant`]); an exposure's start is an estimate never
+/// earlier than the real one ([`crate::calibrate::clock::CameraClock::exposed_at`]).
+#[derive(Debug)]
+pub(super) struct Sighting {
+    settle: u64,
+    /// Content changes no exposure began after yet: (first frame of the content, when it was
+    /// presented).
+    pending: VecDeque<(u64, Instant)>,
+    /// The latest content some exposure began after: (its first frame, that exposure's
+    /// sequence number s1).
+    current: Option<(u64, u64)>,
+}
+
+impl Sighting {
+    pub(super) fn new(settle: u64) -> Self {
+        Self {
+            settle,
+            pending: VecDeque::new(),
+            current: None,
+        }
+    }
+
+    /// New content, first shown as frame `seq`, was presented at `at` (in order).
+    pub(super) fn changed(&mut self, seq: u64, at: Instant) {
+        self.pending.push_back((seq, at));
+    }
+
+    /// The camera frame `cam_seq`, whose exposure began at `began` and ended by `ended`
+    /// (estimates: never earlier than the real times), judged once every change presented
+    /// before `ended` is known: the first frame of the content it saw alone, if any.
+    pub(super) fn saw(&mut self, cam_seq: u64, began: Instant, ended: Instant) -> Option<u64> {
+        while let Some(&(seq, at)) = self.pending.front()
+            && at <= began
+        {
+            self.pending.pop_front();
+            self.current = Some((seq, cam_seq));
+        }
+        let (seq, s1) = self.current?;
+        if cam_seq < s1.saturating_add(self.settle) {
+            return None;
+        }
+        // Content presented before the exposure ended may have reached the surface during it.
+        if self.pending.front().is_some_and(|&(_, at)| at <= ended) {
+            return None;
+        }
+        Some(seq)
+    }
+}
+
+/// Frames grabbed while looking for the camera's clock before giving up on it (a camera whose
+/// clock does not run in real time): exposures are then placed at their arrival instead.
+const CLOCK_FRAMES: usize = 60;
+
+/// Watches a camera that streams on its own clock (a V4L2 camera, the window rig's) during a
+/// playback: grabs every frame, tells which content it saw alone ([`Sighting`], `settle`
+/// exposures of latency) from the content changes the screen sends (first frame of the
+/// content, when it was presented), and offers those views to `tap`. Ends when `stop` is set,
+/// or when the camera fails and cannot be reopened: playback goes on without monitoring, as
+/// the log says.
+pub(super) fn watch_camera<C: FrameSource + ?Sized>(
+    camera: &mut C,
+    changes: Receiver<(u64, Instant)>,
+    settle: u64,
+    (tap, shared): (&Tap, &Shared),
+    stop: &AtomicBool,
+) {
+    let mut sighting = Sighting::new(settle);
+    let mut finder = Some(ClockFinder::new());
+    let mut clock: Option<CameraClock> = None;
+    // The last frame grabbed, with when its exposure began and by when it ended (its
+    // arrival), judged once the next one is in: by then every change presented before it ended
+    // has been sent.
+    let mut held: Option<(Frame, Instant, Instant)> = None;
+    while !stop.load(Ordering::Relaxed) {
+        let frame = match camera.grab() {
+            Ok(f) => f,
+            Err(_) if stop.load(Ordering::Relaxed) => break,
+            Err(e) => match camera.reconnect() {
+                Ok(true) => {
+                    tracing::warn!("monitoring: the camera came back after: {e}");
+                    // A reopened camera may count and stamp its frames afresh.
+                    (finder, clock, held) = (Some(ClockFinder::new()), None, None);
+                    continue;
+                }
+                Ok(false) => {
+                    tracing::warn!("monitoring stops for this playback: the camera failed: {e}");
+                    break;
+                }
+                Err(again) => {
+                    tracing::warn!(
+                        "monitoring stops for this playback: the camera failed ({e}) and could \
+                         not be reopened: {again}"
+                    );
+                    break;
+                }
+            },
+        };
+        let arrival = Instant::now();
+        if let Some(c) = &mut clock {
+            c.observe(&frame, arrival);
+        } else if let Some(f) = &mut finder {
+            f.observe(&frame, arrival);
+            clock = f.clock();
+            if clock.is_some() || f.frames() >= CLOCK_FRAMES {
+                finder = None;
+            }
+        }
+        let began = clock.map_or(arrival, |c| c.exposed_at(&frame).min(arrival));
+        while let Ok((seq, at)) = changes.try_recv() {
+            sighting.changed(seq, at);
+        }
+        if let Some((f, began, ended)) = held.take()
+            && let Some(seq) = sighting.saw(f.seq, began, ended)
+        {
+            tap.offer(seq, &f.image, shared);
+        }
+        held = Some((frame, began, arrival));
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_camera_frame_sees_content_alone_only_after_the_latency_and_before_the_next_change() {
+        let t0 = Instant::now();
+        let ms = |n: u64| t0 + std::time::Duration::from_millis(n);
+        // Exposures every 10 ms from 0 ms (camera frame k begins at 10k ms and ends by
+        // 10k + 20 ms), settle 3 exposures.
+        let mut s = Sighting::new(3);
+        let judge = |s: &mut Sighting, k: u64| s.saw(k, ms(10 * k), ms(10 * k + 20));
+        assert_eq!(judge(&mut s, 0), None, "nothing presented yet");
+        // Content A from frame 7, presented at 15 ms: the first exposure after it is k = 2.
+        s.changed(7, ms(15));
+        assert_eq!(judge(&mut s, 1), None);
+        assert_eq!(judge(&mut s, 2), None);
+        assert_eq!(judge(&mut s, 4), None, "within the latency");
+        assert_eq!(judge(&mut s, 5), Some(7));
+        // Content B from frame 9 at 95 ms: exposure 8 (80..100 ms) may have seen it; 7 not.
+        s.changed(9, ms(95));
+        assert_eq!(judge(&mut s, 7), Some(7));
+        assert_eq!(
+            judge(&mut s, 8),
+            None,
+            "the next change came during the exposure"
+        );
+        // B: s1 = 10 (the first exposure beginning at or after 95 ms), seen alone from 13.
+        assert_eq!(judge(&mut s, 10), None);
+        assert_eq!(judge(&mut s, 12), None);
+        assert_eq!(judge(&mut s, 13), Some(9));
+        // Content changing every exposure is never seen alone.
+        for k in 14..30 {
+            s.changed(100 + k, ms(10 * k + 5));
+            assert_eq!(judge(&mut s, k), None, "exposure {k}");
+        }
+        // Two changes before one exposure: the later one counts, from that exposure.
+        s.changed(200, ms(301));
+        s.changed(201, ms(302));
+        assert_eq!(judge(&mut s, 31), None);
+        assert_eq!(judge(&mut s, 33), None);
+        assert_eq!(judge(&mut s, 34), Some(201));
+    }
 
     #[test]
     fn drift_needs_consecutive_checks_past_the_threshold() {

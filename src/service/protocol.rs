@@ -181,6 +181,10 @@ pub struct Monitoring {
     pub drift: bool,
     /// Drift detections since the service started.
     pub drifts: u64,
+    /// Checks since the service started whose frame the camera never saw alone (the content
+    /// changed, or frames were dropped, within the projector-to-camera latency).
+    #[serde(default)]
+    pub unseen: u64,
 }
 
 impl Monitoring {
@@ -188,6 +192,7 @@ impl Monitoring {
     pub fn fresh(old: &Monitoring) -> Self {
         Self {
             drifts: old.drifts,
+            unseen: old.unseen,
             ..Self::default()
         }
     }

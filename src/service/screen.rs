@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, GpuContext};
 use crate::model::Model;
 use crate::playback::player::{PlayStats, Refresh, Screen, Show};
-use crate::raster::ImageSize;
+use crate::raster::{CamImage, ImageSize};
 use crate::rig::{Phase, VirtualRig};
 use crate::source::SourceSpec;
 
@@ -95,6 +95,13 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     /// A model swapped in during this playback, and where it came from: the engine serves it
     /// from now on.
     pub(super) swapped: Option<(PathBuf, Model)>,
+    /// For a camera watching on its own clock ([`super::monitor::watch_camera`]): each change
+    /// of what the projector shows, as (first frame of the new content, when it was
+    /// presented).
+    pub(super) changes: Option<mpsc::Sender<(u64, Instant)>>,
+    /// The frame a check waits for and its desired view: later frames with the same desired
+    /// view are the same content, not a change.
+    checked: Option<(u64, CamImage)>,
 }
 
 impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
@@ -127,6 +134,8 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             climb: None,
             end_when: None,
             swapped: None,
+            changes: None,
+            checked: None,
         }
     }
 
@@ -374,13 +383,41 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
                 self.io.notify.ready("playing");
             }
             let now = Instant::now();
+            let mut requested = false;
             if let Some(tap) = &self.monitor
                 && now >= self.next_check
             {
                 let area = pass.placement().area;
-                tap.request(seq, pass.read_desired(self.inner.context())?, area);
+                let desired = pass.read_desired(self.inner.context())?;
+                if self.changes.is_some() {
+                    self.checked = Some((seq, desired.clone()));
+                }
+                tap.request(seq, desired, area, &self.io.shared);
                 self.next_check = now + self.period;
                 self.last_check = Some(now);
+                requested = true;
+            }
+            if let Some(changes) = &self.changes {
+                // While a check waits for its view, a frame whose desired view is the check's
+                // is the same content (a still, a repeated pattern); otherwise every new frame
+                // is taken as a change.
+                let waiting = match &self.checked {
+                    Some((s, _)) => self.monitor.as_ref().and_then(|t| t.wanted()) == Some(*s),
+                    None => false,
+                };
+                let same = !requested
+                    && waiting
+                    && self.checked.as_ref().is_some_and(|(_, d)| {
+                        pass.read_desired(self.inner.context())
+                            .is_ok_and(|v| v.data() == d.data())
+                    });
+                if !same {
+                    if !requested {
+                        self.checked = None;
+                    }
+                    // The watching thread is gone (the camera failed): nothing to tell.
+                    let _ = changes.send((seq, now));
+                }
             }
         }
         Ok(())

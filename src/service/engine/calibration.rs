@@ -28,7 +28,6 @@ use crate::error::{Error, Result};
 use crate::model::{Method, MethodChoice, Model};
 
 use super::super::devices::Devices;
-#[cfg(target_os = "linux")]
 use super::super::devices::Hardware;
 
 /// A model training on its own thread while the old one plays; dropped, it cancels the training
@@ -430,9 +429,8 @@ impl Engine {
                 let (mut display, mut camera) = (v.rig.clone(), v.rig.clone());
                 step(&mut display, &mut camera, &mut progress)
             }
-            #[cfg(target_os = "linux")]
             Devices::Hardware(h) => {
-                let Hardware { win, camera } = &mut **h;
+                let Hardware { win, camera, .. } = &mut **h;
                 step(win, camera, &mut progress)
             }
         }

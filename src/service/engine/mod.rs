@@ -19,15 +19,15 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
 use super::climb;
 mod calibration;
 
 pub use super::devices::rig_name;
-use super::devices::{Devices, VirtualDevices, load_model, match_exposure};
-use super::monitor::Tap;
+use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure};
+use super::monitor::{self, Tap};
 use super::notify::Notifier;
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::screen::{ServiceScreen, set_frames};
@@ -390,7 +390,21 @@ impl Engine {
         tracing::info!("{line}");
         let range = model.display_range();
         let m = &self.config.monitoring;
-        let monitor = m.enabled.then(|| {
+        // A camera on its own clock needs the latency measured at calibration on this rig.
+        let settle = match &self.devices {
+            Devices::Virtual(_) => None,
+            Devices::Hardware(_) => settle_frames(model, &rig_name(&self.config)),
+        };
+        let watchable = matches!(self.devices, Devices::Virtual(_)) || settle.is_some();
+        if m.enabled && !watchable {
+            tracing::warn!(
+                "monitoring is off for this playback: the model was not calibrated on this rig \
+                 ({}), so the projector-to-camera latency is unknown; `compend recalibrate` \
+                 measures it",
+                rig_name(&self.config)
+            );
+        }
+        let monitor = (m.enabled && watchable).then(|| {
             // A calibration already under way (training beside this playback) is not started
             // again: drift is reported only.
             let recalibrate = m.on_drift != DriftPolicy::Report && self.training.is_none();
@@ -431,36 +445,14 @@ impl Engine {
                     (&before, end_when),
                 )
             }
-            #[cfg(target_os = "linux")]
-            Devices::Hardware(h) => {
-                let camera = FrameSource::size(&h.camera);
-                let win = &mut h.win;
-                let size = DisplaySink::size(win);
-                Player::start(win.context(), model, size, range, source, FeedMode::Latest).map(
-                    |mut player| {
-                        // Monitoring needs the camera frame of a known presented frame: not yet
-                        // on hardware (the virtual rig has it).
-                        let mut screen = ServiceScreen::new(
-                            win,
-                            &mut self.io,
-                            None,
-                            (period, stats_every),
-                            (camera, size),
-                        );
-                        screen.before = before.clone();
-                        screen.climb = self.climb.take();
-                        screen.end_when = end_when;
-                        let stats = player.run(&mut screen, None);
-                        screen.settle();
-                        self.climb = screen.climb.take();
-                        Ended {
-                            stats,
-                            pending: screen.pending.take(),
-                            swapped: screen.swapped.take(),
-                        }
-                    },
-                )
-            }
+            Devices::Hardware(h) => play_hardware(
+                h,
+                model,
+                (range, source),
+                (&mut self.io, &mut self.climb),
+                (monitor.clone(), settle, (period, stats_every)),
+                (&before, end_when),
+            ),
         };
         // A model swapped in while playing is the one served from now on (also when the
         // playback then failed).
@@ -604,6 +596,88 @@ fn play_virtual(
         stats,
         pending: screen.pending.take(),
         swapped: screen.swapped.take(),
+    })
+}
+
+/// Exposures to wait after a change of content before the camera shows it: the latency
+/// measured when `model` was calibrated, if that was on the rig named `rig`.
+fn settle_frames(model: &Model, rig: &str) -> Option<u64> {
+    let c = model.meta.calibration.as_ref()?;
+    (c.rig == rig).then_some(c.latency.settle_frames)
+}
+
+/// Plays on the projector window, watched by a camera on its own clock (a V4L2 camera, the
+/// window rig's): the camera goes to a thread of its own that feeds monitoring with the views
+/// it saw alone ([`monitor::watch_camera`]; `settle`: exposures of latency), while the window
+/// stays on this thread. The camera is set to the exposure the model was calibrated at.
+fn play_hardware(
+    h: &mut Hardware,
+    model: &Model,
+    (range, source): (DisplayRange, Box<dyn source::VideoSource>),
+    (io, climb): (&mut Io, &mut Option<climb::Climb>),
+    (monitor, settle, timing): (Option<Arc<Tap>>, Option<u64>, (Duration, Duration)),
+    (before, end_when): (&Frames, Option<Arc<AtomicBool>>),
+) -> Result<Ended> {
+    let Hardware { win, camera, .. } = h;
+    if settle.is_some()
+        && let Err(e) = match_exposure(&mut **camera, model)
+    {
+        tracing::warn!("monitoring: {e}");
+    }
+    let sizes = (FrameSource::size(&**camera), DisplaySink::size(win));
+    let mut player = Player::start(
+        win.context(),
+        model,
+        sizes.1,
+        range,
+        source,
+        FeedMode::Latest,
+    )?;
+    let (tx, rx) = mpsc::channel();
+    let stop = AtomicBool::new(false);
+    let shared = io.shared.clone();
+    std::thread::scope(|scope| {
+        let watcher = match (&monitor, settle) {
+            (Some(tap), Some(settle)) => {
+                let (camera, stop, shared) = (&mut **camera, &stop, &*shared);
+                let spawned = std::thread::Builder::new()
+                    .name("compend-monitor".into())
+                    .spawn_scoped(scope, move || {
+                        monitor::watch_camera(camera, rx, settle, (tap, shared), stop)
+                    });
+                match spawned {
+                    Ok(w) => Some(w),
+                    Err(e) => {
+                        tracing::warn!("monitoring is off: cannot start its camera thread: {e}");
+                        None
+                    }
+                }
+            }
+            _ => None,
+        };
+        let mut screen = ServiceScreen::new(win, io, monitor.clone(), timing, sizes);
+        screen.before = before.clone();
+        screen.climb = climb.take();
+        screen.end_when = end_when;
+        if watcher.is_some() {
+            screen.changes = Some(tx);
+        }
+        let stats = player.run(&mut screen, None);
+        screen.settle();
+        *climb = screen.climb.take();
+        let ended = Ended {
+            stats,
+            pending: screen.pending.take(),
+            swapped: screen.swapped.take(),
+        };
+        drop(screen);
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(w) = watcher
+            && w.join().is_err()
+        {
+            tracing::error!("monitoring: its camera thread panicked");
+        }
+        Ok(ended)
     })
 }
 
