@@ -433,21 +433,26 @@ fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }
 
+/// The built-in drift scene moves its projector by 1.5 of 800 pixels, which at the tests'
+/// 200-pixel projector is a third of a pixel: monitoring sees 0.5 dB of it. A bump, here, is 24
+/// of 800 pixels (6 at this size), as a scene file in `dir`.
+fn bumped_scene(dir: &Path) -> PathBuf {
+    let o = compend(&["sim", "show", "drift"]);
+    assert_code(&o, 0);
+    let mut scene: Value = serde_json::from_str(&stdout(&o)).unwrap();
+    scene["drift"]["shift_px"] = serde_json::json!([24.0, -16.0]);
+    let scene_file = dir.join("bumped.json");
+    std::fs::write(&scene_file, scene.to_string()).unwrap();
+    scene_file
+}
+
 #[test]
 fn drift_is_detected_and_refitted_from_a_handful_of_captures() {
     if !gpu_or_skip() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    // The built-in drift scene moves its projector by 1.5 of 800 pixels, which at this test's
-    // 200-pixel projector is a third of a pixel: monitoring sees 0.5 dB of it. A bump, here, is
-    // 24 of 800 pixels (6 at this size), as a scene file.
-    let o = compend(&["sim", "show", "drift"]);
-    assert_code(&o, 0);
-    let mut scene: Value = serde_json::from_str(&stdout(&o)).unwrap();
-    scene["drift"]["shift_px"] = serde_json::json!([24.0, -16.0]);
-    let scene_file = dir.path().join("bumped.json");
-    std::fs::write(&scene_file, scene.to_string()).unwrap();
+    let scene_file = bumped_scene(dir.path());
     let config = write_config(
         dir.path(),
         scene_file.to_str().unwrap(),
@@ -795,6 +800,59 @@ fn the_service_monitors_through_a_camera_on_its_own_clock_under_xvfb() {
     let o = client(&["status"], &svc.socket);
     assert!(stdout(&o).contains("checks unseen"), "{}", stdout(&o));
 
+    assert_code(&client(&["stop"], &svc.socket), 0);
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+}
+
+/// Drift through the window rig under Xvfb: the camera on its own clock sees the bumped
+/// projector, monitoring reports drift, and the service refits through the window and swaps
+/// the new model in.
+#[test]
+fn drift_seen_through_a_camera_on_its_own_clock_is_refitted_under_xvfb() {
+    let Some(_ctx) = crate::common::gpu() else {
+        return;
+    };
+    let Some(x) = crate::window::Xvfb::start(200, 150) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let scene_file = bumped_scene(dir.path());
+    let config = write_config(
+        dir.path(),
+        scene_file.to_str().unwrap(),
+        4,
+        "drift_after_s = 3.0",
+        "drift_threshold_db = 2.0\non_drift = \"refit\"\nrefit_ntrain = 6",
+    );
+    let text = std::fs::read_to_string(&config)
+        .unwrap()
+        .replace("kind = \"virtual\"", "kind = \"window\"")
+        .replace("pattern:bars?", "pattern:checker?");
+    std::fs::write(&config, text).unwrap();
+    let mut svc = Service::start_on(&config, Some(&x.display));
+    let s = svc.wait_for("a refit after drift", 420, |s| {
+        s["calibrations"].as_u64() >= Some(2) && playing(s)
+    });
+    assert!(s["monitoring"]["drifts"].as_u64() >= Some(1), "{s}");
+    let log = svc.log();
+    assert!(log.contains("the projector was moved"), "{log}");
+    assert!(
+        log.contains("drift: refitting the linear rung from 6 sampling images"),
+        "{log}"
+    );
+    let meta: Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("state/model/model.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["training"]["ntrain"], 6, "{meta}");
+    assert_eq!(
+        meta["calibration"]["rig"],
+        format!("window:{}", scene_file.display())
+    );
+    // The refitted model is monitored on the moved projector without drift.
+    let s = svc.wait_for("monitoring of the refitted model", 60, |s| {
+        s["monitoring"]["checks"].as_u64() >= Some(2)
+    });
+    assert_eq!(s["monitoring"]["drift"], false, "{s}");
     assert_code(&client(&["stop"], &svc.socket), 0);
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }

@@ -151,6 +151,12 @@ impl WindowCamera {
         })
     }
 
+    /// The simulator the camera renders with (a clone sharing its state): moving its
+    /// projector ([`VirtualRig::set_phase`]) moves what this camera sees.
+    pub fn rig(&self) -> VirtualRig {
+        self.rig.clone()
+    }
+
     /// How the frames went so far.
     pub fn timing(&self) -> CameraTiming {
         lock(&self.timing).clone()

@@ -2,7 +2,7 @@
 //! pass) or real hardware (the projector window and a V4L2 camera), opened from `[rig]`.
 
 use std::path::Path;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use crate::config::{Config, RigKind};
 use crate::device::{DisplaySink, FrameSource};
@@ -31,10 +31,59 @@ pub(super) struct VirtualDevices {
     pub(super) rig: VirtualRig,
     pub(super) scene: Scene,
     pub(super) ctx: GpuContext,
-    /// When the projector is moved to the scene's drifted pose (`[rig] drift_after_s`), once.
-    pub(super) drift_at: Option<Instant>,
-    /// The projector was moved: it is not moved again.
-    pub(super) moved: bool,
+    /// The projector's bump, for a scene with drift.
+    pub(super) bump: Option<Bump>,
+}
+
+/// A simulated projector that is bumped to its scene's drifted pose once, `[rig]
+/// drift_after_s` after playback first starts (for trying monitoring and recalibration).
+pub(super) struct Bump {
+    rig: VirtualRig,
+    /// When the projector moves, once armed.
+    at: Option<Instant>,
+    /// It moved: never again.
+    moved: bool,
+}
+
+impl Bump {
+    /// The bump of `rig`'s projector, when its `scene` has a drifted pose (a warning when
+    /// `drift_after_s` asks for a bump it has not).
+    fn of(rig: VirtualRig, scene: &Scene, drift_after_s: Option<f64>) -> Option<Self> {
+        if scene.drift.is_none() {
+            if drift_after_s.is_some() {
+                tracing::warn!(
+                    "[rig] drift_after_s: scene {:?} has no drift; the projector stays put",
+                    scene.name
+                );
+            }
+            return None;
+        }
+        Some(Self {
+            rig,
+            at: None,
+            moved: false,
+        })
+    }
+
+    /// For a playback starting now: the rig and when its projector moves, unless it moved
+    /// already (armed at the first playback, `after_s` seconds on).
+    pub(super) fn arm(&mut self, after_s: Option<f64>) -> Option<(VirtualRig, Instant)> {
+        if self.moved {
+            return None;
+        }
+        if self.at.is_none() {
+            self.at = Some(Instant::now() + Duration::from_secs_f64(after_s?));
+        }
+        Some((self.rig.clone(), self.at?))
+    }
+
+    /// After a playback that was given the bump: `pending` still holds it when the projector
+    /// did not move during the playback.
+    pub(super) fn played(&mut self, pending: &Option<(VirtualRig, Instant)>) {
+        if self.at.is_some() && pending.is_none() {
+            self.moved = true;
+        }
+    }
 }
 
 /// The projector window and a camera that streams on its own clock: a V4L2 camera (real
@@ -44,6 +93,8 @@ pub(super) struct Hardware {
     pub(super) camera: Box<dyn FrameSource + Send>,
     /// What the camera is, for the log.
     pub(super) camera_name: String,
+    /// The window rig's simulated projector bump, for a scene with drift.
+    pub(super) bump: Option<Bump>,
 }
 
 pub(super) enum Devices {
@@ -63,20 +114,14 @@ impl Devices {
                     .with_resolution(cam, prj)
                     .with_timing(r.camera_fps, r.latency_ms);
                 scene.validate()?;
-                if r.drift_after_s.is_some() && scene.drift.is_none() {
-                    tracing::warn!(
-                        "[rig] drift_after_s: scene {:?} has no drift; the projector stays put",
-                        scene.name
-                    );
-                }
                 let rig = VirtualRig::new(&scene, r.seed)?;
+                let bump = Bump::of(rig.clone(), &scene, r.drift_after_s);
                 let ctx = GpuContext::new()?;
                 Ok(Devices::Virtual(Box::new(VirtualDevices {
                     rig,
                     scene,
                     ctx,
-                    drift_at: None,
-                    moved: false,
+                    bump,
                 })))
             }
             RigKind::Window => open_window(config),
@@ -152,6 +197,7 @@ fn open_hardware(config: &Config) -> Result<Devices> {
         win,
         camera: Box::new(camera),
         camera_name: device.display().to_string(),
+        bump: None,
     })))
 }
 
@@ -185,10 +231,8 @@ fn open_window(config: &Config) -> Result<Devices> {
         .with_resolution(cam, size)
         .with_timing(r.camera_fps, r.latency_ms);
     scene.validate()?;
-    if r.drift_after_s.is_some() {
-        tracing::warn!("[rig] drift_after_s: only the virtual rig's projector is moved");
-    }
     let camera = win.watched_by(&scene, r.seed)?;
+    let bump = Bump::of(camera.rig(), &scene, r.drift_after_s);
     let l = &scene.latency;
     Ok(Devices::Hardware(Box::new(Hardware {
         win,
@@ -197,6 +241,7 @@ fn open_window(config: &Config) -> Result<Devices> {
             "virtual, scene {:?} at {} fps, {} frames of delay",
             scene.name, l.fps, l.delay_frames
         ),
+        bump,
     })))
 }
 

@@ -39,6 +39,7 @@ use crate::error::Result;
 use crate::fov::DisplayRange;
 use crate::model::Model;
 use crate::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
+use crate::rig::VirtualRig;
 use crate::rig::scene::Latency;
 use crate::source::{self, FeedMode, SourceSpec};
 
@@ -429,30 +430,35 @@ impl Engine {
         let end_when = self.training.as_ref().map(|t| t.done.clone());
         let result = match &mut self.devices {
             Devices::Virtual(v) => {
-                if v.drift_at.is_none()
-                    && !v.moved
-                    && let Some(s) = drift_after
-                    && v.scene.drift.is_some()
-                {
-                    v.drift_at = Some(Instant::now() + Duration::from_secs_f64(s));
-                }
+                let bump = v.bump.as_mut().and_then(|b| b.arm(drift_after));
                 play_virtual(
                     v,
                     model,
                     (range, source, fps),
                     (&mut self.io, &mut self.climb),
                     (monitor.clone(), (period, stats_every)),
-                    (&before, end_when),
+                    Around {
+                        before: &before,
+                        end_when,
+                        bump,
+                    },
                 )
             }
-            Devices::Hardware(h) => play_hardware(
-                h,
-                model,
-                (range, source),
-                (&mut self.io, &mut self.climb),
-                (monitor.clone(), settle, (period, stats_every)),
-                (&before, end_when),
-            ),
+            Devices::Hardware(h) => {
+                let bump = h.bump.as_mut().and_then(|b| b.arm(drift_after));
+                play_hardware(
+                    h,
+                    model,
+                    (range, source),
+                    (&mut self.io, &mut self.climb),
+                    (monitor.clone(), settle, (period, stats_every)),
+                    Around {
+                        before: &before,
+                        end_when,
+                        bump,
+                    },
+                )
+            }
         };
         // A model swapped in while playing is the one served from now on (also when the
         // playback then failed).
@@ -548,7 +554,7 @@ fn play_virtual(
     (range, source, fps): (DisplayRange, Box<dyn source::VideoSource>, f64),
     (io, climb): (&mut Io, &mut Option<climb::Climb>),
     (monitor, timing): (Option<Arc<Tap>>, (Duration, Duration)),
-    (before, end_when): (&Frames, Option<Arc<AtomicBool>>),
+    around: Around<'_>,
 ) -> Result<Ended> {
     v.rig.set_latency(Latency {
         fps,
@@ -577,20 +583,16 @@ fn play_virtual(
     let mut sink = WatchedSink::new(&v.ctx, fps, v.rig.clone(), v.rig.clone(), views);
     let sizes = (v.scene.camera.size(), v.scene.projector.size());
     let mut screen = ServiceScreen::new(&mut sink, io, monitor, timing, sizes);
-    screen.before = before.clone();
+    screen.before = around.before.clone();
     screen.rig = Some(v.rig.clone());
     screen.climb = climb.take();
-    screen.end_when = end_when;
-    if let Some(at) = v.drift_at {
-        screen.drift = Some((v.rig.clone(), at));
-    }
+    screen.end_when = around.end_when;
+    screen.drift = around.bump;
     let stats = player.run(&mut screen, None);
     screen.settle();
     *climb = screen.climb.take();
-    if v.drift_at.is_some() && screen.drift.is_none() {
-        // The rig moved during this playback: never again.
-        v.drift_at = None;
-        v.moved = true;
+    if let Some(b) = &mut v.bump {
+        b.played(&screen.drift);
     }
     Ok(Ended {
         stats,
@@ -616,9 +618,14 @@ fn play_hardware(
     (range, source): (DisplayRange, Box<dyn source::VideoSource>),
     (io, climb): (&mut Io, &mut Option<climb::Climb>),
     (monitor, settle, timing): (Option<Arc<Tap>>, Option<u64>, (Duration, Duration)),
-    (before, end_when): (&Frames, Option<Arc<AtomicBool>>),
+    around: Around<'_>,
 ) -> Result<Ended> {
-    let Hardware { win, camera, .. } = h;
+    let Hardware {
+        win,
+        camera,
+        bump: bumps,
+        ..
+    } = h;
     if settle.is_some()
         && let Err(e) = match_exposure(&mut **camera, model)
     {
@@ -656,15 +663,19 @@ fn play_hardware(
             _ => None,
         };
         let mut screen = ServiceScreen::new(win, io, monitor.clone(), timing, sizes);
-        screen.before = before.clone();
+        screen.before = around.before.clone();
         screen.climb = climb.take();
-        screen.end_when = end_when;
+        screen.end_when = around.end_when;
+        screen.drift = around.bump;
         if watcher.is_some() {
             screen.changes = Some(tx);
         }
         let stats = player.run(&mut screen, None);
         screen.settle();
         *climb = screen.climb.take();
+        if let Some(b) = bumps {
+            b.played(&screen.drift);
+        }
         let ended = Ended {
             stats,
             pending: screen.pending.take(),
@@ -679,6 +690,15 @@ fn play_hardware(
         }
         Ok(ended)
     })
+}
+
+/// What a playback has around it: the frame totals of the playbacks before it, what ends it
+/// once set (a calibration's training beside it), and the simulated projector's bump due
+/// during it.
+struct Around<'a> {
+    before: &'a Frames,
+    end_when: Option<Arc<AtomicBool>>,
+    bump: Option<(VirtualRig, Instant)>,
 }
 
 /// How a playback ended: its counts, the event that ended it (none: the source ended or
