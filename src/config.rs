@@ -62,8 +62,9 @@ pub struct RigConfig {
     pub camera_fps: Option<f64>,
     /// `virtual`/`window`: projector-to-camera delay, ms (default: the scene's).
     pub latency_ms: Option<f64>,
-    /// `virtual`, scenes with drift: seconds after playback first starts at which the projector
-    /// is moved to the scene's drifted pose (a bump, for testing monitoring and recalibration).
+    /// `virtual`/`window`, scenes with drift: seconds after playback first starts at which the
+    /// simulated projector is moved to the scene's drifted pose (a bump, for testing monitoring
+    /// and recalibration).
     pub drift_after_s: Option<f64>,
 }
 
