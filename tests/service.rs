@@ -856,3 +856,46 @@ fn drift_seen_through_a_camera_on_its_own_clock_is_refitted_under_xvfb() {
     assert_code(&client(&["stop"], &svc.socket), 0);
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }
+
+/// On real hardware, by hand: on the projection PC (an X session with the projector as a
+/// monitor, a V4L2 camera looking at the surface), run
+/// `COMPEND_TEST_CAMERA=/dev/video0 COMPEND_TEST_MONITOR=1 cargo test --release --test integration service::the_service_monitors_a_real_camera -- --ignored --nocapture`.
+/// The service calibrates (black/white flashes, then the patterns), plays colour bars, and
+/// monitoring scores the camera's view of them: the printed status should show `checks` ≥ 3
+/// with a PSNR within a few dB of the verification, `unseen` 0. Then nudge the projector or the
+/// surface: within two periods (`period_s = 2`) the log says DRIFT.
+#[test]
+#[ignore = "needs a V4L2 camera and a projector attached as a monitor of the X session"]
+fn the_service_monitors_a_real_camera() {
+    let camera = std::env::var("COMPEND_TEST_CAMERA").unwrap_or_else(|_| "/dev/video0".into());
+    let monitor = std::env::var("COMPEND_TEST_MONITOR").unwrap_or_else(|_| "0".into());
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let socket = dir.path().join("compend.sock");
+    let config = dir.path().join("compend.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[rig]\nkind = \"camera\"\ncamera = \"{camera}\"\nmonitor = \"{monitor}\"\n\
+             [paths]\nstate = \"{}\"\n[calibration]\nntrain = 24\n\
+             [playback]\nsource = \"pattern:bars\"\n[monitoring]\nperiod_s = 2.0\n\
+             [socket]\npath = \"{}\"\n",
+            state.display(),
+            socket.display()
+        ),
+    )
+    .unwrap();
+    let mut svc = Service::start_on(
+        &config,
+        std::env::var("DISPLAY").ok().as_deref().or(Some(":0")),
+    );
+    let s = svc.wait_for("playback after calibration", 900, playing);
+    eprintln!("{s:#}");
+    let s = svc.wait_for("three monitoring checks", 120, |s| {
+        s["monitoring"]["checks"].as_u64() >= Some(3)
+    });
+    eprintln!("{s:#}\n{}", svc.log());
+    assert_eq!(s["monitoring"]["unseen"], 0, "{s}");
+    assert_code(&client(&["stop"], &svc.socket), 0);
+    assert_eq!(svc.wait_exit(30), Some(0), "log:\n{}", svc.log());
+}
