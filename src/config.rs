@@ -165,6 +165,10 @@ pub struct SocketConfig {
     pub group: Option<String>,
     /// User ids allowed besides root, the service's own user and the group's members.
     pub allow_uids: Vec<u32>,
+    /// The same API on a loopback TCP address, for show-control software (None: off).
+    pub tcp: Option<std::net::SocketAddr>,
+    /// The file holding the token every TCP request must carry (required with `tcp`).
+    pub tcp_token_file: Option<PathBuf>,
 }
 
 /// `[log]`.
@@ -561,11 +565,38 @@ impl<'t> Walker<'t> {
                 }
             })
             .unwrap_or(0o660);
+        let group = self.get(t, "group");
+        let allow_uids = self.get(t, "allow_uids").unwrap_or_default();
+        let tcp_span = span_of(t, "tcp");
+        let has_tcp = t.entries.iter().any(|(k, _, _)| k == "tcp");
+        let tcp = self.parsed_with(t, "tcp", |s: &str| {
+            let addr: std::net::SocketAddr = s.parse().map_err(|_| {
+                format!("\"{s}\" is not an address; expected IP:PORT such as \"127.0.0.1:7420\"")
+            })?;
+            if !addr.ip().is_loopback() {
+                return Err(format!(
+                    "\"{s}\" is not a loopback address: the TCP API listens on this machine \
+                     only (127.0.0.1 or [::1])"
+                ));
+            }
+            Ok(addr)
+        });
+        let tcp_token_file: Option<PathBuf> = self.get(t, "tcp_token_file");
+        if has_tcp && tcp_token_file.is_none() {
+            self.error(
+                tcp_span,
+                "[socket] tcp needs tcp_token_file, a file holding the token every TCP request \
+                 carries"
+                    .into(),
+            );
+        }
         SocketConfig {
             path,
             mode,
-            group: self.get(t, "group"),
-            allow_uids: self.get(t, "allow_uids").unwrap_or_default(),
+            group,
+            allow_uids,
+            tcp,
+            tcp_token_file,
         }
     }
 

@@ -214,6 +214,23 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     }
     let dir = tempfile::tempdir().unwrap();
     let config = write_config(dir.path(), "textured-plane", 3, "", "");
+    // The TCP API too, on a free loopback port, with a token file.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let token = "5d41402abc4b2a76b9719d911017c592";
+    let token_file = dir.path().join("tcp-token");
+    std::fs::write(&token_file, format!("{token}\n")).unwrap();
+    let text = std::fs::read_to_string(&config).unwrap().replace(
+        "[socket]\n",
+        &format!(
+            "[socket]\ntcp = \"127.0.0.1:{port}\"\ntcp_token_file = \"{}\"\n",
+            token_file.display()
+        ),
+    );
+    std::fs::write(&config, text).unwrap();
     let mut svc = Service::start(&config);
     // No model: it calibrates at start, installs the model and plays.
     let s = svc.wait_for("playback after the first calibration", 300, playing);
@@ -238,6 +255,53 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     let psnr = s["monitoring"]["psnr"].as_f64().unwrap();
     assert!(psnr > 15.0, "monitoring {psnr} dB: {s}");
     assert_eq!(s["monitoring"]["drift"], false, "{s}");
+
+    // The TCP API: requests with the token are answered as on the socket; one without it, or
+    // with another, gets an error and the connection is closed.
+    // The requests, one after the other's reply; the replies until the service hangs up.
+    let tcp = |lines: &[String]| -> Vec<String> {
+        let s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(40))).unwrap();
+        let mut r = BufReader::new(s.try_clone().unwrap());
+        let mut w = s;
+        let mut replies = Vec::new();
+        for l in lines {
+            if w.write_all(format!("{l}\n").as_bytes()).is_err() {
+                break;
+            }
+            let mut reply = String::new();
+            if r.read_line(&mut reply).unwrap_or(0) == 0 {
+                break;
+            }
+            replies.push(reply.trim().to_string());
+        }
+        replies
+    };
+    let replies = tcp(&[
+        format!(r#"{{"cmd":"status","token":"{token}"}}"#),
+        format!(r#"{{"cmd":"play","source":"nonsense:x","token":"{token}"}}"#),
+    ]);
+    assert_eq!(replies.len(), 2, "{replies:?}");
+    let r: Value = serde_json::from_str(&replies[0]).unwrap();
+    assert_eq!(r["status"]["state"], "playing", "{r}");
+    let r: Value = serde_json::from_str(&replies[1]).unwrap();
+    assert_eq!(r["ok"], false, "{r}");
+    assert!(r["error"].as_str().unwrap().contains("nonsense"), "{r}");
+    for first in [
+        r#"{"cmd":"status"}"#.to_string(),
+        r#"{"cmd":"status","token":"5d41402abc4b2a76b9719d911017c59"}"#.to_string(),
+        "status".to_string(),
+    ] {
+        let replies = tcp(&[
+            first.clone(),
+            format!(r#"{{"cmd":"status","token":"{token}"}}"#),
+        ]);
+        assert_eq!(replies.len(), 1, "closed after {first}: {replies:?}");
+        let r: Value = serde_json::from_str(&replies[0]).unwrap();
+        assert_eq!(r["ok"], false, "{r}");
+        assert!(r["error"].as_str().unwrap().contains("token"), "{r}");
+    }
+    assert!(svc.log().contains("control port: refused"), "{}", svc.log());
 
     // Bad requests get errors; the connection and the service go on.
     let r = svc.ask("hello");
@@ -559,6 +623,40 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
         "mine"
     );
     std::fs::remove_dir_all(&model).unwrap();
+
+    // The TCP API: a non-loopback address and a missing token file are configuration errors;
+    // a short token stops the service at start.
+    let tcp_config = |extra: &str| {
+        let text = std::fs::read_to_string(&config)
+            .unwrap()
+            .replace("[socket]\n", &format!("[socket]\n{extra}\n"));
+        let path = dir.path().join("tcp.toml");
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let c = tcp_config("tcp = \"0.0.0.0:7420\"");
+    let o = compend(&["config", "check", c.to_str().unwrap()]);
+    assert_code(&o, 2);
+    for want in [
+        "[socket] tcp",
+        "not a loopback address",
+        "needs tcp_token_file",
+    ] {
+        assert!(stderr(&o).contains(want), "{want}: {}", stderr(&o));
+    }
+    let short = dir.path().join("short-token");
+    std::fs::write(&short, "abc\n").unwrap();
+    let c = tcp_config(&format!(
+        "tcp = \"127.0.0.1:7420\"\ntcp_token_file = \"{}\"",
+        short.display()
+    ));
+    let o = compend(&["serve", "--config", c.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("short-token") && stderr(&o).contains("at least 16"),
+        "{}",
+        stderr(&o)
+    );
 
     // The socket path holds a file: refused, the file kept.
     let socket = dir.path().join("compend.sock");

@@ -174,14 +174,26 @@ pub fn serve(config: Config, config_path: Option<PathBuf>) -> Result<()> {
         .enable_all()
         .build()
         .map_err(|e| Error::Failed(format!("cannot start the async runtime: {e}")))?;
-    // The socket first: a second service, or a path that is not ours, fails before any device
-    // is opened.
+    // The sockets first: a second service, or a path that is not ours, fails before any
+    // device is opened. The TCP port before the Unix socket, which a failure would leave behind.
+    let tcp = match (config.socket.tcp, &config.socket.tcp_token_file) {
+        (Some(addr), Some(file)) => {
+            let token = socket::Token::read(file)?;
+            let _guard = runtime.enter();
+            Some((socket::bind_tcp(addr)?, token, addr))
+        }
+        _ => None,
+    };
     let (listener, access) = {
         let _guard = runtime.enter();
         socket::bind(&config.socket)?
     };
     let socket_path = config.socket.path.clone();
     runtime.spawn(socket::serve(listener, access, shared.clone()));
+    if let Some((listener, token, addr)) = tcp {
+        tracing::info!("control port: listening on {addr} (requests carry the token)");
+        runtime.spawn(socket::serve_tcp(listener, token, shared.clone()));
+    }
     runtime.spawn(signals(shared.clone(), config_path.clone()));
     let result = engine::Engine::start(config, config_path, shared.clone(), rx)
         .and_then(|engine| engine.run());

@@ -6,6 +6,11 @@
 //! reply comes back on a oneshot channel. A malformed, oversized or unknown request gets an error
 //! reply and the connection goes on. Peers are checked by their credentials (`SO_PEERCRED`):
 //! root, the service's own user, the socket's group and `allow_uids` may connect.
+//!
+//! Optionally the same API on a loopback TCP address (`[socket] tcp`), for show-control software
+//! that speaks TCP: there every request carries the token of `[socket] tcp_token_file` in a
+//! `token` field; a request without it, or with another, gets an error and the connection is
+//! closed.
 
 use std::ffi::CString;
 use std::os::unix::fs::{FileTypeExt, PermissionsExt};
@@ -14,7 +19,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
-use tokio::net::{UnixListener, UnixStream};
+use tokio::net::{TcpListener, TcpStream, UnixListener, UnixStream};
 use tokio::sync::{Semaphore, oneshot};
 
 use super::protocol::{MAX_REQUEST_BYTES, Reply, Request};
@@ -103,6 +108,174 @@ pub fn bind(cfg: &SocketConfig) -> Result<(UnixListener, Access)> {
             allow_uids: cfg.allow_uids.clone(),
         },
     ))
+}
+
+/// Shortest token accepted, bytes: 16 random bytes as hex or base64 are longer.
+const MIN_TOKEN_BYTES: usize = 16;
+
+/// The token TCP requests must carry.
+#[derive(Clone)]
+pub struct Token(Arc<Vec<u8>>);
+
+impl std::fmt::Debug for Token {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Token({} bytes)", self.0.len())
+    }
+}
+
+impl Token {
+    /// Reads the token from `path`: its text without surrounding white space, at least
+    /// [`MIN_TOKEN_BYTES`] long. A file others may read is used, with a warning.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => Error::Input(format!(
+                "[socket] tcp_token_file: {} does not exist; write a random token into it (e.g. \
+                 `openssl rand -hex 32 > {0}; chmod 600 {0}`)",
+                path.display()
+            )),
+            std::io::ErrorKind::InvalidData => Error::Input(format!(
+                "[socket] tcp_token_file: {} is not text; expected a token such as 64 hex digits",
+                path.display()
+            )),
+            _ => Error::io(path, "read the TCP token", e),
+        })?;
+        let token = text.trim();
+        if token.len() < MIN_TOKEN_BYTES || token.chars().any(char::is_whitespace) {
+            return Err(Error::Input(format!(
+                "[socket] tcp_token_file: {} must hold one token of at least {MIN_TOKEN_BYTES} \
+                 characters without spaces (it holds {} characters{})",
+                path.display(),
+                token.chars().count(),
+                if token.chars().any(char::is_whitespace) {
+                    ", with spaces"
+                } else {
+                    ""
+                }
+            )));
+        }
+        if let Ok(meta) = std::fs::metadata(path)
+            && meta.permissions().mode() & 0o077 != 0
+        {
+            tracing::warn!(
+                "[socket] tcp_token_file: {} may be read by other users (mode {:o}); chmod 600 it",
+                path.display(),
+                meta.permissions().mode() & 0o777
+            );
+        }
+        Ok(Self(Arc::new(token.as_bytes().to_vec())))
+    }
+
+    /// Whether `given` is the token; in time that does not depend on where they differ.
+    fn matches(&self, given: &[u8]) -> bool {
+        let want = self.0.as_slice();
+        let mut diff = want.len() ^ given.len();
+        for (i, &w) in want.iter().enumerate() {
+            diff |= usize::from(w ^ given.get(i).copied().unwrap_or(!w));
+        }
+        diff == 0
+    }
+
+    /// The request in `line` without its `token` field, once the token is right; otherwise the
+    /// error to reply before closing the connection.
+    fn strip(&self, line: &[u8]) -> std::result::Result<Vec<u8>, Reply> {
+        let refuse = || {
+            Reply::error(
+                "a request on the TCP port must be one JSON object with \"token\", the token of \
+                 [socket] tcp_token_file; this one has none or another",
+            )
+        };
+        let mut value: serde_json::Value = serde_json::from_slice(line).map_err(|_| refuse())?;
+        let obj = value.as_object_mut().ok_or_else(refuse)?;
+        match obj.remove("token") {
+            Some(serde_json::Value::String(t)) if self.matches(t.as_bytes()) => {}
+            _ => return Err(refuse()),
+        }
+        serde_json::to_vec(&value).map_err(|e| Reply::error(format!("bad request: {e}")))
+    }
+}
+
+/// Binds the loopback TCP address `addr` of `[socket] tcp`. An address in use is an input
+/// error naming it.
+pub fn bind_tcp(addr: std::net::SocketAddr) -> Result<TcpListener> {
+    let std_listener = std::net::TcpListener::bind(addr).map_err(|e| match e.kind() {
+        std::io::ErrorKind::AddrInUse => Error::Input(format!(
+            "[socket] tcp = \"{addr}\": the address is in use (another compend service, or \
+             another program); pick another port"
+        )),
+        _ => Error::Failed(format!("[socket] tcp = \"{addr}\": cannot listen: {e}")),
+    })?;
+    std_listener
+        .set_nonblocking(true)
+        .map_err(|e| Error::Failed(format!("[socket] tcp = \"{addr}\": {e}")))?;
+    TcpListener::from_std(std_listener)
+        .map_err(|e| Error::Failed(format!("[socket] tcp = \"{addr}\": {e}")))
+}
+
+/// Accepts TCP clients until the runtime shuts down; each request must carry `token`.
+pub async fn serve_tcp(listener: TcpListener, token: Token, shared: Arc<Shared>) {
+    let slots = Arc::new(Semaphore::new(MAX_CLIENTS));
+    loop {
+        let (stream, peer) = match listener.accept().await {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!("control port: accept failed: {e}");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let Ok(permit) = slots.clone().acquire_owned().await else {
+            return;
+        };
+        let shared = shared.clone();
+        let token = token.clone();
+        tokio::spawn(async move {
+            if let Err(e) = tcp_client(stream, peer, &token, &shared).await {
+                tracing::debug!("control port: client {peer} ended: {e}");
+            }
+            drop(permit);
+        });
+    }
+}
+
+/// One TCP client: its requests in order, each with the token, until it hangs up or sends a
+/// request without the token.
+async fn tcp_client(
+    stream: TcpStream,
+    peer: std::net::SocketAddr,
+    token: &Token,
+    shared: &Shared,
+) -> std::io::Result<()> {
+    let (read, mut write) = stream.into_split();
+    let mut read = BufReader::new(read);
+    let mut line = Vec::new();
+    loop {
+        match read_line(&mut read, &mut line).await? {
+            Line::End => return Ok(()),
+            Line::TooLong => {
+                let reply = Reply::error(format!(
+                    "request longer than {MAX_REQUEST_BYTES} bytes; it was skipped"
+                ));
+                write.write_all(reply.to_line().as_bytes()).await?;
+            }
+            Line::Complete => match token.strip(&line) {
+                Ok(request) => {
+                    let reply = answer(&request, shared).await;
+                    write.write_all(reply.to_line().as_bytes()).await?;
+                }
+                Err(reply) => {
+                    tracing::warn!("control port: refused {peer}: no token, or the wrong one");
+                    write.write_all(reply.to_line().as_bytes()).await?;
+                    write.shutdown().await?;
+                    // What the client sent after it is read and dropped for a moment, so that
+                    // closing does not reset the connection before the reply is read.
+                    let mut sink = tokio::io::sink();
+                    let drain = tokio::io::copy(&mut read, &mut sink);
+                    let _ = tokio::time::timeout(Duration::from_secs(1), drain).await;
+                    return Ok(());
+                }
+            },
+        }
+    }
 }
 
 /// Accepts clients until the runtime shuts down.
@@ -341,5 +514,61 @@ pub fn resolve(socket: Option<PathBuf>, config: Option<&Path>) -> Result<PathBuf
         (Some(s), _) => Ok(s),
         (None, Some(c)) => Ok(crate::config::Config::load(c)?.socket.path),
         (None, None) => Ok(crate::config::Config::defaults().socket.path),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn token(text: &str) -> Token {
+        Token(Arc::new(text.as_bytes().to_vec()))
+    }
+
+    #[test]
+    fn a_tcp_request_needs_the_token_which_is_taken_out_of_it() {
+        let t = token("0123456789abcdef0123");
+        let ok = t
+            .strip(br#"{"cmd":"play","source":"pattern:bars","token":"0123456789abcdef0123"}"#)
+            .unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&ok).unwrap();
+        assert_eq!(
+            v,
+            serde_json::json!({"cmd": "play", "source": "pattern:bars"})
+        );
+        for bad in [
+            &br#"{"cmd":"status"}"#[..],
+            br#"{"cmd":"status","token":"0123456789abcdef012"}"#,
+            br#"{"cmd":"status","token":"0123456789abcdef01234"}"#,
+            br#"{"cmd":"status","token":"1123456789abcdef0123"}"#,
+            br#"{"cmd":"status","token":12}"#,
+            br#"["0123456789abcdef0123"]"#,
+            b"status 0123456789abcdef0123",
+        ] {
+            let e = t.strip(bad).unwrap_err();
+            assert!(
+                e.to_line().contains("tcp_token_file"),
+                "{}: {}",
+                String::from_utf8_lossy(bad),
+                e.to_line()
+            );
+        }
+    }
+
+    #[test]
+    fn a_token_file_must_hold_a_long_token() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("token");
+        let e = Token::read(&path).unwrap_err().to_string();
+        assert!(e.contains("does not exist") && e.contains("token"), "{e}");
+        std::fs::write(&path, "short\n").unwrap();
+        let e = Token::read(&path).unwrap_err().to_string();
+        assert!(e.contains("at least 16") && e.contains("holds 5"), "{e}");
+        std::fs::write(&path, "two words that are long enough\n").unwrap();
+        assert!(Token::read(&path).is_err());
+        std::fs::write(&path, "  0123456789abcdef0123\n").unwrap();
+        let t = Token::read(&path).unwrap();
+        assert!(t.matches(b"0123456789abcdef0123"));
+        assert!(!t.matches(b""));
     }
 }
