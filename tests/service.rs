@@ -903,10 +903,10 @@ fn the_service_monitors_through_a_camera_on_its_own_clock_under_xvfb() {
 }
 
 /// Drift through the window rig under Xvfb: the camera on its own clock sees the bumped
-/// projector, monitoring reports drift, and the service refits through the window and swaps
-/// the new model in.
+/// projector, monitoring reports drift, and the service recalibrates fully through the window
+/// (`on_drift = "recalibrate"`; the virtual-rig test above refits) and swaps the new model in.
 #[test]
-fn drift_seen_through_a_camera_on_its_own_clock_is_refitted_under_xvfb() {
+fn drift_seen_through_a_camera_on_its_own_clock_is_recalibrated_under_xvfb() {
     let Some(_ctx) = crate::common::gpu() else {
         return;
     };
@@ -920,7 +920,7 @@ fn drift_seen_through_a_camera_on_its_own_clock_is_refitted_under_xvfb() {
         scene_file.to_str().unwrap(),
         4,
         "drift_after_s = 3.0",
-        "drift_threshold_db = 2.0\non_drift = \"refit\"\nrefit_ntrain = 6",
+        "drift_threshold_db = 2.0\non_drift = \"recalibrate\"",
     );
     let text = std::fs::read_to_string(&config)
         .unwrap()
@@ -928,26 +928,24 @@ fn drift_seen_through_a_camera_on_its_own_clock_is_refitted_under_xvfb() {
         .replace("pattern:bars?", "pattern:checker?");
     std::fs::write(&config, text).unwrap();
     let mut svc = Service::start_on(&config, Some(&x.display));
-    let s = svc.wait_for("a refit after drift", 420, |s| {
+    let s = svc.wait_for("a recalibration after drift", 420, |s| {
         s["calibrations"].as_u64() >= Some(2) && playing(s)
     });
     assert!(s["monitoring"]["drifts"].as_u64() >= Some(1), "{s}");
     let log = svc.log();
     assert!(log.contains("the projector was moved"), "{log}");
-    assert!(
-        log.contains("drift: refitting the linear rung from 6 sampling images"),
-        "{log}"
-    );
+    assert!(log.contains("drift: recalibrating"), "{log}");
     let meta: Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("state/model/model.json")).unwrap())
             .unwrap();
-    assert_eq!(meta["training"]["ntrain"], 6, "{meta}");
+    assert_eq!(meta["training"]["ntrain"], 12, "{meta}");
+    assert_eq!(meta["calibration"]["captured"], 19, "{meta}");
     assert_eq!(
         meta["calibration"]["rig"],
         format!("window:{}", scene_file.display())
     );
-    // The refitted model is monitored on the moved projector without drift.
-    let s = svc.wait_for("monitoring of the refitted model", 60, |s| {
+    // The new model is monitored on the moved projector without drift.
+    let s = svc.wait_for("monitoring of the new model", 60, |s| {
         s["monitoring"]["checks"].as_u64() >= Some(2)
     });
     assert_eq!(s["monitoring"]["drift"], false, "{s}");
