@@ -11,7 +11,8 @@
 //! 3. surface: radiance R_i = ρ_i·g_i·E_i + spec_i·E_i + ρ_i·I_i + ρ_i·A_i + glare_i, where
 //!    g_i = visibility × cos(incidence) × distance fall-off × projector vignetting, spec_i the
 //!    projector highlight, I_i one inter-reflection bounce (strength × wide blur of ρ·g·E),
-//!    A_i ambient irradiance;
+//!    A_i ambient irradiance; with sub-surface scattering a share of ρ_i·g_i·E_i is replaced
+//!    by √ρ_i·(K_c ∗ √ρ·g·E)_i (a Gaussian per channel, camera pixels);
 //! 4. camera: sensor s_i = exposure·vignetting_i·M_c·R_i, optionally blurred by the optics
 //!    (Gaussian, camera pixels, zero padding; ambient light and glare are not blurred: they are
 //!    smooth); Poisson-Gaussian noise; clip to \[0,1\];
@@ -28,6 +29,7 @@
 //! - `pixel`: ray casting and shading of one camera pixel (step 2 and 3's per-pixel factors);
 //! - `operator`: the linear operator (emission → sensor) and its adjoint;
 //! - `bounce`: the inter-reflection of step 3;
+//! - `subsurface`: the sub-surface scattering of step 3;
 //! - `kernels`: blurs, small matrix helpers, the parallel loops and the noise hashing.
 
 use std::sync::OnceLock;
@@ -42,6 +44,7 @@ mod bounce;
 mod kernels;
 mod operator;
 mod pixel;
+mod subsurface;
 #[cfg(test)]
 mod tests;
 
@@ -49,6 +52,7 @@ use bounce::Bounce;
 use kernels::{CHUNK, approx_normal, gaussian_kernel, par_rows};
 pub(crate) use kernels::{mat3, mix64};
 use pixel::{PixelMaps, camera_maps};
+use subsurface::Subsurface;
 
 /// Which projector pose the simulator uses: the one at calibration, or the moved one of
 /// [`Scene::drift`] (identical when the scene has no drift).
@@ -96,6 +100,8 @@ pub struct Simulator {
     /// The camera optics' blur kernel (camera pixels), when the scene has one.
     cam_blur: Option<Vec<f32>>,
     bounce: Option<Bounce>,
+    /// Sub-surface scattering, when the scene has it.
+    subsurface: Option<Subsurface>,
     /// Sensor signal at which the encoded output reaches level k + ½, k = 0..254.
     thresholds: Vec<f32>,
     /// For a signal bucket floor(s·QUANT_BUCKETS), the level at its lower edge.
@@ -147,6 +153,7 @@ impl Simulator {
             defocus: None,
             cam_blur: None,
             bounce: None,
+            subsurface: None,
             thresholds: Vec::new(),
             bucket_level: Vec::new(),
             noise: (c.noise.shot as f32, c.noise.read as f32),
@@ -206,6 +213,25 @@ impl Simulator {
             && ir.strength > 0.0
         {
             sim.bounce = Some(Bounce::new(cw, chh, ir.strength, ir.radius));
+        }
+        if let Some(ss) = &scene.subsurface
+            && ss.share > 0.0
+        {
+            // Millimetres on the surface to camera pixels, at the surface's distance along the
+            // camera's axis.
+            let axis = sim.cam.ray(sim.cam.cx, sim.cam.cy);
+            let dist = sim
+                .shape
+                .intersect(&sim.cam.centre, &axis)
+                .map_or(2.0, |t| t * axis.norm());
+            let px_per_mm = sim.cam.f / (dist * 1e3);
+            sim.subsurface = Some(Subsurface::new(
+                ss.share,
+                ss.radius_mm.map(|r| r * px_per_mm),
+                (cw, chh),
+                &sim.diffuse,
+                &sim.albedo,
+            ));
         }
         // Quantisation thresholds of the encoded output: level k+1 starts where
         // s^(1/γ) = (k + ½)/255.

@@ -69,12 +69,20 @@ impl Simulator {
             let g = self.gain[i];
             [g * s[0], g * s[1], g * s[2]]
         };
+        // With sub-surface scattering, the diffuse radiance of every pixel first.
+        let spread = self
+            .subsurface
+            .as_ref()
+            .map(|ss| ss.forward(&par_pixels(n, |i| gather(e, pw, &self.taps[i]))));
         // Gathered projector light E_i; direct radiance R_i = diffuse_i·E_i + spec_i·E_i.
         let direct = |i: usize| {
             let ei = gather(e, pw, &self.taps[i]);
             let dg = self.diffuse[i];
             let sp = self.spec[i];
-            let d = [dg[0] * ei[0], dg[1] * ei[1], dg[2] * ei[2]];
+            let d = match &spread {
+                Some(v) => [v[i * 3], v[i * 3 + 1], v[i * 3 + 2]],
+                None => [dg[0] * ei[0], dg[1] * ei[1], dg[2] * ei[2]],
+            };
             (d, [d[0] + sp * ei[0], d[1] + sp * ei[1], d[2] + sp * ei[2]])
         };
         let blur = |s: Vec<f32>| match &self.cam_blur {
@@ -143,17 +151,33 @@ impl Simulator {
             }
             b.adjoint(&aq)
         });
+        // With sub-surface scattering: the gathered-light gradient of the diffuse radiance.
+        let spread = self.subsurface.as_ref().map(|ss| {
+            let mut dd = q.clone();
+            if let Some(bg) = &bounce_grad {
+                for (a, b) in dd.iter_mut().zip(bg) {
+                    *a += b;
+                }
+            }
+            ss.adjoint(&dd)
+        });
         let mut e = vec![0f32; pw * ph * 3];
         for i in 0..n {
             let dg = self.diffuse[i];
             let sp = self.spec[i];
             let mut ge = [0f32; 3];
             for c in 0..3 {
-                let mut dd = q[i * 3 + c];
-                if let Some(bg) = &bounce_grad {
-                    dd += bg[i * 3 + c];
-                }
-                ge[c] = dg[c] * dd + sp * q[i * 3 + c];
+                let diffuse = match &spread {
+                    Some(v) => v[i * 3 + c],
+                    None => {
+                        let mut dd = q[i * 3 + c];
+                        if let Some(bg) = &bounce_grad {
+                            dd += bg[i * 3 + c];
+                        }
+                        dg[c] * dd
+                    }
+                };
+                ge[c] = diffuse + sp * q[i * 3 + c];
             }
             scatter(&mut e, pw, &self.taps[i], ge);
         }

@@ -5,7 +5,7 @@
 
 use super::{
     Albedo, Ambient, CameraModel, Drift, Glare, Interreflection, Latency, Noise, Pose,
-    ProjectorModel, Scene, Specular, Surface,
+    ProjectorModel, Scene, Specular, Subsurface, Surface,
 };
 use crate::error::{Error, Result};
 
@@ -18,6 +18,7 @@ pub const BUILTIN: &[&str] = &[
     "dark-texture",
     "specular-corner",
     "defocus-noise",
+    "translucent",
     "step",
     "drift",
 ];
@@ -54,6 +55,7 @@ pub fn builtin(name: &str) -> Result<Scene> {
         "dark-texture" => dark_texture(name, base),
         "specular-corner" => specular_corner(name, base),
         "defocus-noise" => defocus_noise(name, base),
+        "translucent" => translucent(name, base),
         "step" => step(name, base),
         "drift" => drift(name, base),
         other => {
@@ -251,6 +253,28 @@ fn drift(name: &str, base: Scene) -> Scene {
     s
 }
 
+fn translucent(name: &str, base: Scene) -> Scene {
+    Scene {
+        name: name.into(),
+        summary: "a textured translucent surface (skin-like: a mannequin, a wax figure, a \
+                  lampshade): light re-emerges millimetres from where it entered, furthest in \
+                  red"
+        .into(),
+        surface: Surface::Plane {
+            distance: 1.2,
+            tilt_deg: [8.0, 4.0],
+        },
+        albedo: light_texture(),
+        // Skin's diffusion lengths (see `Subsurface`); 80 % of the diffuse reflection
+        // sub-surface (an assumption: the rest leaves at the surface).
+        subsurface: Some(Subsurface {
+            share: 0.8,
+            radius_mm: [3.7, 1.4, 0.7],
+        }),
+        ..base
+    }
+}
+
 /// The shared defaults: a white wall 2 m away, camera at the origin, projector 12 cm to the
 /// right and 5 cm up, aimed at the wall's centre; mild colour crosstalk on both devices.
 fn base_scene() -> Scene {
@@ -294,6 +318,7 @@ fn base_scene() -> Scene {
         specular: None,
         glare: None,
         interreflection: None,
+        subsurface: None,
         latency: Latency::default(),
         drift: None,
     }
