@@ -179,10 +179,11 @@ impl Objective<'_> {
         s
     }
 
-    /// Aᵀ·g: a camera-space signal gradient to a drive gradient.
-    fn adjoint(&self, g: &[f32]) -> Vec<f32> {
+    /// J(d)ᵀ·g: a camera-space signal gradient to a drive gradient, through the Jacobian at
+    /// drives `d` (A itself but for the white segment).
+    fn adjoint(&self, d: &[f32], g: &[f32]) -> Vec<f32> {
         self.sim
-            .emission_to_drive_adjoint(&self.sim.sensor_adjoint(g))
+            .emission_to_drive_adjoint(d, &self.sim.sensor_adjoint(g))
     }
 
     /// The camera's encoded output for signal `s`.
@@ -214,9 +215,10 @@ impl Objective<'_> {
             / 2.0
     }
 
-    /// Gauss-Newton weights at the current output `s`; the Jacobi majoriser diag(AᵀWA·1) (A has
-    /// non-negative entries), with `a1` = A·1.
-    fn majoriser(&self, a1: &[f32], s: &[f32]) -> Vec<f32> {
+    /// Gauss-Newton weights at the current output `s` of drives `x`; the Jacobi majoriser
+    /// diag(JᵀWJ·1) (J has non-negative entries), with `a1` = J·1 = A·1 (every Jacobian of the
+    /// white segment's min takes one channel whole).
+    fn majoriser(&self, a1: &[f32], s: &[f32], x: &[f32]) -> Vec<f32> {
         let wa1: Vec<f32> = a1
             .iter()
             .zip(s)
@@ -230,11 +232,11 @@ impl Objective<'_> {
                 }
             })
             .collect();
-        self.adjoint(&wa1)
+        self.adjoint(x, &wa1)
     }
 
-    /// Gradient of ½Σ(enc(s) − z)² with respect to the drives.
-    fn gradient(&self, s: &[f32]) -> Vec<f32> {
+    /// Gradient of ½Σ(enc(s) − z)² with respect to the drives `x`, whose output is `s`.
+    fn gradient(&self, s: &[f32], x: &[f32]) -> Vec<f32> {
         let r: Vec<f32> = s
             .iter()
             .zip(self.z)
@@ -247,7 +249,7 @@ impl Objective<'_> {
                 }
             })
             .collect();
-        self.adjoint(&r)
+        self.adjoint(x, &r)
     }
 
     /// Projected gradient descent from drives `x`, scaled by the majoriser (refreshed every 8
@@ -260,9 +262,9 @@ impl Objective<'_> {
         let mut step = 1.0f32;
         for it in 0..iterations {
             if it % 8 == 0 {
-                diag = self.majoriser(a1, &s);
+                diag = self.majoriser(a1, &s, &x);
             }
-            let grad = self.gradient(&s);
+            let grad = self.gradient(&s, &x);
             let mut accepted = false;
             for _ in 0..4 {
                 let mut next = x.clone();

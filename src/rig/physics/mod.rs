@@ -4,8 +4,9 @@
 //! Forward model for a projector input image P (projector space, values in \[0,1\]):
 //!
 //! 1. projector: input quantised to 8 bits, drive d = level^γ_c per channel, emitted light
-//!    e = M_p·d + black (linear, projector space); optional defocus blurs e (Gaussian, zero
-//!    padding: no light comes from outside the frame);
+//!    e = M_p·d + w·min(d) + black (linear, projector space; w the white segment's light,
+//!    zero for most scenes); optional defocus blurs e (Gaussian, zero padding: no light comes
+//!    from outside the frame);
 //! 2. geometry: each camera pixel sees one surface point, lit by the emitted light sampled
 //!    bilinearly at the projector coordinate of that point (zeros outside the frame), E_i;
 //! 3. surface: radiance R_i = ρ_i·g_i·E_i + spec_i·E_i + ρ_i·I_i + ρ_i·A_i + glare_i, where
@@ -18,8 +19,9 @@
 //!    smooth); Poisson-Gaussian noise; clip to \[0,1\];
 //!    encoded value s^(1/γ); 8-bit quantisation (round to nearest level).
 //!
-//! Steps 1 (after the response curve) to the sensor signal are linear in the drive d; the oracle
-//! ([`super::oracle`]) uses that operator and its adjoint.
+//! Steps 1 (after the response curve) to the sensor signal are linear in the drive d, except
+//! for the white segment's min(d), which is piecewise linear and positively homogeneous; the
+//! oracle ([`super::oracle`]) uses that operator and the adjoint of its Jacobian.
 //!
 //! Spaces: the per-pixel maps and sensor signals are in camera pixels (row-major, interleaved
 //! RGB), emitted light and drives in projector pixels; pixel centres at integer coordinates.
@@ -95,6 +97,8 @@ pub struct Simulator {
     prj_lut: [[f32; 256]; 3],
     prj_mix: [[f32; 3]; 3],
     prj_black: [f32; 3],
+    /// The white segment's light per unit of the smallest drive: white_boost·M_p·1.
+    prj_white: [f32; 3],
     cam_mix: [[f32; 3]; 3],
     defocus: Option<Vec<f32>>,
     /// The camera optics' blur kernel (camera pixels), when the scene has one.
@@ -149,6 +153,9 @@ impl Simulator {
             prj_lut: [[0.0; 256]; 3],
             prj_mix: m3(&p.mixing),
             prj_black: p.black.map(|v| v as f32),
+            prj_white: p
+                .mixing
+                .map(|row| (p.white_boost * row.iter().sum::<f64>()) as f32),
             cam_mix,
             defocus: None,
             cam_blur: None,

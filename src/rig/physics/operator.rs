@@ -17,7 +17,7 @@ impl Simulator {
         par_pixels(src.len() / 3, |i| {
             let px = &src[i * 3..i * 3 + 3];
             let d = [0, 1, 2].map(|c| self.prj_lut[c][level(px[c])]);
-            let e = mat3(&self.prj_mix, d);
+            let e = self.emit(d);
             [
                 e[0] + self.prj_black[0],
                 e[1] + self.prj_black[1],
@@ -26,24 +26,47 @@ impl Simulator {
         })
     }
 
-    /// Emitted light for linear drives `d` (projector space): M_p·d, plus the black level when
-    /// `black` is set.
+    /// Light emitted for drives `d` of one pixel, without black: M_p·d + w·min(d).
+    #[inline]
+    fn emit(&self, d: [f32; 3]) -> [f32; 3] {
+        let e = mat3(&self.prj_mix, d);
+        let m = d[0].min(d[1]).min(d[2]);
+        let w = self.prj_white;
+        [e[0] + w[0] * m, e[1] + w[1] * m, e[2] + w[2] * m]
+    }
+
+    /// Emitted light for linear drives `d` (projector space): M_p·d + w·min(d), plus the black
+    /// level when `black` is set.
     pub(crate) fn drive_to_emission(&self, d: &[f32], black: bool) -> Vec<f32> {
         let b = if black { self.prj_black } else { [0.0; 3] };
         let mut out = Vec::with_capacity(d.len());
         for px in d.chunks_exact(3) {
-            let e = mat3(&self.prj_mix, [px[0], px[1], px[2]]);
+            let e = self.emit([px[0], px[1], px[2]]);
             out.extend_from_slice(&[e[0] + b[0], e[1] + b[1], e[2] + b[2]]);
         }
         out
     }
 
-    /// Adjoint of [`Self::drive_to_emission`] without black level: M_pᵀ per pixel.
-    pub(crate) fn emission_to_drive_adjoint(&self, g: &[f32]) -> Vec<f32> {
+    /// Adjoint of the Jacobian of [`Self::drive_to_emission`] at drives `d`: M_pᵀ per pixel,
+    /// plus wᵀg on the channel of the smallest drive (the first of equals). At `d` itself the
+    /// Jacobian reproduces the map (it is piecewise linear and positively homogeneous).
+    pub(crate) fn emission_to_drive_adjoint(&self, d: &[f32], g: &[f32]) -> Vec<f32> {
         let mt = transpose(&self.prj_mix);
+        let w = self.prj_white;
         let mut out = Vec::with_capacity(g.len());
-        for px in g.chunks_exact(3) {
-            out.extend_from_slice(&mat3(&mt, [px[0], px[1], px[2]]));
+        for (px, dp) in g.chunks_exact(3).zip(d.chunks_exact(3)) {
+            let mut a = mat3(&mt, [px[0], px[1], px[2]]);
+            if w != [0.0; 3] {
+                let k = if dp[0] <= dp[1] && dp[0] <= dp[2] {
+                    0
+                } else if dp[1] <= dp[2] {
+                    1
+                } else {
+                    2
+                };
+                a[k] += w[0] * px[0] + w[1] * px[1] + w[2] * px[2];
+            }
+            out.extend_from_slice(&a);
         }
         out
     }

@@ -62,6 +62,8 @@ fn sensor_adjoint_matches_forward() {
         .with_resolution(ImageSize::new(90, 50), ImageSize::new(70, 52));
     scene.projector.defocus_px = 1.3;
     scene.camera.blur_px = 0.8;
+    // A white segment: at the drives themselves its Jacobian reproduces the map.
+    scene.projector.white_boost = 0.8;
     // 30 and 15 mm are 1.4 and 0.7 of these camera pixels; blue does not spread.
     scene.subsurface = Some(crate::rig::scene::Subsurface {
         share: 0.7,
@@ -84,7 +86,7 @@ fn sensor_adjoint_matches_forward() {
         .collect();
     let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
     let fwd = sim.sensor(&sim.drive_to_emission(&a, false));
-    let adj = sim.emission_to_drive_adjoint(&sim.sensor_adjoint(&b));
+    let adj = sim.emission_to_drive_adjoint(&a, &sim.sensor_adjoint(&b));
     let (lhs, rhs) = (dot(&fwd, &b), dot(&a, &adj));
     assert!(lhs > 1.0, "the scene is lit: {lhs}");
     assert!((lhs - rhs).abs() < 1e-4 * lhs, "{lhs} vs {rhs}");
@@ -106,6 +108,58 @@ fn sensor_adjoint_matches_forward() {
     assert!(
         (total - total_sharp).abs() < 0.05 * total,
         "{total} vs {total_sharp}"
+    );
+}
+
+#[test]
+fn the_white_segment_brightens_greys_and_its_adjoint_matches() {
+    let mut scene = crate::rig::builtin("white-plane")
+        .expect("built-in")
+        .with_resolution(ImageSize::new(40, 30), ImageSize::new(32, 24));
+    scene.projector.white_boost = 1.0;
+    let sim = Simulator::new(&scene, 1, Phase::Calibration).expect("builds");
+    let one = |d: [f32; 3]| sim.drive_to_emission(&d, false);
+    // White is twice what its primaries add up to; a primary alone gets nothing extra.
+    let white = one([1.0, 1.0, 1.0]);
+    let sum: Vec<f32> = (0..3)
+        .map(|c| {
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+                .iter()
+                .map(|d| one(*d)[c])
+                .sum()
+        })
+        .collect();
+    for c in 0..3 {
+        assert!(
+            (white[c] - 2.0 * sum[c]).abs() < 1e-5,
+            "{white:?} vs {sum:?}"
+        );
+    }
+    // The adjoint is that of the Jacobian: against a finite difference in a direction v at
+    // drives whose channels differ.
+    let n = 32 * 24 * 3;
+    let a: Vec<f32> = (0..n)
+        .map(|i| 0.1 + 0.8 * ((i * 37 % 101) as f32) / 101.0)
+        .collect();
+    let v: Vec<f32> = (0..n)
+        .map(|i| ((i * 53 % 89) as f32) / 89.0 - 0.5)
+        .collect();
+    let g: Vec<f32> = (0..n).map(|i| ((i * 29 % 83) as f32) / 83.0).collect();
+    let eps = 1e-3;
+    let ahead: Vec<f32> = a.iter().zip(&v).map(|(x, y)| x + eps * y).collect();
+    let (f0, f1) = (
+        sim.drive_to_emission(&a, false),
+        sim.drive_to_emission(&ahead, false),
+    );
+    let jv: Vec<f32> = f1.iter().zip(&f0).map(|(p, q)| (p - q) / eps).collect();
+    let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
+    let (lhs, rhs) = (
+        dot(&jv, &g),
+        dot(&v, &sim.emission_to_drive_adjoint(&a, &g)),
+    );
+    assert!(
+        (lhs - rhs).abs() < 2e-3 * lhs.abs().max(1.0),
+        "{lhs} vs {rhs}"
     );
 }
 

@@ -19,6 +19,7 @@ pub const BUILTIN: &[&str] = &[
     "specular-corner",
     "defocus-noise",
     "translucent",
+    "white-segment",
     "step",
     "drift",
 ];
@@ -56,6 +57,7 @@ pub fn builtin(name: &str) -> Result<Scene> {
         "specular-corner" => specular_corner(name, base),
         "defocus-noise" => defocus_noise(name, base),
         "translucent" => translucent(name, base),
+        "white-segment" => white_segment(name, base),
         "step" => step(name, base),
         "drift" => drift(name, base),
         other => {
@@ -275,6 +277,15 @@ fn translucent(name: &str, base: Scene) -> Scene {
     }
 }
 
+fn white_segment(name: &str, base: Scene) -> Scene {
+    let mut s = textured_plane(name, base);
+    s.summary = "the textured wall lit by a single-chip DLP projector with a white segment: \
+                 greys twice as bright as their primaries add up to"
+        .into();
+    s.projector.white_boost = 1.0;
+    s
+}
+
 /// The shared defaults: a white wall 2 m away, camera at the origin, projector 12 cm to the
 /// right and 5 cm up, aimed at the wall's centre; mild colour crosstalk on both devices.
 fn base_scene() -> Scene {
@@ -306,6 +317,7 @@ fn base_scene() -> Scene {
             black: [0.002, 0.002, 0.003],
             vignetting: 0.12,
             defocus_px: 0.0,
+            white_boost: 0.0,
         },
         surface: Surface::Plane {
             distance: 2.0,

@@ -153,6 +153,16 @@ pub struct ProjectorModel {
     pub vignetting: f64,
     /// Defocus blur: Gaussian standard deviation in projector pixels (0 = sharp).
     pub defocus_px: f64,
+    /// A white segment (single-chip DLP projectors whose colour wheel has a clear segment):
+    /// extra light white_boost·min(d_r, d_g, d_b)·(M·1), the projector's white scaled by the
+    /// smallest of the three drives, so a grey gets brighter than its primaries add up to and
+    /// a saturated colour does not (0: none, the default). Cross-talk that depends on the
+    /// level of every channel at once: a per-pixel linear colour model cannot express it.
+    /// Magnitude: projector makers publish white and colour light output (the latter measured
+    /// as the sum of the red, green and blue outputs); single-chip DLP projectors with a white
+    /// segment often list white at about twice their colour light output, i.e. 1.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub white_boost: f64,
 }
 
 /// Analytic surfaces, each a height field z = h(x, y) seen from the camera (the solid lies
@@ -417,6 +427,9 @@ impl Scene {
         }
         if !(p.defocus_px >= 0.0 && p.defocus_px <= 64.0) {
             return self.bad("projector.defocus_px", "must be in [0, 64]");
+        }
+        if !(p.white_boost >= 0.0 && p.white_boost <= 4.0) {
+            return self.bad("projector.white_boost", "must be in [0, 4]");
         }
         if !(c.blur_px >= 0.0 && c.blur_px <= 16.0) {
             return self.bad("camera.blur_px", "must be in [0, 16]");
