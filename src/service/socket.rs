@@ -133,6 +133,11 @@ impl Token {
                  `openssl rand -hex 32 > {0}; chmod 600 {0}`)",
                 path.display()
             )),
+            std::io::ErrorKind::PermissionDenied => Error::Input(format!(
+                "[socket] tcp_token_file: {} cannot be read by this user ({e}); let the \
+                 service's user read it",
+                path.display()
+            )),
             std::io::ErrorKind::InvalidData => Error::Input(format!(
                 "[socket] tcp_token_file: {} is not text; expected a token such as 64 hex digits",
                 path.display()
