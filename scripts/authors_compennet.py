@@ -12,9 +12,11 @@ shipped with compend), and
 - runs their 2018 code on today's PyTorch with `grid_sample` and `affine_grid` defaulting to
   `align_corners=True`, the behaviour of the PyTorch 0.4 they wrote it for (the default changed
   in 1.3);
-- starts their CompenNet from PyTorch's default initialisation: their pre-trained initial weights
+- starts their CompenNet from PyTorch's default initialisation (their pre-trained initial weights
   are not in the repository, and their fallback needs a folder of surface images that compend's
-  layout has not (`--photometric-init none` is the matching compend setting);
+  layout has not; `--photometric-init none` is the matching compend setting), or with
+  `--photometric-init FILE` from compend's pre-trained CompenNet (weights/*.safetensors, width
+  32), its tensors renamed to theirs, as compend's CompenNet++ variants start by default;
 - trains their 'CompenNet++' model (WarpingNet with refinement, affine initialised from the FOV
   mask's corners as their main.py does) with their `trainModel` at the iterations, batch size and
   step-decay schedule given here, and scores it with their `evaluate` on the setup's test pairs
@@ -73,6 +75,31 @@ def torch04_sampling(F):
     F.grid_sample, F.affine_grid = gs, ag
 
 
+def load_compend_weights(compen, path, torch):
+    """Loads a compend CompenNet weight file into the authors' CompenNet (same layers and
+    tensor layouts, other names)."""
+    from safetensors.torch import load_file
+
+    tensors = load_file(path)
+    rename = {
+        "skip1.0": "skipConv1.0",
+        "skip1.1": "skipConv1.2",
+        "skip1.2": "skipConv1.4",
+        "skip2": "skipConv2",
+        "skip3": "skipConv3",
+        "tconv1": "transConv1",
+        "tconv2": "transConv2",
+    }
+    state = {}
+    for name, t in tensors.items():
+        layer, kind = name.rsplit(".", 1)
+        layer = layer.removeprefix("compen.backbone.").removeprefix("compen.surface.")
+        state[f"{rename.get(layer, layer)}.{kind}"] = t
+    missing, unexpected = compen.load_state_dict(state, strict=False)
+    if missing or unexpected:
+        sys.exit(f"{path}: does not fit their CompenNet (missing {missing}, unexpected {unexpected})")
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--repo", required=True, help="a checkout of the authors' CompenNet-plusplus")
@@ -83,6 +110,11 @@ def main():
     p.add_argument("--ntrain", type=int, default=None, help="training pairs (default: all)")
     p.add_argument("--name", default="authors-compennet++")
     p.add_argument("--threads", type=int, default=None)
+    p.add_argument(
+        "--photometric-init",
+        default=None,
+        help="a compend CompenNet weight file (e.g. weights/compennet-pretrain-w32.safetensors)",
+    )
     a = p.parse_args()
 
     src = os.path.join(os.path.abspath(a.repo), "src", "python")
@@ -103,6 +135,9 @@ def main():
     import torch.nn.functional as F
 
     torch04_sampling(F)
+    # Subnormal floats (compend's pre-trained weights hold some) make PyTorch's CPU kernels
+    # more than ten times slower; flushing them changes no result that matters.
+    torch.set_flush_denormal(True)
     if a.threads:
         torch.set_num_threads(a.threads)
     # Their training loop saves a checkpoint to ../../checkpoint: keep it in a scratch folder.
@@ -132,6 +167,8 @@ def main():
 
     tn.resetRNGseed(0)
     compen = models.CompenNet()
+    if a.photometric_init:
+        load_compend_weights(compen, a.photometric_init, torch)
     warping = models.WarpingNet(with_refine=True)
     src_pts = np.array([[-1, -1], [1, -1], [1, 1]]).astype(np.float32)
     dst_pts = np.array(corners[0][0:3]).astype(np.float32)
