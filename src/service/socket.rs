@@ -216,100 +216,81 @@ pub fn bind_tcp(addr: std::net::SocketAddr) -> Result<TcpListener> {
         .map_err(|e| Error::Failed(format!("[socket] tcp = \"{addr}\": {e}")))
 }
 
+/// A listener whose connections are served as clients.
+trait Listener {
+    type Conn: Send + 'static;
+    /// The next connection.
+    fn next(&self) -> impl std::future::Future<Output = std::io::Result<Self::Conn>> + Send;
+}
+
+impl Listener for UnixListener {
+    type Conn = UnixStream;
+    async fn next(&self) -> std::io::Result<UnixStream> {
+        self.accept().await.map(|(stream, _)| stream)
+    }
+}
+
+impl Listener for TcpListener {
+    type Conn = (TcpStream, std::net::SocketAddr);
+    async fn next(&self) -> std::io::Result<Self::Conn> {
+        self.accept().await
+    }
+}
+
+/// Accepts connections on `listener` until the runtime shuts down, at most [`MAX_CLIENTS`]
+/// served at once (more wait for a free slot), each by `serve` on a task of its own. `what`
+/// names the listener in the log.
+async fn accept<L, F, Fut>(listener: L, what: &'static str, serve: F)
+where
+    L: Listener,
+    F: Fn(L::Conn) -> Fut,
+    Fut: std::future::Future<Output = std::io::Result<()>> + Send + 'static,
+{
+    let slots = Arc::new(Semaphore::new(MAX_CLIENTS));
+    loop {
+        let conn = match listener.next().await {
+            Ok(c) => c,
+            Err(e) => {
+                tracing::warn!("{what}: accept failed: {e}");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let Ok(permit) = slots.clone().acquire_owned().await else {
+            return;
+        };
+        let served = serve(conn);
+        tokio::spawn(async move {
+            if let Err(e) = served.await {
+                tracing::debug!("{what}: client ended: {e}");
+            }
+            drop(permit);
+        });
+    }
+}
+
+/// Accepts clients on the Unix socket until the runtime shuts down.
+pub async fn serve(listener: UnixListener, access: Access, shared: Arc<Shared>) {
+    accept(listener, "control socket", move |stream| {
+        let (access, shared) = (access.clone(), shared.clone());
+        async move { client(stream, &access, &shared).await }
+    })
+    .await
+}
+
 /// Accepts TCP clients until the runtime shuts down; each request must carry `token`.
 pub async fn serve_tcp(listener: TcpListener, token: Token, shared: Arc<Shared>) {
-    let slots = Arc::new(Semaphore::new(MAX_CLIENTS));
-    loop {
-        let (stream, peer) = match listener.accept().await {
-            Ok(s) => s,
-            Err(e) => {
-                tracing::warn!("control port: accept failed: {e}");
-                tokio::time::sleep(Duration::from_millis(100)).await;
-                continue;
-            }
-        };
-        let Ok(permit) = slots.clone().acquire_owned().await else {
-            return;
-        };
-        let shared = shared.clone();
-        let token = token.clone();
-        tokio::spawn(async move {
-            if let Err(e) = tcp_client(stream, peer, &token, &shared).await {
-                tracing::debug!("control port: client {peer} ended: {e}");
-            }
-            drop(permit);
-        });
-    }
-}
-
-/// One TCP client: its requests in order, each with the token, until it hangs up or sends a
-/// request without the token.
-async fn tcp_client(
-    stream: TcpStream,
-    peer: std::net::SocketAddr,
-    token: &Token,
-    shared: &Shared,
-) -> std::io::Result<()> {
-    let (read, mut write) = stream.into_split();
-    let mut read = BufReader::new(read);
-    let mut line = Vec::new();
-    loop {
-        match read_line(&mut read, &mut line).await? {
-            Line::End => return Ok(()),
-            Line::TooLong => {
-                let reply = Reply::error(format!(
-                    "request longer than {MAX_REQUEST_BYTES} bytes; it was skipped"
-                ));
-                write.write_all(reply.to_line().as_bytes()).await?;
-            }
-            Line::Complete => match token.strip(&line) {
-                Ok(request) => {
-                    let reply = answer(&request, shared).await;
-                    write.write_all(reply.to_line().as_bytes()).await?;
-                }
-                Err(reply) => {
-                    tracing::warn!("control port: refused {peer}: no token, or the wrong one");
-                    write.write_all(reply.to_line().as_bytes()).await?;
-                    write.shutdown().await?;
-                    // What the client sent after it is read and dropped for a moment, so that
-                    // closing does not reset the connection before the reply is read.
-                    let mut sink = tokio::io::sink();
-                    let drain = tokio::io::copy(&mut read, &mut sink);
-                    let _ = tokio::time::timeout(Duration::from_secs(1), drain).await;
-                    return Ok(());
-                }
-            },
+    accept(listener, "control port", move |(stream, peer)| {
+        let (token, shared) = (token.clone(), shared.clone());
+        async move {
+            let (read, write) = stream.into_split();
+            requests(read, write, &shared, Some((&token, peer))).await
         }
-    }
+    })
+    .await
 }
 
-/// Accepts clients until the runtime shuts down.
-pub async fn serve(listener: UnixListener, access: Access, shared: Arc<Shared>) {
-    let slots = Arc::new(Semaphore::new(MAX_CLIENTS));
-    loop {
-        let stream = match listener.accept().await {
-            Ok((stream, _)) => stream,
-            Err(e) => {
-                tracing::warn!("control socket: accept failed: {e}");
-                tokio::time::sleep(Duration::from_millis(100)).await;
-                continue;
-            }
-        };
-        let Ok(permit) = slots.clone().acquire_owned().await else {
-            return;
-        };
-        let shared = shared.clone();
-        let access = access.clone();
-        tokio::spawn(async move {
-            if let Err(e) = client(stream, &access, &shared).await {
-                tracing::debug!("control socket: client ended: {e}");
-            }
-            drop(permit);
-        });
-    }
-}
-
-/// One client: its requests in order, until it hangs up.
+/// One client of the Unix socket, once its credentials allow it: its requests in order.
 async fn client(stream: UnixStream, access: &Access, shared: &Shared) -> std::io::Result<()> {
     let cred = stream.peer_cred()?;
     let (read, mut write) = stream.into_split();
@@ -328,22 +309,49 @@ async fn client(stream: UnixStream, access: &Access, shared: &Shared) -> std::io
         write.write_all(reply.to_line().as_bytes()).await?;
         return Ok(());
     }
+    requests(read, write, shared, None).await
+}
+
+/// A connection's requests in order, one reply each, until the client hangs up. With
+/// `token` (TCP, and the peer's address for the log), each request must carry it; the first
+/// that does not is answered with an error and ends the connection.
+async fn requests<R, W>(
+    read: R,
+    mut write: W,
+    shared: &Shared,
+    token: Option<(&Token, std::net::SocketAddr)>,
+) -> std::io::Result<()>
+where
+    R: tokio::io::AsyncRead + Unpin,
+    W: tokio::io::AsyncWrite + Unpin,
+{
     let mut read = BufReader::new(read);
     let mut line = Vec::new();
     loop {
-        match read_line(&mut read, &mut line).await? {
+        let reply = match read_line(&mut read, &mut line).await? {
             Line::End => return Ok(()),
-            Line::TooLong => {
-                let reply = Reply::error(format!(
-                    "request longer than {MAX_REQUEST_BYTES} bytes; it was skipped"
-                ));
-                write.write_all(reply.to_line().as_bytes()).await?;
-            }
-            Line::Complete => {
-                let reply = answer(&line, shared).await;
-                write.write_all(reply.to_line().as_bytes()).await?;
-            }
-        }
+            Line::TooLong => Reply::error(format!(
+                "request longer than {MAX_REQUEST_BYTES} bytes; it was skipped"
+            )),
+            Line::Complete => match token {
+                None => answer(&line, shared).await,
+                Some((token, peer)) => match token.strip(&line) {
+                    Ok(request) => answer(&request, shared).await,
+                    Err(reply) => {
+                        tracing::warn!("control port: refused {peer}: no token, or the wrong one");
+                        write.write_all(reply.to_line().as_bytes()).await?;
+                        write.shutdown().await?;
+                        // What the client sent after it is read and dropped for a moment, so
+                        // that closing does not reset the connection before the reply is read.
+                        let mut sink = tokio::io::sink();
+                        let drain = tokio::io::copy(&mut read, &mut sink);
+                        let _ = tokio::time::timeout(Duration::from_secs(1), drain).await;
+                        return Ok(());
+                    }
+                },
+            },
+        };
+        write.write_all(reply.to_line().as_bytes()).await?;
     }
 }
 
