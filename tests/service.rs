@@ -832,6 +832,25 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_say_so() {
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }
 
+/// [`write_config`] for the window rig (`[rig] kind = "window"`) and a 200×150 Xvfb screen to
+/// show it on; None (the test is skipped, saying why) without a GPU adapter or Xvfb.
+fn window_config(
+    dir: &Path,
+    scene: &str,
+    seed: u64,
+    rig: &str,
+    monitoring: &str,
+) -> Option<(crate::window::Xvfb, PathBuf)> {
+    crate::common::gpu()?;
+    let x = crate::window::Xvfb::start(200, 150)?;
+    let config = write_config(dir, scene, seed, rig, monitoring);
+    let text = std::fs::read_to_string(&config)
+        .unwrap()
+        .replace("kind = \"virtual\"", "kind = \"window\"");
+    std::fs::write(&config, text).unwrap();
+    Some((x, config))
+}
+
 /// The service on the window rig under Xvfb: the real projector window on this thread, and a
 /// camera on its own clock and thread (the window rig's virtual camera, looking at what the
 /// window presented, with the scene's latency), as with a V4L2 camera. It calibrates, plays and
@@ -839,18 +858,10 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_say_so() {
 /// (the checks are counted as unseen, none is scored).
 #[test]
 fn the_service_monitors_through_a_camera_on_its_own_clock_under_xvfb() {
-    let Some(_ctx) = crate::common::gpu() else {
-        return;
-    };
-    let Some(x) = crate::window::Xvfb::start(200, 150) else {
-        return;
-    };
     let dir = tempfile::tempdir().unwrap();
-    let config = write_config(dir.path(), "textured-plane", 17, "", "");
-    let text = std::fs::read_to_string(&config)
-        .unwrap()
-        .replace("kind = \"virtual\"", "kind = \"window\"");
-    std::fs::write(&config, text).unwrap();
+    let Some((x, config)) = window_config(dir.path(), "textured-plane", 17, "", "") else {
+        return;
+    };
     let mut svc = Service::start_on(&config, Some(&x.display));
     let s = svc.wait_for("playback after the first calibration", 300, playing);
     assert_eq!(s["rig"], "window:textured-plane", "{s}");
@@ -907,24 +918,19 @@ fn the_service_monitors_through_a_camera_on_its_own_clock_under_xvfb() {
 /// (`on_drift = "recalibrate"`; the virtual-rig test above refits) and swaps the new model in.
 #[test]
 fn drift_seen_through_a_camera_on_its_own_clock_is_recalibrated_under_xvfb() {
-    let Some(_ctx) = crate::common::gpu() else {
-        return;
-    };
-    let Some(x) = crate::window::Xvfb::start(200, 150) else {
-        return;
-    };
     let dir = tempfile::tempdir().unwrap();
     let scene_file = bumped_scene(dir.path());
-    let config = write_config(
+    let Some((x, config)) = window_config(
         dir.path(),
         scene_file.to_str().unwrap(),
         4,
         "drift_after_s = 3.0",
         "drift_threshold_db = 2.0\non_drift = \"recalibrate\"",
-    );
+    ) else {
+        return;
+    };
     let text = std::fs::read_to_string(&config)
         .unwrap()
-        .replace("kind = \"virtual\"", "kind = \"window\"")
         .replace("pattern:bars?", "pattern:checker?");
     std::fs::write(&config, text).unwrap();
     let mut svc = Service::start_on(&config, Some(&x.display));
