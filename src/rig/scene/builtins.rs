@@ -283,6 +283,9 @@ fn white_segment(name: &str, base: Scene) -> Scene {
                  greys twice as bright as their primaries add up to"
         .into();
     s.projector.white_boost = 1.0;
+    // The camera exposed for this projector's white, as exposure ranging would set it: white
+    // is (1 + white_boost) times brighter than the other scenes' projector makes it.
+    s.camera.exposure /= 1.0 + s.projector.white_boost;
     s
 }
 
