@@ -12,7 +12,7 @@ scene=${2:-curved}
 seed=${3:-1}
 bash scripts/deps.sh
 cargo build --release --locked
-c=target/release/compend
+c=${CARGO_TARGET_DIR:-target}/release/compend
 set -x
 "$c" calibrate --rig "virtual:$scene" --seed "$seed" --data "$out/calibration" --out "$out/model"
 "$c" eval --model "$out/model" --setup "$out/calibration/capture"
