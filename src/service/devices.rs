@@ -1,5 +1,7 @@
-//! The devices the service drives: the virtual rig (its projector and camera, a GPU for the
-//! pass) or real hardware (the projector window and a V4L2 camera), opened from `[rig]`.
+//! The devices the service drives, opened from `[rig]`: the virtual rig (its projector and
+//! camera, a GPU for the pass), real hardware (the projector window and a V4L2 camera), or the
+//! window rig (the projector window watched by a virtual camera on its own clock, as a V4L2
+//! camera is: the hardware path without hardware).
 
 use std::path::Path;
 use std::time::{Duration, Instant};
