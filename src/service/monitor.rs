@@ -179,8 +179,8 @@ impl Tap {
     }
 }
 
-/// A check whose frame the camera never saw alone: counted, and said once per playback-worth
-/// of service (the first time), then at debug level.
+/// A check whose frame the camera never saw alone: counted in the status, and said in the log
+/// the first time (at debug level after that).
 fn unseen(seq: u64, shared: &Shared) {
     let mut first = false;
     shared.update(|st| {
