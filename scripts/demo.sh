@@ -19,9 +19,11 @@ set -x
 "$c" inspect --setup "$out/calibration/capture" --out "$out/inspect"
 "$c" play --model "$out/model" --source 'pattern:moving?frames=30' --rig "virtual:$scene" \
     --seed "$seed" --out "$out/play" --pace source
-# Closed loop against the physical ceiling: the same scene and seed exported with its oracle.
+# Closed loop against the physical ceiling: the same scene and seed exported with its oracle, the
+# camera exposed as calibrate exposed it for the model.
 setup="$out/score/$scene"
-"$c" sim export --scene "$scene" --out "$out/score" --ntrain 4 --ntest 10 --seed "$seed"
+"$c" sim export --scene "$scene" --out "$out/score" --ntrain 4 --ntest 10 --seed "$seed" \
+    --exposure-of "$out/model"
 "$c" compensate --model "$out/model" --input "$setup/cam/desire/test" \
     --out "$setup/prj/cmp/test/calibrated"
 "$c" sim score --setup "$setup"

@@ -120,6 +120,11 @@ pub struct ExportArgs {
     /// clipping); `full` places them unscaled.
     #[arg(long, value_enum, default_value_t = DesiredRange::Reachable)]
     pub desired_range: DesiredRange,
+    /// Expose the virtual camera as `compend calibrate` exposed it for this model directory
+    /// (its recorded exposure, a factor of the scene's), so that `sim score` of the model's
+    /// compensation images sees the surface as the model was trained to.
+    #[arg(long, value_name = "MODEL")]
+    pub exposure_of: Option<PathBuf>,
     /// Print the setup's record (rig.json) on stdout.
     #[arg(long)]
     pub json: bool,
@@ -187,7 +192,24 @@ pub fn resolve(name: &str, a: &SceneArgs) -> Result<scene::Scene> {
 }
 
 fn export(a: ExportArgs) -> Result<()> {
-    let scene = resolve(&a.scene, &a.scene_args)?;
+    let mut scene = resolve(&a.scene, &a.scene_args)?;
+    if let Some(dir) = &a.exposure_of {
+        let model = compend::model::Model::load(dir)?;
+        let Some(e) = model
+            .meta
+            .calibration
+            .as_ref()
+            .and_then(|c| c.exposure.as_ref())
+        else {
+            return Err(compend::Error::Input(format!(
+                "--exposure-of {}: the model records no calibrated exposure (it was not made by \
+                 `compend calibrate` on a camera with a manual exposure)",
+                dir.display()
+            ))
+            .into());
+        };
+        scene.camera.exposure *= e.chosen;
+    }
     let sa = &a.scene_args;
     // Projector-side images exactly as `compend patterns` writes them.
     super::patterns::run(super::patterns::Args {

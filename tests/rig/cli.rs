@@ -23,6 +23,22 @@ fn sim_list_and_show() {
     let scene: rig::Scene = serde_json::from_str(&stdout(&o)).expect("JSON scene");
     assert_eq!(scene, rig::builtin("step").expect("built-in"));
 
+    // --exposure-of needs a calibrated model directory.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let not_a_model = dir.path().join("nothing");
+    let o = compend(&[
+        "sim",
+        "export",
+        "--scene",
+        "step",
+        "--out",
+        dir.path().join("root").to_str().unwrap(),
+        "--exposure-of",
+        not_a_model.to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("nothing"), "{}", stderr(&o));
+
     let o = compend(&["sim", "show", "no-such-scene"]);
     assert_code(&o, 2);
     assert!(
