@@ -169,14 +169,7 @@ fn simplified_compennet_reproduces_the_full_network() {
     let full = model.forward(&x, &surface).unwrap();
     let simple = model.simplify(&surface).unwrap();
     let fast = simple.forward(&x).unwrap();
-    let diff: f32 = (full - fast)
-        .unwrap()
-        .abs()
-        .unwrap()
-        .max_all()
-        .unwrap()
-        .to_scalar()
-        .unwrap();
+    let diff = super::max_abs_diff(&full, &fast);
     assert!(
         diff < 1e-4,
         "simplified differs from the full network by {diff}"
@@ -211,15 +204,8 @@ fn a_residual_network_starts_at_zero_and_its_correction_is_signed() {
     model.make_residual().unwrap();
     let surface = Tensor::rand(0f32, 1.0, (1, 3, 20, 30), &Device::Cpu).unwrap();
     let x = Tensor::rand(0f32, 1.0, (2, 3, 20, 30), &Device::Cpu).unwrap();
-    let at_start: f32 = model
-        .forward(&x, &surface)
-        .unwrap()
-        .abs()
-        .unwrap()
-        .max_all()
-        .unwrap()
-        .to_scalar()
-        .unwrap();
+    let first = model.forward(&x, &surface).unwrap();
+    let at_start = super::max_abs_diff(&first, &first.zeros_like().unwrap());
     assert_eq!(at_start, 0.0);
     let w = model.compen.backbone.conv6.weight().clone();
     Var::from_tensor(&w)
@@ -232,14 +218,7 @@ fn a_residual_network_starts_at_zero_and_its_correction_is_signed() {
     assert!(min < 0.0 && max > 0.0, "correction in [{min}, {max}]");
     // The playback form agrees.
     let fast = model.simplify(&surface).unwrap().forward(&x).unwrap();
-    let diff: f32 = (out - fast)
-        .unwrap()
-        .abs()
-        .unwrap()
-        .max_all()
-        .unwrap()
-        .to_scalar()
-        .unwrap();
+    let diff = super::max_abs_diff(&out, &fast);
     assert!(diff < 1e-5, "simplified residual differs by {diff}");
 }
 
