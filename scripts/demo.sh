@@ -20,13 +20,14 @@ set -x
 "$c" play --model "$out/model" --source 'pattern:moving?frames=30' --rig "virtual:$scene" \
     --seed "$seed" --out "$out/play" --pace source
 # Closed loop against the physical ceiling: the same scene and seed exported with its oracle, the
-# camera exposed as calibrate exposed it for the model.
+# camera exposed and the desired images scaled as calibrate did for the model, each capture the
+# mean of 3 frames as calibrate averages them.
 setup="$out/score/$scene"
 "$c" sim export --scene "$scene" --out "$out/score" --ntrain 4 --ntest 10 --seed "$seed" \
-    --exposure-of "$out/model"
+    --as-calibrated "$out/model"
 "$c" compensate --model "$out/model" --input "$setup/cam/desire/test" \
     --out "$setup/prj/cmp/test/calibrated"
-"$c" sim score --setup "$setup"
+"$c" sim score --setup "$setup" --average 3
 "$c" sim sheet --scene "$scene" --out "$out/sheets"
 set +x
 echo "demo: model in $out/model (model.json records the calibration), camera views of playback" \

@@ -539,9 +539,9 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
         }
     );
     eprintln!(
-        "calibrate: seconds: latency {:.1}, patterns {:.1}, captures {:.1}, training {:.1}, \
-         verification {:.1}, total {:.1}",
-        s.latency, s.patterns, s.captures, s.training, s.verification, s.total
+        "calibrate: seconds: exposure {:.1}, latency {:.1}, patterns {:.1}, captures {:.1}, \
+         training {:.1}, verification {:.1}, total {:.1}",
+        s.exposure, s.latency, s.patterns, s.captures, s.training, s.verification, s.total
     );
     if let Some(u) = &r.unreachable {
         eprintln!("calibrate: {}", u.line());

@@ -64,6 +64,11 @@ pub struct ScoreArgs {
     /// Oracle solver iterations.
     #[arg(long, default_value_t = rig::OracleOptions::default().iterations)]
     pub oracle_iterations: usize,
+    /// Frames averaged per capture, each with its own camera noise (`compend calibrate
+    /// --average`'s default is 3): with the same count as the calibration, `sim score` sees the
+    /// surface through as much noise as the calibration's verification did.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub average: u64,
     /// Print one JSON object on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -120,11 +125,12 @@ pub struct ExportArgs {
     /// clipping); `full` places them unscaled.
     #[arg(long, value_enum, default_value_t = DesiredRange::Reachable)]
     pub desired_range: DesiredRange,
-    /// Expose the virtual camera as `compend calibrate` exposed it for this model directory
-    /// (its recorded exposure, a factor of the scene's), so that `sim score` of the model's
-    /// compensation images sees the surface as the model was trained to.
+    /// Capture as `compend calibrate` did for this model directory: the virtual camera at the
+    /// model's recorded exposure (a factor of the scene's) and the desired images scaled into
+    /// the display range calibrate found (instead of --desired-range), so that `sim score` of
+    /// the model's compensation images asks of it what calibrate's verification asked.
     #[arg(long, value_name = "MODEL")]
-    pub exposure_of: Option<PathBuf>,
+    pub as_calibrated: Option<PathBuf>,
     /// Print the setup's record (rig.json) on stdout.
     #[arg(long)]
     pub json: bool,
@@ -181,6 +187,23 @@ pub fn run(args: Args) -> Result<()> {
     }
 }
 
+/// The exposure factor and display range `compend calibrate` recorded for the model in `dir`.
+fn as_calibrated(dir: &std::path::Path) -> Result<(f64, compend::fov::DisplayRange)> {
+    let model = compend::model::Model::load(dir)?;
+    let calibration = model.meta.calibration.as_ref();
+    let exposure = calibration.and_then(|c| c.exposure.as_ref());
+    let range = calibration.and_then(|c| c.display_range);
+    match (exposure, range) {
+        (Some(e), Some(r)) => Ok((e.chosen, r)),
+        _ => Err(compend::Error::Input(format!(
+            "--as-calibrated {}: the model records no calibrated exposure and display range (it \
+             was not made by `compend calibrate` on a camera with a manual exposure)",
+            dir.display()
+        ))
+        .into()),
+    }
+}
+
 /// The scene with the requested resolutions.
 pub fn resolve(name: &str, a: &SceneArgs) -> Result<scene::Scene> {
     let s = scene::load(name)?;
@@ -193,22 +216,14 @@ pub fn resolve(name: &str, a: &SceneArgs) -> Result<scene::Scene> {
 
 fn export(a: ExportArgs) -> Result<()> {
     let mut scene = resolve(&a.scene, &a.scene_args)?;
-    if let Some(dir) = &a.exposure_of {
-        let model = compend::model::Model::load(dir)?;
-        let Some(e) = model
-            .meta
-            .calibration
-            .as_ref()
-            .and_then(|c| c.exposure.as_ref())
-        else {
-            return Err(compend::Error::Input(format!(
-                "--exposure-of {}: the model records no calibrated exposure (it was not made by \
-                 `compend calibrate` on a camera with a manual exposure)",
-                dir.display()
-            ))
-            .into());
-        };
-        scene.camera.exposure *= e.chosen;
+    let mut desired_range = match a.desired_range {
+        DesiredRange::Reachable => rig::DesiredScaling::Reachable,
+        DesiredRange::Full => rig::DesiredScaling::Full,
+    };
+    if let Some(dir) = &a.as_calibrated {
+        let (exposure, range) = as_calibrated(dir)?;
+        scene.camera.exposure *= exposure;
+        desired_range = rig::DesiredScaling::Given(range);
     }
     let sa = &a.scene_args;
     // Projector-side images exactly as `compend patterns` writes them.
@@ -244,7 +259,7 @@ fn export(a: ExportArgs) -> Result<()> {
         ntest: a.ntest as usize,
         full_cube: !a.no_cube,
         structured_light: true,
-        reachable_desired: a.desired_range == DesiredRange::Reachable,
+        desired_range,
     };
     let summary = rig::export_setup(&sim, &root, &setup, &opts)
         .with_context(|| format!("exporting scene {:?} to {}", scene.name, a.out.display()))?;
@@ -347,6 +362,10 @@ fn score(a: ScoreArgs) -> Result<()> {
     let sim = Simulator::new(&record.scene, record.seed, phase)?;
     let n_desired = setup.count_desired()?;
     let n = a.ntest.map_or(n_desired, |k| k.min(n_desired));
+    let frames = rig::score::Frames {
+        first: FRAMES_SCORE,
+        average: a.average as usize,
+    };
     if n == 0 {
         return Err(compend::Error::Input(format!(
             "{}: no desired images in cam/desire/test to score against",
@@ -379,7 +398,7 @@ fn score(a: ScoreArgs) -> Result<()> {
         rig::OracleOptions {
             iterations: a.oracle_iterations,
         },
-        FRAMES_SCORE,
+        frames,
     )?;
     let models = if a.model.is_empty() {
         setup.compensated_models()?
@@ -394,11 +413,11 @@ fn score(a: ScoreArgs) -> Result<()> {
     let net = setup.root().network_size()?;
     for m in &models {
         let shown = on_canvas(read_compensation(&setup, m, n)?, record.canvas, psize)?;
-        let s = rig::closed_loop(&sim, &shown, &desired, area, FRAMES_SCORE)
+        let s = rig::closed_loop(&sim, &shown, &desired, area, frames)
             .with_context(|| format!("scoring model {m:?}"))?;
         rows.push(Row::new(m, &s, ceiling));
         if let Some(out) = &a.out {
-            write_views(&sim, &shown, area, &out.join(m))?;
+            write_views(&sim, &shown, area, frames, &out.join(m))?;
         }
     }
     if let Some(out) = &a.out {
@@ -407,8 +426,8 @@ fn score(a: ScoreArgs) -> Result<()> {
             .map(|z| z.crop(area))
             .collect::<compend::Result<_>>()?;
         write_images(&crops, &out.join("desired"))?;
-        write_views(&sim, &tests, area, &out.join("uncompensated"))?;
-        write_views(&sim, &oracle_images, area, &out.join("oracle"))?;
+        write_views(&sim, &tests, area, frames, &out.join("uncompensated"))?;
+        write_views(&sim, &oracle_images, area, frames, &out.join("oracle"))?;
         eprintln!("sim: wrote the camera views to {}", out.display());
     }
     let net_oracle = rig::score::oracle_at_network(
@@ -418,11 +437,11 @@ fn score(a: ScoreArgs) -> Result<()> {
         area,
         record.canvas,
         net,
-        FRAMES_SCORE,
+        frames,
     )?;
     rows.push(Row::new(&format!("oracle @ {net}"), &net_oracle, ceiling));
     rows.push(Row::new("oracle", &refs.oracle, ceiling));
-    print_scores(a.json, &record, phase, n, &rows);
+    print_scores(a.json, &record, phase, (n, frames.average), &rows);
     Ok(())
 }
 
@@ -470,8 +489,15 @@ fn read_compensation(
 }
 
 /// Prints the rows: one JSON object with `json`, else a table (PSNR dB, RMSE and SSIM of the
-/// displayable area, gap to the oracle in dB).
-fn print_scores(json: bool, record: &rig::export::RigRecord, phase: Phase, n: usize, rows: &[Row]) {
+/// displayable area, gap to the oracle in dB) of `n` test images, each captured as the mean of
+/// `average` frames.
+fn print_scores(
+    json: bool,
+    record: &rig::export::RigRecord,
+    phase: Phase,
+    (n, average): (usize, usize),
+    rows: &[Row],
+) {
     let area = record.displayable_area;
     if json {
         let out = serde_json::json!({
@@ -479,6 +505,7 @@ fn print_scores(json: bool, record: &rig::export::RigRecord, phase: Phase, n: us
             "seed": record.seed,
             "phase": phase,
             "n": n,
+            "frames_averaged": average,
             "displayable_area": area,
             "rows": rows,
         });
@@ -494,8 +521,12 @@ fn print_scores(json: bool, record: &rig::export::RigRecord, phase: Phase, n: us
                 r.name, r.psnr, r.rmse, r.ssim, r.gap_db
             );
         }
+        let frames = match average {
+            1 => String::new(),
+            k => format!(", each the mean of {k} frames"),
+        };
         println!(
-            "({n} test image(s), closed loop in the {}x{} displayable area)",
+            "({n} test image(s){frames}, closed loop in the {}x{} displayable area)",
             area.width, area.height
         );
     }
@@ -506,12 +537,13 @@ fn write_views(
     sim: &Simulator,
     shown: &[compend::raster::PrjImage],
     area: compend::raster::Rect,
+    frames: rig::score::Frames,
     dir: &std::path::Path,
 ) -> Result<()> {
     let views: Vec<_> = shown
         .iter()
         .enumerate()
-        .map(|(k, p)| sim.capture(p, FRAMES_SCORE + k as u64)?.crop(area))
+        .map(|(k, p)| frames.capture(sim, p, k)?.crop(area))
         .collect::<compend::Result<_>>()?;
     write_images(&views, dir)
 }

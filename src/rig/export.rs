@@ -45,9 +45,21 @@ pub struct ExportOptions {
     pub full_cube: bool,
     /// Capture the structured-light patterns of `ROOT/sl` when present.
     pub structured_light: bool,
-    /// Scale desired images into the range the projector reaches across the displayable area
-    /// ([`fov::display_range`]); `false` places the test images at full range.
-    pub reachable_desired: bool,
+    /// The camera-value range the desired images are scaled into.
+    pub desired_range: DesiredScaling,
+}
+
+/// How [`export_setup`] scales the test images into desired images (camera values, 0–1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum DesiredScaling {
+    /// Into the range the projector reaches across the displayable area, found from this
+    /// export's black and white captures ([`fov::display_range`]).
+    Reachable,
+    /// Unscaled (`{low: 0, high: 1}`).
+    Full,
+    /// Into a given range, e.g. the one `compend calibrate` found for a model (from captures
+    /// averaged over several frames, so a little wider than one noisy frame gives).
+    Given(fov::DisplayRange),
 }
 
 /// Record of a simulated setup (`SETUP/rig.json`).
@@ -119,7 +131,7 @@ pub fn export_setup(
         0
     };
     rig.pairs(opts.ntrain, opts.ntest)?;
-    let (fov, area, range) = rig.desired(opts.ntest, opts.reachable_desired)?;
+    let (fov, area, range) = rig.desired(opts.ntest, opts.desired_range)?;
 
     let cam = sim.camera_size();
     let frame = (cam.width * cam.height) as f64;
@@ -227,12 +239,12 @@ impl Capturing<'_> {
     }
 
     /// FOV and displayable area (camera pixels) from the captures, as a real setup finds them;
-    /// the first `ntest` test images placed in the area as desired images, scaled into the
-    /// display range when `reachable`.
+    /// the first `ntest` test images placed in the area as desired images, scaled as `scaling`
+    /// says.
     fn desired(
         &self,
         ntest: usize,
-        reachable: bool,
+        scaling: DesiredScaling,
     ) -> Result<(fov::FovMask, Rect, fov::DisplayRange)> {
         let setup = &self.setup;
         let black = setup.load_reference(Reference::Black)?;
@@ -241,10 +253,12 @@ impl Capturing<'_> {
         let fov = fov::fov_mask(&black, &white, &label)?;
         let aspect = self.canvas.width as f64 / self.canvas.height as f64;
         let area = fov::displayable_area(&fov.mask, aspect)?;
-        let range = if reachable {
-            fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?
-        } else {
-            fov::DisplayRange::FULL
+        let range = match scaling {
+            DesiredScaling::Reachable => {
+                fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?
+            }
+            DesiredScaling::Full => fov::DisplayRange::FULL,
+            DesiredScaling::Given(r) => r,
         };
         let cam = self.sim.camera_size();
         (1..=ntest)

@@ -30,7 +30,7 @@ pub mod sheet;
 mod texture;
 pub mod window_camera;
 
-pub use export::{ExportOptions, export_setup};
+pub use export::{DesiredScaling, ExportOptions, export_setup};
 pub use live::VirtualRig;
 pub use oracle::OracleOptions;
 pub use physics::{Phase, Simulator};

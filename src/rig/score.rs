@@ -10,14 +10,36 @@ use crate::error::{Error, Result};
 use crate::metrics::{Accumulator, Scores};
 use crate::raster::{CamImage, Camera, ImageSize, Mask, PrjImage, Rect};
 
-/// Captures each projector image (frame indices `first_frame`, `first_frame + 1`, …) and scores
-/// the captures against the desired camera images inside `area` (camera pixels).
+/// The camera frames closed-loop scoring captures: projector image k is seen as the mean of
+/// `average` frames from `first + k·average` on, each with its own noise, as `compend
+/// calibrate`'s verification averages frames (`average = 1`: frames `first`, `first + 1`, …).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Frames {
+    pub first: u64,
+    pub average: usize,
+}
+
+impl Frames {
+    /// One frame per image from `first` on.
+    pub const fn single(first: u64) -> Self {
+        Frames { first, average: 1 }
+    }
+
+    /// The capture of `prj` shown as the `k`-th image.
+    pub fn capture(&self, sim: &Simulator, prj: &PrjImage, k: usize) -> Result<CamImage> {
+        let n = self.average.max(1);
+        sim.capture_mean(prj, self.first + (k * n) as u64, n)
+    }
+}
+
+/// Captures each projector image (the frames of `frames`) and scores the captures against the
+/// desired camera images inside `area` (camera pixels).
 pub fn closed_loop(
     sim: &Simulator,
     shown: &[PrjImage],
     desired: &[CamImage],
     area: Rect,
-    first_frame: u64,
+    frames: Frames,
 ) -> Result<Scores> {
     if shown.len() != desired.len() {
         return Err(Error::Input(format!(
@@ -28,7 +50,7 @@ pub fn closed_loop(
     }
     let mut acc = Accumulator::default();
     for (k, (p, z)) in shown.iter().zip(desired).enumerate() {
-        let cap = sim.capture(p, first_frame + k as u64)?;
+        let cap = frames.capture(sim, p, k)?;
         acc.add(&cap.crop(area)?, &z.crop(area)?)?;
     }
     acc.finish()
@@ -54,17 +76,17 @@ pub fn area_mask(sim: &Simulator, area: Rect) -> Mask<Camera> {
 
 /// Scores the three reference rows on a test set. `uncompensated[k]` is test image k placed on
 /// the canvas as is (projector space); `desired[k]` is the same image placed in the displayable
-/// area `area` (camera space, black elsewhere). All three rows use the same frame indices, so
-/// they see the same noise.
+/// area `area` (camera space, black elsewhere). All three rows use the same `frames`, so they
+/// see the same noise.
 pub fn reference_scores(
     sim: &Simulator,
     uncompensated: &[PrjImage],
     desired: &[CamImage],
     area: Rect,
     opts: OracleOptions,
-    first_frame: u64,
+    frames: Frames,
 ) -> Result<ReferenceScores> {
-    reference_scores_with_oracle(sim, uncompensated, desired, area, opts, first_frame)
+    reference_scores_with_oracle(sim, uncompensated, desired, area, opts, frames)
         .map(|(scores, _)| scores)
 }
 
@@ -75,7 +97,7 @@ pub fn reference_scores_with_oracle(
     desired: &[CamImage],
     area: Rect,
     opts: OracleOptions,
-    first_frame: u64,
+    frames: Frames,
 ) -> Result<(ReferenceScores, Vec<PrjImage>)> {
     let mask = area_mask(sim, area);
     let geometry: Vec<PrjImage> = desired
@@ -87,9 +109,9 @@ pub fn reference_scores_with_oracle(
         .map(|z| sim.oracle(z, &mask, opts))
         .collect::<Result<_>>()?;
     let scores = ReferenceScores {
-        uncompensated: closed_loop(sim, uncompensated, desired, area, first_frame)?,
-        geometry_only: closed_loop(sim, &geometry, desired, area, first_frame)?,
-        oracle: closed_loop(sim, &oracle, desired, area, first_frame)?,
+        uncompensated: closed_loop(sim, uncompensated, desired, area, frames)?,
+        geometry_only: closed_loop(sim, &geometry, desired, area, frames)?,
+        oracle: closed_loop(sim, &oracle, desired, area, frames)?,
     };
     Ok((scores, oracle))
 }
@@ -105,7 +127,7 @@ pub fn oracle_at_network(
     area: Rect,
     canvas: Rect,
     network: ImageSize,
-    first_frame: u64,
+    frames: Frames,
 ) -> Result<Scores> {
     let psize = sim.projector_size();
     let shown: Vec<PrjImage> = oracle
@@ -116,5 +138,5 @@ pub fn oracle_at_network(
             crate::playback::place_on_canvas(&small, canvas, psize)
         })
         .collect::<Result<_>>()?;
-    closed_loop(sim, &shown, desired, area, first_frame)
+    closed_loop(sim, &shown, desired, area, frames)
 }

@@ -55,27 +55,28 @@ pub fn contact_sheet(
     let geo = sim.geometry_only(&desired)?;
     let orc = sim.oracle(&desired, &area_mask(sim, area), OracleOptions::default())?;
     let frame = FRAME_SHEET;
+    let frames = super::score::Frames::single(frame);
     let scores = ReferenceScores {
         uncompensated: closed_loop(
             sim,
             std::slice::from_ref(&unc),
             std::slice::from_ref(&desired),
             area,
-            frame,
+            frames,
         )?,
         geometry_only: closed_loop(
             sim,
             std::slice::from_ref(&geo),
             std::slice::from_ref(&desired),
             area,
-            frame,
+            frames,
         )?,
         oracle: closed_loop(
             sim,
             std::slice::from_ref(&orc),
             std::slice::from_ref(&desired),
             area,
-            frame,
+            frames,
         )?,
     };
     let sample_cap = sim.capture(&place_on_canvas(sample, canvas, psize)?, frame + 1)?;

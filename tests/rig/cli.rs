@@ -23,7 +23,7 @@ fn sim_list_and_show() {
     let scene: rig::Scene = serde_json::from_str(&stdout(&o)).expect("JSON scene");
     assert_eq!(scene, rig::builtin("step").expect("built-in"));
 
-    // --exposure-of needs a calibrated model directory.
+    // --as-calibrated needs a calibrated model directory.
     let dir = tempfile::tempdir().expect("tempdir");
     let not_a_model = dir.path().join("nothing");
     let o = compend(&[
@@ -33,7 +33,7 @@ fn sim_list_and_show() {
         "step",
         "--out",
         dir.path().join("root").to_str().unwrap(),
-        "--exposure-of",
+        "--as-calibrated",
         not_a_model.to_str().unwrap(),
     ]);
     assert_code(&o, 2);
@@ -221,6 +221,14 @@ fn score_lies_between_uncompensated_and_oracle(s: &str) {
         psnr(2) > psnr(0),
         "a trained model beats no compensation: {v}"
     );
+    // Averaging frames as calibrate's verification does takes noise out of every row: the
+    // oracle, whose error is mostly noise, gains.
+    let o = compend(&["sim", "score", "--setup", s, "--json", "--average", "4"]);
+    assert_code(&o, 0);
+    let avg: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON");
+    assert_eq!(avg["frames_averaged"], 4);
+    let oracle = |v: &serde_json::Value| v["rows"][4]["psnr"].as_f64().expect("psnr");
+    assert!(oracle(&avg) > oracle(&v) + 0.2, "{avg}\n{v}");
 }
 
 #[test]

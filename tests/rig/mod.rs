@@ -88,7 +88,15 @@ fn references(sim: &Simulator, n: usize) -> rig::ReferenceScores {
     let area = area_of(sim);
     let unc: Vec<PrjImage> = (0..n).map(|k| on_canvas(sim, k)).collect();
     let des: Vec<CamImage> = (0..n).map(|k| in_area(sim, k, area)).collect();
-    rig::reference_scores(sim, &unc, &des, area, OracleOptions::default(), 1000).expect("scores")
+    rig::reference_scores(
+        sim,
+        &unc,
+        &des,
+        area,
+        OracleOptions::default(),
+        rig::score::Frames::single(1000),
+    )
+    .expect("scores")
 }
 
 fn show(s: &Scores) -> String {

@@ -62,6 +62,40 @@ fn same_seed_same_frames_other_seed_other_frames() {
 }
 
 #[test]
+fn averaged_captures_scatter_less_around_the_noise_free_view() {
+    // The noisiest built-in scene, so the noise is well above the 8-bit quantisation.
+    let sim = tiny("defocus-noise", 5);
+    let img = on_canvas(&sim, 2);
+    let clean = sim.expected(&img).expect("render");
+    let rms = |c: &CamImage| {
+        let d = c.data().iter().zip(clean.data());
+        (d.map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / clean.data().len() as f64).sqrt()
+    };
+    assert_eq!(
+        sim.capture_mean(&img, 40, 1).expect("mean"),
+        sim.capture(&img, 40).expect("capture"),
+        "one frame is a capture"
+    );
+    let one = rms(&sim.capture(&img, 40).expect("capture"));
+    let four = rms(&sim.capture_mean(&img, 40, 4).expect("mean"));
+    // Independent noise: the mean of 4 frames has about half the deviation (quantisation and
+    // clipping keep it from exactly half).
+    assert!(
+        four < 0.7 * one,
+        "4 frames: RMS {four:.4} from the noise-free view, 1 frame: {one:.4}"
+    );
+    // Scoring: frames of image k follow those of image k − 1 without overlap.
+    let frames = rig::score::Frames {
+        first: 100,
+        average: 3,
+    };
+    assert_eq!(
+        frames.capture(&sim, &img, 2).expect("capture"),
+        sim.capture_mean(&img, 106, 3).expect("mean")
+    );
+}
+
+#[test]
 fn frames_lag_behind_the_projector_and_drops_skip_numbers() {
     let scene = rig::builtin("white-plane")
         .expect("built-in")

@@ -113,7 +113,7 @@ pub fn run(args: Args) -> Result<()> {
                 ntest: args.ntest,
                 full_cube: false,
                 structured_light: true,
-                reachable_desired: true,
+                desired_range: rig::DesiredScaling::Reachable,
             };
             let exported =
                 rig::export::export_setup(&sim, &root, &PathBuf::from(&scene.name), &opts)
@@ -259,7 +259,7 @@ impl SceneBench<'_> {
             &self.desired,
             area,
             OracleOptions::default(),
-            FRAMES_BENCH,
+            rig::score::Frames::single(FRAMES_BENCH),
         )?;
         let net = self.setup.root().network_size()?;
         let net_oracle = rig::score::oracle_at_network(
@@ -269,7 +269,7 @@ impl SceneBench<'_> {
             area,
             self.record.canvas,
             net,
-            FRAMES_BENCH,
+            rig::score::Frames::single(FRAMES_BENCH),
         )?;
         let ceiling = refs.oracle.psnr;
         let rows = vec![
@@ -348,7 +348,7 @@ impl SceneBench<'_> {
                     &self.on_canvas(&shown)?,
                     desired,
                     area,
-                    FRAMES_BENCH,
+                    rig::score::Frames::single(FRAMES_BENCH),
                 )?;
                 row.gap_db = Some(ceiling - s.psnr);
                 row.closed_loop = Some(s);

@@ -278,6 +278,24 @@ impl Simulator {
         Ok(self.finish(&s, Some(frame)))
     }
 
+    /// The mean of `n` captures of `prj` (frames `first` to `first + n − 1`, each with its own
+    /// noise), as a capture protocol averages frames; `n = 1` is [`Self::capture`].
+    pub fn capture_mean(&self, prj: &PrjImage, first: u64, n: usize) -> Result<CamImage> {
+        let s = self.clean_signal(prj)?;
+        let mut sum = self.finish(&s, Some(first));
+        for f in 1..n.max(1) as u64 {
+            let next = self.finish(&s, Some(first + f));
+            for (a, b) in sum.data_mut().iter_mut().zip(next.data()) {
+                *a += b;
+            }
+        }
+        if n > 1 {
+            let k = 1.0 / n as f32;
+            sum.data_mut().iter_mut().for_each(|v| *v *= k);
+        }
+        Ok(sum)
+    }
+
     /// The noise-free sensor signal for `prj` (linear, camera space, interleaved RGB, not yet
     /// clipped): what every capture of it scatters around.
     pub fn clean_signal(&self, prj: &PrjImage) -> Result<Vec<f32>> {

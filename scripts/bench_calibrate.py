@@ -1,0 +1,98 @@
+#!/usr/bin/env python3
+"""Calibration on the virtual rig, timed and checked against `sim score` (issue 16's targets).
+
+For each SCENE:SEED it runs `compend calibrate --rig virtual:SCENE` with the given
+projector-to-camera latency and camera rate, then exports the same scene and seed as that
+calibration captured it (`sim export --as-calibrated`: the exposure and display range the model
+records), compensates the export's desired images with the installed model and scores them
+closed loop with `sim score` on the same test images the verification projected, each capture
+the mean of as many frames as the calibration averaged. It prints the
+phase times, the verification figures and the `sim score` figures, one row per run.
+
+    python3 scripts/bench_calibrate.py [--bin target/release/compend] [--out DIR]
+        [--latency-ms 100,250] [--fps 30] [--method linear] [--verify 5] [--average 3]
+        SCENE:SEED ...
+"""
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+
+def run(cmd, capture=True):
+    """Runs `cmd`; its stdout when `capture`. Exits with the command's code on failure."""
+    p = subprocess.run(cmd, stdout=subprocess.PIPE if capture else None, stderr=subprocess.PIPE, text=True)
+    if p.returncode != 0:
+        sys.stderr.write(p.stderr)
+        sys.exit(f"bench_calibrate: {' '.join(cmd)} exited {p.returncode}")
+    return p.stdout
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("runs", nargs="+", metavar="SCENE:SEED")
+    ap.add_argument("--bin", default=os.path.join(os.environ.get("CARGO_TARGET_DIR", "target"), "release", "compend"))
+    ap.add_argument("--out", default="bench-calibrate", help="working folder (replaced per run)")
+    ap.add_argument("--latency-ms", default="100,250", help="latencies to cycle through, ms")
+    ap.add_argument("--fps", default="30", help="virtual camera rate, Hz")
+    ap.add_argument("--method", default="linear")
+    ap.add_argument("--verify", type=int, default=5, help="verification images (also scored by sim score)")
+    ap.add_argument("--average", type=int, default=3, help="frames averaged per capture (calibrate and sim score)")
+    a = ap.parse_args()
+    if not os.access(a.bin, os.X_OK):
+        sys.exit(f"bench_calibrate: {a.bin} is not an executable (cargo build --release first)")
+    latencies = [x.strip() for x in a.latency_ms.split(",") if x.strip()]
+    rows = []
+    for k, spec in enumerate(a.runs):
+        scene, _, seed = spec.partition(":")
+        if not seed.isdigit():
+            sys.exit(f"bench_calibrate: {spec!r}: expected SCENE:SEED, e.g. curved:88")
+        latency = latencies[k % len(latencies)]
+        work = os.path.join(a.out, f"{scene}-{seed}")
+        shutil.rmtree(work, ignore_errors=True)
+        data, model = os.path.join(work, "calibration"), os.path.join(work, "model")
+        t = time.monotonic()
+        rec = json.loads(run([a.bin, "calibrate", "--rig", f"virtual:{scene}", "--seed", seed,
+                              "--data", data, "--out", model, "--method", a.method,
+                              "--verify", str(a.verify), "--rig-latency-ms", latency,
+                              "--rig-fps", a.fps, "--average", str(a.average), "--json"]))
+        wall = time.monotonic() - t
+        c = rec
+        root = os.path.join(work, "score")
+        run([a.bin, "sim", "export", "--scene", scene, "--seed", seed, "--out", root,
+             "--ntrain", "4", "--ntest", str(a.verify), "--as-calibrated", model])
+        setup = os.path.join(root, scene)
+        run([a.bin, "compensate", "--model", model, "--input", os.path.join(setup, "cam/desire/test"),
+             "--out", os.path.join(setup, "prj/cmp/test/calibrated")])
+        score = json.loads(run([a.bin, "sim", "score", "--setup", setup, "--ntest", str(a.verify),
+                                "--model", "calibrated", "--average", str(a.average), "--json"]))
+        by = {r["name"]: r for r in score["rows"]}
+        v = c["verification"]
+        rows.append({
+            "run": f"{scene}:{seed}", "latency_ms": int(latency), "measured_frames": max(c["latency"]["trials"]),
+            "seconds": c["seconds"], "wall": wall, "verification": v["psnr"], "ssim": v["ssim"],
+            "uncompensated": v["uncompensated_psnr"], "sim_score": by["calibrated"]["psnr"],
+            "oracle": by["oracle"]["psnr"], "installed": v["passed"],
+        })
+        r = rows[-1]
+        print(f"{r['run']}: latency {latency} ms, total {r['seconds']['total']:.1f} s, verification "
+              f"{r['verification']:.2f} dB, sim score {r['sim_score']:.2f} dB", file=sys.stderr)
+    print("| run | latency ms (frames) | latency s | exposure s | patterns s | captures s | training s "
+          "| verification s | total s | verification dB / SSIM | uncompensated dB | sim score dB | "
+          "difference dB | oracle dB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        s = r["seconds"]
+        print(f"| {r['run']} | {r['latency_ms']} ({r['measured_frames']}) | {s['latency']:.1f} | "
+              f"{s.get('exposure', 0):.1f} | {s['patterns']:.1f} | {s['captures']:.1f} | "
+              f"{s['training']:.1f} | {s['verification']:.1f} | {s['total']:.1f} | "
+              f"{r['verification']:.2f} / {r['ssim']:.3f} | {r['uncompensated']:.2f} | "
+              f"{r['sim_score']:.2f} | {r['verification'] - r['sim_score']:+.2f} | {r['oracle']:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
