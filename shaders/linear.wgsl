@@ -8,13 +8,16 @@
 //         (rgba32float), network pixels.
 // Maths (compend::linear::SimplifiedLinear::apply): bilinear sample of z' at the grid position,
 // zero outside; per channel, linearise with the camera curve a = max(v, 0)^γc; linear projector
-// light l = M a + b (3×3 + offset per network pixel); projector input clamp(l, 0, 1)^(1/γp).
+// light l = M a + b (3×3 + offset per network pixel); where l leaves [0, 1]³, the reachable light
+// closest in camera-encoded values (compend::linear::gamut, same steps in the same order);
+// projector input l^(1/γp).
 // Everything in f32 with textureLoad, no texture-unit filtering (it is not exact).
 
 struct Linear {
     camera: vec2<u32>,  // camera frame size
     network: vec2<u32>, // network size
     camera_gamma: vec4<f32>,        // γc per channel (xyz)
+    camera_inv_gamma: vec4<f32>,    // 1/γc per channel (xyz), computed in f32 on the CPU
     projector_inv_gamma: vec4<f32>, // 1/γp per channel (xyz), computed in f32 on the CPU
 }
 
@@ -66,6 +69,170 @@ fn pow0(x: f32, g: f32) -> f32 {
     return select(0.0, pow(x, g), x > 0.0);
 }
 
+// A 3×3 matrix as its rows; `ok` false where it has no inverse.
+struct Rows {
+    r: array<vec3<f32>, 3>,
+    ok: bool,
+}
+
+// M⁻¹ by cofactors; not ok when |det| <= 1e-6 · the product of the row norms, or not finite
+// (compend::linear::gamut::inverse).
+fn inverse3(m: array<vec3<f32>, 3>) -> Rows {
+    var out: Rows;
+    let c00 = m[1].y * m[2].z - m[1].z * m[2].y;
+    let c01 = m[1].z * m[2].x - m[1].x * m[2].z;
+    let c02 = m[1].x * m[2].y - m[1].y * m[2].x;
+    let det = m[0].x * c00 + m[0].y * c01 + m[0].z * c02;
+    let scale = length(m[0]) * length(m[1]) * length(m[2]);
+    // NaN fails every comparison; infinity fails the second.
+    out.ok = abs(det) > 1e-6 * scale && abs(det) <= 3.4e38;
+    if (!out.ok) {
+        return out;
+    }
+    let r = 1.0 / det;
+    out.r[0] = vec3<f32>(
+        c00 * r,
+        (m[0].z * m[2].y - m[0].y * m[2].z) * r,
+        (m[0].y * m[1].z - m[0].z * m[1].y) * r,
+    );
+    out.r[1] = vec3<f32>(
+        c01 * r,
+        (m[0].x * m[2].z - m[0].z * m[2].x) * r,
+        (m[0].z * m[1].x - m[0].x * m[1].z) * r,
+    );
+    out.r[2] = vec3<f32>(
+        c02 * r,
+        (m[0].y * m[2].x - m[0].x * m[2].y) * r,
+        (m[0].x * m[1].y - m[0].y * m[1].x) * r,
+    );
+    return out;
+}
+
+// (W A)ᵀ (W A) for W = diag(w).
+fn weighted_gram(a: array<vec3<f32>, 3>, w: vec3<f32>) -> array<vec3<f32>, 3> {
+    var q: array<vec3<f32>, 3>;
+    for (var i = 0u; i < 3u; i++) {
+        for (var j = 0u; j < 3u; j++) {
+            var s = 0.0;
+            for (var r = 0u; r < 3u; r++) {
+                s += w[r] * w[r] * a[r][i] * a[r][j];
+            }
+            q[i][j] = s;
+        }
+    }
+    return q;
+}
+
+struct Solution {
+    x: vec3<f32>,
+    ok: bool,
+}
+
+// argmin over x in [0, 1]³ of (x − u)ᵀ Q (x − u): every assignment of each coordinate to free,
+// 0 or 1, the free ones from the stationarity equations, the feasible point of least cost
+// (compend::linear::gamut::box_least_squares).
+fn box_least_squares(q_in: array<vec3<f32>, 3>, u: vec3<f32>) -> Solution {
+    var q = q_in;
+    var best: Solution;
+    best.ok = false;
+    var best_cost = 0.0;
+    for (var s = 0u; s < 27u; s++) {
+        // Per coordinate: 0 free, 1 held at 0, 2 held at 1.
+        var state = vec3<u32>(s % 3u, (s / 3u) % 3u, s / 9u);
+        var x = u;
+        var nfree = 0u;
+        var free = vec2<u32>(0u, 0u);
+        for (var c = 0u; c < 3u; c++) {
+            if (state[c] == 1u) {
+                x[c] = 0.0;
+            } else if (state[c] == 2u) {
+                x[c] = 1.0;
+            } else {
+                if (nfree < 2u) {
+                    free[nfree] = c;
+                }
+                nfree += 1u;
+            }
+        }
+        // −Q_fc (x_c − u_c) for every row.
+        var r = vec3<f32>(0.0);
+        for (var i = 0u; i < 3u; i++) {
+            var acc = 0.0;
+            for (var c = 0u; c < 3u; c++) {
+                if (state[c] != 0u) {
+                    acc += q[i][c] * (x[c] - u[c]);
+                }
+            }
+            r[i] = -acc;
+        }
+        if (nfree == 1u) {
+            let i = free.x;
+            if (q[i][i] <= 0.0) {
+                continue;
+            }
+            x[i] = u[i] + r[i] / q[i][i];
+        } else if (nfree == 2u) {
+            let i = free.x;
+            let j = free.y;
+            let det = q[i][i] * q[j][j] - q[i][j] * q[j][i];
+            if (det <= 0.0) {
+                continue;
+            }
+            x[i] = u[i] + (r[i] * q[j][j] - q[i][j] * r[j]) / det;
+            x[j] = u[j] + (q[i][i] * r[j] - q[j][i] * r[i]) / det;
+        }
+        // Also rejects NaN.
+        if (!(all(x >= vec3<f32>(0.0)) && all(x <= vec3<f32>(1.0)))) {
+            continue;
+        }
+        let d = x - u;
+        var cost = 0.0;
+        for (var i = 0u; i < 3u; i++) {
+            cost += d[i] * (q[i][0] * d.x + q[i][1] * d.y + q[i][2] * d.z);
+        }
+        if (!best.ok || cost < best_cost) {
+            best.ok = true;
+            best.x = x;
+            best_cost = cost;
+        }
+    }
+    return best;
+}
+
+// The projector linear light for a desired colour whose model output l is out of [0, 1]³, z the
+// desired camera value (compend::linear::gamut::nearest_reachable).
+fn nearest_reachable(m: array<vec3<f32>, 3>, l: vec3<f32>, z: vec3<f32>) -> vec3<f32> {
+    let clamped = clamp(l, vec3<f32>(0.0), vec3<f32>(1.0));
+    let inv = inverse3(m);
+    if (!inv.ok) {
+        return clamped;
+    }
+    let a = inv.r;
+    var first = clamped;
+    let s1 = box_least_squares(weighted_gram(a, vec3<f32>(1.0)), l);
+    if (s1.ok) {
+        first = s1.x;
+    }
+    let d = first - l;
+    var w = vec3<f32>(0.0);
+    for (var c = 0u; c < 3u; c++) {
+        let inv_g = p.camera_inv_gamma[c];
+        let a0 = pow0(z[c], p.camera_gamma[c]);
+        let a1 = a0 + a[c].x * d.x + a[c].y * d.y + a[c].z * d.z;
+        if (abs(a1 - a0) > 1e-6) {
+            w[c] = (pow0(clamp(a1, 0.0, 1.0), inv_g) - pow0(clamp(a0, 0.0, 1.0), inv_g)) / (a1 - a0);
+        } else {
+            w[c] = inv_g * pow(max(a0, 1e-4), inv_g - 1.0);
+        }
+        w[c] = max(w[c], 0.02);
+    }
+    let s2 = box_least_squares(weighted_gram(a, w), l);
+    if (s2.ok) {
+        return s2.x;
+    }
+    return first;
+}
+
 @compute @workgroup_size(8, 8)
 fn linear(@builtin(global_invocation_id) id: vec3<u32>) {
     if (id.x >= p.network.x || id.y >= p.network.y) {
@@ -79,11 +246,18 @@ fn linear(@builtin(global_invocation_id) id: vec3<u32>) {
         pow0(s.z, p.camera_gamma.z),
     );
     let k = i * 12u;
+    var m: array<vec3<f32>, 3>;
+    var l = vec3<f32>(0.0);
+    for (var c = 0u; c < 3u; c++) {
+        m[c] = vec3<f32>(coeffs[k + c * 3u], coeffs[k + c * 3u + 1u], coeffs[k + c * 3u + 2u]);
+        l[c] = m[c].x * a.x + m[c].y * a.y + m[c].z * a.z + coeffs[k + 9u + c];
+    }
+    if (any(l < vec3<f32>(0.0)) || any(l > vec3<f32>(1.0))) {
+        l = nearest_reachable(m, l, s);
+    }
     var out = vec3<f32>(0.0);
     for (var c = 0u; c < 3u; c++) {
-        let l = coeffs[k + c * 3u] * a.x + coeffs[k + c * 3u + 1u] * a.y
-            + coeffs[k + c * 3u + 2u] * a.z + coeffs[k + 9u + c];
-        out[c] = pow0(clamp(l, 0.0, 1.0), p.projector_inv_gamma[c]);
+        out[c] = pow0(clamp(l[c], 0.0, 1.0), p.projector_inv_gamma[c]);
     }
     textureStore(network, vec2<u32>(id.xy), vec4<f32>(out, 1.0));
 }

@@ -90,6 +90,28 @@ pub fn test_model(seed: u64) -> Model {
     Model::linear(meta, fov, linear)
 }
 
+/// How many network pixels the `linear` model puts outside [0, 1]³ in projector linear light
+/// for the desired view `desired` (those its gamut map moves).
+fn out_of_gamut(model: &Model, desired: &compend::raster::CamImage) -> usize {
+    let compend::model::Kind::Linear { simplified, .. } = &model.kind else {
+        unreachable!("a linear model")
+    };
+    let warped = compend::sample::grid_sample(desired, &simplified.grid);
+    let c = &simplified.curves;
+    warped
+        .data()
+        .chunks_exact(3)
+        .zip(&simplified.coeffs.data)
+        .filter(|(px, k)| {
+            let a: [f32; 3] = std::array::from_fn(|j| c.camera_linear(j, px[j]));
+            (0..3).any(|i| {
+                let l = (0..3).map(|j| k[i * 3 + j] * a[j]).sum::<f32>() + k[9 + i];
+                !(0.0..=1.0).contains(&l)
+            })
+        })
+        .count()
+}
+
 fn random_content(seed: u64, w: usize, h: usize) -> ContentFrame {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let rgba = (0..w * h * 4)
@@ -177,6 +199,12 @@ fn linear_pass_matches_the_cpu_reference() {
             );
             assert!(e_desired <= 1e-5, "desired view differs by {e_desired}");
             assert!(e_net <= 2e-4, "compensation image differs by {e_net}");
+            // The gamut map is compared too: enough pixels take it.
+            let mapped = out_of_gamut(&model, &desired_cpu);
+            assert!(
+                mapped * 20 > NET.width * NET.height,
+                "{mapped} pixels through the gamut map"
+            );
             assert!(worst <= 1, "projector frame differs by {worst} 8-bit steps");
             assert_eq!(frame_gpu.size(), p.projector_size);
         }

@@ -83,11 +83,12 @@ fn train_eval_compensate_linear_and_linear_sl() {
     for method in ["linear", "linear-sl"] {
         let model = dir.path().join(format!("model-{method}"));
         let m = model.to_str().unwrap();
-        // `linear` on its default lattice (1.5× the network), `linear-sl` on the network's own.
+        // `linear` on its default lattice (the projector's resolution: the fixture's structured
+        // light is NET×NET), `linear-sl` on a finer one asked for.
         let (lattice, side) = if method == "linear" {
-            (None, NET * 3 / 2)
+            (None, NET)
         } else {
-            (Some(NET.to_string()), NET)
+            (Some((NET * 3 / 2).to_string()), NET * 3 / 2)
         };
         let mut args = vec![
             "train", "--setup", s, "--method", method, "--out", m, "--json",
@@ -201,11 +202,9 @@ fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
     train_cnn(setup, "compennet++-res", "1", &res1, false);
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(res1.join("model.json")).unwrap()).unwrap();
-    // The model's output lattice is linear's (1.5× the network), not the network's half.
-    assert_eq!(
-        meta["network_size"],
-        serde_json::json!([NET * 3 / 2, NET * 3 / 2])
-    );
+    // The model's output lattice is linear's (by default the projector's resolution, NET×NET
+    // here), not the network's half.
+    assert_eq!(meta["network_size"], serde_json::json!([NET, NET]));
     assert_eq!(
         meta["training"]["geometry_init"],
         "the linear rung's grid (fixed)"
@@ -226,7 +225,7 @@ fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
     compensate(&res, setup, &cmp);
     assert_eq!(
         compend::pngio::png_size(&cmp.join("img_0001.png")).unwrap(),
-        ImageSize::new(NET * 3 / 2, NET * 3 / 2)
+        ImageSize::new(NET, NET)
     );
     // Its linear part takes --lattice as the linear rungs do.
     let fine = dir.join("res-lattice");
@@ -520,5 +519,23 @@ fn a_native_lattice_is_the_projectors_resolution() {
         stderr(&o).contains("--lattice native") && stderr(&o).contains("img_0001.png"),
         "{}",
         stderr(&o)
+    );
+    // The default lattice is then 1.5× the network: the projector's size is not known.
+    let default = dir.path().join("default");
+    let o = compend(&[
+        "train",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--method",
+        "linear",
+        "--out",
+        default.to_str().unwrap(),
+    ]);
+    assert_code(&o, 0);
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(default.join("model.json")).unwrap()).unwrap();
+    assert_eq!(
+        meta["network_size"],
+        serde_json::json!([NET * 3 / 2, NET * 3 / 2])
     );
 }

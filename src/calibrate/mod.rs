@@ -228,6 +228,7 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
         batch: None,
         device: Default::default(),
         lattice: None,
+        projector: Some(opts.patterns.projector),
         photometric: Default::default(),
         cancel: opts.cancel.clone(),
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),

@@ -390,7 +390,7 @@ fn compennet_row(
 /// per-frame cost of its simplified form on the default lattice.
 fn linear_row(a: &Args, camera: ImageSize) -> Result<Row> {
     let side = a.network;
-    let lattice = compend::fit::default_lattice(ImageSize::new(side, side));
+    let lattice = compend::fit::default_lattice(ImageSize::new(side, side), None);
     let train_ms = if a.linear_pairs > 0 {
         eprintln!(
             "bench-train: linear fit on {} synthetic pairs",

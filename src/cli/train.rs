@@ -49,12 +49,12 @@ pub struct Args {
     #[arg(long, default_value = "cpu")]
     pub device: compend::fit::TrainDevice,
     /// The linear rungs (and `compennet++-res`'s linear part): the lattice of the per-pixel
-    /// colour model and of the compensation images, `N` or `WxH` (default: 1.5× the network
-    /// size, 384 for 256²; the network size itself reproduces the paper's 256² output). Live playback stretches any lattice over the
-    /// canvas; offline, `compensate` writes images of this size.
-    /// `native`: the projector's resolution (the size of the data root's structured-light
-    /// patterns): on the curved scene 0.3 dB closer to the ceiling than the default, for about
-    /// twice the memory.
+    /// colour model and of the compensation images, `N` or `WxH`, or `native`: the projector's
+    /// resolution (the size of the data root's structured-light patterns). Default: the
+    /// projector's resolution, scaled down to at most 1920×1080 pixels; 1.5× the network size
+    /// where the root has no structured-light patterns. The network size itself reproduces the
+    /// paper's 256² output. Live playback stretches any lattice over the canvas; offline,
+    /// `compensate` writes images of this size.
     #[arg(long, value_name = "N|WxH|native", value_parser = parse_lattice)]
     pub lattice: Option<Lattice>,
     /// CompenNet++ variants: how CompenNet's weights start: `shipped` (the photometric
@@ -91,6 +91,7 @@ pub fn run(args: Args) -> Result<()> {
                 )
             })?),
         },
+        projector: None,
         photometric: args.photometric_init.clone(),
         cancel: None,
         climb_gain_db: args.climb_gain,

@@ -44,7 +44,7 @@ pub(super) fn train_compennet(
             network_size: targets[0].size(),
             lattice: Some(
                 req.lattice
-                    .unwrap_or_else(|| super::default_lattice(targets[0].size())),
+                    .unwrap_or_else(|| super::default_lattice(targets[0].size(), None)),
             ),
             ..FitSettings::default()
         };

@@ -1,5 +1,5 @@
 //! The linear rungs' fit (docs/architecture.md, "Models"): `linear` and `linear-sl` on the
-//! output lattice (1.5× the network size by default, [`super::default_lattice`]), their
+//! output lattice (the projector's resolution by default, [`super::default_lattice`]), their
 //! held-out scores for `auto` ([`super::auto`]), and the model's record.
 
 use std::time::Instant;
@@ -86,7 +86,10 @@ pub(super) fn fit_linear(
 fn settings(req: &Request, network_size: crate::raster::ImageSize) -> FitSettings {
     FitSettings {
         network_size,
-        lattice: Some(req.lattice.unwrap_or_else(|| default_lattice(network_size))),
+        lattice: Some(
+            req.lattice
+                .unwrap_or_else(|| default_lattice(network_size, None)),
+        ),
         ..FitSettings::default()
     }
 }

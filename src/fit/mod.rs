@@ -48,8 +48,11 @@ pub struct Request {
     /// Where the CompenNet++ variants train (the `linear` rungs are closed-form CPU fits).
     pub device: TrainDevice,
     /// The `linear` rungs only: the lattice of the colour model and of its output images;
-    /// `None` = [`default_lattice`] of the network size.
+    /// `None` = [`default_lattice`] of the setup (the projector's resolution when known).
     pub lattice: Option<ImageSize>,
+    /// The projector's resolution when the caller knows it (`calibrate` does); `None`: the size
+    /// of the data root's structured-light patterns, if it has them. Sets the default lattice.
+    pub projector: Option<ImageSize>,
     /// CompenNet++ variants: how CompenNet's weights start (default: the shipped
     /// pre-initialisation, docs/architecture.md, "Models").
     pub photometric: crate::nn::pretrain::PhotometricInit,
@@ -61,19 +64,33 @@ pub struct Request {
     pub climb_gain_db: Option<f64>,
 }
 
-/// The default output lattice of the `linear` rungs: 1.5× the network size, rounded up to a
-/// multiple of 4 (256² → 384²). The per-pixel model costs little more on a finer lattice, and a
-/// 256² image stretched over the canvas has fewer pixels across the displayable area than the
-/// desired image: on the rig's curved scene (seed 1, 48 images) 384² closes 0.46 dB of the
-/// closed-loop gap to the oracle, 512² no more.
-pub fn default_lattice(
-    ImageSize {
-        width: w,
-        height: h,
-    }: ImageSize,
-) -> ImageSize {
-    ImageSize::new((w * 3 / 2).div_ceil(4) * 4, (h * 3 / 2).div_ceil(4) * 4)
+/// The default output lattice of the `linear` rungs: the projector's resolution (`projector`,
+/// when the setup knows it), scaled down to at most [`LATTICE_BUDGET`] pixels with its aspect
+/// kept; without it, 1.5× the network size. Sides are rounded up to a multiple of 4 (256² →
+/// 384²). The per-pixel model costs little more on a finer lattice in time (memory grows about
+/// 1.4 kB per lattice pixel in training), and a network-size image stretched over the canvas
+/// has fewer pixels across the displayable area than the camera sees there. On the virtual
+/// rig's white plane, textured plane and curved scene (seed 301, 48 pairs, 800×600
+/// projector), the projector's resolution took `linear` from 0.44–0.63 dB below the physical
+/// ceiling at 384² to 0.20–0.28 dB (docs/bench/ladder.md).
+pub fn default_lattice(network: ImageSize, projector: Option<ImageSize>) -> ImageSize {
+    let round = |v: f64| ((v.ceil() as usize).max(8)).div_ceil(4) * 4;
+    match projector {
+        Some(p) => {
+            let pixels = (p.width * p.height) as f64;
+            let k = (LATTICE_BUDGET as f64 / pixels).sqrt().min(1.0);
+            ImageSize::new(round(p.width as f64 * k), round(p.height as f64 * k))
+        }
+        None => ImageSize::new(
+            round(network.width as f64 * 1.5),
+            round(network.height as f64 * 1.5),
+        ),
+    }
 }
+
+/// The most pixels of a default lattice: 1920×1080. A 4K projector's default lattice is this
+/// many pixels of its aspect (about 3 GB in training), stretched over the frame by the pass.
+pub const LATTICE_BUDGET: usize = 1920 * 1080;
 
 /// What training reports besides the model.
 #[derive(Clone, Debug, Serialize)]
@@ -99,6 +116,24 @@ pub fn fit(
         MethodChoice::Auto => None,
     };
     check_request(req, variant)?;
+    // The output lattice of the linear rungs (also under the residual rung and `auto`): as
+    // asked, else the default for this setup's projector.
+    let resolved;
+    let req = if req.lattice.is_none() && variant.is_none_or(|v| v.residual()) {
+        let projector = match (req.projector, setup.root().projector_size()) {
+            (Some(size), _) | (None, Ok(size)) => Some(size),
+            (None, Err(Error::Missing { .. })) => None,
+            (None, Err(e)) => return Err(e),
+        };
+        let network = setup.root().network_size()?;
+        resolved = Request {
+            lattice: Some(default_lattice(network, projector)),
+            ..req.clone()
+        };
+        &resolved
+    } else {
+        req
+    };
     let ntrain = train_count(setup, req, variant)?;
     let data = load_training(setup, variant.is_none(), ntrain)?;
     match (variant, req.method) {
@@ -296,4 +331,43 @@ fn common_record(
         final_loss: final_loss.is_finite().then_some(final_loss),
         ..TrainingRecord::default()
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_lattice_is_the_projectors_within_the_budget() {
+        let net = ImageSize::new(256, 256);
+        // Known projector within the budget: its own resolution.
+        let p = ImageSize::new(800, 600);
+        assert_eq!(default_lattice(net, Some(p)), p);
+        assert_eq!(
+            default_lattice(net, Some(ImageSize::new(1920, 1080))),
+            ImageSize::new(1920, 1080)
+        );
+        // 4K: scaled to the budget, aspect kept, sides multiples of 4.
+        let l = default_lattice(net, Some(ImageSize::new(3840, 2160)));
+        assert_eq!(l, ImageSize::new(1920, 1080));
+        let l = default_lattice(net, Some(ImageSize::new(4096, 2160)));
+        assert!(
+            l.width * l.height <= LATTICE_BUDGET + 4 * (l.width + l.height),
+            "{l}"
+        );
+        assert!(
+            l.width.is_multiple_of(4) && l.height.is_multiple_of(4),
+            "{l}"
+        );
+        assert!(
+            (l.width as f64 / l.height as f64 - 4096.0 / 2160.0).abs() < 0.01,
+            "{l}"
+        );
+        // Unknown projector: 1.5× the network, rounded up to a multiple of 4.
+        assert_eq!(default_lattice(net, None), ImageSize::new(384, 384));
+        assert_eq!(
+            default_lattice(ImageSize::new(30, 22), None),
+            ImageSize::new(48, 36)
+        );
+    }
 }

@@ -18,6 +18,7 @@ struct Params {
     camera: [u32; 2],
     network: [u32; 2],
     camera_gamma: [f32; 4],
+    camera_inv_gamma: [f32; 4],
     projector_inv_gamma: [f32; 4],
 }
 
@@ -45,12 +46,18 @@ impl LinearStage {
             )));
         }
         let c = &model.curves;
-        // 1/γ in f32, exactly as Curves::projector_input computes it.
+        // 1/γ in f32, exactly as Curves::projector_input and the gamut map compute it.
         let inv = |g: f32| 1.0 / g;
         let params = Params {
             camera: [camera_size.width as u32, camera_size.height as u32],
             network: [nw as u32, nh as u32],
             camera_gamma: [c.camera_gamma[0], c.camera_gamma[1], c.camera_gamma[2], 0.0],
+            camera_inv_gamma: [
+                inv(c.camera_gamma[0]),
+                inv(c.camera_gamma[1]),
+                inv(c.camera_gamma[2]),
+                0.0,
+            ],
             projector_inv_gamma: [
                 inv(c.projector_gamma[0]),
                 inv(c.projector_gamma[1]),

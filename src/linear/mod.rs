@@ -4,7 +4,9 @@
 //! For network pixel `p`, the warped capture `w = x̃(g_p)` (camera values, sRGB-encoded as
 //! captured) is linearised per channel by the camera curve `f_c(v) = v^γc`; the model predicts the
 //! projector's linear light `ℓ = M_p f_c(w) + b_p` (3×3 matrix + offset per pixel) and the projector
-//! input value through the inverse projector curve `x̂ = f_p⁻¹(ℓ) = clamp(ℓ, 0, 1)^(1/γp)`. Physically,
+//! input value through the inverse projector curve `x̂ = f_p⁻¹(ℓ)`, where `ℓ` is in [0, 1]³
+//! (`gamut` maps an `ℓ` outside it to the reachable colour closest in camera-encoded values, as
+//! PSNR measures; `f_p⁻¹(ℓ) = ℓ^(1/γp)`). Physically,
 //! a projector pixel's light reaches its camera pixel scaled by surface reflectance and mixed by the
 //! projector and camera primaries, plus ambient light: affine in linear light, which is what the
 //! per-pixel model inverts; the global curves stand in for the devices' response curves.
@@ -33,6 +35,7 @@
 mod colour;
 mod curve;
 mod fit;
+mod gamut;
 mod geometry;
 mod model;
 mod normal;

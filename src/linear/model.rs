@@ -173,9 +173,15 @@ pub fn apply_colour(warped: &NetImage, curves: &Curves, coeffs: &Coefficients) -
             curves.camera_linear(1, px[1]),
             curves.camera_linear(2, px[2]),
         ];
+        let mut l = [0f32; 3];
         for c in 0..3 {
-            let l = k[c * 3] * a[0] + k[c * 3 + 1] * a[1] + k[c * 3 + 2] * a[2] + k[9 + c];
-            px[c] = curves.projector_input(c, l);
+            l[c] = k[c * 3] * a[0] + k[c * 3 + 1] * a[1] + k[c * 3 + 2] * a[2] + k[9 + c];
+        }
+        if l.iter().any(|&v| !(0.0..=1.0).contains(&v)) {
+            l = super::gamut::nearest_reachable(k, l, [px[0], px[1], px[2]], curves.camera_gamma);
+        }
+        for c in 0..3 {
+            px[c] = curves.projector_input(c, l[c]);
         }
     }
     out

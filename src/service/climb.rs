@@ -112,6 +112,11 @@ fn climb(
 ) -> Result<Outcome> {
     let t = Instant::now();
     let setup = Setup::open(&p.setup, Some(&p.root))?;
+    let installed = Model::load(&p.model)?;
+    // The residual rung's linear part on the installed model's lattice, so the two compare as
+    // the same output resolution.
+    let residual =
+        crate::nn::compennetpp::Variant::from_method(p.method.name()).is_some_and(|v| v.residual());
     let req = fit::Request {
         method: MethodChoice::Rung(p.method),
         ntrain: None,
@@ -119,7 +124,8 @@ fn climb(
         iters: p.iters,
         batch: None,
         device: Default::default(),
-        lattice: None,
+        lattice: residual.then_some(installed.meta.network_size),
+        projector: None,
         photometric: Default::default(),
         cancel: Some(cancel.clone()),
         climb_gain_db: None,
@@ -127,7 +133,6 @@ fn climb(
     let (mut model, _) = fit::fit(&setup, &req, |_, _, _| {})?;
     let pairs = setup.load_test(None)?;
     let (new, _) = crate::model::paper_protocol(&model, &pairs)?;
-    let installed = Model::load(&p.model)?;
     let (old, _) = crate::model::paper_protocol(&installed, &pairs)?;
     let record = ClimbRecord {
         replaced: installed.meta.method.name().to_string(),

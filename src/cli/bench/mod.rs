@@ -301,6 +301,7 @@ impl SceneBench<'_> {
             batch: args.batch,
             device: Default::default(),
             lattice: None,
+            projector: None,
             photometric: Default::default(),
             cancel: None,
             climb_gain_db: None,
