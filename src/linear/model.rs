@@ -166,23 +166,32 @@ impl SimplifiedLinear {
 
 /// Applies curves and per-pixel coefficients to an already warped image.
 pub fn apply_colour(warped: &NetImage, curves: &Curves, coeffs: &Coefficients) -> NetImage {
+    use rayon::prelude::*;
     let mut out = warped.clone();
-    for (px, k) in out.data_mut().chunks_exact_mut(3).zip(&coeffs.data) {
-        let a = [
-            curves.camera_linear(0, px[0]),
-            curves.camera_linear(1, px[1]),
-            curves.camera_linear(2, px[2]),
-        ];
-        let mut l = [0f32; 3];
-        for c in 0..3 {
-            l[c] = k[c * 3] * a[0] + k[c * 3 + 1] * a[1] + k[c * 3 + 2] * a[2] + k[9 + c];
-        }
-        if l.iter().any(|&v| !(0.0..=1.0).contains(&v)) {
-            l = super::gamut::nearest_reachable(k, l, [px[0], px[1], px[2]], curves.camera_gamma);
-        }
-        for c in 0..3 {
-            px[c] = curves.projector_input(c, l[c]);
-        }
-    }
+    out.data_mut()
+        .par_chunks_exact_mut(3)
+        .zip(coeffs.data.par_iter())
+        .for_each(|(px, k)| {
+            let a = [
+                curves.camera_linear(0, px[0]),
+                curves.camera_linear(1, px[1]),
+                curves.camera_linear(2, px[2]),
+            ];
+            let mut l = [0f32; 3];
+            for (c, v) in l.iter_mut().enumerate() {
+                *v = k[c * 3] * a[0] + k[c * 3 + 1] * a[1] + k[c * 3 + 2] * a[2] + k[9 + c];
+            }
+            if l.iter().any(|&v| !(0.0..=1.0).contains(&v)) {
+                l = super::gamut::nearest_reachable(
+                    k,
+                    l,
+                    [px[0], px[1], px[2]],
+                    curves.camera_gamma,
+                );
+            }
+            for c in 0..3 {
+                px[c] = curves.projector_input(c, l[c]);
+            }
+        });
     out
 }
