@@ -187,21 +187,11 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
 /// images are on linear's lattice, and after a short training it is no worse than `linear`.
 fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
     let linear = dir.join("linear-for-res");
-    let out = compend(&[
-        "train",
-        "--setup",
-        setup.to_str().unwrap(),
-        "--method",
-        "linear",
-        "--out",
-        linear.to_str().unwrap(),
-    ]);
-    assert_code(&out, 0);
+    train_linear(setup, &linear);
     let (lin, _) = compensated_and_uncompensated(&eval_json(&linear, setup));
     let res1 = dir.join("res-1");
     train_cnn(setup, "compennet++-res", "1", &res1, false);
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(res1.join("model.json")).unwrap()).unwrap();
+    let meta = model_json(&res1);
     // The model's output lattice is linear's (by default the projector's resolution, NET×NET
     // here), not the network's half.
     assert_eq!(meta["network_size"], serde_json::json!([NET, NET]));
@@ -243,9 +233,27 @@ fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
         fine.to_str().unwrap(),
     ]);
     assert_code(&out, 0);
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(fine.join("model.json")).unwrap()).unwrap();
+    let meta = model_json(&fine);
     assert_eq!(meta["network_size"], serde_json::json!([40, 40]));
+}
+
+/// Trains `linear` with the default settings through the CLI into `out`, expecting success.
+fn train_linear(setup: &Path, out: &Path) {
+    let o = compend(&[
+        "train",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--method",
+        "linear",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_code(&o, 0);
+}
+
+/// A model directory's `model.json`.
+fn model_json(model: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap()
 }
 
 /// Trains `method` through the CLI with `--iters` and batch 4 into `out`, expecting success;
@@ -300,8 +308,7 @@ fn compennet_faster_trains_and_compensates(dir: &Path, setup: &Path) -> PathBuf 
         summary["ntrain"], 12,
         "the variant's 48 capped at the 12 available"
     );
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    let meta = model_json(&model);
     assert_eq!(meta["method"], "compennet++-faster");
     assert_eq!(meta["training"]["iterations"], 40);
     assert_eq!(meta["training"]["lr_step"], 32);
@@ -345,8 +352,7 @@ fn compensate(model: &Path, setup: &Path, out: &Path) {
 fn compennet_cpu_works_at_half_the_network_side(dir: &Path, setup: &Path) {
     let small = dir.join("cnn-cpu");
     train_cnn(setup, "compennet++-cpu", "150", &small, false);
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(small.join("model.json")).unwrap()).unwrap();
+    let meta = model_json(&small);
     assert_eq!(meta["network_size"], serde_json::json!([NET / 2, NET / 2]));
     let (c, u) = compensated_and_uncompensated(&eval_json(&small, setup));
     assert!(
@@ -400,8 +406,7 @@ fn train_auto(setup: &Path, model: &Path, extra: &[&str]) -> serde_json::Value {
     let out = compend(&args);
     assert_code(&out, 0);
     let summary: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    let meta = model_json(model);
     // What was chosen is what was saved and reported.
     assert_eq!(meta["method"], meta["training"]["auto"]["chosen"], "{meta}");
     assert_eq!(summary["method"], meta["method"]);
@@ -507,8 +512,7 @@ fn a_native_lattice_is_the_projectors_resolution() {
         ])
     };
     assert_code(&run(&model), 0);
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    let meta = model_json(&model);
     // The test setup's structured light is NET×NET: the projector frame is the canvas.
     assert_eq!(meta["network_size"], serde_json::json!([NET, NET]));
     // Without the patterns that give the projector's size: exit 2, naming what is missing.
@@ -522,18 +526,8 @@ fn a_native_lattice_is_the_projectors_resolution() {
     );
     // The default lattice is then 1.5× the network: the projector's size is not known.
     let default = dir.path().join("default");
-    let o = compend(&[
-        "train",
-        "--setup",
-        setup.to_str().unwrap(),
-        "--method",
-        "linear",
-        "--out",
-        default.to_str().unwrap(),
-    ]);
-    assert_code(&o, 0);
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(default.join("model.json")).unwrap()).unwrap();
+    train_linear(&setup, &default);
+    let meta = model_json(&default);
     assert_eq!(
         meta["network_size"],
         serde_json::json!([NET * 3 / 2, NET * 3 / 2])
