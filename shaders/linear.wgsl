@@ -128,71 +128,102 @@ struct Solution {
     ok: bool,
 }
 
-// argmin over x in [0, 1]³ of (x − u)ᵀ Q (x − u): every assignment of each coordinate to free,
-// 0 or 1, the free ones from the stationarity equations, the feasible point of least cost
+// The point of one assignment (per coordinate: 0 free, 1 held at 0, 2 held at 1): the free
+// coordinates from the stationarity equations; not ok outside [0, 1]³ or when they are singular
+// (compend::linear::gamut::candidate).
+fn candidate(q_in: array<vec3<f32>, 3>, u: vec3<f32>, state_in: vec3<u32>) -> Solution {
+    var q = q_in;
+    var state = state_in;
+    var out: Solution;
+    out.ok = false;
+    var x = u;
+    var nfree = 0u;
+    var free = vec2<u32>(0u, 0u);
+    for (var c = 0u; c < 3u; c++) {
+        if (state[c] == 1u) {
+            x[c] = 0.0;
+        } else if (state[c] == 2u) {
+            x[c] = 1.0;
+        } else {
+            if (nfree < 2u) {
+                free[nfree] = c;
+            }
+            nfree += 1u;
+        }
+    }
+    // −Q_fc (x_c − u_c) for every row.
+    var r = vec3<f32>(0.0);
+    for (var i = 0u; i < 3u; i++) {
+        var acc = 0.0;
+        for (var c = 0u; c < 3u; c++) {
+            if (state[c] != 0u) {
+                acc += q[i][c] * (x[c] - u[c]);
+            }
+        }
+        r[i] = -acc;
+    }
+    if (nfree == 1u) {
+        let i = free.x;
+        if (q[i][i] <= 0.0) {
+            return out;
+        }
+        x[i] = u[i] + r[i] / q[i][i];
+    } else if (nfree == 2u) {
+        let i = free.x;
+        let j = free.y;
+        let det = q[i][i] * q[j][j] - q[i][j] * q[j][i];
+        if (det <= 0.0) {
+            return out;
+        }
+        x[i] = u[i] + (r[i] * q[j][j] - q[i][j] * r[j]) / det;
+        x[j] = u[j] + (q[i][i] * r[j] - q[j][i] * r[i]) / det;
+    }
+    // Also rejects NaN.
+    out.ok = all(x >= vec3<f32>(0.0)) && all(x <= vec3<f32>(1.0));
+    out.x = x;
+    return out;
+}
+
+// The optimality conditions at a feasible point of an assignment: the gradient Q (x − u) pushes
+// every held coordinate against its bound (compend::linear::gamut::optimal).
+fn optimal(q_in: array<vec3<f32>, 3>, u: vec3<f32>, x: vec3<f32>, state_in: vec3<u32>) -> bool {
+    var q = q_in;
+    var state = state_in;
+    let d = x - u;
+    for (var c = 0u; c < 3u; c++) {
+        let g = q[c][0] * d.x + q[c][1] * d.y + q[c][2] * d.z;
+        if ((state[c] == 1u && !(g >= 0.0)) || (state[c] == 2u && !(g <= 0.0))) {
+            return false;
+        }
+    }
+    return true;
+}
+
+// argmin over x in [0, 1]³ of (x − u)ᵀ Q (x − u): first the assignment clamping u suggests, kept
+// when it is optimal; otherwise every assignment, the feasible point of least cost
 // (compend::linear::gamut::box_least_squares).
 fn box_least_squares(q_in: array<vec3<f32>, 3>, u: vec3<f32>) -> Solution {
     var q = q_in;
+    let guess = select(select(vec3<u32>(0u), vec3<u32>(2u), u > vec3<f32>(1.0)), vec3<u32>(1u), u < vec3<f32>(0.0));
+    let first = candidate(q, u, guess);
+    if (first.ok && optimal(q, u, first.x, guess)) {
+        return first;
+    }
     var best: Solution;
     best.ok = false;
     var best_cost = 0.0;
     for (var s = 0u; s < 27u; s++) {
-        // Per coordinate: 0 free, 1 held at 0, 2 held at 1.
-        var state = vec3<u32>(s % 3u, (s / 3u) % 3u, s / 9u);
-        var x = u;
-        var nfree = 0u;
-        var free = vec2<u32>(0u, 0u);
-        for (var c = 0u; c < 3u; c++) {
-            if (state[c] == 1u) {
-                x[c] = 0.0;
-            } else if (state[c] == 2u) {
-                x[c] = 1.0;
-            } else {
-                if (nfree < 2u) {
-                    free[nfree] = c;
-                }
-                nfree += 1u;
-            }
-        }
-        // −Q_fc (x_c − u_c) for every row.
-        var r = vec3<f32>(0.0);
-        for (var i = 0u; i < 3u; i++) {
-            var acc = 0.0;
-            for (var c = 0u; c < 3u; c++) {
-                if (state[c] != 0u) {
-                    acc += q[i][c] * (x[c] - u[c]);
-                }
-            }
-            r[i] = -acc;
-        }
-        if (nfree == 1u) {
-            let i = free.x;
-            if (q[i][i] <= 0.0) {
-                continue;
-            }
-            x[i] = u[i] + r[i] / q[i][i];
-        } else if (nfree == 2u) {
-            let i = free.x;
-            let j = free.y;
-            let det = q[i][i] * q[j][j] - q[i][j] * q[j][i];
-            if (det <= 0.0) {
-                continue;
-            }
-            x[i] = u[i] + (r[i] * q[j][j] - q[i][j] * r[j]) / det;
-            x[j] = u[j] + (q[i][i] * r[j] - q[j][i] * r[i]) / det;
-        }
-        // Also rejects NaN.
-        if (!(all(x >= vec3<f32>(0.0)) && all(x <= vec3<f32>(1.0)))) {
+        let cand = candidate(q, u, vec3<u32>(s % 3u, (s / 3u) % 3u, s / 9u));
+        if (!cand.ok) {
             continue;
         }
-        let d = x - u;
+        let d = cand.x - u;
         var cost = 0.0;
         for (var i = 0u; i < 3u; i++) {
             cost += d[i] * (q[i][0] * d.x + q[i][1] * d.y + q[i][2] * d.z);
         }
         if (!best.ok || cost < best_cost) {
-            best.ok = true;
-            best.x = x;
+            best = cand;
             best_cost = cost;
         }
     }

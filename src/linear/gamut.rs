@@ -114,53 +114,32 @@ fn weighted_gram(a: &M3, w: [f32; 3]) -> M3 {
 }
 
 /// `argmin over x in [0, 1]³ of (x − u)ᵀ Q (x − u)` for a symmetric positive (semi)definite `Q`.
-/// Every assignment of each coordinate to free, 0 or 1 is tried: the free ones solve the
-/// stationarity equations `Q_ff (x_f − u_f) = −Q_fc (x_c − u_c)`, and the feasible point of
-/// least cost is the minimum (the problem is convex, so its minimum is one of them). `None` if
-/// no assignment gives a feasible point (only with a degenerate `Q`).
+/// First the assignment clamping `u` suggests (each coordinate outside [0, 1] held at the bound
+/// it crossed, the others free): where its point satisfies the optimality conditions it is the
+/// minimum, which is the common case. Otherwise every assignment of each coordinate to free, 0
+/// or 1 is tried and the feasible point of least cost kept (the problem is convex, so its
+/// minimum is one of them). `None` if no assignment gives a feasible point (only with a
+/// degenerate `Q`).
 pub fn box_least_squares(q: &M3, u: [f32; 3]) -> Option<[f32; 3]> {
+    let guess = u.map(|v| {
+        if v < 0.0 {
+            1
+        } else if v > 1.0 {
+            2
+        } else {
+            0
+        }
+    });
+    if let Some(x) = candidate(q, u, guess)
+        && optimal(q, u, x, guess)
+    {
+        return Some(x);
+    }
     let mut best: Option<(f32, [f32; 3])> = None;
     for s in 0..27u32 {
-        // Per coordinate: 0 free, 1 held at 0, 2 held at 1.
-        let state = [s % 3, (s / 3) % 3, s / 9];
-        let mut x: [f32; 3] = std::array::from_fn(|c| match state[c] {
-            1 => 0.0,
-            2 => 1.0,
-            _ => u[c],
-        });
-        // The right-hand side −Q_fc (x_c − u_c) for every row.
-        let r: [f32; 3] = std::array::from_fn(|i| {
-            -(0..3)
-                .filter(|&c| state[c] != 0)
-                .map(|c| q[i][c] * (x[c] - u[c]))
-                .sum::<f32>()
-        });
-        let (mut free, mut nfree) = ([0usize; 3], 0);
-        for c in (0..3).filter(|&c| state[c] == 0) {
-            free[nfree] = c;
-            nfree += 1;
-        }
-        match (nfree, free) {
-            (1, [i, ..]) => {
-                if q[i][i] <= 0.0 {
-                    continue;
-                }
-                x[i] = u[i] + r[i] / q[i][i];
-            }
-            (2, [i, j, _]) => {
-                let det = q[i][i] * q[j][j] - q[i][j] * q[j][i];
-                if det <= 0.0 {
-                    continue;
-                }
-                x[i] = u[i] + (r[i] * q[j][j] - q[i][j] * r[j]) / det;
-                x[j] = u[j] + (q[i][i] * r[j] - q[j][i] * r[i]) / det;
-            }
-            // All held (a corner), or all free (u itself).
-            _ => {}
-        }
-        if x.iter().any(|v| !(0.0..=1.0).contains(v)) {
+        let Some(x) = candidate(q, u, [s % 3, (s / 3) % 3, s / 9]) else {
             continue;
-        }
+        };
         let d = [x[0] - u[0], x[1] - u[1], x[2] - u[2]];
         let cost: f32 = (0..3)
             .map(|i| d[i] * (0..3).map(|j| q[i][j] * d[j]).sum::<f32>())
@@ -170,6 +149,62 @@ pub fn box_least_squares(q: &M3, u: [f32; 3]) -> Option<[f32; 3]> {
         }
     }
     best.map(|(_, x)| x)
+}
+
+/// The point of one assignment (`state`, per coordinate: 0 free, 1 held at 0, 2 held at 1): the
+/// free coordinates solve the stationarity equations `Q_ff (x_f − u_f) = −Q_fc (x_c − u_c)`.
+/// `None` when it is not in [0, 1]³ or the equations are singular.
+fn candidate(q: &M3, u: [f32; 3], state: [u32; 3]) -> Option<[f32; 3]> {
+    let mut x: [f32; 3] = std::array::from_fn(|c| match state[c] {
+        1 => 0.0,
+        2 => 1.0,
+        _ => u[c],
+    });
+    // The right-hand side −Q_fc (x_c − u_c) for every row.
+    let r: [f32; 3] = std::array::from_fn(|i| {
+        -(0..3)
+            .filter(|&c| state[c] != 0)
+            .map(|c| q[i][c] * (x[c] - u[c]))
+            .sum::<f32>()
+    });
+    let (mut free, mut nfree) = ([0usize; 3], 0);
+    for c in (0..3).filter(|&c| state[c] == 0) {
+        free[nfree] = c;
+        nfree += 1;
+    }
+    match (nfree, free) {
+        (1, [i, ..]) => {
+            if q[i][i] <= 0.0 {
+                return None;
+            }
+            x[i] = u[i] + r[i] / q[i][i];
+        }
+        (2, [i, j, _]) => {
+            let det = q[i][i] * q[j][j] - q[i][j] * q[j][i];
+            if det <= 0.0 {
+                return None;
+            }
+            x[i] = u[i] + (r[i] * q[j][j] - q[i][j] * r[j]) / det;
+            x[j] = u[j] + (q[i][i] * r[j] - q[j][i] * r[i]) / det;
+        }
+        // All held (a corner), or all free (u itself).
+        _ => {}
+    }
+    x.iter().all(|v| (0.0..=1.0).contains(v)).then_some(x)
+}
+
+/// The optimality (KKT) conditions at a feasible point of assignment `state`: the gradient
+/// `Q (x − u)` pushes every held coordinate against its bound (free ones are stationary by
+/// construction). Sufficient for the minimum, the problem being convex.
+fn optimal(q: &M3, u: [f32; 3], x: [f32; 3], state: [u32; 3]) -> bool {
+    (0..3).all(|c| {
+        let g: f32 = (0..3).map(|j| q[c][j] * (x[j] - u[j])).sum();
+        match state[c] {
+            1 => g >= 0.0,
+            2 => g <= 0.0,
+            _ => true,
+        }
+    })
 }
 
 #[cfg(test)]
