@@ -129,7 +129,7 @@ pub struct ExportArgs {
     /// model's recorded exposure (a factor of the scene's) and the desired images scaled into
     /// the display range calibrate found (instead of --desired-range), so that `sim score` of
     /// the model's compensation images asks of it what calibrate's verification asked.
-    #[arg(long, value_name = "MODEL")]
+    #[arg(long, value_name = "MODEL", conflicts_with = "desired_range")]
     pub as_calibrated: Option<PathBuf>,
     /// Print the setup's record (rig.json) on stdout.
     #[arg(long)]

@@ -155,7 +155,8 @@ pub(super) fn learned_grid(
 impl SimplifiedLinear {
     /// The CPU reference of the `linear` compensation pass: sample the camera-view image through
     /// the baked grid (bilinear, align-corners, zero outside), apply the per-pixel affine colour
-    /// model in linear light, map back through the inverse projector curve and clamp to [0, 1].
+    /// model in linear light, bring light outside [0, 1]³ to the closest reachable
+    /// (`linear::gamut`) and map back through the inverse projector curve.
     /// Input: a camera-space image (a capture x̃, or a desired viewer image z'); output: the
     /// network-space projector image.
     pub fn apply(&self, input: &CamImage) -> NetImage {
@@ -164,7 +165,9 @@ impl SimplifiedLinear {
     }
 }
 
-/// Applies curves and per-pixel coefficients to an already warped image.
+/// Applies curves and per-pixel coefficients to an already warped image (camera values in,
+/// projector input values out, network or lattice pixels), with the gamut map where the model's
+/// light leaves [0, 1]³.
 pub fn apply_colour(warped: &NetImage, curves: &Curves, coeffs: &Coefficients) -> NetImage {
     use rayon::prelude::*;
     let mut out = warped.clone();
