@@ -11,7 +11,7 @@ use std::time::Duration;
 use compend::model::Model;
 use compend::raster::{ImageSize, Rgb};
 
-use crate::common::{assert_code, compend, stderr};
+use crate::common::{assert_code, compend, stderr, train_linear};
 use crate::train::make_setup;
 
 /// Every file under `dir` (relative path → bytes).
@@ -34,18 +34,6 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     out
 }
 
-fn train_to(setup: &Path, out: &Path) -> std::process::Output {
-    compend(&[
-        "train",
-        "--setup",
-        setup.to_str().unwrap(),
-        "--method",
-        "linear",
-        "--out",
-        out.to_str().unwrap(),
-    ])
-}
-
 #[test]
 fn train_out_refuses_anything_but_a_model_directory_before_any_work() {
     let dir = tempfile::tempdir().unwrap();
@@ -66,7 +54,7 @@ fn train_out_refuses_anything_but_a_model_directory_before_any_work() {
         (&file, "is a file"),
         (&link, "symbolic link"),
     ] {
-        let o = train_to(&setup, out);
+        let o = train_linear(&setup, out);
         assert_code(&o, 2);
         let err = stderr(&o);
         assert!(
@@ -95,17 +83,17 @@ fn train_out_refuses_anything_but_a_model_directory_before_any_work() {
     }
 
     // An output folder that cannot be created: exit 2 before the fit.
-    let o = train_to(&setup, &file.join("sub/model"));
+    let o = train_linear(&setup, &file.join("sub/model"));
     assert_code(&o, 2);
     assert!(stderr(&o).contains("model-file"), "{}", stderr(&o));
 
     // A model directory and an empty folder may be replaced.
     let model = dir.path().join("model");
-    assert_code(&train_to(&setup, &model), 0);
-    assert_code(&train_to(&setup, &model), 0);
+    assert_code(&train_linear(&setup, &model), 0);
+    assert_code(&train_linear(&setup, &model), 0);
     let empty = dir.path().join("empty");
     fs::create_dir(&empty).unwrap();
-    assert_code(&train_to(&setup, &empty), 0);
+    assert_code(&train_linear(&setup, &empty), 0);
     Model::load(&empty).unwrap();
 }
 
@@ -114,7 +102,7 @@ fn a_killed_save_leaves_the_previous_model_and_the_next_run_cleans_up() {
     let dir = tempfile::tempdir().unwrap();
     let setup = make_setup(dir.path(), 6, 1);
     let model = dir.path().join("model");
-    assert_code(&train_to(&setup, &model), 0);
+    assert_code(&train_linear(&setup, &model), 0);
     let good = snapshot(&model);
 
     // What a save killed half-way leaves: a temporary sibling of a process that is gone.
@@ -147,7 +135,7 @@ fn a_killed_save_leaves_the_previous_model_and_the_next_run_cleans_up() {
         Model::load(&model).unwrap_or_else(|e| panic!("killed after {delay_ms} ms: {e}"));
     }
     // The next complete run removes every leftover, its own and the dead processes'.
-    assert_code(&train_to(&setup, &model), 0);
+    assert_code(&train_linear(&setup, &model), 0);
     let left: Vec<String> = fs::read_dir(dir.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
@@ -206,7 +194,7 @@ fn suspect_inputs_are_named_not_silently_accepted() {
     rgba.save(&cap).unwrap();
     // A missing gray surface capture: the linear rungs train, with a warning.
     fs::remove_file(setup.join("cam/raw/ref/img_0126.png")).unwrap();
-    let o = train_to(&setup, &m);
+    let o = train_linear(&setup, &m);
     assert_code(&o, 0);
     let err = stderr(&o);
     assert!(
@@ -241,7 +229,7 @@ fn a_wrong_size_size_setter_is_blamed_not_the_good_images() {
     // The black reference sets the camera size; make it the odd one out.
     let black = setup.join("cam/raw/ref/img_0001.png");
     compend::pngio::write_rgb(&black, &Rgb::<compend::raster::Camera>::new(10, 10)).unwrap();
-    let o = train_to(&setup, &dir.path().join("m"));
+    let o = train_linear(&setup, &dir.path().join("m"));
     assert_code(&o, 2);
     let err = stderr(&o);
     assert!(err.contains("img_0001.png: image is 10x10"), "{err}");

@@ -10,7 +10,7 @@ use compend::raster::{ImageSize, NetImage};
 use rand::SeedableRng;
 use rand::rngs::ChaCha8Rng;
 
-use crate::common::{assert_code, compend, stderr, stdout};
+use crate::common::{assert_code, compend, stderr, stdout, train_linear};
 use crate::linear::{NET, System, texture};
 
 /// Writes ROOT/{train,test,sl} and ROOT/setup/cam/raw/{ref,train,test,sl} + cam/desire/test.
@@ -187,7 +187,7 @@ fn compennet_trains_saves_loads_and_compensates_through_the_cli() {
 /// images are on linear's lattice, and after a short training it is no worse than `linear`.
 fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
     let linear = dir.join("linear-for-res");
-    train_linear(setup, &linear);
+    assert_code(&train_linear(setup, &linear), 0);
     let (lin, _) = compensated_and_uncompensated(&eval_json(&linear, setup));
     let res1 = dir.join("res-1");
     train_cnn(setup, "compennet++-res", "1", &res1, false);
@@ -235,20 +235,6 @@ fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
     assert_code(&out, 0);
     let meta = model_json(&fine);
     assert_eq!(meta["network_size"], serde_json::json!([40, 40]));
-}
-
-/// Trains `linear` with the default settings through the CLI into `out`, expecting success.
-fn train_linear(setup: &Path, out: &Path) {
-    let o = compend(&[
-        "train",
-        "--setup",
-        setup.to_str().unwrap(),
-        "--method",
-        "linear",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert_code(&o, 0);
 }
 
 /// A model directory's `model.json`.
@@ -526,7 +512,7 @@ fn a_native_lattice_is_the_projectors_resolution() {
     );
     // The default lattice is then 1.5× the network: the projector's size is not known.
     let default = dir.path().join("default");
-    train_linear(&setup, &default);
+    assert_code(&train_linear(&setup, &default), 0);
     let meta = model_json(&default);
     assert_eq!(
         meta["network_size"],

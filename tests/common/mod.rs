@@ -14,6 +14,19 @@ pub fn compend(args: &[&str]) -> Output {
 }
 
 /// Runs `compend` in `dir`.
+/// `compend train --method linear` with its defaults on `setup` into `out`.
+pub fn train_linear(setup: &Path, out: &Path) -> Output {
+    compend(&[
+        "train",
+        "--setup",
+        setup.to_str().expect("utf-8 path"),
+        "--method",
+        "linear",
+        "--out",
+        out.to_str().expect("utf-8 path"),
+    ])
+}
+
 pub fn compend_in(dir: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_compend"))
         .current_dir(dir)
