@@ -42,10 +42,8 @@ pub(super) fn train_compennet(
     let linear = if variant.residual() {
         let settings = FitSettings {
             network_size: targets[0].size(),
-            lattice: Some(
-                req.lattice
-                    .unwrap_or_else(|| super::default_lattice(targets[0].size(), None)),
-            ),
+            // Resolved by `fit` (the default lattice when none was asked for).
+            lattice: req.lattice,
             ..FitSettings::default()
         };
         let (linear, _) = crate::linear::fit(

@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use super::{Request, Summary, TrainingData, common_record, default_lattice, sl_grid};
+use super::{Request, Summary, TrainingData, common_record, sl_grid};
 use crate::dataset::{CaptureSet, Setup};
 use crate::error::{Error, Result};
 use crate::linear::{self, FitSettings};
@@ -82,14 +82,12 @@ pub(super) fn fit_linear(
     Ok((Model::linear(meta, fov.mask, fitted), summary))
 }
 
-/// The linear rungs' fit settings: the request's output lattice, else [`default_lattice`].
+/// The linear rungs' fit settings: the request's output lattice ([`super::fit`] has set it to
+/// [`super::default_lattice`] when none was asked for).
 fn settings(req: &Request, network_size: crate::raster::ImageSize) -> FitSettings {
     FitSettings {
         network_size,
-        lattice: Some(
-            req.lattice
-                .unwrap_or_else(|| default_lattice(network_size, None)),
-        ),
+        lattice: req.lattice,
         ..FitSettings::default()
     }
 }
