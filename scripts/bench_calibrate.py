@@ -23,6 +23,10 @@ import sys
 import time
 
 
+# Written into each run's folder: only folders holding it are replaced by a later run.
+MARKER = ".bench_calibrate"
+
+
 def run(cmd, capture=True):
     """Runs `cmd`; its stdout when `capture`. Exits with the command's code on failure."""
     p = subprocess.run(cmd, stdout=subprocess.PIPE if capture else None, stderr=subprocess.PIPE, text=True)
@@ -36,7 +40,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", metavar="SCENE:SEED")
     ap.add_argument("--bin", default=os.path.join(os.environ.get("CARGO_TARGET_DIR", "target"), "release", "compend"))
-    ap.add_argument("--out", default="bench-calibrate", help="working folder (replaced per run)")
+    ap.add_argument("--out", default="bench-calibrate",
+                    help="working folder; OUT/SCENE-SEED is replaced per run, if this script made it")
     ap.add_argument("--latency-ms", default="100,250", help="latencies to cycle through, ms")
     ap.add_argument("--fps", default="30", help="virtual camera rate, Hz")
     ap.add_argument("--method", default="linear")
@@ -53,7 +58,14 @@ def main():
             sys.exit(f"bench_calibrate: {spec!r}: expected SCENE:SEED, e.g. curved:88")
         latency = latencies[k % len(latencies)]
         work = os.path.join(a.out, f"{scene}-{seed}")
-        shutil.rmtree(work, ignore_errors=True)
+        marker = os.path.join(work, MARKER)
+        if os.path.exists(work):
+            if not os.path.isfile(marker):
+                sys.exit(f"bench_calibrate: {work} exists and was not made by this script; "
+                         "choose another --out or move it")
+            shutil.rmtree(work)
+        os.makedirs(work)
+        open(marker, "w").close()
         data, model = os.path.join(work, "calibration"), os.path.join(work, "model")
         t = time.monotonic()
         rec = json.loads(run([a.bin, "calibrate", "--rig", f"virtual:{scene}", "--seed", seed,
