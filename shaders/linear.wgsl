@@ -128,10 +128,10 @@ struct Solution {
     ok: bool,
 }
 
-// The point of one assignment (per coordinate: 0 free, 1 held at 0, 2 held at 1): the free
-// coordinates from the stationarity equations; not ok outside [0, 1]³ or when they are singular
-// (compend::linear::gamut::candidate).
-fn candidate(q_in: array<vec3<f32>, 3>, u: vec3<f32>, state_in: vec3<u32>) -> Solution {
+// The point of one assignment (per coordinate: 0 free, 1 held at 0, 2 held at 1): the held
+// coordinates at their bounds, the free ones from the stationarity equations, whether or not
+// that lands in [0, 1]; not ok when they are singular (compend::linear::gamut::solve).
+fn solve(q_in: array<vec3<f32>, 3>, u: vec3<f32>, state_in: vec3<u32>) -> Solution {
     var q = q_in;
     var state = state_in;
     var out: Solution;
@@ -178,20 +178,29 @@ fn candidate(q_in: array<vec3<f32>, 3>, u: vec3<f32>, state_in: vec3<u32>) -> So
         x[i] = u[i] + (r[i] * q[j][j] - q[i][j] * r[j]) / det;
         x[j] = u[j] + (q[i][i] * r[j] - q[j][i] * r[i]) / det;
     }
-    // Also rejects NaN.
-    out.ok = all(x >= vec3<f32>(0.0)) && all(x <= vec3<f32>(1.0));
+    out.ok = true;
     out.x = x;
     return out;
 }
 
+// Inside [0, 1]³; NaN is not (compend::linear::gamut::feasible).
+fn feasible(x: vec3<f32>) -> bool {
+    return all(x >= vec3<f32>(0.0)) && all(x <= vec3<f32>(1.0));
+}
+
+// The gradient Q (x − u), one coordinate.
+fn gradient(q: array<vec3<f32>, 3>, d: vec3<f32>, c: u32) -> f32 {
+    var row = q;
+    return row[c].x * d.x + row[c].y * d.y + row[c].z * d.z;
+}
+
 // The optimality conditions at a feasible point of an assignment: the gradient Q (x − u) pushes
 // every held coordinate against its bound (compend::linear::gamut::optimal).
-fn optimal(q_in: array<vec3<f32>, 3>, u: vec3<f32>, x: vec3<f32>, state_in: vec3<u32>) -> bool {
-    var q = q_in;
+fn optimal(q: array<vec3<f32>, 3>, u: vec3<f32>, x: vec3<f32>, state_in: vec3<u32>) -> bool {
     var state = state_in;
     let d = x - u;
     for (var c = 0u; c < 3u; c++) {
-        let g = q[c][0] * d.x + q[c][1] * d.y + q[c][2] * d.z;
+        let g = gradient(q, d, c);
         if ((state[c] == 1u && !(g >= 0.0)) || (state[c] == 2u && !(g <= 0.0))) {
             return false;
         }
@@ -199,35 +208,87 @@ fn optimal(q_in: array<vec3<f32>, 3>, u: vec3<f32>, x: vec3<f32>, state_in: vec3
     return true;
 }
 
-// argmin over x in [0, 1]³ of (x − u)ᵀ Q (x − u): first the assignment clamping u suggests, kept
-// when it is optimal; otherwise every assignment, the feasible point of least cost
-// (compend::linear::gamut::box_least_squares).
-fn box_least_squares(q_in: array<vec3<f32>, 3>, u: vec3<f32>) -> Solution {
-    var q = q_in;
-    let guess = select(select(vec3<u32>(0u), vec3<u32>(2u), u > vec3<f32>(1.0)), vec3<u32>(1u), u < vec3<f32>(0.0));
-    let first = candidate(q, u, guess);
-    if (first.ok && optimal(q, u, first.x, guess)) {
-        return first;
+// The active-set step: hold each free coordinate outside [0, 1] at the bound it crossed, free
+// each held one whose gradient points into the box (compend::linear::gamut::next_state).
+fn next_state(q: array<vec3<f32>, 3>, u: vec3<f32>, x: vec3<f32>, state_in: vec3<u32>) -> vec3<u32> {
+    var state = state_in;
+    var xs = x;
+    var next = state;
+    let d = x - u;
+    for (var c = 0u; c < 3u; c++) {
+        let g = gradient(q, d, c);
+        if (state[c] == 1u) {
+            if (g < 0.0) {
+                next[c] = 0u;
+            }
+        } else if (state[c] == 2u) {
+            if (g > 0.0) {
+                next[c] = 0u;
+            }
+        } else if (xs[c] < 0.0) {
+            next[c] = 1u;
+        } else if (xs[c] > 1.0) {
+            next[c] = 2u;
+        }
     }
-    var best: Solution;
-    best.ok = false;
+    return next;
+}
+
+// The assignment clamping u suggests (compend::linear::gamut::clamp_state).
+fn clamp_state(u: vec3<f32>) -> vec3<u32> {
+    return select(select(vec3<u32>(0u), vec3<u32>(2u), u > vec3<f32>(1.0)), vec3<u32>(1u), u < vec3<f32>(0.0));
+}
+
+struct BoxSolution {
+    x: vec3<f32>,
+    state: vec3<u32>,
+    ok: bool,
+}
+
+// argmin over x in [0, 1]³ of (x − u)ᵀ Q (x − u) from assignment `start`: at most 4 active-set
+// steps; where they do not settle on the minimum, every assignment, the feasible point of least
+// cost (compend::linear::gamut::box_least_squares_from).
+fn box_least_squares(q: array<vec3<f32>, 3>, u: vec3<f32>, start: vec3<u32>) -> BoxSolution {
+    var out: BoxSolution;
+    out.ok = false;
+    var state = start;
+    for (var step = 0u; step < 4u; step++) {
+        let s = solve(q, u, state);
+        if (!s.ok) {
+            break;
+        }
+        let next = next_state(q, u, s.x, state);
+        if (all(next == state)) {
+            if (feasible(s.x) && optimal(q, u, s.x, state)) {
+                out.x = s.x;
+                out.state = state;
+                out.ok = true;
+                return out;
+            }
+            break;
+        }
+        state = next;
+    }
     var best_cost = 0.0;
-    for (var s = 0u; s < 27u; s++) {
-        let cand = candidate(q, u, vec3<u32>(s % 3u, (s / 3u) % 3u, s / 9u));
-        if (!cand.ok) {
+    for (var k = 0u; k < 27u; k++) {
+        let st = vec3<u32>(k % 3u, (k / 3u) % 3u, k / 9u);
+        let cand = solve(q, u, st);
+        if (!cand.ok || !feasible(cand.x)) {
             continue;
         }
         let d = cand.x - u;
         var cost = 0.0;
         for (var i = 0u; i < 3u; i++) {
-            cost += d[i] * (q[i][0] * d.x + q[i][1] * d.y + q[i][2] * d.z);
+            cost += d[i] * gradient(q, d, i);
         }
-        if (!best.ok || cost < best_cost) {
-            best = cand;
+        if (!out.ok || cost < best_cost) {
+            out.x = cand.x;
+            out.state = st;
+            out.ok = true;
             best_cost = cost;
         }
     }
-    return best;
+    return out;
 }
 
 // The projector linear light for a desired colour whose model output l is out of [0, 1]³, z the
@@ -240,9 +301,11 @@ fn nearest_reachable(m: array<vec3<f32>, 3>, l: vec3<f32>, z: vec3<f32>) -> vec3
     }
     let a = inv.r;
     var first = clamped;
-    let s1 = box_least_squares(weighted_gram(a, vec3<f32>(1.0)), l);
+    var state = clamp_state(l);
+    let s1 = box_least_squares(weighted_gram(a, vec3<f32>(1.0)), l, state);
     if (s1.ok) {
         first = s1.x;
+        state = s1.state;
     }
     let d = first - l;
     var w = vec3<f32>(0.0);
@@ -257,7 +320,8 @@ fn nearest_reachable(m: array<vec3<f32>, 3>, l: vec3<f32>, z: vec3<f32>) -> vec3
         }
         w[c] = max(w[c], 0.02);
     }
-    let s2 = box_least_squares(weighted_gram(a, w), l);
+    // The weights move the minimum a little: its assignment usually stays.
+    let s2 = box_least_squares(weighted_gram(a, w), l, state);
     if (s2.ok) {
         return s2.x;
     }

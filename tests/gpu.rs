@@ -266,7 +266,31 @@ fn bench_gpu_writes_ratios() {
     let md = std::fs::read_to_string(out.join("bench-gpu.md")).unwrap();
     assert_eq!(md.contains("renders in software"), software);
     for r in rows {
+        // By default the `linear` model has the lattice training gives: the projector's
+        // resolution (rounded up to multiples of 4) at these sizes.
+        let (pw, ph) = (
+            r["projector"][0].as_u64().unwrap(),
+            r["projector"][1].as_u64().unwrap(),
+        );
+        assert_eq!(
+            (
+                r["lattice"][0].as_u64().unwrap(),
+                r["lattice"][1].as_u64().unwrap()
+            ),
+            (pw.div_ceil(4) * 4, ph.div_ceil(4) * 4),
+            "{r}"
+        );
         assert!(r["copy"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
+        let stages = r["linear_stages"].as_array().unwrap();
+        let names: Vec<_> = stages
+            .iter()
+            .map(|s| s["stage"].as_str().unwrap())
+            .collect();
+        assert_eq!(names, ["place", "photometric", "canvas"], "{r}");
+        assert!(
+            stages.iter().all(|s| s["wall_ms"].as_f64().unwrap() > 0.0),
+            "{r}"
+        );
         assert!(r["linear_over_copy"].as_f64().unwrap() > 0.0, "{r}");
         assert!(r["compennet"]["wall_ms"].as_f64().unwrap() > 0.0, "{r}");
         assert!(r["compennet_over_copy"].as_f64().unwrap() > 0.0, "{r}");
@@ -283,6 +307,65 @@ fn bench_gpu_writes_ratios() {
         md.contains("| 64x48 |") && md.contains("| 100x75 |"),
         "{md}"
     );
+}
+
+/// `compend bench-gpu --model`: a trained `linear` model is timed on its own lattice; a
+/// CompenNet++ model or a folder that holds no model is refused with exit 2, naming it.
+#[test]
+fn bench_gpu_times_a_trained_linear_model() {
+    if gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let linear = dir.path().join("linear");
+    test_model(3).save(&linear).unwrap();
+    let cnet = dir.path().join("cnet");
+    compennet_test_model(3).save(&cnet).unwrap();
+    let run = |model: &std::path::Path, out: &str| {
+        let out = dir.path().join(out);
+        let o = crate::common::compend(&[
+            "bench-gpu",
+            "--out",
+            out.to_str().unwrap(),
+            "--model",
+            model.to_str().unwrap(),
+            "--sizes",
+            "64x48",
+            "--iters",
+            "2",
+            "--seconds",
+            "0",
+            "--compennet-iters",
+            "0",
+            "--content",
+            "64x36",
+        ]);
+        (o, out)
+    };
+    let (o, out) = run(&linear, "bl");
+    crate::common::assert_code(&o, 0);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench-gpu.json")).unwrap()).unwrap();
+    assert_eq!(
+        v["rows"][0]["lattice"],
+        serde_json::json!([NET.width, NET.height]),
+        "{v}"
+    );
+    assert_eq!(
+        v["camera"],
+        serde_json::json!([CAM.width, CAM.height]),
+        "{v}"
+    );
+    for (model, says) in [(&cnet, "compennet"), (&dir.path().to_path_buf(), "")] {
+        let (o, out) = run(model, "refused");
+        crate::common::assert_code(&o, 2);
+        let err = crate::common::stderr(&o);
+        assert!(
+            err.contains(model.to_str().unwrap()) && err.contains(says),
+            "{err}"
+        );
+        assert!(!out.exists());
+    }
 }
 
 /// Network size of the CompenNet++ tests: the backbone's layer widths 36, 18, 9 are not all

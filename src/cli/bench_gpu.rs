@@ -12,7 +12,7 @@ use anyhow::Result;
 use compend::fov::DisplayRange;
 use compend::gpu::bench::{
     Timing, synthetic_compennet_model, synthetic_linear_model, time_compennet_layers, time_copy,
-    time_pass,
+    time_pass, time_stages,
 };
 use compend::gpu::{CompensationPass, GpuContext};
 use compend::model::Model;
@@ -58,14 +58,80 @@ pub struct Args {
     /// Display rate of the virtual-rig run, Hz (the source runs at the same rate).
     #[arg(long, default_value_t = 60.0)]
     pub fps: f64,
+    /// The `linear` model's coefficient lattice: `projector` (what training gives at each
+    /// projector size: its resolution, capped at 1920×1080 pixels), `network`, or WxH.
+    #[arg(long, value_parser = parse_lattice, default_value = "projector")]
+    pub lattice: Lattice,
+    /// Time this trained `linear` or `linear-sl` model (its own lattice and camera size) in place
+    /// of the synthetic one.
+    #[arg(long, conflicts_with_all = ["lattice", "camera"])]
+    pub model: Option<PathBuf>,
+    /// The content frame of the timed passes: bars (saturated colours, much of it out of the
+    /// projector's reach), ramp, checker or gray (mid gray, all of it in reach).
+    #[arg(long, value_parser = parse_pattern, default_value = "bars")]
+    pub pattern: Pattern,
+    /// Untimed frames before each timed measurement. A GPU that idles at low clocks needs some
+    /// hundreds of them to reach its working clock.
+    #[arg(long, default_value_t = 5)]
+    pub warmup: usize,
+}
+
+fn parse_pattern(s: &str) -> std::result::Result<Pattern, String> {
+    match s {
+        "bars" => Ok(Pattern::Bars),
+        "ramp" => Ok(Pattern::Ramp),
+        "checker" => Ok(Pattern::Checker),
+        "gray" => Ok(Pattern::Gray),
+        _ => Err(format!(
+            "pattern `{s}`: expected bars, ramp, checker or gray"
+        )),
+    }
+}
+
+/// The lattice of the synthetic `linear` model.
+#[derive(Clone, Copy, Debug)]
+pub enum Lattice {
+    /// The default lattice training gives for each projector size.
+    Projector,
+    /// The network size.
+    Network,
+    /// One size at every projector size.
+    Fixed(ImageSize),
+}
+
+fn parse_lattice(s: &str) -> std::result::Result<Lattice, String> {
+    match s {
+        "projector" => Ok(Lattice::Projector),
+        "network" => Ok(Lattice::Network),
+        _ => super::sim::parse_size(s)
+            .map(Lattice::Fixed)
+            .map_err(|e| format!("{e} (or `projector`, `network`)")),
+    }
+}
+
+impl Lattice {
+    /// The lattice for a projector of `prj` pixels and a network of `net`.
+    fn at(self, prj: ImageSize, net: ImageSize) -> ImageSize {
+        match self {
+            Self::Projector => compend::fit::default_lattice(net, Some(prj)),
+            Self::Network => net,
+            Self::Fixed(s) => s,
+        }
+    }
 }
 
 #[derive(Serialize)]
 struct Row {
     #[serde(with = "compend::raster::as_pair")]
     projector: ImageSize,
+    /// The `linear` model's coefficient lattice.
+    #[serde(with = "compend::raster::as_pair")]
+    lattice: ImageSize,
     copy: Timing,
     linear: Timing,
+    /// Each stage of the `linear` pass alone: place (camera pixels), photometric (lattice
+    /// pixels), canvas (projector pixels).
+    linear_stages: Vec<StageTiming>,
     /// linear / copy, GPU timestamps where available.
     linear_over_copy: f64,
     /// linear / copy, wall clock (submit to idle) for both.
@@ -81,12 +147,19 @@ struct Row {
     headless: Option<PlayStats>,
 }
 
+#[derive(Serialize)]
+struct StageTiming {
+    stage: &'static str,
+    #[serde(flatten)]
+    timing: Timing,
+}
+
 /// What is measured at every projector size.
 struct Bench<'a> {
     ctx: &'a GpuContext,
     args: &'a Args,
-    /// The synthetic `linear` model.
-    linear: Model,
+    /// The trained `linear` model of `--model`.
+    trained: Option<Model>,
     /// The synthetic CompenNet++ model, when measured.
     compennet: Option<Model>,
     /// The content frame of the timed passes.
@@ -94,8 +167,24 @@ struct Bench<'a> {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    let trained = match &args.model {
+        Some(dir) => {
+            let model = Model::load(dir)?;
+            if !matches!(model.kind, compend::model::Kind::Linear { .. }) {
+                return Err(compend::error::Error::Input(format!(
+                    "--model {}: a {} model; bench-gpu times `linear` and `linear-sl` models",
+                    dir.display(),
+                    model.meta.method
+                ))
+                .into());
+            }
+            Some(model)
+        }
+        None => None,
+    };
     let ctx = GpuContext::new()?;
-    let (cam, net) = (args.camera, args.network);
+    let cam = trained.as_ref().map_or(args.camera, Model::camera_size);
+    let net = args.network;
     let compennet = if args.compennet_iters > 0 {
         Some(synthetic_compennet_model(
             cam,
@@ -109,9 +198,9 @@ pub fn run(args: Args) -> Result<()> {
     let bench = Bench {
         ctx: &ctx,
         args: &args,
-        linear: synthetic_linear_model(cam, net, 0),
+        trained,
         compennet,
-        content: compend::source::pattern::render(Pattern::Bars, args.content, 0)?,
+        content: compend::source::pattern::render(args.pattern, args.content, 0)?,
     };
     eprintln!(
         "bench-gpu: {} (camera ({}, {}), network ({}, {}), content ({}, {}))",
@@ -141,6 +230,10 @@ pub fn run(args: Args) -> Result<()> {
         "software_adapter": software,
         "timing": timing,
         "iters": args.iters,
+        "warmup": args.warmup,
+        "pattern": format!("{:?}", args.pattern).to_lowercase(),
+        "lattice": format!("{:?}", args.lattice),
+        "model": args.model,
         "camera": [cam.width, cam.height],
         "network": [net.width, net.height],
         "compennet_iters": args.compennet_iters,
@@ -162,29 +255,51 @@ impl Bench<'_> {
     /// The measurements at projector size `prj` (pixels).
     fn row(&self, prj: ImageSize) -> Result<Row> {
         let (ctx, args) = (self.ctx, self.args);
-        let mut pass = CompensationPass::for_display(ctx, &self.linear, prj, DisplayRange::FULL)?;
-        let copy = time_copy(ctx, prj, 5, args.iters)?;
-        let linear = time_pass(ctx, &mut pass, &self.content, 5, args.iters)?;
+        let synthetic;
+        let model = match &self.trained {
+            Some(m) => m,
+            None => {
+                synthetic =
+                    synthetic_linear_model(args.camera, args.lattice.at(prj, args.network), 0);
+                &synthetic
+            }
+        };
+        let lattice = model.network_size();
+        let mut pass = CompensationPass::for_display(ctx, model, prj, DisplayRange::FULL)?;
+        let copy = time_copy(ctx, prj, args.warmup, args.iters)?;
+        let linear = time_pass(ctx, &mut pass, &self.content, args.warmup, args.iters)?;
         let ratio = linear.best_ms() / copy.best_ms();
+        let stages = time_stages(ctx, &mut pass, &self.content, args.warmup, args.iters)?;
         eprintln!(
-            "bench-gpu: {prj}: copy {:.3} ms, linear {:.3} ms ({ratio:.2}x)",
+            "bench-gpu: {prj}: copy {:.3} ms, linear ({lattice} lattice) {:.3} ms ({ratio:.2}x; {})",
             copy.best_ms(),
-            linear.best_ms()
+            linear.best_ms(),
+            stages
+                .iter()
+                .map(|(name, t)| format!("{name} {:.3}", t.best_ms()))
+                .collect::<Vec<_>>()
+                .join(", ")
         );
+        let linear_stages = stages
+            .into_iter()
+            .map(|(stage, timing)| StageTiming { stage, timing })
+            .collect();
         let cnn = match &self.compennet {
             Some(m) => Some(self.compennet(m, prj, &copy)?),
             None => None,
         };
         let (virtual_rig, headless) = if args.seconds > 0.0 {
-            let headless = self.headless_run(prj)?;
-            (Some(self.virtual_run(prj)?), Some(headless))
+            let headless = self.headless_run(model, prj)?;
+            (Some(self.virtual_run(model, prj)?), Some(headless))
         } else {
             (None, None)
         };
         Ok(Row {
             projector: prj,
+            lattice,
             copy,
             linear,
+            linear_stages,
             linear_over_copy: ratio,
             linear_over_copy_wall: linear.wall_ms / copy.wall_ms,
             compennet: cnn,
@@ -199,7 +314,13 @@ impl Bench<'_> {
     fn compennet(&self, model: &Model, prj: ImageSize, copy: &Timing) -> Result<Timing> {
         let (ctx, args) = (self.ctx, self.args);
         let mut pass = CompensationPass::for_display(ctx, model, prj, DisplayRange::FULL)?;
-        let t = time_pass(ctx, &mut pass, &self.content, 2, args.compennet_iters)?;
+        let t = time_pass(
+            ctx,
+            &mut pass,
+            &self.content,
+            args.warmup,
+            args.compennet_iters,
+        )?;
         if args.layers {
             let layers =
                 time_compennet_layers(ctx, &mut pass, &self.content, 1, args.compennet_iters)?;
@@ -221,7 +342,7 @@ impl Bench<'_> {
 
     /// A player of the moving test pattern at the display rate, newest frame first (as live),
     /// for the `linear` model on a display of `prj` pixels.
-    fn paced_player(&self, prj: ImageSize) -> Result<Player> {
+    fn paced_player(&self, linear: &Model, prj: ImageSize) -> Result<Player> {
         let args = self.args;
         let spec = SourceSpec::Pattern {
             pattern: Pattern::Moving,
@@ -231,7 +352,7 @@ impl Bench<'_> {
         };
         let player = Player::start(
             self.ctx,
-            &self.linear,
+            linear,
             prj,
             DisplayRange::FULL,
             compend::source::open(&spec)?,
@@ -249,10 +370,9 @@ impl Bench<'_> {
 
     /// Plays the paced test pattern at the display rate on the virtual rig and returns the
     /// counts.
-    fn virtual_run(&self, prj: ImageSize) -> Result<PlayStats> {
+    fn virtual_run(&self, linear: &Model, prj: ImageSize) -> Result<PlayStats> {
         let args = self.args;
-        let scene =
-            scene::builtin("textured-plane")?.with_resolution(self.linear.camera_size(), prj);
+        let scene = scene::builtin("textured-plane")?.with_resolution(linear.camera_size(), prj);
         let rig = VirtualRig::from_simulator(Simulator::new(&scene, 0, Phase::Calibration)?);
         rig.set_latency(scene::Latency {
             fps: args.fps,
@@ -266,31 +386,45 @@ impl Bench<'_> {
             rig,
             Box::new(|_, _, _| Ok(())),
         );
-        Ok(self.paced_player(prj)?.run(&mut screen, self.refreshes())?)
+        Ok(self
+            .paced_player(linear, prj)?
+            .run(&mut screen, self.refreshes())?)
     }
 
     /// Plays the paced test pattern with no read-back and no display and returns the counts.
-    fn headless_run(&self, prj: ImageSize) -> Result<PlayStats> {
+    fn headless_run(&self, linear: &Model, prj: ImageSize) -> Result<PlayStats> {
         let mut screen = Headless::new(self.ctx, self.args.fps);
-        Ok(self.paced_player(prj)?.run(&mut screen, self.refreshes())?)
+        Ok(self
+            .paced_player(linear, prj)?
+            .run(&mut screen, self.refreshes())?)
     }
 
     /// bench-gpu.md.
     fn markdown(&self, rows: &[Row], timing: &str, software: bool) -> String {
         let (ctx, args) = (self.ctx, self.args);
+        let linear = match (&args.model, &self.trained) {
+            (Some(dir), Some(m)) => format!(
+                "linear: the trained model {} (camera {})",
+                dir.display(),
+                m.camera_size()
+            ),
+            _ => format!("linear: synthetic, seeded (camera {})", args.camera),
+        };
         let mut md = format!(
-            "# compend bench-gpu\n\nAdapter: {}. Timing: {timing}, median of {} frames ({} for CompenNet). Models \
-             (synthetic, seeded): linear and the simplified CompenNet backbone, camera {}, network {}; \
-             content {}. Times in ms as GPU timestamps / wall clock (submit to \
-             idle) where the adapter has timestamps, else wall clock.\n\n| projector | copy | linear | linear / copy | \
+            "# compend bench-gpu\n\nAdapter: {}. Timing: {timing}, median of {} frames ({} for CompenNet) after \
+             {} untimed. Models: {linear}, its coefficient lattice in the second column; the simplified CompenNet \
+             backbone (synthetic, seeded), camera {}, network {}; content {} ({:?}). Times in ms as GPU timestamps / wall clock (submit to \
+             idle) where the adapter has timestamps, else wall clock.\n\n| projector | linear lattice | copy | linear | linear stages alone: place / photometric / canvas | linear / copy | \
              within 3x | CompenNet | CompenNet / copy | virtual rig @ {} Hz: shown / dropped (source) / dropped (pipeline) | pipeline mean (ms) \
-             | pipeline alone: shown / dropped (pipeline) / mean / max (ms) |\n|---|---|---|---|---|---|---|---|---|---|\n",
+             | pipeline alone: shown / dropped (pipeline) / mean / max (ms) |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
             ctx.describe(),
             args.iters,
             args.compennet_iters,
+            args.warmup,
             args.camera,
             args.network,
             self.content.size(),
+            args.pattern,
             args.fps
         );
         for r in rows {
@@ -315,10 +449,16 @@ impl Bench<'_> {
 fn markdown_row(r: &Row) -> String {
     let v = r.virtual_rig.as_ref();
     format!(
-        "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+        "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
         r.projector,
+        r.lattice,
         both(&r.copy),
         both(&r.linear),
+        r.linear_stages
+            .iter()
+            .map(|s| format!("{:.3}", s.timing.best_ms()))
+            .collect::<Vec<_>>()
+            .join(" / "),
         match r.linear.gpu_ms {
             Some(_) => format!("{:.2} / {:.2}", r.linear_over_copy, r.linear_over_copy_wall),
             None => format!("{:.2}", r.linear_over_copy_wall),

@@ -168,6 +168,28 @@ pub fn time_pass(
     time_work(ctx, warmup, iters, |enc| pass.encode(enc, None))
 }
 
+/// Each stage of a pass alone (after one full frame on `content`): (stage, timing).
+pub fn time_stages(
+    ctx: &GpuContext,
+    pass: &mut CompensationPass,
+    content: &ContentFrame,
+    warmup: usize,
+    iters: usize,
+) -> Result<Vec<(&'static str, Timing)>> {
+    pass.run(ctx, content)?;
+    ctx.wait()?;
+    let pass = &*pass;
+    super::PassStage::ALL
+        .into_iter()
+        .map(|stage| {
+            let t = time_work(ctx, warmup, iters, |enc| {
+                pass.encode_stages(enc, None, &[stage])
+            })?;
+            Ok((stage.name(), t))
+        })
+        .collect()
+}
+
 /// Per-layer times of a CompenNet pass (after one full frame on `content`): (layer, timing),
 /// each layer dispatched alone; empty for other models.
 pub fn time_compennet_layers(
@@ -198,7 +220,8 @@ pub fn time_compennet_layers(
 }
 
 /// A `linear` model with random per-pixel coefficients, a gently bent grid and a full FOV, for
-/// timing (its numbers do not matter, its shapes do): camera `camera`, network `network`.
+/// timing (its numbers do not matter, its shapes do): camera `camera`, coefficients and grid on a
+/// `network` lattice (the network size or a finer lattice, as training gives).
 pub fn synthetic_linear_model(
     camera: ImageSize,
     network: ImageSize,

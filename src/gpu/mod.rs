@@ -19,4 +19,4 @@ pub mod pass;
 pub mod residual;
 
 pub use context::{GpuContext, NoAdapter, is_no_adapter};
-pub use pass::{CompensationPass, FRAME_FORMAT, Photometric};
+pub use pass::{CompensationPass, FRAME_FORMAT, PassStage, Photometric};

@@ -144,6 +144,29 @@ impl Images {
 }
 
 /// The compensation pass for one model and one display.
+/// The three stages of a [`CompensationPass`], in the order a frame runs them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PassStage {
+    /// Content into the desired camera view (camera pixels).
+    Place,
+    /// The model: desired view to the compensation image (network or lattice pixels).
+    Photometric,
+    /// The compensation image stretched over the canvas (projector pixels).
+    Canvas,
+}
+
+impl PassStage {
+    pub const ALL: [Self; 3] = [Self::Place, Self::Photometric, Self::Canvas];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Place => "place",
+            Self::Photometric => "photometric",
+            Self::Canvas => "canvas",
+        }
+    }
+}
+
 pub struct CompensationPass {
     placement: Placement,
     place: Stage,
@@ -344,6 +367,17 @@ impl CompensationPass {
         enc: &mut wgpu::CommandEncoder,
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) -> Result<()> {
+        self.encode_stages(enc, timestamps, &PassStage::ALL)
+    }
+
+    /// Records `stages` (in the order given) for the last uploaded frame, for timing one stage
+    /// alone; each reads what the previous frame's stages left in the textures.
+    pub fn encode_stages(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+        stages: &[PassStage],
+    ) -> Result<()> {
         let content = self
             .content
             .as_ref()
@@ -353,12 +387,20 @@ impl CompensationPass {
             label: Some("compensation"),
             timestamp_writes: timestamps,
         });
-        self.place
-            .dispatch(&mut pass, &content.group, p.camera_size);
-        self.photometric
-            .dispatch(&mut pass, &self.photometric_groups);
-        self.canvas
-            .dispatch(&mut pass, &self.canvas_group, p.projector_size);
+        for stage in stages {
+            match stage {
+                PassStage::Place => self
+                    .place
+                    .dispatch(&mut pass, &content.group, p.camera_size),
+                PassStage::Photometric => self
+                    .photometric
+                    .dispatch(&mut pass, &self.photometric_groups),
+                PassStage::Canvas => {
+                    self.canvas
+                        .dispatch(&mut pass, &self.canvas_group, p.projector_size)
+                }
+            }
+        }
         Ok(())
     }
 
