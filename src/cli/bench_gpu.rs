@@ -32,7 +32,7 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', value_parser = super::sim::parse_size,
           default_value = "640x480,800x600,1920x1080,3840x2160")]
     pub sizes: Vec<ImageSize>,
-    /// Timed frames per measurement (after 5 warm-up frames); medians are reported.
+    /// Timed frames per measurement (after --warmup untimed ones); medians are reported.
     #[arg(long, default_value_t = 30)]
     pub iters: usize,
     /// Camera resolution of the model.
@@ -41,7 +41,7 @@ pub struct Args {
     /// Network resolution of the models (sides divisible by 4 for CompenNet).
     #[arg(long, value_parser = super::sim::parse_size, default_value = "256x256")]
     pub network: ImageSize,
-    /// Timed frames per CompenNet measurement (after 2 warm-up frames; 0 = skip CompenNet): its
+    /// Timed frames per CompenNet measurement (after --warmup untimed ones; 0 = skip CompenNet): its
     /// backbone is ~3.2 GMAC per 256² frame, slow on software drivers.
     #[arg(long, default_value_t = 10)]
     pub compennet_iters: usize,

@@ -217,7 +217,9 @@ impl Objective<'_> {
 
     /// Gauss-Newton weights at the current output `s` of drives `x`; the Jacobi majoriser
     /// diag(JᵀWJ·1) (J has non-negative entries), with `a1` = J·1 = A·1 (every Jacobian of the
-    /// white segment's min takes one channel whole).
+    /// white segment's min takes one channel whole). With an LCD's cross-talk J·1 differs from
+    /// A·1 by the change of the leaks with level, a few percent of the off-diagonal light: the
+    /// step halving of [`Self::descend`] keeps the descent monotone all the same.
     fn majoriser(&self, a1: &[f32], s: &[f32], x: &[f32]) -> Vec<f32> {
         let wa1: Vec<f32> = a1
             .iter()

@@ -5,7 +5,8 @@
 //!
 //! 1. projector: input quantised to 8 bits, drive d = level^γ_c per channel, emitted light
 //!    e = M_p·d + w·min(d) + black (linear, projector space; w the white segment's light,
-//!    zero for most scenes); optional defocus blurs e (Gaussian, zero padding: no light comes
+//!    zero for most scenes; with an LCD's cross-talk the off-diagonal terms of M_p·d depend on
+//!    the drive and the column, see [`super::scene::LcdCrosstalk`]); optional defocus blurs e (Gaussian, zero padding: no light comes
 //!    from outside the frame);
 //! 2. geometry: each camera pixel sees one surface point, lit by the emitted light sampled
 //!    bilinearly at the projector coordinate of that point (zeros outside the frame), E_i;
@@ -20,8 +21,9 @@
 //!    encoded value s^(1/γ); 8-bit quantisation (round to nearest level).
 //!
 //! Steps 1 (after the response curve) to the sensor signal are linear in the drive d, except
-//! for the white segment's min(d), which is piecewise linear and positively homogeneous; the
-//! oracle ([`super::oracle`]) uses that operator and the adjoint of its Jacobian.
+//! for the white segment's min(d), which is piecewise linear and positively homogeneous, and an
+//! LCD's cross-talk, quadratic in d; the oracle ([`super::oracle`]) uses that operator and the
+//! adjoint of its Jacobian.
 //!
 //! Spaces: the per-pixel maps and sensor signals are in camera pixels (row-major, interleaved
 //! RGB), emitted light and drives in projector pixels; pixel centres at integer coordinates.
@@ -99,6 +101,8 @@ pub struct Simulator {
     prj_black: [f32; 3],
     /// The white segment's light per unit of the smallest drive: white_boost·M_p·1.
     prj_white: [f32; 3],
+    /// The LCD cross-talk's constants, when the scene has it.
+    prj_lcd: Option<operator::LcdTerms>,
     cam_mix: [[f32; 3]; 3],
     defocus: Option<Vec<f32>>,
     /// The camera optics' blur kernel (camera pixels), when the scene has one.
@@ -156,6 +160,7 @@ impl Simulator {
             prj_white: p
                 .mixing
                 .map(|row| (p.white_boost * row.iter().sum::<f64>()) as f32),
+            prj_lcd: p.lcd_crosstalk.as_ref().map(operator::LcdTerms::new),
             cam_mix,
             defocus: None,
             cam_blur: None,

@@ -8,6 +8,78 @@
 use super::kernels::{blur_rgb, level, mat3, par_pixels, transpose};
 use super::{Simulator, Tap};
 use crate::raster::{ImageSize, PrjImage};
+use crate::rig::scene::LcdCrosstalk;
+
+/// The constants of an LCD projector's cross-talk ([`LcdCrosstalk`]) per entry (i, j) of the
+/// mixing, off the diagonal (the diagonal's are unused): the leak's share at black relative to
+/// full drive, k², and its relative change per unit of the frame position u (−1 left column,
+/// +1 right).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LcdTerms {
+    k2: [[f32; 3]; 3],
+    tilt: [[f32; 3]; 3],
+}
+
+impl LcdTerms {
+    pub(crate) fn new(lcd: &LcdCrosstalk) -> Self {
+        // Channel i below panel j in the matrix (i > j: red, green, blue) is at shorter
+        // wavelengths: panel j's short edge leaks into it.
+        let towards_short = |i: usize, j: usize| i > j;
+        Self {
+            k2: std::array::from_fn(|i| {
+                std::array::from_fn(|j| {
+                    let k = if towards_short(i, j) {
+                        1.0 / (1.0 - lcd.edge_offset)
+                    } else {
+                        1.0 / (1.0 + lcd.edge_offset)
+                    };
+                    (k * k) as f32
+                })
+            }),
+            tilt: std::array::from_fn(|i| {
+                std::array::from_fn(|j| {
+                    (if towards_short(i, j) {
+                        lcd.across
+                    } else {
+                        -lcd.across
+                    }) as f32
+                })
+            }),
+        }
+    }
+
+    /// The mixing at drives `d` and frame position `u` such that e = that matrix · d: the
+    /// off-diagonal entries scaled by (1 + tilt·u)·(k² + (1 − k²)·d_j).
+    #[inline]
+    fn mixing(&self, m: &[[f32; 3]; 3], d: [f32; 3], u: f32) -> [[f32; 3]; 3] {
+        std::array::from_fn(|i| {
+            std::array::from_fn(|j| {
+                if i == j {
+                    m[i][j]
+                } else {
+                    let k2 = self.k2[i][j];
+                    m[i][j] * (1.0 + self.tilt[i][j] * u) * (k2 + (1.0 - k2) * d[j])
+                }
+            })
+        })
+    }
+
+    /// The Jacobian of e(d) = [`Self::mixing`]·d at `d`: off the diagonal
+    /// M_ij·(1 + tilt·u)·(k² + 2(1 − k²)·d_j).
+    #[inline]
+    fn jacobian(&self, m: &[[f32; 3]; 3], d: [f32; 3], u: f32) -> [[f32; 3]; 3] {
+        std::array::from_fn(|i| {
+            std::array::from_fn(|j| {
+                if i == j {
+                    m[i][j]
+                } else {
+                    let k2 = self.k2[i][j];
+                    m[i][j] * (1.0 + self.tilt[i][j] * u) * (k2 + 2.0 * (1.0 - k2) * d[j])
+                }
+            })
+        })
+    }
+}
 
 impl Simulator {
     /// Emitted light (linear, projector space, interleaved RGB) for an input image: 8-bit input,
@@ -17,7 +89,7 @@ impl Simulator {
         par_pixels(src.len() / 3, |i| {
             let px = &src[i * 3..i * 3 + 3];
             let d = [0, 1, 2].map(|c| self.prj_lut[c][level(px[c])]);
-            let e = self.emit(d);
+            let e = self.emit(d, self.frame_u(i));
             [
                 e[0] + self.prj_black[0],
                 e[1] + self.prj_black[1],
@@ -26,36 +98,59 @@ impl Simulator {
         })
     }
 
-    /// Light emitted for drives `d` of one pixel, without black: M_p·d + w·min(d).
+    /// The horizontal frame position of projector pixel `i` (row-major): −1 at the left edge of
+    /// the frame, +1 at the right.
     #[inline]
-    fn emit(&self, d: [f32; 3]) -> [f32; 3] {
-        let e = mat3(&self.prj_mix, d);
+    fn frame_u(&self, i: usize) -> f32 {
+        let pw = self.projector_size().width;
+        2.0 * ((i % pw) as f32 + 0.5) / pw as f32 - 1.0
+    }
+
+    /// Light emitted for drives `d` of one pixel at frame position `u`, without black:
+    /// M_p·d + w·min(d), M_p the LCD's level- and position-dependent mixing where it has one.
+    #[inline]
+    fn emit(&self, d: [f32; 3], u: f32) -> [f32; 3] {
+        let e = match &self.prj_lcd {
+            Some(lcd) => mat3(&lcd.mixing(&self.prj_mix, d, u), d),
+            None => mat3(&self.prj_mix, d),
+        };
         let m = d[0].min(d[1]).min(d[2]);
         let w = self.prj_white;
         [e[0] + w[0] * m, e[1] + w[1] * m, e[2] + w[2] * m]
     }
 
-    /// Emitted light for linear drives `d` (projector space): M_p·d + w·min(d), plus the black
-    /// level when `black` is set.
+    /// Emitted light for linear drives `d` (projector pixels, row-major from the first):
+    /// M_p·d + w·min(d), plus the black level when `black` is set.
     pub(crate) fn drive_to_emission(&self, d: &[f32], black: bool) -> Vec<f32> {
         let b = if black { self.prj_black } else { [0.0; 3] };
         let mut out = Vec::with_capacity(d.len());
-        for px in d.chunks_exact(3) {
-            let e = self.emit([px[0], px[1], px[2]]);
+        for (i, px) in d.chunks_exact(3).enumerate() {
+            let e = self.emit([px[0], px[1], px[2]], self.frame_u(i));
             out.extend_from_slice(&[e[0] + b[0], e[1] + b[1], e[2] + b[2]]);
         }
         out
     }
 
-    /// Adjoint of the Jacobian of [`Self::drive_to_emission`] at drives `d`: M_pᵀ per pixel,
-    /// plus wᵀg on the channel of the smallest drive (the first of equals). At `d` itself the
-    /// Jacobian reproduces the map (it is piecewise linear and positively homogeneous).
+    /// Adjoint of the Jacobian of [`Self::drive_to_emission`] at drives `d`: M_pᵀ per pixel
+    /// (the LCD's Jacobian where it has one), plus wᵀg on the channel of the smallest drive
+    /// (the first of equals). Without an LCD's cross-talk the Jacobian at `d` reproduces the
+    /// map at `d` (it is piecewise linear and positively homogeneous).
     pub(crate) fn emission_to_drive_adjoint(&self, d: &[f32], g: &[f32]) -> Vec<f32> {
         let mt = transpose(&self.prj_mix);
         let w = self.prj_white;
         let mut out = Vec::with_capacity(g.len());
-        for (px, dp) in g.chunks_exact(3).zip(d.chunks_exact(3)) {
-            let mut a = mat3(&mt, [px[0], px[1], px[2]]);
+        for (i, (px, dp)) in g.chunks_exact(3).zip(d.chunks_exact(3)).enumerate() {
+            let mut a = match &self.prj_lcd {
+                Some(lcd) => mat3(
+                    &transpose(&lcd.jacobian(
+                        &self.prj_mix,
+                        [dp[0], dp[1], dp[2]],
+                        self.frame_u(i),
+                    )),
+                    [px[0], px[1], px[2]],
+                ),
+                None => mat3(&mt, [px[0], px[1], px[2]]),
+            };
             if w != [0.0; 3] {
                 let k = if dp[0] <= dp[1] && dp[0] <= dp[2] {
                     0

@@ -164,6 +164,128 @@ fn the_white_segment_brightens_greys_and_its_adjoint_matches() {
 }
 
 #[test]
+fn lcd_crosstalk_varies_with_level_and_across_the_frame_and_its_adjoint_matches() {
+    let mut scene = crate::rig::builtin("white-plane")
+        .expect("built-in")
+        .with_resolution(ImageSize::new(40, 30), ImageSize::new(32, 24));
+    let plain = Simulator::new(&scene, 1, Phase::Calibration).expect("builds");
+    scene.projector.lcd_crosstalk = Some(crate::rig::scene::LcdCrosstalk {
+        edge_offset: 0.07,
+        across: 0.3,
+    });
+    let sim = Simulator::new(&scene, 1, Phase::Calibration).expect("builds");
+    let pw = 32;
+    // Emitted light of one projector pixel in column `x` of the first row for drives `d`.
+    let at = |sim: &Simulator, x: usize, d: [f32; 3]| {
+        let mut row = vec![0f32; (x + 1) * 3];
+        row[x * 3..].copy_from_slice(&d);
+        let e = sim.drive_to_emission(&row, false);
+        [e[x * 3], e[x * 3 + 1], e[x * 3 + 2]]
+    };
+    let mid = pw / 2;
+    // Green drive alone: its leak into blue (towards shorter wavelengths) is a larger share of
+    // its green at a low level than at full; its leak into red a smaller one.
+    let share = |x: usize, d: f32| {
+        let e = at(&sim, x, [0.0, d, 0.0]);
+        (e[2] / e[1], e[0] / e[1])
+    };
+    let (blue_low, red_low) = share(mid, 0.05);
+    let (blue_full, red_full) = share(mid, 1.0);
+    let k2_short = (1.0f32 / 0.93).powi(2);
+    let k2_long = (1.0f32 / 1.07).powi(2);
+    // At full drive in the centre columns (u = ±1/32) the leaks are the mixing's, within the
+    // small tilt there.
+    let m = &scene.projector.mixing;
+    let (mb, mr) = ((m[2][1] / m[1][1]) as f32, (m[0][1] / m[1][1]) as f32);
+    assert!((blue_full / mb - 1.0).abs() < 0.02, "{blue_full} vs {mb}");
+    assert!((red_full / mr - 1.0).abs() < 0.02, "{red_full} vs {mr}");
+    // Near black the shares approach k² of the full-drive ones.
+    let expect_low = |k2: f32| k2 + (1.0 - k2) * 0.05;
+    assert!(
+        (blue_low / blue_full / expect_low(k2_short) - 1.0).abs() < 1e-3,
+        "{blue_low} {blue_full}"
+    );
+    assert!(
+        (red_low / red_full / expect_low(k2_long) - 1.0).abs() < 1e-3,
+        "{red_low} {red_full}"
+    );
+    // Across the frame: the leak towards shorter wavelengths grows to the right, the other
+    // shrinks; the diagonal does not change.
+    let (left, right) = (
+        at(&sim, 0, [0.0, 1.0, 0.0]),
+        at(&sim, pw - 1, [0.0, 1.0, 0.0]),
+    );
+    assert!(right[2] > 1.5 * left[2], "{left:?} {right:?}");
+    assert!(right[0] < 0.7 * left[0], "{left:?} {right:?}");
+    assert_eq!(left[1], right[1]);
+    // Without the parameter, nothing of this: the plain projector emits M·d everywhere.
+    assert_eq!(
+        at(&plain, 0, [0.0, 0.05, 0.0]),
+        at(&plain, pw - 1, [0.0, 0.05, 0.0])
+    );
+    // The adjoint is that of the Jacobian, against a central difference.
+    let n = pw * 24 * 3;
+    let a: Vec<f32> = (0..n)
+        .map(|i| 0.1 + 0.8 * ((i * 37 % 101) as f32) / 101.0)
+        .collect();
+    let v: Vec<f32> = (0..n)
+        .map(|i| ((i * 53 % 89) as f32) / 89.0 - 0.5)
+        .collect();
+    let g: Vec<f32> = (0..n).map(|i| ((i * 29 % 83) as f32) / 83.0).collect();
+    let eps = 1e-3;
+    let shifted = |s: f32| -> Vec<f32> {
+        let d: Vec<f32> = a.iter().zip(&v).map(|(x, y)| x + s * eps * y).collect();
+        sim.drive_to_emission(&d, false)
+    };
+    let (f1, f0) = (shifted(1.0), shifted(-1.0));
+    let jv: Vec<f32> = f1
+        .iter()
+        .zip(&f0)
+        .map(|(p, q)| (p - q) / (2.0 * eps))
+        .collect();
+    let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
+    let (lhs, rhs) = (
+        dot(&jv, &g),
+        dot(&v, &sim.emission_to_drive_adjoint(&a, &g)),
+    );
+    assert!(
+        (lhs - rhs).abs() < 1e-3 * lhs.abs().max(1.0),
+        "{lhs} vs {rhs}"
+    );
+    // The map is not homogeneous any more: the Jacobian at the drives does not reproduce it,
+    // as it does for the plain projector.
+    let gap = |sim: &Simulator| {
+        let jd = dot(&a, &sim.emission_to_drive_adjoint(&a, &g));
+        let fd = dot(&sim.drive_to_emission(&a, false), &g);
+        (jd - fd).abs() / fd
+    };
+    assert!(gap(&plain) < 1e-6, "{}", gap(&plain));
+    assert!(gap(&sim) > 1e-5, "{}", gap(&sim));
+    // Scene files: the parameter round-trips, a typo in it and a value out of range are
+    // refused, naming the key.
+    let json = serde_json::to_string(&scene).expect("serialises");
+    assert!(
+        json.contains("\"lcd_crosstalk\":{\"edge_offset\":0.07,\"across\":0.3}"),
+        "{json}"
+    );
+    let back: crate::rig::scene::Scene = serde_json::from_str(&json).expect("parses");
+    assert_eq!(back, scene);
+    let typo = json.replace("\"across\"", "\"acros\"");
+    let err = serde_json::from_str::<crate::rig::scene::Scene>(&typo).expect_err("a typo");
+    assert!(err.to_string().contains("acros"), "{err}");
+    let mut bad = scene.clone();
+    bad.projector.lcd_crosstalk = Some(crate::rig::scene::LcdCrosstalk {
+        edge_offset: 0.3,
+        across: 0.3,
+    });
+    let err = Simulator::new(&bad, 1, Phase::Calibration)
+        .err()
+        .expect("out of range")
+        .to_string();
+    assert!(err.contains("projector.lcd_crosstalk.edge_offset"), "{err}");
+}
+
+#[test]
 fn subsurface_light_spreads_by_channel_and_is_kept() {
     // A white wall lit on its left half only: with sub-surface scattering, light crosses the
     // edge, furthest in red; on a uniform albedo none is lost away from the frame's edges.

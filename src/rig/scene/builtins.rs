@@ -321,6 +321,7 @@ fn base_scene() -> Scene {
             vignetting: 0.12,
             defocus_px: 0.0,
             white_boost: 0.0,
+            lcd_crosstalk: None,
         },
         surface: Surface::Plane {
             distance: 2.0,

@@ -163,6 +163,46 @@ pub struct ProjectorModel {
     /// segment often list white at about twice their colour light output, i.e. 1.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub white_boost: f64,
+    /// Cross-talk of a three-panel LCD projector that changes with the level and across the
+    /// frame (none by default). The off-diagonal entries of `mixing` are the light of one
+    /// panel's band that lands in a neighbouring channel, from the edge of that band nearest
+    /// it. `mixing` holds them at full drive, at the centre column.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lcd_crosstalk: Option<LcdCrosstalk>,
+}
+
+/// How the leak of one LCD panel's band into a neighbouring channel (an off-diagonal entry
+/// M_ij of the projector's mixing, j the panel, i the channel) varies. A per-pixel linear
+/// colour model fits one matrix per pixel, so it can follow the change across the frame but
+/// not the change with level.
+///
+/// - **With level:** a liquid-crystal cell's retardation is set for the centre wavelength λ of
+///   its band, so the band edge at λ_e transmits T_e(d) ≠ d at a drive d where the centre
+///   transmits d. From T = sin²(π·Γ/λ), the edge's share at drive d relative to full drive goes
+///   from k² at black to 1 at full, k = λ/λ_e. The simulator takes it linear in d between
+///   those two: leak = M_ij·d·(k² + (1 − k²)·d). That understates the sine law's change
+///   (by at most 4–7 % of the leak, near d = 0.75, for offsets 0.05–0.08) and keeps the
+///   leak's slope finite at full drive, where the sine law's is not. The edge towards shorter wavelengths (red into green,
+///   green into blue) has k = 1/(1 − `edge_offset`) > 1, so it leaks relatively more at low
+///   levels. The edge towards longer wavelengths has k = 1/(1 + `edge_offset`) < 1.
+/// - **Across the frame:** the dichroic mirrors that split the lamp's light meet it at about
+///   45°, and at an angle θ a thin-film edge sits at λ·√(1 − sin²θ/n²). With n ≈ 1.8 that is
+///   about 1.5 nm per degree. A field that spans ±5° at the mirrors then moves the edges by
+///   about ±8 nm from one side of the frame to the other. Against overlaps of some 15–20 nm
+///   between neighbouring bands, the leaks change by some tens of percent. The simulator
+///   scales the leaks towards shorter wavelengths by (1 + `across`·u) and those towards
+///   longer ones by (1 − `across`·u), with u from −1 (left column) to +1 (right). So one side
+///   of the frame is tinted one way and the other side the other way, the colour shading of
+///   three-panel projectors.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LcdCrosstalk {
+    /// Offset of the leaking band edges from their band's centre, as a fraction of its
+    /// wavelength, in [0, 0.2]: about 0.05–0.08 for bands 50–90 nm wide.
+    pub edge_offset: f64,
+    /// Relative change of the leaks from the centre column to the left and right edges of the
+    /// frame, in [0, 0.9]: about 0.2–0.5 by the estimate above.
+    pub across: f64,
 }
 
 /// Analytic surfaces, each a height field z = h(x, y) seen from the camera (the solid lies
@@ -430,6 +470,14 @@ impl Scene {
         }
         if !(p.white_boost >= 0.0 && p.white_boost <= 4.0) {
             return self.bad("projector.white_boost", "must be in [0, 4]");
+        }
+        if let Some(lcd) = &p.lcd_crosstalk {
+            if !(lcd.edge_offset >= 0.0 && lcd.edge_offset <= 0.2) {
+                return self.bad("projector.lcd_crosstalk.edge_offset", "must be in [0, 0.2]");
+            }
+            if !(lcd.across >= 0.0 && lcd.across <= 0.9) {
+                return self.bad("projector.lcd_crosstalk.across", "must be in [0, 0.9]");
+            }
         }
         if !(c.blur_px >= 0.0 && c.blur_px <= 16.0) {
             return self.bad("camera.blur_px", "must be in [0, 16]");
