@@ -278,10 +278,10 @@ fn lcd_crosstalk_varies_with_level_and_across_the_frame_and_its_adjoint_matches(
         edge_offset: 0.3,
         across: 0.3,
     });
-    let err = Simulator::new(&bad, 1, Phase::Calibration)
-        .err()
-        .expect("out of range")
-        .to_string();
+    let Err(err) = Simulator::new(&bad, 1, Phase::Calibration) else {
+        panic!("an edge offset of 0.3 was accepted");
+    };
+    let err = err.to_string();
     assert!(err.contains("projector.lcd_crosstalk.edge_offset"), "{err}");
 }
 
