@@ -163,23 +163,23 @@ fn linear_pass_matches_the_cpu_reference() {
         Placement::for_model(&model, ImageSize::new(72, 50), DisplayRange::FULL).unwrap(),
     ];
     for (k, p) in placements.iter().enumerate() {
-        let mut pass = CompensationPass::new(&ctx, &model, *p).unwrap();
+        let mut pass = CompensationPass::new(ctx, &model, *p).unwrap();
         // Two frames of different sizes through the same pass (the content texture is rebuilt).
         for (f, (w, h)) in [(37usize, 29usize), (p.area.width, p.area.height)]
             .into_iter()
             .enumerate()
         {
             let content = random_content(10 * k as u64 + f as u64, w, h);
-            pass.run(&ctx, &content).unwrap();
+            pass.run(ctx, &content).unwrap();
             let desired_cpu = playback::desired_view(&content, p)
                 .unwrap()
                 .masked(&model.fov)
                 .unwrap();
-            let desired_gpu = pass.read_desired(&ctx).unwrap();
+            let desired_gpu = pass.read_desired(ctx).unwrap();
             let net_cpu = playback::reference_network(&model, &content, p).unwrap();
-            let net_gpu = pass.read_network(&ctx).unwrap();
+            let net_gpu = pass.read_network(ctx).unwrap();
             let frame_cpu = playback::reference_frame(&model, &content, p).unwrap();
-            let frame_gpu = pass.read_output(&ctx).unwrap();
+            let frame_gpu = pass.read_output(ctx).unwrap();
             let (e_desired, e_net) = (
                 max_abs(&desired_cpu, &desired_gpu),
                 max_abs(&net_cpu, &net_gpu),
@@ -218,14 +218,14 @@ fn pass_is_reused_across_frames() {
     let Some(ctx) = gpu() else { return };
     let model = test_model(2);
     let p = Placement::for_model(&model, ImageSize::new(64, 48), DisplayRange::FULL).unwrap();
-    let mut pass = CompensationPass::new(&ctx, &model, p).unwrap();
+    let mut pass = CompensationPass::new(ctx, &model, p).unwrap();
     let a = random_content(5, 20, 15);
     let b = random_content(6, 20, 15);
-    pass.run(&ctx, &a).unwrap();
-    let first = pass.read_output(&ctx).unwrap();
-    pass.run(&ctx, &b).unwrap();
-    pass.run(&ctx, &a).unwrap();
-    assert_eq!(pass.read_output(&ctx).unwrap(), first);
+    pass.run(ctx, &a).unwrap();
+    let first = pass.read_output(ctx).unwrap();
+    pass.run(ctx, &b).unwrap();
+    pass.run(ctx, &a).unwrap();
+    assert_eq!(pass.read_output(ctx).unwrap(), first);
 }
 
 /// `compend bench-gpu` at tiny sizes: one row per projector size with the copy, the pass, their
@@ -470,20 +470,20 @@ fn compennet_pass_matches_the_cpu_reference() {
         Placement::for_model(&model, ImageSize::new(72, 50), DisplayRange::FULL).unwrap(),
     ];
     for (k, p) in placements.iter().enumerate() {
-        let mut pass = CompensationPass::new(&ctx, &model, *p).unwrap();
+        let mut pass = CompensationPass::new(ctx, &model, *p).unwrap();
         for (f, (w, h)) in [(37usize, 29usize), (p.area.width, p.area.height)]
             .into_iter()
             .enumerate()
         {
             let content = random_content(20 + 10 * k as u64 + f as u64, w, h);
-            pass.run(&ctx, &content).unwrap();
+            pass.run(ctx, &content).unwrap();
             let desired_cpu = playback::desired_view(&content, p)
                 .unwrap()
                 .masked(&model.fov)
                 .unwrap();
-            let e_desired = max_abs(&desired_cpu, &pass.read_desired(&ctx).unwrap());
+            let e_desired = max_abs(&desired_cpu, &pass.read_desired(ctx).unwrap());
             let net_cpu = playback::reference_network(&model, &content, p).unwrap();
-            let net_gpu = pass.read_network(&ctx).unwrap();
+            let net_gpu = pass.read_network(ctx).unwrap();
             let e_net = max_abs(&net_cpu, &net_gpu);
             let inside = net_cpu
                 .data()
@@ -492,7 +492,7 @@ fn compennet_pass_matches_the_cpu_reference() {
                 .count() as f64
                 / net_cpu.data().len() as f64;
             let frame_cpu = playback::reference_frame(&model, &content, p).unwrap();
-            let frame_gpu = pass.read_output(&ctx).unwrap();
+            let frame_gpu = pass.read_output(ctx).unwrap();
             let steps: Vec<i32> = frame_cpu
                 .data()
                 .iter()
@@ -557,11 +557,11 @@ fn residual_pass_matches_the_cpu_reference() {
     let model = residual_test_model(5);
     let p = Placement::for_model(&model, ImageSize::new(72, 50), DisplayRange::FULL).unwrap();
     assert_eq!(p.network_size, NET);
-    let mut pass = CompensationPass::new(&ctx, &model, p).unwrap();
+    let mut pass = CompensationPass::new(ctx, &model, p).unwrap();
     let content = random_content(41, 37, 29);
-    pass.run(&ctx, &content).unwrap();
+    pass.run(ctx, &content).unwrap();
     let net_cpu = playback::reference_network(&model, &content, &p).unwrap();
-    let net_gpu = pass.read_network(&ctx).unwrap();
+    let net_gpu = pass.read_network(ctx).unwrap();
     let e_net = max_abs(&net_cpu, &net_gpu);
     // The correction matters: the result is not the linear part's.
     let desired = playback::desired_view(&content, &p).unwrap();
@@ -571,7 +571,7 @@ fn residual_pass_matches_the_cpu_reference() {
     let linear_only = base.apply(&desired.masked(&model.fov).unwrap());
     let moved = max_abs(&net_cpu, &linear_only);
     let frame_cpu = playback::reference_frame(&model, &content, &p).unwrap();
-    let frame_gpu = pass.read_output(&ctx).unwrap();
+    let frame_gpu = pass.read_output(ctx).unwrap();
     let worst = frame_cpu
         .data()
         .iter()
@@ -599,9 +599,9 @@ fn compennet_layers_match_candle() {
     let Some(ctx) = gpu() else { return };
     let model = compennet_test_model(4);
     let p = Placement::for_model(&model, ImageSize::new(40, 30), DisplayRange::FULL).unwrap();
-    let mut pass = CompensationPass::new(&ctx, &model, p).unwrap();
+    let mut pass = CompensationPass::new(ctx, &model, p).unwrap();
     let content = random_content(7, 30, 20);
-    pass.run(&ctx, &content).unwrap();
+    pass.run(ctx, &content).unwrap();
     let Photometric::CompenNet(stage) = pass.photometric() else {
         panic!("a CompenNet++ model gets the CompenNet stage")
     };
@@ -657,7 +657,7 @@ fn compennet_layers_match_candle() {
     names.extend(stage.layer_names());
     assert_eq!(names, expected.map(|(n, _)| n));
     for (name, t) in expected {
-        let (c, h, w, gpu) = stage.read_activation(&ctx, name).unwrap();
+        let (c, h, w, gpu) = stage.read_activation(ctx, name).unwrap();
         assert_eq!(t.dims(), &[1, c, h, w], "{name}");
         let cpu: Vec<f32> = t.flatten_all().unwrap().to_vec1().unwrap();
         let scale = cpu.iter().fold(0f32, |m, v| m.max(v.abs()));

@@ -395,7 +395,7 @@ fn one_loop_paces_and_counts_for_every_screen() {
     let display = ImageSize::new(64, 48);
     let start = |spec: &SourceSpec, mode| {
         let source = compend::source::open(spec).unwrap();
-        Player::start(&ctx, &model, display, DisplayRange::FULL, source, mode).unwrap()
+        Player::start(ctx, &model, display, DisplayRange::FULL, source, mode).unwrap()
     };
     let pattern = |fps, frames| SourceSpec::Pattern {
         pattern: Pattern::Moving,
@@ -405,7 +405,7 @@ fn one_loop_paces_and_counts_for_every_screen() {
     };
 
     // Offline on a display without a refresh of its own: every frame once, in order.
-    let mut screen = Recorder::new(&ctx, Refresh::Timer(60.0));
+    let mut screen = Recorder::new(ctx, Refresh::Timer(60.0));
     let s = start(&pattern(240.0, Some(5)), FeedMode::Queue)
         .run(&mut screen, None)
         .unwrap();
@@ -428,7 +428,7 @@ fn one_loop_paces_and_counts_for_every_screen() {
     )
     .unwrap();
     let still = SourceSpec::Image(img);
-    let mut screen = Recorder::new(&ctx, Refresh::Vsync(120.0));
+    let mut screen = Recorder::new(ctx, Refresh::Vsync(120.0));
     let s = start(&still, FeedMode::Latest)
         .run(&mut screen, Some(6))
         .unwrap();
@@ -437,14 +437,14 @@ fn one_loop_paces_and_counts_for_every_screen() {
     assert!(screen.again >= 1 && screen.again <= 5);
     assert_eq!((screen.began, s.refresh_hz), (Some(true), 120.0));
     // ... and ended after its frame on a display without one.
-    let mut screen = Recorder::new(&ctx, Refresh::Timer(120.0));
+    let mut screen = Recorder::new(ctx, Refresh::Timer(120.0));
     let s = start(&still, FeedMode::Latest)
         .run(&mut screen, None)
         .unwrap();
     assert_eq!((s.shown, screen.new.len()), (1, 1), "{s:?}");
 
     // Live at 120 Hz from a 40 fps source: every refresh shows a new frame or holds one.
-    let mut screen = Recorder::new(&ctx, Refresh::Timer(120.0));
+    let mut screen = Recorder::new(ctx, Refresh::Timer(120.0));
     let s = start(&pattern(40.0, None), FeedMode::Latest)
         .run(&mut screen, Some(24))
         .unwrap();

@@ -13,7 +13,6 @@ pub fn compend(args: &[&str]) -> Output {
         .expect("the compend binary runs")
 }
 
-/// Runs `compend` in `dir`.
 /// `compend train --method linear` with its defaults on `setup` into `out`.
 pub fn train_linear(setup: &Path, out: &Path) -> Output {
     compend(&[
@@ -27,6 +26,7 @@ pub fn train_linear(setup: &Path, out: &Path) -> Output {
     ])
 }
 
+/// Runs `compend` in `dir`.
 pub fn compend_in(dir: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_compend"))
         .current_dir(dir)
@@ -71,16 +71,25 @@ pub fn skip_or_fail(reason: &str) {
 
 /// The GPU context, or `None` after printing why the test is skipped (a panic instead when
 /// `COMPEND_REQUIRE_GPU_ADAPTER=1`). An adapter that exists but fails to open is a failure.
-pub fn gpu() -> Option<compend::gpu::GpuContext> {
-    match compend::gpu::GpuContext::new() {
+/// One device serves every test of the binary: NVIDIA's Vulkan driver can hang when threads
+/// create instances and devices at once (it did here on an H200 in two of four parallel runs;
+/// gfx-rs/wgpu#10234 and kvark/blade#336 report crashes from the same races).
+pub fn gpu() -> Option<&'static compend::gpu::GpuContext> {
+    static CONTEXT: std::sync::OnceLock<Result<compend::gpu::GpuContext, String>> =
+        std::sync::OnceLock::new();
+    let opened = CONTEXT.get_or_init(|| match compend::gpu::GpuContext::new() {
         Ok(ctx) => {
             eprintln!("GPU adapter: {}", ctx.describe());
-            Some(ctx)
+            Ok(ctx)
         }
-        Err(e) if compend::gpu::is_no_adapter(&e) => {
-            skip_or_fail(&format!("no GPU adapter ({e})"));
+        Err(e) if compend::gpu::is_no_adapter(&e) => Err(format!("no GPU adapter ({e})")),
+        Err(e) => panic!("a GPU adapter that exists opens a device: {e}"),
+    });
+    match opened {
+        Ok(ctx) => Some(ctx),
+        Err(reason) => {
+            skip_or_fail(reason);
             None
         }
-        Err(e) => panic!("a GPU adapter that exists opens a device: {e}"),
     }
 }
