@@ -52,29 +52,31 @@ impl LcdTerms {
     /// off-diagonal entries scaled by (1 + tilt·u)·(k² + (1 − k²)·d_j).
     #[inline]
     fn mixing(&self, m: &[[f32; 3]; 3], d: [f32; 3], u: f32) -> [[f32; 3]; 3] {
-        std::array::from_fn(|i| {
-            std::array::from_fn(|j| {
-                if i == j {
-                    m[i][j]
-                } else {
-                    let k2 = self.k2[i][j];
-                    m[i][j] * (1.0 + self.tilt[i][j] * u) * (k2 + (1.0 - k2) * d[j])
-                }
-            })
-        })
+        self.off_diagonal(m, d, u, |k2, dj| k2 + (1.0 - k2) * dj)
     }
 
     /// The Jacobian of e(d) = [`Self::mixing`]·d at `d`: off the diagonal
     /// M_ij·(1 + tilt·u)·(k² + 2(1 − k²)·d_j).
     #[inline]
     fn jacobian(&self, m: &[[f32; 3]; 3], d: [f32; 3], u: f32) -> [[f32; 3]; 3] {
+        self.off_diagonal(m, d, u, |k2, dj| k2 + 2.0 * (1.0 - k2) * dj)
+    }
+
+    /// `m` with each off-diagonal entry (i, j) scaled by (1 + tilt·u)·`level`(k², d_j).
+    #[inline]
+    fn off_diagonal(
+        &self,
+        m: &[[f32; 3]; 3],
+        d: [f32; 3],
+        u: f32,
+        level: impl Fn(f32, f32) -> f32,
+    ) -> [[f32; 3]; 3] {
         std::array::from_fn(|i| {
             std::array::from_fn(|j| {
                 if i == j {
                     m[i][j]
                 } else {
-                    let k2 = self.k2[i][j];
-                    m[i][j] * (1.0 + self.tilt[i][j] * u) * (k2 + 2.0 * (1.0 - k2) * d[j])
+                    m[i][j] * (1.0 + self.tilt[i][j] * u) * level(self.k2[i][j], d[j])
                 }
             })
         })

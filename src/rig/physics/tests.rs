@@ -35,7 +35,6 @@ fn blur_is_self_adjoint_and_bounce_adjoint_matches() {
         .map(|i| ((i * 53 % 97) as f32) / 97.0)
         .collect();
     let k = gaussian_kernel(1.7);
-    let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
     let lhs = dot(&blur_rgb(&a, w, h, &k), &b);
     let rhs = dot(&a, &blur_rgb(&b, w, h, &k));
     assert!((lhs - rhs).abs() < 1e-4 * lhs.abs(), "{lhs} {rhs}");
@@ -84,7 +83,6 @@ fn sensor_adjoint_matches_forward() {
     let b: Vec<f32> = (0..cw * ch * 3)
         .map(|i| ((i * 53 % 97) as f32) / 97.0)
         .collect();
-    let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
     let fwd = sim.sensor(&sim.drive_to_emission(&a, false));
     let adj = sim.emission_to_drive_adjoint(&a, &sim.sensor_adjoint(&b));
     let (lhs, rhs) = (dot(&fwd, &b), dot(&a, &adj));
@@ -137,7 +135,17 @@ fn the_white_segment_brightens_greys_and_its_adjoint_matches() {
     }
     // The adjoint is that of the Jacobian: against a finite difference in a direction v at
     // drives whose channels differ.
-    let n = 32 * 24 * 3;
+    let (lhs, rhs) = jacobian_against_its_adjoint(&sim, 32 * 24 * 3);
+    assert!(
+        (lhs - rhs).abs() < 2e-3 * lhs.abs().max(1.0),
+        "{lhs} vs {rhs}"
+    );
+}
+
+/// ⟨J v, g⟩ by a central difference of [`Simulator::drive_to_emission`] and ⟨v, Jᵀ g⟩ by
+/// [`Simulator::emission_to_drive_adjoint`], at drives `a` whose channels differ, for fixed
+/// `v` and `g` of `n` values.
+fn jacobian_against_its_adjoint(sim: &Simulator, n: usize) -> (f64, f64) {
     let a: Vec<f32> = (0..n)
         .map(|i| 0.1 + 0.8 * ((i * 37 % 101) as f32) / 101.0)
         .collect();
@@ -146,21 +154,24 @@ fn the_white_segment_brightens_greys_and_its_adjoint_matches() {
         .collect();
     let g: Vec<f32> = (0..n).map(|i| ((i * 29 % 83) as f32) / 83.0).collect();
     let eps = 1e-3;
-    let ahead: Vec<f32> = a.iter().zip(&v).map(|(x, y)| x + eps * y).collect();
-    let (f0, f1) = (
-        sim.drive_to_emission(&a, false),
-        sim.drive_to_emission(&ahead, false),
-    );
-    let jv: Vec<f32> = f1.iter().zip(&f0).map(|(p, q)| (p - q) / eps).collect();
-    let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
-    let (lhs, rhs) = (
+    let shifted = |s: f32| -> Vec<f32> {
+        let d: Vec<f32> = a.iter().zip(&v).map(|(x, y)| x + s * eps * y).collect();
+        sim.drive_to_emission(&d, false)
+    };
+    let (f1, f0) = (shifted(1.0), shifted(-1.0));
+    let jv: Vec<f32> = f1
+        .iter()
+        .zip(&f0)
+        .map(|(p, q)| (p - q) / (2.0 * eps))
+        .collect();
+    (
         dot(&jv, &g),
         dot(&v, &sim.emission_to_drive_adjoint(&a, &g)),
-    );
-    assert!(
-        (lhs - rhs).abs() < 2e-3 * lhs.abs().max(1.0),
-        "{lhs} vs {rhs}"
-    );
+    )
+}
+
+fn dot(x: &[f32], y: &[f32]) -> f64 {
+    x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>()
 }
 
 #[test]
@@ -225,35 +236,17 @@ fn lcd_crosstalk_varies_with_level_and_across_the_frame_and_its_adjoint_matches(
     );
     // The adjoint is that of the Jacobian, against a central difference.
     let n = pw * 24 * 3;
-    let a: Vec<f32> = (0..n)
-        .map(|i| 0.1 + 0.8 * ((i * 37 % 101) as f32) / 101.0)
-        .collect();
-    let v: Vec<f32> = (0..n)
-        .map(|i| ((i * 53 % 89) as f32) / 89.0 - 0.5)
-        .collect();
-    let g: Vec<f32> = (0..n).map(|i| ((i * 29 % 83) as f32) / 83.0).collect();
-    let eps = 1e-3;
-    let shifted = |s: f32| -> Vec<f32> {
-        let d: Vec<f32> = a.iter().zip(&v).map(|(x, y)| x + s * eps * y).collect();
-        sim.drive_to_emission(&d, false)
-    };
-    let (f1, f0) = (shifted(1.0), shifted(-1.0));
-    let jv: Vec<f32> = f1
-        .iter()
-        .zip(&f0)
-        .map(|(p, q)| (p - q) / (2.0 * eps))
-        .collect();
-    let dot = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p * q) as f64).sum::<f64>();
-    let (lhs, rhs) = (
-        dot(&jv, &g),
-        dot(&v, &sim.emission_to_drive_adjoint(&a, &g)),
-    );
+    let (lhs, rhs) = jacobian_against_its_adjoint(&sim, n);
     assert!(
         (lhs - rhs).abs() < 1e-3 * lhs.abs().max(1.0),
         "{lhs} vs {rhs}"
     );
     // The map is not homogeneous any more: the Jacobian at the drives does not reproduce it,
     // as it does for the plain projector.
+    let a: Vec<f32> = (0..n)
+        .map(|i| 0.1 + 0.8 * ((i * 37 % 101) as f32) / 101.0)
+        .collect();
+    let g: Vec<f32> = (0..n).map(|i| ((i * 29 % 83) as f32) / 83.0).collect();
     let gap = |sim: &Simulator| {
         let jd = dot(&a, &sim.emission_to_drive_adjoint(&a, &g));
         let fd = dot(&sim.drive_to_emission(&a, false), &g);
