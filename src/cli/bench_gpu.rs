@@ -232,7 +232,13 @@ pub fn run(args: Args) -> Result<()> {
         "iters": args.iters,
         "warmup": args.warmup,
         "pattern": format!("{:?}", args.pattern).to_lowercase(),
-        "lattice": format!("{:?}", args.lattice),
+        // The rows hold each size's lattice; this is how they were chosen.
+        "lattice": match (&args.model, args.lattice) {
+            (Some(_), _) => "the model's".to_string(),
+            (None, Lattice::Projector) => "projector".to_string(),
+            (None, Lattice::Network) => "network".to_string(),
+            (None, Lattice::Fixed(size)) => size.to_string(),
+        },
         "model": args.model,
         "camera": [cam.width, cam.height],
         "network": [net.width, net.height],
