@@ -4,10 +4,9 @@
 #   xvfb: a virtual X display for the projector-window tests
 #   libclang-dev: bindgen, used by the V4L2 camera crates at build time
 #   imagemagick: screenshots of the virtual display in tests
-#   libfontconfig-dev, fonts-dejavu-core, pkg-config: text in the benchmark charts (plotters)
 #   systemd, procps: systemd-analyze and /bin/kill (ExecReload=), to verify the units in systemd/
 set -euo pipefail
-pkgs=(mesa-vulkan-drivers libvulkan1 xvfb libclang-dev imagemagick libfontconfig-dev fonts-dejavu-core pkg-config systemd procps)
+pkgs=(mesa-vulkan-drivers libvulkan1 xvfb libclang-dev imagemagick systemd procps)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -32,9 +32,18 @@ const SPECS: [Spec; 2] = [
     },
 ];
 
+/// The charts' font, built in (assets/fonts/LICENSE-DejaVu.txt), so that drawing needs no font
+/// from the system: compend links no font library.
+const FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+
+/// The font family the charts name.
+const FAMILY: &str = "sans-serif";
+
 /// Writes the charts into `dir`; returns their paths. Rows without the needed numbers (reference
 /// rows, failed runs) are left out; a chart with no point is not written.
 pub fn write_charts(rows: &[Row], dir: &Path) -> Result<Vec<PathBuf>> {
+    plotters::style::register_font(FAMILY, FontStyle::Normal, FONT)
+        .map_err(|_| anyhow::anyhow!("the built-in chart font is not a font file"))?;
     let mut methods: Vec<&str> = Vec::new();
     for r in rows {
         if !methods.contains(&r.method.as_str()) {
@@ -95,7 +104,7 @@ fn draw_into(
     let root = BitMapBackend::with_buffer(pixels, size).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
-        .caption(spec.title, ("sans-serif", 20))
+        .caption(spec.title, (FAMILY, 20))
         .margin(12)
         .x_label_area_size(44)
         .y_label_area_size(56)
