@@ -146,8 +146,9 @@ const ACTIVE_SET_STEPS: usize = 4;
 /// conditions ([`optimal`]), so it is the minimum (the problem is convex). From the clamping
 /// assignment that is usually the first or second step. The search can cycle on badly
 /// conditioned `Q`, so after [`ACTIVE_SET_STEPS`] steps every assignment is tried and the
-/// feasible point of least cost kept (the minimum is one of them). On the GPU this bounds the
-/// work of the pixels of one wave by a few steps instead of all 27 assignments.
+/// feasible point of least cost kept (the minimum is one of them). On the GPU, where the pixels
+/// of one wave wait for the slowest, a wave then mostly waits for a few steps instead of all 27
+/// assignments.
 pub fn box_least_squares_from(q: &M3, u: [f32; 3], start: State) -> Option<([f32; 3], State)> {
     active_set(q, u, start).or_else(|| every_assignment(q, u))
 }
