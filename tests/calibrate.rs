@@ -133,6 +133,86 @@ fn calibrate_installs_a_verified_model_and_records_it() {
 }
 
 #[test]
+fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("cal");
+    let d = data.to_str().unwrap();
+    let meta = |o: &std::process::Output| -> serde_json::Value {
+        assert_code(o, 0);
+        serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap()).unwrap()
+    };
+    // No margin: the held-out pairs climb to the residual rung (3 iterations), and the rig
+    // projects both it and the linear rung fitted beside it on the verification images.
+    let rig = [
+        "--rig",
+        "virtual:textured-plane",
+        "--seed",
+        "4",
+        "--method",
+        "auto",
+    ];
+    let forced = [&rig[..], &["--climb-iters", "3", "--climb-gain", "-1000"]].concat();
+    let o = compend(&calibrate_args(d, &forced));
+    let m = meta(&o);
+    let auto = &m["training"]["auto"];
+    let scores = auto["closed_loop"].as_array().unwrap();
+    let methods: Vec<&str> = scores
+        .iter()
+        .map(|c| c["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(methods, ["compennet++-res", "linear"], "{auto}");
+    assert_eq!(m["method"], "compennet++-res", "{auto}");
+    assert_eq!(auto["chosen"], m["method"]);
+    assert_eq!(m["training"]["iterations"], 3);
+    // The record's verification is the kept rung's, and both rungs were scored on the rig.
+    let v = &m["calibration"]["verification"];
+    assert_eq!(v["psnr"], scores[0]["psnr"], "{m}");
+    assert!(
+        scores
+            .iter()
+            .all(|c| c["psnr"].as_f64().unwrap() > v["uncompensated_psnr"].as_f64().unwrap())
+    );
+    assert!(
+        auto["rule"].as_str().unwrap().contains("closed-loop"),
+        "{auto}"
+    );
+    assert!(
+        stderr(&o).contains("auto: closed loop on the rig"),
+        "{}",
+        stderr(&o)
+    );
+
+    // The default margin on 3 iterations: no climb on the held-out pairs, nothing to confirm.
+    let o = compend(&calibrate_args(
+        d,
+        &[&rig[..], &["--climb-iters", "3"]].concat(),
+    ));
+    let m = meta(&o);
+    assert_eq!(m["method"], "linear", "{m}");
+    assert!(m["training"]["auto"].get("closed_loop").is_none(), "{m}");
+
+    // The climbing flags are for `auto` only, and must be numbers.
+    for (flags, says) in [
+        (&["--climb-gain", "0.5"][..], "only `--method auto` climbs"),
+        (
+            &["--method", "auto", "--climb-gain", "NaN"][..],
+            "expected a number",
+        ),
+        (
+            &["--method", "auto", "--climb-iters", "0"][..],
+            "at least 1",
+        ),
+    ] {
+        let o = compend(&calibrate_args(
+            d,
+            &[&["--rig", "virtual"][..], flags].concat(),
+        ));
+        assert_code(&o, 2);
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+    }
+}
+
+#[test]
 fn an_interrupted_calibration_resumes_without_recapturing() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("cal");

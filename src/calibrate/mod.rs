@@ -12,10 +12,14 @@
 //!    captured synchronised and averaged ([`sync::Capturer`]), written atomically in the
 //!    dataset layout as it arrives and recorded in the manifest ([`manifest`]); captures already
 //!    on disk for the same pattern set are not taken again (an interrupted run resumes);
-//! 4. **training**: the requested rung on the setup ([`crate::fit`]);
+//! 4. **training**: the requested rung on the setup ([`crate::fit`]); when `auto` climbed to a
+//!    CompenNet++ rung on the held-out pairs, the best linear rung is fitted too, for the rig
+//!    to confirm the climb;
 //! 5. **verification**: held-out test images, compensated by the new model and as they are,
 //!    projected, captured and scored inside the displayable area against the view they should
-//!    give. The caller installs the model only when it passed.
+//!    give. After a climb, the linear rung is projected on the same images and the climbed one
+//!    is kept only if it beats it there by the climbing margin ([`fit::ClimbRule::confirms`]).
+//!    The caller installs the model only when it passed.
 
 pub mod clock;
 pub mod exposure;
@@ -34,7 +38,7 @@ use crate::error::{Error, Result};
 use crate::fit::{self, Request};
 use crate::fov;
 use crate::metrics::Accumulator;
-use crate::model::store::{CalibrationRecord, PhaseSeconds, Verification};
+use crate::model::store::{CalibrationRecord, ClosedLoopScore, PhaseSeconds, Verification};
 use crate::model::{MethodChoice, Model};
 use crate::patterns::{self, Set};
 use crate::playback::place_on_canvas;
@@ -62,6 +66,8 @@ pub struct Options {
     /// `method = auto`: the PSNR gain (dB, held-out pairs) a CompenNet++ rung needs over the
     /// best linear rung ([`crate::fit::ClimbRule`]).
     pub climb_gain_db: f64,
+    /// `method = auto`: training iterations of the CompenNet++ rung; `None`: its schedule.
+    pub climb_iters: Option<usize>,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
     pub rig: String,
     /// Set by another thread to stop the calibration: checked before each capture, between the
@@ -122,6 +128,9 @@ pub struct Captured {
     reconnects: usize,
     seconds: PhaseSeconds,
     started: Instant,
+    /// Set by [`train`] when `auto` climbed: the best linear rung, fitted on every pair, which
+    /// the climbed rung must beat in closed loop.
+    lower_rung: Option<Model>,
 }
 
 impl Captured {
@@ -211,11 +220,14 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         reconnects,
         seconds,
         started,
+        lower_rung: None,
     })
 }
 
-/// Phase 4: fits the requested rung on the captures. Uses no device, so it may run on another
-/// thread while the projector shows something else.
+/// Phase 4: fits the requested rung on the captures; when `auto` climbed to a CompenNet++ rung,
+/// also the best linear rung (kept in `captured` for [`verify_model`] to compare in closed
+/// loop). Uses no device, so it may run on another thread while the projector shows something
+/// else.
 pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Result<Model> {
     opts.check_cancelled()?;
     let t = Instant::now();
@@ -224,7 +236,9 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
         method: opts.method,
         ntrain: Some(opts.patterns.ntrain),
         seed: opts.fit_seed,
-        iters: None,
+        iters: opts
+            .climb_iters
+            .filter(|_| opts.method == MethodChoice::Auto),
         batch: None,
         device: Default::default(),
         lattice: None,
@@ -234,6 +248,32 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
     };
     let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
+    captured.lower_rung = None;
+    let climbed = model
+        .meta
+        .training
+        .auto
+        .as_ref()
+        .filter(|_| !model.meta.method.is_linear());
+    if let Some(evidence) = climbed
+        && let Some(lower) = evidence.best_linear()
+    {
+        opts.check_cancelled()?;
+        tracing::info!(
+            "training: {} for the rig to compare with {} in closed loop",
+            lower.method,
+            model.meta.method
+        );
+        let req = Request {
+            method: MethodChoice::Rung(lower.method),
+            climb_gain_db: None,
+            iters: None,
+            ..req
+        };
+        let (mut linear, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
+        linear.meta.training.auto = Some(evidence.clone());
+        captured.lower_rung = Some(linear);
+    }
     captured.seconds.training = t.elapsed().as_secs_f64();
     tracing::info!(
         "training: {} in {:.1} s",
@@ -244,8 +284,11 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
 }
 
 /// Phase 5: projects held-out test images compensated by `model` and as they are, scores them
-/// and writes the record. The projector may have shown other things since the captures (the
-/// service plays while it trains): synchronisation starts afresh from the measured latency.
+/// and writes the record. After `auto` climbed, the linear rung [`train`] fitted beside it is
+/// projected on the same images, and the rung the rig confirms ([`fit::ClimbRule::confirms`])
+/// is the one returned, with both rungs' figures in its `training.auto`. The projector may have
+/// shown other things since the captures (the service plays while it trains): synchronisation
+/// starts afresh from the measured latency.
 pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
@@ -266,11 +309,24 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         reconnects,
         mut seconds,
         started,
+        lower_rung,
     } = captured;
     opts.check_cancelled()?;
     let t = Instant::now();
     let mut capturer = Capturer::new(display, camera, &latency, opts.sync);
-    let verification = verify(&mut capturer, &model, &root, &desired, opts, progress)?;
+    let models: Vec<&Model> = std::iter::once(&model).chain(lower_rung.as_ref()).collect();
+    let mut verifications = verify(&mut capturer, &models, &root, &desired, opts, progress)?;
+    let (model, verification) = match (lower_rung, verifications.pop(), verifications.pop()) {
+        (Some(lower), Some(lower_v), Some(upper_v)) => {
+            confirm_climb((model, upper_v), (lower, lower_v), opts.climb_gain_db)
+        }
+        (None, Some(v), None) => (model, v),
+        _ => {
+            return Err(Error::Failed(
+                "the verification scored another number of models than it was given".into(),
+            ));
+        }
+    };
     seconds.verification = t.elapsed().as_secs_f64();
     opts.check_cancelled()?;
     seconds.total = started.elapsed().as_secs_f64();
@@ -293,6 +349,52 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         record,
         setup,
     })
+}
+
+/// The rig's verdict on a climb: the climbed rung (`upper`) or the linear rung fitted beside it
+/// (`lower`), each with its verification, by [`fit::ClimbRule::confirms`] with a margin of
+/// `gain_db`. The one returned carries both rungs' closed-loop figures and the choice in its
+/// `training.auto`.
+fn confirm_climb(
+    upper: (Model, Verification),
+    lower: (Model, Verification),
+    gain_db: f64,
+) -> (Model, Verification) {
+    let rule = fit::ClimbRule { gain_db };
+    let kept = rule.confirms(
+        (upper.1.psnr, upper.1.passed),
+        (lower.1.psnr, lower.1.passed),
+    );
+    let scores: Vec<ClosedLoopScore> = [&upper, &lower]
+        .iter()
+        .map(|(m, v)| ClosedLoopScore {
+            method: m.meta.method,
+            psnr: v.psnr,
+            ssim: v.ssim,
+            passed: v.passed,
+        })
+        .collect();
+    tracing::info!(
+        "verification: {} {:.2} dB against {} {:.2} dB in closed loop (climbs at +{} dB): {} kept",
+        upper.0.meta.method,
+        upper.1.psnr,
+        lower.0.meta.method,
+        lower.1.psnr,
+        gain_db,
+        if kept {
+            upper.0.meta.method
+        } else {
+            lower.0.meta.method
+        }
+    );
+    let (mut model, v) = if kept { upper } else { lower };
+    let chosen = model.meta.method;
+    if let Some(evidence) = model.meta.training.auto.as_mut() {
+        evidence.chosen = chosen;
+        evidence.closed_loop = scores;
+        evidence.rule = rule.describe_on_rig("held-out training pairs");
+    }
+    (model, v)
 }
 
 /// Installs a calibration's model into the model directory `out`, its record in `model.json`,
@@ -452,16 +554,18 @@ fn write_desired(root: &DataRoot, setup: &Setup, opts: &Options) -> Result<Desir
     })
 }
 
-/// Projects the first test images compensated and as they are, captures them and scores both
-/// inside the displayable area against their desired views.
+/// Projects the first test images as they are and compensated by each of `models` (in turn,
+/// image by image, so a slow drift of the rig weighs on all alike), captures them and scores
+/// each inside the displayable area against their desired views: one verification per model,
+/// in order, sharing the uncompensated figures.
 fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
-    model: &Model,
+    models: &[&Model],
     root: &DataRoot,
     desired: &Desired,
     opts: &Options,
     progress: Progress,
-) -> Result<Verification> {
+) -> Result<Vec<Verification>> {
     let psize = capturer.projector_size();
     let canvas = Rect::covering(psize);
     let n = opts.verify_images.min(desired.views.len());
@@ -470,34 +574,62 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             "verification needs at least one test image (--ntest)".into(),
         ));
     }
-    let (mut comp, mut unc) = (Accumulator::default(), Accumulator::default());
-    let mut outputs = Vec::with_capacity(n);
+    if models.is_empty() {
+        return Err(Error::Failed("the verification was given no model".into()));
+    }
+    let mut comp: Vec<Accumulator> = models.iter().map(|_| Accumulator::default()).collect();
+    let mut outputs: Vec<Vec<crate::raster::NetImage>> =
+        models.iter().map(|_| Vec::with_capacity(n)).collect();
+    let mut unc = Accumulator::default();
     for (i, z) in desired.views.iter().take(n).enumerate() {
         progress("verification", i, n);
-        opts.check_cancelled()?;
-        let compensated = model.infer(z)?;
-        let seen = capturer.capture(&place_on_canvas(&compensated, canvas, psize)?, true)?;
-        outputs.push(compensated);
-        comp.add(&seen.crop(desired.area)?, &z.crop(desired.area)?)?;
-        let plain: PrjImage = crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i + 1))?;
-        let seen = capturer.capture(&place_on_canvas(&plain, canvas, psize)?, true)?;
-        unc.add(&seen.crop(desired.area)?, &z.crop(desired.area)?)?;
+        let want = z.crop(desired.area)?;
+        // The first model, the image as it is, then the other models: each capture follows a
+        // frame that differs from it (two rungs' compensations of one image may look alike,
+        // and the capturer checks that the camera saw the change).
+        let order = std::iter::once(Some(0))
+            .chain(std::iter::once(None))
+            .chain((1..models.len()).map(Some));
+        for shot in order {
+            opts.check_cancelled()?;
+            match shot {
+                Some(k) => {
+                    let compensated = models[k].infer(z)?;
+                    let seen =
+                        capturer.capture(&place_on_canvas(&compensated, canvas, psize)?, true)?;
+                    outputs[k].push(compensated);
+                    comp[k].add(&seen.crop(desired.area)?, &want)?;
+                }
+                None => {
+                    let plain: PrjImage =
+                        crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i + 1))?;
+                    let seen = capturer.capture(&place_on_canvas(&plain, canvas, psize)?, true)?;
+                    unc.add(&seen.crop(desired.area)?, &want)?;
+                }
+            }
+        }
     }
     progress("verification", n, n);
-    let (c, u) = (comp.finish()?, unc.finish()?);
-    let gain = c.psnr - u.psnr;
+    let u = unc.finish()?;
     let inputs: Vec<&CamImage> = desired.views.iter().take(n).collect();
-    let failure =
-        crate::failure::classify(&inputs, &outputs.iter().collect::<Vec<_>>(), c.psnr, u.psnr);
-    Ok(Verification {
-        images: n,
-        psnr: c.psnr,
-        ssim: c.ssim,
-        uncompensated_psnr: u.psnr,
-        uncompensated_ssim: u.ssim,
-        gain_db: gain,
-        required_gain_db: opts.required_gain_db,
-        failure,
-        passed: failure.is_none() && gain.is_finite() && gain >= opts.required_gain_db,
-    })
+    comp.into_iter()
+        .zip(&outputs)
+        .map(|(acc, out)| {
+            let c = acc.finish()?;
+            let gain = c.psnr - u.psnr;
+            let failure =
+                crate::failure::classify(&inputs, &out.iter().collect::<Vec<_>>(), c.psnr, u.psnr);
+            Ok(Verification {
+                images: n,
+                psnr: c.psnr,
+                ssim: c.ssim,
+                uncompensated_psnr: u.psnr,
+                uncompensated_ssim: u.ssim,
+                gain_db: gain,
+                required_gain_db: opts.required_gain_db,
+                failure,
+                passed: failure.is_none() && gain.is_finite() && gain >= opts.required_gain_db,
+            })
+        })
+        .collect()
 }

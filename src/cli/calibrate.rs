@@ -81,6 +81,15 @@ pub struct Args {
     /// [default: 1].
     #[arg(long)]
     pub min_gain: Option<f64>,
+    /// `--method auto` only: the PSNR gain in dB the CompenNet++ rung needs over the best
+    /// linear rung, on held-out pairs and then in closed loop on the rig [default: the
+    /// configuration's `climb_gain_db`, 0.5].
+    #[arg(long, value_name = "DB", allow_negative_numbers = true)]
+    pub climb_gain: Option<f64>,
+    /// `--method auto` only: training iterations of the CompenNet++ rung it climbs to
+    /// [default: the configuration's `climb_iters`, else the rung's own schedule].
+    #[arg(long)]
+    pub climb_iters: Option<usize>,
     /// Frames averaged per capture [default: 3].
     #[arg(long)]
     pub average: Option<usize>,
@@ -127,6 +136,8 @@ struct Settings {
     min_gain: f64,
     /// `auto`: the margin of the climb to a CompenNet++ rung (the config's `climb_gain_db`).
     climb_gain: f64,
+    /// `auto`: iterations of the CompenNet++ rung (the config's `climb_iters`).
+    climb_iters: Option<usize>,
     average: usize,
     rig_latency_ms: Option<f64>,
     rig_fps: Option<f64>,
@@ -154,6 +165,20 @@ impl Settings {
             (true, RigKind::Camera) => (None, r.camera.clone()),
         };
         let from = |kinds: &[RigKind]| rig_from_file && kinds.contains(&r.kind);
+        let method = a.method.unwrap_or(c.calibration.method);
+        if method != MethodChoice::Auto {
+            let flag = match (a.climb_gain, a.climb_iters) {
+                (Some(g), _) => Some(format!("--climb-gain {g}")),
+                (None, Some(n)) => Some(format!("--climb-iters {n}")),
+                (None, None) => None,
+            };
+            if let Some(flag) = flag {
+                return Err(compend::Error::Input(format!(
+                    "{flag}: only `--method auto` climbs the ladder; {method} is one rung"
+                ))
+                .into());
+            }
+        }
         let simulated = [RigKind::Virtual, RigKind::Window];
         let runs = match (&a.data, &file) {
             (None, Some(f)) => Some((Runs::new(&f.paths.data), f.calibration.keep_runs)),
@@ -189,12 +214,13 @@ impl Settings {
             camera,
             data,
             out,
-            method: a.method.unwrap_or(k.method),
+            method,
             ntrain: a.ntrain.unwrap_or(k.ntrain),
             ntest: a.ntest.unwrap_or(k.ntest),
             verify: a.verify.unwrap_or(k.verify),
             min_gain: a.min_gain.unwrap_or(k.min_gain_db),
-            climb_gain: k.climb_gain_db,
+            climb_gain: a.climb_gain.unwrap_or(k.climb_gain_db),
+            climb_iters: a.climb_iters.or(k.climb_iters),
             average: a.average.unwrap_or(k.average),
             seed: a.seed.unwrap_or(r.seed),
             network: a.network.unwrap_or(k.network),
@@ -504,6 +530,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         verify_images: args.verify,
         required_gain_db: args.min_gain,
         climb_gain_db: args.climb_gain,
+        climb_iters: args.climb_iters,
         rig,
         cancel: None,
     };
@@ -602,6 +629,15 @@ fn check_counts(a: &Settings) -> compend::Result<()> {
             "--min-gain {}: expected a number of dB",
             a.min_gain
         ));
+    }
+    if !a.climb_gain.is_finite() {
+        return bad(format!(
+            "--climb-gain {}: expected a number of dB",
+            a.climb_gain
+        ));
+    }
+    if a.climb_iters == Some(0) {
+        return bad("--climb-iters 0: expected at least 1".into());
     }
     for (flag, v) in [
         ("--rig-latency-ms", a.rig_latency_ms),

@@ -60,6 +60,31 @@ impl ClimbRule {
             self.gain_db
         )
     }
+
+    /// The rule in words when the rig confirms the climb ([`ClimbRule::confirms`]).
+    pub fn describe_on_rig(&self, on: &str) -> String {
+        format!(
+            "{}, and then, on the rig, only if its closed-loop PSNR on the verification images \
+             is also at least {} dB higher",
+            self.describe(on),
+            self.gain_db
+        )
+    }
+
+    /// The closed-loop confirmation of a climb on the rig: whether the climbed rung (`upper`)
+    /// is kept over the lower one, from each one's verification (PSNR in dB of the captured
+    /// projection, and whether it would be installed on its own). A rung that would not be
+    /// installed never wins; between two installable ones the margin decides, as on the
+    /// held-out pairs. Capture noise favours a network on held-out captures (it averages the
+    /// noise of its input away) but not in closed loop, where the input is the noise-free
+    /// desired image: the rig decides what the viewer sees (docs/bench/ladder.md).
+    pub fn confirms(&self, upper: (f64, bool), lower: (f64, bool)) -> bool {
+        match (upper.1, lower.1) {
+            (false, _) => false,
+            (true, false) => true,
+            (true, true) => self.climbs(upper.0, lower.0),
+        }
+    }
 }
 
 /// The CompenNet++ rung a training device can afford: on the CPU the residual rung (`linear`
@@ -102,6 +127,7 @@ pub(super) fn fit_auto(
             fitted_on: None,
             required_gain_db: Some(rule.gain_db),
             candidates: Vec::new(),
+            closed_loop: Vec::new(),
         };
         return linear_rungs::fit_linear(
             setup,
@@ -193,6 +219,7 @@ pub(super) fn fit_auto(
         fitted_on: Some(cut),
         required_gain_db: Some(rule.gain_db),
         candidates,
+        closed_loop: Vec::new(),
     };
     match climbed {
         Some((mut model, summary)) => {
@@ -231,5 +258,18 @@ mod tests {
         assert_eq!(climb_rung(TrainDevice::Cuda(0)), Method::CompenNetPp);
         assert_eq!(held_out(48), 8);
         assert_eq!(held_out(12), 4);
+    }
+
+    #[test]
+    fn the_rig_confirms_a_climb_only_by_the_margin_and_only_an_installable_rung() {
+        let rule = ClimbRule { gain_db: 0.5 };
+        assert!(rule.confirms((30.6, true), (30.0, true)));
+        assert!(!rule.confirms((30.4, true), (30.0, true)));
+        // Below the lower rung in closed loop, whatever the held-out pairs said.
+        assert!(!rule.confirms((29.2, true), (30.0, true)));
+        // A rung that would not install never wins; one that would beats one that would not.
+        assert!(!rule.confirms((40.0, false), (30.0, true)));
+        assert!(rule.confirms((30.1, true), (31.0, false)));
+        assert!(!rule.confirms((f64::NAN, true), (30.0, true)));
     }
 }

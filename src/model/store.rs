@@ -218,9 +218,35 @@ pub struct AutoEvidence {
     /// Each candidate's held-out figures.
     #[serde(default)]
     pub candidates: Vec<AutoCandidate>,
+    /// `calibrate` only, when the held-out pairs chose a CompenNet++ rung: that rung and the
+    /// best linear rung, each projected compensated on the same test images and captured
+    /// (closed loop, camera pixels in the displayable area). The climbed rung is kept only if
+    /// it beats the linear one there by the same margin.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub closed_loop: Vec<ClosedLoopScore>,
+}
+
+/// One rung's closed-loop verification in `auto`'s confirmation on the rig.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ClosedLoopScore {
+    pub method: Method,
+    /// PSNR (dB) and SSIM of the compensated projection as captured.
+    pub psnr: f64,
+    pub ssim: f64,
+    /// Whether this rung alone would have been installed (gain over the uncompensated
+    /// projection, no failure).
+    pub passed: bool,
 }
 
 impl AutoEvidence {
+    /// The linear candidate with the best held-out PSNR: the rung `auto` falls back to.
+    pub fn best_linear(&self) -> Option<&AutoCandidate> {
+        self.candidates
+            .iter()
+            .filter(|c| c.method.is_linear())
+            .max_by(|a, b| a.held_out_psnr.total_cmp(&b.held_out_psnr))
+    }
+
     /// The evidence for a person: each candidate's held-out figures and time, the choice and
     /// the rule.
     pub fn lines(&self) -> Vec<String> {
@@ -243,6 +269,25 @@ impl AutoEvidence {
         }
         if let Some(why) = &self.why {
             out.push(format!("auto: {why}"));
+        }
+        if !self.closed_loop.is_empty() {
+            let figures: Vec<String> = self
+                .closed_loop
+                .iter()
+                .map(|c| {
+                    format!(
+                        "{} {:.2} dB / SSIM {:.3}{}",
+                        c.method,
+                        c.psnr,
+                        c.ssim,
+                        if c.passed { "" } else { " (not installable)" }
+                    )
+                })
+                .collect();
+            out.push(format!(
+                "auto: closed loop on the rig: {}",
+                figures.join(", ")
+            ));
         }
         out.push(format!(
             "auto: chose {} by the rule: {}",

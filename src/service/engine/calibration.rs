@@ -101,6 +101,7 @@ impl Engine {
             verify_images: c.verify,
             required_gain_db: c.min_gain_db,
             climb_gain_db: c.climb_gain_db,
+            climb_iters: c.climb_iters,
             rig: rig_name(&self.config),
             cancel: Some(cancel),
         }
