@@ -759,7 +759,7 @@ fn bench_serve_measures_the_targets_on_a_tiny_rig() {
 }
 
 #[test]
-fn progressive_calibration_climbs_only_when_the_held_out_pairs_say_so() {
+fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_so() {
     if !gpu_or_skip() {
         return;
     }
@@ -796,8 +796,9 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_say_so() {
     );
     assert_eq!(svc.status()["model"]["method"], "linear");
 
-    // Any gain will do (reloaded with SIGHUP), and a recalibration: the climbed rung is installed
-    // and swapped in while playing, with its evidence.
+    // Any gain will do (reloaded with SIGHUP), and a recalibration: the climbed rung beats the
+    // installed one on the held-out pairs, the playback stops while the rig projects both, and
+    // it is installed and played, with its evidence.
     std::fs::write(&config, climbing("-100.0")).unwrap();
     unsafe { libc::kill(svc.pid(), libc::SIGHUP) };
     let start = Instant::now();
@@ -819,6 +820,17 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_say_so() {
     assert!(
         climb["psnr"].is_number() && climb["replaced_psnr"].is_number(),
         "{s}"
+    );
+    let rig = &climb["closed_loop"];
+    assert_eq!(rig["images"], 3, "{s}");
+    assert!(
+        rig["psnr"].is_number() && rig["replaced_psnr"].is_number() && rig["passed"] == true,
+        "{s}"
+    );
+    assert!(
+        svc.log().contains("in closed loop on 3 images"),
+        "log:\n{}",
+        svc.log()
     );
     let meta: Value =
         serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();

@@ -315,7 +315,15 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let t = Instant::now();
     let mut capturer = Capturer::new(display, camera, &latency, opts.sync);
     let models: Vec<&Model> = std::iter::once(&model).chain(lower_rung.as_ref()).collect();
-    let mut verifications = verify(&mut capturer, &models, &root, &desired, opts, progress)?;
+    let views = &desired.views;
+    let mut verifications = verify(
+        &mut capturer,
+        &models,
+        &root,
+        (desired.area, views),
+        opts,
+        progress,
+    )?;
     let (model, verification) = match (lower_rung, verifications.pop(), verifications.pop()) {
         (Some(lower), Some(lower_v), Some(upper_v)) => {
             confirm_climb((model, upper_v), (lower, lower_v), opts.climb_gain_db)
@@ -349,6 +357,32 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         record,
         setup,
     })
+}
+
+/// Closed-loop verification of `models` after a calibration, on its data root `root` and setup
+/// `setup` (progressive calibration's check of a climbed rung against the installed model): the
+/// first `opts.verify_images` test images, whose desired views the calibration wrote, projected
+/// as they are and compensated by each model, synchronised by the calibration's `latency`.
+/// One verification per model, in order.
+pub fn verify_after<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    (root, setup): (&Path, &Path),
+    models: &[&Model],
+    latency: &Latency,
+    opts: &Options,
+    progress: Progress,
+) -> Result<Vec<Verification>> {
+    let root = DataRoot::open(root)?;
+    let setup = Setup::open(setup, Some(root.path()))?;
+    let black = setup.load_reference(Reference::Black)?;
+    let white = setup.load_reference(Reference::White)?;
+    let label = setup.capture_dir(CaptureSet::Ref).display().to_string();
+    let fov = fov::fov_mask(&black, &white, &label)?;
+    let area = fov::displayable_area(&fov.mask, display.size().aspect())?;
+    let views = setup.load_desired(Some(opts.verify_images))?;
+    let mut capturer = Capturer::new(display, camera, latency, opts.sync);
+    verify(&mut capturer, models, &root, (area, &views), opts, progress)
 }
 
 /// The rig's verdict on a climb: the climbed rung (`upper`) or the linear rung fitted beside it
@@ -562,13 +596,13 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
     models: &[&Model],
     root: &DataRoot,
-    desired: &Desired,
+    (area, views): (Rect, &[CamImage]),
     opts: &Options,
     progress: Progress,
 ) -> Result<Vec<Verification>> {
     let psize = capturer.projector_size();
     let canvas = Rect::covering(psize);
-    let n = opts.verify_images.min(desired.views.len());
+    let n = opts.verify_images.min(views.len());
     if n == 0 {
         return Err(Error::Input(
             "verification needs at least one test image (--ntest)".into(),
@@ -581,9 +615,9 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let mut outputs: Vec<Vec<crate::raster::NetImage>> =
         models.iter().map(|_| Vec::with_capacity(n)).collect();
     let mut unc = Accumulator::default();
-    for (i, z) in desired.views.iter().take(n).enumerate() {
+    for (i, z) in views.iter().take(n).enumerate() {
         progress("verification", i, n);
-        let want = z.crop(desired.area)?;
+        let want = z.crop(area)?;
         // The first model, the image as it is, then the other models: each capture follows a
         // frame that differs from it (two rungs' compensations of one image may look alike,
         // and the capturer checks that the camera saw the change).
@@ -598,20 +632,20 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
                     let seen =
                         capturer.capture(&place_on_canvas(&compensated, canvas, psize)?, true)?;
                     outputs[k].push(compensated);
-                    comp[k].add(&seen.crop(desired.area)?, &want)?;
+                    comp[k].add(&seen.crop(area)?, &want)?;
                 }
                 None => {
                     let plain: PrjImage =
                         crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i + 1))?;
                     let seen = capturer.capture(&place_on_canvas(&plain, canvas, psize)?, true)?;
-                    unc.add(&seen.crop(desired.area)?, &want)?;
+                    unc.add(&seen.crop(area)?, &want)?;
                 }
             }
         }
     }
     progress("verification", n, n);
     let u = unc.finish()?;
-    let inputs: Vec<&CamImage> = desired.views.iter().take(n).collect();
+    let inputs: Vec<&CamImage> = views.iter().take(n).collect();
     comp.into_iter()
         .zip(&outputs)
         .map(|(acc, out)| {

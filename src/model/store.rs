@@ -91,7 +91,8 @@ pub struct CalibrationRecord {
 }
 
 /// Progressive calibration's evidence: the climbed rung and the model it replaced, scored on the
-/// calibration's held-out test pairs (paper protocol: network pixels, encoded values).
+/// calibration's held-out test pairs (paper protocol: network pixels, encoded values), then on
+/// the rig.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ClimbRecord {
     /// The method of the model it replaced.
@@ -103,6 +104,23 @@ pub struct ClimbRecord {
     pub required_gain_db: f64,
     /// Training and scoring, seconds.
     pub seconds: f64,
+    /// The rig's check of the climb: both models projected on the verification images.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub closed_loop: Option<ClimbClosedLoop>,
+}
+
+/// Progressive calibration's closed-loop check of a climbed model against the one it would
+/// replace, on the calibration's verification images (camera pixels in the displayable area).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ClimbClosedLoop {
+    /// Verification images projected.
+    pub images: usize,
+    /// PSNR (dB) of the climbed model's and of the replaced model's compensated projection.
+    pub psnr: f64,
+    pub replaced_psnr: f64,
+    /// Whether each would pass a calibration's verification on its own.
+    pub passed: bool,
+    pub replaced_passed: bool,
 }
 
 /// Seconds of each phase of a calibration.

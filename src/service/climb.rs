@@ -1,10 +1,14 @@
 //! Progressive calibration: once a calibration has installed its model and playback has
 //! started, the next rung (`[calibration] climb`) trains on a thread of its own on the same
 //! captures. It is judged on the calibration's held-out test pairs (captured, never trained on;
-//! the paper protocol) against the installed model; only if it beats it by `climb_gain_db`
-//! ([`fit::ClimbRule`], the rule of `--method auto`) is it installed (the atomic model-directory swap) and its pass built, for the playback loop to
-//! swap in at its next frame. The viewer sees the cheap rung within a minute, and the better one
-//! when, and only if, it is better.
+//! the paper protocol) against the installed model. Only if it beats it there by
+//! `climb_gain_db` ([`fit::ClimbRule`], the rule of `--method auto`) does it become a
+//! [`Candidate`]: the playback ends, the engine projects the verification images compensated by
+//! both models ([`crate::calibrate::verify_after`]), and [`settle`] installs the candidate (the
+//! atomic model-directory swap) only if the rig confirms the margin in closed loop
+//! ([`fit::ClimbRule::confirms`]); playback then resumes with the model installed. The viewer
+//! sees the cheap rung within a minute, and the better one when, and only if, it is better where
+//! it counts: on the surface.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -14,10 +18,8 @@ use std::time::Instant;
 use crate::dataset::Setup;
 use crate::error::{Error, Result};
 use crate::fit;
-use crate::gpu::{CompensationPass, GpuContext};
-use crate::model::store::ClimbRecord;
+use crate::model::store::{ClimbClosedLoop, ClimbRecord, Verification};
 use crate::model::{Method, MethodChoice, Model};
-use crate::raster::ImageSize;
 
 /// Held while a model directory is replaced, by the engine's install and by a climb's: a climb
 /// that was cancelled (a recalibration began) never installs after the check.
@@ -36,12 +38,23 @@ pub(super) struct Plan {
     pub(super) model: PathBuf,
 }
 
-/// How a climb ended.
+/// How a climb's training ended.
 pub(super) enum Outcome {
-    /// Better by the margin: installed at the plan's model path; its pass is ready.
-    Installed(Box<(Model, CompensationPass)>),
+    /// Better by the margin on the held-out pairs: for the rig to confirm.
+    Candidate(Box<Candidate>),
     /// Not better: nothing changed.
     Kept(ClimbRecord),
+}
+
+/// A climbed model that beat the installed one on the held-out pairs, waiting for the rig.
+pub(super) struct Candidate {
+    pub(super) plan: Plan,
+    /// The climbed model, its record (`calibration.climb`) holding the held-out figures.
+    pub(super) model: Model,
+    /// The model it would replace, as loaded when the climb began.
+    pub(super) installed: Model,
+    /// Seconds from the start of the climb to the end of its judgement on the held-out pairs.
+    pub(super) seconds: f64,
 }
 
 /// A climb under way.
@@ -53,16 +66,15 @@ pub(super) struct Climb {
 }
 
 impl Climb {
-    /// Starts training `plan.method`; a pass for a display of `display` projector pixels is
-    /// built on (a clone of) `ctx` if it installs.
-    pub(super) fn start(plan: Plan, ctx: GpuContext, display: ImageSize) -> Result<Self> {
+    /// Starts training `plan.method`.
+    pub(super) fn start(plan: Plan) -> Result<Self> {
         let (tx, result) = mpsc::channel();
         let cancel = Arc::new(AtomicBool::new(false));
         let (p, flag) = (plan.clone(), cancel.clone());
         std::thread::Builder::new()
             .name("compend-climb".into())
             .spawn(move || {
-                let _ = tx.send(climb(&p, &flag, &ctx, display));
+                let _ = tx.send(climb(p, &flag));
             })
             .map_err(|e| Error::Failed(format!("cannot start the climb's thread: {e}")))?;
         tracing::info!(
@@ -103,13 +115,8 @@ impl Drop for Climb {
     }
 }
 
-/// Trains, judges and, if better, installs.
-fn climb(
-    p: &Plan,
-    cancel: &Arc<AtomicBool>,
-    ctx: &GpuContext,
-    display: ImageSize,
-) -> Result<Outcome> {
+/// Trains and judges on the held-out pairs.
+fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
     let t = Instant::now();
     let setup = Setup::open(&p.setup, Some(&p.root))?;
     let installed = Model::load(&p.model)?;
@@ -140,12 +147,14 @@ fn climb(
         replaced_psnr: old.psnr,
         required_gain_db: p.gain_db,
         seconds: t.elapsed().as_secs_f64(),
+        closed_loop: None,
     };
     let rule = fit::ClimbRule { gain_db: p.gain_db };
     if !rule.climbs(new.psnr, old.psnr) {
         return Ok(Outcome::Kept(record));
     }
-    // The climbed model plays with the calibration it was trained on (its exposure and range).
+    // The climbed model plays with the calibration it was trained on (its exposure, range and
+    // latency).
     let Some(mut calibration) = installed.meta.calibration.clone() else {
         return Err(Error::Failed(format!(
             "{}: the installed model has no calibration record to climb from",
@@ -154,11 +163,61 @@ fn climb(
     };
     calibration.climb = Some(record);
     model.meta.calibration = Some(calibration);
-    let pass = CompensationPass::for_display(ctx, &model, display, model.display_range())?;
-    let _guard = INSTALL.lock().unwrap_or_else(|e| e.into_inner());
     if cancel.load(Ordering::Relaxed) {
         return Err(Error::Cancelled("the climb".into()));
     }
-    model.save(&p.model)?;
-    Ok(Outcome::Installed(Box::new((model, pass))))
+    Ok(Outcome::Candidate(Box::new(Candidate {
+        plan: p,
+        model,
+        installed,
+        seconds: t.elapsed().as_secs_f64(),
+    })))
+}
+
+/// The rig's verdict on a candidate, from the closed-loop verifications of the candidate and of
+/// the installed model, in that order ([`crate::calibrate::verify_after`]): if it confirms the
+/// margin ([`fit::ClimbRule::confirms`]), the candidate, with both closed-loop figures in its
+/// `calibration.climb`, is installed at the plan's model path and returned; otherwise nothing
+/// changes and the record says why.
+pub(super) fn settle(
+    c: Candidate,
+    verifications: &[Verification],
+) -> Result<std::result::Result<Model, ClimbRecord>> {
+    let [upper, lower] = verifications else {
+        return Err(Error::Failed(format!(
+            "the climb's check on the rig scored {} models, not 2",
+            verifications.len()
+        )));
+    };
+    let Candidate {
+        plan, mut model, ..
+    } = c;
+    let rule = fit::ClimbRule {
+        gain_db: plan.gain_db,
+    };
+    let kept = rule.confirms((upper.psnr, upper.passed), (lower.psnr, lower.passed));
+    let mut calibration = model
+        .meta
+        .calibration
+        .take()
+        .ok_or_else(|| Error::Failed("the climbed model lost its calibration record".into()))?;
+    let mut record = calibration
+        .climb
+        .take()
+        .ok_or_else(|| Error::Failed("the climbed model lost its climb record".into()))?;
+    record.closed_loop = Some(ClimbClosedLoop {
+        psnr: upper.psnr,
+        replaced_psnr: lower.psnr,
+        passed: upper.passed,
+        replaced_passed: lower.passed,
+        images: upper.images,
+    });
+    if !kept {
+        return Ok(Err(record));
+    }
+    calibration.climb = Some(record);
+    model.meta.calibration = Some(calibration);
+    let _guard = INSTALL.lock().unwrap_or_else(|e| e.into_inner());
+    model.save(&plan.model)?;
+    Ok(Ok(model))
 }

@@ -145,14 +145,6 @@ impl Devices {
         }
     }
 
-    /// The GPU device the pass runs on.
-    pub(super) fn context(&self) -> &GpuContext {
-        match self {
-            Devices::Virtual(v) => &v.ctx,
-            Devices::Hardware(h) => h.win.context(),
-        }
-    }
-
     pub(super) fn describe(&self) -> String {
         match self {
             Devices::Virtual(v) => format!(

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, TryRecvError};
 use std::time::{Duration, Instant};
 
-use super::climb::{Climb, Outcome};
+use super::climb::{Candidate, Climb, Outcome};
 use super::devices::{load_model, match_exposure};
 use super::monitor::Tap;
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request};
@@ -90,6 +90,9 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     loading: Option<Loading>,
     /// Progressive calibration under way (it outlives a playback: the engine keeps it).
     pub(super) climb: Option<Climb>,
+    /// A climbed model that beat the installed one on the held-out pairs: it ends the playback,
+    /// for the engine to check both on the rig.
+    pub(super) candidate: Option<Box<Candidate>>,
     /// Ends the playback once set (a calibration's training beside it has ended).
     pub(super) end_when: Option<Arc<AtomicBool>>,
     /// A model swapped in during this playback, and where it came from: the engine serves it
@@ -132,6 +135,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             display,
             loading: None,
             climb: None,
+            candidate: None,
             end_when: None,
             swapped: None,
             changes: None,
@@ -232,19 +236,23 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         Some(pass)
     }
 
-    /// The climb's outcome, once there is one: a better model installed is swapped in (its
-    /// pass for the player); otherwise the log says why nothing changed.
-    fn climbed(&mut self) -> Option<CompensationPass> {
-        let outcome = self.climb.as_ref()?.poll()?;
-        let climb = self.climb.take()?;
+    /// The climb's outcome, once there is one: a candidate ends the playback, for the engine
+    /// to check it on the rig ([`super::climb::settle`]); otherwise the log says why nothing
+    /// changed.
+    fn climbed(&mut self) {
+        let Some(outcome) = self.climb.as_ref().and_then(Climb::poll) else {
+            return;
+        };
+        let Some(climb) = self.climb.take() else {
+            return;
+        };
         let (method, seconds) = (climb.plan.method, climb.seconds());
-        let (model, pass) = match outcome {
-            Err(Error::Cancelled(_)) => return None,
+        match outcome {
+            Err(Error::Cancelled(_)) => {}
             Err(e) => {
                 let msg = format!("progressive calibration: climbing to {method} failed: {e}");
                 tracing::warn!("{msg}");
                 self.io.shared.update(|s| s.last_error = Some(msg));
-                return None;
             }
             Ok(Outcome::Kept(r)) => {
                 tracing::info!(
@@ -256,43 +264,28 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
                     r.psnr - r.replaced_psnr,
                     r.required_gain_db
                 );
-                return None;
             }
-            Ok(Outcome::Installed(done)) => *done,
-        };
-        if let Some(rig) = &mut self.rig
-            && let Err(e) = match_exposure(rig, &model)
-        {
-            tracing::warn!("progressive calibration: {e}");
+            Ok(Outcome::Candidate(c)) => {
+                if let Some(r) = c
+                    .model
+                    .meta
+                    .calibration
+                    .as_ref()
+                    .and_then(|c| c.climb.as_ref())
+                {
+                    tracing::info!(
+                        "progressive calibration: {method} scored {:.2} dB on the held-out pairs \
+                         against {:.2} dB for {} ({:+.2} dB); {seconds:.0} s; checking both on \
+                         the rig",
+                        r.psnr,
+                        r.replaced_psnr,
+                        r.replaced,
+                        r.psnr - r.replaced_psnr
+                    );
+                }
+                self.candidate = Some(c);
+            }
         }
-        if let Some(r) = model
-            .meta
-            .calibration
-            .as_ref()
-            .and_then(|c| c.climb.as_ref())
-        {
-            tracing::info!(
-                "progressive calibration: installed {method} into {} and swapped it in while \
-                 playing: {:.2} dB on the held-out pairs against {:.2} dB for {} ({:+.2} dB); \
-                 {seconds:.0} s",
-                climb.plan.model.display(),
-                r.psnr,
-                r.replaced_psnr,
-                r.replaced,
-                r.psnr - r.replaced_psnr
-            );
-        }
-        let path = climb.plan.model.clone();
-        self.io.shared.update(|s| {
-            s.model = Some(ModelStatus::of(&path, &model));
-            s.monitoring = Monitoring::fresh(&s.monitoring);
-        });
-        if let Some(tap) = &self.monitor {
-            tap.reset();
-            self.next_check = Instant::now() + Duration::from_millis(500).min(self.period);
-        }
-        self.swapped = Some((path, model));
-        Some(pass)
     }
 
     /// Ends the playback's business: a model still loading is waited for, so its request is
@@ -317,7 +310,7 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
 
     fn keep_going(&mut self) -> bool {
         self.io.notify.ping();
-        if self.pending.is_some() {
+        if self.pending.is_some() || self.candidate.is_some() {
             return false;
         }
         match self.io.rx.try_recv() {
@@ -355,7 +348,8 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
     }
 
     fn take_pass(&mut self) -> Option<CompensationPass> {
-        self.loaded(false).or_else(|| self.climbed())
+        self.climbed();
+        self.loaded(false)
     }
 
     fn refreshed(&mut self, stats: &PlayStats) {

@@ -329,6 +329,107 @@ impl Engine {
         }
     }
 
+    /// Progressive calibration's check on the rig: a climbed model that beat the installed one
+    /// on the held-out pairs, and the installed one, projected on the calibration's
+    /// verification images; the climbed one is installed and served from now on only if the rig
+    /// confirms the margin ([`climb::settle`]). Playback resumes either way.
+    pub(super) fn confirm_climb(&mut self, c: climb::Candidate) {
+        let method = c.plan.method;
+        let latency = match c.installed.meta.calibration.as_ref() {
+            Some(cal) => cal.latency.clone(),
+            None => {
+                tracing::warn!(
+                    "progressive calibration: {method} is not installed: the installed model has \
+                     no calibration record to check it with"
+                );
+                return;
+            }
+        };
+        let cancel = self.io.shared.cancel.clone();
+        cancel.store(false, Ordering::Relaxed);
+        let opts = self.calibration_options(cancel);
+        self.calibration_started = Instant::now();
+        self.io
+            .state(State::Verifying, "verifying the climbed model");
+        let (root, setup) = (c.plan.root.clone(), c.plan.setup.clone());
+        let verified = self.with_devices("the climb's check", |display, camera, progress| {
+            calibrate::verify_after(
+                display,
+                camera,
+                (&root, &setup),
+                &[&c.model, &c.installed],
+                &latency,
+                &opts,
+                progress,
+            )
+        });
+        self.io.shared.update(|s| s.calibration = None);
+        let path = c.plan.model.clone();
+        let seconds = c.seconds;
+        let settled = verified.and_then(|v| climb::settle(c, &v));
+        match settled {
+            Ok(Ok(model)) => {
+                if let Some(r) = model
+                    .meta
+                    .calibration
+                    .as_ref()
+                    .and_then(|c| c.climb.as_ref())
+                    && let Some(cl) = &r.closed_loop
+                {
+                    tracing::info!(
+                        "progressive calibration: installed {method} into {}: {:.2} dB against \
+                         {:.2} dB for {} in closed loop on {} images ({:+.2} dB; held-out pairs \
+                         {:+.2} dB); {seconds:.0} s of training",
+                        path.display(),
+                        cl.psnr,
+                        cl.replaced_psnr,
+                        r.replaced,
+                        cl.images,
+                        cl.psnr - cl.replaced_psnr,
+                        r.psnr - r.replaced_psnr
+                    );
+                }
+                self.io.shared.update(|s| {
+                    s.model = Some(ModelStatus::of(&path, &model));
+                    s.monitoring = Monitoring::fresh(&s.monitoring);
+                });
+                self.model = Some(model);
+                self.model_path = path;
+                self.baseline = None;
+            }
+            Ok(Err(r)) => {
+                if let Some(cl) = &r.closed_loop {
+                    tracing::info!(
+                        "progressive calibration: kept {}: on the rig {method} scored {:.2} dB \
+                         against {:.2} dB in closed loop ({:+.2} dB, {:+.2} needed{}), though \
+                         {:+.2} dB on the held-out pairs",
+                        r.replaced,
+                        cl.psnr,
+                        cl.replaced_psnr,
+                        cl.psnr - cl.replaced_psnr,
+                        r.required_gain_db,
+                        if cl.passed {
+                            ""
+                        } else {
+                            "; it would not pass verification"
+                        },
+                        r.psnr - r.replaced_psnr
+                    );
+                }
+            }
+            Err(Error::Cancelled(_)) => {
+                tracing::info!("progressive calibration: the check of {method} was stopped");
+            }
+            Err(e) => {
+                self.io
+                    .fail(&format!("progressive calibration: checking {method}"), &e);
+            }
+        }
+        if self.next != Next::Stop {
+            self.next = Next::Play;
+        }
+    }
+
     /// A calibration that stopped: cancelled (its captures stay for the next run), refused (the
     /// run ends) or failed (the marker stays, so the next calibration resumes it).
     fn calibration_failed(&mut self, data: &std::path::Path, e: Error) {

@@ -420,8 +420,7 @@ impl Engine {
         let fps = self.config.rig.fps;
         let drift_after = self.config.rig.drift_after_s;
         if let Some(plan) = self.climb_plan.take() {
-            let display = self.devices.display_size();
-            match climb::Climb::start(plan, self.devices.context().clone(), display) {
+            match climb::Climb::start(plan) {
                 Ok(c) => self.climb = Some(c),
                 Err(e) => self.io.fail("progressive calibration", &e),
             }
@@ -486,24 +485,33 @@ impl Engine {
             Ok(Ended {
                 stats: Ok(stats),
                 pending,
+                candidate,
                 ..
             }) => {
                 self.io
                     .shared
                     .update(|s| set_frames(&mut s.frames, &stats, &before));
-                match pending {
-                    Some(ev) => {
+                match (pending, candidate) {
+                    (None, Some(c)) => self.confirm_climb(*c),
+                    (Some(ev), candidate) => {
+                        if let Some(c) = candidate {
+                            tracing::info!(
+                                "progressive calibration: {} is not checked: a request ended \
+                                 the playback first",
+                                c.plan.method
+                            );
+                        }
                         self.handle(ev);
                         // A request that was refused changed nothing: play on.
                         if self.next == Next::Wait {
                             self.next = Next::Play;
                         }
                     }
-                    None if monitor.as_ref().is_some_and(|t| t.ends_playback()) => {
+                    (None, None) if monitor.as_ref().is_some_and(|t| t.ends_playback()) => {
                         self.on_drift();
                     }
-                    None if self.training_ended() => {}
-                    None => {
+                    (None, None) if self.training_ended() => {}
+                    (None, None) => {
                         tracing::info!("{}: the source ended", self.source);
                         self.io.state(State::Idle, "idle: the source ended");
                     }
@@ -598,6 +606,7 @@ fn play_virtual(
         stats,
         pending: screen.pending.take(),
         swapped: screen.swapped.take(),
+        candidate: screen.candidate.take(),
     })
 }
 
@@ -680,6 +689,7 @@ fn play_hardware(
             stats,
             pending: screen.pending.take(),
             swapped: screen.swapped.take(),
+            candidate: screen.candidate.take(),
         };
         drop(screen);
         stop.store(true, std::sync::atomic::Ordering::Relaxed);
@@ -701,11 +711,14 @@ struct Around<'a> {
     bump: Option<(VirtualRig, Instant)>,
 }
 
-/// How a playback ended: its counts, the event that ended it (none: the source ended or
-/// monitoring found drift), and a model swapped in while it played.
+/// How a playback ended: its counts, the event that ended it (none: the source ended,
+/// monitoring found drift or a climb ended), a model swapped in while it played, and a climbed
+/// model waiting for the rig's check.
 struct Ended {
     /// The counts, or how the playback failed (a model swapped in before still counts).
     stats: Result<PlayStats>,
     pending: Option<Event>,
     swapped: Option<(PathBuf, Model)>,
+    /// A climbed model for the engine to check on the rig ([`climb::settle`]).
+    candidate: Option<Box<climb::Candidate>>,
 }
