@@ -509,7 +509,12 @@ impl<'t> Walker<'t> {
             ntrain,
             ntest,
             verify,
-            min_gain_db: self.checked(t, "min_gain_db", 1.0, |v: &f64| finite(*v)),
+            min_gain_db: self.checked(
+                t,
+                "min_gain_db",
+                crate::calibrate::DEFAULT_MIN_GAIN_DB,
+                |v: &f64| finite(*v),
+            ),
             average: self.checked(t, "average", 3usize, |&n| at_least_one(n)),
             network: self
                 .parsed_with(t, "network", |s| {

@@ -188,3 +188,59 @@ fn bench_train_measures_the_chosen_rows_in_rounds() {
         stderr(&o)
     );
 }
+
+#[test]
+fn bench_auto_is_checked_on_the_rig_after_a_climb() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    // No margin: the residual rung (3 iterations) climbs on the held-out pairs, and the rig
+    // projects it and the linear rung fitted beside it on verification images of its own.
+    let o = compend(&[
+        "bench",
+        "--out",
+        out.to_str().unwrap(),
+        "--scenes",
+        "textured-plane",
+        "--methods",
+        "linear,auto",
+        "--iters",
+        "3",
+        "--climb-gain",
+        "-1000",
+        "--ntrain",
+        "12",
+        "--ntest",
+        "2",
+        "--camera",
+        "80x60",
+        "--projector",
+        "100x75",
+        "--network",
+        "32",
+    ]);
+    assert_code(&o, 0);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    let auto = rows.iter().find(|r| r["method"] == "auto").unwrap();
+    let check = auto["rig_check"].as_array().unwrap();
+    let methods: Vec<&str> = check
+        .iter()
+        .map(|c| c["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(methods.len(), 2, "{auto}");
+    assert_eq!(methods[0], "compennet++-res", "{auto}");
+    // The best linear rung on the held-out pairs.
+    assert!(["linear", "linear-sl"].contains(&methods[1]), "{auto}");
+    // Either rung may win on the rig; the row reports the one kept, and a margin of -1000 dB
+    // keeps the climbed one whenever it would install.
+    let expected = if check[0]["passed"] == true {
+        methods[0]
+    } else {
+        methods[1]
+    };
+    assert_eq!(auto["chosen"], expected, "{auto}");
+    // The linear row had no climb to check.
+    let linear = rows.iter().find(|r| r["method"] == "linear").unwrap();
+    assert!(linear.get("rig_check").is_none(), "{linear}");
+}

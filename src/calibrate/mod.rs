@@ -50,6 +50,10 @@ pub use sync::{Capturer, Latency, SyncSettings};
 /// The setup folder's name under the data root.
 pub const SETUP_NAME: &str = "capture";
 
+/// The PSNR gain over the uncompensated projection (dB) a model needs in the verification
+/// unless the configuration says otherwise (`[calibration] min_gain_db`).
+pub const DEFAULT_MIN_GAIN_DB: f64 = 1.0;
+
 /// What to calibrate and how.
 #[derive(Clone, Debug)]
 pub struct Options {
@@ -248,32 +252,10 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
     };
     let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
-    captured.lower_rung = None;
-    let climbed = model
-        .meta
-        .training
-        .auto
-        .as_ref()
-        .filter(|_| !model.meta.method.is_linear());
-    if let Some(evidence) = climbed
-        && let Some(lower) = evidence.best_linear()
-    {
-        opts.check_cancelled()?;
-        tracing::info!(
-            "training: {} for the rig to compare with {} in closed loop",
-            lower.method,
-            model.meta.method
-        );
-        let req = Request {
-            method: MethodChoice::Rung(lower.method),
-            climb_gain_db: None,
-            iters: None,
-            ..req
-        };
-        let (mut linear, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
-        linear.meta.training.auto = Some(evidence.clone());
-        captured.lower_rung = Some(linear);
-    }
+    opts.check_cancelled()?;
+    captured.lower_rung = fit::lower_rung(&setup, &req, &model, |stage, done, n| {
+        progress(stage, done, n)
+    })?;
     captured.seconds.training = t.elapsed().as_secs_f64();
     tracing::info!(
         "training: {} in {:.1} s",
@@ -385,50 +367,24 @@ pub fn verify_after<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     verify(&mut capturer, models, &root, (area, &views), opts, progress)
 }
 
-/// The rig's verdict on a climb: the climbed rung (`upper`) or the linear rung fitted beside it
-/// (`lower`), each with its verification, by [`fit::ClimbRule::confirms`] with a margin of
-/// `gain_db`. The one returned carries both rungs' closed-loop figures and the choice in its
-/// `training.auto`.
+/// The rig's verdict on a climb ([`fit::settle_climb`]) from the verifications of the climbed
+/// rung (`upper`) and of the linear rung fitted beside it (`lower`): the model kept and its
+/// verification.
 fn confirm_climb(
     upper: (Model, Verification),
     lower: (Model, Verification),
     gain_db: f64,
 ) -> (Model, Verification) {
-    let rule = fit::ClimbRule { gain_db };
-    let kept = rule.confirms(
-        (upper.1.psnr, upper.1.passed),
-        (lower.1.psnr, lower.1.passed),
-    );
-    let scores: Vec<ClosedLoopScore> = [&upper, &lower]
-        .iter()
-        .map(|(m, v)| ClosedLoopScore {
-            method: m.meta.method,
-            psnr: v.psnr,
-            ssim: v.ssim,
-            passed: v.passed,
-        })
-        .collect();
-    tracing::info!(
-        "verification: {} {:.2} dB against {} {:.2} dB in closed loop (climbs at +{} dB): {} kept",
-        upper.0.meta.method,
-        upper.1.psnr,
-        lower.0.meta.method,
-        lower.1.psnr,
-        gain_db,
-        if kept {
-            upper.0.meta.method
-        } else {
-            lower.0.meta.method
-        }
-    );
-    let (mut model, v) = if kept { upper } else { lower };
-    let chosen = model.meta.method;
-    if let Some(evidence) = model.meta.training.auto.as_mut() {
-        evidence.chosen = chosen;
-        evidence.closed_loop = scores;
-        evidence.rule = rule.describe_on_rig("held-out training pairs");
-    }
-    (model, v)
+    let score = |(m, v): &(Model, Verification)| ClosedLoopScore {
+        method: m.meta.method,
+        psnr: v.psnr,
+        ssim: v.ssim,
+        passed: v.passed,
+    };
+    let (su, sl) = (score(&upper), score(&lower));
+    let (model, kept_upper) =
+        fit::settle_climb((upper.0, su), (lower.0, sl), fit::ClimbRule { gain_db });
+    (model, if kept_upper { upper.1 } else { lower.1 })
 }
 
 /// Installs a calibration's model into the model directory `out`, its record in `model.json`,

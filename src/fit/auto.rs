@@ -21,7 +21,7 @@ use std::time::Instant;
 use super::{MIN_TRAIN, Request, Summary, TrainDevice, TrainingData, compennet, linear_rungs};
 use crate::dataset::{Reference, Setup};
 use crate::error::Result;
-use crate::model::store::{AutoCandidate, AutoEvidence};
+use crate::model::store::{AutoCandidate, AutoEvidence, ClosedLoopScore};
 use crate::model::{Method, MethodChoice, Model};
 
 /// When a rung replaces the one below it: its PSNR on pairs neither was trained on must beat
@@ -239,6 +239,78 @@ pub(super) fn fit_auto(
             progress,
         ),
     }
+}
+
+/// After `auto` climbed (`climbed` is a CompenNet++ rung with `auto`'s evidence): its best
+/// linear candidate fitted on every pair of the request, for the rig to compare with the climbed
+/// rung in closed loop ([`settle_climb`]), carrying the same evidence. `None` when `climbed`
+/// did not climb (a linear rung, or no evidence).
+pub fn lower_rung(
+    setup: &Setup,
+    req: &Request,
+    climbed: &Model,
+    progress: impl FnMut(&str, usize, usize),
+) -> Result<Option<Model>> {
+    let Some(evidence) = climbed
+        .meta
+        .training
+        .auto
+        .as_ref()
+        .filter(|_| !climbed.meta.method.is_linear())
+    else {
+        return Ok(None);
+    };
+    let Some(lower) = evidence.best_linear() else {
+        return Ok(None);
+    };
+    tracing::info!(
+        "auto: fitting {} for the rig to compare with {} in closed loop",
+        lower.method,
+        climbed.meta.method
+    );
+    let req = Request {
+        method: MethodChoice::Rung(lower.method),
+        climb_gain_db: None,
+        iters: None,
+        batch: None,
+        ..req.clone()
+    };
+    let (mut model, _) = super::fit(setup, &req, progress)?;
+    model.meta.training.auto = Some(evidence.clone());
+    Ok(Some(model))
+}
+
+/// The rig's verdict on a climb ([`ClimbRule::confirms`]): the climbed rung (`upper`) or the
+/// linear rung fitted beside it (`lower`, [`lower_rung`]), each with its closed-loop score on
+/// the same verification images. Returns the model kept, with both scores, the choice and the
+/// rule in its `training.auto`, and whether it is the climbed one.
+pub fn settle_climb(
+    upper: (Model, ClosedLoopScore),
+    lower: (Model, ClosedLoopScore),
+    rule: ClimbRule,
+) -> (Model, bool) {
+    let kept = rule.confirms(
+        (upper.1.psnr, upper.1.passed),
+        (lower.1.psnr, lower.1.passed),
+    );
+    tracing::info!(
+        "auto: {} {:.2} dB against {} {:.2} dB in closed loop (climbs at +{} dB): {} kept",
+        upper.1.method,
+        upper.1.psnr,
+        lower.1.method,
+        lower.1.psnr,
+        rule.gain_db,
+        if kept { upper.1.method } else { lower.1.method }
+    );
+    let scores = vec![upper.1, lower.1];
+    let mut model = if kept { upper.0 } else { lower.0 };
+    let chosen = model.meta.method;
+    if let Some(evidence) = model.meta.training.auto.as_mut() {
+        evidence.chosen = chosen;
+        evidence.closed_loop = scores;
+        evidence.rule = rule.describe_on_rig("held-out training pairs");
+    }
+    (model, kept)
 }
 
 #[cfg(test)]

@@ -14,7 +14,7 @@ mod compennet;
 mod device;
 mod linear_rungs;
 
-pub use auto::{ClimbRule, DEFAULT_CLIMB_GAIN_DB, climb_rung};
+pub use auto::{ClimbRule, DEFAULT_CLIMB_GAIN_DB, climb_rung, lower_rung, settle_climb};
 pub use device::TrainDevice;
 
 use std::time::Instant;

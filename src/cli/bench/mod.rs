@@ -19,6 +19,7 @@ use anyhow::{Context, Result};
 use compend::dataset::{DataRoot, ProjectorSet, Setup};
 use compend::fit::{self, Request};
 use compend::model::paper_protocol;
+use compend::model::store::ClosedLoopScore;
 use compend::raster::{CamImage, PrjImage};
 use compend::rig::{self, ExportOptions, OracleOptions, Phase, Simulator};
 
@@ -57,6 +58,10 @@ pub struct Args {
     /// CompenNet++ methods: batch size instead of the variant's.
     #[arg(long)]
     pub batch: Option<usize>,
+    /// `auto`: the PSNR gain in dB the CompenNet++ rung needs over the best linear rung, on
+    /// held-out pairs and then in closed loop on the rig [default: 0.5].
+    #[arg(long, value_name = "DB", allow_negative_numbers = true)]
+    pub climb_gain: Option<f64>,
     /// Camera / projector / network sizes (defaults: the scenes' 640x480 / 800x600, 256).
     #[command(flatten)]
     pub scene_args: SceneArgs,
@@ -125,7 +130,7 @@ pub fn run(args: Args) -> Result<()> {
                 &args,
                 &scene.name,
                 seed,
-                &viewer,
+                (&sim, &viewer),
                 &setup,
                 &exported.record,
             )?);
@@ -196,7 +201,7 @@ fn bench_scene(
     args: &Args,
     scene: &str,
     seed: u64,
-    sim: &Simulator,
+    (calibration, sim): (&Simulator, &Simulator),
     setup: &Setup,
     record: &rig::export::RigRecord,
 ) -> Result<Vec<Row>> {
@@ -204,6 +209,7 @@ fn bench_scene(
         args,
         scene,
         seed,
+        calibration,
         sim,
         setup,
         record,
@@ -221,12 +227,14 @@ fn bench_scene(
     Ok(rows)
 }
 
-/// One scene and seed of the bench: the rig as the viewer sees it, the exported setup and its
-/// record, and the desired test images (camera pixels).
+/// One scene and seed of the bench: the rig as it was calibrated and as the viewer sees it, the
+/// exported setup and its record, and the desired test images (camera pixels).
 struct SceneBench<'a> {
     args: &'a Args,
     scene: &'a str,
     seed: u64,
+    /// The rig during calibration: where `auto`'s climb is checked in closed loop.
+    calibration: &'a Simulator,
     sim: &'a Simulator,
     setup: &'a Setup,
     record: &'a rig::export::RigRecord,
@@ -293,18 +301,22 @@ impl SceneBench<'_> {
         (ceiling, uncompensated): (f64, f64),
     ) -> Result<Row> {
         let (args, scene, seed) = (self.args, self.scene, self.seed);
+        let trains = !matches!(method, compend::model::MethodChoice::Rung(m) if m.is_linear());
         let req = Request {
             method,
             ntrain: Some(n),
             seed,
-            iters: args.iters,
-            batch: args.batch,
+            // The closed-form linear rungs train in no iterations.
+            iters: args.iters.filter(|_| trains),
+            batch: args.batch.filter(|_| trains),
             device: Default::default(),
             lattice: None,
             projector: None,
             photometric: Default::default(),
             cancel: None,
-            climb_gain_db: None,
+            climb_gain_db: args
+                .climb_gain
+                .filter(|_| method == compend::model::MethodChoice::Auto),
         };
         let mut row = Row {
             scene: scene.into(),
@@ -327,8 +339,18 @@ impl SceneBench<'_> {
             failed: None,
             failure: None,
             chosen: None,
+            rig_check: Vec::new(),
         };
-        match fit::fit(self.setup, &req, |_, _, _| {}) {
+        let trained = fit::fit(self.setup, &req, |_, _, _| {}).and_then(|(model, summary)| {
+            if method != compend::model::MethodChoice::Auto {
+                return Ok((model, summary));
+            }
+            let t = Instant::now();
+            let model = self.confirm_on_rig(model, &req)?;
+            let seconds = summary.seconds + t.elapsed().as_secs_f64();
+            Ok((model, fit::Summary { seconds, ..summary }))
+        });
+        match trained {
             Err(e) => {
                 eprintln!("bench: {scene} {method} n={n}: training failed: {e}");
                 row.failed = Some(e.to_string());
@@ -356,12 +378,10 @@ impl SceneBench<'_> {
                 let inputs: Vec<&CamImage> = desired.iter().collect();
                 let outputs: Vec<&PrjImage> = shown.iter().collect();
                 row.failure = compend::failure::classify(&inputs, &outputs, s.psnr, uncompensated);
-                row.chosen = model
-                    .meta
-                    .training
-                    .auto
-                    .as_ref()
-                    .map(|a| a.chosen.to_string());
+                if let Some(a) = &model.meta.training.auto {
+                    row.chosen = Some(a.chosen.to_string());
+                    row.rig_check = a.closed_loop.clone();
+                }
                 eprintln!(
                     "bench: {scene} {method}{} n={n}: {:.1} s, closed loop {:.2} dB (gap {:.2} \
                      dB){}",
@@ -378,6 +398,83 @@ impl SceneBench<'_> {
         Ok(row)
     }
 }
+
+impl SceneBench<'_> {
+    /// `auto` as `calibrate` runs it: after a climb, the best linear rung fitted beside the
+    /// climbed one, both projected on [`CONFIRM_IMAGES`] verification images on the rig as it
+    /// was calibrated, and the rig's verdict ([`fit::settle_climb`]). The verification images
+    /// are sampling images of the test set after the scored ones, so the choice is made on
+    /// images the bench does not score.
+    fn confirm_on_rig(
+        &self,
+        climbed: compend::model::Model,
+        req: &Request,
+    ) -> compend::Result<compend::model::Model> {
+        let Some(lower) = fit::lower_rung(self.setup, req, &climbed, |_, _, _| {})? else {
+            return Ok(climbed);
+        };
+        let net = self.setup.root().network_size()?;
+        let (area, range) = (self.record.displayable_area, self.record.desired_range);
+        let cam = self.calibration.camera_size();
+        let plain: Vec<PrjImage> = (self.args.ntest..self.args.ntest + CONFIRM_IMAGES)
+            .map(|i| {
+                compend::patterns::sampling_image(
+                    self.seed,
+                    compend::patterns::Set::Test,
+                    i,
+                    net.width,
+                    net.height,
+                )
+            })
+            .collect();
+        let views: Vec<CamImage> = plain
+            .iter()
+            .map(|x| compend::fov::place_in_area(&range.apply(x), area, cam))
+            .collect::<compend::Result<_>>()?;
+        let frames = rig::score::Frames::single(FRAMES_CONFIRM);
+        let uncompensated = rig::closed_loop(
+            self.calibration,
+            &self.on_canvas(&plain)?,
+            &views,
+            area,
+            frames,
+        )?;
+        let score = |m: &compend::model::Model| -> compend::Result<ClosedLoopScore> {
+            let shown: Vec<PrjImage> = views
+                .iter()
+                .map(|z| m.infer(z).map(|x| x.into_space()))
+                .collect::<compend::Result<_>>()?;
+            let s = rig::closed_loop(
+                self.calibration,
+                &self.on_canvas(&shown)?,
+                &views,
+                area,
+                frames,
+            )?;
+            let inputs: Vec<&CamImage> = views.iter().collect();
+            let outputs: Vec<&PrjImage> = shown.iter().collect();
+            let failure = compend::failure::classify(&inputs, &outputs, s.psnr, uncompensated.psnr);
+            Ok(ClosedLoopScore {
+                method: m.meta.method,
+                psnr: s.psnr,
+                ssim: s.ssim,
+                // As a calibration's verification with its default margin.
+                passed: failure.is_none()
+                    && s.psnr - uncompensated.psnr >= compend::calibrate::DEFAULT_MIN_GAIN_DB,
+            })
+        };
+        let (su, sl) = (score(&climbed)?, score(&lower)?);
+        let rule = fit::ClimbRule {
+            gain_db: req.climb_gain_db.unwrap_or(fit::DEFAULT_CLIMB_GAIN_DB),
+        };
+        Ok(fit::settle_climb((climbed, su), (lower, sl), rule).0)
+    }
+}
+
+/// Verification images of `auto`'s check on the rig (a calibration's default).
+const CONFIRM_IMAGES: usize = 5;
+/// Frame indices of those captures.
+const FRAMES_CONFIRM: u64 = 4_000_000;
 
 /// Across seeds, per scene × method × ntrain: the closed-loop PSNR and the gap to the oracle
 /// as mean and range, and how many seeds failed (no model, or a failure class). Only when some

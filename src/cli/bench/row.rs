@@ -31,6 +31,10 @@ pub struct Row {
     pub failure: Option<compend::failure::Failure>,
     /// `auto`: the rung it chose.
     pub chosen: Option<String>,
+    /// `auto` after a climb on the held-out pairs: the climbed rung and the best linear rung in
+    /// closed loop on the rig's verification images, which decided between them.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub rig_check: Vec<compend::model::store::ClosedLoopScore>,
 }
 
 impl Row {
@@ -49,6 +53,7 @@ impl Row {
             failed: None,
             failure: None,
             chosen: None,
+            rig_check: Vec::new(),
         }
     }
 }
