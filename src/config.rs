@@ -110,10 +110,12 @@ pub struct CalibrationConfig {
     /// a calibration has installed its model and playback has started; `None`: no climb.
     #[serde(serialize_with = "display_or_none")]
     pub climb: Option<crate::model::Method>,
-    /// PSNR gain on the held-out test pairs (paper protocol, dB) the climbed rung needs over
-    /// the installed model to be swapped in and installed.
+    /// PSNR gain (dB) the climbed rung needs over the installed model (or, under `method =
+    /// "auto"`, over the best linear rung) on the held-out pairs (paper protocol) and then in
+    /// closed loop on the rig, to be installed.
     pub climb_gain_db: f64,
-    /// Iterations of the climbed rung's training; `None`: its own schedule.
+    /// Iterations of the climbed rung's training (the progressive climb's and `auto`'s);
+    /// `None`: its own schedule.
     pub climb_iters: Option<usize>,
 }
 

@@ -311,6 +311,14 @@ impl AutoEvidence {
             "auto: chose {} by the rule: {}",
             self.chosen, self.rule
         ));
+        if !self.chosen.is_linear() && self.closed_loop.is_empty() {
+            out.push(
+                "auto: this climb rests on held-out captures alone, where capture noise favours \
+                 a network; `compend calibrate --method auto` also checks it on the rig, in \
+                 closed loop"
+                    .into(),
+            );
+        }
         out
     }
 }
