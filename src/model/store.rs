@@ -85,7 +85,7 @@ pub struct CalibrationRecord {
     /// model: of the rung it replaced; its own evidence is in `climb`).
     pub verification: Verification,
     /// Set when this model was climbed to after the calibration (progressive calibration): how
-    /// it beat the model it replaced on the calibration's held-out test pairs.
+    /// it beat the model it replaced on the calibration's held-out test pairs and on the rig.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub climb: Option<ClimbRecord>,
 }

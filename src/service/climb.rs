@@ -21,8 +21,9 @@ use crate::fit;
 use crate::model::store::{ClimbClosedLoop, ClimbRecord, Verification};
 use crate::model::{Method, MethodChoice, Model};
 
-/// Held while a model directory is replaced, by the engine's install and by a climb's: a climb
-/// that was cancelled (a recalibration began) never installs after the check.
+/// Held while a model directory is replaced, by a calibration's install and by a climb's
+/// ([`settle`]). Both run on the engine's thread, which drops a climb when a recalibration
+/// begins; the lock keeps any later installer from another thread in line.
 pub(super) static INSTALL: Mutex<()> = Mutex::new(());
 
 /// What to climb to, after which calibration.
