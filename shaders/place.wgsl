@@ -5,7 +5,8 @@
 // Output: z' in camera pixels, f32 (rgba32float), still sRGB-encoded camera values (no
 //         linearisation here): the content mapped into the display range, stretched into the
 //         displayable area with bilinear resizing (half-pixel centres, clamped to the edge
-//         pixels: compend::resize), black outside the area and outside the model's FOV mask.
+//         pixels: compend::resize), its edge pixels repeated `margin` camera pixels outward,
+//         black beyond that and outside the model's FOV mask.
 // CPU reference: compend::playback::desired_view followed by Rgb::masked (Model::infer).
 
 struct Place {
@@ -14,7 +15,8 @@ struct Place {
     area_origin: vec2<u32>, // displayable area, camera pixels
     area_size: vec2<u32>,
     range: vec2<f32>,       // display range: low, high (camera values in [0,1])
-    _pad: vec2<f32>,
+    margin: u32,            // camera pixels the area's edge is repeated outward
+    _pad: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Place;
@@ -44,11 +46,15 @@ fn place(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     var out = vec3<f32>(0.0);
-    let inside = id.x >= p.area_origin.x && id.y >= p.area_origin.y
-        && id.x < p.area_origin.x + p.area_size.x && id.y < p.area_origin.y + p.area_size.y;
-    if (inside && fov[id.y * p.camera.x + id.x] > 0.5) {
-        let tx = taps(id.x - p.area_origin.x, p.content.x, p.area_size.x);
-        let ty = taps(id.y - p.area_origin.y, p.content.y, p.area_size.y);
+    // Signed position in the area; within `margin` outside it, the nearest edge pixel.
+    let pos = vec2<i32>(id.xy) - vec2<i32>(p.area_origin);
+    let size = vec2<i32>(p.area_size);
+    let m = i32(p.margin);
+    let near = pos.x >= -m && pos.y >= -m && pos.x < size.x + m && pos.y < size.y + m;
+    if (near && fov[id.y * p.camera.x + id.x] > 0.5) {
+        let at = vec2<u32>(clamp(pos, vec2<i32>(0), size - vec2<i32>(1)));
+        let tx = taps(at.x, p.content.x, p.area_size.x);
+        let ty = taps(at.y, p.content.y, p.area_size.y);
         let x0 = u32(tx.x);
         let x1 = u32(tx.y);
         let y0 = u32(ty.x);

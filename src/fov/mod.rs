@@ -53,8 +53,8 @@ mod reach;
 
 pub use affine::{Theta, affine_from_box, apply_theta};
 pub use area::{
-    DESIRED_RANGE_QUANTILE, DisplayRange, MIN_CONTRAST, display_range, displayable_area,
-    place_in_area,
+    DESIRED_RANGE_QUANTILE, DisplayRange, EDGE_MARGIN_PX, MIN_CONTRAST, display_range,
+    displayable_area, place_in_area,
 };
 pub use mask::{FovDiagnostics, FovFill, FovMask, FovOptions, fov_mask, fov_mask_with};
 pub use reach::{Reach, ReachSummary, Unreachable, reach};

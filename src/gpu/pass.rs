@@ -98,7 +98,9 @@ struct PlaceParams {
     area_origin: [u32; 2],
     area_size: [u32; 2],
     range: [f32; 2],
-    _pad: [f32; 2],
+    /// Camera pixels the area's edge pixels are repeated outward ([`crate::fov::EDGE_MARGIN_PX`]).
+    margin: u32,
+    _pad: u32,
 }
 
 #[repr(C)]
@@ -334,7 +336,8 @@ impl CompensationPass {
                 area_origin: [p.area.x as u32, p.area.y as u32],
                 area_size: [p.area.width as u32, p.area.height as u32],
                 range: [p.range.low, p.range.high],
-                _pad: [0.0; 2],
+                margin: crate::fov::EDGE_MARGIN_PX as u32,
+                _pad: 0,
             }),
         );
         let texture = image_texture(

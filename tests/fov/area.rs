@@ -199,7 +199,7 @@ fn resize_bilinear_uses_half_pixel_centres() {
 }
 
 #[test]
-fn place_in_area_fills_the_rectangle_and_leaves_black_around() {
+fn place_in_area_fills_the_rectangle_carries_its_edge_a_margin_out_and_leaves_black_around() {
     let img = NetImage::from_fn(8, 8, |x, y| [x as f32 / 7.0, y as f32 / 7.0, 0.5]);
     let area = Rect {
         x: 5,
@@ -207,18 +207,32 @@ fn place_in_area_fills_the_rectangle_and_leaves_black_around() {
         width: 12,
         height: 9,
     };
-    let out = place_in_area(&img, area, ImageSize::new(20, 15)).unwrap();
-    assert_eq!(out.size(), ImageSize::new(20, 15));
-    for y in 0..15 {
-        for x in 0..20 {
+    let (cw, ch) = (26, 20);
+    let out = place_in_area(&img, area, ImageSize::new(cw, ch)).unwrap();
+    assert_eq!(out.size(), ImageSize::new(cw, ch));
+    let m = compend::fov::EDGE_MARGIN_PX as i64;
+    let (ax, ay) = (area.x as i64, area.y as i64);
+    let (aw, ah) = (area.width as i64, area.height as i64);
+    for y in 0..ch {
+        for x in 0..cw {
             let p = out.get(x, y);
+            let (xi, yi) = (x as i64, y as i64);
+            let near = xi >= ax - m && yi >= ay - m && xi < ax + aw + m && yi < ay + ah + m;
             if area.contains(x, y) {
                 assert_eq!(p[2], 0.5, "({x},{y})");
+            } else if near {
+                // The nearest pixel of the area, clamped into the canvas (the area starts 3 rows
+                // from the top, less than the margin).
+                let sx = xi.clamp(ax, ax + aw - 1) as usize;
+                let sy = yi.clamp(ay, ay + ah - 1) as usize;
+                assert_eq!(p, out.get(sx, sy), "({x},{y})");
             } else {
                 assert_eq!(p, [0.0; 3], "({x},{y})");
             }
         }
     }
+    // The margin is cut at the canvas: the top rows above the area carry its first row.
+    assert_eq!(out.get(8, 0), out.get(8, 3));
     // Corners of the area carry the corners of the image (enlarging clamps to edge centres).
     assert_eq!(out.get(5, 3), [0.0, 0.0, 0.5]);
     assert_eq!(out.get(16, 11), [1.0, 1.0, 0.5]);
@@ -233,7 +247,7 @@ fn place_in_area_fills_the_rectangle_and_leaves_black_around() {
         height: 4,
     };
     assert!(matches!(
-        place_in_area(&img, outside, ImageSize::new(20, 15)),
+        place_in_area(&img, outside, ImageSize::new(cw, 2)),
         Err(Error::Shape(_))
     ));
 }
