@@ -5,7 +5,8 @@
 //! 1. **Desired camera view** `z'` (camera pixels): the content frame (any size, 8-bit
 //!    sRGB-encoded values in \[0,1\]) is mapped into the display range (`low + (high − low)·v`),
 //!    stretched into the *displayable area* (a camera-space rectangle of the canvas aspect inside
-//!    the projector FOV) with bilinear resizing (half-pixel centres), black elsewhere
+//!    the projector FOV) with bilinear resizing (half-pixel centres), its edge pixels repeated
+//!    [`crate::fov::EDGE_MARGIN_PX`] camera pixels outward, black beyond
 //!    ([`crate::fov::place_in_area`]); pixels outside the model's FOV mask are set to black, as
 //!    the model's inputs were in training ([`crate::model::Model::infer`]).
 //! 2. **Compensation image** (network pixels): the model's `π†(z')`: the baked grid samples `z'`

@@ -76,7 +76,8 @@ pub fn area_mask(sim: &Simulator, area: Rect) -> Mask<Camera> {
 
 /// Scores the three reference rows on a test set. `uncompensated[k]` is test image k placed on
 /// the canvas as is (projector space); `desired[k]` is the same image placed in the displayable
-/// area `area` (camera space, black elsewhere). All three rows use the same `frames`, so they
+/// area `area` (camera space, its edge carried [`crate::fov::EDGE_MARGIN_PX`] outward, black
+/// elsewhere). All three rows use the same `frames`, so they
 /// see the same noise.
 pub fn reference_scores(
     sim: &Simulator,
