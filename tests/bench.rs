@@ -1,21 +1,18 @@
 //! `compend bench` end to end at tiny sizes.
 
+use std::path::Path;
+
 use crate::common::{assert_code, compend, stderr};
 
-#[test]
-fn bench_writes_rows_for_references_and_methods() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("bench");
-    let o = compend(&[
+/// `compend bench` into `out` on the textured plane at tiny sizes, 2 test images, with `extra`
+/// flags; it must succeed. Its output and `bench.json`.
+fn tiny_bench(out: &Path, extra: &[&str]) -> (std::process::Output, serde_json::Value) {
+    let mut args = vec![
         "bench",
         "--out",
         out.to_str().unwrap(),
         "--scenes",
         "textured-plane",
-        "--methods",
-        "linear",
-        "--ntrain",
-        "6",
         "--ntest",
         "2",
         "--camera",
@@ -24,10 +21,19 @@ fn bench_writes_rows_for_references_and_methods() {
         "100x75",
         "--network",
         "32",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let o = compend(&args);
     assert_code(&o, 0);
-    let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    let v = serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    (o, v)
+}
+
+#[test]
+fn bench_writes_rows_for_references_and_methods() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    let (_, v) = tiny_bench(&out, &["--methods", "linear", "--ntrain", "6"]);
     let rows = v["rows"].as_array().unwrap();
     let names: Vec<&str> = rows.iter().map(|r| r["method"].as_str().unwrap()).collect();
     assert_eq!(
@@ -195,12 +201,7 @@ fn bench_auto_is_checked_on_the_rig_after_a_climb() {
     let out = dir.path().join("bench");
     // No margin: the residual rung (3 iterations) climbs on the held-out pairs, and the rig
     // projects it and the linear rung fitted beside it on verification images of its own.
-    let o = compend(&[
-        "bench",
-        "--out",
-        out.to_str().unwrap(),
-        "--scenes",
-        "textured-plane",
+    let extra = [
         "--methods",
         "linear,auto",
         "--iters",
@@ -209,18 +210,8 @@ fn bench_auto_is_checked_on_the_rig_after_a_climb() {
         "-1000",
         "--ntrain",
         "12",
-        "--ntest",
-        "2",
-        "--camera",
-        "80x60",
-        "--projector",
-        "100x75",
-        "--network",
-        "32",
-    ]);
-    assert_code(&o, 0);
-    let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    ];
+    let (_, v) = tiny_bench(&out, &extra);
     let rows = v["rows"].as_array().unwrap();
     let auto = rows.iter().find(|r| r["method"] == "auto").unwrap();
     let check = auto["rig_check"].as_array().unwrap();
