@@ -82,6 +82,18 @@ fn bench_writes_rows_for_references_and_methods() {
     let o = compend(&["bench", "--out", out.to_str().unwrap(), "--methods", "nope"]);
     assert_code(&o, 2);
     assert!(stderr(&o).contains("nope"));
+    // And so is a climbing margin that is not a number, before anything is written.
+    let other = dir.path().join("other");
+    let o = compend(&[
+        "bench",
+        "--out",
+        other.to_str().unwrap(),
+        "--climb-gain",
+        "NaN",
+    ]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("--climb-gain NaN"), "{}", stderr(&o));
+    assert!(!other.exists());
 }
 
 #[test]

@@ -89,6 +89,11 @@ pub fn run(args: Args) -> Result<()> {
         ))
         .into());
     }
+    if let Some(g) = args.climb_gain.filter(|g| !g.is_finite()) {
+        return Err(
+            compend::Error::Input(format!("--climb-gain {g}: expected a number of dB")).into(),
+        );
+    }
     let mut rows = Vec::new();
     let mut reach = Vec::new();
     for &seed in &args.seeds {
