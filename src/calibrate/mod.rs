@@ -54,6 +54,12 @@ pub const SETUP_NAME: &str = "capture";
 /// unless the configuration says otherwise (`[calibration] min_gain_db`).
 pub const DEFAULT_MIN_GAIN_DB: f64 = 1.0;
 
+/// Whether a verification passes: no failure ([`crate::failure::classify`]) and a PSNR gain
+/// over the uncompensated projection (dB) of at least `required_db`.
+pub fn passes(failure: Option<crate::failure::Failure>, gain_db: f64, required_db: f64) -> bool {
+    failure.is_none() && gain_db.is_finite() && gain_db >= required_db
+}
+
 /// What to calibrate and how.
 #[derive(Clone, Debug)]
 pub struct Options {
@@ -618,7 +624,7 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
                 gain_db: gain,
                 required_gain_db: opts.required_gain_db,
                 failure,
-                passed: failure.is_none() && gain.is_finite() && gain >= opts.required_gain_db,
+                passed: passes(failure, gain, opts.required_gain_db),
             })
         })
         .collect()

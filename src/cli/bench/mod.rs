@@ -464,8 +464,11 @@ impl SceneBench<'_> {
                 psnr: s.psnr,
                 ssim: s.ssim,
                 // As a calibration's verification with its default margin.
-                passed: failure.is_none()
-                    && s.psnr - uncompensated.psnr >= compend::calibrate::DEFAULT_MIN_GAIN_DB,
+                passed: compend::calibrate::passes(
+                    failure,
+                    s.psnr - uncompensated.psnr,
+                    compend::calibrate::DEFAULT_MIN_GAIN_DB,
+                ),
             })
         };
         let (su, sl) = (score(&climbed)?, score(&lower)?);
