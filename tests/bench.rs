@@ -94,6 +94,23 @@ fn bench_writes_rows_for_references_and_methods() {
     assert_code(&o, 2);
     assert!(stderr(&o).contains("--climb-gain NaN"), "{}", stderr(&o));
     assert!(!other.exists());
+    // And a climbing margin for methods that do not climb.
+    let o = compend(&[
+        "bench",
+        "--out",
+        other.to_str().unwrap(),
+        "--methods",
+        "linear",
+        "--climb-gain",
+        "1",
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--climb-gain 1: only the `auto` method climbs"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!other.exists());
 }
 
 #[test]

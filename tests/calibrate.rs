@@ -153,6 +153,12 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     ];
     let forced = [&rig[..], &["--climb-iters", "3", "--climb-gain", "-1000"]].concat();
     let o = compend(&calibrate_args(d, &forced));
+    // A margin below zero is allowed, and said to let a lower-scoring rung through.
+    assert!(
+        stderr(&o).contains("--climb-gain -1000: a negative margin keeps a climbed rung"),
+        "{}",
+        stderr(&o)
+    );
     let m = meta(&o);
     let auto = &m["training"]["auto"];
     let scores = auto["closed_loop"].as_array().unwrap();

@@ -178,6 +178,14 @@ impl Settings {
                 ))
                 .into());
             }
+        } else {
+            let (gain, name) = match a.climb_gain {
+                Some(g) => (g, "--climb-gain"),
+                None => (c.calibration.climb_gain_db, "climb_gain_db"),
+            };
+            if let Some(w) = (compend::fit::ClimbRule { gain_db: gain }).caveat(name) {
+                eprintln!("warning: {w}");
+            }
         }
         let simulated = [RigKind::Virtual, RigKind::Window];
         let runs = match (&a.data, &file) {

@@ -96,6 +96,12 @@ pub fn run(args: Args) -> Result<()> {
         cancel: None,
         climb_gain_db: args.climb_gain,
     };
+    if let Some(w) = args
+        .climb_gain
+        .and_then(|g| fit::ClimbRule { gain_db: g }.caveat("--climb-gain"))
+    {
+        eprintln!("warning: {w}");
+    }
     let bar = super::progress_bar(args.json);
     let (model, summary) = fit::fit(&setup, &req, |stage, done, total| {
         bar.set_length(total as u64);

@@ -56,9 +56,27 @@ impl ClimbRule {
     pub fn describe(&self, on: &str) -> String {
         format!(
             "the best linear rung on {on}, replaced by the CompenNet++ rung the machine can \
-             afford only if that one's paper-protocol PSNR is at least {} dB higher",
-            self.gain_db
+             afford only if that one's paper-protocol PSNR is at least {} dB higher{}",
+            self.gain_db,
+            if self.gain_db < 0.0 {
+                " (a negative margin: a rung that scores lower can be kept)"
+            } else {
+                ""
+            }
         )
+    }
+
+    /// A warning for a margin below zero, which lets a climb keep a rung that scores lower
+    /// than the one below it (tests use it to force a climb); `None` otherwise. `name`: the
+    /// flag or key that set it.
+    pub fn caveat(&self, name: &str) -> Option<String> {
+        (self.gain_db < 0.0).then(|| {
+            format!(
+                "{name} {}: a negative margin keeps a climbed rung that scores up to {} dB lower \
+                 than the rung below it",
+                self.gain_db, -self.gain_db
+            )
+        })
     }
 
     /// The rule in words when the rig confirms the climb ([`ClimbRule::confirms`]).
@@ -343,5 +361,15 @@ mod tests {
         assert!(!rule.confirms((40.0, false), (30.0, true)));
         assert!(rule.confirms((30.1, true), (31.0, false)));
         assert!(!rule.confirms((f64::NAN, true), (30.0, true)));
+    }
+
+    #[test]
+    fn only_a_negative_margin_comes_with_a_caveat() {
+        assert_eq!(ClimbRule { gain_db: 0.0 }.caveat("--climb-gain"), None);
+        assert_eq!(ClimbRule { gain_db: 0.5 }.caveat("--climb-gain"), None);
+        let w = ClimbRule { gain_db: -2.0 }.caveat("climb_gain_db").unwrap();
+        assert!(w.starts_with("climb_gain_db -2: "), "{w}");
+        assert!(w.contains("up to 2 dB lower"), "{w}");
+        assert!(ClimbRule { gain_db: -2.0 }.describe("x").contains("negative margin"));
     }
 }

@@ -151,6 +151,9 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
         closed_loop: None,
     };
     let rule = fit::ClimbRule { gain_db: p.gain_db };
+    if let Some(w) = rule.caveat("[calibration] climb_gain_db") {
+        tracing::warn!("progressive calibration: {w}");
+    }
     if !rule.climbs(new.psnr, old.psnr) {
         return Ok(Outcome::Kept(record));
     }

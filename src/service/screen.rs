@@ -233,6 +233,12 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         self.swapped = Some((l.path, model));
         // A climb from the model it replaced would install over the operator's choice.
         self.climb = None;
+        if let Some(c) = self.candidate.take() {
+            tracing::info!(
+                "progressive calibration: {} is not checked: another model was swapped in",
+                c.plan.method
+            );
+        }
         Some(pass)
     }
 

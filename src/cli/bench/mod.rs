@@ -89,10 +89,22 @@ pub fn run(args: Args) -> Result<()> {
         ))
         .into());
     }
-    if let Some(g) = args.climb_gain.filter(|g| !g.is_finite()) {
-        return Err(
-            compend::Error::Input(format!("--climb-gain {g}: expected a number of dB")).into(),
-        );
+    if let Some(g) = args.climb_gain {
+        if !g.is_finite() {
+            return Err(compend::Error::Input(format!(
+                "--climb-gain {g}: expected a number of dB"
+            ))
+            .into());
+        }
+        if !args.methods.contains(&compend::model::MethodChoice::Auto) {
+            return Err(compend::Error::Input(format!(
+                "--climb-gain {g}: only the `auto` method climbs the ladder; add auto to --methods"
+            ))
+            .into());
+        }
+        if let Some(w) = (fit::ClimbRule { gain_db: g }).caveat("--climb-gain") {
+            eprintln!("warning: {w}");
+        }
     }
     let mut rows = Vec::new();
     let mut reach = Vec::new();

@@ -144,9 +144,10 @@ impl Engine {
         self.io.state(State::Calibrating, what);
         tracing::info!("{what} into {}", data.display());
         let opts = self.calibration_options(cancel);
-        let captured = self.with_devices("captures", |display, camera, progress| {
-            calibrate::capture(display, camera, &data, &opts, progress)
-        });
+        let captured = self.with_devices(
+            ("captures", Work::Calibration),
+            |display, camera, progress| calibrate::capture(display, camera, &data, &opts, progress),
+        );
         let captured = match captured {
             Ok(c) => c,
             Err(e) => return self.calibration_failed(&data, e),
@@ -243,14 +244,15 @@ impl Engine {
         let opts = self.calibration_options(self.io.shared.cancel.clone());
         let mut captured = Some(captured);
         let mut model = Some(model);
-        let verified = self.with_devices("verification", |display, camera, progress| {
-            match (captured.take(), model.take()) {
+        let verified = self.with_devices(
+            ("verification", Work::Calibration),
+            |display, camera, progress| match (captured.take(), model.take()) {
                 (Some(c), Some(m)) => {
                     calibrate::verify_model(display, camera, c, m, &opts, progress)
                 }
                 _ => Err(Error::Failed("the verification ran twice".into())),
-            }
-        });
+            },
+        );
         let done = match verified {
             Ok(d) => d,
             Err(e) => return self.calibration_failed(&data, e),
@@ -334,6 +336,15 @@ impl Engine {
     /// verification images; the climbed one is installed and served from now on only if the rig
     /// confirms the margin ([`climb::settle`]). Playback resumes either way.
     pub(super) fn confirm_climb(&mut self, c: climb::Candidate) {
+        self.check_climb(c);
+        // Playback resumes, unless a stop or a calibration was asked for meanwhile.
+        if self.next == Next::Wait {
+            self.next = Next::Play;
+        }
+    }
+
+    /// [`Engine::confirm_climb`]'s check and install.
+    fn check_climb(&mut self, c: climb::Candidate) {
         let method = c.plan.method;
         let latency = match c.installed.meta.calibration.as_ref() {
             Some(cal) => cal.latency.clone(),
@@ -352,17 +363,20 @@ impl Engine {
         self.io
             .state(State::Verifying, "verifying the climbed model");
         let (root, setup) = (c.plan.root.clone(), c.plan.setup.clone());
-        let verified = self.with_devices("the climb's check", |display, camera, progress| {
-            calibrate::verify_after(
-                display,
-                camera,
-                (&root, &setup),
-                &[&c.model, &c.installed],
-                &latency,
-                &opts,
-                progress,
-            )
-        });
+        let verified = self.with_devices(
+            ("the climb's check", Work::ClimbCheck),
+            |display, camera, progress| {
+                calibrate::verify_after(
+                    display,
+                    camera,
+                    (&root, &setup),
+                    &[&c.model, &c.installed],
+                    &latency,
+                    &opts,
+                    progress,
+                )
+            },
+        );
         self.io.shared.update(|s| s.calibration = None);
         let path = c.plan.model.clone();
         let seconds = c.seconds;
@@ -424,9 +438,6 @@ impl Engine {
                 self.io
                     .fail(&format!("progressive calibration: checking {method}"), &e);
             }
-        }
-        if self.next != Next::Stop {
-            self.next = Next::Play;
         }
     }
 
@@ -490,7 +501,7 @@ impl Engine {
     /// keeps the status, systemd and the event channel served between two captures.
     fn with_devices<T>(
         &mut self,
-        what: &str,
+        (what, work): (&str, Work),
         step: impl FnOnce(
             &mut dyn crate::device::DisplaySink,
             &mut dyn crate::device::FrameSource,
@@ -520,7 +531,7 @@ impl Engine {
                 .status(&format!("{}: {phase} {done}/{total}", state.name()));
             io.notify.ping();
             while let Ok(ev) = io.rx.try_recv() {
-                busy(ev, phase, next, reload, &io.shared.cancel);
+                busy(ev, (phase, work), next, reload, &io.shared.cancel);
             }
         };
         tracing::debug!("calibration: {what}");
@@ -560,13 +571,23 @@ fn training_progress(
     }
 }
 
+/// What the devices are busy with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Work {
+    /// A calibration (captures or its verification).
+    Calibration,
+    /// Progressive calibration's check of a climbed model on the rig (playback paused).
+    ClimbCheck,
+}
+
 /// An event that came while calibrating: `stop` and signals stop it (the cancel flag is
-/// already set), a reload waits for its end, the rest is answered "busy".
+/// already set), a reload waits for its end, the rest is answered "busy". During a climb's
+/// check a calibration request stops the check and is what runs next.
 /// `cancel` is set again for a stop: a stop queued before the calibration began finds the flag
 /// reset by it.
 fn busy(
     ev: Event,
-    phase: &str,
+    (phase, work): (&str, Work),
     next: &mut Next,
     reload: &mut Option<Box<Config>>,
     cancel: &AtomicBool,
@@ -586,6 +607,13 @@ fn busy(
                     Reply::ok("stopping the calibration at its next capture")
                 }
                 Request::Status => Reply::error("status is answered by the socket"),
+                Request::Calibrate | Request::Recalibrate if work == Work::ClimbCheck => {
+                    if *next != Next::Stop {
+                        cancel.store(true, Ordering::Relaxed);
+                        *next = Next::Calibrate;
+                    }
+                    Reply::ok("stopping the climb's check; calibrating next")
+                }
                 Request::Calibrate | Request::Recalibrate => {
                     Reply::ok(format!("already calibrating ({phase})"))
                 }

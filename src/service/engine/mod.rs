@@ -492,7 +492,29 @@ impl Engine {
                     .shared
                     .update(|s| set_frames(&mut s.frames, &stats, &before));
                 match (pending, candidate) {
-                    (None, Some(c)) => self.confirm_climb(*c),
+                    (None, Some(c))
+                        if !swapped && !monitor.as_ref().is_some_and(|t| t.ends_playback()) =>
+                    {
+                        self.confirm_climb(*c)
+                    }
+                    (None, Some(c)) => {
+                        // The climb was measured against a model no longer served, or on a
+                        // rig that has since moved.
+                        tracing::info!(
+                            "progressive calibration: {} is not checked: {}",
+                            c.plan.method,
+                            if swapped {
+                                "another model was swapped in"
+                            } else {
+                                "the rig drifted"
+                            }
+                        );
+                        if monitor.as_ref().is_some_and(|t| t.ends_playback()) {
+                            self.on_drift();
+                        } else if self.next == Next::Wait {
+                            self.next = Next::Play;
+                        }
+                    }
                     (Some(ev), candidate) => {
                         if let Some(c) = candidate {
                             tracing::info!(
