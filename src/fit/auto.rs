@@ -370,6 +370,10 @@ mod tests {
         let w = ClimbRule { gain_db: -2.0 }.caveat("climb_gain_db").unwrap();
         assert!(w.starts_with("climb_gain_db -2: "), "{w}");
         assert!(w.contains("up to 2 dB lower"), "{w}");
-        assert!(ClimbRule { gain_db: -2.0 }.describe("x").contains("negative margin"));
+        assert!(
+            ClimbRule { gain_db: -2.0 }
+                .describe("x")
+                .contains("negative margin")
+        );
     }
 }
