@@ -334,7 +334,8 @@ impl Engine {
     /// Progressive calibration's check on the rig: a climbed model that beat the installed one
     /// on the held-out pairs, and the installed one, projected on the calibration's
     /// verification images; the climbed one is installed and served from now on only if the rig
-    /// confirms the margin ([`climb::settle`]). Playback resumes either way.
+    /// confirms the margin ([`climb::settle`]). Playback resumes either way, unless a stop or a
+    /// calibration was asked for during the check.
     pub(super) fn confirm_climb(&mut self, c: climb::Candidate) {
         self.check_climb(c);
         // Playback resumes, unless a stop or a calibration was asked for meanwhile.
