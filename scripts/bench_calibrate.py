@@ -11,7 +11,7 @@ phase times, the verification figures and the `sim score` figures, one row per r
 
     python3 scripts/bench_calibrate.py [--bin target/release/compend] [--out DIR]
         [--latency-ms 100,250] [--fps 30] [--method linear] [--verify 5] [--average 3]
-        SCENE:SEED ...
+        [--loop-images N] SCENE:SEED ...
 """
 
 import argparse
@@ -47,6 +47,7 @@ def main():
     ap.add_argument("--method", default="linear")
     ap.add_argument("--verify", type=int, default=5, help="verification images (also scored by sim score)")
     ap.add_argument("--average", type=int, default=3, help="frames averaged per capture (calibrate and sim score)")
+    ap.add_argument("--loop-images", type=int, default=0, help="closed-loop pairs (calibrate --loop-images)")
     a = ap.parse_args()
     if not os.access(a.bin, os.X_OK):
         sys.exit(f"bench_calibrate: {a.bin} is not an executable (cargo build --release first)")
@@ -71,7 +72,8 @@ def main():
         rec = json.loads(run([a.bin, "calibrate", "--rig", f"virtual:{scene}", "--seed", seed,
                               "--data", data, "--out", model, "--method", a.method,
                               "--verify", str(a.verify), "--rig-latency-ms", latency,
-                              "--rig-fps", a.fps, "--average", str(a.average), "--json"]))
+                              "--rig-fps", a.fps, "--average", str(a.average),
+                              "--loop-images", str(a.loop_images), "--json"]))
         wall = time.monotonic() - t
         c = rec
         root = os.path.join(work, "score")

@@ -117,6 +117,9 @@ pub struct CalibrationConfig {
     /// Iterations of the climbed rung's training (the progressive climb's and `auto`'s);
     /// `None`: its own schedule.
     pub climb_iters: Option<usize>,
+    /// Closed-loop pairs a `linear` rung is refitted with after its first fit (0: none):
+    /// [`crate::calibrate::refine`].
+    pub loop_images: usize,
 }
 
 /// `[playback]`.
@@ -506,6 +509,17 @@ impl<'t> Walker<'t> {
                 format!("[calibration] verify = {verify} is more than ntest = {ntest}"),
             ));
         }
+        let span = span_of(t, "loop_images");
+        let loop_images: usize = self.get(t, "loop_images").unwrap_or(0);
+        if loop_images > 0 && !crate::calibrate::refines(method) {
+            self.error(
+                span,
+                format!(
+                    "[calibration] loop_images = {loop_images}: only a linear rung (method = \
+                     \"linear\" or \"linear-sl\") is refitted on closed-loop pairs, not {method}"
+                ),
+            );
+        }
         CalibrationConfig {
             method,
             ntrain,
@@ -556,6 +570,7 @@ impl<'t> Walker<'t> {
                 |v: &f64| finite(*v),
             ),
             climb_iters: self.get::<usize>(t, "climb_iters").filter(|&n| n > 0),
+            loop_images,
         }
     }
 
@@ -963,6 +978,20 @@ mod tests {
         );
         assert!(
             e.contains("t.toml:4: [calibration] climb:") && e.contains("\"auto\""),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn closed_loop_pairs_are_for_a_linear_rung() {
+        let c = parse("[calibration]\nloop_images = 24\n").unwrap();
+        assert_eq!(c.calibration.loop_images, 24);
+        assert_eq!(parse("").unwrap().calibration.loop_images, 0);
+        let e = parse("[calibration]\nmethod = \"auto\"\nloop_images = 24\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("t.toml:3: [calibration] loop_images = 24: only a linear rung"),
             "{e}"
         );
     }

@@ -219,6 +219,78 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
 }
 
 #[test]
+fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("cal");
+    let d = data.to_str().unwrap();
+    let rig = ["--rig", "virtual:textured-plane", "--seed", "4"];
+    let o = compend(&calibrate_args(
+        d,
+        &[&rig[..], &["--loop-images", "5"]].concat(),
+    ));
+    assert_code(&o, 0);
+    let r = record(&o);
+    assert_eq!(r["loop_pairs"], 5, "{r}");
+    assert_eq!(r["verification"]["passed"], true, "{r}");
+    // 12 sampling pairs and 5 closed-loop ones, in the dataset layout, all fitted on.
+    let count = |p: &Path| std::fs::read_dir(p).unwrap().count();
+    assert_eq!(count(&data.join("train")), 17);
+    assert_eq!(count(&data.join("capture/cam/raw/train")), 17);
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap()).unwrap();
+    assert_eq!(m["training"]["ntrain"], 17, "{m}");
+    assert_eq!(m["calibration"]["loop_pairs"], 5, "{m}");
+    // A closed-loop image is the compensation of a sampling image, not the image itself: it
+    // lies within the projector's range and differs from its content.
+    let first = image::open(data.join("train/img_0001.png"))
+        .unwrap()
+        .to_rgb8();
+    let looped = image::open(data.join("train/img_0013.png"))
+        .unwrap()
+        .to_rgb8();
+    assert_eq!(first.dimensions(), looped.dimensions());
+    let differ = first
+        .pixels()
+        .zip(looped.pixels())
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(differ > first.len() / 6, "{differ}");
+
+    // Only a linear rung is refitted so, whether asked by flag or by the configuration.
+    let o = compend(&calibrate_args(
+        d,
+        &[&rig[..], &["--method", "auto", "--loop-images", "3"]].concat(),
+    ));
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--loop-images 3: only a linear rung"),
+        "{}",
+        stderr(&o)
+    );
+    let config = dir.path().join("c.toml");
+    std::fs::write(&config, "[calibration]\nloop_images = 3\n").unwrap();
+    let o = compend(&calibrate_args(
+        d,
+        &[
+            &rig[..],
+            &[
+                "--config",
+                config.to_str().unwrap(),
+                "--method",
+                "compennet++-cpu",
+            ],
+        ]
+        .concat(),
+    ));
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("the configuration's loop_images = 3: only a linear rung"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
 fn an_interrupted_calibration_resumes_without_recapturing() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("cal");

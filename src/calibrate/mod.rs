@@ -14,7 +14,10 @@
 //!    on disk for the same pattern set are not taken again (an interrupted run resumes);
 //! 4. **training**: the requested rung on the setup ([`crate::fit`]); when `auto` climbed to a
 //!    CompenNet++ rung on the held-out pairs, the best linear rung is fitted too, for the rig
-//!    to confirm the climb;
+//!    to confirm the climb. With `loop_images` > 0 and a linear rung, **closed-loop pairs**
+//!    follow: the fitted model's compensation of sampling images placed as desired views,
+//!    projected and captured; these pairs sit in the range the desired images use, and the rung
+//!    is refitted on every pair ([`refine`]);
 //! 5. **verification**: held-out test images, compensated by the new model and as they are,
 //!    projected, captured and scored inside the displayable area against the view they should
 //!    give. After a climb, the linear rung is projected on the same images and the climbed one
@@ -78,6 +81,8 @@ pub struct Options {
     pub climb_gain_db: f64,
     /// `method = auto`: training iterations of the CompenNet++ rung; `None`: its schedule.
     pub climb_iters: Option<usize>,
+    /// Closed-loop pairs the linear rung is refitted with ([`refine`]); 0: none.
+    pub loop_images: usize,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
     pub rig: String,
     /// Set by another thread to stop the calibration: checked before each capture, between the
@@ -122,7 +127,95 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 ) -> Result<Calibrated> {
     let mut captured = capture(display, camera, data, opts, progress)?;
     let model = train(&mut captured, opts, progress)?;
+    let model = refine(display, camera, &mut captured, model, opts, progress)?;
     verify_model(display, camera, captured, model, opts, progress)
+}
+
+/// Whether [`refine`] applies to a method: the linear rungs.
+pub fn refines(method: MethodChoice) -> bool {
+    matches!(method, MethodChoice::Rung(m) if m.is_linear())
+}
+
+/// Phase 4b, with `opts.loop_images` = N > 0 and a linear rung: closed-loop pairs. For the
+/// first N sampling images (again from the first when N is more than there are), the desired
+/// view (scaled into the display range and placed in the displayable area, as the test
+/// images' are) is compensated by `model`; that network-size projector image is written to the
+/// data root as training image `ntrain + i`, projected, captured synchronised and written as
+/// its capture. The rung is then refitted on all `ntrain + N` pairs. A sampling image spends
+/// most of its range where no desired image goes; these pairs sit where the desired images
+/// are, and on dark surfaces they are worth more than as many sampling images
+/// (docs/bench/ladder.md). They depend on the model, so an interrupted run takes them again.
+pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    captured: &mut Captured,
+    model: Model,
+    opts: &Options,
+    progress: Progress,
+) -> Result<Model> {
+    let n = opts.loop_images;
+    if n == 0 {
+        return Ok(model);
+    }
+    if !refines(opts.method) {
+        return Err(Error::Input(format!(
+            "closed-loop pairs refit a linear rung (linear, linear-sl), not {}",
+            opts.method
+        )));
+    }
+    opts.check_cancelled()?;
+    let t = Instant::now();
+    let root = &captured.root;
+    let setup = Setup::open(&captured.setup, Some(root.path()))?;
+    let ntrain = opts.patterns.ntrain;
+    let net = root.network_size()?;
+    let cam = model.camera_size();
+    let mut capturer = Capturer::new(display, camera, &captured.latency, opts.sync);
+    let canvas = Rect::covering(capturer.projector_size());
+    for i in 1..=n {
+        progress("closed-loop pairs", i - 1, n);
+        opts.check_cancelled()?;
+        let content: PrjImage =
+            crate::pngio::read_rgb(&root.image_path(ProjectorSet::Train, 1 + (i - 1) % ntrain))?;
+        let desired = fov::place_in_area(
+            &captured.desired.range.apply(&content),
+            captured.desired.area,
+            cam,
+        )?;
+        // What is projected is what the pair records: the network-size image stretched over
+        // the canvas, as every sampling image is.
+        let shown: PrjImage =
+            crate::pngio::quantize(&crate::model::at_size(model.infer(&desired)?, net))
+                .into_space();
+        root.write(ProjectorSet::Train, ntrain + i, &shown)?;
+        let frame = place_on_canvas(&shown, canvas, capturer.projector_size())?;
+        let cap = capturer.capture(&frame, true)?;
+        setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
+    }
+    progress("closed-loop pairs", n, n);
+    captured.retakes += capturer.retakes;
+    captured.reconnects += capturer.reconnects;
+    captured.captured += n;
+    captured.loop_pairs = n;
+    let capturing = t.elapsed().as_secs_f64();
+    opts.check_cancelled()?;
+    let t = Instant::now();
+    let req = Request {
+        ntrain: Some(ntrain + n),
+        ..request(opts)
+    };
+    let (model, _) = fit::fit(&setup, &req, |stage, done, total| {
+        progress(stage, done, total)
+    })?;
+    captured.seconds.captures += capturing;
+    captured.seconds.training += t.elapsed().as_secs_f64();
+    tracing::info!(
+        "closed-loop pairs: {n} captured in {capturing:.1} s; {} refitted on {} pairs in {:.1} s",
+        model.meta.method,
+        ntrain + n,
+        t.elapsed().as_secs_f64()
+    );
+    Ok(model)
 }
 
 /// What the capture phases leave for training and verification.
@@ -141,6 +234,8 @@ pub struct Captured {
     /// Set by [`train`] when `auto` climbed: the best linear rung, fitted on every pair, which
     /// the climbed rung must beat in closed loop.
     lower_rung: Option<Model>,
+    /// Closed-loop pairs taken by [`refine`].
+    loop_pairs: usize,
 }
 
 impl Captured {
@@ -231,6 +326,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         seconds,
         started,
         lower_rung: None,
+        loop_pairs: 0,
     })
 }
 
@@ -242,7 +338,24 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
     opts.check_cancelled()?;
     let t = Instant::now();
     let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
-    let req = Request {
+    let req = request(opts);
+    let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
+    opts.check_cancelled()?;
+    captured.lower_rung = fit::lower_rung(&setup, &req, &model, |stage, done, n| {
+        progress(stage, done, n)
+    })?;
+    captured.seconds.training = t.elapsed().as_secs_f64();
+    tracing::info!(
+        "training: {} in {:.1} s",
+        model.meta.method,
+        captured.seconds.training
+    );
+    Ok(model)
+}
+
+/// The fit the calibration asks for, on its `ntrain` sampling pairs.
+fn request(opts: &Options) -> Request {
+    Request {
         method: opts.method,
         ntrain: Some(opts.patterns.ntrain),
         seed: opts.fit_seed,
@@ -256,19 +369,7 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
         photometric: Default::default(),
         cancel: opts.cancel.clone(),
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
-    };
-    let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
-    opts.check_cancelled()?;
-    captured.lower_rung = fit::lower_rung(&setup, &req, &model, |stage, done, n| {
-        progress(stage, done, n)
-    })?;
-    captured.seconds.training = t.elapsed().as_secs_f64();
-    tracing::info!(
-        "training: {} in {:.1} s",
-        model.meta.method,
-        captured.seconds.training
-    );
-    Ok(model)
+    }
 }
 
 /// Phase 5: projects held-out test images compensated by `model` and as they are, scores them
@@ -298,6 +399,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         mut seconds,
         started,
         lower_rung,
+        loop_pairs,
     } = captured;
     opts.check_cancelled()?;
     let t = Instant::now();
@@ -339,6 +441,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         seconds,
         verification,
         climb: None,
+        loop_pairs,
     };
     Ok(Calibrated {
         model,

@@ -90,6 +90,11 @@ pub struct Args {
     /// [default: the configuration's `climb_iters`, else the rung's own schedule].
     #[arg(long)]
     pub climb_iters: Option<usize>,
+    /// Linear rungs only: after the fit, project its compensation of N sampling images placed
+    /// as desired views, capture them, and refit on every pair (closed-loop pairs: they sit in
+    /// the range the desired images use) [default: the configuration's `loop_images`, 0].
+    #[arg(long, value_name = "N")]
+    pub loop_images: Option<usize>,
     /// Frames averaged per capture [default: 3].
     #[arg(long)]
     pub average: Option<usize>,
@@ -138,6 +143,8 @@ struct Settings {
     climb_gain: f64,
     /// `auto`: iterations of the CompenNet++ rung (the config's `climb_iters`).
     climb_iters: Option<usize>,
+    /// Closed-loop pairs for a linear rung (the config's `loop_images`).
+    loop_images: usize,
     average: usize,
     rig_latency_ms: Option<f64>,
     rig_fps: Option<f64>,
@@ -178,7 +185,20 @@ impl Settings {
                 ))
                 .into());
             }
-        } else {
+        }
+        let loop_images = a.loop_images.unwrap_or(c.calibration.loop_images);
+        if loop_images > 0 && !compend::calibrate::refines(method) {
+            let from = match a.loop_images {
+                Some(n) => format!("--loop-images {n}"),
+                None => format!("the configuration's loop_images = {loop_images}"),
+            };
+            return Err(compend::Error::Input(format!(
+                "{from}: only a linear rung (linear, linear-sl) is refitted on closed-loop \
+                 pairs, not {method}; set --loop-images 0 or choose a linear --method"
+            ))
+            .into());
+        }
+        if method == MethodChoice::Auto {
             let (gain, name) = match a.climb_gain {
                 Some(g) => (g, "--climb-gain"),
                 None => (c.calibration.climb_gain_db, "climb_gain_db"),
@@ -229,6 +249,7 @@ impl Settings {
             min_gain: a.min_gain.unwrap_or(k.min_gain_db),
             climb_gain: a.climb_gain.unwrap_or(k.climb_gain_db),
             climb_iters: a.climb_iters.or(k.climb_iters),
+            loop_images,
             average: a.average.unwrap_or(k.average),
             seed: a.seed.unwrap_or(r.seed),
             network: a.network.unwrap_or(k.network),
@@ -539,6 +560,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         required_gain_db: args.min_gain,
         climb_gain_db: args.climb_gain,
         climb_iters: args.climb_iters,
+        loop_images: args.loop_images,
         rig,
         cancel: None,
     };

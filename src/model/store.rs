@@ -88,6 +88,10 @@ pub struct CalibrationRecord {
     /// it beat the model it replaced on the calibration's held-out test pairs and on the rig.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub climb: Option<ClimbRecord>,
+    /// Closed-loop pairs the model was refitted with (`[calibration] loop_images`; included in
+    /// `captured` and in the training's `ntrain`).
+    #[serde(default)]
+    pub loop_pairs: usize,
 }
 
 /// Progressive calibration's evidence: the climbed rung and the model it replaced, scored on the

@@ -102,6 +102,7 @@ impl Engine {
             required_gain_db: c.min_gain_db,
             climb_gain_db: c.climb_gain_db,
             climb_iters: c.climb_iters,
+            loop_images: c.loop_images,
             rig: rig_name(&self.config),
             cancel: Some(cancel),
         }
@@ -247,7 +248,8 @@ impl Engine {
         let verified = self.with_devices(
             ("verification", Work::Calibration),
             |display, camera, progress| match (captured.take(), model.take()) {
-                (Some(c), Some(m)) => {
+                (Some(mut c), Some(m)) => {
+                    let m = calibrate::refine(display, camera, &mut c, m, &opts, progress)?;
                     calibrate::verify_model(display, camera, c, m, &opts, progress)
                 }
                 _ => Err(Error::Failed("the verification ran twice".into())),
