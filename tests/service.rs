@@ -416,9 +416,10 @@ fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
     // ntrain 12 captures in a blink: the kill must land in the middle of the captures, so this
     // run captures more.
     let config = write_config(dir.path(), "curved", 5, "", "enabled = false");
+    // And closed-loop pairs: taken after the training, with the verification.
     let text = std::fs::read_to_string(&config)
         .unwrap()
-        .replace("ntrain = 12", "ntrain = 40");
+        .replace("ntrain = 12", "ntrain = 40\nloop_images = 4");
     std::fs::write(&config, text).unwrap();
     // The first model from `compend calibrate --config`, which installs where the service
     // serves from.
@@ -487,6 +488,12 @@ fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
         meta["calibration"]
     );
     assert_eq!(s["model"]["verification"]["passed"], true, "{s}");
+    assert_eq!(
+        meta["calibration"]["loop_pairs"], 4,
+        "{}",
+        meta["calibration"]
+    );
+    assert_eq!(meta["training"]["ntrain"], 44, "{}", meta["training"]);
     assert_ne!(
         std::fs::read(model.join("model.safetensors")).unwrap(),
         weights
