@@ -117,9 +117,10 @@ pub struct CalibrationConfig {
     /// Iterations of the climbed rung's training (the progressive climb's and `auto`'s);
     /// `None`: its own schedule.
     pub climb_iters: Option<usize>,
-    /// Closed-loop pairs a `linear` rung is refitted with after its first fit (0: none):
+    /// Closed-loop pairs a `linear` rung is refitted with after its first fit (0: none;
+    /// `None`: [`crate::calibrate::loop_images`]'s default, as many as `ntrain`):
     /// [`crate::calibrate::refine`].
-    pub loop_images: usize,
+    pub loop_images: Option<usize>,
 }
 
 /// `[playback]`.
@@ -510,8 +511,10 @@ impl<'t> Walker<'t> {
             ));
         }
         let span = span_of(t, "loop_images");
-        let loop_images: usize = self.get(t, "loop_images").unwrap_or(0);
-        if loop_images > 0 && !crate::calibrate::refines(method) {
+        let loop_images: Option<usize> = self.get(t, "loop_images");
+        if let Some(loop_images) = loop_images.filter(|&n| n > 0)
+            && !crate::calibrate::refines(method)
+        {
             self.error(
                 span,
                 format!(
@@ -985,8 +988,10 @@ mod tests {
     #[test]
     fn closed_loop_pairs_are_for_a_linear_rung() {
         let c = parse("[calibration]\nloop_images = 24\n").unwrap();
-        assert_eq!(c.calibration.loop_images, 24);
-        assert_eq!(parse("").unwrap().calibration.loop_images, 0);
+        assert_eq!(c.calibration.loop_images, Some(24));
+        assert_eq!(parse("").unwrap().calibration.loop_images, None);
+        // Explicitly none for another method is fine.
+        assert!(parse("[calibration]\nmethod = \"auto\"\nloop_images = 0\n").is_ok());
         let e = parse("[calibration]\nmethod = \"auto\"\nloop_images = 24\n")
             .unwrap_err()
             .to_string();

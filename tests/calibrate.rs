@@ -80,7 +80,10 @@ fn calibrate_installs_a_verified_model_and_records_it() {
             .all(|t| t.as_u64().unwrap() <= 3),
         "{r}"
     );
-    assert_eq!(r["captured"], 3 + 12 + 4);
+    // Black, white, gray, the sampling and test images, and as many closed-loop pairs as
+    // sampling pairs (the default for a linear rung).
+    assert_eq!(r["captured"], 3 + 12 + 4 + 12);
+    assert_eq!(r["loop_pairs"], 12, "{r}");
     // The virtual camera has a manual exposure: ranging put the brightest lit pixels just below
     // saturation.
     let bright = r["exposure"]["bright_level"].as_f64().unwrap();
@@ -332,8 +335,10 @@ fn an_interrupted_calibration_resumes_without_recapturing() {
     assert!(resumed >= before, "{resumed} resumed, {before} listed: {r}");
     assert_eq!(
         resumed + r["captured"].as_u64().unwrap() as usize,
-        3 + 40 + 4
+        3 + 40 + 4 + 40
     );
+    // The closed-loop pairs depend on the model: taken anew, never resumed.
+    assert!(r["captured"].as_u64().unwrap() >= 40, "{r}");
     // What was on disk was not captured again.
     assert_eq!(std::fs::read(&first).unwrap(), black);
     assert_eq!(r["verification"]["passed"], true, "{r}");

@@ -91,7 +91,7 @@ fn calibrate_through_the_projector_window_under_xvfb() {
         .unwrap_or_else(|e| panic!("{e}: {}\n{err}", stdout(&o)));
     assert_eq!(r["rig"], rig.as_str());
     assert_eq!(r["verification"]["passed"], true, "{r}\n{err}");
-    assert_eq!(r["captured"], 3 + 8 + 3, "{r}");
+    assert_eq!(r["captured"], 3 + 8 + 3 + 8, "{r}");
 
     // The latency measured through the window is at least the scene's delay, in exposures.
     let delay = compend::rig::builtin(SCENE).unwrap().latency;

@@ -541,13 +541,15 @@ fn drift_is_detected_and_refitted_from_a_handful_of_captures() {
         log.contains("drift: refitting the linear rung from 6 sampling images"),
         "{log}"
     );
-    // The refit projected 6 sampling images and the 3 verified test images (12 captures with
-    // black, white and gray, against 19 for the first calibration) and fitted on the 6.
+    // The refit projected 6 sampling images, the 3 verified test images and 6 closed-loop
+    // pairs (18 captures with black, white and gray, against 31 for the first calibration) and
+    // fitted on the 6 sampling and 6 closed-loop pairs.
     let meta: Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("state/model/model.json")).unwrap())
             .unwrap();
-    assert_eq!(meta["training"]["ntrain"], 6, "{meta}");
-    assert_eq!(meta["calibration"]["captured"], 12, "{meta}");
+    assert_eq!(meta["training"]["ntrain"], 12, "{meta}");
+    assert_eq!(meta["calibration"]["captured"], 18, "{meta}");
+    assert_eq!(meta["calibration"]["loop_pairs"], 6, "{meta}");
     assert_eq!(
         meta["calibration"]["verification"]["passed"], true,
         "{meta}"
@@ -963,8 +965,8 @@ fn drift_seen_through_a_camera_on_its_own_clock_is_recalibrated_under_xvfb() {
     let meta: Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("state/model/model.json")).unwrap())
             .unwrap();
-    assert_eq!(meta["training"]["ntrain"], 12, "{meta}");
-    assert_eq!(meta["calibration"]["captured"], 19, "{meta}");
+    assert_eq!(meta["training"]["ntrain"], 24, "{meta}");
+    assert_eq!(meta["calibration"]["captured"], 31, "{meta}");
     assert_eq!(
         meta["calibration"]["rig"],
         format!("window:{}", scene_file.display())

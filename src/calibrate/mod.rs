@@ -136,6 +136,12 @@ pub fn refines(method: MethodChoice) -> bool {
     matches!(method, MethodChoice::Rung(m) if m.is_linear())
 }
 
+/// How many closed-loop pairs [`refine`] takes: `asked` when given (by flag or configuration),
+/// else as many as the sampling pairs for a linear rung and none for another.
+pub fn loop_images(method: MethodChoice, ntrain: usize, asked: Option<usize>) -> usize {
+    asked.unwrap_or(if refines(method) { ntrain } else { 0 })
+}
+
 /// Phase 4b, with `opts.loop_images` = N > 0 and a linear rung: closed-loop pairs. For the
 /// first N sampling images (again from the first when N is more than there are), the desired
 /// view (scaled into the display range and placed in the displayable area, as the test

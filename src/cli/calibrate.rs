@@ -92,7 +92,8 @@ pub struct Args {
     pub climb_iters: Option<usize>,
     /// Linear rungs only: after the fit, project its compensation of N sampling images placed
     /// as desired views, capture them, and refit on every pair (closed-loop pairs: they sit in
-    /// the range the desired images use) [default: the configuration's `loop_images`, 0].
+    /// the range the desired images use); 0: none [default: the configuration's
+    /// `loop_images`, else as many as --ntrain for a linear rung].
     #[arg(long, value_name = "N")]
     pub loop_images: Option<usize>,
     /// Frames averaged per capture [default: 3].
@@ -186,7 +187,12 @@ impl Settings {
                 .into());
             }
         }
-        let loop_images = a.loop_images.unwrap_or(c.calibration.loop_images);
+        let asked = a.loop_images.or(c.calibration.loop_images);
+        let loop_images = compend::calibrate::loop_images(
+            method,
+            a.ntrain.unwrap_or(c.calibration.ntrain),
+            asked,
+        );
         if loop_images > 0 && !compend::calibrate::refines(method) {
             let from = match a.loop_images {
                 Some(n) => format!("--loop-images {n}"),

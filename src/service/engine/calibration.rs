@@ -102,7 +102,7 @@ impl Engine {
             required_gain_db: c.min_gain_db,
             climb_gain_db: c.climb_gain_db,
             climb_iters: c.climb_iters,
-            loop_images: c.loop_images,
+            loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
             rig: rig_name(&self.config),
             cancel: Some(cancel),
         }
