@@ -512,6 +512,15 @@ impl<'t> Walker<'t> {
         }
         let span = span_of(t, "loop_images");
         let loop_images: Option<usize> = self.get(t, "loop_images");
+        if let Some(n) = loop_images.filter(|&n| n > crate::calibrate::MAX_LOOP_IMAGES) {
+            self.error(
+                span.clone(),
+                format!(
+                    "[calibration] loop_images = {n}: at most {}",
+                    crate::calibrate::MAX_LOOP_IMAGES
+                ),
+            );
+        }
         if let Some(loop_images) = loop_images.filter(|&n| n > 0)
             && !crate::calibrate::refines(method)
         {
@@ -990,6 +999,13 @@ mod tests {
         let c = parse("[calibration]\nloop_images = 24\n").unwrap();
         assert_eq!(c.calibration.loop_images, Some(24));
         assert_eq!(parse("").unwrap().calibration.loop_images, None);
+        let e = parse("[calibration]\nloop_images = 501\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("t.toml:2: [calibration] loop_images = 501: at most 500"),
+            "{e}"
+        );
         // Explicitly none for another method is fine.
         assert!(parse("[calibration]\nmethod = \"auto\"\nloop_images = 0\n").is_ok());
         let e = parse("[calibration]\nmethod = \"auto\"\nloop_images = 24\n")

@@ -259,6 +259,16 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
         .count();
     assert!(differ > first.len() / 6, "{differ}");
 
+    let o = compend(&calibrate_args(
+        d,
+        &[&rig[..], &["--loop-images", "501"]].concat(),
+    ));
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--loop-images 501: at most 500"),
+        "{}",
+        stderr(&o)
+    );
     // Only a linear rung is refitted so, whether asked by flag or by the configuration.
     let o = compend(&calibrate_args(
         d,

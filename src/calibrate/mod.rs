@@ -131,6 +131,9 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     verify_model(display, camera, captured, model, opts, progress)
 }
 
+/// The most closed-loop pairs [`refine`] takes (each is a capture held in memory by the refit).
+pub const MAX_LOOP_IMAGES: usize = 500;
+
 /// Whether [`refine`] applies to a method: the linear rungs.
 pub fn refines(method: MethodChoice) -> bool {
     matches!(method, MethodChoice::Rung(m) if m.is_linear())

@@ -651,6 +651,13 @@ fn check_counts(a: &Settings) -> compend::Result<()> {
             compend::fit::MIN_TRAIN
         ));
     }
+    if a.loop_images > compend::calibrate::MAX_LOOP_IMAGES {
+        return bad(format!(
+            "--loop-images {}: at most {} closed-loop pairs",
+            a.loop_images,
+            compend::calibrate::MAX_LOOP_IMAGES
+        ));
+    }
     if a.ntest == 0 || a.verify == 0 || a.verify > a.ntest {
         return bad(format!(
             "--ntest {} / --verify {}: the verification projects 1 to NTEST test images",
