@@ -180,7 +180,16 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let net = root.network_size()?;
     let cam = model.camera_size();
     let mut capturer = Capturer::new(display, camera, &captured.latency, opts.sync);
-    let canvas = Rect::covering(capturer.projector_size());
+    let psize = capturer.projector_size();
+    let canvas = Rect::covering(psize);
+    // Closed-loop images all sit in the display range, so two in a row can look alike to the
+    // camera (on a dark surface the range is a few hundredths wide) and the synchronisation
+    // could not tell that the new one has arrived. White before each makes both changes plain.
+    let white = PrjImage::from_vec(
+        psize.width,
+        psize.height,
+        vec![1.0; 3 * psize.width * psize.height],
+    )?;
     for i in 1..=n {
         progress("closed-loop pairs", i - 1, n);
         opts.check_cancelled()?;
@@ -197,13 +206,15 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             crate::pngio::quantize(&crate::model::at_size(model.infer(&desired)?, net))
                 .into_space();
         root.write(ProjectorSet::Train, ntrain + i, &shown)?;
-        let frame = place_on_canvas(&shown, canvas, capturer.projector_size())?;
+        let frame = place_on_canvas(&shown, canvas, psize)?;
+        capturer.capture(&white, true)?;
         let cap = capturer.capture(&frame, true)?;
         setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
     }
     progress("closed-loop pairs", n, n);
     captured.retakes += capturer.retakes;
     captured.reconnects += capturer.reconnects;
+    // The white frames between them are not counted: nothing keeps them.
     captured.captured += n;
     captured.loop_pairs = n;
     let capturing = t.elapsed().as_secs_f64();
