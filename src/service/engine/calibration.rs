@@ -518,7 +518,7 @@ impl Engine {
         let mut progress = |phase: &str, done: usize, total: usize| {
             let state = match phase {
                 "verification" => State::Verifying,
-                "exposure" | "latency" | "captures" => State::Calibrating,
+                "exposure" | "latency" | "captures" | "closed-loop pairs" => State::Calibrating,
                 _ => State::Training,
             };
             io.shared.update(|s| {
