@@ -512,25 +512,10 @@ impl<'t> Walker<'t> {
         }
         let span = span_of(t, "loop_images");
         let loop_images: Option<usize> = self.get(t, "loop_images");
-        if let Some(n) = loop_images.filter(|&n| n > crate::calibrate::MAX_LOOP_IMAGES) {
-            self.error(
-                span.clone(),
-                format!(
-                    "[calibration] loop_images = {n}: at most {}",
-                    crate::calibrate::MAX_LOOP_IMAGES
-                ),
-            );
-        }
-        if let Some(loop_images) = loop_images.filter(|&n| n > 0)
-            && !crate::calibrate::refines(method)
+        if let Some(n) = loop_images
+            && let Some(p) = crate::calibrate::loop_images_problem(method, n)
         {
-            self.error(
-                span,
-                format!(
-                    "[calibration] loop_images = {loop_images}: only a linear rung (method = \
-                     \"linear\" or \"linear-sl\") is refitted on closed-loop pairs, not {method}"
-                ),
-            );
+            self.error(span, format!("[calibration] loop_images = {n}: {p}"));
         }
         CalibrationConfig {
             method,

@@ -279,6 +279,27 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
         "{}",
         stderr(&o)
     );
+    // A data root with a training image after the sampling ones that compend did not write:
+    // the closed-loop pair that would replace it is refused, and the image is left as it was.
+    let theirs = dir.path().join("theirs");
+    std::fs::create_dir_all(theirs.join("train")).unwrap();
+    let their_image = theirs.join("train/img_0013.png");
+    std::fs::copy(data.join("train/img_0013.png"), &their_image).unwrap();
+    let bytes = std::fs::read(&their_image).unwrap();
+    let o = compend(&calibrate_args(theirs.to_str().unwrap(), &rig));
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("img_0013.png: a training image this calibration did not write"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(std::fs::read(&their_image).unwrap(), bytes);
+    // The calibration's own closed-loop images are replaced when it runs again.
+    let o = compend(&calibrate_args(
+        d,
+        &[&rig[..], &["--loop-images", "5"]].concat(),
+    ));
+    assert_code(&o, 0);
     // Only a linear rung is refitted so, whether asked by flag or by the configuration.
     let o = compend(&calibrate_args(
         d,

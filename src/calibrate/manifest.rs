@@ -36,6 +36,10 @@ pub struct PatternSet {
 pub struct Manifest {
     pub patterns: PatternSet,
     pub captured: BTreeSet<PathBuf>,
+    /// Closed-loop training images this calibration has written into the data root
+    /// (`train/` after the sampling images, [`super::refine`]): only these may be replaced.
+    #[serde(default)]
+    pub loop_written: usize,
 }
 
 impl Manifest {
@@ -77,6 +81,7 @@ impl Manifest {
                 Ok(Manifest {
                     patterns: patterns.clone(),
                     captured: BTreeSet::new(),
+                    loop_written: 0,
                 })
             }
             Err(e) => Err(Error::io(&path, "read", e)),
@@ -91,6 +96,18 @@ impl Manifest {
     /// Records a completed capture and writes the manifest atomically.
     pub fn record(&mut self, setup: &Path, rel: PathBuf) -> Result<()> {
         self.captured.insert(rel);
+        self.save(setup)
+    }
+
+    /// Records that closed-loop training images up to the `count`th are this calibration's
+    /// and writes the manifest atomically.
+    pub fn record_loop(&mut self, setup: &Path, count: usize) -> Result<()> {
+        self.loop_written = self.loop_written.max(count);
+        self.save(setup)
+    }
+
+    /// Writes the manifest atomically.
+    fn save(&self, setup: &Path) -> Result<()> {
         let path = setup.join(MANIFEST_FILE);
         let json = serde_json::to_vec_pretty(self)
             .map_err(|e| Error::Failed(format!("{}: {e}", path.display())))?;

@@ -139,6 +139,21 @@ pub fn refines(method: MethodChoice) -> bool {
     matches!(method, MethodChoice::Rung(m) if m.is_linear())
 }
 
+/// What is wrong with asking `method` for `n` closed-loop pairs, if anything: more than
+/// [`MAX_LOOP_IMAGES`], or any for a method [`refine`] does not apply to. Callers put the flag
+/// or key in front.
+pub fn loop_images_problem(method: MethodChoice, n: usize) -> Option<String> {
+    if n > MAX_LOOP_IMAGES {
+        Some(format!("at most {MAX_LOOP_IMAGES} closed-loop pairs"))
+    } else if n > 0 && !refines(method) {
+        Some(format!(
+            "only a linear rung (linear, linear-sl) is refitted on closed-loop pairs, not {method}"
+        ))
+    } else {
+        None
+    }
+}
+
 /// How many closed-loop pairs [`refine`] takes: `asked` when given (by flag or configuration),
 /// else as many as the sampling pairs for a linear rung and none for another.
 pub fn loop_images(method: MethodChoice, ntrain: usize, asked: Option<usize>) -> usize {
@@ -166,11 +181,8 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     if n == 0 {
         return Ok(model);
     }
-    if !refines(opts.method) {
-        return Err(Error::Input(format!(
-            "closed-loop pairs refit a linear rung (linear, linear-sl), not {}",
-            opts.method
-        )));
+    if let Some(p) = loop_images_problem(opts.method, n) {
+        return Err(Error::Input(format!("{n} closed-loop pairs: {p}")));
     }
     opts.check_cancelled()?;
     let t = Instant::now();
@@ -179,6 +191,19 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let ntrain = opts.patterns.ntrain;
     let net = root.network_size()?;
     let cam = model.camera_size();
+    // The data root may be a folder the user gave: a training image after the sampling ones
+    // that this calibration did not write is never replaced.
+    let mut manifest = Manifest::open(setup.path(), &opts.patterns)?;
+    if let Some(theirs) = (manifest.loop_written + 1..=n)
+        .map(|i| root.image_path(ProjectorSet::Train, ntrain + i))
+        .find(|p| p.exists())
+    {
+        return Err(Error::Input(format!(
+            "{}: a training image this calibration did not write, where a closed-loop pair \
+             would go; choose another --data folder, or --loop-images 0",
+            theirs.display()
+        )));
+    }
     let mut capturer = Capturer::new(display, camera, &captured.latency, opts.sync);
     let psize = capturer.projector_size();
     let canvas = Rect::covering(psize);
@@ -205,6 +230,7 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         let shown: PrjImage =
             crate::pngio::quantize(&crate::model::at_size(model.infer(&desired)?, net))
                 .into_space();
+        manifest.record_loop(setup.path(), i)?;
         root.write(ProjectorSet::Train, ntrain + i, &shown)?;
         let frame = place_on_canvas(&shown, canvas, psize)?;
         capturer.capture(&white, true)?;

@@ -193,16 +193,12 @@ impl Settings {
             a.ntrain.unwrap_or(c.calibration.ntrain),
             asked,
         );
-        if loop_images > 0 && !compend::calibrate::refines(method) {
+        if let Some(p) = compend::calibrate::loop_images_problem(method, loop_images) {
             let from = match a.loop_images {
                 Some(n) => format!("--loop-images {n}"),
                 None => format!("the configuration's loop_images = {loop_images}"),
             };
-            return Err(compend::Error::Input(format!(
-                "{from}: only a linear rung (linear, linear-sl) is refitted on closed-loop \
-                 pairs, not {method}; set --loop-images 0 or choose a linear --method"
-            ))
-            .into());
+            return Err(compend::Error::Input(format!("{from}: {p}")).into());
         }
         if method == MethodChoice::Auto {
             let (gain, name) = match a.climb_gain {
@@ -649,13 +645,6 @@ fn check_counts(a: &Settings) -> compend::Result<()> {
             "--ntrain {}: at least {} training images are needed",
             a.ntrain,
             compend::fit::MIN_TRAIN
-        ));
-    }
-    if a.loop_images > compend::calibrate::MAX_LOOP_IMAGES {
-        return bad(format!(
-            "--loop-images {}: at most {} closed-loop pairs",
-            a.loop_images,
-            compend::calibrate::MAX_LOOP_IMAGES
         ));
     }
     if a.ntest == 0 || a.verify == 0 || a.verify > a.ntest {
