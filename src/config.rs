@@ -997,7 +997,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("t.toml:3: [calibration] loop_images = 24: only a linear rung"),
+            e.contains("t.toml:3: [calibration] loop_images = 24: only linear, linear-sl and compennet++-res"),
             "{e}"
         );
     }

@@ -113,6 +113,70 @@ fn bench_writes_rows_for_references_and_methods() {
     assert!(!other.exists());
 }
 
+/// `--loop-images`: the rungs that take closed-loop pairs train on them as `calibrate` does,
+/// the others on the sampling pairs; the pairs keep their desired views.
+#[test]
+fn bench_takes_closed_loop_pairs_like_calibrate() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    let (_, v) = tiny_bench(
+        &out,
+        &[
+            "--methods",
+            "linear,compennet++-res,compennet++-cpu",
+            "--ntrain",
+            "6",
+            "--loop-images",
+            "4",
+            "--iters",
+            "2",
+            "--batch",
+            "2",
+        ],
+    );
+    let rows = v["rows"].as_array().unwrap();
+    let row = |m: &str| rows.iter().find(|r| r["method"] == m).unwrap();
+    for m in ["linear", "compennet++-res"] {
+        let r = row(m);
+        assert_eq!(r["ntrain"], 6, "{r}");
+        assert_eq!(r["loop_pairs"], 4, "{r}");
+        assert_eq!(r["captures"], 13, "{r}");
+        assert!(r["failed"].is_null(), "{r}");
+    }
+    let cpu = row("compennet++-cpu");
+    assert!(cpu.get("loop_pairs").is_none(), "{cpu}");
+    assert_eq!(cpu["captures"], 9, "{cpu}");
+    let setup = out.join("data/seed0/textured-plane");
+    assert_eq!(
+        std::fs::read_dir(setup.join("cam/desire/train"))
+            .unwrap()
+            .count(),
+        4
+    );
+    assert!(setup.join("cam/raw/train/img_0010.png").is_file());
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    assert!(
+        md.contains("| textured-plane | 0 | compennet++-res | 6+4 |"),
+        "{md}"
+    );
+    // The pairs follow one sampling-set size.
+    let o = compend(&[
+        "bench",
+        "--out",
+        dir.path().join("two").to_str().unwrap(),
+        "--ntrain",
+        "6,8",
+        "--loop-images",
+        "4",
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--loop-images 4: closed-loop pairs follow the sampling pairs"),
+        "{}",
+        stderr(&o)
+    );
+}
+
 #[test]
 fn bench_gives_the_spread_across_seeds() {
     let dir = tempfile::tempdir().unwrap();

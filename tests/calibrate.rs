@@ -258,6 +258,10 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
         .filter(|(a, b)| a != b)
         .count();
     assert!(differ > first.len() / 6, "{differ}");
+    // Each closed-loop pair keeps the desired view it was compensated for, under its index.
+    assert_eq!(count(&data.join("capture/cam/desire/train")), 5);
+    assert!(data.join("capture/cam/desire/train/img_0013.png").is_file());
+    residual_correction_trains_on_the_closed_loop_pairs(dir.path(), &data);
 
     // On a dark surface the display range is a few hundredths wide and two closed-loop images
     // in a row look alike to the camera: the synchronisation still sees each one arrive.
@@ -300,14 +304,14 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
         &[&rig[..], &["--loop-images", "5"]].concat(),
     ));
     assert_code(&o, 0);
-    // Only a linear rung is refitted so, whether asked by flag or by the configuration.
+    // Only the rungs that take closed-loop pairs get them, whether asked by flag or by the configuration.
     let o = compend(&calibrate_args(
         d,
         &[&rig[..], &["--method", "auto", "--loop-images", "3"]].concat(),
     ));
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains("--loop-images 3: only a linear rung"),
+        stderr(&o).contains("--loop-images 3: only linear, linear-sl and compennet++-res"),
         "{}",
         stderr(&o)
     );
@@ -328,7 +332,163 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
     ));
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains("the configuration's loop_images = 3: only a linear rung"),
+        stderr(&o).contains(
+            "the configuration's loop_images = 3: only linear, linear-sl and compennet++-res"
+        ),
+        "{}",
+        stderr(&o)
+    );
+}
+
+/// `compennet++-res` on a calibration's data root: with its closed-loop pairs among the
+/// training pairs its correction trains on them (and says so in the record), without them on
+/// the sampling pairs; a damaged desired view is refused naming the file.
+fn residual_correction_trains_on_the_closed_loop_pairs(dir: &Path, data: &Path) {
+    let setup = data.join("capture");
+    let train = |ntrain: Option<&str>, out: &Path| {
+        let mut args = vec![
+            "train",
+            "--setup",
+            setup.to_str().unwrap(),
+            "--method",
+            "compennet++-res",
+            "--iters",
+            "2",
+            "--batch",
+            "2",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if let Some(n) = ntrain {
+            args.extend(["--ntrain", n]);
+        }
+        compend(&args)
+    };
+    let model = |out: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(out.join("model.json")).unwrap()).unwrap()
+    };
+    let correction = |out: &Path| {
+        model(out)["training"]["correction"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    // By default every pair up to the last closed-loop one.
+    let looped = dir.join("res-loop");
+    assert_code(&train(None, &looped), 0);
+    assert_eq!(model(&looped)["training"]["ntrain"], 17);
+    assert!(
+        correction(&looped).starts_with("5 closed-loop pairs"),
+        "{}",
+        correction(&looped)
+    );
+    let sampled = dir.join("res-sampling");
+    assert_code(&train(Some("12"), &sampled), 0);
+    assert!(
+        correction(&sampled).starts_with("12 sampling pairs"),
+        "{}",
+        correction(&sampled)
+    );
+    // A damaged desired view: exit 2 naming it, the copy of the data root otherwise intact.
+    let copy = dir.join("damaged");
+    copy_dir(data, &copy);
+    let bad = copy.join("capture/cam/desire/train/img_0014.png");
+    std::fs::write(&bad, b"not a png").unwrap();
+    let o = compend(&[
+        "train",
+        "--setup",
+        copy.join("capture").to_str().unwrap(),
+        "--method",
+        "compennet++-res",
+        "--ntrain",
+        "17",
+        "--iters",
+        "2",
+        "--out",
+        dir.join("res-bad").to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("desire/train/img_0014.png"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("res-bad").exists());
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), &target).unwrap();
+        }
+    }
+}
+
+/// `calibrate --method compennet++-res`: `linear` takes the closed-loop pairs and the rung's
+/// correction trains on them; `--iters` is for the CompenNet++ rungs only.
+#[test]
+fn calibrate_trains_the_residual_correction_on_closed_loop_pairs() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("cal");
+    let d = data.to_str().unwrap();
+    let rig = ["--rig", "virtual:curved", "--seed", "8"];
+    let o = compend(&calibrate_args(
+        d,
+        &[
+            &rig[..],
+            &[
+                "--method",
+                "compennet++-res",
+                "--iters",
+                "3",
+                "--loop-images",
+                "4",
+            ],
+        ]
+        .concat(),
+    ));
+    assert_code(&o, 0);
+    let r = record(&o);
+    assert_eq!(r["loop_pairs"], 4, "{r}");
+    assert_eq!(r["verification"]["passed"], true, "{r}");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap()).unwrap();
+    assert_eq!(m["method"], "compennet++-res", "{m}");
+    assert_eq!(m["training"]["ntrain"], 16, "{m}");
+    assert_eq!(m["training"]["iterations"], 3, "{m}");
+    let correction = m["training"]["correction"].as_str().unwrap();
+    assert!(
+        correction.starts_with("4 closed-loop pairs"),
+        "{correction}"
+    );
+    let files = std::fs::read_dir(data.join("capture/cam/desire/train")).unwrap();
+    assert_eq!(files.count(), 4);
+    for (method, why) in [("linear", "closed-form fit"), ("auto", "use --climb-iters")] {
+        let o = compend(&calibrate_args(
+            d,
+            &[&rig[..], &["--method", method, "--iters", "3"]].concat(),
+        ));
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains(&format!(
+                "--iters 3: only the CompenNet++ rungs train in iterations, not {method}"
+            )) && stderr(&o).contains(why),
+            "{}",
+            stderr(&o)
+        );
+    }
+    let o = compend(&calibrate_args(
+        d,
+        &[&rig[..], &["--method", "compennet++-res", "--iters", "0"]].concat(),
+    ));
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--iters 0: expected at least 1"),
         "{}",
         stderr(&o)
     );

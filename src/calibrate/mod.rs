@@ -14,10 +14,10 @@
 //!    on disk for the same pattern set are not taken again (an interrupted run resumes);
 //! 4. **training**: the requested rung on the setup ([`crate::fit`]); when `auto` climbed to a
 //!    CompenNet++ rung on the held-out pairs, the best linear rung is fitted too, for the rig
-//!    to confirm the climb. With `loop_images` > 0 and a linear rung, **closed-loop pairs**
-//!    follow: the fitted model's compensation of sampling images placed as desired views,
-//!    projected and captured; these pairs sit in the range the desired images use, and the rung
-//!    is refitted on every pair ([`refine`]);
+//!    to confirm the climb. With `loop_images` > 0 and a linear rung or `compennet++-res`,
+//!    **closed-loop pairs** follow: the linear rung's compensation of sampling images placed as
+//!    desired views, projected and captured; these pairs sit in the range the desired images
+//!    use, and the requested rung is fitted on every pair ([`refine`]);
 //! 5. **verification**: held-out test images, compensated by the new model and as they are,
 //!    projected, captured and scored inside the displayable area against the view they should
 //!    give. After a climb, the linear rung is projected on the same images and the climbed one
@@ -79,8 +79,9 @@ pub struct Options {
     /// `method = auto`: the PSNR gain (dB, held-out pairs) a CompenNet++ rung needs over the
     /// best linear rung ([`crate::fit::ClimbRule`]).
     pub climb_gain_db: f64,
-    /// `method = auto`: training iterations of the CompenNet++ rung; `None`: its schedule.
-    pub climb_iters: Option<usize>,
+    /// Training iterations of a CompenNet++ rung: the one asked for, or the one `auto` climbs
+    /// to; `None`: its schedule. Ignored by the linear rungs.
+    pub iters: Option<usize>,
     /// Closed-loop pairs the linear rung is refitted with ([`refine`]); 0: none.
     pub loop_images: usize,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
@@ -134,9 +135,10 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 /// The most closed-loop pairs [`refine`] takes (each is a capture held in memory by the refit).
 pub const MAX_LOOP_IMAGES: usize = 500;
 
-/// Whether [`refine`] applies to a method: the linear rungs.
+/// Whether [`refine`] applies to a method: the linear rungs, and `compennet++-res`, whose
+/// correction trains on the closed-loop pairs of the `linear` rung it stands on.
 pub fn refines(method: MethodChoice) -> bool {
-    matches!(method, MethodChoice::Rung(m) if m.is_linear())
+    matches!(method, MethodChoice::Rung(m) if m.is_linear() || m == crate::model::Method::CompenNetPpRes)
 }
 
 /// What is wrong with asking `method` for `n` closed-loop pairs, if anything: more than
@@ -147,7 +149,7 @@ pub fn loop_images_problem(method: MethodChoice, n: usize) -> Option<String> {
         Some(format!("at most {MAX_LOOP_IMAGES} closed-loop pairs"))
     } else if n > 0 && !refines(method) {
         Some(format!(
-            "only a linear rung (linear, linear-sl) is refitted on closed-loop pairs, not {method}"
+            "only linear, linear-sl and compennet++-res take closed-loop pairs, not {method}"
         ))
     } else {
         None
@@ -155,19 +157,23 @@ pub fn loop_images_problem(method: MethodChoice, n: usize) -> Option<String> {
 }
 
 /// How many closed-loop pairs [`refine`] takes: `asked` when given (by flag or configuration),
-/// else as many as the sampling pairs for a linear rung and none for another.
+/// else as many as the sampling pairs for a rung that takes them ([`refines`]) and none for
+/// another.
 pub fn loop_images(method: MethodChoice, ntrain: usize, asked: Option<usize>) -> usize {
     asked.unwrap_or(if refines(method) { ntrain } else { 0 })
 }
 
-/// Phase 4b, with `opts.loop_images` = N > 0 and a linear rung: closed-loop pairs. For the
-/// first N sampling images (again from the first when N is more than there are), the desired
-/// view (scaled into the display range and placed in the displayable area, as the test
-/// images' are) is compensated by `model`; that network-size projector image is written to the
-/// data root as training image `ntrain + i`, projected, captured synchronised and written as
-/// its capture. The rung is then refitted on all `ntrain + N` pairs. A sampling image spends
-/// most of its range where no desired image goes; these pairs sit where the desired images
-/// are, and on dark surfaces they are worth more than as many sampling images
+/// Phase 4b, with `opts.loop_images` = N > 0 and a rung that takes them ([`refines`]):
+/// closed-loop pairs. For the first N sampling images (again from the first when N is more
+/// than there are), the desired view (scaled into the display range and placed in the
+/// displayable area, as the test images' are) is compensated by `model` (a linear rung; for
+/// `compennet++-res`, the `linear` rung [`train`] fitted); that network-size projector image is
+/// written to the data root as training image `ntrain + i`, its desired view to the setup's
+/// `cam/desire/train`, and it is projected, captured synchronised and written as its capture.
+/// The requested rung is then fitted on all `ntrain + N` pairs: a linear rung on every pair,
+/// the residual rung's correction on the closed-loop ones ([`crate::fit`]). A sampling image
+/// spends most of its range where no desired image goes; these pairs sit where the desired
+/// images are, and on dark surfaces they are worth more than as many sampling images
 /// (docs/bench/ladder.md). They depend on the model, so an interrupted run takes them again.
 pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
@@ -232,6 +238,7 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
                 .into_space();
         manifest.record_loop(setup.path(), i)?;
         root.write(ProjectorSet::Train, ntrain + i, &shown)?;
+        setup.write_loop_desired(ntrain + i, &desired)?;
         let frame = place_on_canvas(&shown, canvas, psize)?;
         capturer.capture(&white, true)?;
         let cap = capturer.capture(&frame, true)?;
@@ -385,7 +392,18 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
     let t = Instant::now();
     let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
     let req = request(opts);
-    let (model, _) = fit::fit(&setup, &req, |stage, done, n| progress(stage, done, n))?;
+    // The residual rung's closed-loop pairs are `linear`'s compensations: `linear` first, and
+    // the rung itself once [`refine`] has them.
+    let first = match opts.method {
+        MethodChoice::Rung(m) if opts.loop_images > 0 && !m.is_linear() => Request {
+            method: MethodChoice::Rung(crate::model::Method::Linear),
+            iters: None,
+            batch: None,
+            ..req.clone()
+        },
+        _ => req.clone(),
+    };
+    let (model, _) = fit::fit(&setup, &first, |stage, done, n| progress(stage, done, n))?;
     opts.check_cancelled()?;
     captured.lower_rung = fit::lower_rung(&setup, &req, &model, |stage, done, n| {
         progress(stage, done, n)
@@ -406,8 +424,8 @@ fn request(opts: &Options) -> Request {
         ntrain: Some(opts.patterns.ntrain),
         seed: opts.fit_seed,
         iters: opts
-            .climb_iters
-            .filter(|_| opts.method == MethodChoice::Auto),
+            .iters
+            .filter(|_| !matches!(opts.method, MethodChoice::Rung(m) if m.is_linear())),
         batch: None,
         device: Default::default(),
         lattice: None,

@@ -90,10 +90,14 @@ pub struct Args {
     /// [default: the configuration's `climb_iters`, else the rung's own schedule].
     #[arg(long)]
     pub climb_iters: Option<usize>,
-    /// Linear rungs only: after the fit, project its compensation of N sampling images placed
-    /// as desired views, capture them, and refit on every pair (closed-loop pairs: they sit in
-    /// the range the desired images use); 0: none [default: the configuration's
-    /// `loop_images`, else as many as --ntrain for a linear rung].
+    /// CompenNet++ rungs only: training iterations [default: the rung's own schedule].
+    #[arg(long)]
+    pub iters: Option<usize>,
+    /// linear, linear-sl and compennet++-res only: after the linear fit, project its
+    /// compensation of N sampling images placed as desired views and capture them
+    /// (closed-loop pairs: they sit in the range the desired images use); a linear rung is
+    /// refitted on every pair, compennet++-res trains its correction on them; 0: none
+    /// [default: the configuration's `loop_images`, else as many as --ntrain].
     #[arg(long, value_name = "N")]
     pub loop_images: Option<usize>,
     /// Frames averaged per capture [default: 3].
@@ -142,8 +146,9 @@ struct Settings {
     min_gain: f64,
     /// `auto`: the margin of the climb to a CompenNet++ rung (the config's `climb_gain_db`).
     climb_gain: f64,
-    /// `auto`: iterations of the CompenNet++ rung (the config's `climb_iters`).
-    climb_iters: Option<usize>,
+    /// Iterations of the CompenNet++ rung: `--iters` for one asked for, `--climb-iters` (the
+    /// config's `climb_iters`) for the one `auto` climbs to.
+    iters: Option<usize>,
     /// Closed-loop pairs for a linear rung (the config's `loop_images`).
     loop_images: usize,
     average: usize,
@@ -183,6 +188,20 @@ impl Settings {
             if let Some(flag) = flag {
                 return Err(compend::Error::Input(format!(
                     "{flag}: only `--method auto` climbs the ladder; {method} is one rung"
+                ))
+                .into());
+            }
+        }
+        if let Some(n) = a.iters {
+            let closed_form = match method {
+                MethodChoice::Auto => Some("use --climb-iters for the rung `auto` climbs to"),
+                MethodChoice::Rung(m) if m.is_linear() => Some("it is a closed-form fit"),
+                MethodChoice::Rung(_) => None,
+            };
+            if let Some(why) = closed_form {
+                return Err(compend::Error::Input(format!(
+                    "--iters {n}: only the CompenNet++ rungs train in iterations, not {method} \
+                     ({why})"
                 ))
                 .into());
             }
@@ -250,7 +269,10 @@ impl Settings {
             verify: a.verify.unwrap_or(k.verify),
             min_gain: a.min_gain.unwrap_or(k.min_gain_db),
             climb_gain: a.climb_gain.unwrap_or(k.climb_gain_db),
-            climb_iters: a.climb_iters.or(k.climb_iters),
+            iters: match method {
+                MethodChoice::Auto => a.climb_iters.or(k.climb_iters),
+                MethodChoice::Rung(_) => a.iters,
+            },
             loop_images,
             average: a.average.unwrap_or(k.average),
             seed: a.seed.unwrap_or(r.seed),
@@ -561,7 +583,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         verify_images: args.verify,
         required_gain_db: args.min_gain,
         climb_gain_db: args.climb_gain,
-        climb_iters: args.climb_iters,
+        iters: args.iters,
         loop_images: args.loop_images,
         rig,
         cancel: None,
@@ -668,8 +690,12 @@ fn check_counts(a: &Settings) -> compend::Result<()> {
             a.climb_gain
         ));
     }
-    if a.climb_iters == Some(0) {
-        return bad("--climb-iters 0: expected at least 1".into());
+    if a.iters == Some(0) {
+        let flag = match a.method {
+            MethodChoice::Auto => "--climb-iters",
+            MethodChoice::Rung(_) => "--iters",
+        };
+        return bad(format!("{flag} 0: expected at least 1"));
     }
     for (flag, v) in [
         ("--rig-latency-ms", a.rig_latency_ms),

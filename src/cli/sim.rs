@@ -131,6 +131,12 @@ pub struct ExportArgs {
     /// the model's compensation images asks of it what calibrate's verification asked.
     #[arg(long, value_name = "MODEL", conflicts_with = "desired_range")]
     pub as_calibrated: Option<PathBuf>,
+    /// Closed-loop pairs, as `compend calibrate` takes them: `linear` fitted on the exported
+    /// training pairs compensates N sampling images placed as desired views, and the rig
+    /// captures them as training pairs NTRAIN+1…NTRAIN+N (desired views in cam/desire/train);
+    /// linear, linear-sl and compennet++-res then train on them by default.
+    #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=500))]
+    pub loop_images: u64,
     /// Print the setup's record (rig.json) on stdout.
     #[arg(long)]
     pub json: bool,
@@ -185,6 +191,36 @@ pub fn run(args: Args) -> Result<()> {
         SimCommand::Sheet(a) => sheet(a),
         SimCommand::Score(a) => score(a),
     }
+}
+
+/// Closed-loop pairs for an exported setup ([`rig::export::export_loop_pairs`]): `linear`
+/// fitted on its sampling pairs compensates them. Returns how many were written.
+pub fn loop_pairs(
+    sim: &Simulator,
+    setup: &compend::dataset::Setup,
+    record: &rig::export::RigRecord,
+    n: usize,
+) -> Result<usize> {
+    use compend::model::{Method, MethodChoice};
+    let ntrain = record.train_captures;
+    let req = compend::fit::Request {
+        method: MethodChoice::Rung(Method::Linear),
+        ntrain: Some(ntrain),
+        seed: record.seed,
+        iters: None,
+        batch: None,
+        device: Default::default(),
+        lattice: None,
+        projector: None,
+        photometric: Default::default(),
+        cancel: None,
+        climb_gain_db: None,
+    };
+    let (model, _) = compend::fit::fit(setup, &req, |_, _, _| {})
+        .context("fitting linear for the closed-loop pairs")?;
+    rig::export::export_loop_pairs(sim, setup, record, &model, (ntrain, n))
+        .context("taking the closed-loop pairs")?;
+    Ok(n)
 }
 
 /// The exposure factor and display range `compend calibrate` recorded for the model in `dir`.
@@ -263,6 +299,15 @@ fn export(a: ExportArgs) -> Result<()> {
     };
     let summary = rig::export_setup(&sim, &root, &setup, &opts)
         .with_context(|| format!("exporting scene {:?} to {}", scene.name, a.out.display()))?;
+    if a.loop_images > 0 {
+        let setup = compend::dataset::Setup::open(&summary.setup, Some(root.path()))?;
+        let t = std::time::Instant::now();
+        let n = loop_pairs(&sim, &setup, &summary.record, a.loop_images as usize)?;
+        eprintln!(
+            "sim: {n} closed-loop pairs of linear's compensation in {:.1} s",
+            t.elapsed().as_secs_f64()
+        );
+    }
     let r = &summary.record;
     eprintln!(
         "sim: wrote {} ({} ref, {} sl, {} train, {} test captures; displayable area {}; FOV \

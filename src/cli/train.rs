@@ -20,7 +20,9 @@ pub struct Args {
     /// refitted on all pairs. The evidence goes into model.json.
     #[arg(long, value_enum)]
     pub method: compend::model::MethodChoice,
-    /// Number of training pairs to use (the first N). Default: all available, at most 48.
+    /// Number of training pairs to use (the first N). Default: all available, at most 48 (the
+    /// full CompenNet++: its schedule's 500), and for linear, linear-sl and compennet++-res up
+    /// to the last closed-loop pair a calibration took (cam/desire/train).
     #[arg(long)]
     pub ntrain: Option<usize>,
     /// Seed for every random choice of the fit (recorded in the model).

@@ -202,6 +202,13 @@ impl Setup {
         self.path.join("cam").join("desire").join("test")
     }
 
+    /// `cam/desire/train`: for each closed-loop training pair, the desired view (camera pixels)
+    /// its projector image was compensated to give, under the pair's index. Sampling pairs have
+    /// none, so the folder's numbering starts after them.
+    pub fn loop_desired_dir(&self) -> PathBuf {
+        self.path.join("cam").join("desire").join("train")
+    }
+
     /// `prj/cmp/test`: one folder of compensation images per model.
     pub fn compensation_root(&self) -> PathBuf {
         self.path.join("prj").join("cmp").join("test")
@@ -265,6 +272,29 @@ impl Setup {
     /// Number of desired images in `cam/desire/test` (contiguous from 1; 0 when absent).
     pub fn count_desired(&self) -> Result<usize> {
         count_dir(&self.desired_dir())
+    }
+
+    /// The closed-loop pairs among the first `ntrain` training pairs: the indices (1-based,
+    /// sorted) with a desired view in [`Setup::loop_desired_dir`].
+    pub fn loop_pairs(&self, ntrain: usize) -> Result<Vec<usize>> {
+        let mut found = scan(&self.loop_desired_dir())?.indices;
+        found.retain(|&i| i <= ntrain);
+        Ok(found)
+    }
+
+    /// Loads the desired views of the closed-loop training pairs `indices` at camera size.
+    pub fn load_loop_desired(&self, indices: &[usize]) -> Result<Vec<CamImage>> {
+        let dir = self.loop_desired_dir();
+        let paths: Vec<PathBuf> = indices
+            .iter()
+            .map(|&i| dir.join(pngio::indexed_name(i)))
+            .collect();
+        read_all(
+            &paths,
+            self.camera_size()?,
+            &self.camera_why(),
+            &self.reference_path(Reference::Black),
+        )
     }
 
     /// Loads a named reference capture at camera size.
@@ -366,6 +396,15 @@ impl Setup {
     pub fn write_desired(&self, index: usize, img: &CamImage) -> Result<PathBuf> {
         check_index(index)?;
         let p = self.desired_dir().join(pngio::indexed_name(index));
+        pngio::write_rgb(&p, img)?;
+        Ok(p)
+    }
+
+    /// Writes the desired view of closed-loop training pair `index` (1-based) to
+    /// `cam/desire/train`. Returns the path.
+    pub fn write_loop_desired(&self, index: usize, img: &CamImage) -> Result<PathBuf> {
+        check_index(index)?;
+        let p = self.loop_desired_dir().join(pngio::indexed_name(index));
         pngio::write_rgb(&p, img)?;
         Ok(p)
     }

@@ -37,6 +37,7 @@ pub(super) fn train_compennet(
         ..
     } = data;
     let mut prepared = prepare_compennet_data(setup, req, variant, &fov, &captures, &targets)?;
+    let mut correction = Correction::None;
     // The residual rung stands on the `linear` rung: fitted here on the same pairs, its output
     // for each capture (brought to the network) is what the network corrects.
     let linear = if variant.residual() {
@@ -58,11 +59,35 @@ pub(super) fn train_compennet(
             width: nw,
             height: nh,
         } = targets[0].size();
-        let base: Vec<NetImage> = captures
-            .iter()
-            .map(|c| crate::resize::unstretch(&simplified.apply(c), nw, nh))
-            .collect();
-        prepared.data.base = Some(crate::nn::images_to_tensor(&base)?.to_device(&prepared.device)?);
+        // `linear`'s output for a camera image, at the data's network size.
+        let lin = |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), nw, nh);
+        let loop_pairs = setup.loop_pairs(captures.len())?;
+        if loop_pairs.len() >= super::MIN_TRAIN {
+            let (inputs, base, goals) =
+                closed_loop_data(setup, &loop_pairs, &fov, &captures, &targets, lin)?;
+            let on_device = |images: &[NetImage]| -> Result<candle_core::Tensor> {
+                Ok(crate::nn::images_to_tensor(images)?.to_device(&prepared.device)?)
+            };
+            prepared.data.captures =
+                crate::nn::images_to_tensor(&inputs)?.to_device(&prepared.device)?;
+            prepared.data.targets = on_device(&goals)?;
+            prepared.data.base = Some(on_device(&base)?);
+            correction = Correction::ClosedLoop(loop_pairs.len());
+        } else {
+            if !loop_pairs.is_empty() {
+                tracing::warn!(
+                    "{}: {} closed-loop pairs, fewer than {}; the correction trains on the \
+                     sampling pairs (paper protocol)",
+                    setup.loop_desired_dir().display(),
+                    loop_pairs.len(),
+                    super::MIN_TRAIN
+                );
+            }
+            let base: Vec<NetImage> = captures.iter().map(lin).collect();
+            prepared.data.base =
+                Some(crate::nn::images_to_tensor(&base)?.to_device(&prepared.device)?);
+            correction = Correction::Sampling(captures.len());
+        }
         Some(linear)
     } else {
         None
@@ -111,6 +136,7 @@ pub(super) fn train_compennet(
             device: Some(req.device),
             geometry_init: Some(geometry_init.into()),
             photometric_init: Some(report.photometric_init.clone()),
+            correction: correction.describe(),
             ..common_record(setup, captures.len(), req.seed, &fov, &settings, final_loss)?
         },
         metrics: serde_json::Value::Null,
@@ -134,6 +160,90 @@ pub(super) fn train_compennet(
         None => Model::compennet(meta, fov.mask, net, surface)?,
     };
     Ok((model, summary))
+}
+
+/// What the residual rung's correction trained on.
+enum Correction {
+    /// Not the residual rung.
+    None,
+    /// The paper protocol on this many sampling pairs: input a capture, target its projector
+    /// image.
+    Sampling(usize),
+    /// This many closed-loop pairs ([`closed_loop_data`]).
+    ClosedLoop(usize),
+}
+
+impl Correction {
+    /// For the record (`training.correction`).
+    fn describe(&self) -> Option<String> {
+        match self {
+            Correction::None => None,
+            Correction::Sampling(n) => Some(format!(
+                "{n} sampling pairs (paper protocol: input a capture, target its projector image)"
+            )),
+            Correction::ClosedLoop(n) => Some(format!(
+                "{n} closed-loop pairs (input the desired view, target one first-order step of \
+                 linear's compensation towards it)"
+            )),
+        }
+    }
+}
+
+/// The residual rung's data on closed-loop pairs `indices` (1-based training pair indices
+/// with a desired view in `cam/desire/train`), as inference will use it: the network's input
+/// is the desired view d (camera pixels, masked by the FOV) and its base `linear`'s
+/// compensation `lin(d)`, not a capture. The pair's projector image y was a compensation of d
+/// and its capture is x̃, so one first-order step towards d is y + lin(d) − lin(x̃) (clamped to
+/// the projector's range): the correction learns y − lin(x̃), `linear`'s error where the
+/// desired images are, as a function of what inference sees. On the curved and dark-texture
+/// scenes this kept the rung at or above `linear` in closed loop, where the paper protocol's
+/// target (the sampling image of a capture) left it below (docs/bench/ladder.md).
+/// `captures` (masked) and `targets` are the training pairs in order; `lin` is `linear`'s
+/// output at the data's network size. Returns (inputs, base, targets).
+fn closed_loop_data(
+    setup: &Setup,
+    indices: &[usize],
+    fov: &fov::FovMask,
+    captures: &[CamImage],
+    targets: &[NetImage],
+    lin: impl Fn(&CamImage) -> NetImage,
+) -> Result<(Vec<CamImage>, Vec<NetImage>, Vec<NetImage>)> {
+    let desired = setup.load_loop_desired(indices)?;
+    let mut inputs = Vec::with_capacity(indices.len());
+    let mut base = Vec::with_capacity(indices.len());
+    let mut goals = Vec::with_capacity(indices.len());
+    for (&i, d) in indices.iter().zip(desired) {
+        let d = d.masked(&fov.mask)?;
+        let lin_d = lin(&d);
+        goals.push(first_order_step(
+            &targets[i - 1],
+            &lin_d,
+            &lin(&captures[i - 1]),
+        )?);
+        base.push(lin_d);
+        inputs.push(d);
+    }
+    Ok((inputs, base, goals))
+}
+
+/// y + lin(d) − lin(x̃), clamped to [0, 1] (network pixels): the projector image that moves
+/// the capture x̃ of `shown` (y) towards the desired view d, to first order in `linear`'s
+/// model.
+fn first_order_step(shown: &NetImage, lin_d: &NetImage, lin_x: &NetImage) -> Result<NetImage> {
+    let ImageSize { width, height } = shown.size();
+    for other in [lin_d, lin_x] {
+        if other.size() != shown.size() {
+            return Err(Error::Failed(format!(
+                "closed-loop step: a {} image against a {} projector image",
+                other.size(),
+                shown.size()
+            )));
+        }
+    }
+    let data = (shown.data().iter().zip(lin_d.data()).zip(lin_x.data()))
+        .map(|((y, a), b)| (y + a - b).clamp(0.0, 1.0))
+        .collect();
+    NetImage::from_vec(width, height, data)
 }
 
 /// A CompenNet++ rung's training data, on its device.
@@ -291,4 +401,24 @@ fn weights_to_cpu(
             Ok(t.flatten_all()?.to_vec1::<f32>()?)
         }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_first_order_step_moves_the_shown_image_by_linears_error_within_range() {
+        let shown = NetImage::from_vec(1, 2, vec![0.5, 0.5, 0.5, 0.9, 0.1, 0.5]).unwrap();
+        let lin_d = NetImage::from_vec(1, 2, vec![0.6, 0.4, 0.5, 0.9, 0.2, 0.5]).unwrap();
+        let lin_x = NetImage::from_vec(1, 2, vec![0.5, 0.5, 0.5, 0.7, 0.4, 0.5]).unwrap();
+        let step = first_order_step(&shown, &lin_d, &lin_x).unwrap();
+        let want = [0.6, 0.4, 0.5, 1.0, 0.0, 0.5];
+        for (got, want) in step.data().iter().zip(want) {
+            assert!((got - want).abs() < 1e-6, "{:?}", step.data());
+        }
+        let small = NetImage::from_vec(1, 1, vec![0.5; 3]).unwrap();
+        let e = first_order_step(&shown, &small, &lin_x).unwrap_err();
+        assert!(e.to_string().contains("1x1"), "{e}");
+    }
 }

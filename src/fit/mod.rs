@@ -39,7 +39,9 @@ pub const DEFAULT_TRAIN: usize = 48;
 pub struct Request {
     /// The rung, or `auto`.
     pub method: MethodChoice,
-    /// Training pairs to use (the first N); `None` = all available, at most [`DEFAULT_TRAIN`].
+    /// Training pairs to use (the first N); `None` = all available, at most [`DEFAULT_TRAIN`]
+    /// (a CompenNet++ rung: its schedule's count), and for a linear rung or `compennet++-res`
+    /// also every closed-loop pair (`cam/desire/train`).
     pub ntrain: Option<usize>,
     pub seed: u64,
     /// CompenNet++ only: override the variant's iterations (the lr step scales) and batch size.
@@ -210,7 +212,8 @@ fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>
 }
 
 /// The number of training pairs to use: `--ntrain`, else what the setup holds up to the rung's
-/// default; at least [`MIN_TRAIN`].
+/// default, and for a rung that takes closed-loop pairs (a linear rung, `compennet++-res`) up
+/// to the last of those; at least [`MIN_TRAIN`].
 fn train_count(
     setup: &Setup,
     req: &Request,
@@ -218,7 +221,18 @@ fn train_count(
 ) -> Result<usize> {
     let available = setup.count(CaptureSet::Train)?;
     let default_train = variant.map_or(DEFAULT_TRAIN, |v| v.schedule().train_pairs);
-    let ntrain = req.ntrain.unwrap_or(available.min(default_train));
+    let takes_loops = match req.method {
+        MethodChoice::Rung(_) => variant.is_none_or(|v| v.residual()),
+        MethodChoice::Auto => false,
+    };
+    let last_loop = if req.ntrain.is_none() && takes_loops {
+        setup.loop_pairs(available)?.last().copied().unwrap_or(0)
+    } else {
+        0
+    };
+    let ntrain = req
+        .ntrain
+        .unwrap_or(available.min(default_train).max(last_loop));
     if ntrain < MIN_TRAIN {
         return Err(Error::Input(format!(
             "--ntrain {ntrain}: the {} method needs at least {MIN_TRAIN} training pairs ({} has {available})",

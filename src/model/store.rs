@@ -216,6 +216,9 @@ pub struct TrainingRecord {
     /// CompenNet++: where CompenNet's weights started.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub photometric_init: Option<String>,
+    /// `compennet++-res`: the pairs its correction trained on, and how.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub correction: Option<String>,
 }
 
 /// The evidence of `--method auto`.

@@ -32,6 +32,7 @@ const FRAMES_REF: u64 = 0;
 const FRAMES_SL: u64 = 10_000;
 const FRAMES_TRAIN: u64 = 100_000;
 const FRAMES_TEST: u64 = 1_000_000;
+const FRAMES_LOOP: u64 = 200_000;
 
 /// What [`export_setup`] captures.
 #[derive(Clone, Debug, PartialEq)]
@@ -272,6 +273,49 @@ impl Capturing<'_> {
             })?;
         Ok((fov, area, range))
     }
+}
+
+/// Closed-loop pairs on the rig, as `compend calibrate` takes them
+/// ([`crate::calibrate::refine`]), for an exported setup: for i in 1..=`n`, sampling image
+/// `1 + (i − 1) % ntrain` of the root, scaled into the record's desired range and placed in its
+/// displayable area, is a desired view d (camera pixels). `model`'s compensation of d (network
+/// size, 8-bit) is written to the root as training image `ntrain + i`, d to the setup's
+/// `cam/desire/train`, and the rig's capture of it (frames from their own base, so equal inputs
+/// give equal files) as the pair's capture. `ntrain` must be the number of sampling images the
+/// export captured; training image `ntrain + i` is replaced.
+pub fn export_loop_pairs(
+    sim: &Simulator,
+    setup: &Setup,
+    record: &RigRecord,
+    model: &crate::model::Model,
+    (ntrain, n): (usize, usize),
+) -> Result<()> {
+    let root = setup.root();
+    let net = root.network_size()?;
+    let why = format!("the network size of {}", root.path().display());
+    let cam = sim.camera_size();
+    if ntrain == 0 {
+        return Err(Error::Input(
+            "closed-loop pairs need at least one sampling image".into(),
+        ));
+    }
+    (1..=n).into_par_iter().try_for_each(|i| -> Result<()> {
+        let p = root.image_path(ProjectorSet::Train, 1 + (i - 1) % ntrain);
+        let content = pngio::read_rgb_sized::<crate::raster::Projector>(&p, net, &why)?;
+        let desired = fov::place_in_area(
+            &record.desired_range.apply(&content),
+            record.displayable_area,
+            cam,
+        )?;
+        let shown: PrjImage =
+            pngio::quantize(&crate::model::at_size(model.infer(&desired)?, net)).into_space();
+        root.write(ProjectorSet::Train, ntrain + i, &shown)?;
+        setup.write_loop_desired(ntrain + i, &desired)?;
+        let frame = crate::playback::place_on_canvas(&shown, record.canvas, sim.projector_size())?;
+        let cap = sim.capture(&frame, FRAMES_LOOP + i as u64)?;
+        setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
+        Ok(())
+    })
 }
 
 /// Writes `SETUP/rig.json`.

@@ -62,6 +62,13 @@ pub struct Args {
     /// held-out pairs and then in closed loop on the rig [default: 0.5].
     #[arg(long, value_name = "DB", allow_negative_numbers = true)]
     pub climb_gain: Option<f64>,
+    /// Closed-loop pairs, as `compend calibrate` takes them (one --ntrain size only): after the
+    /// export, `linear` fitted on the sampling pairs compensates N sampling images placed as
+    /// desired views and the rig captures them; linear, linear-sl and compennet++-res then
+    /// train on every pair (the correction on the closed-loop ones), the other methods on the
+    /// sampling pairs alone [default: 0, none].
+    #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=500))]
+    pub loop_images: u64,
     /// Camera / projector / network sizes (defaults: the scenes' 640x480 / 800x600, 256).
     #[command(flatten)]
     pub scene_args: SceneArgs,
@@ -86,6 +93,15 @@ pub fn run(args: Args) -> Result<()> {
         return Err(compend::Error::Input(format!(
             "--ntrain sizes must be at least {}, --ntest at least 1, and --seeds non-empty",
             fit::MIN_TRAIN
+        ))
+        .into());
+    }
+    if args.loop_images > 0 && args.ntrain.len() > 1 {
+        return Err(compend::Error::Input(format!(
+            "--loop-images {}: closed-loop pairs follow the sampling pairs, so give one --ntrain \
+             size, not {}",
+            args.loop_images,
+            args.ntrain.len()
         ))
         .into());
     }
@@ -141,6 +157,10 @@ pub fn run(args: Args) -> Result<()> {
                 rig::export::export_setup(&sim, &root, &PathBuf::from(&scene.name), &opts)
                     .with_context(|| format!("exporting scene {}", scene.name))?;
             let setup = Setup::open(&exported.setup, Some(root.path()))?;
+            if args.loop_images > 0 {
+                super::sim::loop_pairs(&sim, &setup, &exported.record, args.loop_images as usize)
+                    .with_context(|| format!("scene {}", scene.name))?;
+            }
             // Score as the viewer will see it: after the projector moved, for the drift scene.
             let viewer = Simulator::new(&scene, seed, Phase::AfterDrift)?;
             rows.extend(bench_scene(
@@ -319,9 +339,12 @@ impl SceneBench<'_> {
     ) -> Result<Row> {
         let (args, scene, seed) = (self.args, self.scene, self.seed);
         let trains = !matches!(method, compend::model::MethodChoice::Rung(m) if m.is_linear());
+        // As `calibrate`: the rungs that take closed-loop pairs train on them too.
+        let loops = (compend::calibrate::refines(method) && args.loop_images > 0)
+            .then_some(args.loop_images as usize);
         let req = Request {
             method,
-            ntrain: Some(n),
+            ntrain: Some(n + loops.unwrap_or(0)),
             seed,
             // The closed-form linear rungs train in no iterations.
             iters: args.iters.filter(|_| trains),
@@ -341,8 +364,10 @@ impl SceneBench<'_> {
             method: method.to_string(),
             ntrain: Some(n),
             train_seconds: None,
+            loop_pairs: loops,
             captures: Some(
                 n + 3
+                    + loops.unwrap_or(0)
                     + if method.name().ends_with("-sl") {
                         self.record.sl_captures
                     } else {
@@ -542,13 +567,22 @@ fn spread_table(rows: &[Row]) -> String {
         let _ = writeln!(
             md,
             "| {scene} | {method} | {} | {} | {} | {} | {failed} |",
-            ntrain.map_or("–".into(), |n| n.to_string()),
+            train_label(ntrain, g[0].loop_pairs),
             g.len(),
             stat(&psnr),
             stat(&gap)
         );
     }
     md
+}
+
+/// A row's training pairs for the tables: `48`, or `48+48` with closed-loop pairs.
+fn train_label(ntrain: Option<usize>, loops: Option<usize>) -> String {
+    match (ntrain, loops) {
+        (None, _) => "–".into(),
+        (Some(n), None) => n.to_string(),
+        (Some(n), Some(k)) => format!("{n}+{k}"),
+    }
 }
 
 /// Tables: one row per scene × seed × method × ntrain, the spread across seeds, then what no
@@ -559,7 +593,7 @@ fn markdown(rows: &[Row], reach: &[SceneReach]) -> String {
          area against the desired image; gap: oracle PSNR minus the row's. Paper: the model's output \
          for test captures against the projector inputs (network space). A method marked \
          (diverged), (collapsed) or (worse than uncompensated) failed so; `auto → R` chose rung \
-         R.\n\n\
+         R; #train `48+48`: sampling and closed-loop pairs (`--loop-images`).\n\n\
          | scene | seed | method | #train | train s | captures | ms/frame (CPU) | closed-loop PSNR | SSIM | gap dB | paper PSNR | paper SSIM |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
@@ -576,7 +610,7 @@ fn markdown(rows: &[Row], reach: &[SceneReach]) -> String {
                 (None, None, Some(c)) => format!("{} → {c}", r.method),
                 (None, None, None) => r.method.clone(),
             },
-            r.ntrain.map_or("–".into(), |n| n.to_string()),
+            train_label(r.ntrain, r.loop_pairs),
             f(r.train_seconds, 1),
             r.captures.map_or("–".into(), |n| n.to_string()),
             f(r.frame_ms_cpu, 1),

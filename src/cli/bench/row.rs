@@ -11,7 +11,11 @@ pub struct Row {
     pub seed: u64,
     /// A method, or a reference row: `uncompensated`, `geometry-only`, `oracle@network`, `oracle`.
     pub method: String,
+    /// Sampling pairs.
     pub ntrain: Option<usize>,
+    /// Closed-loop pairs trained on besides (`--loop-images`), if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub loop_pairs: Option<usize>,
     /// Training wall time, seconds (loading and FOV included).
     pub train_seconds: Option<f64>,
     /// Captures the method needs: training pairs, references, structured light.
@@ -44,6 +48,7 @@ impl Row {
             seed,
             method: method.into(),
             ntrain: None,
+            loop_pairs: None,
             train_seconds: None,
             captures: None,
             frame_ms_cpu: None,

@@ -101,7 +101,7 @@ impl Engine {
             verify_images: c.verify,
             required_gain_db: c.min_gain_db,
             climb_gain_db: c.climb_gain_db,
-            climb_iters: c.climb_iters,
+            iters: c.climb_iters.filter(|_| method == MethodChoice::Auto),
             loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
             rig: rig_name(&self.config),
             cancel: Some(cancel),
