@@ -117,9 +117,10 @@ pub struct CalibrationConfig {
     /// Iterations of the climbed rung's training (the progressive climb's and `auto`'s);
     /// `None`: its own schedule.
     pub climb_iters: Option<usize>,
-    /// Closed-loop pairs a `linear` rung is refitted with after its first fit (0: none;
-    /// `None`: [`crate::calibrate::loop_images`]'s default, as many as `ntrain`):
-    /// [`crate::calibrate::refine`].
+    /// Closed-loop pairs taken with the `linear` rung after its first fit (0: none; `None`:
+    /// [`crate::calibrate::loop_images`]'s default, as many as `ntrain`): a linear rung (and
+    /// the one `auto` keeps) is refitted on every pair, `compennet++-res` trains its correction
+    /// on them ([`crate::calibrate::refine`]).
     pub loop_images: Option<usize>,
 }
 
@@ -991,13 +992,18 @@ mod tests {
             e.contains("t.toml:2: [calibration] loop_images = 501: at most 500"),
             "{e}"
         );
-        // Explicitly none for another method is fine.
-        assert!(parse("[calibration]\nmethod = \"auto\"\nloop_images = 0\n").is_ok());
-        let e = parse("[calibration]\nmethod = \"auto\"\nloop_images = 24\n")
+        // `auto` takes them for the linear rung it keeps; explicitly none for another method
+        // is fine, some is not.
+        assert!(parse("[calibration]\nmethod = \"auto\"\nloop_images = 24\n").is_ok());
+        assert!(parse("[calibration]\nmethod = \"compennet++-cpu\"\nloop_images = 0\n").is_ok());
+        let e = parse("[calibration]\nmethod = \"compennet++-cpu\"\nloop_images = 24\n")
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("t.toml:3: [calibration] loop_images = 24: only linear, linear-sl and compennet++-res"),
+            e.contains(
+                "t.toml:3: [calibration] loop_images = 24: only linear, linear-sl, \
+                 compennet++-res and auto"
+            ),
             "{e}"
         );
     }

@@ -84,16 +84,22 @@ fn bench_writes_rows_for_references_and_methods() {
     assert!(stderr(&o).contains("nope"));
     // And so is a climbing margin that is not a number, before anything is written.
     let other = dir.path().join("other");
-    let o = compend(&[
-        "bench",
-        "--out",
-        other.to_str().unwrap(),
-        "--climb-gain",
-        "NaN",
-    ]);
-    assert_code(&o, 2);
-    assert!(stderr(&o).contains("--climb-gain NaN"), "{}", stderr(&o));
-    assert!(!other.exists());
+    for (gain, shown) in [("NaN", "NaN"), ("-inf", "-inf")] {
+        let o = compend(&[
+            "bench",
+            "--out",
+            other.to_str().unwrap(),
+            "--climb-gain",
+            gain,
+        ]);
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains(&format!("--climb-gain {shown}: expected a number of dB")),
+            "{}",
+            stderr(&o)
+        );
+        assert!(!other.exists());
+    }
     // And a climbing margin for methods that do not climb.
     let o = compend(&[
         "bench",

@@ -191,7 +191,12 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
         stderr(&o)
     );
 
-    // The default margin on 3 iterations: no climb on the held-out pairs, nothing to confirm.
+    // A climbed rung keeps its training: no closed-loop pairs were taken for it.
+    assert_eq!(m["calibration"]["loop_pairs"], 0, "{m}");
+
+    // The default margin on 3 iterations: no climb on the held-out pairs, nothing to confirm;
+    // the linear rung kept takes the closed-loop pairs and is refitted on every pair, its
+    // choice still recorded.
     let o = compend(&calibrate_args(
         d,
         &[&rig[..], &["--climb-iters", "3"]].concat(),
@@ -199,6 +204,9 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     let m = meta(&o);
     assert_eq!(m["method"], "linear", "{m}");
     assert!(m["training"]["auto"].get("closed_loop").is_none(), "{m}");
+    assert_eq!(m["training"]["auto"]["chosen"], "linear", "{m}");
+    assert_eq!(m["calibration"]["loop_pairs"], 12, "{m}");
+    assert_eq!(m["training"]["ntrain"], 24, "{m}");
 
     // The climbing flags are for `auto` only, and must be numbers.
     for (flags, says) in [
@@ -307,11 +315,15 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
     // Only the rungs that take closed-loop pairs get them, whether asked by flag or by the configuration.
     let o = compend(&calibrate_args(
         d,
-        &[&rig[..], &["--method", "auto", "--loop-images", "3"]].concat(),
+        &[
+            &rig[..],
+            &["--method", "compennet++-cpu", "--loop-images", "3"],
+        ]
+        .concat(),
     ));
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains("--loop-images 3: only linear, linear-sl and compennet++-res"),
+        stderr(&o).contains("--loop-images 3: only linear, linear-sl, compennet++-res and auto"),
         "{}",
         stderr(&o)
     );
@@ -333,7 +345,7 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
     assert_code(&o, 2);
     assert!(
         stderr(&o).contains(
-            "the configuration's loop_images = 3: only linear, linear-sl and compennet++-res"
+            "the configuration's loop_images = 3: only linear, linear-sl, compennet++-res and auto"
         ),
         "{}",
         stderr(&o)

@@ -14,10 +14,11 @@
 //!    on disk for the same pattern set are not taken again (an interrupted run resumes);
 //! 4. **training**: the requested rung on the setup ([`crate::fit`]); when `auto` climbed to a
 //!    CompenNet++ rung on the held-out pairs, the best linear rung is fitted too, for the rig
-//!    to confirm the climb. With `loop_images` > 0 and a linear rung or `compennet++-res`,
-//!    **closed-loop pairs** follow: the linear rung's compensation of sampling images placed as
-//!    desired views, projected and captured; these pairs sit in the range the desired images
-//!    use, and the requested rung is fitted on every pair ([`refine`]);
+//!    to confirm the climb. With `loop_images` > 0 and a linear rung, `compennet++-res` or
+//!    `auto` that kept a linear rung, **closed-loop pairs** follow: the linear rung's
+//!    compensation of sampling images placed as desired views, projected and captured; these
+//!    pairs sit in the range the desired images use, and the rung is fitted on every pair
+//!    ([`refine`]);
 //! 5. **verification**: held-out test images, compensated by the new model and as they are,
 //!    projected, captured and scored inside the displayable area against the view they should
 //!    give. After a climb, the linear rung is projected on the same images and the climbed one
@@ -82,7 +83,7 @@ pub struct Options {
     /// Training iterations of a CompenNet++ rung: the one asked for, or the one `auto` climbs
     /// to; `None`: its schedule. Ignored by the linear rungs.
     pub iters: Option<usize>,
-    /// Closed-loop pairs the linear rung is refitted with ([`refine`]); 0: none.
+    /// Closed-loop pairs taken with the linear rung ([`refine`]); 0: none.
     pub loop_images: usize,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
     pub rig: String,
@@ -135,10 +136,14 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 /// The most closed-loop pairs [`refine`] takes (each is a capture held in memory by the refit).
 pub const MAX_LOOP_IMAGES: usize = 500;
 
-/// Whether [`refine`] applies to a method: the linear rungs, and `compennet++-res`, whose
-/// correction trains on the closed-loop pairs of the `linear` rung it stands on.
+/// Whether [`refine`] applies to a method: the linear rungs; `compennet++-res`, whose
+/// correction trains on the closed-loop pairs of the `linear` rung it stands on; and `auto`,
+/// for the linear rung it keeps (a climbed rung keeps its training).
 pub fn refines(method: MethodChoice) -> bool {
-    matches!(method, MethodChoice::Rung(m) if m.is_linear() || m == crate::model::Method::CompenNetPpRes)
+    match method {
+        MethodChoice::Rung(m) => m.is_linear() || m == crate::model::Method::CompenNetPpRes,
+        MethodChoice::Auto => true,
+    }
 }
 
 /// What is wrong with asking `method` for `n` closed-loop pairs, if anything: more than
@@ -149,7 +154,8 @@ pub fn loop_images_problem(method: MethodChoice, n: usize) -> Option<String> {
         Some(format!("at most {MAX_LOOP_IMAGES} closed-loop pairs"))
     } else if n > 0 && !refines(method) {
         Some(format!(
-            "only linear, linear-sl and compennet++-res take closed-loop pairs, not {method}"
+            "only linear, linear-sl, compennet++-res and auto take closed-loop pairs, not \
+             {method}"
         ))
     } else {
         None
@@ -163,8 +169,8 @@ pub fn loop_images(method: MethodChoice, ntrain: usize, asked: Option<usize>) ->
     asked.unwrap_or(if refines(method) { ntrain } else { 0 })
 }
 
-/// Phase 4b, with `opts.loop_images` = N > 0 and a rung that takes them ([`refines`]):
-/// closed-loop pairs. For the first N sampling images (again from the first when N is more
+/// Phase 4b, with `opts.loop_images` = N > 0 and a rung that takes them ([`refines`]; not a
+/// rung `auto` climbed to, which is returned as it is): closed-loop pairs. For the first N sampling images (again from the first when N is more
 /// than there are), the desired view (scaled into the display range and placed in the
 /// displayable area, as the test images' are) is compensated by `model` (a linear rung; for
 /// `compennet++-res`, the `linear` rung [`train`] fitted); that network-size projector image is
@@ -190,6 +196,19 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     if let Some(p) = loop_images_problem(opts.method, n) {
         return Err(Error::Input(format!("{n} closed-loop pairs: {p}")));
     }
+    // What is fitted on every pair: the rung asked for, or the linear rung `auto` kept. A rung
+    // `auto` climbed to keeps its training (the rig compares it with the linear rung next).
+    let refit = match opts.method {
+        MethodChoice::Auto if !model.meta.method.is_linear() => return Ok(model),
+        MethodChoice::Auto => Request {
+            method: MethodChoice::Rung(model.meta.method),
+            iters: None,
+            batch: None,
+            climb_gain_db: None,
+            ..request(opts)
+        },
+        MethodChoice::Rung(_) => request(opts),
+    };
     opts.check_cancelled()?;
     let t = Instant::now();
     let root = &captured.root;
@@ -255,11 +274,16 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let t = Instant::now();
     let req = Request {
         ntrain: Some(ntrain + n),
-        ..request(opts)
+        ..refit
     };
-    let (model, _) = fit::fit(&setup, &req, |stage, done, total| {
+    let evidence = model.meta.training.auto.clone();
+    let (mut model, _) = fit::fit(&setup, &req, |stage, done, total| {
         progress(stage, done, total)
     })?;
+    // `auto`'s choice and its evidence stay on the rung it chose.
+    if evidence.is_some() {
+        model.meta.training.auto = evidence;
+    }
     captured.seconds.captures += capturing;
     captured.seconds.training += t.elapsed().as_secs_f64();
     tracing::info!(

@@ -84,7 +84,7 @@ pub struct Args {
     /// `--method auto` only: the PSNR gain in dB the CompenNet++ rung needs over the best
     /// linear rung, on held-out pairs and then in closed loop on the rig [default: the
     /// configuration's `climb_gain_db`, 0.5].
-    #[arg(long, value_name = "DB", allow_negative_numbers = true)]
+    #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
     /// `--method auto` only: training iterations of the CompenNet++ rung it climbs to
     /// [default: the configuration's `climb_iters`, else the rung's own schedule].
@@ -93,11 +93,11 @@ pub struct Args {
     /// CompenNet++ rungs only: training iterations [default: the rung's own schedule].
     #[arg(long)]
     pub iters: Option<usize>,
-    /// linear, linear-sl and compennet++-res only: after the linear fit, project its
+    /// linear, linear-sl, compennet++-res and auto only: after the linear fit, project its
     /// compensation of N sampling images placed as desired views and capture them
-    /// (closed-loop pairs: they sit in the range the desired images use); a linear rung is
-    /// refitted on every pair, compennet++-res trains its correction on them; 0: none
-    /// [default: the configuration's `loop_images`, else as many as --ntrain].
+    /// (closed-loop pairs: they sit in the range the desired images use); a linear rung (and
+    /// the one auto keeps) is refitted on every pair, compennet++-res trains its correction on
+    /// them; 0: none [default: the configuration's `loop_images`, else as many as --ntrain].
     #[arg(long, value_name = "N")]
     pub loop_images: Option<usize>,
     /// Frames averaged per capture [default: 3].

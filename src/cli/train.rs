@@ -44,7 +44,7 @@ pub struct Args {
     pub batch: Option<usize>,
     /// `auto` only: the PSNR gain in dB on held-out pairs the CompenNet++ rung needs over the
     /// best linear rung to be chosen [default: 0.5].
-    #[arg(long, value_name = "DB", allow_negative_numbers = true)]
+    #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
     /// CompenNet++ variants: where to train, `cpu`, `cuda` or `cuda:N` (an NVIDIA GPU; needs a
     /// build with `--features cuda`). The `linear` rungs always fit on the CPU.

@@ -60,7 +60,7 @@ pub struct Args {
     pub batch: Option<usize>,
     /// `auto`: the PSNR gain in dB the CompenNet++ rung needs over the best linear rung, on
     /// held-out pairs and then in closed loop on the rig [default: 0.5].
-    #[arg(long, value_name = "DB", allow_negative_numbers = true)]
+    #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
     /// Closed-loop pairs, as `compend calibrate` takes them (one --ntrain size only): after the
     /// export, `linear` fitted on the sampling pairs compensates N sampling images placed as
@@ -339,8 +339,11 @@ impl SceneBench<'_> {
     ) -> Result<Row> {
         let (args, scene, seed) = (self.args, self.scene, self.seed);
         let trains = !matches!(method, compend::model::MethodChoice::Rung(m) if m.is_linear());
-        // As `calibrate`: the rungs that take closed-loop pairs train on them too.
-        let loops = (compend::calibrate::refines(method) && args.loop_images > 0)
+        // As `calibrate`: the rungs that take closed-loop pairs train on them too (`auto`
+        // decides on the sampling pairs, as its held-out pairs must not be closed-loop ones).
+        let loops = (method != compend::model::MethodChoice::Auto
+            && compend::calibrate::refines(method)
+            && args.loop_images > 0)
             .then_some(args.loop_images as usize);
         let req = Request {
             method,
