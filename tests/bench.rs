@@ -152,7 +152,7 @@ fn bench_takes_closed_loop_pairs_like_calibrate() {
     let cpu = row("compennet++-cpu");
     assert!(cpu.get("loop_pairs").is_none(), "{cpu}");
     assert_eq!(cpu["captures"], 9, "{cpu}");
-    let setup = out.join("data/seed0/textured-plane");
+    let setup = out.join("data/seed0-textured-plane/textured-plane");
     assert_eq!(
         std::fs::read_dir(setup.join("cam/desire/train"))
             .unwrap()

@@ -262,6 +262,12 @@ fn export(a: ExportArgs) -> Result<()> {
         desired_range = rig::DesiredScaling::Given(range);
     }
     let sa = &a.scene_args;
+    let setup = a
+        .setup
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(&scene.name));
+    // Before anything is written.
+    rig::export::check_loop_slots(&a.out, &setup, a.ntrain as usize, a.loop_images as usize)?;
     // Projector-side images exactly as `compend patterns` writes them.
     super::patterns::run(super::patterns::Args {
         out: a.out.clone(),
@@ -286,10 +292,6 @@ fn export(a: ExportArgs) -> Result<()> {
     );
     let sim = Simulator::new(&scene, sa.seed, phase)?;
     let root = DataRoot::open(&a.out)?;
-    let setup = a
-        .setup
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(&scene.name));
     let opts = ExportOptions {
         ntrain: a.ntrain as usize,
         ntest: a.ntest as usize,

@@ -37,7 +37,7 @@ mod setup;
 mod validate;
 
 pub use info::{References, SetCounts, SetupInfo};
-pub use names::parse_indexed_name;
+pub use names::{parse_indexed_name, scan_indices};
 pub use root::{DataRoot, GRAY_INPUT_NAME, ProjectorSet};
 pub use setup::{CaptureSet, Pairs, Reference, Setup};
 pub use validate::Validation;

@@ -97,6 +97,11 @@ pub(crate) fn scan(dir: &Path) -> Result<Scan> {
 }
 
 /// Images in `dir`, contiguous from 1; a gap is an error naming the first missing file.
+/// Sorted 1-based indices of the `img_NNNN.png` files in `dir` (none when it is absent).
+pub fn scan_indices(dir: &Path) -> Result<Vec<usize>> {
+    Ok(scan(dir)?.indices)
+}
+
 pub(super) fn count_dir(dir: &Path) -> Result<usize> {
     let s = scan(dir)?;
     match s.gap(dir) {

@@ -277,7 +277,7 @@ impl Setup {
     /// The closed-loop pairs among the first `ntrain` training pairs: the indices (1-based,
     /// sorted) with a desired view in [`Setup::loop_desired_dir`].
     pub fn loop_pairs(&self, ntrain: usize) -> Result<Vec<usize>> {
-        let mut found = scan(&self.loop_desired_dir())?.indices;
+        let mut found = super::names::scan_indices(&self.loop_desired_dir())?;
         found.retain(|&i| i <= ntrain);
         Ok(found)
     }

@@ -318,6 +318,48 @@ pub fn export_loop_pairs(
     })
 }
 
+/// Refuses, before anything is written, an export whose closed-loop pairs (`n` of them after
+/// `ntrain` sampling pairs; `n` = 0: none) would not match the files around them: closed-loop
+/// pairs the setup `setup` (a folder under `root`) holds outside `ntrain + 1 ..= ntrain + n`
+/// (an earlier export's, whose captures this one replaces), and, with `n` > 0, another setup
+/// of the root with closed-loop pairs (they share the root's training images after the
+/// sampling ones).
+pub fn check_loop_slots(root: &Path, setup: &Path, ntrain: usize, n: usize) -> Result<()> {
+    let ours = root.join(setup);
+    let desire = |dir: &Path| dir.join("cam").join("desire").join("train");
+    let stale = crate::dataset::scan_indices(&desire(&ours))?
+        .into_iter()
+        .find(|&i| i <= ntrain || i > ntrain + n);
+    if let Some(i) = stale {
+        return Err(Error::Input(format!(
+            "{}: the desired view of a closed-loop pair an earlier export took, which this \
+             export's captures would no longer match; remove {} or export into another --out",
+            desire(&ours).join(pngio::indexed_name(i)).display(),
+            desire(&ours).display()
+        )));
+    }
+    if n == 0 {
+        return Ok(());
+    }
+    let entries = match std::fs::read_dir(root) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(Error::io(root, "list folder", e)),
+    };
+    for entry in entries {
+        let other = entry.map_err(|e| Error::io(root, "list folder", e))?.path();
+        if other != ours && desire(&other).is_dir() {
+            return Err(Error::Input(format!(
+                "{}: another setup's closed-loop pairs use {} after the sampling images; export \
+                 closed-loop pairs into another --out",
+                desire(&other).display(),
+                root.join(ProjectorSet::Train.dir_name()).display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Writes `SETUP/rig.json`.
 fn write_record(setup: &Setup, record: &RigRecord) -> Result<()> {
     let path = setup.path().join(RIG_FILE);

@@ -244,6 +244,90 @@ fn score_lies_between_uncompensated_and_oracle(s: &str) {
     assert!(oracle(&avg) > oracle(&v) + 0.2, "{avg}\n{v}");
 }
 
+/// `sim export --loop-images`: closed-loop pairs after the sampling ones, each with its
+/// desired view, that `train` uses by default; an export that would leave pairs that no longer
+/// match their captures, or share the root's training images with another setup's, is refused
+/// before anything is written.
+#[test]
+fn exported_closed_loop_pairs_and_their_guards() {
+    use common_cli::*;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let root = dir.path().join("r");
+    export_tiny(&root, "curved", 3, &["--no-cube", "--loop-images", "4"]);
+    let setup = root.join("curved");
+    let listed = |d: &std::path::Path| {
+        let mut v: Vec<String> = std::fs::read_dir(d)
+            .expect("folder")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(
+        listed(&setup.join("cam/desire/train")),
+        [
+            "img_0007.png",
+            "img_0008.png",
+            "img_0009.png",
+            "img_0010.png"
+        ]
+    );
+    assert_eq!(listed(&setup.join("cam/raw/train")).len(), 10);
+    assert_eq!(listed(&root.join("train")).len(), 10);
+    let model = dir.path().join("m");
+    let o = compend(&[
+        "train",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--method",
+        "linear",
+        "--out",
+        model.to_str().unwrap(),
+    ]);
+    assert_code(&o, 0);
+    assert!(stderr(&o).contains("on 10 pairs"), "{}", stderr(&o));
+    // The same export again replaces its own pairs.
+    export_tiny(&root, "curved", 3, &["--no-cube", "--loop-images", "4"]);
+    let before = files(&root);
+    let refused = |extra: &[&str], says: &str| {
+        let mut args = vec![
+            "sim",
+            "export",
+            "--scene",
+            "curved",
+            "--out",
+            root.to_str().unwrap(),
+            "--ntrain",
+            "6",
+            "--ntest",
+            "2",
+            "--camera",
+            "80x60",
+            "--projector",
+            "100x75",
+            "--network",
+            "32",
+            "--no-cube",
+        ];
+        args.extend_from_slice(extra);
+        let o = compend(&args);
+        assert_code(&o, 2);
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+        assert!(files(&root) == before, "nothing written");
+    };
+    // Without them (or fewer), the earlier pairs would no longer match the new captures.
+    refused(
+        &[],
+        "desire/train/img_0007.png: the desired view of a closed-loop pair",
+    );
+    refused(&["--loop-images", "2"], "desire/train/img_0009.png");
+    // Another setup of the same root would overwrite this one's closed-loop images.
+    refused(
+        &["--setup", "other", "--loop-images", "2"],
+        "another setup's closed-loop pairs",
+    );
+}
+
 #[test]
 fn identical_seeds_give_identical_files() {
     let dir = tempfile::tempdir().expect("temp dir");

@@ -12,7 +12,7 @@ mod row;
 pub use row::Row;
 
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -134,7 +134,19 @@ pub fn run(args: Args) -> Result<()> {
         for name in &scenes {
             let scene = super::sim::resolve(name, &sa)?;
             eprintln!("bench: scene {} seed {seed}", scene.name);
-            let root_dir = args.out.join("data").join(format!("seed{seed}"));
+            // Closed-loop pairs are one scene's compensation images, written after the
+            // sampling images: with them each scene has a data root of its own.
+            let root_dir = args.out.join("data").join(if args.loop_images > 0 {
+                format!("seed{seed}-{}", scene.name)
+            } else {
+                format!("seed{seed}")
+            });
+            rig::export::check_loop_slots(
+                &root_dir,
+                Path::new(&scene.name),
+                max_train,
+                args.loop_images as usize,
+            )?;
             super::patterns::run(super::patterns::Args {
                 out: root_dir.clone(),
                 ntrain: max_train as u64,
