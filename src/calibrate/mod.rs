@@ -170,8 +170,8 @@ pub fn loop_images(method: MethodChoice, ntrain: usize, asked: Option<usize>) ->
 }
 
 /// Phase 4b, with `opts.loop_images` = N > 0 and a rung that takes them ([`refines`]; not a
-/// rung `auto` climbed to, which is returned as it is): closed-loop pairs. For the first N sampling images (again from the first when N is more
-/// than there are), the desired view (scaled into the display range and placed in the
+/// rung `auto` climbed to, which is returned as it is): closed-loop pairs. For the first N
+/// sampling images (again from the first when N is more than there are), the desired view (scaled into the display range and placed in the
 /// displayable area, as the test images' are) is compensated by `model` (a linear rung; for
 /// `compennet++-res`, the `linear` rung [`train`] fitted); that network-size projector image is
 /// written to the data root as training image `ntrain + i`, its desired view to the setup's

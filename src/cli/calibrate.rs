@@ -149,7 +149,7 @@ struct Settings {
     /// Iterations of the CompenNet++ rung: `--iters` for one asked for, `--climb-iters` (the
     /// config's `climb_iters`) for the one `auto` climbs to.
     iters: Option<usize>,
-    /// Closed-loop pairs for a linear rung (the config's `loop_images`).
+    /// Closed-loop pairs (`--loop-images`, the config's `loop_images`).
     loop_images: usize,
     average: usize,
     rig_latency_ms: Option<f64>,

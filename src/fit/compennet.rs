@@ -65,13 +65,10 @@ pub(super) fn train_compennet(
         if loop_pairs.len() >= super::MIN_TRAIN {
             let (inputs, base, goals) =
                 closed_loop_data(setup, &loop_pairs, &fov, &captures, &targets, lin)?;
-            let on_device = |images: &[NetImage]| -> Result<candle_core::Tensor> {
-                Ok(crate::nn::images_to_tensor(images)?.to_device(&prepared.device)?)
-            };
-            prepared.data.captures =
-                crate::nn::images_to_tensor(&inputs)?.to_device(&prepared.device)?;
-            prepared.data.targets = on_device(&goals)?;
-            prepared.data.base = Some(on_device(&base)?);
+            let device = &prepared.device;
+            prepared.data.captures = crate::nn::images_to_tensor(&inputs)?.to_device(device)?;
+            prepared.data.targets = crate::nn::images_to_tensor(&goals)?.to_device(device)?;
+            prepared.data.base = Some(crate::nn::images_to_tensor(&base)?.to_device(device)?);
             correction = Correction::ClosedLoop(loop_pairs.len());
         } else {
             if !loop_pairs.is_empty() {
