@@ -357,6 +357,13 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
 /// the sampling pairs; a damaged desired view is refused naming the file.
 fn residual_correction_trains_on_the_closed_loop_pairs(dir: &Path, data: &Path) {
     let setup = data.join("capture");
+    let o = compend(&["inspect", "--setup", setup.to_str().unwrap()]);
+    assert_code(&o, 0);
+    assert!(
+        stdout(&o).contains("closed loop   5 pairs (train 13–17"),
+        "{}",
+        stdout(&o)
+    );
     let train = |ntrain: Option<&str>, out: &Path| {
         let mut args = vec![
             "train",

@@ -232,6 +232,12 @@ fn print_human(r: &Report) {
         Some(n) => println!("desired test  {n}"),
         None => println!("desired test  absent"),
     }
+    if let (Some(first), Some(last)) = (s.loop_pairs.first(), s.loop_pairs.last()) {
+        println!(
+            "closed loop   {} pairs (train {first}–{last}, desired views in cam/desire/train)",
+            s.loop_pairs.len()
+        );
+    }
     if s.compensated.is_empty() {
         println!("compensated   none");
     } else {

@@ -51,6 +51,8 @@ pub struct SetupInfo {
     pub references: References,
     /// Number of desired images in `cam/desire/test`; `None` when the folder does not exist.
     pub desired_test: Option<usize>,
+    /// Training pairs with a desired view in `cam/desire/train` (closed-loop pairs), sorted.
+    pub loop_pairs: Vec<usize>,
     /// Model names under `prj/cmp/test/` (sorted).
     pub compensated: Vec<String>,
 }

@@ -316,6 +316,7 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
             captures,
             references: scans.references,
             desired_test: scans.desired.as_ref().map(Scan::contiguous),
+            loop_pairs: pr.scan(&setup.loop_desired_dir(), true).indices,
             compensated: scans.models,
         },
         problems: pr.kept,
