@@ -191,8 +191,14 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
         stderr(&o)
     );
 
-    // A climbed rung keeps its training: no closed-loop pairs were taken for it.
-    assert_eq!(m["calibration"]["loop_pairs"], 0, "{m}");
+    // A climbed rung keeps its training; the linear rung it is compared with took the
+    // closed-loop pairs.
+    assert_eq!(m["calibration"]["loop_pairs"], 12, "{m}");
+    assert_eq!(
+        m["training"]["correction"],
+        "8 sampling pairs (paper protocol: input a capture, target its projector image)",
+        "{m}"
+    );
 
     // The default margin on 3 iterations: no climb on the held-out pairs, nothing to confirm;
     // the linear rung kept takes the closed-loop pairs and is refitted on every pair, its

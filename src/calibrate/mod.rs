@@ -169,8 +169,9 @@ pub fn loop_images(method: MethodChoice, ntrain: usize, asked: Option<usize>) ->
     asked.unwrap_or(if refines(method) { ntrain } else { 0 })
 }
 
-/// Phase 4b, with `opts.loop_images` = N > 0 and a rung that takes them ([`refines`]; not a
-/// rung `auto` climbed to, which is returned as it is): closed-loop pairs. For the first N
+/// Phase 4b, with `opts.loop_images` = N > 0 and a rung that takes them ([`refines`]; after
+/// `auto` climbed, the linear rung fitted beside the climbed one, which is returned as it is):
+/// closed-loop pairs. For the first N
 /// sampling images (again from the first when N is more than there are), the desired view (scaled into the display range and placed in the
 /// displayable area, as the test images' are) is compensated by `model` (a linear rung; for
 /// `compennet++-res`, the `linear` rung [`train`] fitted); that network-size projector image is
@@ -196,10 +197,20 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     if let Some(p) = loop_images_problem(opts.method, n) {
         return Err(Error::Input(format!("{n} closed-loop pairs: {p}")));
     }
-    // What is fitted on every pair: the rung asked for, or the linear rung `auto` kept. A rung
-    // `auto` climbed to keeps its training (the rig compares it with the linear rung next).
+    // The linear rung that compensates the closed-loop images, and what is fitted on every
+    // pair: the rung asked for, or the linear rung `auto` kept. After a climb, the linear rung
+    // fitted beside the climbed one takes them, and the rig compares the two next; the climbed
+    // rung keeps its training.
+    let climbed = opts.method == MethodChoice::Auto && !model.meta.method.is_linear();
+    let (model, climbed) = match (climbed, captured.lower_rung.take()) {
+        (false, lower) => {
+            captured.lower_rung = lower;
+            (model, None)
+        }
+        (true, Some(lower)) => (lower, Some(model)),
+        (true, None) => return Ok(model),
+    };
     let refit = match opts.method {
-        MethodChoice::Auto if !model.meta.method.is_linear() => return Ok(model),
         MethodChoice::Auto => Request {
             method: MethodChoice::Rung(model.meta.method),
             iters: None,
@@ -292,7 +303,13 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         ntrain + n,
         t.elapsed().as_secs_f64()
     );
-    Ok(model)
+    Ok(match climbed {
+        Some(upper) => {
+            captured.lower_rung = Some(model);
+            upper
+        }
+        None => model,
+    })
 }
 
 /// What the capture phases leave for training and verification.
