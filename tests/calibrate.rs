@@ -196,7 +196,7 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     assert_eq!(m["calibration"]["loop_pairs"], 12, "{m}");
     assert_eq!(
         m["training"]["correction"],
-        "8 sampling pairs (paper protocol: input a capture, target its projector image)",
+        "8 pairs, paper protocol (input a capture, target its projector image)",
         "{m}"
     );
 
@@ -410,7 +410,7 @@ fn residual_correction_trains_on_the_closed_loop_pairs(dir: &Path, data: &Path) 
     let sampled = dir.join("res-sampling");
     assert_code(&train(Some("12"), &sampled), 0);
     assert!(
-        correction(&sampled).starts_with("12 sampling pairs"),
+        correction(&sampled).starts_with("12 pairs, paper protocol"),
         "{}",
         correction(&sampled)
     );

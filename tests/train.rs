@@ -201,7 +201,10 @@ fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
     );
     // Without closed-loop pairs the correction learns the paper protocol's target.
     let correction = meta["training"]["correction"].as_str().unwrap();
-    assert!(correction.starts_with("12 sampling pairs"), "{correction}");
+    assert!(
+        correction.starts_with("12 pairs, paper protocol"),
+        "{correction}"
+    );
     let (one, _) = compensated_and_uncompensated(&eval_json(&res1, setup));
     assert!(
         (one - lin).abs() < 0.3,

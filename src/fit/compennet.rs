@@ -73,8 +73,8 @@ pub(super) fn train_compennet(
         } else {
             if !loop_pairs.is_empty() {
                 tracing::warn!(
-                    "{}: {} closed-loop pairs, fewer than {}; the correction trains on the \
-                     sampling pairs (paper protocol)",
+                    "{}: {} closed-loop pairs, fewer than {}; the correction trains on every \
+                     pair with the paper protocol's target",
                     setup.loop_desired_dir().display(),
                     loop_pairs.len(),
                     super::MIN_TRAIN
@@ -83,7 +83,7 @@ pub(super) fn train_compennet(
             let base: Vec<NetImage> = captures.iter().map(lin).collect();
             prepared.data.base =
                 Some(crate::nn::images_to_tensor(&base)?.to_device(&prepared.device)?);
-            correction = Correction::Sampling(captures.len());
+            correction = Correction::PaperProtocol(captures.len());
         }
         Some(linear)
     } else {
@@ -163,9 +163,9 @@ pub(super) fn train_compennet(
 enum Correction {
     /// Not the residual rung.
     None,
-    /// The paper protocol on this many sampling pairs: input a capture, target its projector
-    /// image.
-    Sampling(usize),
+    /// The paper protocol on this many pairs (sampling pairs, and closed-loop pairs too few to
+    /// train on as such): input a capture, target its projector image.
+    PaperProtocol(usize),
     /// This many closed-loop pairs ([`closed_loop_data`]).
     ClosedLoop(usize),
 }
@@ -175,8 +175,8 @@ impl Correction {
     fn describe(&self) -> Option<String> {
         match self {
             Correction::None => None,
-            Correction::Sampling(n) => Some(format!(
-                "{n} sampling pairs (paper protocol: input a capture, target its projector image)"
+            Correction::PaperProtocol(n) => Some(format!(
+                "{n} pairs, paper protocol (input a capture, target its projector image)"
             )),
             Correction::ClosedLoop(n) => Some(format!(
                 "{n} closed-loop pairs (input the desired view, target one first-order step of \
