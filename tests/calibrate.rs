@@ -402,6 +402,12 @@ fn residual_correction_trains_on_the_closed_loop_pairs(dir: &Path, data: &Path) 
     let looped = dir.join("res-loop");
     assert_code(&train(None, &looped), 0);
     assert_eq!(model(&looped)["training"]["ntrain"], 17);
+    // Its `linear` is on the projector's lattice, as the calibration's was: the data root has
+    // no structured light, and the calibration's manifest says the projector's size.
+    assert_eq!(
+        model(&looped)["network_size"],
+        model(&data.join("model"))["network_size"]
+    );
     assert!(
         correction(&looped).starts_with("5 closed-loop pairs"),
         "{}",

@@ -42,6 +42,14 @@ pub struct Manifest {
     pub loop_written: usize,
 }
 
+/// The projector size a calibration recorded for `setup` (its manifest's pattern set); `None`
+/// when the setup has no readable manifest.
+pub fn recorded_projector(setup: &Path) -> Option<ImageSize> {
+    let text = std::fs::read_to_string(setup.join(MANIFEST_FILE)).ok()?;
+    let m: Manifest = serde_json::from_str(&text).ok()?;
+    Some(m.patterns.projector)
+}
+
 impl Manifest {
     /// The manifest of `setup` for `patterns`: the one on disk when it is for the same pattern
     /// set, a new one when the setup holds no captures. Captures of another pattern set, or

@@ -53,7 +53,8 @@ pub struct Request {
     /// `None` = [`default_lattice`] of the setup (the projector's resolution when known).
     pub lattice: Option<ImageSize>,
     /// The projector's resolution when the caller knows it (`calibrate` does); `None`: the size
-    /// of the data root's structured-light patterns, if it has them. Sets the default lattice.
+    /// of the data root's structured-light patterns, if it has them, else the one a calibration
+    /// recorded in the setup's manifest. Sets the default lattice.
     pub projector: Option<ImageSize>,
     /// CompenNet++ variants: how CompenNet's weights start (default: the shipped
     /// pre-initialisation, docs/architecture.md, "Models").
@@ -124,9 +125,13 @@ pub fn fit(
     // asked, else the default for this setup's projector.
     let resolved;
     let req = if req.lattice.is_none() && variant.is_none_or(|v| v.residual()) {
+        // As the caller says, else the structured-light patterns' size, else what a
+        // calibration recorded for this setup.
         let projector = match (req.projector, setup.root().projector_size()) {
             (Some(size), _) | (None, Ok(size)) => Some(size),
-            (None, Err(Error::Missing { .. })) => None,
+            (None, Err(Error::Missing { .. })) => {
+                crate::calibrate::manifest::recorded_projector(setup.path())
+            }
             (None, Err(e)) => return Err(e),
         };
         let network = setup.root().network_size()?;

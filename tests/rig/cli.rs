@@ -48,8 +48,18 @@ fn sim_list_and_show() {
     );
 }
 
-/// Runs `compend sim export` for a tiny scene into `root`.
+/// Runs `compend sim export` for a tiny scene into `root`; it must succeed.
 fn export_tiny(root: &std::path::Path, scene: &str, seed: u64, extra: &[&str]) {
+    common_cli::assert_code(&export_tiny_output(root, scene, seed, extra), 0);
+}
+
+/// Runs `compend sim export` for a tiny scene into `root` and returns how it ended.
+fn export_tiny_output(
+    root: &std::path::Path,
+    scene: &str,
+    seed: u64,
+    extra: &[&str],
+) -> std::process::Output {
     use common_cli::*;
     let root = root.to_str().expect("utf-8 path");
     let seed = seed.to_string();
@@ -74,8 +84,7 @@ fn export_tiny(root: &std::path::Path, scene: &str, seed: u64, extra: &[&str]) {
         &seed,
     ];
     args.extend_from_slice(extra);
-    let o = compend(&args);
-    assert_code(&o, 0);
+    compend(&args)
 }
 
 /// Every file under `dir` (relative path, bytes), sorted.
@@ -290,27 +299,7 @@ fn exported_closed_loop_pairs_and_their_guards() {
     export_tiny(&root, "curved", 3, &["--no-cube", "--loop-images", "4"]);
     let before = files(&root);
     let refused = |extra: &[&str], says: &str| {
-        let mut args = vec![
-            "sim",
-            "export",
-            "--scene",
-            "curved",
-            "--out",
-            root.to_str().unwrap(),
-            "--ntrain",
-            "6",
-            "--ntest",
-            "2",
-            "--camera",
-            "80x60",
-            "--projector",
-            "100x75",
-            "--network",
-            "32",
-            "--no-cube",
-        ];
-        args.extend_from_slice(extra);
-        let o = compend(&args);
+        let o = export_tiny_output(&root, "curved", 3, &[&["--no-cube"][..], extra].concat());
         assert_code(&o, 2);
         assert!(stderr(&o).contains(says), "{}", stderr(&o));
         assert!(files(&root) == before, "nothing written");
