@@ -225,8 +225,6 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let root = &captured.root;
     let setup = Setup::open(&captured.setup, Some(root.path()))?;
     let ntrain = opts.patterns.ntrain;
-    let net = root.network_size()?;
-    let cam = model.camera_size();
     // The data root may be a folder the user gave: a training image after the sampling ones
     // that this calibration did not write is never replaced.
     let mut manifest = Manifest::open(setup.path(), &opts.patterns)?;
@@ -254,18 +252,12 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     for i in 1..=n {
         progress("closed-loop pairs", i - 1, n);
         opts.check_cancelled()?;
-        let content: PrjImage =
-            crate::pngio::read_rgb(&root.image_path(ProjectorSet::Train, 1 + (i - 1) % ntrain))?;
-        let desired = fov::place_in_area(
-            &captured.desired.range.apply(&content),
-            captured.desired.area,
-            cam,
+        let (desired, shown) = loop_image(
+            root,
+            (ntrain, i),
+            (captured.desired.range, captured.desired.area),
+            &model,
         )?;
-        // What is projected is what the pair records: the network-size image stretched over
-        // the canvas, as every sampling image is.
-        let shown: PrjImage =
-            crate::pngio::quantize(&crate::model::at_size(model.infer(&desired)?, net))
-                .into_space();
         manifest.record_loop(setup.path(), i)?;
         root.write(ProjectorSet::Train, ntrain + i, &shown)?;
         setup.write_loop_desired(ntrain + i, &desired)?;
@@ -310,6 +302,30 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         }
         None => model,
     })
+}
+
+/// Closed-loop pair `i` of a data root `root` with `ntrain` sampling images: sampling image
+/// `1 + (i − 1) % ntrain`, scaled into the display range `range` and placed in the displayable
+/// area `area` (camera pixels), is the desired view; `model` (a linear rung) compensates it.
+/// Returns the desired view and the projector image, network size and 8-bit, as the pair
+/// records it and the projector shows it (stretched over the canvas, as every sampling image
+/// is). Shared by [`refine`] and the virtual rig's export.
+pub fn loop_image(
+    root: &DataRoot,
+    (ntrain, i): (usize, usize),
+    (range, area): (fov::DisplayRange, Rect),
+    model: &Model,
+) -> Result<(CamImage, PrjImage)> {
+    let net = root.network_size()?;
+    let why = format!("the network size of {}", root.path().display());
+    let content: PrjImage = crate::pngio::read_rgb_sized(
+        &root.image_path(ProjectorSet::Train, 1 + (i - 1) % ntrain),
+        net,
+        &why,
+    )?;
+    let desired = fov::place_in_area(&range.apply(&content), area, model.camera_size())?;
+    let shown = crate::pngio::quantize(&crate::model::at_size(model.infer(&desired)?, net));
+    Ok((desired, shown.into_space()))
 }
 
 /// What the capture phases leave for training and verification.

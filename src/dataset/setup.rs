@@ -206,7 +206,7 @@ impl Setup {
     /// its projector image was compensated to give, under the pair's index. Sampling pairs have
     /// none, so the folder's numbering starts after them.
     pub fn loop_desired_dir(&self) -> PathBuf {
-        self.path.join("cam").join("desire").join("train")
+        loop_desired_dir(&self.path)
     }
 
     /// `prj/cmp/test`: one folder of compensation images per model.
@@ -423,6 +423,11 @@ impl Setup {
         pngio::write_rgb(&p, img)?;
         Ok(p)
     }
+}
+
+/// [`Setup::loop_desired_dir`] of the setup folder `setup`, which need not exist yet.
+pub fn loop_desired_dir(setup: &Path) -> PathBuf {
+    setup.join("cam").join("desire").join("train")
 }
 
 #[cfg(test)]

@@ -291,24 +291,18 @@ pub fn export_loop_pairs(
     (ntrain, n): (usize, usize),
 ) -> Result<()> {
     let root = setup.root();
-    let net = root.network_size()?;
-    let why = format!("the network size of {}", root.path().display());
-    let cam = sim.camera_size();
     if ntrain == 0 {
         return Err(Error::Input(
             "closed-loop pairs need at least one sampling image".into(),
         ));
     }
     (1..=n).into_par_iter().try_for_each(|i| -> Result<()> {
-        let p = root.image_path(ProjectorSet::Train, 1 + (i - 1) % ntrain);
-        let content = pngio::read_rgb_sized::<crate::raster::Projector>(&p, net, &why)?;
-        let desired = fov::place_in_area(
-            &record.desired_range.apply(&content),
-            record.displayable_area,
-            cam,
+        let (desired, shown) = crate::calibrate::loop_image(
+            root,
+            (ntrain, i),
+            (record.desired_range, record.displayable_area),
+            model,
         )?;
-        let shown: PrjImage =
-            pngio::quantize(&crate::model::at_size(model.infer(&desired)?, net)).into_space();
         root.write(ProjectorSet::Train, ntrain + i, &shown)?;
         setup.write_loop_desired(ntrain + i, &desired)?;
         let frame = crate::playback::place_on_canvas(&shown, record.canvas, sim.projector_size())?;
@@ -326,7 +320,7 @@ pub fn export_loop_pairs(
 /// sampling ones).
 pub fn check_loop_slots(root: &Path, setup: &Path, ntrain: usize, n: usize) -> Result<()> {
     let ours = root.join(setup);
-    let desire = |dir: &Path| dir.join("cam").join("desire").join("train");
+    let desire = |dir: &Path| crate::dataset::loop_desired_dir(dir);
     let stale = crate::dataset::scan_indices(&desire(&ours))?
         .into_iter()
         .find(|&i| i <= ntrain || i > ntrain + n);
