@@ -144,8 +144,9 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
         assert_code(o, 0);
         serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap()).unwrap()
     };
-    // No margin: the held-out pairs climb to the residual rung (3 iterations), and the rig
-    // projects both it and the linear rung fitted beside it on the verification images.
+    // No margin: the residual rung (3 iterations) climbs on the closed-loop pairs held out of
+    // its training (12 taken with `linear`, the last 4 held out), and the rig projects both it
+    // and the linear rung fitted beside it on the verification images.
     let rig = [
         "--rig",
         "virtual:textured-plane",
@@ -181,19 +182,76 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
             .iter()
             .all(|c| c["psnr"].as_f64().unwrap() > v["uncompensated_psnr"].as_f64().unwrap())
     );
+    let rule = auto["rule"].as_str().unwrap();
     assert!(
-        auto["rule"].as_str().unwrap().contains("closed-loop"),
+        rule.contains("closed-loop pairs held out") && rule.contains("on the rig"),
         "{auto}"
     );
+    for says in ["auto: closed loop on the rig", "held-out closed-loop pairs"] {
+        assert!(stderr(&o).contains(says), "{says}: {}", stderr(&o));
+    }
+    // The linear rungs compared on the sampling pairs; the climb judged on the held-out
+    // closed-loop pairs, each rung's figure against the same targets.
+    assert_eq!(auto["held_out"], 4, "{auto}");
+    assert_eq!(auto["fitted_on"], 8, "{auto}");
+    let held = &auto["loop_held_out"];
+    assert_eq!(held["pairs"], 4, "{auto}");
+    assert_eq!(held["trained_on"], 8, "{auto}");
+    let figures = held["scores"].as_array().unwrap();
+    assert_eq!(figures[0]["method"], "linear", "{auto}");
+    assert_eq!(figures[1]["method"], "compennet++-res", "{auto}");
     assert!(
-        stderr(&o).contains("auto: closed loop on the rig"),
-        "{}",
-        stderr(&o)
+        figures
+            .iter()
+            .all(|c| c["held_out_psnr"].as_f64().unwrap().is_finite()),
+        "{auto}"
+    );
+    // The climbed rung trained on every pair but the held-out ones, its correction on the
+    // closed-loop ones it saw.
+    assert_eq!(m["calibration"]["loop_pairs"], 12, "{m}");
+    assert_eq!(m["training"]["ntrain"], 20, "{m}");
+    assert!(
+        m["training"]["correction"]
+            .as_str()
+            .unwrap()
+            .starts_with("8 closed-loop pairs"),
+        "{m}"
     );
 
-    // A climbed rung keeps its training; the linear rung it is compared with took the
-    // closed-loop pairs.
-    assert_eq!(m["calibration"]["loop_pairs"], 12, "{m}");
+    // `train --method auto` on the same setup judges the same way, offline.
+    let offline = dir.path().join("offline");
+    let o = compend(&[
+        "train",
+        "--setup",
+        data.join("capture").to_str().unwrap(),
+        "--method",
+        "auto",
+        "--iters",
+        "3",
+        "--out",
+        offline.to_str().unwrap(),
+    ]);
+    assert_code(&o, 0);
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(offline.join("model.json")).unwrap()).unwrap();
+    let held = &m["training"]["auto"]["loop_held_out"];
+    assert_eq!(held["pairs"], 4, "{m}");
+    assert_eq!(held["trained_on"], 8, "{m}");
+
+    // With fewer than 8 closed-loop pairs the climb is judged on held-out sampling pairs (the
+    // paper protocol), before the pairs are taken; the linear rung the climbed one is compared
+    // with takes them.
+    let few = dir.path().join("few");
+    let o = compend(&calibrate_args(
+        few.to_str().unwrap(),
+        &[&forced[..], &["--loop-images", "5"]].concat(),
+    ));
+    assert_code(&o, 0);
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(few.join("model/model.json")).unwrap()).unwrap();
+    assert_eq!(m["method"], "compennet++-res", "{m}");
+    assert!(m["training"]["auto"].get("loop_held_out").is_none(), "{m}");
+    assert_eq!(m["calibration"]["loop_pairs"], 5, "{m}");
     assert_eq!(
         m["training"]["correction"],
         "8 pairs, paper protocol (input a capture, target its projector image)",
@@ -213,6 +271,14 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     assert_eq!(m["training"]["auto"]["chosen"], "linear", "{m}");
     assert_eq!(m["calibration"]["loop_pairs"], 12, "{m}");
     assert_eq!(m["training"]["ntrain"], 24, "{m}");
+    // The evidence is the judgement on the closed-loop pairs: below the margin.
+    let figures = m["training"]["auto"]["loop_held_out"]["scores"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["held_out_psnr"].as_f64().unwrap())
+        .collect::<Vec<_>>();
+    assert!(figures[1] - figures[0] < 0.5, "{m}");
 
     // The climbing flags are for `auto` only, and must be numbers.
     for (flags, says) in [

@@ -775,17 +775,19 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
     let dir = tempfile::tempdir().unwrap();
     let config = write_config(dir.path(), "curved-ambient", 6, "", "enabled = false");
     let base = std::fs::read_to_string(&config).unwrap();
-    let climbing = |gain: &str| {
+    let climbing = |rung: &str, gain: &str| {
         base.replace(
             "network = \"64\"",
             &format!(
-                "network = \"64\"\nclimb = \"compennet++-cpu\"\nclimb_iters = 8\n\
+                "network = \"64\"\nclimb = \"{rung}\"\nclimb_iters = 8\n\
                  climb_gain_db = {gain}"
             ),
         )
     };
-    // A margin no rung can show: the climb trains, is judged and changes nothing.
-    std::fs::write(&config, climbing("100.0")).unwrap();
+    // A margin no rung can show: the climb trains, is judged and changes nothing. The residual
+    // rung is judged as `auto` judges it, on closed-loop pairs held out of its training (the
+    // calibration took 12 with `linear`).
+    std::fs::write(&config, climbing("compennet++-res", "100.0")).unwrap();
     let mut svc = Service::start(&config);
     svc.wait_for("playback of the calibrated model", 300, playing);
     let model = dir.path().join("state/model");
@@ -804,11 +806,17 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
         weights
     );
     assert_eq!(svc.status()["model"]["method"], "linear");
+    assert!(
+        svc.log()
+            .contains("on 4 held-out closed-loop pairs (against its own linear part)"),
+        "log:\n{}",
+        svc.log()
+    );
 
     // Any gain will do (reloaded with SIGHUP), and a recalibration: the climbed rung beats the
     // installed one on the held-out pairs, the playback stops while the rig projects both, and
     // it is installed and played, with its evidence.
-    std::fs::write(&config, climbing("-100.0")).unwrap();
+    std::fs::write(&config, climbing("compennet++-cpu", "-100.0")).unwrap();
     unsafe { libc::kill(svc.pid(), libc::SIGHUP) };
     let start = Instant::now();
     while !svc.log().contains("reload: configuration applied") {

@@ -18,7 +18,9 @@
 //!    `auto` that kept a linear rung, **closed-loop pairs** follow: the linear rung's
 //!    compensation of sampling images placed as desired views, projected and captured; these
 //!    pairs sit in the range the desired images use, and the rung is fitted on every pair
-//!    ([`refine`]);
+//!    ([`refine`]). With 8 or more of them `auto` waits for them before it climbs: [`train`]
+//!    chooses among the linear rungs, and [`refine`] judges the residual rung on closed-loop
+//!    pairs held out of its training ([`crate::fit::judges_on_loop_pairs`]);
 //! 5. **verification**: held-out test images, compensated by the new model and as they are,
 //!    projected, captured and scored inside the displayable area against the view they should
 //!    give. After a climb, the linear rung is projected on the same images and the climbed one
@@ -210,16 +212,24 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         (true, Some(lower)) => (lower, Some(model)),
         (true, None) => return Ok(model),
     };
+    let later = climbs_on_loop_pairs(opts);
     let refit = match opts.method {
+        // The climb that waited for these pairs: `auto` again, on every pair.
+        MethodChoice::Auto if later && climbed.is_none() => Request {
+            climb_later: false,
+            ..request(opts)
+        },
         MethodChoice::Auto => Request {
             method: MethodChoice::Rung(model.meta.method),
             iters: None,
             batch: None,
             climb_gain_db: None,
+            climb_later: false,
             ..request(opts)
         },
         MethodChoice::Rung(_) => request(opts),
     };
+    let judges = refit.method == MethodChoice::Auto;
     opts.check_cancelled()?;
     let t = Instant::now();
     let root = &captured.root;
@@ -279,13 +289,20 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         ntrain: Some(ntrain + n),
         ..refit
     };
-    let evidence = model.meta.training.auto.clone();
+    let evidence = model.meta.training.auto.clone().filter(|_| !judges);
     let (mut model, _) = fit::fit(&setup, &req, |stage, done, total| {
         progress(stage, done, total)
     })?;
     // `auto`'s choice and its evidence stay on the rung it chose.
     if evidence.is_some() {
         model.meta.training.auto = evidence;
+    }
+    // A climb judged on these pairs: the rig compares it with the best linear rung next.
+    if judges {
+        opts.check_cancelled()?;
+        captured.lower_rung = fit::lower_rung(&setup, &req, &model, |stage, done, total| {
+            progress(stage, done, total)
+        })?;
     }
     captured.seconds.captures += capturing;
     captured.seconds.training += t.elapsed().as_secs_f64();
@@ -490,7 +507,15 @@ fn request(opts: &Options) -> Request {
         photometric: Default::default(),
         cancel: opts.cancel.clone(),
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
+        climb_later: climbs_on_loop_pairs(opts),
     }
+}
+
+/// Whether `auto`'s climb waits for the closed-loop pairs: `auto` with enough of them to judge
+/// the residual rung on ([`fit::judges_on_loop_pairs`]). [`train`] then chooses among the
+/// linear rungs alone, and [`refine`] fits `auto` again once the chosen rung has taken them.
+fn climbs_on_loop_pairs(opts: &Options) -> bool {
+    opts.method == MethodChoice::Auto && fit::judges_on_loop_pairs(opts.loop_images)
 }
 
 /// Phase 5: projects held-out test images compensated by `model` and as they are, scores them

@@ -215,6 +215,7 @@ pub fn loop_pairs(
         photometric: Default::default(),
         cancel: None,
         climb_gain_db: None,
+        climb_later: false,
     };
     let (model, _) = compend::fit::fit(setup, &req, |_, _, _| {})
         .context("fitting linear for the closed-loop pairs")?;

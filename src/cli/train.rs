@@ -97,6 +97,7 @@ pub fn run(args: Args) -> Result<()> {
         photometric: args.photometric_init.clone(),
         cancel: None,
         climb_gain_db: args.climb_gain,
+        climb_later: false,
     };
     if let Some(w) = args
         .climb_gain

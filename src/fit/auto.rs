@@ -1,17 +1,28 @@
 //! `--method auto`: the ladder climbed only as far as the scene needs (docs/architecture.md,
 //! "Models").
 //!
-//! 1. The last sixth of the training pairs (at least 4) is held out; every linear rung
-//!    (`linear`, and `linear-sl` when the setup has structured light) is fitted on the rest and
-//!    scored on them with the paper protocol.
+//! 1. The linear rungs (`linear`, and `linear-sl` when the setup has structured light) are
+//!    fitted on the sampling pairs but the last sixth (at least 4) and scored on those with the
+//!    paper protocol; the best is the rung to beat. Closed-loop pairs at the end of the data
+//!    (`calibrate` takes them after the sampling pairs) are not sampling pairs.
 //! 2. The CompenNet++ rung the machine can afford ([`climb_rung`]: `compennet++-res`, `linear`
-//!    plus a CPU-sized correction, on the CPU; the full `compennet++` on a GPU) is trained on the same pairs and scored the same
-//!    way. It is kept only if it beats the best linear rung by the climbing rule's margin
-//!    ([`ClimbRule`]); the service's progressive calibration applies the same rule to a
-//!    calibration's test pairs.
-//! 3. A kept CompenNet++ rung is the model as trained (on all but the held-out pairs: training
-//!    it again on every pair would double the dearest step). Otherwise the best linear rung is
-//!    fitted again on every pair, which costs seconds.
+//!    plus a CPU-sized correction, on the CPU; the full `compennet++` on a GPU) is trained and
+//!    judged:
+//!    - `compennet++-res` on a setup with enough closed-loop pairs ([`judges_on_loop_pairs`]):
+//!      trained on every pair but the last sixth of the closed-loop ones (at least 4), and
+//!      judged on those: how much closer than `linear`'s its compensations of their desired
+//!      views come to the projector images that move their captures towards the views
+//!      ([`LoopHeldOut`]). That is what its correction learns, and a gain there is a gain where
+//!      the viewer looks; on sampling captures a network gains from averaging capture noise
+//!      away, which closed loop does not repay (docs/bench/ladder.md);
+//!    - otherwise on the sampling pairs the linear rungs were fitted on, scored as they were.
+//!
+//!    It is kept only if it beats the rung below by the climbing rule's margin ([`ClimbRule`]);
+//!    the service's progressive calibration applies the same rule to a calibration's test
+//!    pairs, and `calibrate` confirms a climb on the rig ([`settle_climb`]).
+//! 3. A kept CompenNet++ rung is the model as trained (training it again on every pair would
+//!    double the dearest step). Otherwise the best linear rung is fitted again on every pair,
+//!    closed-loop ones included, which costs seconds.
 //!
 //! The rule, every candidate's held-out figures and the time each took go into `model.json`
 //! (`training.auto`).
@@ -21,7 +32,7 @@ use std::time::Instant;
 use super::{MIN_TRAIN, Request, Summary, TrainDevice, TrainingData, compennet, linear_rungs};
 use crate::dataset::{Reference, Setup};
 use crate::error::Result;
-use crate::model::store::{AutoCandidate, AutoEvidence, ClosedLoopScore};
+use crate::model::store::{AutoCandidate, AutoEvidence, ClosedLoopScore, LoopHeldOut};
 use crate::model::{Method, MethodChoice, Model};
 
 /// When a rung replaces the one below it: its PSNR on pairs neither was trained on must beat
@@ -79,12 +90,29 @@ impl ClimbRule {
         })
     }
 
-    /// The rule in words when the rig confirms the climb ([`ClimbRule::confirms`]).
-    pub fn describe_on_rig(&self, on: &str) -> String {
+    /// The rule in words when the climb is judged on held-out closed-loop pairs
+    /// ([`crate::model::store::LoopHeldOut`]).
+    pub fn describe_on_loop_pairs(&self, rung: Method) -> String {
         format!(
-            "{}, and then, on the rig, only if its closed-loop PSNR on the verification images \
-             is also at least {} dB higher",
-            self.describe(on),
+            "the best linear rung on held-out sampling pairs (paper protocol), replaced by {rung} \
+             only if, on closed-loop pairs held out of its training, its compensations of the \
+             desired views come at least {} dB closer (PSNR) than `linear`'s to the projector \
+             images that move the captures towards those views{}",
+            self.gain_db,
+            if self.gain_db < 0.0 {
+                " (a negative margin: a rung that scores lower can be kept)"
+            } else {
+                ""
+            }
+        )
+    }
+
+    /// `rule`, the rule of the held-out comparison in words, followed by the rig's
+    /// confirmation ([`ClimbRule::confirms`]).
+    pub fn describe_on_rig(&self, rule: &str) -> String {
+        format!(
+            "{rule}, and then, on the rig, only if its closed-loop PSNR on the verification \
+             images is also at least {} dB higher",
             self.gain_db
         )
     }
@@ -120,6 +148,25 @@ fn held_out(n: usize) -> usize {
     (n / 6).max(4)
 }
 
+/// Whether `auto` judges its climb on `loops` closed-loop pairs (the residual rung; see
+/// [`fit_auto`]): enough to hold [`held_out`] of them out and train the correction on at least
+/// [`MIN_TRAIN`] others.
+pub fn judges_on_loop_pairs(loops: usize) -> bool {
+    loops >= held_out(loops) + MIN_TRAIN
+}
+
+/// How many of the last training pairs of `n` are closed-loop pairs (a desired view in
+/// `cam/desire/train`), counted back from the last until one is not.
+fn trailing_loop_pairs(setup: &Setup, n: usize) -> Result<usize> {
+    let loops = setup.loop_pairs(n)?;
+    Ok(loops
+        .iter()
+        .rev()
+        .zip((1..=n).rev())
+        .take_while(|(a, b)| **a == *b)
+        .count())
+}
+
 /// `--method auto` on loaded training data (see the module documentation).
 pub(super) fn fit_auto(
     setup: &Setup,
@@ -133,19 +180,30 @@ pub(super) fn fit_auto(
         gain_db: req.climb_gain_db.unwrap_or(DEFAULT_CLIMB_GAIN_DB),
     };
     let n = data.captures.len();
-    let held = held_out(n);
-    if n < held + MIN_TRAIN {
+    let rung = climb_rung(req.device);
+    let variant = crate::nn::compennetpp::Variant::from_method(rung.name());
+    // Closed-loop pairs at the end of the data: the linear rungs compare on the sampling pairs
+    // before them, and the residual rung, whose correction trains on them, is judged on some
+    // of them held out.
+    let loops = trailing_loop_pairs(setup, n)?;
+    let sampling = n - loops;
+    let loop_held = (variant.is_some_and(|v| v.residual()) && judges_on_loop_pairs(loops))
+        .then(|| held_out(loops));
+    let held = held_out(sampling);
+    if sampling < held + MIN_TRAIN {
         let evidence = AutoEvidence {
             rule: rule.describe("held-out training pairs"),
             chosen: Method::Linear,
             why: Some(format!(
-                "{n} training pairs are too few to hold {held} out: `linear` without comparison"
+                "{sampling} sampling pairs are too few to hold {held} out: `linear` without \
+                 comparison"
             )),
             held_out: None,
             fitted_on: None,
             required_gain_db: Some(rule.gain_db),
             candidates: Vec::new(),
             closed_loop: Vec::new(),
+            loop_held_out: None,
         };
         return linear_rungs::fit_linear(
             setup,
@@ -158,10 +216,10 @@ pub(super) fn fit_auto(
             progress,
         );
     }
-    let cut = n - held;
+    let cut = sampling - held;
     let (fit_pairs, held_pairs) = (
         (&data.captures[..cut], &data.targets[..cut]),
-        (&data.captures[cut..], &data.targets[cut..]),
+        (&data.captures[cut..sampling], &data.targets[cut..sampling]),
     );
     let mut candidates = linear_rungs::score_linear_rungs(
         setup,
@@ -176,19 +234,26 @@ pub(super) fn fit_auto(
         .max_by(|a, b| a.held_out_psnr.total_cmp(&b.held_out_psnr))
         .map_or((Method::Linear, f64::NAN), |c| (c.method, c.held_out_psnr));
 
-    let rung = climb_rung(req.device);
     let mut why = None;
     let mut climbed = None;
-    if !setup.reference_path(Reference::Gray).is_file() {
+    let mut loop_held_out = None;
+    if req.climb_later {
+        why = Some(format!(
+            "{rung} is judged later, on the closed-loop pairs taken with the linear rung"
+        ));
+    } else if !setup.reference_path(Reference::Gray).is_file() {
         why = Some(format!(
             "no gray surface capture ({}): {rung} cannot be trained",
             setup.reference_path(Reference::Gray).display()
         ));
-    } else if let Some(variant) = crate::nn::compennetpp::Variant::from_method(rung.name()) {
+    } else if let Some(variant) = variant {
         let t0 = Instant::now();
+        // The rung trains on every pair but the held-out closed-loop ones, or on the sampling
+        // pairs the linear rungs were fitted on.
+        let trained_on = loop_held.map_or(cut, |h| n - h);
         let sub_req = Request {
             method: MethodChoice::Rung(rung),
-            ntrain: Some(cut),
+            ntrain: Some(trained_on),
             // The residual rung's linear part uses the request's lattice, as the linear rungs.
             lattice: req.lattice.filter(|_| variant.residual()),
             ..req.clone()
@@ -198,31 +263,54 @@ pub(super) fn fit_auto(
             cam_size: data.cam_size,
             theta: data.theta,
             network_size: data.network_size,
-            captures: fit_pairs.0.to_vec(),
-            targets: fit_pairs.1.to_vec(),
+            captures: data.captures[..trained_on].to_vec(),
+            targets: data.targets[..trained_on].to_vec(),
         };
         let (model, summary) =
             compennet::train_compennet(setup, &sub_req, rung, variant, sub, t0, &mut progress)?;
-        let mut acc = crate::metrics::Accumulator::default();
-        for (c, t) in held_pairs.0.iter().zip(held_pairs.1) {
-            acc.add(&crate::model::at_size(model.infer(c)?, t.size()), t)?;
-        }
-        let scores = acc.finish()?;
-        candidates.push(AutoCandidate {
-            method: rung,
-            held_out_psnr: scores.psnr,
-            held_out_ssim: scores.ssim,
-            fit_seconds: t0.elapsed().as_secs_f64(),
-        });
-        tracing::info!(
-            "auto: {rung} {:.2} dB against {} {:.2} dB on {held} held-out pairs (climbs at \
-             +{} dB)",
-            scores.psnr,
-            best_linear.0,
-            best_linear.1,
-            rule.gain_db
-        );
-        if rule.climbs(scores.psnr, best_linear.1) {
+        let (upper, lower) = match loop_held {
+            Some(h) => {
+                let indices: Vec<usize> = (n - h + 1..=n).collect();
+                let (lin, up) = compennet::held_out_loop_scores(setup, &model, &indices, &data)?;
+                tracing::info!(
+                    "auto: {rung} {:.2} dB against linear {:.2} dB on {h} held-out closed-loop \
+                     pairs (climbs at +{} dB)",
+                    up.psnr,
+                    lin.psnr,
+                    rule.gain_db
+                );
+                loop_held_out = Some(loop_judgement(
+                    (h, loops - h),
+                    rung,
+                    (&lin, &up),
+                    t0.elapsed().as_secs_f64(),
+                ));
+                (up.psnr, lin.psnr)
+            }
+            None => {
+                let mut acc = crate::metrics::Accumulator::default();
+                for (c, t) in held_pairs.0.iter().zip(held_pairs.1) {
+                    acc.add(&crate::model::at_size(model.infer(c)?, t.size()), t)?;
+                }
+                let scores = acc.finish()?;
+                candidates.push(AutoCandidate {
+                    method: rung,
+                    held_out_psnr: scores.psnr,
+                    held_out_ssim: scores.ssim,
+                    fit_seconds: t0.elapsed().as_secs_f64(),
+                });
+                tracing::info!(
+                    "auto: {rung} {:.2} dB against {} {:.2} dB on {held} held-out pairs (climbs \
+                     at +{} dB)",
+                    scores.psnr,
+                    best_linear.0,
+                    best_linear.1,
+                    rule.gain_db
+                );
+                (scores.psnr, best_linear.1)
+            }
+        };
+        if rule.climbs(upper, lower) {
             climbed = Some((model, summary));
         }
     }
@@ -230,7 +318,11 @@ pub(super) fn fit_auto(
         .as_ref()
         .map_or(best_linear.0, |(m, _)| m.meta.method);
     let evidence = AutoEvidence {
-        rule: rule.describe("held-out training pairs"),
+        rule: if loop_held_out.is_some() {
+            rule.describe_on_loop_pairs(rung)
+        } else {
+            rule.describe("held-out training pairs")
+        },
         chosen,
         why,
         held_out: Some(held),
@@ -238,6 +330,7 @@ pub(super) fn fit_auto(
         required_gain_db: Some(rule.gain_db),
         candidates,
         closed_loop: Vec::new(),
+        loop_held_out,
     };
     match climbed {
         Some((mut model, summary)) => {
@@ -257,6 +350,71 @@ pub(super) fn fit_auto(
             progress,
         ),
     }
+}
+
+/// The record of a judgement on closed-loop pairs: `(held, trained_on)` pairs, the climbed
+/// `rung`, the scores of `linear` and of the rung, and the rung's training time (seconds).
+fn loop_judgement(
+    (held, trained_on): (usize, usize),
+    rung: Method,
+    (lin, up): (&crate::metrics::Scores, &crate::metrics::Scores),
+    seconds: f64,
+) -> LoopHeldOut {
+    let score = |method, s: &crate::metrics::Scores, fit_seconds| AutoCandidate {
+        method,
+        held_out_psnr: s.psnr,
+        held_out_ssim: s.ssim,
+        fit_seconds,
+    };
+    LoopHeldOut {
+        pairs: held,
+        trained_on,
+        scores: vec![score(Method::Linear, lin, 0.0), score(rung, up, seconds)],
+    }
+}
+
+/// `compennet++-res` (`req` asks for it) trained and judged as `auto` judges its climb on a
+/// setup with closed-loop pairs (see the module documentation): on every pair but the last
+/// sixth of the closed-loop ones, then on those against its own linear part. For the service's
+/// progressive calibration, which climbs by `auto`'s rule. `None` when the request is another
+/// rung or the setup has too few closed-loop pairs ([`judges_on_loop_pairs`]).
+pub fn judge_on_loop_pairs(
+    setup: &Setup,
+    req: &Request,
+    progress: impl FnMut(&str, usize, usize),
+) -> Result<Option<(Model, LoopHeldOut)>> {
+    let rung = Method::CompenNetPpRes;
+    let variant = crate::nn::compennetpp::Variant::from_method(rung.name());
+    if req.method != MethodChoice::Rung(rung) {
+        return Ok(None);
+    }
+    let every = Request {
+        ntrain: None,
+        ..req.clone()
+    };
+    let n = super::train_count(setup, &every, variant)?;
+    let loops = trailing_loop_pairs(setup, n)?;
+    if !judges_on_loop_pairs(loops) {
+        return Ok(None);
+    }
+    let h = held_out(loops);
+    let t0 = Instant::now();
+    let (model, _) = super::fit(
+        setup,
+        &Request {
+            ntrain: Some(n - h),
+            ..every
+        },
+        progress,
+    )?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let data = super::load_training(setup, false, n)?;
+    let indices: Vec<usize> = (n - h + 1..=n).collect();
+    let (lin, up) = compennet::held_out_loop_scores(setup, &model, &indices, &data)?;
+    Ok(Some((
+        model,
+        loop_judgement((h, loops - h), rung, (&lin, &up), seconds),
+    )))
 }
 
 /// After `auto` climbed (`climbed` is a CompenNet++ rung with `auto`'s evidence): its best
@@ -289,6 +447,7 @@ pub fn lower_rung(
     let req = Request {
         method: MethodChoice::Rung(lower.method),
         climb_gain_db: None,
+        climb_later: false,
         iters: None,
         batch: None,
         ..req.clone()
@@ -326,7 +485,7 @@ pub fn settle_climb(
     if let Some(evidence) = model.meta.training.auto.as_mut() {
         evidence.chosen = chosen;
         evidence.closed_loop = scores;
-        evidence.rule = rule.describe_on_rig("held-out training pairs");
+        evidence.rule = rule.describe_on_rig(&evidence.rule);
     }
     (model, kept)
 }
@@ -348,6 +507,11 @@ mod tests {
         assert_eq!(climb_rung(TrainDevice::Cuda(0)), Method::CompenNetPp);
         assert_eq!(held_out(48), 8);
         assert_eq!(held_out(12), 4);
+        // Closed-loop pairs judge a climb when 4 can be held out and 4 trained on.
+        assert!(!judges_on_loop_pairs(0));
+        assert!(!judges_on_loop_pairs(7));
+        assert!(judges_on_loop_pairs(8));
+        assert!(judges_on_loop_pairs(48));
     }
 
     #[test]

@@ -239,6 +239,46 @@ fn closed_loop_data(
     Ok((inputs, base, goals))
 }
 
+/// `auto`'s judgement of a `compennet++-res` `model` on closed-loop pairs `indices` held out
+/// of its training ([`crate::model::store::LoopHeldOut`]): each pair's desired view compensated
+/// by the model's own `linear` part and by the model, against the pair's target as
+/// [`closed_loop_data`] builds it from that `linear` (network pixels at the data's size; both
+/// outputs brought there as at inference). `data` holds every training pair, the held-out ones
+/// included. Returns (`linear`'s scores, the model's).
+pub(super) fn held_out_loop_scores(
+    setup: &Setup,
+    model: &Model,
+    indices: &[usize],
+    data: &TrainingData,
+) -> Result<(crate::metrics::Scores, crate::metrics::Scores)> {
+    let linear = model.residual_base().ok_or_else(|| {
+        Error::Failed(format!(
+            "closed-loop judgement of {}: only compennet++-res stands on `linear`",
+            model.meta.method
+        ))
+    })?;
+    let size = data.targets[0].size();
+    let simplified = linear.simplify();
+    let lin = |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), size.width, size.height);
+    let grid = linear.grid_at(size)?;
+    let (inputs, base, goals) = closed_loop_data(
+        setup,
+        indices,
+        (&data.fov, &grid),
+        (&data.captures, &data.targets),
+        lin,
+    )?;
+    let (mut lower, mut upper) = (
+        crate::metrics::Accumulator::default(),
+        crate::metrics::Accumulator::default(),
+    );
+    for ((d, lin_d), goal) in inputs.iter().zip(&base).zip(&goals) {
+        lower.add(lin_d, goal)?;
+        upper.add(&crate::model::at_size(model.infer(d)?, size), goal)?;
+    }
+    Ok((lower.finish()?, upper.finish()?))
+}
+
 /// Network pixels: the share of each one's camera footprint (bilinear, through `grid`) where
 /// some of the `desired` views is not black (the displayable area, by what the views hold);
 /// `None` without views.

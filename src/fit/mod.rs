@@ -14,7 +14,10 @@ mod compennet;
 mod device;
 mod linear_rungs;
 
-pub use auto::{ClimbRule, DEFAULT_CLIMB_GAIN_DB, climb_rung, lower_rung, settle_climb};
+pub use auto::{
+    ClimbRule, DEFAULT_CLIMB_GAIN_DB, climb_rung, judge_on_loop_pairs, judges_on_loop_pairs,
+    lower_rung, settle_climb,
+};
 pub use device::TrainDevice;
 
 use std::time::Instant;
@@ -40,8 +43,8 @@ pub struct Request {
     /// The rung, or `auto`.
     pub method: MethodChoice,
     /// Training pairs to use (the first N); `None` = all available, at most [`DEFAULT_TRAIN`]
-    /// (a CompenNet++ rung: its schedule's count), and for a linear rung or `compennet++-res`
-    /// also every closed-loop pair (`cam/desire/train`).
+    /// (a CompenNet++ rung: its schedule's count), and for a linear rung, `compennet++-res` or
+    /// `auto` also every closed-loop pair (`cam/desire/train`).
     pub ntrain: Option<usize>,
     pub seed: u64,
     /// CompenNet++ only: override the variant's iterations (the lr step scales) and batch size.
@@ -65,6 +68,9 @@ pub struct Request {
     /// `auto` only: the PSNR gain (dB, held-out pairs) a CompenNet++ rung needs over the best
     /// linear rung to be chosen; `None` = [`DEFAULT_CLIMB_GAIN_DB`].
     pub climb_gain_db: Option<f64>,
+    /// `auto` only: choose among the linear rungs and leave the climb for a later fit on the
+    /// closed-loop pairs the chosen rung takes (`calibrate` does, [`judges_on_loop_pairs`]).
+    pub climb_later: bool,
 }
 
 /// The default output lattice of the `linear` rungs: the projector's resolution (`projector`,
@@ -217,8 +223,8 @@ fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>
 }
 
 /// The number of training pairs to use: `--ntrain`, else what the setup holds up to the rung's
-/// default, and for a rung that takes closed-loop pairs (a linear rung, `compennet++-res`) up
-/// to the last of those; at least [`MIN_TRAIN`].
+/// default, and for a method that takes closed-loop pairs (a linear rung, `compennet++-res`,
+/// `auto`) up to the last of those; at least [`MIN_TRAIN`].
 fn train_count(
     setup: &Setup,
     req: &Request,
@@ -228,7 +234,7 @@ fn train_count(
     let default_train = variant.map_or(DEFAULT_TRAIN, |v| v.schedule().train_pairs);
     let takes_loops = match req.method {
         MethodChoice::Rung(_) => variant.is_none_or(|v| v.residual()),
-        MethodChoice::Auto => false,
+        MethodChoice::Auto => true,
     };
     let last_loop = if req.ntrain.is_none() && takes_loops {
         setup.loop_pairs(available)?.last().copied().unwrap_or(0)

@@ -261,6 +261,14 @@ impl Model {
         self.meta.network_size
     }
 
+    /// The `linear` model a `compennet++-res` model stands on; `None` for the other rungs.
+    pub fn residual_base(&self) -> Option<&LinearModel> {
+        match &self.kind {
+            Kind::Residual { linear, .. } => Some(linear),
+            _ => None,
+        }
+    }
+
     /// The baked sampling grid from network pixels into the camera image.
     pub fn grid(&self) -> &Grid<Network, Camera> {
         match &self.kind {

@@ -1,7 +1,9 @@
 //! Progressive calibration: once a calibration has installed its model and playback has
 //! started, the next rung (`[calibration] climb`) trains on a thread of its own on the same
 //! captures. It is judged on the calibration's held-out test pairs (captured, never trained on;
-//! the paper protocol) against the installed model. Only if it beats it there by
+//! the paper protocol) against the installed model; `compennet++-res` on a calibration with
+//! closed-loop pairs is judged as `auto` judges it, on some of those held out of its training
+//! against its own linear part ([`fit::judge_on_loop_pairs`]). Only if it beats it there by
 //! `climb_gain_db` ([`fit::ClimbRule`], the rule of `--method auto`) does it become a
 //! [`Candidate`]: the playback ends, the engine projects the verification images compensated by
 //! both models ([`crate::calibrate::verify_after`]), and [`settle`] installs the candidate (the
@@ -137,24 +139,38 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
         photometric: Default::default(),
         cancel: Some(cancel.clone()),
         climb_gain_db: None,
+        climb_later: false,
     };
-    let (mut model, _) = fit::fit(&setup, &req, |_, _, _| {})?;
-    let pairs = setup.load_test(None)?;
-    let (new, _) = crate::model::paper_protocol(&model, &pairs)?;
-    let (old, _) = crate::model::paper_protocol(&installed, &pairs)?;
+    // The residual rung on a calibration with closed-loop pairs is judged as `auto` judges it,
+    // on some of them held out of its training; otherwise on the test pairs.
+    let (mut model, new, old, loop_held_out) =
+        match fit::judge_on_loop_pairs(&setup, &req, |_, _, _| {})? {
+            Some((model, judged)) => {
+                let psnr = |i: usize| judged.scores.get(i).map_or(f64::NAN, |c| c.held_out_psnr);
+                (model, psnr(1), psnr(0), Some(judged))
+            }
+            None => {
+                let (model, _) = fit::fit(&setup, &req, |_, _, _| {})?;
+                let pairs = setup.load_test(None)?;
+                let (new, _) = crate::model::paper_protocol(&model, &pairs)?;
+                let (old, _) = crate::model::paper_protocol(&installed, &pairs)?;
+                (model, new.psnr, old.psnr, None)
+            }
+        };
     let record = ClimbRecord {
         replaced: installed.meta.method.name().to_string(),
-        psnr: new.psnr,
-        replaced_psnr: old.psnr,
+        psnr: new,
+        replaced_psnr: old,
         required_gain_db: p.gain_db,
         seconds: t.elapsed().as_secs_f64(),
         closed_loop: None,
+        loop_held_out,
     };
     let rule = fit::ClimbRule { gain_db: p.gain_db };
     if let Some(w) = rule.caveat("[calibration] climb_gain_db") {
         tracing::warn!("progressive calibration: {w}");
     }
-    if !rule.climbs(new.psnr, old.psnr) {
+    if !rule.climbs(new, old) {
         return Ok(Outcome::Kept(record));
     }
     // The climbed model plays with the calibration it was trained on (its exposure, range and

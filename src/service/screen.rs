@@ -262,10 +262,11 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             }
             Ok(Outcome::Kept(r)) => {
                 tracing::info!(
-                    "progressive calibration: kept {}: {method} scored {:.2} dB on the held-out \
-                     pairs against {:.2} dB ({:+.2} dB, {:+.2} needed); {seconds:.0} s",
+                    "progressive calibration: kept {}: {method} scored {:.2} dB on {} against \
+                     {:.2} dB ({:+.2} dB, {:+.2} needed); {seconds:.0} s",
                     r.replaced,
                     r.psnr,
+                    r.judged_on(),
                     r.replaced_psnr,
                     r.psnr - r.replaced_psnr,
                     r.required_gain_db
@@ -280,10 +281,10 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
                     .and_then(|c| c.climb.as_ref())
                 {
                     tracing::info!(
-                        "progressive calibration: {method} scored {:.2} dB on the held-out pairs \
-                         against {:.2} dB for {} ({:+.2} dB); {seconds:.0} s; checking both on \
-                         the rig",
+                        "progressive calibration: {method} scored {:.2} dB on {} against {:.2} \
+                         dB for {} ({:+.2} dB); {seconds:.0} s; checking both on the rig",
                         r.psnr,
+                        r.judged_on(),
                         r.replaced_psnr,
                         r.replaced,
                         r.psnr - r.replaced_psnr

@@ -351,11 +351,10 @@ impl SceneBench<'_> {
     ) -> Result<Row> {
         let (args, scene, seed) = (self.args, self.scene, self.seed);
         let trains = !matches!(method, compend::model::MethodChoice::Rung(m) if m.is_linear());
-        // As `calibrate`: the rungs that take closed-loop pairs train on them too (`auto`
-        // decides on the sampling pairs, as its held-out pairs must not be closed-loop ones).
-        let loops = (method != compend::model::MethodChoice::Auto
-            && compend::calibrate::refines(method)
-            && args.loop_images > 0)
+        // As `calibrate`: the methods that take closed-loop pairs train on them too (`auto`
+        // compares the linear rungs on the sampling pairs and judges the residual rung on
+        // held-out closed-loop pairs).
+        let loops = (compend::calibrate::refines(method) && args.loop_images > 0)
             .then_some(args.loop_images as usize);
         let req = Request {
             method,
@@ -372,6 +371,7 @@ impl SceneBench<'_> {
             climb_gain_db: args
                 .climb_gain
                 .filter(|_| method == compend::model::MethodChoice::Auto),
+            climb_later: false,
         };
         let mut row = Row {
             scene: scene.into(),
