@@ -861,6 +861,58 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }
 
+#[test]
+fn a_climb_judged_on_closed_loop_pairs_trains_beside_playback() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), "textured-plane", 8, "", "enabled = false");
+    // `auto` with 12 closed-loop pairs waits for them to judge its climb; any gain will do.
+    let text = std::fs::read_to_string(&config).unwrap().replace(
+        "network = \"64\"",
+        "network = \"64\"\nmethod = \"auto\"\nclimb_iters = 8\nclimb_gain_db = -100.0",
+    );
+    std::fs::write(&config, text).unwrap();
+    let mut svc = Service::start(&config);
+    let s = svc.wait_for("the climbed model playing", 300, |s| {
+        playing(s) && s["model"]["method"] == "compennet++-res"
+    });
+    assert_eq!(s["calibrations"], 1, "{s}");
+    // The refit on the closed-loop pairs ran on the training thread: no model played yet.
+    assert!(
+        svc.log().contains("training auto on the closed-loop pairs"),
+        "log:\n{}",
+        svc.log()
+    );
+    let model = dir.path().join("state/model");
+    let meta = |m: &Path| -> Value {
+        serde_json::from_slice(&std::fs::read(m.join("model.json")).unwrap()).unwrap()
+    };
+    let m = meta(&model);
+    assert_eq!(m["training"]["auto"]["loop_held_out"]["pairs"], 4, "{m}");
+    assert_eq!(m["calibration"]["loop_pairs"], 12, "{m}");
+
+    // A recalibration: while the refit trains, the installed model plays on.
+    assert_eq!(svc.ask(r#"{"cmd":"recalibrate"}"#)["ok"], true);
+    svc.wait_for("the second calibration installed", 300, |s| {
+        s["calibrations"] == 2 && playing(s)
+    });
+    assert!(
+        svc.log().contains(
+            "training auto on the closed-loop pairs beside playback of the current model"
+        ),
+        "log:\n{}",
+        svc.log()
+    );
+    assert_eq!(
+        meta(&model)["training"]["auto"]["loop_held_out"]["pairs"],
+        4
+    );
+    unsafe { libc::kill(svc.pid(), libc::SIGTERM) };
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+}
+
 /// [`write_config`] for the window rig (`[rig] kind = "window"`) and a 200×150 Xvfb screen to
 /// show it on; None (the test is skipped, saying why) without a GPU adapter or Xvfb.
 fn window_config(

@@ -173,16 +173,9 @@ pub fn loop_images(method: MethodChoice, ntrain: usize, asked: Option<usize>) ->
 
 /// Phase 4b, with `opts.loop_images` = N > 0 and a rung that takes them ([`refines`]; after
 /// `auto` climbed, the linear rung fitted beside the climbed one, which is returned as it is):
-/// closed-loop pairs. For the first N
-/// sampling images (again from the first when N is more than there are), the desired view (scaled into the display range and placed in the
-/// displayable area, as the test images' are) is compensated by `model` (a linear rung; for
-/// `compennet++-res`, the `linear` rung [`train`] fitted); that network-size projector image is
-/// written to the data root as training image `ntrain + i`, its desired view to the setup's
-/// `cam/desire/train`, and it is projected, captured synchronised and written as its capture.
-/// The requested rung is then fitted on all `ntrain + N` pairs: a linear rung on every pair,
-/// the residual rung's correction on the closed-loop ones ([`crate::fit`]). A sampling image
-/// spends most of its range where no desired image goes; these pairs sit where the desired
-/// images are, and on dark surfaces they are worth more than as many sampling images
+/// closed-loop pairs ([`take_loop_pairs`]), then the fit on every pair ([`refit`]). A sampling
+/// image spends most of its range where no desired image goes; these pairs sit where the
+/// desired images are, and on dark surfaces they are worth more than as many sampling images
 /// (docs/bench/ladder.md). They depend on the model, so an interrupted run takes them again.
 pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
@@ -192,9 +185,56 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     opts: &Options,
     progress: Progress,
 ) -> Result<Model> {
+    let taken = take_loop_pairs(display, camera, captured, model, opts, progress)?;
+    refit(captured, taken, opts, progress)
+}
+
+/// What [`take_loop_pairs`] leaves for [`refit`].
+pub struct LoopPairs {
+    /// The model that compensated them (refitted on every pair), or the one to return as it
+    /// is when none were taken.
+    model: Model,
+    /// After `auto` climbed on held-out sampling pairs: the climbed rung, returned as it is
+    /// (`model` is then the linear rung fitted beside it).
+    climbed: Option<Model>,
+    /// Closed-loop pairs taken.
+    n: usize,
+}
+
+impl LoopPairs {
+    /// Whether [`refit`] trains a network (minutes on a CPU): `compennet++-res`'s correction, or
+    /// `auto`'s climb judged on the pairs. The service runs it beside playback.
+    pub fn trains_a_network(&self, opts: &Options) -> bool {
+        self.n > 0
+            && match opts.method {
+                MethodChoice::Rung(m) => !m.is_linear(),
+                MethodChoice::Auto => self.climbed.is_none() && climbs_on_loop_pairs(opts),
+            }
+    }
+}
+
+/// The first step of [`refine`]: for the first N sampling images (again from the first when N
+/// is more than there are), the desired view (scaled into the display range and placed in the
+/// displayable area, as the test images' are) is compensated by `model` (a linear rung; for
+/// `compennet++-res`, the `linear` rung [`train`] fitted); that network-size projector image is
+/// written to the data root as training image `ntrain + i`, its desired view to the setup's
+/// `cam/desire/train`, and it is projected, captured synchronised and written as its capture.
+pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    display: &mut D,
+    camera: &mut C,
+    captured: &mut Captured,
+    model: Model,
+    opts: &Options,
+    progress: Progress,
+) -> Result<LoopPairs> {
     let n = opts.loop_images;
+    let untouched = |model| LoopPairs {
+        model,
+        climbed: None,
+        n: 0,
+    };
     if n == 0 {
-        return Ok(model);
+        return Ok(untouched(model));
     }
     if let Some(p) = loop_images_problem(opts.method, n) {
         return Err(Error::Input(format!("{n} closed-loop pairs: {p}")));
@@ -210,26 +250,8 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             (model, None)
         }
         (true, Some(lower)) => (lower, Some(model)),
-        (true, None) => return Ok(model),
+        (true, None) => return Ok(untouched(model)),
     };
-    let later = climbs_on_loop_pairs(opts);
-    let refit = match opts.method {
-        // The climb that waited for these pairs: `auto` again, on every pair.
-        MethodChoice::Auto if later && climbed.is_none() => Request {
-            climb_later: false,
-            ..request(opts)
-        },
-        MethodChoice::Auto => Request {
-            method: MethodChoice::Rung(model.meta.method),
-            iters: None,
-            batch: None,
-            climb_gain_db: None,
-            climb_later: false,
-            ..request(opts)
-        },
-        MethodChoice::Rung(_) => request(opts),
-    };
-    let judges = refit.method == MethodChoice::Auto;
     opts.check_cancelled()?;
     let t = Instant::now();
     let root = &captured.root;
@@ -283,10 +305,50 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     captured.captured += n;
     captured.loop_pairs = n;
     let capturing = t.elapsed().as_secs_f64();
+    captured.seconds.captures += capturing;
+    tracing::info!("closed-loop pairs: {n} captured in {capturing:.1} s");
+    Ok(LoopPairs { model, climbed, n })
+}
+
+/// The second step of [`refine`], which needs no device: the requested rung fitted on all
+/// `ntrain + N` pairs: a linear rung on every pair, the residual rung's correction on the
+/// closed-loop ones ([`crate::fit`]); `auto` that waited for the pairs
+/// ([`climbs_on_loop_pairs`]) judges its climb on them, and after a climb the linear rung is
+/// fitted beside the climbed one for the rig to compare. Returns the model for
+/// [`verify_model`].
+pub fn refit(
+    captured: &mut Captured,
+    taken: LoopPairs,
+    opts: &Options,
+    progress: Progress,
+) -> Result<Model> {
+    let LoopPairs { model, climbed, n } = taken;
+    if n == 0 {
+        return Ok(climbed.unwrap_or(model));
+    }
+    let judges =
+        opts.method == MethodChoice::Auto && climbed.is_none() && climbs_on_loop_pairs(opts);
+    let refit = match opts.method {
+        // The climb that waited for these pairs: `auto` again, on every pair.
+        MethodChoice::Auto if judges => Request {
+            climb_later: false,
+            ..request(opts)
+        },
+        MethodChoice::Auto => Request {
+            method: MethodChoice::Rung(model.meta.method),
+            iters: None,
+            batch: None,
+            climb_gain_db: None,
+            climb_later: false,
+            ..request(opts)
+        },
+        MethodChoice::Rung(_) => request(opts),
+    };
     opts.check_cancelled()?;
     let t = Instant::now();
+    let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
     let req = Request {
-        ntrain: Some(ntrain + n),
+        ntrain: Some(opts.patterns.ntrain + n),
         ..refit
     };
     let evidence = model.meta.training.auto.clone().filter(|_| !judges);
@@ -304,12 +366,11 @@ pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             progress(stage, done, total)
         })?;
     }
-    captured.seconds.captures += capturing;
     captured.seconds.training += t.elapsed().as_secs_f64();
     tracing::info!(
-        "closed-loop pairs: {n} captured in {capturing:.1} s; {} refitted on {} pairs in {:.1} s",
+        "closed-loop pairs: {} refitted on {} pairs in {:.1} s",
         model.meta.method,
-        ntrain + n,
+        opts.patterns.ntrain + n,
         t.elapsed().as_secs_f64()
     );
     Ok(match climbed {

@@ -259,7 +259,8 @@ pub(super) fn held_out_loop_scores(
     })?;
     let size = data.targets[0].size();
     let simplified = linear.simplify();
-    let lin = |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), size.width, size.height);
+    let lin =
+        |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), size.width, size.height);
     let grid = linear.grid_at(size)?;
     let (inputs, base, goals) = closed_loop_data(
         setup,

@@ -384,8 +384,7 @@ impl AutoEvidence {
             "auto: chose {} by the rule: {}",
             self.chosen, self.rule
         ));
-        if !self.chosen.is_linear() && self.closed_loop.is_empty() && self.loop_held_out.is_none()
-        {
+        if !self.chosen.is_linear() && self.closed_loop.is_empty() && self.loop_held_out.is_none() {
             out.push(
                 "auto: this climb rests on held-out captures alone, where capture noise favours \
                  a network; `compend calibrate --method auto` also checks it on the rig, in \

@@ -1,7 +1,10 @@
-//! The engine's calibrations. A calibration runs in three steps (`crate::calibrate`): the
-//! captures (exposure, latency, patterns) on the engine thread with the projector; the training
-//! on a thread of its own; the verification on the engine thread with the projector again, and
-//! the install if it verified. The engine meanwhile feeds the watchdog and answers requests.
+//! The engine's calibrations. A calibration runs in steps (`crate::calibrate`): the captures
+//! (exposure, latency, patterns) on the engine thread with the projector; the training on a
+//! thread of its own; the closed-loop pairs on the engine thread with the projector, and the
+//! refit on them (seconds for a linear rung, there too; a network's training, for
+//! `compennet++-res` or `auto`'s climb judged on the pairs, on a thread of its own again); the
+//! verification on the engine thread with the projector, and the install if it verified. The
+//! engine meanwhile feeds the watchdog and answers requests.
 //! When a model is already serving and `autoplay` is on (a recalibration, after drift say), the
 //! projector plays the old model while the new one trains (unless playback was paused), so the
 //! picture is interrupted only for the captures and the verification.
@@ -30,11 +33,35 @@ use crate::model::{Method, MethodChoice, Model};
 use super::super::devices::Devices;
 use super::super::devices::Hardware;
 
+/// What a calibration's training thread does.
+enum Job {
+    /// The requested rung on the captures ([`calibrate::train`]).
+    Fit,
+    /// The fit on every pair once the closed-loop pairs are taken ([`calibrate::refit`]).
+    Refit(Box<calibrate::LoopPairs>),
+}
+
+/// Which [`Job`] a [`Training`] runs: what follows it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Stage {
+    Fit,
+    Refit,
+}
+
+/// What the closed-loop pairs' step on the devices ends with.
+enum AfterLoops {
+    /// The model verified (refitted on the devices' thread: seconds).
+    Verified(Box<calibrate::Calibrated>),
+    /// A refit to run beside playback.
+    Refit(Box<(calibrate::Captured, calibrate::LoopPairs)>),
+}
+
 /// A model training on its own thread while the old one plays; dropped, it cancels the training
 /// (a CompenNet++ rung stops at its next iteration, `linear` at its end).
 pub(super) struct Training {
     /// The run's data root.
     data: PathBuf,
+    stage: Stage,
     cancel: Arc<AtomicBool>,
     /// Set once the result is sent: the playback beside it ends.
     pub(super) done: Arc<AtomicBool>,
@@ -156,31 +183,47 @@ impl Engine {
         if self.next == Next::Stop {
             return;
         }
-        // Training runs on a thread of its own, so the engine goes on feeding the watchdog and
-        // answering requests. The current model plays meanwhile unless playback is paused or
-        // off; the playback (or the wait) ends when training does, and the verification
-        // follows.
-        self.training = Some(self.start_training(data, captured, &opts));
-        if self.model.is_some() && self.config.playback.autoplay && !paused {
-            tracing::info!(
-                "training {} beside playback of the current model",
-                opts.method
-            );
+        self.train_beside_playback(data, captured, &opts, Job::Fit);
+    }
+
+    /// Training runs on a thread of its own, so the engine goes on feeding the watchdog and
+    /// answering requests. The current model plays meanwhile unless playback is paused or off;
+    /// the playback (or the wait) ends when training does, and the next step on the devices
+    /// follows ([`Engine::trained`]).
+    fn train_beside_playback(
+        &mut self,
+        data: PathBuf,
+        captured: calibrate::Captured,
+        opts: &Options,
+        job: Job,
+    ) {
+        let what = match job {
+            Job::Fit => opts.method.to_string(),
+            Job::Refit(_) => format!("{} on the closed-loop pairs", opts.method),
+        };
+        self.training = Some(self.start_training(data, captured, opts, job));
+        if self.model.is_some() && self.config.playback.autoplay && !self.stay_paused {
+            tracing::info!("training {what} beside playback of the current model");
             self.next = Next::Play;
         } else {
-            tracing::info!("training {}", opts.method);
+            tracing::info!("training {what}");
             self.io.state(State::Training, "training");
             self.next = Next::Wait;
         }
     }
 
-    /// Starts training on its own thread.
+    /// Starts `job` on its own thread.
     fn start_training(
         &mut self,
         data: PathBuf,
         mut captured: calibrate::Captured,
         opts: &Options,
+        job: Job,
     ) -> Training {
+        let stage = match job {
+            Job::Fit => Stage::Fit,
+            Job::Refit(_) => Stage::Refit,
+        };
         let cancel = Arc::new(AtomicBool::new(false));
         let mut opts = opts.clone();
         opts.cancel = Some(cancel.clone());
@@ -196,7 +239,12 @@ impl Engine {
                 // and the engine finds the answer, or its absence.
                 let _done = SetOnDrop(finished);
                 let mut progress = training_progress(shared, started);
-                let model = calibrate::train(&mut captured, &opts, &mut progress);
+                let model = match job {
+                    Job::Fit => calibrate::train(&mut captured, &opts, &mut progress),
+                    Job::Refit(taken) => {
+                        calibrate::refit(&mut captured, *taken, &opts, &mut progress)
+                    }
+                };
                 let _ = tx.send((captured, model));
             });
         if let Err(e) = spawned {
@@ -206,20 +254,25 @@ impl Engine {
         }
         Training {
             data,
+            stage,
             cancel,
             done,
             result,
         }
     }
 
-    /// A training that ended beside playback (or in the engine's wait): verification and
+    /// A training that ended beside playback (or in the engine's wait): the closed-loop pairs,
+    /// verification and install; after a refit on the closed-loop pairs, verification and
     /// install.
     pub(super) fn trained(&mut self, captured: calibrate::Captured, model: Result<Model>) {
-        let data = match self.training.take() {
-            Some(t) => t.data.clone(),
-            None => return,
+        let Some(t) = self.training.take() else {
+            return;
         };
-        self.finish_calibration(data, captured, model);
+        let data = t.data.clone();
+        match t.stage {
+            Stage::Fit => self.finish_calibration(data, captured, model),
+            Stage::Refit => self.verify_refitted(data, captured, model),
+        }
     }
 
     /// A training whose thread ended without an answer.
@@ -230,7 +283,10 @@ impl Engine {
         }
     }
 
-    /// Verifies a trained model on the projector and installs it if it passed.
+    /// Takes the closed-loop pairs with a trained model on the projector; refits it on them,
+    /// verifies it and installs it if it passed. A refit that trains a network (minutes on a
+    /// CPU: `compennet++-res`, `auto`'s climb judged on the pairs) runs on a thread of its own
+    /// instead, beside playback as the first training did ([`Engine::verify_refitted`] next).
     fn finish_calibration(
         &mut self,
         data: PathBuf,
@@ -245,20 +301,64 @@ impl Engine {
         let opts = self.calibration_options(self.io.shared.cancel.clone());
         let mut captured = Some(captured);
         let mut model = Some(model);
-        let verified = self.with_devices(
+        let step = self.with_devices(
             ("verification", Work::Calibration),
             |display, camera, progress| match (captured.take(), model.take()) {
                 (Some(mut c), Some(m)) => {
-                    let m = calibrate::refine(display, camera, &mut c, m, &opts, progress)?;
+                    let taken =
+                        calibrate::take_loop_pairs(display, camera, &mut c, m, &opts, progress)?;
+                    if taken.trains_a_network(&opts) {
+                        return Ok(AfterLoops::Refit(Box::new((c, taken))));
+                    }
+                    let m = calibrate::refit(&mut c, taken, &opts, progress)?;
                     calibrate::verify_model(display, camera, c, m, &opts, progress)
+                        .map(|d| AfterLoops::Verified(Box::new(d)))
                 }
                 _ => Err(Error::Failed("the verification ran twice".into())),
             },
         );
-        let done = match verified {
-            Ok(d) => d,
+        match step {
+            Ok(AfterLoops::Verified(done)) => self.install_verified(data, setup, *done),
+            Ok(AfterLoops::Refit(b)) => {
+                if self.next != Next::Stop {
+                    let (c, taken) = *b;
+                    self.train_beside_playback(data, c, &opts, Job::Refit(Box::new(taken)));
+                }
+            }
+            Err(e) => self.calibration_failed(&data, e),
+        }
+    }
+
+    /// Verifies a model refitted on the closed-loop pairs on the projector and installs it if
+    /// it passed.
+    fn verify_refitted(
+        &mut self,
+        data: PathBuf,
+        captured: calibrate::Captured,
+        model: Result<Model>,
+    ) {
+        let model = match model {
+            Ok(m) => m,
             Err(e) => return self.calibration_failed(&data, e),
         };
+        let setup = captured.setup().to_path_buf();
+        let opts = self.calibration_options(self.io.shared.cancel.clone());
+        let mut both = Some((captured, model));
+        let verified = self.with_devices(
+            ("verification", Work::Calibration),
+            |display, camera, progress| match both.take() {
+                Some((c, m)) => calibrate::verify_model(display, camera, c, m, &opts, progress),
+                None => Err(Error::Failed("the verification ran twice".into())),
+            },
+        );
+        match verified {
+            Ok(done) => self.install_verified(data, setup, done),
+            Err(e) => self.calibration_failed(&data, e),
+        }
+    }
+
+    /// Installs a verified calibration's model if it passed, and ends the run.
+    fn install_verified(&mut self, data: PathBuf, setup: PathBuf, done: calibrate::Calibrated) {
         let v = done.record.verification.clone();
         tracing::info!(
             "calibration: {} captures taken, {} found on disk; verification {:.2} dB / SSIM {:.3} \
