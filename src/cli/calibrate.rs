@@ -81,9 +81,10 @@ pub struct Args {
     /// [default: 1].
     #[arg(long)]
     pub min_gain: Option<f64>,
-    /// `--method auto` only: the PSNR gain in dB the CompenNet++ rung needs over the best
-    /// linear rung, on held-out pairs and then in closed loop on the rig [default: the
-    /// configuration's `climb_gain_db`, 0.5].
+    /// `--method auto` only: the PSNR gain in dB the CompenNet++ rung needs over the rung
+    /// below, on held-out pairs (with 8 or more closed-loop pairs: some of those, held out of
+    /// its training) and then in closed loop on the rig [default: the configuration's
+    /// `climb_gain_db`, 0.5].
     #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
     /// `--method auto` only: training iterations of the CompenNet++ rung it climbs to
@@ -97,7 +98,8 @@ pub struct Args {
     /// compensation of N sampling images placed as desired views and capture them
     /// (closed-loop pairs: they sit in the range the desired images use); a linear rung (and
     /// the one auto keeps) is refitted on every pair, compennet++-res trains its correction on
-    /// them; 0: none [default: the configuration's `loop_images`, else as many as --ntrain].
+    /// them, and auto with 8 or more judges its climb on them; 0: none [default: the
+    /// configuration's `loop_images`, else as many as --ntrain].
     #[arg(long, value_name = "N")]
     pub loop_images: Option<usize>,
     /// Frames averaged per capture [default: 3].

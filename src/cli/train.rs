@@ -13,16 +13,18 @@ pub struct Args {
     pub setup: super::SetupArgs,
     /// The rung to fit (listed below). CompenNet++ on a 2-core CPU takes about 0.45–0.5 s per
     /// 256² sample (`compennet++-cpu`: about 4–4.5 minutes in all): see --iters. `auto` fits
-    /// `linear` and `linear-sl` on all but a sixth of the pairs and scores them on the held-out
-    /// pairs (paper-protocol PSNR); then trains the CompenNet++ rung the device affords
-    /// (`compennet++-res` on the CPU, `compennet++` on a GPU) on the same pairs and keeps it
-    /// only if it beats the best linear rung by --climb-gain; otherwise that linear rung is
-    /// refitted on all pairs. The evidence goes into model.json.
+    /// `linear` and `linear-sl` on all but a sixth of the sampling pairs and scores them on the
+    /// held-out ones (paper-protocol PSNR); then trains the CompenNet++ rung the device affords
+    /// (`compennet++-res` on the CPU, `compennet++` on a GPU) and keeps it only if it beats the
+    /// rung below by --climb-gain, otherwise refitting the best linear rung on all pairs.
+    /// `compennet++-res` on a setup with 8 or more closed-loop pairs (a calibration's) is
+    /// judged on the last sixth of those, held out of its training, against its own linear
+    /// part; otherwise on the sampling pairs held out. The evidence goes into model.json.
     #[arg(long, value_enum)]
     pub method: compend::model::MethodChoice,
     /// Number of training pairs to use (the first N). Default: all available, at most 48 (the
-    /// full CompenNet++: its schedule's 500), and for linear, linear-sl and compennet++-res up
-    /// to the last closed-loop pair a calibration took (cam/desire/train).
+    /// full CompenNet++: its schedule's 500), and for linear, linear-sl, compennet++-res and
+    /// auto up to the last closed-loop pair a calibration took (cam/desire/train).
     #[arg(long)]
     pub ntrain: Option<usize>,
     /// Seed for every random choice of the fit (recorded in the model).
