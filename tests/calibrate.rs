@@ -237,6 +237,28 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     let held = &m["training"]["auto"]["loop_held_out"];
     assert_eq!(held["pairs"], 4, "{m}");
     assert_eq!(held["trained_on"], 8, "{m}");
+    // A damaged held-out desired view: exit 2 naming it, and no model.
+    let view = data.join("capture/cam/desire/train/img_0024.png");
+    std::fs::write(&view, b"not a png").unwrap();
+    let damaged = dir.path().join("damaged");
+    let o = compend(&[
+        "train",
+        "--setup",
+        data.join("capture").to_str().unwrap(),
+        "--method",
+        "auto",
+        "--iters",
+        "3",
+        "--out",
+        damaged.to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("desire/train/img_0024.png"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!damaged.exists());
 
     // With fewer than 8 closed-loop pairs the climb is judged on held-out sampling pairs (the
     // paper protocol), before the pairs are taken; the linear rung the climbed one is compared

@@ -247,6 +247,9 @@ pub(super) fn fit_auto(
             setup.reference_path(Reference::Gray).display()
         ));
     } else if let Some(variant) = variant {
+        // A damaged held-out desired view fails now, not after the training.
+        let held_loops: Vec<usize> = loop_held.map_or(Vec::new(), |h| (n - h + 1..=n).collect());
+        setup.load_loop_desired(&held_loops)?;
         let t0 = Instant::now();
         // The rung trains on every pair but the held-out closed-loop ones, or on the sampling
         // pairs the linear rungs were fitted on.
@@ -270,8 +273,7 @@ pub(super) fn fit_auto(
             compennet::train_compennet(setup, &sub_req, rung, variant, sub, t0, &mut progress)?;
         let (upper, lower) = match loop_held {
             Some(h) => {
-                let indices: Vec<usize> = (n - h + 1..=n).collect();
-                let (lin, up) = compennet::held_out_loop_scores(setup, &model, &indices, &data)?;
+                let (lin, up) = compennet::held_out_loop_scores(setup, &model, &held_loops, &data)?;
                 tracing::info!(
                     "auto: {rung} {:.2} dB against linear {:.2} dB on {h} held-out closed-loop \
                      pairs (climbs at +{} dB)",
@@ -398,6 +400,9 @@ pub fn judge_on_loop_pairs(
         return Ok(None);
     }
     let h = held_out(loops);
+    let indices: Vec<usize> = (n - h + 1..=n).collect();
+    // A damaged held-out desired view fails now, not after the training.
+    setup.load_loop_desired(&indices)?;
     let t0 = Instant::now();
     let (model, _) = super::fit(
         setup,
@@ -409,7 +414,6 @@ pub fn judge_on_loop_pairs(
     )?;
     let seconds = t0.elapsed().as_secs_f64();
     let data = super::load_training(setup, false, n)?;
-    let indices: Vec<usize> = (n - h + 1..=n).collect();
     let (lin, up) = compennet::held_out_loop_scores(setup, &model, &indices, &data)?;
     Ok(Some((
         model,

@@ -328,7 +328,12 @@ impl AutoEvidence {
                 })
                 .collect();
             out.push(format!(
-                "auto: on {held} held-out pairs (fitted on {fitted}): {}",
+                "auto: on {held} held-out {}pairs (fitted on {fitted}): {}",
+                if self.loop_held_out.is_some() {
+                    "sampling "
+                } else {
+                    ""
+                },
                 figures.join(", ")
             ));
         }
