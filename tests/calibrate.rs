@@ -219,19 +219,21 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     );
 
     // `train --method auto` on the same setup judges the same way, offline.
+    let train_auto = |out: &Path| {
+        compend(&[
+            "train",
+            "--setup",
+            data.join("capture").to_str().unwrap(),
+            "--method",
+            "auto",
+            "--iters",
+            "3",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
     let offline = dir.path().join("offline");
-    let o = compend(&[
-        "train",
-        "--setup",
-        data.join("capture").to_str().unwrap(),
-        "--method",
-        "auto",
-        "--iters",
-        "3",
-        "--out",
-        offline.to_str().unwrap(),
-    ]);
-    assert_code(&o, 0);
+    assert_code(&train_auto(&offline), 0);
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(offline.join("model.json")).unwrap()).unwrap();
     let held = &m["training"]["auto"]["loop_held_out"];
@@ -241,17 +243,7 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     let view = data.join("capture/cam/desire/train/img_0024.png");
     std::fs::write(&view, b"not a png").unwrap();
     let damaged = dir.path().join("damaged");
-    let o = compend(&[
-        "train",
-        "--setup",
-        data.join("capture").to_str().unwrap(),
-        "--method",
-        "auto",
-        "--iters",
-        "3",
-        "--out",
-        damaged.to_str().unwrap(),
-    ]);
+    let o = train_auto(&damaged);
     assert_code(&o, 2);
     assert!(
         stderr(&o).contains("desire/train/img_0024.png"),
