@@ -129,7 +129,7 @@ fn bench_takes_closed_loop_pairs_like_calibrate() {
         &out,
         &[
             "--methods",
-            "linear,compennet++-res,compennet++-cpu",
+            "linear,compennet++-res,compennet++-cpu,auto",
             "--ntrain",
             "6",
             "--loop-images",
@@ -142,13 +142,16 @@ fn bench_takes_closed_loop_pairs_like_calibrate() {
     );
     let rows = v["rows"].as_array().unwrap();
     let row = |m: &str| rows.iter().find(|r| r["method"] == m).unwrap();
-    for m in ["linear", "compennet++-res"] {
+    // `auto` takes them as `calibrate` does (here too few sampling pairs to compare on: the
+    // linear rung without comparison).
+    for m in ["linear", "compennet++-res", "auto"] {
         let r = row(m);
         assert_eq!(r["ntrain"], 6, "{r}");
         assert_eq!(r["loop_pairs"], 4, "{r}");
         assert_eq!(r["captures"], 13, "{r}");
         assert!(r["failed"].is_null(), "{r}");
     }
+    assert_eq!(row("auto")["chosen"], "linear");
     let cpu = row("compennet++-cpu");
     assert!(cpu.get("loop_pairs").is_none(), "{cpu}");
     assert_eq!(cpu["captures"], 9, "{cpu}");

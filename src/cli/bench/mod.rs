@@ -397,6 +397,7 @@ impl SceneBench<'_> {
             failure: None,
             chosen: None,
             rig_check: Vec::new(),
+            loop_held_out: None,
         };
         let trained = fit::fit(self.setup, &req, |_, _, _| {}).and_then(|(model, summary)| {
             if method != compend::model::MethodChoice::Auto {
@@ -438,17 +439,30 @@ impl SceneBench<'_> {
                 if let Some(a) = &model.meta.training.auto {
                     row.chosen = Some(a.chosen.to_string());
                     row.rig_check = a.closed_loop.clone();
+                    row.loop_held_out = a.loop_held_out.clone();
                 }
                 eprintln!(
                     "bench: {scene} {method}{} n={n}: {:.1} s, closed loop {:.2} dB (gap {:.2} \
-                     dB){}",
+                     dB){}{}",
                     row.chosen
                         .as_ref()
                         .map_or(String::new(), |c| format!(" → {c}")),
                     summary.seconds,
                     s.psnr,
                     ceiling - s.psnr,
-                    row.failure.map_or(String::new(), |f| format!(", {f}"))
+                    row.failure.map_or(String::new(), |f| format!(", {f}")),
+                    row.loop_held_out.as_ref().map_or(String::new(), |l| {
+                        let psnr: Vec<String> = l
+                            .scores
+                            .iter()
+                            .map(|c| format!("{} {:.2}", c.method, c.held_out_psnr))
+                            .collect();
+                        format!(
+                            "; on {} held-out closed-loop pairs: {} dB",
+                            l.pairs,
+                            psnr.join(", ")
+                        )
+                    })
                 );
             }
         }

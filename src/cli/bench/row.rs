@@ -39,6 +39,9 @@ pub struct Row {
     /// closed loop on the rig's verification images, which decided between them.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub rig_check: Vec<compend::model::store::ClosedLoopScore>,
+    /// `auto` with closed-loop pairs: its judgement of the residual rung on those held out.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub loop_held_out: Option<compend::model::store::LoopHeldOut>,
 }
 
 impl Row {
@@ -59,6 +62,7 @@ impl Row {
             failure: None,
             chosen: None,
             rig_check: Vec::new(),
+            loop_held_out: None,
         }
     }
 }
