@@ -120,7 +120,8 @@ pub struct CalibrationConfig {
     /// Closed-loop pairs taken with the `linear` rung after its first fit (0: none; `None`:
     /// [`crate::calibrate::loop_images`]'s default, as many as `ntrain`): a linear rung (and
     /// the one `auto` keeps) is refitted on every pair, `compennet++-res` trains its correction
-    /// on them ([`crate::calibrate::refine`]).
+    /// on them, and `auto` with 8 or more judges its climb on them
+    /// ([`crate::calibrate::refine`]).
     pub loop_images: Option<usize>,
 }
 

@@ -19,7 +19,7 @@
 //!    compensation of sampling images placed as desired views, projected and captured; these
 //!    pairs sit in the range the desired images use, and the rung is fitted on every pair
 //!    ([`refine`]). With 8 or more of them `auto` waits for them before it climbs: [`train`]
-//!    chooses among the linear rungs, and [`refine`] judges the residual rung on closed-loop
+//!    chooses among the linear rungs, and [`refit`] judges the residual rung on closed-loop
 //!    pairs held out of its training ([`crate::fit::judges_on_loop_pairs`]);
 //! 5. **verification**: held-out test images, compensated by the new model and as they are,
 //!    projected, captured and scored inside the displayable area against the view they should
@@ -368,8 +368,9 @@ pub fn refit(
     }
     captured.seconds.training += t.elapsed().as_secs_f64();
     tracing::info!(
-        "closed-loop pairs: {} refitted on {} pairs in {:.1} s",
+        "closed-loop pairs: {} fitted on {} of the {} pairs in {:.1} s",
         model.meta.method,
+        model.meta.training.ntrain,
         opts.patterns.ntrain + n,
         t.elapsed().as_secs_f64()
     );
@@ -574,7 +575,7 @@ fn request(opts: &Options) -> Request {
 
 /// Whether `auto`'s climb waits for the closed-loop pairs: `auto` with enough of them to judge
 /// the residual rung on ([`fit::judges_on_loop_pairs`]). [`train`] then chooses among the
-/// linear rungs alone, and [`refine`] fits `auto` again once the chosen rung has taken them.
+/// linear rungs alone, and [`refit`] fits `auto` again once the chosen rung has taken them.
 fn climbs_on_loop_pairs(opts: &Options) -> bool {
     opts.method == MethodChoice::Auto && fit::judges_on_loop_pairs(opts.loop_images)
 }

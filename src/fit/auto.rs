@@ -12,9 +12,10 @@
 //!      trained on every pair but the last sixth of the closed-loop ones (at least 4), and
 //!      judged on those: how much closer than `linear`'s its compensations of their desired
 //!      views come to the projector images that move their captures towards the views
-//!      ([`LoopHeldOut`]). That is what its correction learns, and a gain there is a gain where
-//!      the viewer looks; on sampling captures a network gains from averaging capture noise
-//!      away, which closed loop does not repay (docs/bench/ladder.md);
+//!      ([`LoopHeldOut`]). That is what its correction learns and what closed loop asks; on
+//!      sampling captures a network gains from averaging capture noise away, which closed loop
+//!      does not repay. In projector pixels the figure overstates the camera's gain where the
+//!      surface is dark, so the rig's check stays (docs/bench/ladder.md);
 //!    - otherwise on the sampling pairs the linear rungs were fitted on, scored as they were.
 //!
 //!    It is kept only if it beats the rung below by the climbing rule's margin ([`ClimbRule`]);
@@ -276,7 +277,7 @@ pub(super) fn fit_auto(
                 let (lin, up) = compennet::held_out_loop_scores(setup, &model, &held_loops, &data)?;
                 tracing::info!(
                     "auto: {rung} {:.2} dB against linear {:.2} dB on {h} held-out closed-loop \
-                     pairs (climbs at +{} dB)",
+                     pairs (climbs at {:+} dB)",
                     up.psnr,
                     lin.psnr,
                     rule.gain_db
@@ -303,7 +304,7 @@ pub(super) fn fit_auto(
                 });
                 tracing::info!(
                     "auto: {rung} {:.2} dB against {} {:.2} dB on {held} held-out pairs (climbs \
-                     at +{} dB)",
+                     at {:+} dB)",
                     scores.psnr,
                     best_linear.0,
                     best_linear.1,
@@ -475,7 +476,7 @@ pub fn settle_climb(
         (lower.1.psnr, lower.1.passed),
     );
     tracing::info!(
-        "auto: {} {:.2} dB against {} {:.2} dB in closed loop (climbs at +{} dB): {} kept",
+        "auto: {} {:.2} dB against {} {:.2} dB in closed loop (climbs at {:+} dB): {} kept",
         upper.1.method,
         upper.1.psnr,
         lower.1.method,

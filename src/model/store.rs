@@ -278,8 +278,10 @@ pub struct AutoEvidence {
 /// desired view compensated by `linear` (the climbed rung's own linear part) and by the
 /// climbed rung, against the projector image that moves the pair's capture towards the view
 /// (the first-order target the correction trains on, blended to `linear`'s output outside the
-/// displayable area; projector images at the network size). A gain there is a gain where the
-/// viewer looks, unlike one on held-out sampling captures.
+/// displayable area; projector images at the network size). It asks what closed loop asks,
+/// unlike held-out sampling captures; in projector pixels, it overstates what the camera sees
+/// where the surface is dark (+1.40 dB here, +0.29 on the rig for a dark texture:
+/// docs/bench/ladder.md), so `calibrate` checks a climb on the rig.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LoopHeldOut {
     /// Closed-loop pairs held out (the setup's last ones).

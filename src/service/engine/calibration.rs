@@ -7,7 +7,7 @@
 //! engine meanwhile feeds the watchdog and answers requests.
 //! When a model is already serving and `autoplay` is on (a recalibration, after drift say), the
 //! projector plays the old model while the new one trains (unless playback was paused), so the
-//! picture is interrupted only for the captures and the verification.
+//! picture is interrupted only for the captures, the closed-loop pairs and the verification.
 //!
 //! Each calibration captures into a run folder of its own under `[paths] data`
 //! (`crate::calibrate::runs`), named in a marker until it ends, so a service killed at any point
