@@ -65,8 +65,9 @@ pub struct Args {
     /// Closed-loop pairs, as `compend calibrate` takes them (one --ntrain size only): after the
     /// export, `linear` fitted on the sampling pairs compensates N sampling images placed as
     /// desired views and the rig captures them; linear, linear-sl and compennet++-res then
-    /// train on every pair (the correction on the closed-loop ones), the other methods on the
-    /// sampling pairs alone [default: 0, none].
+    /// train on every pair (the correction on the closed-loop ones), auto judges its climb on
+    /// them (8 or more), the other methods train on the sampling pairs alone [default: 0,
+    /// none].
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=500))]
     pub loop_images: u64,
     /// Camera / projector / network sizes (defaults: the scenes' 640x480 / 800x600, 256).
