@@ -251,14 +251,13 @@ pub(super) fn held_out_loop_scores(
     indices: &[usize],
     data: &TrainingData,
 ) -> Result<(crate::metrics::Scores, crate::metrics::Scores)> {
-    let linear = model.residual_base().ok_or_else(|| {
+    let (linear, simplified) = model.residual_base().ok_or_else(|| {
         Error::Failed(format!(
             "closed-loop judgement of {}: only compennet++-res stands on `linear`",
             model.meta.method
         ))
     })?;
     let size = data.targets[0].size();
-    let simplified = linear.simplify();
     let lin =
         |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), size.width, size.height);
     let grid = linear.grid_at(size)?;

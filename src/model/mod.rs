@@ -261,10 +261,11 @@ impl Model {
         self.meta.network_size
     }
 
-    /// The `linear` model a `compennet++-res` model stands on; `None` for the other rungs.
-    pub fn residual_base(&self) -> Option<&LinearModel> {
+    /// The `linear` model a `compennet++-res` model stands on, and its simplified form (what
+    /// [`Model::infer`] applies); `None` for the other rungs.
+    pub fn residual_base(&self) -> Option<(&LinearModel, &crate::linear::SimplifiedLinear)> {
         match &self.kind {
-            Kind::Residual { linear, .. } => Some(linear),
+            Kind::Residual { linear, base, .. } => Some((linear, base)),
             _ => None,
         }
     }
