@@ -206,6 +206,21 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
             .all(|c| c["held_out_psnr"].as_f64().unwrap().is_finite()),
         "{auto}"
     );
+    // Scored as it trained: from `linear`'s own figure (its correction starts at zero) at
+    // iteration 0 to the rung's at the last; a margin it cannot miss never stops it.
+    let psnr = |v: &serde_json::Value| v.as_f64().unwrap();
+    let curve = held["curve"].as_array().unwrap();
+    let at: Vec<u64> = curve
+        .iter()
+        .map(|c| c["iteration"].as_u64().unwrap())
+        .collect();
+    assert_eq!(at, [0, 1, 2, 3], "{auto}");
+    assert_eq!(held["iterations"], 3, "{auto}");
+    assert!(held.get("stopped_at").is_none(), "{auto}");
+    let lin = psnr(&figures[0]["held_out_psnr"]);
+    let rung = psnr(&figures[1]["held_out_psnr"]);
+    assert!((psnr(&curve[0]["psnr"]) - lin).abs() < 1e-6, "{auto}");
+    assert_eq!(psnr(&curve[3]["psnr"]), rung, "{auto}");
     // The climbed rung trained on every pair but the held-out ones, its correction on the
     // closed-loop ones it saw.
     assert_eq!(m["calibration"]["loop_pairs"], 12, "{m}");
@@ -293,6 +308,18 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
         .map(|c| c["held_out_psnr"].as_f64().unwrap())
         .collect::<Vec<_>>();
     assert!(figures[1] - figures[0] < 0.5, "{m}");
+    // The figure is its training's last checkpoint: where it stopped, its margin out of
+    // reach, or the last iteration.
+    let held = &m["training"]["auto"]["loop_held_out"];
+    let last = held["curve"].as_array().unwrap().last().unwrap().clone();
+    assert_eq!(last["psnr"].as_f64().unwrap(), figures[1], "{m}");
+    match held.get("stopped_at") {
+        Some(at) => {
+            assert!(at.as_u64().unwrap() < 3, "{m}");
+            assert_eq!(&last["iteration"], at, "{m}");
+        }
+        None => assert_eq!(last["iteration"], 3, "{m}"),
+    }
 
     // The climbing flags are for `auto` only, and must be numbers.
     for (flags, says) in [

@@ -277,9 +277,14 @@ fn compennet_train_steps(
     // Time between the end of the first step and the end of the last.
     let mut marks = Vec::new();
     let init = GeometryInit::Affine([[0.8, 0.0, 0.0], [0.0, 0.8, 0.0]]);
-    compend::nn::train::train(&data, init, &settings, &never, |_, _, _| {
-        marks.push(Instant::now())
-    })?;
+    compend::nn::train::train(
+        &data,
+        init,
+        &settings,
+        &never,
+        |_, _, _| marks.push(Instant::now()),
+        |_, _| Ok(true),
+    )?;
     if marks.len() < 2 {
         return Err(compend::Error::Failed("no training step was timed".into()));
     }

@@ -5,12 +5,16 @@
 
 use std::time::Instant;
 
+use super::auto::ClimbRule;
 use super::{Request, Summary, TrainingData, common_record, sl_grid};
 use crate::dataset::{Reference, Setup};
 use crate::error::{Error, Result};
 use crate::fov;
 use crate::linear::FitSettings;
-use crate::model::store::{FORMAT_VERSION, ModelMeta, Timings, TrainingRecord};
+use crate::metrics::Scores;
+use crate::model::store::{
+    AutoCandidate, FORMAT_VERSION, LoopCheckpoint, LoopHeldOut, ModelMeta, Timings, TrainingRecord,
+};
 use crate::model::{Method, Model};
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
@@ -19,16 +23,36 @@ use crate::sample::Grid;
 /// paper's, as for fine-tuning.
 const RESIDUAL_LEARNING_RATE: f64 = 2e-4;
 
-/// Trains a CompenNet++ variant on already masked captures.
+/// `auto`'s judgement of the residual rung while it trains ([`LoopHeldOut`]): closed-loop pairs
+/// held out of its training, and the margin it must reach on them.
+pub(super) struct Judge<'a> {
+    /// 1-based indices of the held-out pairs in `captures` and `targets`.
+    pub(super) indices: Vec<usize>,
+    /// Every pair, the held-out ones included: captures masked by the FOV (camera pixels) and
+    /// projector images (network pixels).
+    pub(super) captures: &'a [CamImage],
+    pub(super) targets: &'a [NetImage],
+    /// The climbing rule: the training stops once the rung cannot reach its margin
+    /// ([`ClimbRule::out_of_reach`]).
+    pub(super) rule: ClimbRule,
+}
+
+/// How many checkpoints a judged training has after its start: one every tenth of its
+/// iterations.
+const CHECKPOINTS: usize = 10;
+
+/// Trains a CompenNet++ variant on already masked captures. With a `judge` (the residual rung
+/// only), the rung is scored on the judge's held-out closed-loop pairs as it trains and the
+/// judgement is returned too; the training stops early when it cannot reach the margin.
 pub(super) fn train_compennet(
     setup: &Setup,
     req: &Request,
-    method: Method,
-    variant: crate::nn::compennetpp::Variant,
+    (method, variant): (Method, crate::nn::compennetpp::Variant),
     data: TrainingData,
+    judge: Option<Judge<'_>>,
     start: Instant,
     mut progress: impl FnMut(&str, usize, usize),
-) -> Result<(Model, Summary)> {
+) -> Result<(Model, Summary, Option<LoopHeldOut>)> {
     use crate::nn::train::Settings;
     let TrainingData {
         fov,
@@ -39,6 +63,7 @@ pub(super) fn train_compennet(
     } = data;
     let mut prepared = prepare_compennet_data(setup, req, variant, &fov, &captures, &targets)?;
     let mut correction = Correction::None;
+    let mut held = None;
     // The residual rung stands on the `linear` rung: fitted here on the same pairs, its output
     // for each capture (brought to the network) is what the network corrects.
     let linear = if variant.residual() {
@@ -63,8 +88,17 @@ pub(super) fn train_compennet(
         // `linear`'s output for a camera image, at the data's network size.
         let lin = |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), nw, nh);
         let loop_pairs = setup.loop_pairs(captures.len())?;
+        let grid = linear.grid_at(targets[0].size())?;
+        if let Some(judge) = &judge {
+            held = Some(HeldOut::new(
+                setup,
+                judge,
+                (&fov, &grid),
+                &simplified,
+                &prepared.data.surface,
+            )?);
+        }
         if loop_pairs.len() >= super::MIN_TRAIN {
-            let grid = linear.grid_at(targets[0].size())?;
             let (inputs, base, goals) = closed_loop_data(
                 setup,
                 &loop_pairs,
@@ -117,10 +151,48 @@ pub(super) fn train_compennet(
         &targets,
         &mut progress,
     )?;
-    let (net, report) =
-        crate::nn::train::train(&prepared.data, init, &settings, cancel, |done, total, _| {
-            progress("training", done, total)
-        })?;
+    let total = settings.resolved().1;
+    let every = (total / CHECKPOINTS).max(1);
+    let mut curve: Vec<LoopCheckpoint> = Vec::new();
+    let mut last: Option<Scores> = None;
+    let (net, report) = crate::nn::train::train(
+        &prepared.data,
+        init,
+        &settings,
+        cancel,
+        |done, total, _| progress("training", done, total),
+        |done, net| {
+            let (Some(held), Some(judge)) = (&held, &judge) else {
+                return Ok(true);
+            };
+            if done % every != 0 && done != total {
+                return Ok(true);
+            }
+            let scores = held.score(net)?;
+            curve.push(LoopCheckpoint {
+                iteration: done,
+                psnr: scores.psnr,
+            });
+            last = Some(scores);
+            let gains: Vec<(usize, f64)> = curve
+                .iter()
+                .map(|c| (c.iteration, c.psnr - held.linear.psnr))
+                .collect();
+            let stop = judge.rule.out_of_reach(&gains, total);
+            if let (true, [.., (i1, g1), (i2, g2)]) = (stop, gains.as_slice()) {
+                tracing::info!(
+                    "auto: {method} stops at iteration {done} of {total}: {g2:+.2} dB over \
+                     `linear` on the held-out closed-loop pairs, its rise slowed to {:+.3} dB \
+                     in the last {} iterations; at that rate it would not reach {:+} dB by the \
+                     end",
+                    g2 - g1,
+                    i2 - i1,
+                    judge.rule.gain_db
+                );
+            }
+            Ok(!stop)
+        },
+    )?;
     let net = weights_to_cpu(net, &prepared.device, prepared.size, variant)?;
     let final_loss = report.losses.last().copied().unwrap_or(f64::NAN);
     let seconds = start.elapsed().as_secs_f64();
@@ -160,10 +232,109 @@ pub(super) fn train_compennet(
         final_loss,
     };
     let model = match linear {
-        Some(linear) => Model::residual(meta, fov.mask, linear, net, surface)?,
-        None => Model::compennet(meta, fov.mask, net, surface)?,
+        Some(linear) => Model::residual(meta, fov.mask.clone(), linear, net, surface)?,
+        None => Model::compennet(meta, fov.mask.clone(), net, surface)?,
     };
-    Ok((model, summary))
+    let judged = match (judge, held) {
+        (Some(judge), Some(held)) => {
+            // The figures that decide: the last checkpoint's, on the weights the model holds.
+            let up = last
+                .ok_or_else(|| Error::Failed(format!("{method}: its training was never scored")))?;
+            let entry = |method, s: &Scores, fit_seconds| AutoCandidate {
+                method,
+                held_out_psnr: s.psnr,
+                held_out_ssim: s.ssim,
+                fit_seconds,
+            };
+            Some(LoopHeldOut {
+                pairs: judge.indices.len(),
+                trained_on: correction.loop_pairs(),
+                scores: vec![
+                    entry(Method::Linear, &held.linear, 0.0),
+                    entry(method, &up, seconds),
+                ],
+                iterations: total,
+                stopped_at: report.stopped_early.then_some(report.iterations),
+                curve,
+            })
+        }
+        (Some(_), None) => {
+            return Err(Error::Failed(format!(
+                "{method}: only compennet++-res is judged on closed-loop pairs as it trains"
+            )));
+        }
+        (None, _) => None,
+    };
+    Ok((model, summary, judged))
+}
+
+/// The held-out closed-loop pairs of a [`Judge`], for scoring the residual rung as it trains:
+/// the network's inputs (desired views, camera pixels), `linear`'s compensations of them on its
+/// output lattice, and the pairs' targets ([`closed_loop_data`], network pixels).
+struct HeldOut {
+    inputs: candle_core::Tensor,
+    surface: candle_core::Tensor,
+    /// `linear`'s output for each view, on its lattice, before it is brought into range.
+    lattice: Vec<NetImage>,
+    goals: Vec<NetImage>,
+    /// `linear`'s scores: [`HeldOut::score`] with no correction.
+    linear: Scores,
+}
+
+impl HeldOut {
+    fn new(
+        setup: &Setup,
+        judge: &Judge<'_>,
+        (fov, grid): (&fov::FovMask, &Grid<Network, Camera>),
+        simplified: &crate::linear::SimplifiedLinear,
+        surface: &candle_core::Tensor,
+    ) -> Result<Self> {
+        let size = judge.targets[0].size();
+        let lin =
+            |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), size.width, size.height);
+        let (inputs, _, goals) = closed_loop_data(
+            setup,
+            &judge.indices,
+            (fov, grid),
+            (judge.captures, judge.targets),
+            lin,
+        )?;
+        let lattice: Vec<NetImage> = inputs.iter().map(|d| simplified.apply(d)).collect();
+        let linear = Self::scores(lattice.iter().map(|a| a.clamp01()), &goals)?;
+        Ok(Self {
+            inputs: crate::nn::images_to_tensor(&inputs)?.to_device(surface.device())?,
+            surface: surface.clone(),
+            lattice,
+            goals,
+            linear,
+        })
+    }
+
+    /// The rung's scores with `net` as it stands, computed as inference computes its output
+    /// ([`crate::model::Model::infer`]): the correction stretched over `linear`'s lattice
+    /// output, the sum brought into [0, 1] (what the projector can show), then to the targets'
+    /// size.
+    fn score(&self, net: &crate::nn::compennetpp::CompenNetPP) -> Result<Scores> {
+        let r = net
+            .forward(&self.inputs, &self.surface)?
+            .to_device(&candle_core::Device::Cpu)?;
+        let outputs = (0..self.goals.len())
+            .map(|k| {
+                let r: NetImage = crate::nn::tensor_to_image(&r, k)?;
+                crate::model::add_correction(&self.lattice[k], &r)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Self::scores(outputs.into_iter(), &self.goals)
+    }
+
+    /// Scores of lattice-sized `outputs` against `goals`, each brought to its goal's size.
+    fn scores(outputs: impl Iterator<Item = NetImage>, goals: &[NetImage]) -> Result<Scores> {
+        let mut acc = crate::metrics::Accumulator::default();
+        for (out, goal) in outputs.zip(goals) {
+            acc.add(&crate::model::at_size(out, goal.size()), goal)?;
+        }
+        acc.finish()
+    }
 }
 
 /// What the residual rung's correction trained on.
@@ -178,6 +349,14 @@ enum Correction {
 }
 
 impl Correction {
+    /// The closed-loop pairs it trained on (none for the paper protocol).
+    fn loop_pairs(&self) -> usize {
+        match self {
+            Correction::ClosedLoop(n) => *n,
+            _ => 0,
+        }
+    }
+
     /// For the record (`training.correction`).
     fn describe(&self) -> Option<String> {
         match self {
@@ -237,46 +416,6 @@ fn closed_loop_data(
         inputs.push(d);
     }
     Ok((inputs, base, goals))
-}
-
-/// `auto`'s judgement of a `compennet++-res` `model` on closed-loop pairs `indices` held out
-/// of its training ([`crate::model::store::LoopHeldOut`]): each pair's desired view compensated
-/// by the model's own `linear` part and by the model, against the pair's target as
-/// [`closed_loop_data`] builds it from that `linear` (network pixels at the data's size; both
-/// outputs brought there as at inference). `data` holds every training pair, the held-out ones
-/// included. Returns (`linear`'s scores, the model's).
-pub(super) fn held_out_loop_scores(
-    setup: &Setup,
-    model: &Model,
-    indices: &[usize],
-    data: &TrainingData,
-) -> Result<(crate::metrics::Scores, crate::metrics::Scores)> {
-    let (linear, simplified) = model.residual_base().ok_or_else(|| {
-        Error::Failed(format!(
-            "closed-loop judgement of {}: only compennet++-res stands on `linear`",
-            model.meta.method
-        ))
-    })?;
-    let size = data.targets[0].size();
-    let lin =
-        |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), size.width, size.height);
-    let grid = linear.grid_at(size)?;
-    let (inputs, base, goals) = closed_loop_data(
-        setup,
-        indices,
-        (&data.fov, &grid),
-        (&data.captures, &data.targets),
-        lin,
-    )?;
-    let (mut lower, mut upper) = (
-        crate::metrics::Accumulator::default(),
-        crate::metrics::Accumulator::default(),
-    );
-    for ((d, lin_d), goal) in inputs.iter().zip(&base).zip(&goals) {
-        lower.add(lin_d, goal)?;
-        upper.add(&crate::model::at_size(model.infer(d)?, size), goal)?;
-    }
-    Ok((lower.finish()?, upper.finish()?))
 }
 
 /// Network pixels: the share of each one's camera footprint (bilinear, through `grid`) where

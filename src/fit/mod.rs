@@ -127,39 +127,53 @@ pub fn fit(
         MethodChoice::Auto => None,
     };
     check_request(req, variant)?;
-    // The output lattice of the linear rungs (also under the residual rung and `auto`): as
-    // asked, else the default for this setup's projector.
-    let resolved;
-    let req = if req.lattice.is_none() && variant.is_none_or(|v| v.residual()) {
-        // As the caller says, else the structured-light patterns' size, else what a
-        // calibration recorded for this setup.
-        let projector = match (req.projector, setup.root().projector_size()) {
-            (Some(size), _) | (None, Ok(size)) => Some(size),
-            (None, Err(Error::Missing { .. })) => {
-                crate::calibrate::manifest::recorded_projector(setup.path())
-            }
-            (None, Err(e)) => return Err(e),
-        };
-        let network = setup.root().network_size()?;
-        resolved = Request {
-            lattice: Some(default_lattice(network, projector)),
-            ..req.clone()
-        };
-        &resolved
-    } else {
-        req
-    };
+    let req = &with_lattice(setup, req, variant)?;
     let ntrain = train_count(setup, req, variant)?;
     let data = load_training(setup, variant.is_none(), ntrain)?;
     match (variant, req.method) {
         (Some(variant), MethodChoice::Rung(method)) => {
-            compennet::train_compennet(setup, req, method, variant, data, start, progress)
+            let (model, summary, _) = compennet::train_compennet(
+                setup,
+                req,
+                (method, variant),
+                data,
+                None,
+                start,
+                progress,
+            )?;
+            Ok((model, summary))
         }
         (None, MethodChoice::Rung(method)) => {
             linear_rungs::fit_linear(setup, req, method, None, ntrain, data, start, progress)
         }
         (_, MethodChoice::Auto) => auto::fit_auto(setup, req, ntrain, data, start, progress),
     }
+}
+
+/// `req` with the output lattice of the linear rungs (also under the residual rung and
+/// `auto`) resolved: as asked, else the default for this setup's projector ([`default_lattice`]):
+/// the caller's, else the structured-light patterns' size, else what a calibration recorded for
+/// this setup.
+fn with_lattice(
+    setup: &Setup,
+    req: &Request,
+    variant: Option<crate::nn::compennetpp::Variant>,
+) -> Result<Request> {
+    if req.lattice.is_some() || variant.is_some_and(|v| !v.residual()) {
+        return Ok(req.clone());
+    }
+    let projector = match (req.projector, setup.root().projector_size()) {
+        (Some(size), _) | (None, Ok(size)) => Some(size),
+        (None, Err(Error::Missing { .. })) => {
+            crate::calibrate::manifest::recorded_projector(setup.path())
+        }
+        (None, Err(e)) => return Err(e),
+    };
+    let network = setup.root().network_size()?;
+    Ok(Request {
+        lattice: Some(default_lattice(network, projector)),
+        ..req.clone()
+    })
 }
 
 /// The argument checks that need no data: `--lattice` only for the linear rungs (and `auto`'s)
@@ -268,6 +282,20 @@ struct TrainingData {
     captures: Vec<CamImage>,
     /// Their projector images x_i (network pixels).
     targets: Vec<NetImage>,
+}
+
+impl TrainingData {
+    /// The same data with only its first `k` pairs.
+    fn first(&self, k: usize) -> TrainingData {
+        TrainingData {
+            fov: self.fov.clone(),
+            cam_size: self.cam_size,
+            theta: self.theta,
+            network_size: self.network_size,
+            captures: self.captures[..k].to_vec(),
+            targets: self.targets[..k].to_vec(),
+        }
+    }
 }
 
 /// Loads the references, finds the FOV and its affine start, and loads the first `ntrain`

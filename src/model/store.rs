@@ -291,6 +291,27 @@ pub struct LoopHeldOut {
     /// `linear`, then the climbed rung: PSNR (dB) and SSIM against the targets, and the
     /// climbed rung's training time (`linear`'s is part of it: 0).
     pub scores: Vec<AutoCandidate>,
+    /// The climbed rung's planned iterations (0 in records written before it was kept).
+    #[serde(default)]
+    pub iterations: usize,
+    /// The iteration its training stopped at, when its held-out gain could no longer reach the
+    /// margin ([`crate::fit::ClimbRule::out_of_reach`]); `None` when it ran to the end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stopped_at: Option<usize>,
+    /// The climbed rung's PSNR on the held-out pairs as it trained, through the training
+    /// network: at iteration 0 (its correction at zero, so `linear`'s own figure) and every
+    /// tenth of its iterations.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub curve: Vec<LoopCheckpoint>,
+}
+
+/// One point of [`LoopHeldOut::curve`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LoopCheckpoint {
+    /// Optimiser steps taken.
+    pub iteration: usize,
+    /// PSNR (dB) against the held-out targets.
+    pub psnr: f64,
 }
 
 /// One rung's closed-loop verification in `auto`'s confirmation on the rig.
@@ -362,10 +383,15 @@ impl AutoEvidence {
                 .collect();
             out.push(format!(
                 "auto: on {} held-out closed-loop pairs (the correction trained on {}), against \
-                 the projector images that move their captures towards the desired views: {}",
+                 the projector images that move their captures towards the desired views: {}{}",
                 l.pairs,
                 l.trained_on,
-                figures.join(", ")
+                figures.join(", "),
+                l.stopped_at.map_or(String::new(), |at| format!(
+                    "; its training stopped at iteration {at} of {}, its gain out of reach of \
+                     the margin",
+                    l.iterations
+                ))
             ));
         }
         if !self.closed_loop.is_empty() {

@@ -85,7 +85,11 @@ pub fn shards_for(device: &Device, batch: usize) -> usize {
 /// What training reports.
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
+    /// Optimiser steps taken: the settings' iterations, or fewer when the watch stopped the
+    /// training ([`train`]).
     pub iterations: usize,
+    /// Whether the watch stopped the training before the settings' iterations.
+    pub stopped_early: bool,
     pub batch: usize,
     pub lr_step: usize,
     /// Loss per iteration.
@@ -99,12 +103,16 @@ pub struct Report {
 
 /// Trains a fresh model. Stops with an error (and no model) when `cancel` is set, when the loss
 /// becomes non-finite or blows up, or when the output collapses to a flat image.
+/// `progress(done, total, loss)` runs after each step. `watch(done, model)` runs before the
+/// first step (`done` = 0) and after each one; when it returns false the training ends there
+/// with the model as it is (`Report::stopped_early`).
 pub fn train(
     data: &Data,
     init: GeometryInit,
     settings: &Settings,
     cancel: &AtomicBool,
     mut progress: impl FnMut(usize, usize, f64),
+    mut watch: impl FnMut(usize, &CompenNetPP) -> Result<bool>,
 ) -> Result<(CompenNetPP, Report)> {
     let start = Instant::now();
     let n = data.captures.dim(0)?;
@@ -131,7 +139,10 @@ pub fn train(
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
     let mut order: Vec<u32> = (0..n as u32).collect();
     let mut losses = Vec::with_capacity(iters);
-    for it in 0..iters {
+    let mut steps = 0;
+    let mut go_on = watch(0, &model)?;
+    while go_on && steps < iters {
+        let it = steps;
         if cancel.load(Ordering::Relaxed) {
             return Err(Error::Cancelled(format!(
                 "the training (at iteration {it} of {iters})"
@@ -160,17 +171,20 @@ pub fn train(
         check_loss(value, it, &losses)?;
         losses.push(value);
         opt.step(&grads)?;
-        progress(it + 1, iters, value);
+        steps += 1;
+        progress(steps, iters, value);
+        go_on = watch(steps, &model)?;
     }
     check_not_collapsed(&model, data, n)?;
     let seconds = start.elapsed().as_secs_f64();
     Ok((
         model,
         Report {
-            iterations: iters,
+            iterations: steps,
+            stopped_early: steps < iters,
             batch,
             lr_step,
-            ms_per_sample: 1e3 * seconds / (iters * batch) as f64,
+            ms_per_sample: 1e3 * seconds / (steps.max(1) * batch) as f64,
             losses,
             photometric_init,
             seconds,

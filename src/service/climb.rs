@@ -141,10 +141,12 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
         climb_gain_db: None,
         climb_later: false,
     };
+    let rule = fit::ClimbRule { gain_db: p.gain_db };
     // The residual rung on a calibration with closed-loop pairs is judged as `auto` judges it,
-    // on some of them held out of its training; otherwise on the test pairs.
+    // on some of them held out of its training (which stops early when it cannot reach the
+    // margin); otherwise on the test pairs.
     let (mut model, new, old, loop_held_out) =
-        match fit::judge_on_loop_pairs(&setup, &req, |_, _, _| {})? {
+        match fit::judge_on_loop_pairs(&setup, &req, rule, |_, _, _| {})? {
             Some((model, judged)) => {
                 let psnr = |i: usize| judged.scores.get(i).map_or(f64::NAN, |c| c.held_out_psnr);
                 (model, psnr(1), psnr(0), Some(judged))
@@ -166,7 +168,6 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
         closed_loop: None,
         loop_held_out,
     };
-    let rule = fit::ClimbRule { gain_db: p.gain_db };
     if let Some(w) = rule.caveat("[calibration] climb_gain_db") {
         tracing::warn!("progressive calibration: {w}");
     }

@@ -37,7 +37,8 @@ fn compennet_training_learns_reproduces_and_cancels() {
     );
     let never = AtomicBool::new(false);
     let aff = || GeometryInit::Affine(theta);
-    let (model, report) = train(&data, aff(), &settings, &never, |_, _, _| {}).unwrap();
+    let go_on = |_: usize, _: &compend::nn::compennetpp::CompenNetPP| Ok(true);
+    let (model, report) = train(&data, aff(), &settings, &never, |_, _, _| {}, go_on).unwrap();
     let first: f64 = report.losses[..5].iter().sum::<f64>() / 5.0;
     let last: f64 = report.losses[35..].iter().sum::<f64>() / 5.0;
     assert!(
@@ -51,18 +52,38 @@ fn compennet_training_learns_reproduces_and_cancels() {
     // Same seed, same run (a 5-step run: its schedule differs only after its 5th loss).
     let mut short = settings.clone();
     short.iters = Some(5);
-    let (_, again) = train(&data, aff(), &short, &never, |_, _, _| {}).unwrap();
+    let (_, again) = train(&data, aff(), &short, &never, |_, _, _| {}, go_on).unwrap();
     assert_eq!(report.losses[..5], again.losses[..]);
     let mut other = short.clone();
     other.seed = 5;
-    let (_, different) = train(&data, aff(), &other, &never, |_, _, _| {}).unwrap();
+    let (_, different) = train(&data, aff(), &other, &never, |_, _, _| {}, go_on).unwrap();
     assert_ne!(
         again.losses, different.losses,
         "another seed draws other weights and batches"
     );
+    assert!(!report.stopped_early && report.iterations == 40);
+    // A watch sees the model before the first step and after each; stopping it after the
+    // third step ends the training there, on the same steps as the full run.
+    let mut seen = Vec::new();
+    let (_, stopped) = train(
+        &data,
+        aff(),
+        &settings,
+        &never,
+        |_, _, _| {},
+        |done, _| {
+            seen.push(done);
+            Ok(done < 3)
+        },
+    )
+    .unwrap();
+    assert_eq!(seen, [0, 1, 2, 3]);
+    assert!(stopped.stopped_early);
+    assert_eq!(stopped.iterations, 3);
+    assert_eq!(report.losses[..3], stopped.losses[..]);
     // Cancellation before the first step: an error, no model.
     let stop = AtomicBool::new(true);
-    let err = train(&data, aff(), &settings, &stop, |_, _, _| {})
+    let err = train(&data, aff(), &settings, &stop, |_, _, _| {}, go_on)
         .err()
         .expect("cancelled");
     assert!(err.to_string().contains("cancelled"), "{err}");
