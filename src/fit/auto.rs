@@ -15,7 +15,9 @@
 //!      ([`LoopHeldOut`]). That is what its correction learns and what closed loop asks; on
 //!      sampling captures a network gains from averaging capture noise away, which closed loop
 //!      does not repay. In projector pixels the figure overstates the camera's gain where the
-//!      surface is dark, so the rig's check stays (docs/bench/ladder.md);
+//!      surface is dark, so the rig's check stays (docs/bench/ladder.md). It is scored there
+//!      as it trains, and its training stops early once its gain has slowed out of reach of
+//!      the margin ([`ClimbRule::out_of_reach`]);
 //!    - otherwise on the sampling pairs the linear rungs were fitted on, scored as they were.
 //!
 //!    It is kept only if it beats the rung below by the climbing rule's margin ([`ClimbRule`]);
@@ -30,141 +32,12 @@
 
 use std::time::Instant;
 
+use super::rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB};
 use super::{MIN_TRAIN, Request, Summary, TrainDevice, TrainingData, compennet, linear_rungs};
 use crate::dataset::{Reference, Setup};
 use crate::error::Result;
 use crate::model::store::{AutoCandidate, AutoEvidence, ClosedLoopScore, LoopHeldOut};
 use crate::model::{Method, MethodChoice, Model};
-
-/// When a rung replaces the one below it: its PSNR on pairs neither was trained on must beat
-/// the lower rung's by `gain_db`. The margin pays for the dearer rung's cost (training time,
-/// a frame pass several times slower) and sits above the spread of held-out scores between
-/// seeds of the same rung.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ClimbRule {
-    /// Required gain in PSNR, dB.
-    pub gain_db: f64,
-}
-
-impl Default for ClimbRule {
-    fn default() -> Self {
-        Self {
-            gain_db: DEFAULT_CLIMB_GAIN_DB,
-        }
-    }
-}
-
-/// The default margin of [`ClimbRule`], dB.
-pub const DEFAULT_CLIMB_GAIN_DB: f64 = 0.5;
-
-impl ClimbRule {
-    /// Whether a rung scoring `upper_psnr` replaces one scoring `lower_psnr` (dB, the same
-    /// pairs). A score that is not a number never climbs.
-    pub fn climbs(&self, upper_psnr: f64, lower_psnr: f64) -> bool {
-        upper_psnr.is_finite() && upper_psnr - lower_psnr >= self.gain_db
-    }
-
-    /// The rule in words, for records and output.
-    pub fn describe(&self, on: &str) -> String {
-        format!(
-            "the best linear rung on {on}, replaced by the CompenNet++ rung the machine can \
-             afford only if that one's paper-protocol PSNR is at least {} dB higher{}",
-            self.gain_db,
-            if self.gain_db < 0.0 {
-                " (a negative margin: a rung that scores lower can be kept)"
-            } else {
-                ""
-            }
-        )
-    }
-
-    /// A warning for a margin below zero, which lets a climb keep a rung that scores lower
-    /// than the one below it (tests use it to force a climb); `None` otherwise. `name`: the
-    /// flag or key that set it.
-    pub fn caveat(&self, name: &str) -> Option<String> {
-        (self.gain_db < 0.0).then(|| {
-            format!(
-                "{name} {}: a negative margin keeps a climbed rung that scores up to {} dB lower \
-                 than the rung below it",
-                self.gain_db, -self.gain_db
-            )
-        })
-    }
-
-    /// The rule in words when the climb is judged on held-out closed-loop pairs
-    /// ([`crate::model::store::LoopHeldOut`]).
-    pub fn describe_on_loop_pairs(&self, rung: Method) -> String {
-        format!(
-            "the best linear rung on held-out sampling pairs (paper protocol), replaced by {rung} \
-             only if, on closed-loop pairs held out of its training, its compensations of the \
-             desired views come at least {} dB closer (PSNR) than `linear`'s to the projector \
-             images that move the captures towards those views{}",
-            self.gain_db,
-            if self.gain_db < 0.0 {
-                " (a negative margin: a rung that scores lower can be kept)"
-            } else {
-                ""
-            }
-        )
-    }
-
-    /// Whether a climb judged while its rung trains can stop early, its margin out of reach.
-    /// `gains`: (iteration, the rung's held-out PSNR minus the lower rung's, dB) at each
-    /// checkpoint so far, the first at iteration 0; `total`: the planned iterations.
-    ///
-    /// The residual rung's gain grows along an S: slowly at first (its correction starts at
-    /// zero and Adam's steps are small), fastest in the middle, then ever more slowly as it
-    /// settles, and more slowly still after the lr step. Once its rise has slowed (the last
-    /// interval rose no faster than the one before), the straight line through the last
-    /// interval, carried on to `total`, ends above where the training would; the training
-    /// stops when that line stays below the margin (a gain that fell carries no rise on). Before
-    /// the rise slows the line can end below the final gain (on the dark texture, seed 47, the
-    /// first tenth rose 0.09 dB of an eventual 1.4), so it never stops there. The curves
-    /// measured are in docs/bench/ladder.md. A gain that is not a number stops the training;
-    /// the last iteration never does (the judgement itself decides there).
-    pub fn out_of_reach(&self, gains: &[(usize, f64)], total: usize) -> bool {
-        if gains.iter().any(|(_, g)| !g.is_finite()) {
-            return true;
-        }
-        let [.., (i0, g0), (i1, g1), (i2, g2)] = gains else {
-            return false;
-        };
-        if *i2 >= total || i2 <= i1 || i1 <= i0 {
-            return false;
-        }
-        let before = (g1 - g0) / (i1 - i0) as f64;
-        let rate = (g2 - g1) / (i2 - i1) as f64;
-        if rate > before {
-            return false;
-        }
-        g2 + rate.max(0.0) * ((total - i2) as f64) < self.gain_db
-    }
-
-    /// `rule`, the rule of the held-out comparison in words, followed by the rig's
-    /// confirmation ([`ClimbRule::confirms`]).
-    pub fn describe_on_rig(&self, rule: &str) -> String {
-        format!(
-            "{rule}, and then, on the rig, only if its closed-loop PSNR on the verification \
-             images is also at least {} dB higher",
-            self.gain_db
-        )
-    }
-
-    /// The closed-loop confirmation of a climb on the rig: whether the climbed rung (`upper`)
-    /// is kept over the lower one, from each one's verification (PSNR in dB of the captured
-    /// projection, and whether it would be installed on its own). A rung that would not be
-    /// installed never wins; between two installable ones the margin decides, as on the
-    /// held-out pairs. Capture noise favours a network on held-out captures (it averages the
-    /// noise of its input away) but not in closed loop, where the input is the noise-free
-    /// desired image: the rig decides what the viewer sees (docs/bench/ladder.md).
-    pub fn confirms(&self, upper: (f64, bool), lower: (f64, bool)) -> bool {
-        match (upper.1, lower.1) {
-            (false, _) => false,
-            (true, false) => true,
-            (true, true) => self.climbs(upper.0, lower.0),
-        }
-    }
-}
 
 /// The CompenNet++ rung a training device can afford: on the CPU the residual rung (`linear`
 /// plus a CPU-sized CompenNet correction, which starts where `linear` ends), the full one on a
@@ -288,7 +161,8 @@ pub(super) fn fit_auto(
             loop_held_out = Some(judged);
             (model, summary, up, lin)
         } else {
-            // The rung trains on the sampling pairs the linear rungs were fitted on.
+            // The rung trains on the sampling pairs the linear rungs were fitted on; the
+            // residual rung's linear part on the request's lattice, as the linear rungs.
             let sub_req = Request {
                 method: MethodChoice::Rung(rung),
                 ntrain: Some(cut),
@@ -536,14 +410,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_rung_climbs_only_past_the_margin_and_never_on_a_non_number() {
-        let rule = ClimbRule { gain_db: 0.5 };
-        assert!(rule.climbs(25.5, 25.0));
-        assert!(!rule.climbs(25.49, 25.0));
-        assert!(!rule.climbs(f64::NAN, 25.0));
-        assert!(!rule.climbs(f64::INFINITY, 25.0));
-        // Nor against a lower rung with no score: nothing to compare with.
-        assert!(!rule.climbs(20.0, f64::NAN));
+    fn the_climb_rung_and_the_held_out_pairs_follow_the_machine_and_the_data() {
         assert_eq!(climb_rung(TrainDevice::Cpu), Method::CompenNetPpRes);
         assert_eq!(climb_rung(TrainDevice::Cuda(0)), Method::CompenNetPp);
         assert_eq!(held_out(48), 8);
@@ -553,57 +420,5 @@ mod tests {
         assert!(!judges_on_loop_pairs(7));
         assert!(judges_on_loop_pairs(8));
         assert!(judges_on_loop_pairs(48));
-    }
-
-    #[test]
-    fn a_judged_training_stops_only_when_its_gain_has_slowed_below_reach_of_the_margin() {
-        let rule = ClimbRule { gain_db: 0.5 };
-        // One interval: its rate cannot show the rise slowing.
-        assert!(!rule.out_of_reach(&[(0, 0.0), (100, 0.02)], 1000));
-        // Rising ever faster (the start of the S): never stops, however small the gain.
-        assert!(!rule.out_of_reach(&[(0, 0.0), (100, 0.01), (200, 0.03)], 1000));
-        // Slowed, and 0.1 dB per 100 iterations carried on reaches 1.0 dB: in reach.
-        assert!(!rule.out_of_reach(&[(0, 0.0), (100, 0.1), (200, 0.2)], 1000));
-        // Slowed to 0.01 dB per 100: 0.39 dB by the end at that rate, out of reach.
-        assert!(rule.out_of_reach(&[(0, 0.0), (100, 0.3), (200, 0.31)], 1000));
-        // Only the last two intervals count.
-        assert!(rule.out_of_reach(&[(0, 0.0), (100, 0.01), (200, 0.05), (300, 0.06)], 1000));
-        // Falling: no rise is carried on.
-        assert!(rule.out_of_reach(&[(0, 0.0), (100, 0.4), (200, 0.3)], 1000));
-        // Not at the end, nor on a negative margin the gain already reaches; a gain that is
-        // not a number stops.
-        assert!(!rule.out_of_reach(&[(800, 0.0), (900, 0.0), (1000, 0.0)], 1000));
-        assert!(
-            !ClimbRule { gain_db: -100.0 }
-                .out_of_reach(&[(0, 0.0), (100, -0.2), (200, -0.3)], 1000)
-        );
-        assert!(rule.out_of_reach(&[(0, 0.0), (100, f64::NAN)], 1000));
-    }
-
-    #[test]
-    fn the_rig_confirms_a_climb_only_by_the_margin_and_only_an_installable_rung() {
-        let rule = ClimbRule { gain_db: 0.5 };
-        assert!(rule.confirms((30.6, true), (30.0, true)));
-        assert!(!rule.confirms((30.4, true), (30.0, true)));
-        // Below the lower rung in closed loop, whatever the held-out pairs said.
-        assert!(!rule.confirms((29.2, true), (30.0, true)));
-        // A rung that would not install never wins; one that would beats one that would not.
-        assert!(!rule.confirms((40.0, false), (30.0, true)));
-        assert!(rule.confirms((30.1, true), (31.0, false)));
-        assert!(!rule.confirms((f64::NAN, true), (30.0, true)));
-    }
-
-    #[test]
-    fn only_a_negative_margin_comes_with_a_caveat() {
-        assert_eq!(ClimbRule { gain_db: 0.0 }.caveat("--climb-gain"), None);
-        assert_eq!(ClimbRule { gain_db: 0.5 }.caveat("--climb-gain"), None);
-        let w = ClimbRule { gain_db: -2.0 }.caveat("climb_gain_db").unwrap();
-        assert!(w.starts_with("climb_gain_db -2: "), "{w}");
-        assert!(w.contains("up to 2 dB lower"), "{w}");
-        assert!(
-            ClimbRule { gain_db: -2.0 }
-                .describe("x")
-                .contains("negative margin")
-        );
     }
 }

@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use super::auto::ClimbRule;
+use super::rule::ClimbRule;
 use super::{Request, Summary, TrainingData, common_record, sl_grid};
 use crate::dataset::{Reference, Setup};
 use crate::error::{Error, Result};
@@ -54,6 +54,11 @@ pub(super) fn train_compennet(
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<(Model, Summary, Option<LoopHeldOut>)> {
     use crate::nn::train::Settings;
+    if judge.is_some() && !variant.residual() {
+        return Err(Error::Failed(format!(
+            "{method}: only compennet++-res is judged on closed-loop pairs as it trains"
+        )));
+    }
     let TrainingData {
         fov,
         theta,
@@ -232,8 +237,8 @@ pub(super) fn train_compennet(
         final_loss,
     };
     let model = match linear {
-        Some(linear) => Model::residual(meta, fov.mask.clone(), linear, net, surface)?,
-        None => Model::compennet(meta, fov.mask.clone(), net, surface)?,
+        Some(linear) => Model::residual(meta, fov.mask, linear, net, surface)?,
+        None => Model::compennet(meta, fov.mask, net, surface)?,
     };
     let judged = match (judge, held) {
         (Some(judge), Some(held)) => {
@@ -258,12 +263,7 @@ pub(super) fn train_compennet(
                 curve,
             })
         }
-        (Some(_), None) => {
-            return Err(Error::Failed(format!(
-                "{method}: only compennet++-res is judged on closed-loop pairs as it trains"
-            )));
-        }
-        (None, _) => None,
+        _ => None,
     };
     Ok((model, summary, judged))
 }

@@ -6,19 +6,19 @@
 //! and dispatches; `linear_rungs.rs` fits the linear rungs (and `auto`'s choice among them);
 //! `compennet.rs` prepares the data of a CompenNet++ rung, starts its geometry, trains it and
 //! brings its weights to the CPU. Each writes the model's record (docs/architecture.md, "Model
-//! directory"). `device.rs` names the training device; the model record stores it, so it lives
+//! directory"). `rule.rs` holds the climbing rule `auto` and the service share. `device.rs`
+//! names the training device; the model record stores it, so it lives
 //! apart from the code that uses the record.
 
 mod auto;
 mod compennet;
 mod device;
 mod linear_rungs;
+mod rule;
 
-pub use auto::{
-    ClimbRule, DEFAULT_CLIMB_GAIN_DB, climb_rung, judge_on_loop_pairs, judges_on_loop_pairs,
-    lower_rung, settle_climb,
-};
+pub use auto::{climb_rung, judge_on_loop_pairs, judges_on_loop_pairs, lower_rung, settle_climb};
 pub use device::TrainDevice;
+pub use rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB};
 
 use std::time::Instant;
 

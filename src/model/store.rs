@@ -291,16 +291,16 @@ pub struct LoopHeldOut {
     /// `linear`, then the climbed rung: PSNR (dB) and SSIM against the targets, and the
     /// climbed rung's training time (`linear`'s is part of it: 0).
     pub scores: Vec<AutoCandidate>,
-    /// The climbed rung's planned iterations (0 in records written before it was kept).
+    /// The climbed rung's planned iterations (0 in records written before this was recorded).
     #[serde(default)]
     pub iterations: usize,
     /// The iteration its training stopped at, when its held-out gain could no longer reach the
     /// margin ([`crate::fit::ClimbRule::out_of_reach`]); `None` when it ran to the end.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stopped_at: Option<usize>,
-    /// The climbed rung's PSNR on the held-out pairs as it trained, through the training
-    /// network: at iteration 0 (its correction at zero, so `linear`'s own figure) and every
-    /// tenth of its iterations.
+    /// The climbed rung's PSNR on the held-out pairs as it trained, its output computed as
+    /// inference computes it: at iteration 0 (its correction at zero, so `linear`'s own
+    /// figure) and every tenth of its iterations. The last point gives `scores`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub curve: Vec<LoopCheckpoint>,
 }

@@ -459,9 +459,13 @@ impl SceneBench<'_> {
                             .map(|c| format!("{} {:.2}", c.method, c.held_out_psnr))
                             .collect();
                         format!(
-                            "; on {} held-out closed-loop pairs: {} dB",
+                            "; on {} held-out closed-loop pairs: {} dB{}",
                             l.pairs,
-                            psnr.join(", ")
+                            psnr.join(", "),
+                            l.stopped_at.map_or(String::new(), |at| format!(
+                                " (its training stopped at iteration {at} of {})",
+                                l.iterations
+                            ))
                         )
                     })
                 );
