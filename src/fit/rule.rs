@@ -66,7 +66,8 @@ impl ClimbRule {
             "the best linear rung on held-out sampling pairs (paper protocol), replaced by {rung} \
              only if, on closed-loop pairs held out of its training, its compensations of the \
              desired views come at least {} dB closer (PSNR) than `linear`'s to the projector \
-             images that move the captures towards those views{}",
+             images that move the captures towards those views (its training stops early once \
+             its gain there has slowed too much to reach that margin){}",
             self.gain_db,
             if self.gain_db < 0.0 {
                 " (a negative margin: a rung that scores lower can be kept)"
