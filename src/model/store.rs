@@ -279,9 +279,10 @@ pub struct AutoEvidence {
 /// climbed rung, against the projector image that moves the pair's capture towards the view
 /// (the first-order target the correction trains on, blended to `linear`'s output outside the
 /// displayable area; projector images at the network size). It asks what closed loop asks,
-/// unlike held-out sampling captures; in projector pixels, it overstates what the camera sees
-/// where the surface is dark (+1.40 dB here, +0.29 on the rig for a dark texture:
-/// docs/bench/ladder.md), so `calibrate` checks a climb on the rig.
+/// unlike held-out sampling captures. It is in projector pixels, so it is not the camera's
+/// gain: it mostly overstated that gain where the surface is dark (+1.40 dB here, +0.29 on
+/// the rig for a dark texture), though it understated it on another dark texture (+0.14
+/// against +0.27; docs/bench/ladder.md). So `calibrate` checks a climb on the rig.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LoopHeldOut {
     /// Closed-loop pairs held out (the setup's last ones).
