@@ -455,16 +455,31 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
     assert_eq!(meta["training"]["iterations"], 3);
     eval_json(&climbed, &setup);
 
-    // Without structured-light captures, `linear` is the only linear candidate; without the
-    // gray surface capture there is no CompenNet++ rung to climb to, and the record says why.
+    // Without structured-light captures, `linear` is the only linear candidate, scored on the
+    // held-out pairs the climb is judged on.
     std::fs::remove_dir_all(setup.join("cam/raw/sl")).unwrap();
+    let meta = train_auto(&setup, &model, &["--iters", "3"]);
+    let auto = &meta["training"]["auto"];
+    let methods: Vec<&str> = auto["candidates"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(methods, ["linear", "compennet++-res"], "{auto}");
+    assert_eq!(auto["held_out"], 4);
+    // Without the gray surface capture there is no CompenNet++ rung to climb to, and so
+    // nothing to score the lone `linear` against: the record says why.
     std::fs::remove_file(setup.join("cam/raw/ref/img_0126.png")).unwrap();
     let meta = train_auto(&setup, &model, &[]);
     assert_eq!(meta["method"], "linear");
     let auto = &meta["training"]["auto"];
-    assert_eq!(auto["candidates"].as_array().unwrap().len(), 1, "{auto}");
+    assert_eq!(auto["candidates"].as_array().unwrap().len(), 0, "{auto}");
+    assert!(auto.get("held_out").is_none(), "{auto}");
     let why = auto["why"].as_str().unwrap();
     assert!(why.contains("gray surface"), "{why}");
+    assert!(why.contains("`linear` is the only linear rung"), "{why}");
+    assert_eq!(meta["training"]["ntrain"], 16);
 
     // A margin is only for `auto`, and must be a number.
     for (method, gain, says) in [

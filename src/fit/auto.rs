@@ -4,7 +4,8 @@
 //! 1. The linear rungs (`linear`, and `linear-sl` when the setup has structured light) are
 //!    fitted on the sampling pairs but the last sixth (at least 4) and scored on those with the
 //!    paper protocol; the best is the rung to beat. Closed-loop pairs at the end of the data
-//!    (`calibrate` takes them after the sampling pairs) are not sampling pairs.
+//!    (`calibrate` takes them after the sampling pairs) are not sampling pairs. A lone `linear`
+//!    is scored there only when the climb is judged there too.
 //! 2. The CompenNet++ rung the machine can afford ([`climb_rung`]: `compennet++-res`, `linear`
 //!    plus a CPU-sized correction, on the CPU; the full `compennet++` on a GPU) is trained and
 //!    judged:
@@ -94,8 +95,29 @@ pub(super) fn fit_auto(
     let loops = trailing_loop_pairs(setup, n)?;
     let sampling = n - loops;
     let on_loop_pairs = variant.is_some_and(|v| v.residual()) && judges_on_loop_pairs(loops);
+    let gray = setup.reference_path(Reference::Gray);
+    // Why the climb is not judged now, if it is not.
+    let no_climb = if req.climb_later {
+        Some(format!(
+            "{rung} is judged later, on the closed-loop pairs taken with the linear rung"
+        ))
+    } else if !gray.is_file() {
+        Some(format!(
+            "no gray surface capture ({}): {rung} cannot be trained",
+            gray.display()
+        ))
+    } else if variant.is_none() {
+        Some(format!("{rung} is not a CompenNet++ rung `auto` can train"))
+    } else {
+        None
+    };
+    // The linear rungs are scored on held-out sampling pairs when there are two to choose
+    // from, or when the climb is judged there against the best of them. A lone `linear` judged
+    // against nothing there is not fitted for it (a fit of its own, 15–20 s at 800×600).
+    let lower = linear_rungs::linear_rungs(setup);
+    let compare = lower.len() > 1 || (no_climb.is_none() && !on_loop_pairs);
     let held = held_out(sampling);
-    if sampling < held + MIN_TRAIN {
+    if compare && sampling < held + MIN_TRAIN {
         let evidence = AutoEvidence {
             rule: rule.describe("held-out training pairs"),
             chosen: Method::Linear,
@@ -121,37 +143,39 @@ pub(super) fn fit_auto(
             progress,
         );
     }
-    let cut = sampling - held;
+    let cut = sampling.saturating_sub(held);
     let (fit_pairs, held_pairs) = (
         (&data.captures[..cut], &data.targets[..cut]),
         (&data.captures[cut..sampling], &data.targets[cut..sampling]),
     );
-    let mut candidates = linear_rungs::score_linear_rungs(
-        setup,
-        req,
-        fit_pairs,
-        held_pairs,
-        data.theta,
-        &mut progress,
-    )?;
+    let mut candidates = if compare {
+        linear_rungs::score_linear_rungs(
+            setup,
+            req,
+            fit_pairs,
+            held_pairs,
+            data.theta,
+            &mut progress,
+        )?
+    } else {
+        Vec::new()
+    };
     let best_linear = candidates
         .iter()
         .max_by(|a, b| a.held_out_psnr.total_cmp(&b.held_out_psnr))
         .map_or((Method::Linear, f64::NAN), |c| (c.method, c.held_out_psnr));
 
-    let mut why = None;
+    let mut why: Vec<String> = no_climb.iter().cloned().collect();
+    if !compare {
+        why.push(
+            "`linear` is the only linear rung (no structured-light captures): not scored on \
+             held-out sampling pairs"
+                .into(),
+        );
+    }
     let mut climbed = None;
     let mut loop_held_out = None;
-    if req.climb_later {
-        why = Some(format!(
-            "{rung} is judged later, on the closed-loop pairs taken with the linear rung"
-        ));
-    } else if !setup.reference_path(Reference::Gray).is_file() {
-        why = Some(format!(
-            "no gray surface capture ({}): {rung} cannot be trained",
-            setup.reference_path(Reference::Gray).display()
-        ));
-    } else if let Some(variant) = variant {
+    if let (None, Some(variant)) = (&no_climb, variant) {
         let t0 = Instant::now();
         let (model, summary, upper, lower) = if on_loop_pairs {
             let (model, summary, judged) =
@@ -213,9 +237,9 @@ pub(super) fn fit_auto(
             rule.describe("held-out training pairs")
         },
         chosen,
-        why,
-        held_out: Some(held),
-        fitted_on: Some(cut),
+        why: (!why.is_empty()).then(|| why.join("; ")),
+        held_out: compare.then_some(held),
+        fitted_on: compare.then_some(cut),
         required_gain_db: Some(rule.gain_db),
         candidates,
         closed_loop: Vec::new(),
@@ -351,16 +375,14 @@ pub fn lower_rung(
     else {
         return Ok(None);
     };
-    let Some(lower) = evidence.best_linear() else {
-        return Ok(None);
-    };
+    // No candidates: `linear` was the only linear rung, not scored on sampling pairs.
+    let lower = evidence.best_linear().map_or(Method::Linear, |c| c.method);
     tracing::info!(
-        "auto: fitting {} for the rig to compare with {} in closed loop",
-        lower.method,
+        "auto: fitting {lower} for the rig to compare with {} in closed loop",
         climbed.meta.method
     );
     let req = Request {
-        method: MethodChoice::Rung(lower.method),
+        method: MethodChoice::Rung(lower),
         climb_gain_db: None,
         climb_later: false,
         iters: None,

@@ -116,6 +116,16 @@ fn fit_linear_rung(
     }
 }
 
+/// The linear rungs a setup can fit: `linear`, and `linear-sl` when it has structured-light
+/// captures.
+pub(super) fn linear_rungs(setup: &Setup) -> &'static [Method] {
+    if setup.count(CaptureSet::Sl).unwrap_or(0) > 0 {
+        &[Method::Linear, Method::LinearSl]
+    } else {
+        &[Method::Linear]
+    }
+}
+
 /// `auto`'s first step: every linear rung (`linear`, and `linear-sl` when the setup has
 /// structured-light captures) fitted on `fit` pairs and scored with the paper protocol on the
 /// `held` pairs. Returns each candidate's figures, in that order.
@@ -128,14 +138,8 @@ pub(super) fn score_linear_rungs(
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> Result<Vec<AutoCandidate>> {
     let settings = settings(req, fit_t[0].size());
-    let has_sl = setup.count(CaptureSet::Sl).unwrap_or(0) > 0;
-    let rungs: &[Method] = if has_sl {
-        &[Method::Linear, Method::LinearSl]
-    } else {
-        &[Method::Linear]
-    };
     let mut candidates = Vec::new();
-    for &method in rungs {
+    for &method in linear_rungs(setup) {
         let t0 = Instant::now();
         let (model, _) = fit_linear_rung(setup, method, fit_c, fit_t, theta, &settings, progress)?;
         let seconds = t0.elapsed().as_secs_f64();
