@@ -79,7 +79,7 @@ pub(super) fn fit_auto(
     setup: &Setup,
     req: &Request,
     ntrain: usize,
-    data: TrainingData,
+    data: TrainingData<'_>,
     start: Instant,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<(Model, Summary)> {
@@ -273,7 +273,7 @@ fn train_judged(
     setup: &Setup,
     req: &Request,
     variant: crate::nn::compennetpp::Variant,
-    data: &TrainingData,
+    data: &TrainingData<'_>,
     loops: usize,
     rule: ClimbRule,
     progress: impl FnMut(&str, usize, usize),

@@ -48,7 +48,7 @@ pub(super) fn train_compennet(
     setup: &Setup,
     req: &Request,
     (method, variant): (Method, crate::nn::compennetpp::Variant),
-    data: TrainingData,
+    data: TrainingData<'_>,
     judge: Option<Judge<'_>>,
     start: Instant,
     mut progress: impl FnMut(&str, usize, usize),

@@ -23,7 +23,7 @@ pub(super) fn fit_linear(
     method: Method,
     evidence: Option<AutoEvidence>,
     ntrain: usize,
-    data: TrainingData,
+    data: TrainingData<'_>,
     start: Instant,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<(Model, Summary)> {
