@@ -269,7 +269,8 @@ pub struct AutoEvidence {
     pub closed_loop: Vec<ClosedLoopScore>,
     /// When the setup has closed-loop pairs and the climb rung is `compennet++-res`: the climb
     /// judged on closed-loop pairs held out of its training ([`LoopHeldOut`]), not on the
-    /// paper protocol; `candidates` then holds the linear rungs alone.
+    /// paper protocol; `candidates` then holds the linear rungs alone (none when `linear` is
+    /// the only one, `why` says so).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loop_held_out: Option<LoopHeldOut>,
 }
