@@ -114,8 +114,8 @@ pub(super) fn fit_auto(
     // The linear rungs are scored on held-out sampling pairs when there are two to choose
     // from, or when the climb is judged there against the best of them. A lone `linear` judged
     // against nothing there is not fitted for it (a fit of its own, 15–20 s at 800×600).
-    let lower = linear_rungs::linear_rungs(setup);
-    let compare = lower.len() > 1 || (no_climb.is_none() && !on_loop_pairs);
+    let compare =
+        linear_rungs::linear_rungs(setup).len() > 1 || (no_climb.is_none() && !on_loop_pairs);
     let held = held_out(sampling);
     if compare && sampling < held + MIN_TRAIN {
         let evidence = AutoEvidence {
