@@ -1,6 +1,6 @@
 //! The `linear` model on a synthetic projector-camera system with a known answer.
 
-use compend::linear::{FitSettings, fit};
+use compend::linear::{FitSettings, GeometryMemo, fit, fit_with_memo};
 use compend::metrics;
 use compend::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rgb};
 use compend::sample::{Grid, grid_sample, pixel_to_norm};
@@ -213,6 +213,65 @@ fn linear_fit_on_a_finer_lattice_matches_the_canvas_stretch() {
         fine.psnr,
         net.psnr
     );
+}
+
+/// The `linear` fits of one training share their geometry ([`GeometryMemo`]): a fit on more
+/// pairs after the same first `geometry_images` takes the memo's geometry, and gives what a fit
+/// of its own gives; a fit whose first pairs or geometry settings differ fits its own, while
+/// another lattice (the colour solve's alone) still shares it.
+#[test]
+fn fits_on_the_same_first_pairs_share_their_geometry() {
+    let [tr, _] = pairs(&System::new(), 5);
+    let (train, caps): (Vec<NetImage>, Vec<CamImage>) = tr.into_iter().unzip();
+    let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
+    let settings = FitSettings {
+        geometry_images: 12,
+        ..settings()
+    };
+    let memo = GeometryMemo::default();
+    let fit_on = |caps: &[CamImage], train: &[NetImage], s: &FitSettings| {
+        fit_with_memo(caps, train, init.clone(), s, Some(&memo), |_, _, _| {}).unwrap()
+    };
+    let (_, first) = fit_on(&caps[..18], &train[..18], &settings);
+    assert!(!first.geometry_reused, "an empty memo has nothing to give");
+    let (shared, report) = fit_on(&caps, &train, &settings);
+    assert!(
+        report.geometry_reused,
+        "the same first 12 pairs: the geometry is shared"
+    );
+    assert_eq!(report.loss_history, first.loss_history);
+    // What a fit of its own gives.
+    let (own, own_report) = fit(&caps, &train, init.clone(), &settings, |_, _, _| {}).unwrap();
+    assert!(!own_report.geometry_reused);
+    let (a, b) = (shared.simplify(), own.simplify());
+    for c in &caps[18..] {
+        let (pa, pb) = (a.apply(c), b.apply(c));
+        let worst = pa
+            .data()
+            .iter()
+            .zip(pb.data())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "shared and own geometry differ by {worst}");
+    }
+    // Another lattice shares it; other first pairs, or another ridge, do not.
+    let finer = FitSettings {
+        lattice: Some(ImageSize::new(40, 40)),
+        ..settings.clone()
+    };
+    assert!(fit_on(&caps, &train, &finer).1.geometry_reused);
+    let (rc, rt): (Vec<CamImage>, Vec<NetImage>) = (
+        caps.iter().rev().cloned().collect(),
+        train.iter().rev().cloned().collect(),
+    );
+    assert!(!fit_on(&rc, &rt, &settings).1.geometry_reused);
+    let ridge = FitSettings {
+        ridge: 2.0 * settings.ridge,
+        ..settings.clone()
+    };
+    assert!(!fit_on(&caps, &train, &ridge).1.geometry_reused);
+    // The memo keeps the last geometry fitted: the reversed pairs' is gone.
+    assert!(!fit_on(&rc, &rt, &settings).1.geometry_reused);
 }
 
 /// Structured-light geometry: a known affine camera→projector map must come back as its inverse.

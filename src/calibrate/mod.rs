@@ -332,7 +332,7 @@ pub fn refit(
         // The climb that waited for these pairs: `auto` again, on every pair.
         MethodChoice::Auto if judges => Request {
             climb_later: false,
-            ..request(opts)
+            ..request(opts, &captured.geometry)
         },
         MethodChoice::Auto => Request {
             method: MethodChoice::Rung(model.meta.method),
@@ -340,9 +340,9 @@ pub fn refit(
             batch: None,
             climb_gain_db: None,
             climb_later: false,
-            ..request(opts)
+            ..request(opts, &captured.geometry)
         },
-        MethodChoice::Rung(_) => request(opts),
+        MethodChoice::Rung(_) => request(opts, &captured.geometry),
     };
     opts.check_cancelled()?;
     let t = Instant::now();
@@ -425,6 +425,9 @@ pub struct Captured {
     lower_rung: Option<Model>,
     /// Closed-loop pairs taken by [`refine`].
     loop_pairs: usize,
+    /// The `linear` geometry the fits of [`train`] and [`refit`] share (they see the same
+    /// sampling pairs first).
+    geometry: Arc<crate::linear::GeometryMemo>,
 }
 
 impl Captured {
@@ -516,6 +519,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         started,
         lower_rung: None,
         loop_pairs: 0,
+        geometry: Default::default(),
     })
 }
 
@@ -527,7 +531,7 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
     opts.check_cancelled()?;
     let t = Instant::now();
     let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
-    let req = request(opts);
+    let req = request(opts, &captured.geometry);
     // The residual rung's closed-loop pairs are `linear`'s compensations: `linear` first, and
     // the rung itself once [`refine`] has them.
     let first = match opts.method {
@@ -553,8 +557,8 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
     Ok(model)
 }
 
-/// The fit the calibration asks for, on its `ntrain` sampling pairs.
-fn request(opts: &Options) -> Request {
+/// The fit the calibration asks for, on its `ntrain` sampling pairs, sharing `geometry`.
+fn request(opts: &Options, geometry: &Arc<crate::linear::GeometryMemo>) -> Request {
     Request {
         method: opts.method,
         ntrain: Some(opts.patterns.ntrain),
@@ -570,6 +574,7 @@ fn request(opts: &Options) -> Request {
         cancel: opts.cancel.clone(),
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
         climb_later: climbs_on_loop_pairs(opts),
+        geometry_memo: Some(geometry.clone()),
     }
 }
 
@@ -608,6 +613,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         started,
         lower_rung,
         loop_pairs,
+        geometry: _,
     } = captured;
     opts.check_cancelled()?;
     let t = Instant::now();

@@ -100,6 +100,7 @@ pub fn run(args: Args) -> Result<()> {
         cancel: None,
         climb_gain_db: args.climb_gain,
         climb_later: false,
+        geometry_memo: None,
     };
     if let Some(w) = args
         .climb_gain

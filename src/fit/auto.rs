@@ -26,7 +26,8 @@
 //!    pairs, and `calibrate` confirms a climb on the rig ([`settle_climb`]).
 //! 3. A kept CompenNet++ rung is the model as trained (training it again on every pair would
 //!    double the dearest step). Otherwise the best linear rung is fitted again on every pair,
-//!    closed-loop ones included, which costs seconds.
+//!    closed-loop ones included: its colour solve, since the `linear` fits of one `auto` share
+//!    their geometry ([`crate::linear::GeometryMemo`]).
 //!
 //! The rule, every candidate's held-out figures and the time each took go into `model.json`
 //! (`training.auto`).
@@ -85,6 +86,19 @@ pub(super) fn fit_auto(
 ) -> Result<(Model, Summary)> {
     let rule = ClimbRule {
         gain_db: req.climb_gain_db.unwrap_or(DEFAULT_CLIMB_GAIN_DB),
+    };
+    // Its `linear` fits (the rungs scored, the residual rung's linear part, the last refit)
+    // see the same sampling pairs first, so they share one geometry fit.
+    let shared;
+    let req = match req.geometry_memo {
+        Some(_) => req,
+        None => {
+            shared = Request {
+                geometry_memo: Some(Default::default()),
+                ..req.clone()
+            };
+            &shared
+        }
     };
     let n = data.captures.len();
     let rung = climb_rung(req.device);

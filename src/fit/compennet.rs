@@ -78,11 +78,12 @@ pub(super) fn train_compennet(
             lattice: req.lattice,
             ..FitSettings::default()
         };
-        let (linear, _) = crate::linear::fit(
+        let (linear, _) = crate::linear::fit_with_memo(
             &captures,
             &targets,
             crate::warp::Warp::from_affine(theta),
             &settings,
+            req.geometry_memo.as_deref(),
             &mut progress,
         )?;
         let simplified = linear.simplify();

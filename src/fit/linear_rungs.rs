@@ -39,10 +39,10 @@ pub(super) fn fit_linear(
     let (fitted, report) = fit_linear_rung(
         setup,
         method,
-        &captures,
-        &targets,
+        (&captures, &targets),
         theta,
         &settings,
+        req.geometry_memo.as_deref(),
         &mut progress,
     )?;
     if !report.final_loss.is_finite() {
@@ -92,25 +92,27 @@ fn settings(req: &Request, network_size: crate::raster::ImageSize) -> FitSetting
     }
 }
 
-/// Fits one linear rung (`linear` or `linear-sl`) on the given pairs.
+/// Fits one linear rung (`linear` or `linear-sl`) on the given pairs; `linear` takes its
+/// geometry from `memo` when it can ([`linear::GeometryMemo`]).
 fn fit_linear_rung(
     setup: &Setup,
     method: Method,
-    captures: &[CamImage],
-    targets: &[NetImage],
+    (captures, targets): (&[CamImage], &[NetImage]),
     theta: [[f32; 3]; 2],
     settings: &FitSettings,
+    memo: Option<&linear::GeometryMemo>,
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> Result<(linear::LinearModel, linear::FitReport)> {
     if method == Method::LinearSl {
         let grid = sl_grid(setup, settings.lattice.unwrap_or(settings.network_size))?;
         linear::fit_on_grid(captures, targets, grid, settings)
     } else {
-        linear::fit(
+        linear::fit_with_memo(
             captures,
             targets,
             crate::warp::Warp::from_affine(theta),
             settings,
+            memo,
             &mut *progress,
         )
     }
@@ -141,7 +143,15 @@ pub(super) fn score_linear_rungs(
     let mut candidates = Vec::new();
     for &method in linear_rungs(setup) {
         let t0 = Instant::now();
-        let (model, _) = fit_linear_rung(setup, method, fit_c, fit_t, theta, &settings, progress)?;
+        let (model, _) = fit_linear_rung(
+            setup,
+            method,
+            (fit_c, fit_t),
+            theta,
+            &settings,
+            req.geometry_memo.as_deref(),
+            progress,
+        )?;
         let seconds = t0.elapsed().as_secs_f64();
         let simplified = model.simplify();
         let mut acc = crate::metrics::Accumulator::default();

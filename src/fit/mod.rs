@@ -72,6 +72,10 @@ pub struct Request {
     /// `auto` only: choose among the linear rungs and leave the climb for a later fit on the
     /// closed-loop pairs the chosen rung takes (`calibrate` does, [`judges_on_loop_pairs`]).
     pub climb_later: bool,
+    /// The `linear` geometry shared by the fits of one calibration ([`crate::linear::GeometryMemo`]:
+    /// a fit takes it only when it was fitted on the same things); `None`: `auto` shares one
+    /// among its own fits, and any other request fits its geometry afresh.
+    pub geometry_memo: Option<std::sync::Arc<crate::linear::GeometryMemo>>,
 }
 
 /// The default output lattice of the `linear` rungs: the projector's resolution (`projector`,

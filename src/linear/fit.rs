@@ -5,6 +5,7 @@
 //! Inputs: captures in camera space (camera pixels, encoded values in \[0,1\]) and the projector
 //! images shown, in network space (network pixels).
 
+use std::sync::Mutex;
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -17,7 +18,7 @@ use super::settings::FitSettings;
 use crate::error::{Error, Result};
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
-use crate::warp::{TpsBasis, Warp};
+use crate::warp::{OffsetField, TpsBasis, Warp};
 
 /// What the fit reports.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -27,6 +28,9 @@ pub struct FitReport {
     /// Loss after each geometry iteration (all levels in order).
     pub loss_history: Vec<f64>,
     pub seconds: f64,
+    /// Whether the geometry came from a [`GeometryMemo`] rather than a fit of its own.
+    #[serde(default)]
+    pub geometry_reused: bool,
 }
 
 /// Fits a `linear` model on training pairs: captures `x̃_i` (camera space, already masked by the
@@ -36,11 +40,183 @@ pub fn fit(
     targets: &[NetImage],
     init: Warp,
     settings: &FitSettings,
+    progress: impl FnMut(&str, usize, usize),
+) -> Result<(LinearModel, FitReport)> {
+    fit_with_memo(captures, targets, init, settings, None, progress)
+}
+
+/// [`fit`], taking its geometry from `memo` when the memo's last geometry was fitted on the
+/// same things ([`GeometryMemo`]), and leaving its own there otherwise.
+pub fn fit_with_memo(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+    memo: Option<&GeometryMemo>,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<(LinearModel, FitReport)> {
     let start = Instant::now();
     check_pairs(captures, targets)?;
     let cam_size = captures[0].size();
+    let key = memo.and_then(|_| geometry_key(captures, targets, &init, settings));
+    let remembered = memo.zip(key).and_then(|(m, k)| m.get(k));
+    let geometry_reused = remembered.is_some();
+    let geometry = match remembered {
+        Some(g) => {
+            tracing::info!(
+                "linear fit on {} pairs: the geometry fitted on the same first {} pairs reused \
+                 ({:.1} s saved)",
+                captures.len(),
+                g.images,
+                g.seconds
+            );
+            g
+        }
+        None => {
+            let g = fit_learned_geometry(captures, targets, init, settings, key, &mut progress);
+            if let Some(m) = memo {
+                m.put(g.clone());
+            }
+            g
+        }
+    };
+    let colour_start = Instant::now();
+    let grid = geometry.grid(settings.network_size);
+    let (curves, coeffs, loss) = match settings.lattice {
+        Some(lattice) if lattice != settings.network_size => {
+            let fine = learned_grid(
+                &geometry.warp,
+                geometry.refine.as_ref(),
+                settings.network_size,
+                lattice,
+            );
+            let up = lattice_targets(targets, lattice);
+            let up = up.as_deref().unwrap_or(targets);
+            fit_colour(captures, up, &fine, geometry.curves, settings.ridge)
+        }
+        _ => fit_colour(captures, targets, &grid, geometry.curves, settings.ridge),
+    };
+    progress("colour", 1, 1);
+    let seconds = start.elapsed().as_secs_f64();
+    tracing::debug!(
+        "linear fit on {} pairs: geometry {:.1} s (on the first {}), colour {:.1} s",
+        captures.len(),
+        colour_start.duration_since(start).as_secs_f64(),
+        geometry.images,
+        colour_start.elapsed().as_secs_f64()
+    );
+    Ok((
+        LinearModel {
+            geometry: Geometry::Learned(geometry.warp, geometry.refine),
+            curves,
+            coeffs,
+            camera_size: cam_size,
+            geometry_size: settings.network_size,
+        },
+        FitReport {
+            final_loss: loss,
+            loss_history: geometry.history,
+            seconds,
+            geometry_reused,
+        },
+    ))
+}
+
+/// The geometry stage of a [`fit`]: the affine + TPS warp, its dense refinement and the coarse
+/// response curves the colour solve starts from. It depends only on the first
+/// `settings.geometry_images` pairs, the initial warp and the settings other than the lattice.
+#[derive(Clone, Debug)]
+struct FittedGeometry {
+    warp: Warp,
+    refine: Option<OffsetField>,
+    curves: Curves,
+    /// Loss after each geometry iteration (all levels in order).
+    history: Vec<f64>,
+    /// The pairs it was fitted on (the first ones).
+    images: usize,
+    /// What it was fitted on ([`geometry_key`]); `None` when not computed.
+    key: Option<u64>,
+    seconds: f64,
+}
+
+impl FittedGeometry {
+    /// The affine + TPS grid with the refinement applied, at `size` (network pixels → camera
+    /// coordinates).
+    fn grid(&self, size: ImageSize) -> Grid<Network, Camera> {
+        let mut grid = TpsBasis::new(size.width, size.height).grid(&self.warp);
+        if let Some(field) = &self.refine {
+            field.apply(&mut grid);
+        }
+        grid
+    }
+}
+
+/// The last geometry a [`fit_with_memo`] fitted, for the fits of one training or calibration to
+/// share. Those fits see the same first pairs (the sampling pairs; held-out and closed-loop
+/// pairs come after them) and the geometry uses only the first `geometry_images` of them, so
+/// it comes out the same each time: at the virtual rig's sizes 10–15 s of every fit on 2
+/// cores, done once. A fit takes the memo's geometry only when a fingerprint of what the
+/// geometry depends on matches ([`geometry_key`]); otherwise it fits its own and leaves it
+/// there.
+#[derive(Debug, Default)]
+pub struct GeometryMemo(Mutex<Option<FittedGeometry>>);
+
+impl GeometryMemo {
+    fn get(&self, key: u64) -> Option<FittedGeometry> {
+        let last = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        last.as_ref().filter(|g| g.key == Some(key)).cloned()
+    }
+
+    fn put(&self, geometry: FittedGeometry) {
+        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(geometry);
+    }
+}
+
+/// A fingerprint of what a fit's geometry depends on: the first `geometry_images` captures and
+/// projector images (sizes and values), the initial warp, and the settings but the lattice.
+/// `None` if the settings cannot be written out (then nothing is shared).
+fn geometry_key(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: &Warp,
+    settings: &FitSettings,
+) -> Option<u64> {
+    use std::hash::{DefaultHasher, Hash, Hasher};
+    let ng = settings.geometry_images.clamp(1, captures.len());
+    let geometry_settings = FitSettings {
+        lattice: None,
+        ..settings.clone()
+    };
+    let written = serde_json::to_vec(&geometry_settings).ok()?;
+    // One hash per image, in parallel, then the hashes in order.
+    let image = |size: ImageSize, data: &[f32]| {
+        let mut h = DefaultHasher::new();
+        (size.width, size.height).hash(&mut h);
+        let bits: Vec<u32> = data.iter().map(|v| v.to_bits()).collect();
+        bits.hash(&mut h);
+        h.finish()
+    };
+    let images: Vec<u64> = (captures[..ng].par_iter())
+        .map(|c| image(c.size(), c.data()))
+        .chain(targets[..ng].par_iter().map(|t| image(t.size(), t.data())))
+        .collect();
+    let mut h = DefaultHasher::new();
+    (ng, images, written).hash(&mut h);
+    let params: Vec<u32> = init.to_params().iter().map(|v| v.to_bits()).collect();
+    params.hash(&mut h);
+    Some(h.finish())
+}
+
+/// The geometry stage of [`fit`] on the pairs' first `settings.geometry_images`.
+fn fit_learned_geometry(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+    key: Option<u64>,
+    progress: &mut impl FnMut(&str, usize, usize),
+) -> FittedGeometry {
+    let start = Instant::now();
     let ImageSize {
         width: nw,
         height: nh,
@@ -52,12 +228,12 @@ pub fn fit(
         init,
         settings,
         &mut history,
-        &mut progress,
+        &mut *progress,
     );
-    let mut grid = TpsBasis::new(nw, nh).grid(&warp);
     let mut refine = None;
     if let (true, Some((spacing, iters))) = (settings.learn_geometry, settings.refine) {
-        let field = refine_geometry(
+        let grid = TpsBasis::new(nw, nh).grid(&warp);
+        refine = Some(refine_geometry(
             captures,
             targets,
             &grid,
@@ -65,35 +241,18 @@ pub fn fit(
             settings,
             (spacing, iters),
             &mut history,
-            &mut progress,
-        );
-        field.apply(&mut grid);
-        refine = Some(field);
+            progress,
+        ));
     }
-    let (curves, coeffs, loss) = match settings.lattice {
-        Some(lattice) if lattice != settings.network_size => {
-            let fine = learned_grid(&warp, refine.as_ref(), settings.network_size, lattice);
-            let up = lattice_targets(targets, lattice);
-            let up = up.as_deref().unwrap_or(targets);
-            fit_colour(captures, up, &fine, curves, settings.ridge)
-        }
-        _ => fit_colour(captures, targets, &grid, curves, settings.ridge),
-    };
-    progress("colour", 1, 1);
-    Ok((
-        LinearModel {
-            geometry: Geometry::Learned(warp, refine),
-            curves,
-            coeffs,
-            camera_size: cam_size,
-            geometry_size: settings.network_size,
-        },
-        FitReport {
-            final_loss: loss,
-            loss_history: history,
-            seconds: start.elapsed().as_secs_f64(),
-        },
-    ))
+    FittedGeometry {
+        warp,
+        refine,
+        curves,
+        history,
+        images: settings.geometry_images.clamp(1, captures.len()),
+        key,
+        seconds: start.elapsed().as_secs_f64(),
+    }
 }
 
 /// The affine + TPS geometry alone, as [`fit`] starts with (no dense refinement, no colour
@@ -151,6 +310,7 @@ pub fn fit_on_grid(
             final_loss: loss,
             loss_history: Vec::new(),
             seconds: start.elapsed().as_secs_f64(),
+            geometry_reused: false,
         },
     ))
 }

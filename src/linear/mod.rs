@@ -42,7 +42,7 @@ mod normal;
 mod settings;
 mod tensors;
 
-pub use fit::{FitReport, fit, fit_geometry, fit_on_grid};
+pub use fit::{FitReport, GeometryMemo, fit, fit_geometry, fit_on_grid, fit_with_memo};
 pub use model::{Coefficients, Curves, Geometry, LinearModel, SimplifiedLinear, apply_colour};
 pub use settings::FitSettings;
 

@@ -140,6 +140,7 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
         cancel: Some(cancel.clone()),
         climb_gain_db: None,
         climb_later: false,
+        geometry_memo: None,
     };
     let rule = fit::ClimbRule { gain_db: p.gain_db };
     // The residual rung on a calibration with closed-loop pairs is judged as `auto` judges it,

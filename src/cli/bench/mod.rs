@@ -373,6 +373,7 @@ impl SceneBench<'_> {
                 .climb_gain
                 .filter(|_| method == compend::model::MethodChoice::Auto),
             climb_later: false,
+            geometry_memo: None,
         };
         let mut row = Row {
             scene: scene.into(),
