@@ -111,7 +111,9 @@ pub fn write_synced(path: &Path, bytes: &[u8]) -> Result<()> {
 
 /// Puts the complete folder `tmp` (a sibling of `dir`, from [`temp_dir_for`]) at `dir`. When
 /// `dir` exists, the two are exchanged in one step and the old one is then removed: at every
-/// moment `dir` holds either the old or the new folder. The caller has checked that what is at
+/// moment `dir` holds either the old or the new folder. Once the new folder is in place the
+/// swap has succeeded: an old folder that cannot be removed is a warning naming where it was
+/// left (a later write of `dir` removes it). The caller has checked that what is at
 /// `dir` may be replaced. Where the file system cannot exchange, the old folder is moved aside,
 /// the new one renamed in, and the old one put back if that fails (a moment with no folder).
 pub fn swap_in_dir(tmp: &Path, dir: &Path) -> Result<()> {
@@ -126,7 +128,8 @@ pub fn swap_in_dir(tmp: &Path, dir: &Path) -> Result<()> {
         Ok(()) => {
             sync_dir(parent);
             // `tmp` now holds the previous folder.
-            fs::remove_dir_all(tmp).map_err(|e| Error::io(tmp, "remove the previous folder", e))
+            remove_previous(tmp, dir);
+            Ok(())
         }
         Err(e) if exchange_unsupported(&e) => swap_by_renames(tmp, dir),
         Err(e) => Err(Error::io(dir, "exchange with the new folder", e)),
@@ -143,7 +146,22 @@ fn swap_by_renames(tmp: &Path, dir: &Path) -> Result<()> {
         return Err(Error::io(dir, "move the new folder into place", e));
     }
     sync_dir(parent);
-    fs::remove_dir_all(&old).map_err(|e| Error::io(&old, "remove the previous folder", e))
+    remove_previous(&old, dir);
+    Ok(())
+}
+
+/// Removes the previous folder of `dir`, moved to `old` by a swap; a failure is a warning (the
+/// new folder is already in place).
+fn remove_previous(old: &Path, dir: &Path) {
+    if let Err(e) = fs::remove_dir_all(old) {
+        tracing::warn!(
+            "{}: the new folder is in place, but the previous one could not be removed from {} \
+             ({e}); a later write of {} removes it",
+            dir.display(),
+            old.display(),
+            dir.display()
+        );
+    }
 }
 
 #[cfg(target_os = "linux")]
@@ -231,6 +249,33 @@ pub fn sync_dir(dir: &Path) {
     if let Ok(d) = fs::File::open(dir) {
         let _ = d.sync_all();
     }
+}
+
+/// Checks, before any work, that what the existing folder `dir` holds can be removed (the
+/// folder is writable and searchable by this process), as replacing it will: an input error
+/// (exit 2) naming it otherwise.
+pub fn check_contents_removable(dir: &Path) -> Result<()> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes())
+        .map_err(|_| Error::Input(format!("{}: a path with a NUL byte", dir.display())))?;
+    // SAFETY: `c` is a valid NUL-terminated string for the duration of the call.
+    let rc = unsafe {
+        libc::faccessat(
+            libc::AT_FDCWD,
+            c.as_ptr(),
+            libc::W_OK | libc::X_OK,
+            libc::AT_EACCESS,
+        )
+    };
+    if rc == 0 {
+        return Ok(());
+    }
+    Err(Error::Input(format!(
+        "{}: what it holds cannot be removed to replace it ({}); make the folder writable or \
+         choose another --out",
+        dir.display(),
+        std::io::Error::last_os_error()
+    )))
 }
 
 /// Checks, before any work, that `path` can be written: its folder exists or can be created,

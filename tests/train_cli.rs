@@ -7,7 +7,7 @@ use std::path::Path;
 
 use compend::raster::Rgb;
 
-use crate::common::{assert_code, compend, stderr};
+use crate::common::{assert_code, compend, stderr, stdout};
 use crate::train::make_setup;
 
 /// The bytes of the good model's weights, to check that a failed command left them alone.
@@ -33,6 +33,9 @@ fn bad_inputs_exit_2_and_keep_the_good_model() {
     bad_photometric_init(dir.path(), s, m);
     assert_eq!(weights(&model), before);
 
+    bad_training_captures(&setup, m);
+    assert_eq!(weights(&model), before);
+
     // A missing reference capture names the file.
     let white = setup.join("cam/raw/ref/img_0125.png");
     std::fs::remove_file(&white).unwrap();
@@ -43,6 +46,70 @@ fn bad_inputs_exit_2_and_keep_the_good_model() {
 
     bad_model_files(dir.path(), &model, s);
     bad_compensate_inputs(dir.path(), m);
+}
+
+/// Training captures that show no projector light, and closed-loop desired views that are not
+/// the training set's last pairs, each with its view: exit 2 naming the folder or the file.
+/// The setup is left as it was.
+fn bad_training_captures(setup: &Path, m: &str) {
+    let s = setup.to_str().unwrap();
+    let train = setup.join("cam/raw/train");
+    let names: Vec<_> = (1..=8).map(compend::pngio::indexed_name).collect();
+    let kept: Vec<Vec<u8>> = names
+        .iter()
+        .map(|n| std::fs::read(train.join(n)).unwrap())
+        .collect();
+    // Every capture as dark as the black reference: the projector was off.
+    for n in &names {
+        std::fs::copy(setup.join("cam/raw/ref/img_0001.png"), train.join(n)).unwrap();
+    }
+    let out = compend(&["train", "--setup", s, "--method", "linear", "--out", m]);
+    assert_code(&out, 2);
+    let e = stderr(&out);
+    assert!(
+        e.contains("cam/raw/train")
+            && e.contains("none of the 8 training captures shows projector light"),
+        "{e}"
+    );
+    for (n, bytes) in names.iter().zip(&kept) {
+        std::fs::write(train.join(n), bytes).unwrap();
+    }
+
+    // Desired views for pairs 6 and 8 of 8: the view of pair 7 is missing.
+    let views = setup.join("cam/desire/train");
+    std::fs::create_dir_all(&views).unwrap();
+    for i in [6, 8] {
+        let n = compend::pngio::indexed_name(i);
+        std::fs::copy(train.join(&n), views.join(&n)).unwrap();
+    }
+    for method in ["linear", "auto"] {
+        let out = compend(&["train", "--setup", s, "--method", method, "--out", m]);
+        assert_code(&out, 2);
+        let e = stderr(&out);
+        assert!(
+            e.contains("cam/desire/train/img_0007.png: missing") && e.contains("closed-loop"),
+            "{method}: {e}"
+        );
+    }
+    // `inspect` says the same.
+    let out = compend(&["inspect", "--setup", s]);
+    assert_code(&out, 2);
+    assert!(
+        stdout(&out).contains("img_0007.png") || stderr(&out).contains("img_0007.png"),
+        "{}{}",
+        stdout(&out),
+        stderr(&out)
+    );
+    // The view of pair 7 there, but at the projector images' size: `inspect` names it too.
+    let n = compend::pngio::indexed_name(7);
+    // The setup is ROOT/lab/pos1.
+    let root = setup.ancestors().nth(2).unwrap();
+    std::fs::copy(root.join("train").join(&n), views.join(&n)).unwrap();
+    let out = compend(&["inspect", "--setup", s]);
+    assert_code(&out, 2);
+    let said = format!("{}{}", stdout(&out), stderr(&out));
+    assert!(said.contains("cam/desire/train/img_0007.png"), "{said}");
+    std::fs::remove_dir_all(&views).unwrap();
 }
 
 /// More training pairs than exist, an unknown method, a lattice too small or for a method that

@@ -42,12 +42,45 @@ pub struct Manifest {
     pub loop_written: usize,
 }
 
+/// The sides a recorded projector size may have, pixels.
+const PROJECTOR_SIDES: std::ops::RangeInclusive<usize> = 8..=16384;
+
 /// The projector size a calibration recorded for `setup` (its manifest's pattern set); `None`
-/// when the setup has no readable manifest.
-pub fn recorded_projector(setup: &Path) -> Option<ImageSize> {
-    let text = std::fs::read_to_string(setup.join(MANIFEST_FILE)).ok()?;
-    let m: Manifest = serde_json::from_str(&text).ok()?;
-    Some(m.patterns.projector)
+/// when the setup has no manifest. It sets the `linear` rungs' default lattice, so a manifest
+/// that cannot be read, is not one, or records sides outside 8–16384 pixels is an error naming
+/// it, not a silently coarser model.
+pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
+    let path = setup.join(MANIFEST_FILE);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(_) if path.is_dir() => {
+            return Err(Error::Input(format!(
+                "{}: a folder where the calibration manifest (a JSON file) should be",
+                path.display()
+            )));
+        }
+        Err(e) => return Err(Error::io(&path, "read the calibration manifest", e)),
+    };
+    let m: Manifest = serde_json::from_str(&text).map_err(|e| {
+        Error::Input(format!(
+            "{}: not a calibration manifest ({e}); the projector size it records sets the \
+             linear rungs' default lattice: mend it or move it away, or give --lattice",
+            path.display()
+        ))
+    })?;
+    let p = m.patterns.projector;
+    if !PROJECTOR_SIDES.contains(&p.width) || !PROJECTOR_SIDES.contains(&p.height) {
+        return Err(Error::Input(format!(
+            "{}: patterns.projector {}x{}: expected sides of {} to {} pixels",
+            path.display(),
+            p.width,
+            p.height,
+            PROJECTOR_SIDES.start(),
+            PROJECTOR_SIDES.end()
+        )));
+    }
+    Ok(Some(p))
 }
 
 impl Manifest {
@@ -120,5 +153,58 @@ impl Manifest {
         let json = serde_json::to_vec_pretty(self)
             .map_err(|e| Error::Failed(format!("{}: {e}", path.display())))?;
         crate::files::write_atomically(&path, &json)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_recorded_projector_size_is_read_or_its_manifest_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let setup = dir.path();
+        assert_eq!(recorded_projector(setup).unwrap(), None);
+        let manifest = |projector: ImageSize| Manifest {
+            patterns: PatternSet {
+                seed: 1,
+                ntrain: 4,
+                ntest: 2,
+                network: ImageSize::new(64, 64),
+                projector,
+                gray_level: 128,
+            },
+            captured: BTreeSet::new(),
+            loop_written: 0,
+        };
+        let path = setup.join(MANIFEST_FILE);
+        let good = serde_json::to_string(&manifest(ImageSize::new(800, 600))).unwrap();
+        std::fs::write(&path, &good).unwrap();
+        assert_eq!(
+            recorded_projector(setup).unwrap(),
+            Some(ImageSize::new(800, 600))
+        );
+        let tiny = serde_json::to_string(&manifest(ImageSize::new(1, 1))).unwrap();
+        let unknown = good.replacen('{', "{\"extra\":1,", 1);
+        for (text, says) in [
+            (&good[..good.len() / 2], "not a calibration manifest"),
+            (unknown.as_str(), "unknown field `extra`"),
+            (
+                tiny.as_str(),
+                "patterns.projector 1x1: expected sides of 8 to 16384",
+            ),
+        ] {
+            std::fs::write(&path, text).unwrap();
+            let e = recorded_projector(setup).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{e}");
+            let e = e.to_string();
+            assert!(e.starts_with(&path.display().to_string()), "{e}");
+            assert!(e.contains(says), "{e}");
+        }
+        std::fs::remove_file(&path).unwrap();
+        std::fs::create_dir(&path).unwrap();
+        let e = recorded_projector(setup).unwrap_err();
+        assert_eq!(e.exit_code(), 2, "{e}");
+        assert!(e.to_string().contains("a folder where"), "{e}");
     }
 }

@@ -102,6 +102,43 @@ pub fn scan_indices(dir: &Path) -> Result<Vec<usize>> {
     Ok(scan(dir)?.indices)
 }
 
+/// Checks the closed-loop desired views `views` (sorted indices in `dir`) against a training
+/// set of `last` pairs in `set_dir`: they must be the set's last pairs, one run up to `last`
+/// (a calibration takes them after the sampling pairs). A view for a pair the set does not
+/// have, or one missing from the run, is an error naming the file.
+pub(super) fn check_loop_views(
+    dir: &Path,
+    views: &[usize],
+    last: usize,
+    set_dir: &Path,
+) -> Result<()> {
+    let (Some(&first), Some(&top)) = (views.first(), views.last()) else {
+        return Ok(());
+    };
+    if top > last {
+        return Err(Error::Input(format!(
+            "{}: a desired view for training pair {top}, but the training set {} ends at pair \
+             {last}",
+            dir.join(pngio::indexed_name(top)).display(),
+            set_dir.display()
+        )));
+    }
+    if let Some(k) = (first..=last).find(|k| views.binary_search(k).is_err()) {
+        return Err(Error::Missing {
+            path: dir.join(pngio::indexed_name(k)),
+            expected: format!(
+                "the desired view of closed-loop pair {k}: closed-loop pairs are the last pairs \
+                 of the training set, each with its view, and this folder has views from \
+                 {} to {} (the set's last pair is {})",
+                pngio::indexed_name(first),
+                pngio::indexed_name(top),
+                pngio::indexed_name(last)
+            ),
+        });
+    }
+    Ok(())
+}
+
 pub(super) fn count_dir(dir: &Path) -> Result<usize> {
     let s = scan(dir)?;
     match s.gap(dir) {
@@ -131,6 +168,34 @@ mod tests {
         ] {
             assert_eq!(parse_indexed_name(bad), None, "{bad}");
         }
+    }
+
+    #[test]
+    fn closed_loop_views_are_one_run_at_the_end_of_the_training_set() {
+        let (dir, set) = (Path::new("d"), Path::new("t"));
+        assert!(check_loop_views(dir, &[], 36, set).is_ok());
+        assert!(check_loop_views(dir, &[25, 26, 27], 27, set).is_ok());
+        // The last view missing, a gap, a view for a sampling pair: the first missing file.
+        for (views, missing) in [
+            (&[25, 26][..], "img_0027.png"),
+            (&[25, 27][..], "img_0026.png"),
+            (&[10, 25, 26, 27][..], "img_0011.png"),
+        ] {
+            let e = check_loop_views(dir, views, 27, set).unwrap_err();
+            assert_eq!(e.exit_code(), 2);
+            assert!(
+                e.to_string().starts_with(&format!("d/{missing}: missing")),
+                "{e}"
+            );
+        }
+        // A view for a pair the set does not have.
+        let e = check_loop_views(dir, &[25, 26, 27, 28], 27, set).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        let e = e.to_string();
+        assert!(
+            e.starts_with("d/img_0028.png") && e.contains("ends at pair 27"),
+            "{e}"
+        );
     }
 
     #[test]

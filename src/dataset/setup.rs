@@ -7,7 +7,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use super::load::{blame_the_odd_one, read_all, take_count};
-use super::names::{absolute, check_index, check_plain_name, count_dir, scan};
+use super::names::{absolute, check_index, check_loop_views, check_plain_name, count_dir, scan};
 use super::root::{DataRoot, ProjectorSet};
 use crate::error::{Error, Result};
 use crate::pngio;
@@ -275,9 +275,16 @@ impl Setup {
     }
 
     /// The closed-loop pairs among the first `ntrain` training pairs: the indices (1-based,
-    /// sorted) with a desired view in [`Setup::loop_desired_dir`].
+    /// sorted) with a desired view in [`Setup::loop_desired_dir`]. They must be the training
+    /// set's last pairs, each with its view: a view missing among them, or one for a pair the
+    /// set does not have, is an error naming the file.
     pub fn loop_pairs(&self, ntrain: usize) -> Result<Vec<usize>> {
-        let mut found = super::names::scan_indices(&self.loop_desired_dir())?;
+        let dir = self.loop_desired_dir();
+        let mut found = super::names::scan_indices(&dir)?;
+        if !found.is_empty() {
+            let last = self.count(CaptureSet::Train)?;
+            check_loop_views(&dir, &found, last, &self.capture_dir(CaptureSet::Train))?;
+        }
         found.retain(|&i| i <= ntrain);
         Ok(found)
     }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use super::info::{References, SetCounts, SetupInfo};
 use super::load::par_map;
-use super::names::{Scan, scan};
+use super::names::{Scan, check_loop_views, scan};
 use super::root::{DataRoot, ProjectorSet};
 use super::setup::{CaptureSet, Reference, Setup};
 use crate::error::{Error, Result};
@@ -253,6 +253,9 @@ struct Scans {
     /// `cam/desire/test`, and its scan when the folder exists.
     desired_dir: PathBuf,
     desired: Option<Scan>,
+    /// `cam/desire/train` (the closed-loop pairs' desired views) and its scan.
+    loop_dir: PathBuf,
+    loop_views: Scan,
     /// Model names under `prj/cmp/test` (sorted) and the scan of each one's folder.
     models: Vec<String>,
     model_scans: Vec<Folder>,
@@ -266,7 +269,8 @@ struct SpacePaths {
     n_root: usize,
     /// Projector size: the structured-light patterns.
     projector: Vec<PathBuf>,
-    /// Camera size: every capture set, then the desired images.
+    /// Camera size: every capture set, then the desired images, then the closed-loop pairs'
+    /// desired views.
     camera: Vec<PathBuf>,
     /// Whether the gray image x0 (`ROOT/ref/img_gray.png`) is present.
     gray_input: bool,
@@ -316,7 +320,7 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
             captures,
             references: scans.references,
             desired_test: scans.desired.as_ref().map(Scan::contiguous),
-            loop_pairs: pr.scan(&setup.loop_desired_dir(), true).indices,
+            loop_pairs: scans.loop_views.indices,
             compensated: scans.models,
         },
         problems: pr.kept,
@@ -356,6 +360,8 @@ fn scan_all(setup: &Setup, pr: &mut Problems) -> Scans {
 
     let desired_dir = setup.desired_dir();
     let desired = desired_dir.is_dir().then(|| pr.scan(&desired_dir, false));
+    let loop_dir = setup.loop_desired_dir();
+    let loop_views = pr.scan(&loop_dir, true);
 
     let models = match setup.compensated_models() {
         Ok(m) => m,
@@ -378,6 +384,8 @@ fn scan_all(setup: &Setup, pr: &mut Problems) -> Scans {
         references,
         desired_dir,
         desired,
+        loop_dir,
+        loop_views,
         models,
         model_scans,
     }
@@ -428,6 +436,7 @@ fn space_paths(root: &DataRoot, scans: &Scans) -> SpacePaths {
     if let Some(s) = &scans.desired {
         camera.extend(paths_of(&scans.desired_dir, s));
     }
+    camera.extend(paths_of(&scans.loop_dir, &scans.loop_views));
     SpacePaths {
         network,
         n_root,
@@ -501,7 +510,8 @@ fn check_files(paths: &SpacePaths, sizes: &SpaceSizes, decode: bool, pr: &mut Pr
     jobs.len()
 }
 
-/// Every capture (and desired image) needs the projector image it belongs to.
+/// Every capture (and desired image) needs the projector image it belongs to, and the
+/// closed-loop pairs' desired views are the training set's last pairs, each with its view.
 fn check_pairing(root: &DataRoot, scans: &Scans, pr: &mut Problems) {
     for set in [CaptureSet::Train, CaptureSet::Test, CaptureSet::Sl] {
         let f = scans.cap.get(set);
@@ -520,6 +530,15 @@ fn check_pairing(root: &DataRoot, scans: &Scans, pr: &mut Problems) {
             prj_have,
             "a desired image",
         );
+    }
+    let train = scans.cap.get(CaptureSet::Train);
+    if let Err(e) = check_loop_views(
+        &scans.loop_dir,
+        &scans.loop_views.indices,
+        train.scan.contiguous(),
+        &train.dir,
+    ) {
+        pr.push(e);
     }
 }
 

@@ -170,7 +170,7 @@ fn with_lattice(
     let projector = match (req.projector, setup.root().projector_size()) {
         (Some(size), _) | (None, Ok(size)) => Some(size),
         (None, Err(Error::Missing { .. })) => {
-            crate::calibrate::manifest::recorded_projector(setup.path())
+            crate::calibrate::manifest::recorded_projector(setup.path())?
         }
         (None, Err(e)) => return Err(e),
     };
@@ -333,6 +333,7 @@ fn load_training(setup: &Setup, linear: bool, ntrain: usize) -> Result<TrainingD
         .iter()
         .map(|c| c.masked(&fov.mask))
         .collect::<Result<_>>()?;
+    check_projector_light(setup, &captures, (&black, &white), &fov.mask)?;
     let targets: Vec<NetImage> = pairs.inputs.into_iter().map(|p| p.into_space()).collect();
     Ok(TrainingData {
         fov,
@@ -342,6 +343,48 @@ fn load_training(setup: &Setup, linear: bool, ntrain: usize) -> Result<TrainingD
         captures: Cow::Owned(captures),
         targets: Cow::Owned(targets),
     })
+}
+
+/// Of the way from the black to the white reference capture (mean over the projector's area),
+/// the least the brightest training capture must come: sampling images average mid-gray, so
+/// their captures come about halfway.
+const MIN_LIGHT: f64 = 0.05;
+
+/// Refuses training captures (masked by the FOV, camera pixels) none of which shows projector
+/// light in the projector's area: taken with the projector off or covered, they would train a
+/// model that shows flat gray whatever it is asked, and replace a good one.
+fn check_projector_light(
+    setup: &Setup,
+    captures: &[CamImage],
+    (black, white): (&CamImage, &CamImage),
+    mask: &crate::raster::Mask<Camera>,
+) -> Result<()> {
+    let inside = |img: &CamImage| -> f64 {
+        let sum: f64 = (img.data().chunks_exact(3).zip(mask.data()))
+            .filter(|(_, m)| **m)
+            .map(|(px, _)| px.iter().map(|&v| v as f64).sum::<f64>())
+            .sum();
+        sum / (3 * mask.count().max(1)) as f64
+    };
+    let dark = inside(black);
+    let span = inside(white) - dark;
+    let brightest = captures
+        .iter()
+        .map(|c| inside(c) - dark)
+        .fold(f64::NEG_INFINITY, f64::max);
+    if span > 0.0 && brightest < MIN_LIGHT * span {
+        return Err(Error::Input(format!(
+            "{}: none of the {} training captures shows projector light in the projector's \
+             area (the brightest comes {:.1} % of the way from the black to the white \
+             reference capture, expected at least {:.0} %): were they taken with the projector \
+             off or covered?",
+            setup.capture_dir(CaptureSet::Train).display(),
+            captures.len(),
+            100.0 * brightest.max(0.0) / span,
+            100.0 * MIN_LIGHT
+        )));
+    }
+    Ok(())
 }
 
 /// The network→camera grid from the setup's structured-light captures; the network image is

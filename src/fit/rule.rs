@@ -48,9 +48,9 @@ impl ClimbRule {
 
     /// A warning for a margin below zero, which lets a climb keep a rung that scores lower
     /// than the one below it (tests use it to force a climb); `None` otherwise. `name`: the
-    /// flag or key that set it.
+    /// flag or key that set it. A margin that is not a number has none: it is refused.
     pub fn caveat(&self, name: &str) -> Option<String> {
-        (self.gain_db < 0.0).then(|| {
+        (self.gain_db < 0.0 && self.gain_db.is_finite()).then(|| {
             format!(
                 "{name} {}: a negative margin keeps a climbed rung that scores up to {} dB lower \
                  than the rung below it",
@@ -192,6 +192,10 @@ mod tests {
     fn only_a_negative_margin_comes_with_a_caveat() {
         assert_eq!(ClimbRule { gain_db: 0.0 }.caveat("--climb-gain"), None);
         assert_eq!(ClimbRule { gain_db: 0.5 }.caveat("--climb-gain"), None);
+        let minus_infinity = ClimbRule {
+            gain_db: f64::NEG_INFINITY,
+        };
+        assert_eq!(minus_infinity.caveat("--climb-gain"), None);
         let w = ClimbRule { gain_db: -2.0 }.caveat("climb_gain_db").unwrap();
         assert!(w.starts_with("climb_gain_db -2: "), "{w}");
         assert!(w.contains("up to 2 dB lower"), "{w}");

@@ -612,7 +612,8 @@ pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
 /// folder, or a model directory (a folder holding only [`META_FILE`] and [`WEIGHTS_FILE`], with a
 /// `format_version` in its metadata). Anything else (a regular file, a folder of other things,
 /// a dataset setup) is an input error naming it, so that nothing but a model is ever replaced.
-/// The folder that will hold `dir` must be writable.
+/// The folder that will hold `dir` must be writable, and so must a model directory there (its
+/// files are removed once the new one is in place).
 pub fn check_output(dir: &Path) -> Result<()> {
     let refuse = |what: &str| {
         Err(Error::Input(format!(
@@ -646,6 +647,9 @@ pub fn check_output(dir: &Path) -> Result<()> {
                 return refuse(&format!(
                     "has no readable {META_FILE} with a format_version"
                 ));
+            }
+            if !names.is_empty() {
+                crate::files::check_contents_removable(dir)?;
             }
         }
     }
