@@ -251,13 +251,12 @@ pub fn sync_dir(dir: &Path) {
     }
 }
 
-/// Checks, before any work, that what the existing folder `dir` holds can be removed (the
-/// folder is writable and searchable by this process), as replacing it will: an input error
-/// (exit 2) naming it otherwise.
-pub fn check_contents_removable(dir: &Path) -> Result<()> {
+/// Whether this process may create and remove entries in the folder `dir` (write and search
+/// permission, a file system mounted writable), as `access(2)` answers for the effective IDs.
+fn may_write_in(dir: &Path) -> std::result::Result<(), std::io::Error> {
     use std::os::unix::ffi::OsStrExt;
     let c = std::ffi::CString::new(dir.as_os_str().as_bytes())
-        .map_err(|_| Error::Input(format!("{}: a path with a NUL byte", dir.display())))?;
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
     // SAFETY: `c` is a valid NUL-terminated string for the duration of the call.
     let rc = unsafe {
         libc::faccessat(
@@ -268,45 +267,66 @@ pub fn check_contents_removable(dir: &Path) -> Result<()> {
         )
     };
     if rc == 0 {
-        return Ok(());
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
     }
-    Err(Error::Input(format!(
-        "{}: what it holds cannot be removed to replace it ({}); make the folder writable or \
-         choose another --out",
-        dir.display(),
-        std::io::Error::last_os_error()
-    )))
 }
 
-/// Checks, before any work, that `path` can be written: its folder exists or can be created,
-/// and a file can be created in it. An input error (exit 2) naming the path otherwise.
-pub fn check_writable(path: &Path) -> Result<()> {
-    let parent = parent_of(path);
-    fs::create_dir_all(parent).map_err(|e| {
+/// Checks, before any work, that what the existing folder `dir` holds can be removed (the
+/// folder is writable and searchable by this process), as replacing it will: an input error
+/// (exit 2) naming it otherwise.
+pub fn check_contents_removable(dir: &Path) -> Result<()> {
+    may_write_in(dir).map_err(|e| {
         Error::Input(format!(
-            "{}: cannot create the output folder {} ({e})",
-            path.display(),
-            parent.display()
+            "{}: what it holds cannot be removed to replace it ({e}); make the folder writable \
+             or choose another --out",
+            dir.display()
         ))
-    })?;
-    // Our own temporary name; `create_new` never truncates anything that is there.
-    let probe = temp_sibling(path)?;
-    match fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
-    {
-        Ok(_) => {
-            let _ = fs::remove_file(&probe);
-            Ok(())
+    })
+}
+
+/// Checks, before any work, that `path` can be written: the nearest of its folders that
+/// exists is a folder this process may write in (the missing ones are created when `path` is
+/// written, not now, so a run that fails leaves none behind). An input error (exit 2) naming
+/// the path otherwise.
+pub fn check_writable(path: &Path) -> Result<()> {
+    let mut folder = parent_of(path);
+    loop {
+        match fs::metadata(folder) {
+            Ok(m) if m.is_dir() => break,
+            Ok(_) => {
+                return Err(Error::Input(format!(
+                    "{}: {} is a file, not a folder",
+                    path.display(),
+                    folder.display()
+                )));
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound && parent_of(folder) != folder => {
+                folder = parent_of(folder);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
+                return Err(Error::Input(format!(
+                    "{}: a folder on this path is a file",
+                    path.display()
+                )));
+            }
+            Err(e) => {
+                return Err(Error::Input(format!(
+                    "{}: cannot reach the output folder {} ({e})",
+                    path.display(),
+                    folder.display()
+                )));
+            }
         }
-        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
-        Err(e) => Err(Error::Input(format!(
+    }
+    may_write_in(folder).map_err(|e| {
+        Error::Input(format!(
             "{}: cannot write in {} ({e})",
             path.display(),
-            parent.display()
-        ))),
-    }
+            folder.display()
+        ))
+    })
 }
 
 #[cfg(test)]
@@ -326,6 +346,28 @@ mod tests {
         assert!(!tmp.exists());
         let names: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
         assert_eq!(names.len(), 1);
+    }
+
+    #[test]
+    fn a_writable_output_is_checked_without_creating_its_folders() {
+        let dir = tempfile::tempdir().unwrap();
+        let deep = dir.path().join("a").join("b").join("model");
+        check_writable(&deep).unwrap();
+        assert!(
+            !dir.path().join("a").exists(),
+            "nothing is created before the work"
+        );
+        let file = dir.path().join("f");
+        fs::write(&file, b"x").unwrap();
+        let e = check_writable(&file.join("model")).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.to_string().contains("is a file, not a folder"), "{e}");
+        let e = check_writable(&file.join("a").join("model")).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        assert!(
+            e.to_string().contains("a folder on this path is a file"),
+            "{e}"
+        );
     }
 
     #[test]
