@@ -113,7 +113,7 @@ pub fn write_synced(path: &Path, bytes: &[u8]) -> Result<()> {
 /// `dir` exists, the two are exchanged in one step and the old one is then removed: at every
 /// moment `dir` holds either the old or the new folder. Once the new folder is in place the
 /// swap has succeeded: an old folder that cannot be removed is a warning naming where it was
-/// left (a later write of `dir` removes it). The caller has checked that what is at
+/// left. The caller has checked that what is at
 /// `dir` may be replaced. Where the file system cannot exchange, the old folder is moved aside,
 /// the new one renamed in, and the old one put back if that fails (a moment with no folder).
 pub fn swap_in_dir(tmp: &Path, dir: &Path) -> Result<()> {
@@ -156,7 +156,7 @@ fn remove_previous(old: &Path, dir: &Path) {
     if let Err(e) = fs::remove_dir_all(old) {
         tracing::warn!(
             "{}: the new folder is in place, but the previous one could not be removed from {} \
-             ({e}); a later write of {} removes it",
+             ({e}); remove it once that is mended (a later run writing {} removes it if it can)",
             dir.display(),
             old.display(),
             dir.display()
@@ -286,12 +286,13 @@ pub fn check_contents_removable(dir: &Path) -> Result<()> {
     })
 }
 
-/// Checks, before any work, that `path` can be written: the nearest of its folders that
-/// exists is a folder this process may write in (the missing ones are created when `path` is
-/// written, not now, so a run that fails leaves none behind). An input error (exit 2) naming
-/// the path otherwise.
+/// Checks, before any work, that `path` can be written: a file can be created in the nearest
+/// of its folders that exists (the missing ones are created when `path` is written, not now,
+/// so a run that fails leaves none behind). An input error (exit 2) naming the path otherwise.
 pub fn check_writable(path: &Path) -> Result<()> {
-    let mut folder = parent_of(path);
+    // `child`: the entry of `folder` on the way to `path` (`path` itself when its folder
+    // exists), whose temporary sibling is the probe.
+    let (mut child, mut folder) = (path, parent_of(path));
     loop {
         match fs::metadata(folder) {
             Ok(m) if m.is_dir() => break,
@@ -303,7 +304,7 @@ pub fn check_writable(path: &Path) -> Result<()> {
                 )));
             }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound && parent_of(folder) != folder => {
-                folder = parent_of(folder);
+                (child, folder) = (folder, parent_of(folder));
             }
             Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
                 return Err(Error::Input(format!(
@@ -320,13 +321,25 @@ pub fn check_writable(path: &Path) -> Result<()> {
             }
         }
     }
-    may_write_in(folder).map_err(|e| {
-        Error::Input(format!(
+    // Our own temporary name; `create_new` never truncates anything that is there. A real
+    // file, not `access(2)`, which can say yes where a write fails (NFS with root squashed).
+    let probe = temp_sibling(child)?;
+    match fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(_) => {
+            let _ = fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(e) => Err(Error::Input(format!(
             "{}: cannot write in {} ({e})",
             path.display(),
             folder.display()
-        ))
-    })
+        ))),
+    }
 }
 
 #[cfg(test)]

@@ -690,6 +690,15 @@ fn an_interrupted_calibration_resumes_without_recapturing() {
     // What was on disk was not captured again.
     assert_eq!(std::fs::read(&first).unwrap(), black);
     assert_eq!(r["verification"]["passed"], true, "{r}");
+
+    // Killed between a closed-loop pair's desired view and its capture: the view of pair 80
+    // is there, its capture is not. That pair was not taken yet, and the next run resumes.
+    let last = data.join("capture/cam/raw/train/img_0080.png");
+    assert!(data.join("capture/cam/desire/train/img_0080.png").is_file());
+    std::fs::remove_file(&last).unwrap();
+    let o = compend(&args);
+    assert_code(&o, 0);
+    assert!(last.is_file(), "the pair was taken again");
 }
 
 #[test]

@@ -42,12 +42,13 @@ pub struct Manifest {
     pub loop_written: usize,
 }
 
-/// The sides a recorded projector size may have, pixels.
-const PROJECTOR_SIDES: std::ops::RangeInclusive<usize> = 8..=16384;
+/// The sides a recorded projector size may have, pixels: what `calibrate --projector` takes,
+/// up to a side no display has.
+const PROJECTOR_SIDES: std::ops::RangeInclusive<usize> = 1..=16384;
 
 /// The projector size a calibration recorded for `setup` (its manifest's pattern set); `None`
 /// when the setup has no manifest. It sets the `linear` rungs' default lattice, so a manifest
-/// that cannot be read, is not one, or records sides outside 8–16384 pixels is an error naming
+/// that cannot be read, is not one, or records sides outside 1–16384 pixels is an error naming
 /// it, not a silently coarser model.
 pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
     let path = setup.join(MANIFEST_FILE);
@@ -65,7 +66,8 @@ pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
     let m: Manifest = serde_json::from_str(&text).map_err(|e| {
         Error::Input(format!(
             "{}: not a calibration manifest ({e}); the projector size it records sets the \
-             linear rungs' default lattice: mend it or move it away, or give --lattice",
+             linear rungs' default lattice: mend it or move it away (`train` also takes \
+             --lattice)",
             path.display()
         ))
     })?;
@@ -184,14 +186,14 @@ mod tests {
             recorded_projector(setup).unwrap(),
             Some(ImageSize::new(800, 600))
         );
-        let tiny = serde_json::to_string(&manifest(ImageSize::new(1, 1))).unwrap();
+        let none = serde_json::to_string(&manifest(ImageSize::new(0, 600))).unwrap();
         let unknown = good.replacen('{', "{\"extra\":1,", 1);
         for (text, says) in [
             (&good[..good.len() / 2], "not a calibration manifest"),
             (unknown.as_str(), "unknown field `extra`"),
             (
-                tiny.as_str(),
-                "patterns.projector 1x1: expected sides of 8 to 16384",
+                none.as_str(),
+                "patterns.projector 0x600: expected sides of 1 to 16384",
             ),
         ] {
             std::fs::write(&path, text).unwrap();

@@ -103,40 +103,37 @@ pub fn scan_indices(dir: &Path) -> Result<Vec<usize>> {
 }
 
 /// Checks the closed-loop desired views `views` (sorted indices in `dir`) against a training
-/// set of `last` pairs in `set_dir`: they must be the set's last pairs, one run up to `last`
-/// (a calibration takes them after the sampling pairs). A view for a pair the set does not
-/// have, or one missing from the run, is an error naming the file.
-pub(super) fn check_loop_views(
-    dir: &Path,
-    views: &[usize],
-    last: usize,
-    set_dir: &Path,
-) -> Result<()> {
-    let (Some(&first), Some(&top)) = (views.first(), views.last()) else {
+/// set of `last` pairs: the views must be the set's last pairs, one run without a gap up to
+/// `last` (a calibration takes them after the sampling pairs). Views past `last` belong to
+/// pairs not captured yet (a calibration interrupted between a view and its capture resumes
+/// them) and are not checked. A gap in the run, or a run that stops before `last`, is an error
+/// naming the first missing view.
+pub(super) fn check_loop_views(dir: &Path, views: &[usize], last: usize) -> Result<()> {
+    let Some(&first) = views.first().filter(|&&f| f <= last) else {
         return Ok(());
     };
-    if top > last {
-        return Err(Error::Input(format!(
-            "{}: a desired view for training pair {top}, but the training set {} ends at pair \
-             {last}",
-            dir.join(pngio::indexed_name(top)).display(),
-            set_dir.display()
-        )));
-    }
-    if let Some(k) = (first..=last).find(|k| views.binary_search(k).is_err()) {
-        return Err(Error::Missing {
-            path: dir.join(pngio::indexed_name(k)),
-            expected: format!(
-                "the desired view of closed-loop pair {k}: closed-loop pairs are the last pairs \
-                 of the training set, each with its view, and this folder has views from \
-                 {} to {} (the set's last pair is {})",
-                pngio::indexed_name(first),
-                pngio::indexed_name(top),
+    let Some(k) = (first..=last).find(|k| views.binary_search(k).is_err()) else {
+        return Ok(());
+    };
+    let before = pngio::indexed_name(k - 1);
+    let after = views.iter().find(|&&i| i > k).map_or_else(
+        || {
+            format!(
+                "none after it, though the training set goes on to {}",
                 pngio::indexed_name(last)
-            ),
-        });
-    }
-    Ok(())
+            )
+        },
+        |&i| format!("more from {}", pngio::indexed_name(i)),
+    );
+    Err(Error::Missing {
+        path: dir.join(pngio::indexed_name(k)),
+        expected: format!(
+            "the desired view of training pair {k}: closed-loop pairs are the training set's \
+             last pairs, one run with a view each, and this folder has views from {} to \
+             {before}, then {after}",
+            pngio::indexed_name(first)
+        ),
+    })
 }
 
 pub(super) fn count_dir(dir: &Path) -> Result<usize> {
@@ -172,30 +169,32 @@ mod tests {
 
     #[test]
     fn closed_loop_views_are_one_run_at_the_end_of_the_training_set() {
-        let (dir, set) = (Path::new("d"), Path::new("t"));
-        assert!(check_loop_views(dir, &[], 36, set).is_ok());
-        assert!(check_loop_views(dir, &[25, 26, 27], 27, set).is_ok());
+        let dir = Path::new("d");
+        assert!(check_loop_views(dir, &[], 36).is_ok());
+        assert!(check_loop_views(dir, &[25, 26, 27], 27).is_ok());
+        // Views past the last capture: pairs not captured yet, as a resumed calibration has.
+        assert!(check_loop_views(dir, &[25, 26, 27, 28], 27).is_ok());
+        assert!(check_loop_views(dir, &[30], 27).is_ok());
         // The last view missing, a gap, a view for a sampling pair: the first missing file.
-        for (views, missing) in [
-            (&[25, 26][..], "img_0027.png"),
-            (&[25, 27][..], "img_0026.png"),
-            (&[10, 25, 26, 27][..], "img_0011.png"),
+        for (views, missing, then) in [
+            (
+                &[25, 26][..],
+                "img_0027.png",
+                "none after it, though the training set goes on to img_0027.png",
+            ),
+            (&[25, 27][..], "img_0026.png", "more from img_0027.png"),
+            (
+                &[10, 25, 26, 27][..],
+                "img_0011.png",
+                "views from img_0010.png to img_0010.png, then more from img_0025.png",
+            ),
         ] {
-            let e = check_loop_views(dir, views, 27, set).unwrap_err();
+            let e = check_loop_views(dir, views, 27).unwrap_err();
             assert_eq!(e.exit_code(), 2);
-            assert!(
-                e.to_string().starts_with(&format!("d/{missing}: missing")),
-                "{e}"
-            );
+            let e = e.to_string();
+            assert!(e.starts_with(&format!("d/{missing}: missing")), "{e}");
+            assert!(e.contains(then), "{e}");
         }
-        // A view for a pair the set does not have.
-        let e = check_loop_views(dir, &[25, 26, 27, 28], 27, set).unwrap_err();
-        assert_eq!(e.exit_code(), 2);
-        let e = e.to_string();
-        assert!(
-            e.starts_with("d/img_0028.png") && e.contains("ends at pair 27"),
-            "{e}"
-        );
     }
 
     #[test]

@@ -276,14 +276,15 @@ impl Setup {
 
     /// The closed-loop pairs among the first `ntrain` training pairs: the indices (1-based,
     /// sorted) with a desired view in [`Setup::loop_desired_dir`]. They must be the training
-    /// set's last pairs, each with its view: a view missing among them, or one for a pair the
-    /// set does not have, is an error naming the file.
+    /// set's last pairs, each with its view: a view missing among them is an error naming the
+    /// file. Views past the last capture (pairs not captured yet) are not pairs.
     pub fn loop_pairs(&self, ntrain: usize) -> Result<Vec<usize>> {
         let dir = self.loop_desired_dir();
         let mut found = super::names::scan_indices(&dir)?;
         if !found.is_empty() {
             let last = self.count(CaptureSet::Train)?;
-            check_loop_views(&dir, &found, last, &self.capture_dir(CaptureSet::Train))?;
+            check_loop_views(&dir, &found, last)?;
+            found.retain(|&i| i <= last);
         }
         found.retain(|&i| i <= ntrain);
         Ok(found)

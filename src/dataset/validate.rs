@@ -298,6 +298,7 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
     // --- counts and cross-checks
     let projector_images = scans.prj.counts();
     let captures = scans.cap.counts();
+    let captured_train = captures.train;
     check_pairing(root, &scans, &mut pr);
     check_network_sides(sizes.network.as_ref(), &mut pr);
 
@@ -320,7 +321,10 @@ pub(super) fn survey(setup: &Setup, decode: bool, cap: usize) -> Validation {
             captures,
             references: scans.references,
             desired_test: scans.desired.as_ref().map(Scan::contiguous),
-            loop_pairs: scans.loop_views.indices,
+            // Views past the last capture belong to pairs not captured yet.
+            loop_pairs: (scans.loop_views.indices.iter().copied())
+                .filter(|&i| i <= captured_train)
+                .collect(),
             compensated: scans.models,
         },
         problems: pr.kept,
@@ -531,13 +535,8 @@ fn check_pairing(root: &DataRoot, scans: &Scans, pr: &mut Problems) {
             "a desired image",
         );
     }
-    let train = scans.cap.get(CaptureSet::Train);
-    if let Err(e) = check_loop_views(
-        &scans.loop_dir,
-        &scans.loop_views.indices,
-        train.scan.contiguous(),
-        &train.dir,
-    ) {
+    let captured = scans.cap.get(CaptureSet::Train).scan.contiguous();
+    if let Err(e) = check_loop_views(&scans.loop_dir, &scans.loop_views.indices, captured) {
         pr.push(e);
     }
 }

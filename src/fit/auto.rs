@@ -26,8 +26,8 @@
 //!    pairs, and `calibrate` confirms a climb on the rig ([`settle_climb`]).
 //! 3. A kept CompenNet++ rung is the model as trained (training it again on every pair would
 //!    double the dearest step). Otherwise the best linear rung is fitted again on every pair,
-//!    closed-loop ones included: its colour solve, since the `linear` fits of one `auto` share
-//!    their geometry ([`crate::linear::GeometryMemo`]).
+//!    closed-loop ones included (`linear` takes the geometry the earlier fits of this `auto`
+//!    fitted on the same first pairs, [`crate::linear::GeometryMemo`]).
 //!
 //! The rule, every candidate's held-out figures and the time each took go into `model.json`
 //! (`training.auto`).

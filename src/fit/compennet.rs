@@ -69,6 +69,7 @@ pub(super) fn train_compennet(
     let mut prepared = prepare_compennet_data(setup, req, variant, &fov, &captures, &targets)?;
     let mut correction = Correction::None;
     let mut held = None;
+    let mut geometry_reused = false;
     // The residual rung stands on the `linear` rung: fitted here on the same pairs, its output
     // for each capture (brought to the network) is what the network corrects.
     let linear = if variant.residual() {
@@ -78,7 +79,7 @@ pub(super) fn train_compennet(
             lattice: req.lattice,
             ..FitSettings::default()
         };
-        let (linear, _) = crate::linear::fit_with_memo(
+        let (linear, linear_report) = crate::linear::fit_with_memo(
             &captures,
             &targets,
             crate::warp::Warp::from_affine(theta),
@@ -86,6 +87,7 @@ pub(super) fn train_compennet(
             req.geometry_memo.as_deref(),
             &mut progress,
         )?;
+        geometry_reused = linear_report.geometry_reused;
         let simplified = linear.simplify();
         let ImageSize {
             width: nw,
@@ -219,6 +221,7 @@ pub(super) fn train_compennet(
             geometry_init: Some(geometry_init.into()),
             photometric_init: Some(report.photometric_init.clone()),
             correction: correction.describe(),
+            geometry_reused,
             ..common_record(setup, captures.len(), req.seed, &fov, &settings, final_loss)?
         },
         metrics: serde_json::Value::Null,

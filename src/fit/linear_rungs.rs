@@ -61,6 +61,7 @@ pub(super) fn fit_linear(
         training: TrainingRecord {
             curves: Some(fitted.curves),
             auto: evidence,
+            geometry_reused: report.geometry_reused,
             ..common_record(setup, ntrain, req.seed, &fov, &settings, report.final_loss)?
         },
         metrics: serde_json::Value::Null,

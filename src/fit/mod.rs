@@ -255,10 +255,14 @@ fn train_count(
         MethodChoice::Rung(_) => variant.is_none_or(|v| v.residual()),
         MethodChoice::Auto => true,
     };
-    let last_loop = if req.ntrain.is_none() && takes_loops {
-        setup.loop_pairs(available)?.last().copied().unwrap_or(0)
-    } else {
-        0
+    // The closed-loop views are checked whatever --ntrain says ([`Setup::loop_pairs`]).
+    let last_loop = match (takes_loops, req.ntrain) {
+        (true, None) => setup.loop_pairs(available)?.last().copied().unwrap_or(0),
+        (true, Some(_)) => {
+            setup.loop_pairs(available)?;
+            0
+        }
+        (false, _) => 0,
     };
     let ntrain = req
         .ntrain

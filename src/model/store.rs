@@ -237,6 +237,11 @@ pub struct TrainingRecord {
     /// `compennet++-res`: the pairs its correction trained on, and how.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub correction: Option<String>,
+    /// `linear` (also the residual rung's linear part): its geometry was taken from an earlier
+    /// fit of the same `auto` or calibration on the same first pairs
+    /// ([`crate::linear::GeometryMemo`]), so its fit time leaves the geometry out.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub geometry_reused: bool,
 }
 
 /// The evidence of `--method auto`.
