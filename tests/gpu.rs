@@ -13,7 +13,7 @@ use compend::sample::{Grid, pixel_to_norm};
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
-use crate::common::gpu;
+use crate::common::{gpu, max_abs};
 
 const CAM: ImageSize = ImageSize::new(48, 40);
 const NET: ImageSize = ImageSize::new(32, 24);
@@ -118,15 +118,6 @@ fn random_content(seed: u64, w: usize, h: usize) -> ContentFrame {
         .map(|_| rng.random_range(0..=255u8))
         .collect();
     ContentFrame::from_rgba(w, h, rgba).unwrap()
-}
-
-fn max_abs<S: compend::raster::Space>(a: &Rgb<S>, b: &Rgb<S>) -> f32 {
-    assert_eq!(a.size(), b.size());
-    a.data()
-        .iter()
-        .zip(b.data())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
 }
 
 /// Tolerances: the desired view and the compensation image are f32 on both sides (differences

@@ -5,6 +5,8 @@ use compend::metrics;
 use compend::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rgb};
 use compend::sample::{Grid, grid_sample, pixel_to_norm};
 use compend::warp::Warp;
+
+use crate::common::max_abs;
 use rand::rngs::ChaCha8Rng;
 use rand::{RngExt, SeedableRng};
 
@@ -245,13 +247,7 @@ fn fits_on_the_same_first_pairs_share_their_geometry() {
     assert!(!own_report.geometry_reused);
     let (a, b) = (shared.simplify(), own.simplify());
     for c in &caps[18..] {
-        let (pa, pb) = (a.apply(c), b.apply(c));
-        let worst = pa
-            .data()
-            .iter()
-            .zip(pb.data())
-            .map(|(x, y)| (x - y).abs())
-            .fold(0.0f32, f32::max);
+        let worst = max_abs(&a.apply(c), &b.apply(c));
         assert!(worst < 1e-5, "shared and own geometry differ by {worst}");
     }
     // Another lattice shares it; other first pairs, or another ridge, do not.

@@ -61,6 +61,19 @@ fn gpu_required() -> bool {
     std::env::var(REQUIRE_GPU).is_ok_and(|v| !v.is_empty() && v != "0")
 }
 
+/// The largest absolute difference between two images of the same size and space.
+pub fn max_abs<S: compend::raster::Space>(
+    a: &compend::raster::Rgb<S>,
+    b: &compend::raster::Rgb<S>,
+) -> f32 {
+    assert_eq!(a.size(), b.size());
+    a.data()
+        .iter()
+        .zip(b.data())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
 /// Skips a test with a printed reason, or fails it when `COMPEND_REQUIRE_GPU_ADAPTER=1`.
 pub fn skip_or_fail(reason: &str) {
     if gpu_required() {

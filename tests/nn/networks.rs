@@ -4,6 +4,8 @@
 use candle_core::{DType, Device, Tensor};
 use compend::raster::ImageSize;
 
+use crate::common::max_abs;
+
 fn count(varmap: &candle_nn::VarMap, prefix: &str) -> usize {
     varmap
         .data()
@@ -235,12 +237,7 @@ fn stretch_equals_the_bilinear_resize() {
         let s = compend::nn::stretch(&t, ImageSize::new(w, h)).unwrap();
         let got: NetImage = compend::nn::tensor_to_image(&s, 0).unwrap();
         let want = compend::resize::resize_bilinear(&img, w, h);
-        let worst = got
-            .data()
-            .iter()
-            .zip(want.data())
-            .map(|(a, b)| (a - b).abs())
-            .fold(0f32, f32::max);
+        let worst = max_abs(&got, &want);
         assert!(worst < 1e-5, "{w}x{h}: differs by {worst}");
     }
     let v = candle_core::Var::from_tensor(
