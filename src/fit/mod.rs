@@ -175,8 +175,16 @@ fn with_lattice(
         (None, Err(e)) => return Err(e),
     };
     let network = setup.root().network_size()?;
+    let lattice = default_lattice(network, projector);
+    if lattice.width < network.width || lattice.height < network.height {
+        tracing::warn!(
+            "the linear rungs' output will be {lattice}, coarser than the {network} network: \
+             the projector is {} as this setup records it; --lattice sets another",
+            projector.map_or_else(|| "unknown".to_string(), |p| p.to_string())
+        );
+    }
     Ok(Request {
-        lattice: Some(default_lattice(network, projector)),
+        lattice: Some(lattice),
         ..req.clone()
     })
 }

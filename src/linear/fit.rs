@@ -81,7 +81,6 @@ pub fn fit_with_memo(
         }
     };
     let colour_start = Instant::now();
-    let grid = geometry.grid(settings.network_size);
     let (curves, coeffs, loss) = match settings.lattice {
         Some(lattice) if lattice != settings.network_size => {
             let fine = learned_grid(
@@ -94,7 +93,10 @@ pub fn fit_with_memo(
             let up = up.as_deref().unwrap_or(targets);
             fit_colour(captures, up, &fine, geometry.curves, settings.ridge)
         }
-        _ => fit_colour(captures, targets, &grid, geometry.curves, settings.ridge),
+        _ => {
+            let grid = geometry.grid(settings.network_size);
+            fit_colour(captures, targets, &grid, geometry.curves, settings.ridge)
+        }
     };
     progress("colour", 1, 1);
     let seconds = start.elapsed().as_secs_f64();
