@@ -113,9 +113,9 @@ pub fn write_synced(path: &Path, bytes: &[u8]) -> Result<()> {
 /// `dir` exists, the two are exchanged in one step and the old one is then removed: at every
 /// moment `dir` holds either the old or the new folder. Once the new folder is in place the
 /// swap has succeeded: an old folder that cannot be removed is a warning naming where it was
-/// left. The caller has checked that what is at
-/// `dir` may be replaced. Where the file system cannot exchange, the old folder is moved aside,
-/// the new one renamed in, and the old one put back if that fails (a moment with no folder).
+/// left. The caller has checked that what is at `dir` may be replaced. Where the file system
+/// cannot exchange, the old folder is moved aside, the new one renamed in, and the old one put
+/// back if that fails (a moment with no folder).
 pub fn swap_in_dir(tmp: &Path, dir: &Path) -> Result<()> {
     let parent = parent_of(dir);
     sync_dir(tmp);
@@ -166,13 +166,7 @@ fn remove_previous(old: &Path, dir: &Path) {
 
 #[cfg(target_os = "linux")]
 fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
-    use std::ffi::CString;
-    use std::os::unix::ffi::OsStrExt;
-    let cstr = |p: &Path| {
-        CString::new(p.as_os_str().as_bytes())
-            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))
-    };
-    let (ca, cb) = (cstr(a)?, cstr(b)?);
+    let (ca, cb) = (c_path(a)?, c_path(b)?);
     // SAFETY: both pointers are valid NUL-terminated strings for the duration of the call.
     let rc = unsafe {
         libc::renameat2(
@@ -251,12 +245,17 @@ pub fn sync_dir(dir: &Path) {
     }
 }
 
+/// `path` as a C string for a system call (a path holding a NUL byte is invalid input).
+fn c_path(path: &Path) -> std::io::Result<std::ffi::CString> {
+    use std::os::unix::ffi::OsStrExt;
+    std::ffi::CString::new(path.as_os_str().as_bytes())
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))
+}
+
 /// Whether this process may create and remove entries in the folder `dir` (write and search
 /// permission, a file system mounted writable), as `access(2)` answers for the effective IDs.
-fn may_write_in(dir: &Path) -> std::result::Result<(), std::io::Error> {
-    use std::os::unix::ffi::OsStrExt;
-    let c = std::ffi::CString::new(dir.as_os_str().as_bytes())
-        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+fn may_write_in(dir: &Path) -> std::io::Result<()> {
+    let c = c_path(dir)?;
     // SAFETY: `c` is a valid NUL-terminated string for the duration of the call.
     let rc = unsafe {
         libc::faccessat(

@@ -64,8 +64,9 @@ impl ClimbRule {
     pub fn describe_on_loop_pairs(&self, rung: Method) -> String {
         format!(
             "the best linear rung on held-out sampling pairs (paper protocol; `linear` itself \
-             when it is the only one), replaced by {rung} only if, on closed-loop pairs held out of its training, its compensations of the \
-             desired views come at least {} dB closer (PSNR) than `linear`'s to the projector \
+             when it is the only one), replaced by {rung} only if, on closed-loop pairs held \
+             out of its training, its compensations of the desired views come at least {} dB \
+             closer (PSNR) than `linear`'s to the projector \
              images that move the captures towards those views (its training stops early once \
              its gain there has slowed too much to reach that margin){}",
             self.gain_db,
