@@ -119,7 +119,7 @@ pub struct CalibrationConfig {
     pub climb_iters: Option<usize>,
     /// Closed-loop pairs taken with the `linear` rung after its first fit (0: none; `None`:
     /// [`crate::calibrate::loop_images`]'s default, as many as `ntrain`): a linear rung (and
-    /// the one `auto` keeps) is refitted on every pair, `compennet++-res` trains its correction
+    /// the one `auto` keeps) is refitted on every pair, a residual rung trains its correction
     /// on them, and `auto` with 8 or more judges its climb on them
     /// ([`crate::calibrate::refine`]).
     pub loop_images: Option<usize>,
@@ -1003,7 +1003,7 @@ mod tests {
         assert!(
             e.contains(
                 "t.toml:3: [calibration] loop_images = 24: only linear, linear-sl, \
-                 compennet++-res and auto"
+                 compennet++-res, compennet++-res-full and auto"
             ),
             "{e}"
         );

@@ -445,7 +445,7 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
     ));
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains("--loop-images 3: only linear, linear-sl, compennet++-res and auto"),
+        stderr(&o).contains("--loop-images 3: only linear, linear-sl, compennet++-res, compennet++-res-full and auto"),
         "{}",
         stderr(&o)
     );
@@ -467,7 +467,7 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
     assert_code(&o, 2);
     assert!(
         stderr(&o).contains(
-            "the configuration's loop_images = 3: only linear, linear-sl, compennet++-res and auto"
+            "the configuration's loop_images = 3: only linear, linear-sl, compennet++-res, compennet++-res-full and auto"
         ),
         "{}",
         stderr(&o)

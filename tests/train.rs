@@ -223,6 +223,21 @@ fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
         compend::pngio::png_size(&cmp.join("img_0001.png")).unwrap(),
         ImageSize::new(NET, NET)
     );
+    // The full-size residual rung (`auto`'s climb on a GPU) starts at `linear` too, with the
+    // paper's widths on the whole network side where `compennet++-res` has half of each.
+    let full = dir.join("res-full-1");
+    train_cnn(setup, "compennet++-res-full", "1", &full, false);
+    assert_eq!(model_json(&full)["method"], "compennet++-res-full");
+    let grid = compend::nn::compennetpp::FIXED_GRID;
+    assert_eq!(tensor_shape(&res1, grid), [1, NET / 2, NET / 2, 2]);
+    assert_eq!(tensor_shape(&full, grid), [1, NET, NET, 2]);
+    assert_eq!(tensor_shape(&res1, "compen.backbone.conv1.weight")[0], 16);
+    assert_eq!(tensor_shape(&full, "compen.backbone.conv1.weight")[0], 32);
+    let (one_full, _) = compensated_and_uncompensated(&eval_json(&full, setup));
+    assert!(
+        (one_full - lin).abs() < 0.3,
+        "after one step compennet++-res-full {one_full:.2} dB, linear {lin:.2} dB"
+    );
     // Its linear part takes --lattice as the linear rungs do.
     let fine = dir.join("res-lattice");
     let out = compend(&[
@@ -241,6 +256,17 @@ fn residual_rung_starts_where_linear_ends(dir: &Path, setup: &Path) {
     assert_code(&out, 0);
     let meta = model_json(&fine);
     assert_eq!(meta["network_size"], serde_json::json!([40, 40]));
+}
+
+/// The shape of tensor `name` in a model directory's weights.
+fn tensor_shape(model: &Path, name: &str) -> Vec<usize> {
+    let bytes = std::fs::read(model.join("model.safetensors")).unwrap();
+    let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let names = tensors.names();
+    let t = tensors
+        .tensor(name)
+        .unwrap_or_else(|e| panic!("{name}: {e}; tensors: {names:?}"));
+    t.shape().to_vec()
 }
 
 /// A model directory's `model.json`.

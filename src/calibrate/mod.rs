@@ -14,7 +14,7 @@
 //!    on disk for the same pattern set are not taken again (an interrupted run resumes);
 //! 4. **training**: the requested rung on the setup ([`crate::fit`]); when `auto` climbed to a
 //!    CompenNet++ rung on the held-out pairs, the best linear rung is fitted too, for the rig
-//!    to confirm the climb. With `loop_images` > 0 and a linear rung, `compennet++-res` or
+//!    to confirm the climb. With `loop_images` > 0 and a linear rung, a residual rung or
 //!    `auto` that kept a linear rung, **closed-loop pairs** follow: the linear rung's
 //!    compensation of sampling images placed as desired views, projected and captured; these
 //!    pairs sit in the range the desired images use, and the rung is fitted on every pair
@@ -138,12 +138,12 @@ pub fn calibrate<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 /// The most closed-loop pairs [`refine`] takes (each is a capture held in memory by the refit).
 pub const MAX_LOOP_IMAGES: usize = 500;
 
-/// Whether [`refine`] applies to a method: the linear rungs; `compennet++-res`, whose
-/// correction trains on the closed-loop pairs of the `linear` rung it stands on; and `auto`,
+/// Whether [`refine`] applies to a method: the linear rungs; the residual rungs, whose
+/// correction trains on the closed-loop pairs of the `linear` rung they stand on; and `auto`,
 /// for the linear rung it keeps (a climbed rung keeps its training).
 pub fn refines(method: MethodChoice) -> bool {
     match method {
-        MethodChoice::Rung(m) => m.is_linear() || m == crate::model::Method::CompenNetPpRes,
+        MethodChoice::Rung(m) => m.is_linear() || m.is_residual(),
         MethodChoice::Auto => true,
     }
 }
@@ -156,8 +156,8 @@ pub fn loop_images_problem(method: MethodChoice, n: usize) -> Option<String> {
         Some(format!("at most {MAX_LOOP_IMAGES} closed-loop pairs"))
     } else if n > 0 && !refines(method) {
         Some(format!(
-            "only linear, linear-sl, compennet++-res and auto take closed-loop pairs, not \
-             {method}"
+            "only linear, linear-sl, compennet++-res, compennet++-res-full and auto take \
+             closed-loop pairs, not {method}"
         ))
     } else {
         None
@@ -202,7 +202,7 @@ pub struct LoopPairs {
 }
 
 impl LoopPairs {
-    /// Whether [`refit`] trains a network (minutes on a CPU): `compennet++-res`'s correction, or
+    /// Whether [`refit`] trains a network (minutes on a CPU): a residual rung's correction, or
     /// `auto`'s climb judged on the pairs. The service runs it beside playback.
     pub fn trains_a_network(&self, opts: &Options) -> bool {
         self.n > 0
@@ -216,7 +216,7 @@ impl LoopPairs {
 /// The first step of [`refine`]: for the first N sampling images (again from the first when N
 /// is more than there are), the desired view (scaled into the display range and placed in the
 /// displayable area, as the test images' are) is compensated by `model` (a linear rung; for
-/// `compennet++-res`, the `linear` rung [`train`] fitted); that network-size projector image is
+/// a residual rung, the `linear` rung [`train`] fitted); that network-size projector image is
 /// written to the data root as training image `ntrain + i`, its desired view to the setup's
 /// `cam/desire/train`, and it is projected, captured synchronised and written as its capture.
 pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(

@@ -94,10 +94,10 @@ pub struct Args {
     /// CompenNet++ rungs only: training iterations [default: the rung's own schedule].
     #[arg(long)]
     pub iters: Option<usize>,
-    /// linear, linear-sl, compennet++-res and auto only: after the linear fit, project its
+    /// linear, linear-sl, the residual rungs and auto only: after the linear fit, project its
     /// compensation of N sampling images placed as desired views and capture them
     /// (closed-loop pairs: they sit in the range the desired images use); a linear rung (and
-    /// the one auto keeps) is refitted on every pair, compennet++-res trains its correction on
+    /// the one auto keeps) is refitted on every pair, a residual rung trains its correction on
     /// them, and auto with 8 or more judges its climb on them; 0: none [default: the
     /// configuration's `loop_images`, else as many as --ntrain].
     #[arg(long, value_name = "N")]

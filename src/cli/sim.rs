@@ -134,7 +134,7 @@ pub struct ExportArgs {
     /// Closed-loop pairs, as `compend calibrate` takes them: `linear` fitted on the exported
     /// training pairs compensates N sampling images placed as desired views, and the rig
     /// captures them as training pairs NTRAIN+1…NTRAIN+N (desired views in cam/desire/train);
-    /// linear, linear-sl and compennet++-res then train on them by default.
+    /// linear, linear-sl and the residual rungs then train on them by default.
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=500))]
     pub loop_images: u64,
     /// Print the setup's record (rig.json) on stdout.

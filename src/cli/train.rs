@@ -15,16 +15,18 @@ pub struct Args {
     /// 256² sample (`compennet++-cpu`: about 4–4.5 minutes in all): see --iters. `auto` fits
     /// `linear` and `linear-sl` on all but a sixth of the sampling pairs and scores them on the
     /// held-out ones (paper-protocol PSNR); then trains the CompenNet++ rung the device affords
-    /// (`compennet++-res` on the CPU, `compennet++` on a GPU) and keeps it only if it beats the
-    /// rung below by --climb-gain, otherwise refitting the best linear rung on all pairs.
-    /// `compennet++-res` on a setup with 8 or more closed-loop pairs (a calibration's) is
-    /// judged on the last sixth of those, held out of its training, against its own linear
-    /// part; otherwise on the sampling pairs held out. The evidence goes into model.json.
+    /// (`compennet++-res` on the CPU, `compennet++-res-full` with --device cuda) and keeps it
+    /// only if it beats the rung below by --climb-gain, otherwise refitting the best linear
+    /// rung on all pairs. On a setup with 8 or more closed-loop pairs (a calibration's) that
+    /// rung is judged on the last sixth of those, held out of its training, against its own
+    /// linear part; otherwise on the sampling pairs held out. The evidence goes into
+    /// model.json.
     #[arg(long, value_enum)]
     pub method: compend::model::MethodChoice,
     /// Number of training pairs to use (the first N). Default: all available, at most 48 (the
-    /// full CompenNet++: its schedule's 500), and for linear, linear-sl, compennet++-res and
-    /// auto up to the last closed-loop pair a calibration took (cam/desire/train).
+    /// full CompenNet++: its schedule's 500), and for linear, linear-sl, the residual rungs
+    /// (compennet++-res, compennet++-res-full) and auto up to the last closed-loop pair a
+    /// calibration took (cam/desire/train).
     #[arg(long)]
     pub ntrain: Option<usize>,
     /// Seed for every random choice of the fit (recorded in the model).
@@ -52,7 +54,7 @@ pub struct Args {
     /// build with `--features cuda`). The `linear` rungs always fit on the CPU.
     #[arg(long, default_value = "cpu")]
     pub device: compend::fit::TrainDevice,
-    /// The linear rungs (and `compennet++-res`'s linear part): the lattice of the per-pixel
+    /// The linear rungs (and the residual rungs' linear part): the lattice of the per-pixel
     /// colour model and of the compensation images, `N` or `WxH`, or `native`: the projector's
     /// resolution (the size of the data root's structured-light patterns). Default: the
     /// projector's resolution, scaled down to at most 1920×1080 pixels; 1.5× the network size

@@ -7,9 +7,9 @@
 //!    (`calibrate` takes them after the sampling pairs) are not sampling pairs. A lone `linear`
 //!    is scored there only when the climb is judged there too.
 //! 2. The CompenNet++ rung the machine can afford ([`climb_rung`]: `compennet++-res`, `linear`
-//!    plus a CPU-sized correction, on the CPU; the full `compennet++` on a GPU) is trained and
-//!    judged:
-//!    - `compennet++-res` on a setup with enough closed-loop pairs ([`judges_on_loop_pairs`]):
+//!    plus a CPU-sized correction, on the CPU; `compennet++-res-full`, the same with a
+//!    full-size correction, on a GPU) is trained and judged:
+//!    - on a setup with enough closed-loop pairs ([`judges_on_loop_pairs`]):
 //!      trained on every pair but the last sixth of the closed-loop ones (at least 4), and
 //!      judged on those: how much closer than `linear`'s its compensations of their desired
 //!      views come to the projector images that move their captures towards the views
@@ -41,13 +41,16 @@ use crate::error::Result;
 use crate::model::store::{AutoCandidate, AutoEvidence, ClosedLoopScore, LoopHeldOut};
 use crate::model::{Method, MethodChoice, Model};
 
-/// The CompenNet++ rung a training device can afford: on the CPU the residual rung (`linear`
-/// plus a CPU-sized CompenNet correction, which starts where `linear` ends), the full one on a
-/// GPU.
+/// The CompenNet++ rung a training device can afford: the residual rung, `linear` plus a
+/// CompenNet correction that starts at zero, so that it starts where `linear` ends. On the CPU
+/// the correction is CPU-sized (`compennet++-res`); on a GPU it is full-size
+/// (`compennet++-res-full`: the paper's widths on the whole network side). The paper's
+/// `compennet++`, which learns the whole image from its pre-trained start, is not a rung `auto`
+/// climbs to: on the virtual rig it scored below `linear` in every run (docs/bench/gpu-h100.md).
 pub fn climb_rung(device: TrainDevice) -> Method {
     match device {
         TrainDevice::Cpu => Method::CompenNetPpRes,
-        TrainDevice::Cuda(_) => Method::CompenNetPp,
+        TrainDevice::Cuda(_) => Method::CompenNetPpResFull,
     }
 }
 
@@ -192,8 +195,15 @@ pub(super) fn fit_auto(
     if let (None, Some(variant)) = (&no_climb, variant) {
         let t0 = Instant::now();
         let (model, summary, upper, lower) = if on_loop_pairs {
-            let (model, summary, judged) =
-                train_judged(setup, req, variant, &data, loops, rule, &mut progress)?;
+            let (model, summary, judged) = train_judged(
+                setup,
+                req,
+                (rung, variant),
+                &data,
+                loops,
+                rule,
+                &mut progress,
+            )?;
             let psnr = |i: usize| judged.scores.get(i).map_or(f64::NAN, |c| c.held_out_psnr);
             let (up, lin) = (psnr(1), psnr(0));
             loop_held_out = Some(judged);
@@ -279,20 +289,19 @@ pub(super) fn fit_auto(
     }
 }
 
-/// `compennet++-res` (`variant`) trained on every pair of `data` but the last sixth of its
+/// A residual rung (`rung`, of `variant`) trained on every pair of `data` but the last sixth of its
 /// `loops` trailing closed-loop pairs, and judged on those as it trains ([`compennet::Judge`]):
 /// its training stops early when it cannot reach `rule`'s margin. `req` has its lattice
 /// resolved. Returns the model, its summary and the judgement.
 fn train_judged(
     setup: &Setup,
     req: &Request,
-    variant: crate::nn::compennetpp::Variant,
+    (rung, variant): (Method, crate::nn::compennetpp::Variant),
     data: &TrainingData<'_>,
     loops: usize,
     rule: ClimbRule,
     progress: impl FnMut(&str, usize, usize),
 ) -> Result<(Model, Summary, LoopHeldOut)> {
-    let rung = Method::CompenNetPpRes;
     let n = data.captures.len();
     let h = held_out(loops);
     let indices: Vec<usize> = (n - h + 1..=n).collect();
@@ -336,7 +345,8 @@ fn train_judged(
     Ok((model, summary, judged))
 }
 
-/// `compennet++-res` (`req` asks for it) trained and judged as `auto` judges its climb on a
+/// A residual rung (`req` asks for `compennet++-res` or `compennet++-res-full`) trained and
+/// judged as `auto` judges its climb on a
 /// setup with closed-loop pairs (see the module documentation): on every pair but the last
 /// sixth of the closed-loop ones, then on those against its own linear part; its training
 /// stops early when it cannot reach `rule`'s margin. For the service's progressive
@@ -348,13 +358,14 @@ pub fn judge_on_loop_pairs(
     rule: ClimbRule,
     progress: impl FnMut(&str, usize, usize),
 ) -> Result<Option<(Model, LoopHeldOut)>> {
-    let rung = Method::CompenNetPpRes;
-    let Some(variant) = crate::nn::compennetpp::Variant::from_method(rung.name()) else {
+    let MethodChoice::Rung(rung) = req.method else {
         return Ok(None);
     };
-    if req.method != MethodChoice::Rung(rung) {
+    let Some(variant) =
+        crate::nn::compennetpp::Variant::from_method(rung.name()).filter(|v| v.residual())
+    else {
         return Ok(None);
-    }
+    };
     super::check_request(req, Some(variant))?;
     let every = Request {
         ntrain: None,
@@ -366,7 +377,8 @@ pub fn judge_on_loop_pairs(
         return Ok(None);
     }
     let data = super::load_training(setup, false, n)?;
-    let (model, _, judged) = train_judged(setup, &every, variant, &data, loops, rule, progress)?;
+    let (model, _, judged) =
+        train_judged(setup, &every, (rung, variant), &data, loops, rule, progress)?;
     Ok(Some((model, judged)))
 }
 
@@ -448,7 +460,7 @@ mod tests {
     #[test]
     fn the_climb_rung_and_the_held_out_pairs_follow_the_machine_and_the_data() {
         assert_eq!(climb_rung(TrainDevice::Cpu), Method::CompenNetPpRes);
-        assert_eq!(climb_rung(TrainDevice::Cuda(0)), Method::CompenNetPp);
+        assert_eq!(climb_rung(TrainDevice::Cuda(0)), Method::CompenNetPpResFull);
         assert_eq!(held_out(48), 8);
         assert_eq!(held_out(12), 4);
         // Closed-loop pairs judge a climb when 4 can be held out and 4 trained on.

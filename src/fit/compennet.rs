@@ -56,7 +56,7 @@ pub(super) fn train_compennet(
     use crate::nn::train::Settings;
     if judge.is_some() && !variant.residual() {
         return Err(Error::Failed(format!(
-            "{method}: only compennet++-res is judged on closed-loop pairs as it trains"
+            "{method}: only the residual rungs are judged on closed-loop pairs as they train"
         )));
     }
     let TrainingData {

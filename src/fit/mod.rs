@@ -44,7 +44,7 @@ pub struct Request {
     /// The rung, or `auto`.
     pub method: MethodChoice,
     /// Training pairs to use (the first N); `None` = all available, at most [`DEFAULT_TRAIN`]
-    /// (a CompenNet++ rung: its schedule's count), and for a linear rung, `compennet++-res` or
+    /// (a CompenNet++ rung: its schedule's count), and for a linear rung, a residual rung or
     /// `auto` also every closed-loop pair (`cam/desire/train`).
     pub ntrain: Option<usize>,
     pub seed: u64,
@@ -250,7 +250,7 @@ fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>
 }
 
 /// The number of training pairs to use: `--ntrain`, else what the setup holds up to the rung's
-/// default, and for a method that takes closed-loop pairs (a linear rung, `compennet++-res`,
+/// default, and for a method that takes closed-loop pairs (a linear rung, a residual rung,
 /// `auto`) up to the last of those; at least [`MIN_TRAIN`].
 fn train_count(
     setup: &Setup,

@@ -56,11 +56,16 @@ pub enum Method {
     #[serde(rename = "compennet++-res")]
     #[value(name = "compennet++-res")]
     CompenNetPpRes,
+    /// `linear` plus a correction learned by the full-size CompenNet (the paper's widths, the
+    /// whole network side) on `linear`'s geometry, starting at zero: the residual rung for a GPU.
+    #[serde(rename = "compennet++-res-full")]
+    #[value(name = "compennet++-res-full")]
+    CompenNetPpResFull,
 }
 
 impl Method {
     /// Every rung, cheapest family first.
-    pub const ALL: [Method; 9] = [
+    pub const ALL: [Method; 10] = [
         Method::Linear,
         Method::LinearSl,
         Method::CompenNetPpFaster,
@@ -70,6 +75,7 @@ impl Method {
         Method::CompenNetSl,
         Method::CompenNetPpCpu,
         Method::CompenNetPpRes,
+        Method::CompenNetPpResFull,
     ];
 
     /// The name on the command line and in `model.json`.
@@ -84,6 +90,7 @@ impl Method {
             Method::CompenNetSl => "compennet-sl",
             Method::CompenNetPpCpu => "compennet++-cpu",
             Method::CompenNetPpRes => "compennet++-res",
+            Method::CompenNetPpResFull => "compennet++-res-full",
         }
     }
 
@@ -95,6 +102,12 @@ impl Method {
     /// The `linear` family: closed-form CPU fits with an output lattice.
     pub fn is_linear(self) -> bool {
         matches!(self, Method::Linear | Method::LinearSl)
+    }
+
+    /// A residual rung: `linear` plus a CompenNet correction that starts at zero
+    /// (`compennet++-res`, `compennet++-res-full`).
+    pub fn is_residual(self) -> bool {
+        crate::nn::compennetpp::Variant::from_method(self.name()).is_some_and(|v| v.residual())
     }
 
     /// Every name, comma-separated, for error messages.
@@ -130,7 +143,7 @@ pub enum MethodChoice {
 }
 
 impl MethodChoice {
-    const ALL: [MethodChoice; 10] = [
+    const ALL: [MethodChoice; 11] = [
         MethodChoice::Auto,
         MethodChoice::Rung(Method::Linear),
         MethodChoice::Rung(Method::LinearSl),
@@ -141,6 +154,7 @@ impl MethodChoice {
         MethodChoice::Rung(Method::CompenNetSl),
         MethodChoice::Rung(Method::CompenNetPpCpu),
         MethodChoice::Rung(Method::CompenNetPpRes),
+        MethodChoice::Rung(Method::CompenNetPpResFull),
     ];
 
     pub fn name(self) -> &'static str {
@@ -181,8 +195,8 @@ impl clap::ValueEnum for MethodChoice {
         let help = match self {
             MethodChoice::Auto => {
                 "the best linear rung on held-out pairs, or the CompenNet++ rung the device \
-                 affords (compennet++-res on the CPU) if it scores --climb-gain dB higher \
-                 (evidence in model.json)"
+                 affords (compennet++-res on the CPU, compennet++-res-full on a GPU) if it \
+                 scores --climb-gain dB higher (evidence in model.json)"
             }
             MethodChoice::Rung(Method::Linear) => "learned affine+TPS geometry, per-pixel colour",
             MethodChoice::Rung(Method::LinearSl) => "structured-light geometry, per-pixel colour",
@@ -196,6 +210,9 @@ impl clap::ValueEnum for MethodChoice {
             }
             MethodChoice::Rung(Method::CompenNetPpRes) => {
                 "linear plus a CPU-sized CompenNet correction that starts at zero"
+            }
+            MethodChoice::Rung(Method::CompenNetPpResFull) => {
+                "linear plus a full-size CompenNet correction that starts at zero (for a GPU)"
             }
         };
         Some(clap::builder::PossibleValue::new(self.name()).help(help))

@@ -39,6 +39,9 @@ pub enum Variant {
     /// signed correction added to `linear`'s output; its last layer starts at zero, so training
     /// starts from `linear`'s result.
     Res,
+    /// The residual rung at full size (the paper's widths, the whole network side), for a GPU:
+    /// the same design as [`Variant::Res`].
+    ResFull,
 }
 
 /// A variant's training schedule (docs/architecture.md, "Models": the schedule table).
@@ -56,7 +59,7 @@ pub struct Schedule {
 }
 
 impl Variant {
-    pub const ALL: [Variant; 7] = [
+    pub const ALL: [Variant; 8] = [
         Variant::Full,
         Variant::NoRefine,
         Variant::Fast,
@@ -64,6 +67,7 @@ impl Variant {
         Variant::Sl,
         Variant::Cpu,
         Variant::Res,
+        Variant::ResFull,
     ];
 
     pub fn method(self) -> &'static str {
@@ -75,6 +79,7 @@ impl Variant {
             Variant::Sl => "compennet-sl",
             Variant::Cpu => "compennet++-cpu",
             Variant::Res => "compennet++-res",
+            Variant::ResFull => "compennet++-res-full",
         }
     }
 
@@ -107,6 +112,9 @@ impl Variant {
             Variant::Fast => (48, 24, 1000, 800),
             Variant::Faster | Variant::Sl => (48, 16, 500, 400),
             Variant::Cpu | Variant::Res => (48, 4, 1000, 800),
+            // The CPU-sized rung's steps with twice its batch: about 8 000 samples, the paper's
+            // `faster` count, which a GPU trains in about a minute (docs/bench/gpu-h100.md).
+            Variant::ResFull => (48, 8, 1000, 800),
         };
         Schedule {
             train_pairs,
@@ -117,19 +125,22 @@ impl Variant {
     }
 
     pub fn refine(self) -> bool {
-        !matches!(self, Variant::NoRefine | Variant::Sl | Variant::Res)
+        !matches!(
+            self,
+            Variant::NoRefine | Variant::Sl | Variant::Res | Variant::ResFull
+        )
     }
 
     /// Whether the geometry is a fixed grid (from structured light, or `linear`'s for the
     /// residual rung) rather than learned.
     pub fn fixed_geometry(self) -> bool {
-        matches!(self, Variant::Sl | Variant::Res)
+        matches!(self, Variant::Sl | Variant::Res | Variant::ResFull)
     }
 
     /// Whether the network learns a correction added to `linear`'s output (its last layer
     /// starts at zero, its output is signed) rather than the projector image itself.
     pub fn residual(self) -> bool {
-        self == Variant::Res
+        matches!(self, Variant::Res | Variant::ResFull)
     }
 }
 

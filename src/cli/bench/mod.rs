@@ -62,9 +62,13 @@ pub struct Args {
     /// held-out pairs and then in closed loop on the rig [default: 0.5].
     #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
+    /// CompenNet++ methods (and the rung `auto` climbs to): where to train, `cpu`, `cuda` or
+    /// `cuda:N` (needs a build with `--features cuda`); the linear rungs fit on the CPU.
+    #[arg(long, default_value = "cpu")]
+    pub device: compend::fit::TrainDevice,
     /// Closed-loop pairs, as `compend calibrate` takes them (one --ntrain size only): after the
     /// export, `linear` fitted on the sampling pairs compensates N sampling images placed as
-    /// desired views and the rig captures them; linear, linear-sl and compennet++-res then
+    /// desired views and the rig captures them; linear, linear-sl and the residual rungs then
     /// train on every pair (the correction on the closed-loop ones), auto judges its climb on
     /// them (8 or more), the other methods train on the sampling pairs alone [default: 0,
     /// none].
@@ -364,7 +368,7 @@ impl SceneBench<'_> {
             // The closed-form linear rungs train in no iterations.
             iters: args.iters.filter(|_| trains),
             batch: args.batch.filter(|_| trains),
-            device: Default::default(),
+            device: args.device,
             lattice: None,
             projector: None,
             photometric: Default::default(),
