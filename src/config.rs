@@ -117,6 +117,10 @@ pub struct CalibrationConfig {
     /// Iterations of the climbed rung's training (the progressive climb's and `auto`'s);
     /// `None`: its own schedule.
     pub climb_iters: Option<usize>,
+    /// Where the CompenNet++ rungs train (a calibration's, `auto`'s climb and the progressive
+    /// climb); it also sets the rung `climb = "auto"` and `method = "auto"` climb to.
+    #[serde(serialize_with = "display")]
+    pub device: crate::fit::TrainDevice,
     /// Closed-loop pairs taken with the `linear` rung after its first fit (0: none; `None`:
     /// [`crate::calibrate::loop_images`]'s default, as many as `ntrain`): a linear rung (and
     /// the one `auto` keeps) is refitted on every pair, a residual rung trains its correction
@@ -494,6 +498,19 @@ impl<'t> Walker<'t> {
             "method",
             MethodChoice::Rung(crate::model::Method::Linear),
         );
+        let device = self
+            .parsed_with(t, "device", |s| {
+                let d: crate::fit::TrainDevice =
+                    s.parse().map_err(|e: crate::Error| e.to_string())?;
+                if d != crate::fit::TrainDevice::Cpu && !cfg!(feature = "cuda") {
+                    return Err(format!(
+                        "\"{s}\": this compend was built without CUDA; rebuild it with `cargo \
+                         build --release --features cuda`, or train on \"cpu\""
+                    ));
+                }
+                Ok(d)
+            })
+            .unwrap_or_default();
         let ntrain = self.checked(t, "ntrain", 48usize, |&n| {
             if n >= crate::fit::MIN_TRAIN {
                 Ok(())
@@ -556,7 +573,7 @@ impl<'t> Walker<'t> {
             climb: self
                 .parsed_with(t, "climb", |s| match s {
                     "none" => Ok(None),
-                    "auto" => Ok(Some(crate::fit::climb_rung(Default::default()))),
+                    "auto" => Ok(Some(crate::fit::climb_rung(device))),
                     rung => crate::model::Method::from_str(rung)
                         .map(Some)
                         .map_err(|e| format!("{e}; or \"auto\" or \"none\"")),
@@ -569,6 +586,7 @@ impl<'t> Walker<'t> {
                 |v: &f64| finite(*v),
             ),
             climb_iters: self.get::<usize>(t, "climb_iters").filter(|&n| n > 0),
+            device,
             loop_images,
         }
     }
@@ -979,6 +997,42 @@ mod tests {
             e.contains("t.toml:4: [calibration] climb:") && e.contains("\"auto\""),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_training_device_is_read_and_chooses_the_rung_auto_climbs_to() {
+        let c = parse("[calibration]\nclimb = \"auto\"\n").unwrap();
+        assert_eq!(c.calibration.device, crate::fit::TrainDevice::Cpu);
+        let c = parse("[calibration]\ndevice = \"cpu\"\nclimb = \"auto\"\n").unwrap();
+        assert_eq!(
+            c.calibration.climb,
+            Some(crate::model::Method::CompenNetPpRes)
+        );
+        let e = parse("[calibration]\ndevice = \"gpu\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("t.toml:2: [calibration] device: device `gpu`: expected `cpu`, `cuda`"),
+            "{e}"
+        );
+        let cuda = parse("[calibration]\ndevice = \"cuda:1\"\nclimb = \"auto\"\n");
+        if cfg!(feature = "cuda") {
+            let c = cuda.unwrap();
+            assert_eq!(c.calibration.device, crate::fit::TrainDevice::Cuda(1));
+            assert_eq!(
+                c.calibration.climb,
+                Some(crate::model::Method::CompenNetPpResFull)
+            );
+        } else {
+            let e = cuda.unwrap_err().to_string();
+            assert!(
+                e.contains(
+                    "t.toml:2: [calibration] device: \"cuda:1\": this compend was built \
+                            without CUDA"
+                ),
+                "{e}"
+            );
+        }
     }
 
     #[test]

@@ -117,6 +117,25 @@ fn bench_writes_rows_for_references_and_methods() {
         stderr(&o)
     );
     assert!(!other.exists());
+    // A training device this build lacks fails before any scene is exported.
+    if !cfg!(feature = "cuda") {
+        let o = compend(&[
+            "bench",
+            "--out",
+            other.to_str().unwrap(),
+            "--methods",
+            "auto",
+            "--device",
+            "cuda",
+        ]);
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains("--device cuda: this compend was built without CUDA"),
+            "{}",
+            stderr(&o)
+        );
+        assert!(!other.exists());
+    }
 }
 
 /// `--loop-images`: the rungs that take closed-loop pairs train on them as `calibrate` does,

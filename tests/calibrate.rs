@@ -747,6 +747,23 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
     assert_code(&o, 2);
     assert!(stderr(&o).contains("virtual:SCENE"), "{}", stderr(&o));
 
+    // A training device this build lacks, for a method that trains: refused before anything is
+    // projected or written.
+    if !cfg!(feature = "cuda") {
+        let fresh = dir.path().join("fresh");
+        let o = compend(&calibrate_args(
+            fresh.to_str().unwrap(),
+            &["--rig", "virtual", "--method", "auto", "--device", "cuda"],
+        ));
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains("--device cuda: this compend was built without CUDA"),
+            "{}",
+            stderr(&o)
+        );
+        assert!(!fresh.exists());
+    }
+
     // Hardware: no such camera, a file that is not one, and the two kinds of rig together.
     for (camera, says) in [
         ("/dev/video-none-here", "video-none-here"),

@@ -85,6 +85,9 @@ pub struct Options {
     /// Training iterations of a CompenNet++ rung: the one asked for, or the one `auto` climbs
     /// to; `None`: its schedule. Ignored by the linear rungs.
     pub iters: Option<usize>,
+    /// Where a CompenNet++ rung trains (and so which one `auto` climbs to,
+    /// [`fit::climb_rung`]); the linear rungs fit on the CPU.
+    pub device: crate::fit::TrainDevice,
     /// Closed-loop pairs taken with the linear rung ([`refine`]); 0: none.
     pub loop_images: usize,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
@@ -567,7 +570,7 @@ fn request(opts: &Options, geometry: &Arc<crate::linear::GeometryMemo>) -> Reque
             .iters
             .filter(|_| !matches!(opts.method, MethodChoice::Rung(m) if m.is_linear())),
         batch: None,
-        device: Default::default(),
+        device: opts.device,
         lattice: None,
         projector: Some(opts.patterns.projector),
         photometric: Default::default(),

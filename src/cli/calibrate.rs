@@ -94,6 +94,12 @@ pub struct Args {
     /// CompenNet++ rungs only: training iterations [default: the rung's own schedule].
     #[arg(long)]
     pub iters: Option<usize>,
+    /// Where a CompenNet++ rung trains, `cpu`, `cuda` or `cuda:N` (an NVIDIA GPU; needs a build
+    /// with `--features cuda`); with `--method auto` it also chooses the rung climbed to
+    /// (compennet++-res on the CPU, compennet++-res-full on a GPU). The linear rungs fit on the
+    /// CPU [default: the configuration's `device`, cpu].
+    #[arg(long)]
+    pub device: Option<compend::fit::TrainDevice>,
     /// linear, linear-sl, the residual rungs and auto only: after the linear fit, project its
     /// compensation of N sampling images placed as desired views and capture them
     /// (closed-loop pairs: they sit in the range the desired images use); a linear rung (and
@@ -151,6 +157,8 @@ struct Settings {
     /// Iterations of the CompenNet++ rung: `--iters` for one asked for, `--climb-iters` (the
     /// config's `climb_iters`) for the one `auto` climbs to.
     iters: Option<usize>,
+    /// Where a CompenNet++ rung trains (`--device`, the config's `device`).
+    device: compend::fit::TrainDevice,
     /// Closed-loop pairs (`--loop-images`, the config's `loop_images`).
     loop_images: usize,
     average: usize,
@@ -230,6 +238,16 @@ impl Settings {
                 eprintln!("warning: {w}");
             }
         }
+        // A device this build or machine cannot train on fails before anything is projected,
+        // when the method trains on it.
+        let device = a.device.unwrap_or(c.calibration.device);
+        let trains = match method {
+            MethodChoice::Auto => true,
+            MethodChoice::Rung(m) => !m.is_linear(),
+        };
+        if trains && device != compend::fit::TrainDevice::Cpu {
+            device.candle()?;
+        }
         let simulated = [RigKind::Virtual, RigKind::Window];
         let runs = match (&a.data, &file) {
             (None, Some(f)) => Some((Runs::new(&f.paths.data), f.calibration.keep_runs)),
@@ -275,6 +293,7 @@ impl Settings {
                 MethodChoice::Auto => a.climb_iters.or(k.climb_iters),
                 MethodChoice::Rung(_) => a.iters,
             },
+            device,
             loop_images,
             average: a.average.unwrap_or(k.average),
             seed: a.seed.unwrap_or(r.seed),
@@ -586,6 +605,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         required_gain_db: args.min_gain,
         climb_gain_db: args.climb_gain,
         iters: args.iters,
+        device: args.device,
         loop_images: args.loop_images,
         rig,
         cancel: None,

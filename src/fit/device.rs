@@ -35,6 +35,16 @@ impl std::str::FromStr for TrainDevice {
     }
 }
 
+impl std::fmt::Display for TrainDevice {
+    /// As written on the command line and in the configuration: `cpu` or `cuda:N`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Cpu => f.write_str("cpu"),
+            Self::Cuda(n) => write!(f, "cuda:{n}"),
+        }
+    }
+}
+
 impl TrainDevice {
     /// The candle device; an input error when this build has no CUDA or the GPU cannot be opened.
     pub fn candle(self) -> Result<candle_core::Device> {

@@ -33,6 +33,8 @@ pub(super) static INSTALL: Mutex<()> = Mutex::new(());
 pub(super) struct Plan {
     pub(super) method: Method,
     pub(super) iters: Option<usize>,
+    /// Where it trains (`[calibration] device`).
+    pub(super) device: crate::fit::TrainDevice,
     pub(super) gain_db: f64,
     /// The calibration's data root and its setup.
     pub(super) root: PathBuf,
@@ -133,7 +135,7 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
         seed: 0,
         iters: p.iters,
         batch: None,
-        device: Default::default(),
+        device: p.device,
         lattice: residual.then_some(installed.meta.network_size),
         projector: None,
         photometric: Default::default(),

@@ -110,6 +110,10 @@ pub fn run(args: Args) -> Result<()> {
         ))
         .into());
     }
+    // A device this build or machine cannot train on fails before any scene is exported.
+    if args.device != fit::TrainDevice::Cpu {
+        args.device.candle()?;
+    }
     if let Some(g) = args.climb_gain {
         if !g.is_finite() {
             return Err(compend::Error::Input(format!(

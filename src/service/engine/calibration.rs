@@ -129,6 +129,7 @@ impl Engine {
             required_gain_db: c.min_gain_db,
             climb_gain_db: c.climb_gain_db,
             iters: c.climb_iters.filter(|_| method == MethodChoice::Auto),
+            device: c.device,
             loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
             rig: rig_name(&self.config),
             cancel: Some(cancel),
@@ -386,6 +387,7 @@ impl Engine {
                         .map(|method| climb::Plan {
                             method,
                             iters: c.climb_iters,
+                            device: c.device,
                             gain_db: c.climb_gain_db,
                             root: data.clone(),
                             setup,
