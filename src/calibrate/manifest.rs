@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::dataset::{CaptureSet, Setup};
 use crate::error::{Error, Result};
 use crate::raster::ImageSize;
 
@@ -46,11 +47,10 @@ pub struct Manifest {
 /// up to a side no display has.
 const PROJECTOR_SIDES: std::ops::RangeInclusive<usize> = 1..=16384;
 
-/// The projector size a calibration recorded for `setup` (its manifest's pattern set); `None`
-/// when the setup has no manifest. It sets the `linear` rungs' default lattice, so a manifest
-/// that cannot be read, is not one, or records sides outside 1–16384 pixels is an error naming
-/// it, not a silently coarser model.
-pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
+/// The manifest a calibration left in `setup`, if any: `None` when the setup has none. A
+/// manifest that cannot be read or is not one is an error naming it, with `why` (what the
+/// caller reads from it) in the message.
+fn recorded(setup: &Path, why: &str) -> Result<Option<Manifest>> {
     let path = setup.join(MANIFEST_FILE);
     let text = match std::fs::read_to_string(&path) {
         Ok(text) => text,
@@ -63,19 +63,32 @@ pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
         }
         Err(e) => return Err(Error::io(&path, "read the calibration manifest", e)),
     };
-    let m: Manifest = serde_json::from_str(&text).map_err(|e| {
+    serde_json::from_str(&text).map(Some).map_err(|e| {
         Error::Input(format!(
-            "{}: not a calibration manifest ({e}); the projector size it records sets the \
-             linear rungs' default lattice: mend it or move it away (`train` also takes \
-             --lattice)",
+            "{}: not a calibration manifest ({e}); {why}: mend it or move it away",
             path.display()
         ))
-    })?;
+    })
+}
+
+/// The projector size a calibration recorded for `setup` (its manifest's pattern set); `None`
+/// when the setup has no manifest. It sets the `linear` rungs' default lattice, so a manifest
+/// that cannot be read, is not one, or records sides outside 1–16384 pixels is an error naming
+/// it, not a silently coarser model.
+pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
+    let Some(m) = recorded(
+        setup,
+        "the projector size it records sets the linear rungs' default lattice (`train` also \
+         takes --lattice)",
+    )?
+    else {
+        return Ok(None);
+    };
     let p = m.patterns.projector;
     if !PROJECTOR_SIDES.contains(&p.width) || !PROJECTOR_SIDES.contains(&p.height) {
         return Err(Error::Input(format!(
             "{}: patterns.projector {}x{}: expected sides of {} to {} pixels",
-            path.display(),
+            setup.join(MANIFEST_FILE).display(),
             p.width,
             p.height,
             PROJECTOR_SIDES.start(),
@@ -83,6 +96,48 @@ pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
         )));
     }
     Ok(Some(p))
+}
+
+/// How many sampling pairs a calibration recorded for `setup` (its pattern set's `ntrain`);
+/// `None` when the setup has no manifest. The training pairs after them are the closed-loop
+/// pairs the calibration took (it writes no others).
+pub fn recorded_sampling_pairs(setup: &Path) -> Result<Option<usize>> {
+    Ok(recorded(
+        setup,
+        "the sampling pairs it records tell which training pairs are closed-loop pairs",
+    )?
+    .map(|m| m.patterns.ntrain))
+}
+
+/// On a calibration's setup (one with a manifest) the training pairs after the sampling
+/// pairs it records are the closed-loop pairs it took, so their desired views start right after
+/// the sampling pairs. [`Setup::loop_pairs`] checks that the views are one run ending at the
+/// last capture; this checks where the run starts, so that a lost first view (or a lost folder
+/// of views) is an error naming it rather than closed-loop pairs silently taken as sampling
+/// pairs.
+pub fn check_loop_views_start(setup: &Setup) -> Result<()> {
+    let Some(sampling) = recorded_sampling_pairs(setup.path())? else {
+        return Ok(());
+    };
+    let available = setup.count(CaptureSet::Train)?;
+    if available <= sampling {
+        return Ok(());
+    }
+    let first = sampling + 1;
+    if setup.loop_pairs(available)?.first() == Some(&first) {
+        return Ok(());
+    }
+    Err(Error::Missing {
+        path: setup
+            .loop_desired_dir()
+            .join(crate::pngio::indexed_name(first)),
+        expected: format!(
+            "the desired view of training pair {first}: {} records {sampling} sampling pairs, so \
+             training pairs {first} to {available} are the closed-loop pairs the calibration \
+             took, each with its view",
+            setup.path().join(MANIFEST_FILE).display()
+        ),
+    })
 }
 
 impl Manifest {

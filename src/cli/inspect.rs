@@ -71,6 +71,16 @@ pub fn report(args: &Args) -> Result<Report> {
     let v = setup.validate(MAX_PROBLEMS);
     let mut problems: Vec<String> = v.problems.iter().map(|e| e.to_string()).collect();
     let mut total_problems = v.total_problems;
+    // A calibration's closed-loop pairs start right after its sampling pairs (its manifest
+    // says how many): a lost first view is a problem here too. An error the validation already
+    // reported (an unreadable folder, a gap) is not counted twice.
+    if let Err(e) = compend::calibrate::manifest::check_loop_views_start(&setup) {
+        let e = e.to_string();
+        if !problems.contains(&e) {
+            total_problems += 1;
+            problems.push(e);
+        }
+    }
     let fov = match fov_report(&setup, args) {
         Ok(f) => f,
         Err(e) => {

@@ -264,6 +264,9 @@ fn train_count(
         MethodChoice::Auto => true,
     };
     // The closed-loop views are checked whatever --ntrain says ([`Setup::loop_pairs`]).
+    if takes_loops {
+        crate::calibrate::manifest::check_loop_views_start(setup)?;
+    }
     let last_loop = match (takes_loops, req.ntrain) {
         (true, None) => setup.loop_pairs(available)?.last().copied().unwrap_or(0),
         (true, Some(_)) => {
