@@ -130,7 +130,7 @@ fn bench_writes_rows_for_references_and_methods() {
         ]);
         assert_code(&o, 2);
         assert!(
-            stderr(&o).contains("--device cuda: this compend was built without CUDA"),
+            stderr(&o).contains("device `cuda:0`: this compend was built without CUDA"),
             "{}",
             stderr(&o)
         );

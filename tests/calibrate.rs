@@ -563,36 +563,37 @@ fn residual_correction_trains_on_the_closed_loop_pairs(dir: &Path, data: &Path) 
     assert!(!dir.join("res-bad").exists());
     // The first closed-loop view lost (or the whole folder of views): the manifest's 12
     // sampling pairs say pair 13 is a closed-loop pair, so it is refused naming the view, not
-    // taken as a sampling pair.
+    // taken as a sampling pair. A fit of the sampling pairs alone does not use it.
     std::fs::write(
         &bad,
         std::fs::read(data.join("capture/cam/desire/train/img_0014.png")).unwrap(),
     )
     .unwrap();
     let views = copy.join("capture/cam/desire/train");
-    for lost in [
-        &["img_0013.png"][..],
-        &[
-            "img_0013.png",
-            "img_0014.png",
-            "img_0015.png",
-            "img_0016.png",
-            "img_0017.png",
-        ],
-    ] {
-        for f in lost {
-            let _ = std::fs::remove_file(views.join(f));
+    let copied_setup = copy.join("capture");
+    let lost_view = |method: &str, ntrain: Option<&str>| {
+        let out = dir.join("lost-view");
+        let mut args = vec![
+            "train",
+            "--setup",
+            copied_setup.to_str().unwrap(),
+            "--method",
+            method,
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if let Some(n) = ntrain {
+            args.extend(["--ntrain", n]);
+        }
+        compend(&args)
+    };
+    std::fs::remove_file(views.join("img_0013.png")).unwrap();
+    for folder_too in [false, true] {
+        if folder_too {
+            std::fs::remove_dir_all(&views).unwrap();
         }
         for method in ["linear", "auto"] {
-            let o = compend(&[
-                "train",
-                "--setup",
-                copy.join("capture").to_str().unwrap(),
-                "--method",
-                method,
-                "--out",
-                dir.join("lost-view").to_str().unwrap(),
-            ]);
+            let o = lost_view(method, None);
             assert_code(&o, 2);
             assert!(
                 stderr(&o).contains("desire/train/img_0013.png")
@@ -610,6 +611,19 @@ fn residual_correction_trains_on_the_closed_loop_pairs(dir: &Path, data: &Path) 
         );
     }
     assert!(!dir.join("lost-view").exists());
+    assert_code(&lost_view("linear", Some("12")), 0);
+    // A view on a sampling pair is named as such.
+    copy_dir(&data.join("capture/cam/desire/train"), &views);
+    std::fs::copy(views.join("img_0013.png"), views.join("img_0012.png")).unwrap();
+    let o = lost_view("linear", None);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o)
+            .contains("desire/train/img_0012.png: a desired view for training pair 12, which")
+            && stderr(&o).contains("records as a sampling pair"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 fn copy_dir(from: &Path, to: &Path) {
@@ -806,7 +820,7 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
         ));
         assert_code(&o, 2);
         assert!(
-            stderr(&o).contains("--device cuda: this compend was built without CUDA"),
+            stderr(&o).contains("device `cuda:0`: this compend was built without CUDA"),
             "{}",
             stderr(&o)
         );

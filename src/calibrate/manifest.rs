@@ -47,10 +47,11 @@ pub struct Manifest {
 /// up to a side no display has.
 const PROJECTOR_SIDES: std::ops::RangeInclusive<usize> = 1..=16384;
 
-/// The manifest a calibration left in `setup`, if any: `None` when the setup has none. A
-/// manifest that cannot be read or is not one is an error naming it, with `why` (what the
-/// caller reads from it) in the message.
-fn recorded(setup: &Path, why: &str) -> Result<Option<Manifest>> {
+/// What a caller reads of the manifest a calibration left in `setup` (the whole [`Manifest`],
+/// or the fields it needs), if there is one: `None` when the setup has none. A manifest that
+/// cannot be read or does not hold `T` is an error naming it, with `why` (what the caller reads
+/// from it) in the message.
+fn recorded<T: serde::de::DeserializeOwned>(setup: &Path, why: &str) -> Result<Option<T>> {
     let path = setup.join(MANIFEST_FILE);
     let text = match std::fs::read_to_string(&path) {
         Ok(text) => text,
@@ -76,7 +77,7 @@ fn recorded(setup: &Path, why: &str) -> Result<Option<Manifest>> {
 /// that cannot be read, is not one, or records sides outside 1–16384 pixels is an error naming
 /// it, not a silently coarser model.
 pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
-    let Some(m) = recorded(
+    let Some(m) = recorded::<Manifest>(
         setup,
         "the projector size it records sets the linear rungs' default lattice (`train` also \
          takes --lattice)",
@@ -100,44 +101,66 @@ pub fn recorded_projector(setup: &Path) -> Result<Option<ImageSize>> {
 
 /// How many sampling pairs a calibration recorded for `setup` (its pattern set's `ntrain`);
 /// `None` when the setup has no manifest. The training pairs after them are the closed-loop
-/// pairs the calibration took (it writes no others).
+/// pairs the calibration took (it writes no others). Only that one field is read, so a manifest
+/// with fields this version does not know still serves; one that is not JSON, or records no
+/// `patterns.ntrain`, is an error naming it.
 pub fn recorded_sampling_pairs(setup: &Path) -> Result<Option<usize>> {
-    Ok(recorded(
+    #[derive(Deserialize)]
+    struct Recorded {
+        patterns: Sampling,
+    }
+    #[derive(Deserialize)]
+    struct Sampling {
+        ntrain: usize,
+    }
+    let recorded: Option<Recorded> = recorded(
         setup,
-        "the sampling pairs it records tell which training pairs are closed-loop pairs",
-    )?
-    .map(|m| m.patterns.ntrain))
+        "the sampling pairs it records (patterns.ntrain) tell which training pairs are \
+         closed-loop pairs",
+    )?;
+    Ok(recorded.map(|r| r.patterns.ntrain))
 }
 
-/// On a calibration's setup (one with a manifest) the training pairs after the sampling
-/// pairs it records are the closed-loop pairs it took, so their desired views start right after
-/// the sampling pairs. [`Setup::loop_pairs`] checks that the views are one run ending at the
-/// last capture; this checks where the run starts, so that a lost first view (or a lost folder
-/// of views) is an error naming it rather than closed-loop pairs silently taken as sampling
-/// pairs.
-pub fn check_loop_views_start(setup: &Setup) -> Result<()> {
+/// On a calibration's setup (one with a manifest) the training pairs after the sampling pairs
+/// it records are the closed-loop pairs it took, so their desired views start right after the
+/// sampling pairs. [`Setup::loop_pairs`] checks that the views are one run ending at the last
+/// capture; this checks where the run starts, so that a lost first view (or a lost folder of
+/// views), or a view on a sampling pair, is an error naming it rather than pairs silently taken
+/// as the other kind. `used`: the training pairs a fit takes (`None`: all); a fit of the
+/// sampling pairs alone is not checked.
+pub fn check_loop_views_start(setup: &Setup, used: Option<usize>) -> Result<()> {
     let Some(sampling) = recorded_sampling_pairs(setup.path())? else {
         return Ok(());
     };
     let available = setup.count(CaptureSet::Train)?;
-    if available <= sampling {
+    if available <= sampling || used.is_some_and(|n| n <= sampling) {
         return Ok(());
     }
     let first = sampling + 1;
-    if setup.loop_pairs(available)?.first() == Some(&first) {
-        return Ok(());
+    let manifest = setup.path().join(MANIFEST_FILE);
+    match setup.loop_pairs(available)?.first() {
+        Some(&f) if f == first => Ok(()),
+        Some(&f) if f < first => Err(Error::Input(format!(
+            "{}: a desired view for training pair {f}, which {} records as a sampling pair (the \
+             closed-loop pairs are {first} to {available}); move it away",
+            setup
+                .loop_desired_dir()
+                .join(crate::pngio::indexed_name(f))
+                .display(),
+            manifest.display()
+        ))),
+        _ => Err(Error::Missing {
+            path: setup
+                .loop_desired_dir()
+                .join(crate::pngio::indexed_name(first)),
+            expected: format!(
+                "the desired view of training pair {first}: {} records {sampling} sampling \
+                 pairs, so training pairs {first} to {available} are the closed-loop pairs the \
+                 calibration took, each with its view",
+                manifest.display()
+            ),
+        }),
     }
-    Err(Error::Missing {
-        path: setup
-            .loop_desired_dir()
-            .join(crate::pngio::indexed_name(first)),
-        expected: format!(
-            "the desired view of training pair {first}: {} records {sampling} sampling pairs, so \
-             training pairs {first} to {available} are the closed-loop pairs the calibration \
-             took, each with its view",
-            setup.path().join(MANIFEST_FILE).display()
-        ),
-    })
 }
 
 impl Manifest {

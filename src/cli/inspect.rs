@@ -74,7 +74,7 @@ pub fn report(args: &Args) -> Result<Report> {
     // A calibration's closed-loop pairs start right after its sampling pairs (its manifest
     // says how many): a lost first view is a problem here too. An error the validation already
     // reported (an unreadable folder, a gap) is not counted twice.
-    if let Err(e) = compend::calibrate::manifest::check_loop_views_start(&setup) {
+    if let Err(e) = compend::calibrate::manifest::check_loop_views_start(&setup, None) {
         let e = e.to_string();
         if !problems.contains(&e) {
             total_problems += 1;

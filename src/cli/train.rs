@@ -51,7 +51,9 @@ pub struct Args {
     #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
     /// CompenNet++ variants: where to train, `cpu`, `cuda` or `cuda:N` (an NVIDIA GPU; needs a
-    /// build with `--features cuda`). The `linear` rungs always fit on the CPU.
+    /// build with `--features cuda`); with `--method auto` it also chooses the rung climbed to
+    /// (compennet++-res on the CPU, compennet++-res-full on a GPU). The `linear` rungs always fit
+    /// on the CPU.
     #[arg(long, default_value = "cpu")]
     pub device: compend::fit::TrainDevice,
     /// The linear rungs (and the residual rungs' linear part): the lattice of the per-pixel

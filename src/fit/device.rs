@@ -50,13 +50,12 @@ impl TrainDevice {
     pub fn candle(self) -> Result<candle_core::Device> {
         match self {
             Self::Cpu => Ok(candle_core::Device::Cpu),
-            Self::Cuda(_) if !cfg!(feature = "cuda") => Err(Error::Input(
-                "--device cuda: this compend was built without CUDA; rebuild with \
-                 `cargo build --release --features cuda` (needs the CUDA toolkit's nvcc)"
-                    .into(),
-            )),
+            Self::Cuda(_) if !cfg!(feature = "cuda") => Err(Error::Input(format!(
+                "device `{self}`: this compend was built without CUDA; rebuild with `cargo \
+                 build --release --features cuda` (needs the CUDA toolkit's nvcc)"
+            ))),
             Self::Cuda(n) => candle_core::Device::new_cuda(n)
-                .map_err(|e| Error::Input(format!("--device cuda:{n}: cannot open the GPU: {e}"))),
+                .map_err(|e| Error::Input(format!("device `{self}`: cannot open GPU {n}: {e}"))),
         }
     }
 }

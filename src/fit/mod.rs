@@ -265,7 +265,7 @@ fn train_count(
     };
     // The closed-loop views are checked whatever --ntrain says ([`Setup::loop_pairs`]).
     if takes_loops {
-        crate::calibrate::manifest::check_loop_views_start(setup)?;
+        crate::calibrate::manifest::check_loop_views_start(setup, req.ntrain)?;
     }
     let last_loop = match (takes_loops, req.ntrain) {
         (true, None) => setup.loop_pairs(available)?.last().copied().unwrap_or(0),

@@ -5,7 +5,7 @@
 //! - [`pass`]: the compensation pass (content frame → projector frame at native resolution),
 //!   with its stages in `shaders/*.wgsl`; the model's photometric stage is a [`pass::Photometric`]
 //!   variant ([`linear`] for the `linear` rung, [`compennet`] for the CompenNet++ family,
-//!   [`residual`] for `compennet++-res`, which runs both and adds).
+//!   [`residual`] for the residual rungs, which run both and add).
 //! - [`bench`]: per-frame GPU time of the pass against a plain texture copy of the same size.
 //!
 //! Every stage has a CPU reference in the core ([`crate::playback`]), and tests compare them.

@@ -37,7 +37,7 @@ pub enum Photometric {
     /// The CompenNet++ family (`compennet++*`, `compennet-sl`): grid sample + the simplified
     /// CompenNet backbone (surface branch folded into constant bias maps).
     CompenNet(Box<CompenNetStage>),
-    /// `compennet++-res`: the `linear` stage, the CompenNet correction, and their sum.
+    /// A residual rung: the `linear` stage, the CompenNet correction, and their sum.
     Residual(Box<ResidualStage>),
 }
 

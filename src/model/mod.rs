@@ -38,9 +38,9 @@ pub enum Kind {
         /// Baked grid and folded surface branch: what runs per frame.
         simplified: Box<crate::nn::compennetpp::SimplifiedCompenNet>,
     },
-    /// `compennet++-res`: a `linear` model (its output lattice is the model's) plus the
-    /// CPU-sized CompenNet on `linear`'s grid, whose signed correction (on the coarser network)
-    /// is stretched over the lattice and added.
+    /// A residual rung (`compennet++-res`, `compennet++-res-full`): a `linear` model (its output
+    /// lattice is the model's) plus a CompenNet on `linear`'s grid (CPU-sized, or full-size),
+    /// whose signed correction (on its network) is stretched over the lattice and added.
     Residual {
         linear: Box<LinearModel>,
         base: crate::linear::SimplifiedLinear,
@@ -50,7 +50,7 @@ pub enum Kind {
     },
 }
 
-/// Prefix of the `linear` part's tensors in a `compennet++-res` model directory.
+/// Prefix of the `linear` part's tensors in a residual rung's model directory.
 const RESIDUAL_LINEAR: &str = "linear.";
 
 impl std::fmt::Debug for Kind {
@@ -109,7 +109,7 @@ impl Model {
         })
     }
 
-    /// A `compennet++-res` model: `linear` and the correction network `net` trained on top of
+    /// A residual rung's model: `linear` and the correction network `net` trained on top of
     /// it; `surface` is the masked gray surface capture (camera space).
     pub fn residual(
         meta: ModelMeta,
@@ -261,7 +261,7 @@ impl Model {
         self.meta.network_size
     }
 
-    /// The `linear` model a `compennet++-res` model stands on, and its simplified form (what
+    /// The `linear` model a residual rung's model stands on, and its simplified form (what
     /// [`Model::infer`] applies); `None` for the other rungs.
     pub fn residual_base(&self) -> Option<(&LinearModel, &crate::linear::SimplifiedLinear)> {
         match &self.kind {

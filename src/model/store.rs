@@ -111,7 +111,7 @@ pub struct ClimbRecord {
     /// The rig's check of the climb: both models projected on the verification images.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub closed_loop: Option<ClimbClosedLoop>,
-    /// `compennet++-res` on a calibration with closed-loop pairs: judged on some of those held
+    /// A residual rung on a calibration with closed-loop pairs: judged on some of those held
     /// out of its training, as `auto` judges it; `psnr` and `replaced_psnr` are then its figure
     /// and its own linear part's there (the installed `linear` trained on those pairs too).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -234,7 +234,7 @@ pub struct TrainingRecord {
     /// CompenNet++: where CompenNet's weights started.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub photometric_init: Option<String>,
-    /// `compennet++-res`: the pairs its correction trained on, and how.
+    /// A residual rung: the pairs its correction trained on, and how.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub correction: Option<String>,
     /// `linear` (also the residual rung's linear part): its geometry was taken from an earlier
@@ -272,7 +272,7 @@ pub struct AutoEvidence {
     /// it beats the linear one there by the same margin.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub closed_loop: Vec<ClosedLoopScore>,
-    /// When the setup has closed-loop pairs and the climb rung is `compennet++-res`: the climb
+    /// When the setup has closed-loop pairs and the climb rung is a residual rung: the climb
     /// judged on closed-loop pairs held out of its training ([`LoopHeldOut`]), not on the
     /// paper protocol; `candidates` then holds the linear rungs alone (none when `linear` is
     /// the only one, `why` says so).

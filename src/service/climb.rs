@@ -1,7 +1,7 @@
 //! Progressive calibration: once a calibration has installed its model and playback has
 //! started, the next rung (`[calibration] climb`) trains on a thread of its own on the same
 //! captures. It is judged on the calibration's held-out test pairs (captured, never trained on;
-//! the paper protocol) against the installed model; `compennet++-res` on a calibration with
+//! the paper protocol) against the installed model; a residual rung on a calibration with
 //! closed-loop pairs is judged as `auto` judges it, on some of those held out of its training
 //! against its own linear part ([`fit::judge_on_loop_pairs`]). Only if it beats it there by
 //! `climb_gain_db` ([`fit::ClimbRule`], the rule of `--method auto`) does it become a

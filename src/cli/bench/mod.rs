@@ -110,8 +110,13 @@ pub fn run(args: Args) -> Result<()> {
         ))
         .into());
     }
-    // A device this build or machine cannot train on fails before any scene is exported.
-    if args.device != fit::TrainDevice::Cpu {
+    // A device this build or machine cannot train on fails before any scene is exported, when
+    // a method trains on it.
+    let trains = args.methods.iter().any(|m| match m {
+        compend::model::MethodChoice::Auto => true,
+        compend::model::MethodChoice::Rung(r) => !r.is_linear(),
+    });
+    if trains && args.device != fit::TrainDevice::Cpu {
         args.device.candle()?;
     }
     if let Some(g) = args.climb_gain {
@@ -200,6 +205,8 @@ pub fn run(args: Args) -> Result<()> {
     let json = serde_json::json!({
         "compend": env!("CARGO_PKG_VERSION"),
         "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+        // Where the CompenNet++ rungs (and `auto`'s climb) trained.
+        "device": args.device.to_string(),
         "seconds": start.elapsed().as_secs_f64(),
         "ntest": args.ntest,
         "rows": rows,
@@ -208,7 +215,7 @@ pub fn run(args: Args) -> Result<()> {
     let jpath = args.out.join("bench.json");
     compend::files::write_atomically(&jpath, &serde_json::to_vec_pretty(&json)?)?;
     let mpath = args.out.join("bench.md");
-    compend::files::write_atomically(&mpath, markdown(&rows, &reach).as_bytes())?;
+    compend::files::write_atomically(&mpath, markdown(&rows, &reach, args.device).as_bytes())?;
     let charts = chart::write_charts(&rows, &args.out)?;
     eprintln!(
         "bench: {} rows in {:.0} s; wrote {}, {} and {} chart(s)",
@@ -630,9 +637,9 @@ fn train_label(ntrain: Option<usize>, loops: Option<usize>) -> String {
 
 /// Tables: one row per scene × seed × method × ntrain, the spread across seeds, then what no
 /// model can fix per scene and seed.
-fn markdown(rows: &[Row], reach: &[SceneReach]) -> String {
-    let mut md = String::from(
-        "# compend bench\n\nClosed loop: PSNR/SSIM of what the rig's camera sees inside the displayable \
+fn markdown(rows: &[Row], reach: &[SceneReach], device: fit::TrainDevice) -> String {
+    let mut md = format!(
+        "# compend bench\n\nThe CompenNet++ rungs trained on {device}. Closed loop: PSNR/SSIM of what the rig's camera sees inside the displayable \
          area against the desired image; gap: oracle PSNR minus the row's. Paper: the model's output \
          for test captures against the projector inputs (network space). A method marked \
          (diverged), (collapsed) or (worse than uncompensated) failed so; `auto → R` chose rung \

@@ -2,7 +2,7 @@
 //! (exposure, latency, patterns) on the engine thread with the projector; the training on a
 //! thread of its own; the closed-loop pairs on the engine thread with the projector, and the
 //! refit on them (seconds for a linear rung, there too; a network's training, for
-//! `compennet++-res` or `auto`'s climb judged on the pairs, on a thread of its own again); the
+//! a residual rung or `auto`'s climb judged on the pairs, on a thread of its own again); the
 //! verification on the engine thread with the projector, and the install if it verified. The
 //! engine meanwhile feeds the watchdog and answers requests.
 //! When a model is already serving and `autoplay` is on (a recalibration, after drift say), the
@@ -286,7 +286,7 @@ impl Engine {
 
     /// Takes the closed-loop pairs with a trained model on the projector; refits it on them,
     /// verifies it and installs it if it passed. A refit that trains a network (minutes on a
-    /// CPU: `compennet++-res`, `auto`'s climb judged on the pairs) runs on a thread of its own
+    /// CPU: a residual rung, `auto`'s climb judged on the pairs) runs on a thread of its own
     /// instead, beside playback as the first training did ([`Engine::verify_refitted`] next).
     fn finish_calibration(
         &mut self,
