@@ -508,10 +508,11 @@ fn compennet_pass_matches_the_cpu_reference() {
     }
 }
 
-/// A `compennet++-res` model: [`test_model`]'s `linear` part (its 32×24 lattice) plus the
-/// CompenNet of [`compennet_test_model`] (36×28: the correction is resampled, not just
-/// enlarged) with the residual tail and a last layer of random weights, so the correction is
-/// far from zero and signed.
+/// A residual rung's model: [`test_model`]'s `linear` part (its 32×24 lattice) plus the
+/// CompenNet of [`compennet_test_model`] (the paper's widths, as `compennet++-res-full`'s; 36×28:
+/// the correction is resampled, not just enlarged) with the residual tail and a last layer of
+/// random weights, so the correction is far from zero and signed. The pass reads the widths and
+/// sizes from the model, so this covers `compennet++-res`'s halves too.
 fn residual_test_model(seed: u64) -> Model {
     use candle_core::{Device, Tensor, Var};
     use compend::model::Kind;
