@@ -512,7 +512,7 @@ fn compennet_pass_matches_the_cpu_reference() {
 /// CompenNet of [`compennet_test_model`] (the paper's widths, as `compennet++-res-full`'s; 36×28:
 /// the correction is resampled, not just enlarged) with the residual tail and a last layer of
 /// random weights, so the correction is far from zero and signed. The pass reads the widths and
-/// sizes from the model, so this covers `compennet++-res`'s halves too.
+/// sizes from the model; `compennet++-res`'s half widths get no GPU test of their own.
 fn residual_test_model(seed: u64) -> Model {
     use candle_core::{Device, Tensor, Var};
     use compend::model::Kind;
