@@ -368,6 +368,11 @@ const CNET: ImageSize = ImageSize::new(36, 28);
 /// the output layer shifted so that most outputs land strictly inside (0, 1): the comparison then
 /// sees the network's arithmetic, not just clamps.
 pub fn compennet_test_model(seed: u64) -> Model {
+    compennet_test_model_of_width(seed, compend::nn::compennet::PAPER_WIDTH)
+}
+
+/// [`compennet_test_model`] with CompenNet's base channel width `width` (channels).
+fn compennet_test_model_of_width(seed: u64, width: usize) -> Model {
     use candle_core::{Device, Tensor, Var};
     use compend::nn::compennetpp::{CompenNetPP, GeometryInit};
 
@@ -386,7 +391,15 @@ pub fn compennet_test_model(seed: u64) -> Model {
         })
         .collect();
     let grid = Tensor::from_vec(grid, (1, nh, nw, 2), &Device::Cpu).unwrap();
-    let net = CompenNetPP::new(GeometryInit::Fixed(grid), CNET, false, seed, &Device::Cpu).unwrap();
+    let net = CompenNetPP::with_width(
+        GeometryInit::Fixed(grid),
+        CNET,
+        false,
+        width,
+        seed,
+        &Device::Cpu,
+    )
+    .unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
     for (name, t) in net.named_tensors() {
         if !t.is_variable() || !name.ends_with(".bias") {
@@ -508,18 +521,21 @@ fn compennet_pass_matches_the_cpu_reference() {
     }
 }
 
-/// A residual rung's model: [`test_model`]'s `linear` part (its 32×24 lattice) plus the
-/// CompenNet of [`compennet_test_model`] (the paper's widths, as `compennet++-res-full`'s; 36×28:
-/// the correction is resampled, not just enlarged) with the residual tail and a last layer of
-/// random weights, so the correction is far from zero and signed. The pass reads the widths and
-/// sizes from the model; `compennet++-res`'s half widths get no GPU test of their own.
-fn residual_test_model(seed: u64) -> Model {
+/// A residual rung's model (`method`: its CompenNet's widths, the paper's for
+/// `compennet++-res-full`, half of them for `compennet++-res`): [`test_model`]'s `linear` part
+/// (its 32×24 lattice) plus a CompenNet as [`compennet_test_model`]'s (36×28: the correction is
+/// resampled, not just enlarged) with the residual tail and a last layer of random weights, so
+/// the correction is far from zero and signed.
+fn residual_test_model(seed: u64, method: compend::model::Method) -> Model {
     use candle_core::{Device, Tensor, Var};
     use compend::model::Kind;
     let Kind::Linear { model: linear, .. } = test_model(seed).kind else {
         unreachable!("test_model is linear")
     };
-    let cnn = compennet_test_model(seed);
+    let width = compend::nn::compennetpp::Variant::from_method(method.name())
+        .expect("a CompenNet++ rung")
+        .width();
+    let cnn = compennet_test_model_of_width(seed, width);
     let fov = cnn.fov.clone();
     let Kind::CompenNet {
         mut net, surface, ..
@@ -536,17 +552,25 @@ fn residual_test_model(seed: u64) -> Model {
         .unwrap()
         .set(&Tensor::from_vec(values, w.dims(), &Device::Cpu).unwrap())
         .unwrap();
-    let meta = test_meta(compend::model::Method::CompenNetPpRes, NET);
+    let meta = test_meta(method, NET);
     Model::residual(meta, fov, *linear, *net, surface).unwrap()
 }
 
-/// The residual rung's pass (linear, the correction network, their sum) against the CPU
+/// The residual rungs' pass (linear, the correction network, their sum) against the CPU
 /// reference ([`compend::model::add_correction`] of the two parts), with the CompenNet
-/// tolerances: the compensation image within 1e-4, the frame within one 8-bit step.
+/// tolerances: the compensation image within 1e-4, the frame within one 8-bit step; for both
+/// rungs' widths.
 #[test]
 fn residual_pass_matches_the_cpu_reference() {
+    use compend::model::Method;
     let Some(ctx) = gpu() else { return };
-    let model = residual_test_model(5);
+    for method in [Method::CompenNetPpResFull, Method::CompenNetPpRes] {
+        residual_pass_matches(ctx, residual_test_model(5, method));
+    }
+}
+
+/// [`residual_pass_matches_the_cpu_reference`] for one model.
+fn residual_pass_matches(ctx: &compend::gpu::GpuContext, model: Model) {
     let p = Placement::for_model(&model, ImageSize::new(72, 50), DisplayRange::FULL).unwrap();
     assert_eq!(p.network_size, NET);
     let mut pass = CompensationPass::new(ctx, &model, p).unwrap();
@@ -572,12 +596,20 @@ fn residual_pass_matches_the_cpu_reference() {
         .max()
         .unwrap();
     eprintln!(
-        "residual: network max |Δ| {e_net:.2e} (correction moves it by up to {moved:.2}), \
-         frame worst {worst} step(s)"
+        "{}: network max |Δ| {e_net:.2e} (correction moves it by up to {moved:.2}), \
+         frame worst {worst} step(s)",
+        model.meta.method
     );
-    assert!(moved > 0.05, "the correction changed nothing ({moved})");
-    assert!(e_net <= 1e-4, "compensation image differs by {e_net}");
-    assert!(worst <= 1, "projector frame differs by {worst} 8-bit steps");
+    let m = model.meta.method;
+    assert!(
+        moved > 0.05,
+        "{m}: the correction changed nothing ({moved})"
+    );
+    assert!(e_net <= 1e-4, "{m}: compensation image differs by {e_net}");
+    assert!(
+        worst <= 1,
+        "{m}: projector frame differs by {worst} 8-bit steps"
+    );
 }
 
 /// Each layer's activation on the GPU against candle's, layer by layer, on one frame (a failure
