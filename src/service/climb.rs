@@ -12,7 +12,7 @@
 //! sees the cheap rung within a minute, and the better one when, and only if, it is better where
 //! it counts: on the surface.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use std::time::Instant;
@@ -41,6 +41,29 @@ pub(super) struct Plan {
     pub(super) setup: PathBuf,
     /// The installed model directory: what the climb must beat, and where it installs.
     pub(super) model: PathBuf,
+}
+
+impl Plan {
+    /// The climb `[calibration]` (`c`) asks for once a calibration has installed a model of
+    /// `installed` into `model`, from the data root `root` and its setup `setup`: `None` when it
+    /// asks for none, or for the rung just installed.
+    pub(super) fn after_install(
+        c: &crate::config::CalibrationConfig,
+        installed: Method,
+        root: &Path,
+        setup: PathBuf,
+        model: &Path,
+    ) -> Option<Self> {
+        c.climb.filter(|m| *m != installed).map(|method| Plan {
+            method,
+            iters: c.climb_iters,
+            device: c.device,
+            gain_db: c.climb_gain_db,
+            root: root.to_path_buf(),
+            setup,
+            model: model.to_path_buf(),
+        })
+    }
 }
 
 /// How a climb's training ended.
@@ -244,4 +267,38 @@ pub(super) fn settle(
     let _guard = INSTALL.lock().unwrap_or_else(|e| e.into_inner());
     model.save(&plan.model)?;
     Ok(Ok(model))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::TrainDevice;
+
+    #[test]
+    fn a_climb_plan_takes_the_configured_rung_and_device() {
+        let mut c = crate::config::Config::defaults().calibration;
+        let plan = |c: &crate::config::CalibrationConfig, installed| {
+            Plan::after_install(
+                c,
+                installed,
+                Path::new("runs/run-1"),
+                PathBuf::from("runs/run-1/capture"),
+                Path::new("model"),
+            )
+        };
+        // No climb by default.
+        assert!(plan(&c, Method::Linear).is_none());
+        c.climb = Some(Method::CompenNetPpResFull);
+        c.device = TrainDevice::Cuda(1);
+        c.climb_iters = Some(300);
+        let p = plan(&c, Method::Linear).expect("a climb above the installed linear rung");
+        assert_eq!(p.method, Method::CompenNetPpResFull);
+        assert_eq!(p.device, TrainDevice::Cuda(1));
+        assert_eq!(p.iters, Some(300));
+        assert_eq!(p.root, Path::new("runs/run-1"));
+        assert_eq!(p.setup, Path::new("runs/run-1/capture"));
+        assert_eq!(p.model, Path::new("model"));
+        // Nothing to climb to when the calibration installed that rung itself.
+        assert!(plan(&c, Method::CompenNetPpResFull).is_none());
+    }
 }

@@ -95,45 +95,61 @@ impl Drop for Training {
     }
 }
 
+/// A calibration's options from the configuration's `[calibration]`, for a projector of
+/// `projector` pixels, stopped by `cancel`. For a drift refit (`refitting`, `on_drift =
+/// "refit"`): `[monitoring] refit_ntrain` sampling images, only the test images the
+/// verification projects, and the `linear` rung.
+fn calibration_options(
+    config: &Config,
+    refitting: bool,
+    projector: crate::raster::ImageSize,
+    cancel: Arc<AtomicBool>,
+) -> Options {
+    let c = &config.calibration;
+    let (ntrain, ntest, method) = if refitting {
+        (
+            config.monitoring.refit_ntrain,
+            c.verify,
+            MethodChoice::Rung(Method::Linear),
+        )
+    } else {
+        (c.ntrain, c.ntest, c.method)
+    };
+    Options {
+        patterns: PatternSet {
+            seed: config.rig.seed,
+            ntrain,
+            ntest,
+            network: c.network,
+            projector,
+            gray_level: crate::patterns::DEFAULT_GRAY_LEVEL,
+        },
+        method,
+        fit_seed: 0,
+        sync: SyncSettings {
+            average: c.average,
+            ..SyncSettings::default()
+        },
+        verify_images: c.verify,
+        required_gain_db: c.min_gain_db,
+        climb_gain_db: c.climb_gain_db,
+        iters: c.climb_iters.filter(|_| method == MethodChoice::Auto),
+        device: c.device,
+        loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
+        rig: rig_name(config),
+        cancel: Some(cancel),
+    }
+}
+
 impl Engine {
-    /// The calibration's options from `[calibration]`, stopped by `cancel`. For a drift refit
-    /// (`on_drift = "refit"`, [`Engine::refitting`]): `[monitoring] refit_ntrain` sampling
-    /// images, only the test images the verification projects, and the `linear` rung.
+    /// The calibration's options ([`calibration_options`]) for this engine's projector.
     fn calibration_options(&self, cancel: Arc<AtomicBool>) -> Options {
-        let c = &self.config.calibration;
-        let (ntrain, ntest, method) = if self.refitting {
-            (
-                self.config.monitoring.refit_ntrain,
-                c.verify,
-                MethodChoice::Rung(Method::Linear),
-            )
-        } else {
-            (c.ntrain, c.ntest, c.method)
-        };
-        Options {
-            patterns: PatternSet {
-                seed: self.config.rig.seed,
-                ntrain,
-                ntest,
-                network: c.network,
-                projector: self.devices.display_size(),
-                gray_level: crate::patterns::DEFAULT_GRAY_LEVEL,
-            },
-            method,
-            fit_seed: 0,
-            sync: SyncSettings {
-                average: c.average,
-                ..SyncSettings::default()
-            },
-            verify_images: c.verify,
-            required_gain_db: c.min_gain_db,
-            climb_gain_db: c.climb_gain_db,
-            iters: c.climb_iters.filter(|_| method == MethodChoice::Auto),
-            device: c.device,
-            loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
-            rig: rig_name(&self.config),
-            cancel: Some(cancel),
-        }
+        calibration_options(
+            &self.config,
+            self.refitting,
+            self.devices.display_size(),
+            cancel,
+        )
     }
 
     /// A calibration: captures, then training (beside playback of the current model when there
@@ -382,17 +398,7 @@ impl Engine {
                 tracing::info!("installed {} into {}", model.meta.method, out.display());
                 let c = &self.config.calibration;
                 self.climb_plan =
-                    c.climb
-                        .filter(|m| *m != model.meta.method)
-                        .map(|method| climb::Plan {
-                            method,
-                            iters: c.climb_iters,
-                            device: c.device,
-                            gain_db: c.climb_gain_db,
-                            root: data.clone(),
-                            setup,
-                            model: out.clone(),
-                        });
+                    climb::Plan::after_install(c, model.meta.method, &data, setup, &out);
                 let message = format!(
                     "installed {} into {} (verified {:.2} dB, {:+.2} dB over uncompensated)",
                     model.meta.method,
@@ -729,5 +735,32 @@ fn busy(
             };
             env.answer(reply);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::TrainDevice;
+    use crate::raster::ImageSize;
+
+    #[test]
+    fn a_calibration_takes_the_configured_method_and_device() {
+        let mut config = Config::defaults();
+        config.calibration.method = MethodChoice::Auto;
+        config.calibration.device = TrainDevice::Cuda(1);
+        config.calibration.climb_iters = Some(300);
+        let projector = ImageSize::new(800, 600);
+        let o = calibration_options(&config, false, projector, Arc::default());
+        assert_eq!(o.method, MethodChoice::Auto);
+        assert_eq!(o.device, TrainDevice::Cuda(1));
+        assert_eq!(o.iters, Some(300));
+        assert_eq!(o.patterns.projector, projector);
+        assert_eq!(o.patterns.ntrain, config.calibration.ntrain);
+        // A drift refit fits `linear` on a handful of images, whatever the method.
+        let o = calibration_options(&config, true, projector, Arc::default());
+        assert_eq!(o.method, MethodChoice::Rung(Method::Linear));
+        assert_eq!(o.patterns.ntrain, config.monitoring.refit_ntrain);
+        assert_eq!(o.iters, None);
     }
 }
