@@ -303,7 +303,7 @@ fn bench_gpu_writes_ratios() {
 /// `compend bench-gpu --model`: a trained `linear` model is timed on its own lattice; a
 /// CompenNet++ model or a folder that holds no model is refused with exit 2, naming it.
 #[test]
-fn bench_gpu_times_a_trained_linear_model() {
+fn bench_gpu_times_a_trained_linear_or_residual_model() {
     if gpu().is_none() {
         return;
     }
@@ -346,6 +346,30 @@ fn bench_gpu_times_a_trained_linear_model() {
         v["camera"],
         serde_json::json!([CAM.width, CAM.height]),
         "{v}"
+    );
+    // A residual rung's model is timed in the `linear` columns, on its `linear` part's lattice.
+    let residual = dir.path().join("residual");
+    residual_test_model(3, compend::model::Method::CompenNetPpResFull)
+        .save(&residual)
+        .unwrap();
+    let (o, out) = run(&residual, "br");
+    crate::common::assert_code(&o, 0);
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench-gpu.json")).unwrap()).unwrap();
+    assert_eq!(v["model_method"], "compennet++-res-full", "{v}");
+    assert_eq!(
+        v["rows"][0]["lattice"],
+        serde_json::json!([NET.width, NET.height]),
+        "{v}"
+    );
+    assert!(
+        v["rows"][0]["linear"]["wall_ms"].as_f64().unwrap() > 0.0,
+        "{v}"
+    );
+    let md = std::fs::read_to_string(out.join("bench-gpu.md")).unwrap();
+    assert!(
+        md.contains("the trained compennet++-res-full model"),
+        "{md}"
     );
     for (model, says) in [(&cnet, "compennet"), (&dir.path().to_path_buf(), "")] {
         let (o, out) = run(model, "refused");

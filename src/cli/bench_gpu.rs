@@ -1,6 +1,6 @@
 //! `compend bench-gpu`: per-frame GPU time of the compensation pass at projector resolutions for
-//! the `linear` model and the simplified CompenNet backbone (synthetic models with seeded
-//! weights), each next to a plain texture copy of the same size measured in the same run, and
+//! the `linear` model (or a trained `linear` or residual model) and the simplified CompenNet
+//! backbone (synthetic models with seeded weights), each next to a plain texture copy of the same size measured in the same run, and
 //! frames dropped at the display rate (`linear`): on the virtual rig, which reads every frame
 //! back to the CPU, and with the pipeline alone (upload + pass, no read-back, no display).
 //! Writes bench-gpu.json and bench-gpu.md.
@@ -62,8 +62,10 @@ pub struct Args {
     /// projector size: its resolution, capped at 1920×1080 pixels), `network`, or WxH.
     #[arg(long, value_parser = parse_lattice, default_value = "projector")]
     pub lattice: Lattice,
-    /// Time this trained `linear` or `linear-sl` model (its own lattice and camera size) in place
-    /// of the synthetic one.
+    /// Time this trained model in place of the synthetic `linear` one: a `linear` or `linear-sl`
+    /// model (its own lattice and camera size), or a residual rung's (`compennet++-res`,
+    /// `compennet++-res-full`: its `linear` part, correction and sum, on its `linear` part's
+    /// lattice), in the `linear` columns.
     #[arg(long, conflicts_with_all = ["lattice", "camera"])]
     pub model: Option<PathBuf>,
     /// The content frame of the timed passes: bars (saturated colours, much of it out of the
@@ -170,9 +172,10 @@ pub fn run(args: Args) -> Result<()> {
     let trained = match &args.model {
         Some(dir) => {
             let model = Model::load(dir)?;
-            if !matches!(model.kind, compend::model::Kind::Linear { .. }) {
+            if matches!(model.kind, compend::model::Kind::CompenNet { .. }) {
                 return Err(compend::error::Error::Input(format!(
-                    "--model {}: a {} model; bench-gpu times `linear` and `linear-sl` models",
+                    "--model {}: a {} model; bench-gpu times trained `linear`, `linear-sl` and \
+                     residual-rung models (the CompenNet columns time a synthetic backbone)",
                     dir.display(),
                     model.meta.method
                 ))
@@ -240,6 +243,8 @@ pub fn run(args: Args) -> Result<()> {
             (None, Lattice::Fixed(size)) => size.to_string(),
         },
         "model": args.model,
+        // The rung timed in the `linear` columns.
+        "model_method": bench.trained.as_ref().map_or("linear", |m| m.meta.method.name()),
         "camera": [cam.width, cam.height],
         "network": [net.width, net.height],
         "compennet_iters": args.compennet_iters,
@@ -409,6 +414,13 @@ impl Bench<'_> {
     fn markdown(&self, rows: &[Row], timing: &str, software: bool) -> String {
         let (ctx, args) = (self.ctx, self.args);
         let linear = match (&args.model, &self.trained) {
+            (Some(dir), Some(m)) if !m.meta.method.is_linear() => format!(
+                "linear: the trained {} model {} (camera {}; the `linear` columns time its whole \
+                 pass: its `linear` part, its correction and their sum)",
+                m.meta.method,
+                dir.display(),
+                m.camera_size()
+            ),
             (Some(dir), Some(m)) => format!(
                 "linear: the trained model {} (camera {})",
                 dir.display(),
