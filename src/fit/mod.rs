@@ -223,6 +223,13 @@ fn check_request(req: &Request, variant: Option<crate::nn::compennetpp::Variant>
         }
         // Fail before loading anything when the device is unusable.
         req.device.candle()?;
+        if v == crate::nn::compennetpp::Variant::ResFull && req.device == TrainDevice::Cpu {
+            tracing::warn!(
+                "{}: sized for a GPU (--device cuda); on the CPU each sample costs about 16 \
+                 times compennet++-res's multiply-adds",
+                req.method
+            );
+        }
     }
     for (flag, value) in [("--iters", req.iters), ("--batch", req.batch)] {
         match value {
