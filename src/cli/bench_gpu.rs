@@ -1,8 +1,9 @@
 //! `compend bench-gpu`: per-frame GPU time of the compensation pass at projector resolutions for
 //! the `linear` model (or a trained `linear` or residual model) and the simplified CompenNet
-//! backbone (synthetic models with seeded weights), each next to a plain texture copy of the same size measured in the same run, and
-//! frames dropped at the display rate (`linear`): on the virtual rig, which reads every frame
-//! back to the CPU, and with the pipeline alone (upload + pass, no read-back, no display).
+//! backbone (synthetic models with seeded weights), each next to a plain texture copy of the
+//! same size measured in the same run, and frames dropped at the display rate (`linear`): on
+//! the virtual rig, which reads every frame back to the CPU, and with the pipeline alone
+//! (upload + pass, no read-back, no display).
 //! Writes bench-gpu.json and bench-gpu.md.
 
 use std::path::PathBuf;
