@@ -1,8 +1,8 @@
 //! The residual rungs' photometric stage on the GPU (`compennet++-res`, `compennet++-res-full`):
 //! the `linear` stage into an image on the linear model's lattice, the CompenNet stage (its
 //! residual tail) into the correction on its network, then `shaders/residual.wgsl` adds the
-//! correction stretched over the lattice and clamps. CPU reference: [`crate::model::add_correction`] on
-//! [`crate::model::Model::infer`]'s two parts.
+//! correction stretched over the lattice and clamps. CPU reference:
+//! [`crate::model::add_correction`] on [`crate::model::Model::infer`]'s two parts.
 
 use bytemuck::{Pod, Zeroable};
 
