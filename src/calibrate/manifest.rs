@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{CaptureSet, Setup};
+use crate::dataset::Setup;
 use crate::error::{Error, Result};
 use crate::raster::ImageSize;
 
@@ -121,25 +121,30 @@ pub fn recorded_sampling_pairs(setup: &Path) -> Result<Option<usize>> {
     Ok(recorded.map(|r| r.patterns.ntrain))
 }
 
-/// On a calibration's setup (one with a manifest) the training pairs after the sampling pairs
-/// it records are the closed-loop pairs it took, so their desired views start right after the
-/// sampling pairs. [`Setup::loop_pairs`] checks that the views are one run ending at the last
-/// capture; this checks where the run starts, so that a lost first view (or a lost folder of
-/// views), or a view on a sampling pair, is an error naming it rather than pairs silently taken
-/// as the other kind. `used`: the training pairs a fit takes (`None`: all); a fit of the
-/// sampling pairs alone is not checked.
-pub fn check_loop_views_start(setup: &Setup, used: Option<usize>) -> Result<()> {
+/// The closed-loop pairs among the setup's `available` captured training pairs
+/// ([`Setup::loop_pairs`], which checks that their views are one run ending at the last
+/// capture), checked against the calibration's manifest when the setup has one: the training
+/// pairs after the sampling pairs it records are the closed-loop pairs it took, so their views
+/// start right after them. A lost first view (or a lost folder of views), or a view on a
+/// sampling pair, is an error naming it rather than pairs silently taken as the other kind.
+/// `used`: the training pairs a fit takes (`None`: all); a fit of the sampling pairs alone is
+/// not held to the manifest.
+pub fn checked_loop_pairs(
+    setup: &Setup,
+    available: usize,
+    used: Option<usize>,
+) -> Result<Vec<usize>> {
+    let loops = setup.loop_pairs(available)?;
     let Some(sampling) = recorded_sampling_pairs(setup.path())? else {
-        return Ok(());
+        return Ok(loops);
     };
-    let available = setup.count(CaptureSet::Train)?;
     if available <= sampling || used.is_some_and(|n| n <= sampling) {
-        return Ok(());
+        return Ok(loops);
     }
     let first = sampling + 1;
     let manifest = setup.path().join(MANIFEST_FILE);
-    match setup.loop_pairs(available)?.first() {
-        Some(&f) if f == first => Ok(()),
+    match loops.first() {
+        Some(&f) if f == first => Ok(loops),
         Some(&f) if f < first => Err(Error::Input(format!(
             "{}: a desired view for training pair {f}, which {} records as a sampling pair (the \
              closed-loop pairs are {first} to {available}); move it away",

@@ -241,11 +241,7 @@ impl Settings {
         // A device this build or machine cannot train on fails before anything is projected,
         // when the method trains on it.
         let device = a.device.unwrap_or(c.calibration.device);
-        let trains = match method {
-            MethodChoice::Auto => true,
-            MethodChoice::Rung(m) => !m.is_linear(),
-        };
-        if trains && device != compend::fit::TrainDevice::Cpu {
+        if method.may_train_a_network() && device != compend::fit::TrainDevice::Cpu {
             device.candle()?;
         }
         let simulated = [RigKind::Virtual, RigKind::Window];

@@ -74,7 +74,10 @@ pub fn report(args: &Args) -> Result<Report> {
     // A calibration's closed-loop pairs start right after its sampling pairs (its manifest
     // says how many): a lost first view is a problem here too. An error the validation already
     // reported (an unreadable folder, a gap) is not counted twice.
-    if let Err(e) = compend::calibrate::manifest::check_loop_views_start(&setup, None) {
+    let checked = setup
+        .count(compend::dataset::CaptureSet::Train)
+        .and_then(|n| compend::calibrate::manifest::checked_loop_pairs(&setup, n, None));
+    if let Err(e) = checked {
         let e = e.to_string();
         if !problems.contains(&e) {
             total_problems += 1;

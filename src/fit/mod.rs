@@ -270,17 +270,15 @@ fn train_count(
         MethodChoice::Rung(_) => variant.is_none_or(|v| v.residual()),
         MethodChoice::Auto => true,
     };
-    // The closed-loop views are checked whatever --ntrain says ([`Setup::loop_pairs`]).
-    if takes_loops {
-        crate::calibrate::manifest::check_loop_views_start(setup, req.ntrain)?;
-    }
-    let last_loop = match (takes_loops, req.ntrain) {
-        (true, None) => setup.loop_pairs(available)?.last().copied().unwrap_or(0),
-        (true, Some(_)) => {
-            setup.loop_pairs(available)?;
-            0
+    // The closed-loop views are checked whatever --ntrain says.
+    let last_loop = if takes_loops {
+        let loops = crate::calibrate::manifest::checked_loop_pairs(setup, available, req.ntrain)?;
+        match req.ntrain {
+            None => loops.last().copied().unwrap_or(0),
+            Some(_) => 0,
         }
-        (false, _) => 0,
+    } else {
+        0
     };
     let ntrain = req
         .ntrain

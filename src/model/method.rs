@@ -157,6 +157,15 @@ impl MethodChoice {
         MethodChoice::Rung(Method::CompenNetPpResFull),
     ];
 
+    /// Whether it may train a CompenNet++ network (on `--device`): a CompenNet++ rung, or
+    /// `auto`, which may climb to one.
+    pub fn may_train_a_network(self) -> bool {
+        match self {
+            MethodChoice::Auto => true,
+            MethodChoice::Rung(m) => !m.is_linear(),
+        }
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             MethodChoice::Auto => "auto",

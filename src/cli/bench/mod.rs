@@ -112,10 +112,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     // A device this build or machine cannot train on fails before any scene is exported, when
     // a method trains on it.
-    let trains = args.methods.iter().any(|m| match m {
-        compend::model::MethodChoice::Auto => true,
-        compend::model::MethodChoice::Rung(r) => !r.is_linear(),
-    });
+    let trains = args.methods.iter().any(|m| m.may_train_a_network());
     if trains && args.device != fit::TrainDevice::Cpu {
         args.device.candle()?;
     }
