@@ -341,6 +341,14 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
             &["--method", "auto", "--climb-iters", "0"][..],
             "at least 1",
         ),
+        (
+            &["--refresh-hz", "60"][..],
+            "only `--method auto` weighs a climb's live pass",
+        ),
+        (
+            &["--method", "auto", "--refresh-hz", "-1"][..],
+            "expected a refresh rate in Hz",
+        ),
     ] {
         let o = compend(&calibrate_args(
             d,
@@ -349,6 +357,57 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
         assert_code(&o, 2);
         assert!(stderr(&o).contains(says), "{}", stderr(&o));
     }
+}
+
+#[test]
+fn auto_weighs_its_climbs_live_pass_when_asked() {
+    // The virtual rig's projector plays through no GPU: `--refresh-hz` times the climb on this
+    // machine's (lavapipe in CI).
+    if crate::common::gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("cal");
+    let extra = [
+        "--rig",
+        "virtual:textured-plane",
+        "--seed",
+        "4",
+        "--method",
+        "auto",
+        "--loop-images",
+        "0",
+        "--climb-iters",
+        "3",
+        "--climb-gain",
+        "-1000",
+        "--refresh-hz",
+        "1e9",
+    ];
+    let o = compend(&calibrate_args(data.to_str().unwrap(), &extra));
+    assert_code(&o, 0);
+    assert!(
+        stderr(&o).contains("auto climbs only to a rung whose live pass on"),
+        "{}",
+        stderr(&o)
+    );
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap()).unwrap();
+    // Even a margin that keeps any rung does not climb to one the display cannot play.
+    assert_eq!(m["method"], "linear", "{m}");
+    let auto = &m["training"]["auto"];
+    let live = &auto["live"];
+    assert_eq!(live["method"], "compennet++-res", "{m}");
+    assert_eq!(live["projector"], serde_json::json!([200, 150]), "{m}");
+    assert!(live["pass_ms"].as_f64().unwrap() > 0.0, "{m}");
+    assert!(
+        auto["why"]
+            .as_str()
+            .unwrap()
+            .contains("the climb is not trained"),
+        "{m}"
+    );
+    assert!(auto.get("closed_loop").is_none(), "{m}");
 }
 
 #[test]

@@ -527,6 +527,77 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
 }
 
 #[test]
+fn auto_climbs_only_to_a_rung_whose_live_pass_fits_the_frame_budget() {
+    // The climb is timed on this machine's GPU (lavapipe in CI) by the subprocess.
+    if crate::common::gpu().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 16, 2);
+    let model = dir.path().join("model");
+    let forced = ["--iters", "3", "--climb-gain", "-1000", "--refresh-hz"];
+    let live = |meta: &serde_json::Value| meta["training"]["auto"]["live"].clone();
+    // A refresh every 1000 s: any pass fits its 500 s budget, and the climb goes on.
+    let meta = train_auto(&setup, &model, &[&forced[..], &["0.001"]].concat());
+    assert_eq!(meta["method"], "compennet++-res", "{meta}");
+    let l = live(&meta);
+    assert_eq!(l["method"], "compennet++-res", "{l}");
+    assert_eq!(l["refresh_hz"], 0.001, "{l}");
+    assert_eq!(l["budget_ms"], 500_000.0, "{l}");
+    // The pass wrote the projector frame: the test setup's structured light is NET×NET.
+    assert_eq!(l["projector"], serde_json::json!([NET, NET]), "{l}");
+    let ms = l["pass_ms"].as_f64().unwrap();
+    assert!(ms > 0.0 && ms < 500_000.0, "{l}");
+    assert!(l["adapter"].as_str().unwrap().len() > 3, "{l}");
+    // A refresh a billion times a second: no pass fits half a nanosecond. The rung is not
+    // trained, the best linear rung is, and the record says why.
+    let meta = train_auto(&setup, &model, &[&forced[..], &["1e9"]].concat());
+    let auto = &meta["training"]["auto"];
+    assert!(
+        ["linear", "linear-sl"].contains(&meta["method"].as_str().unwrap()),
+        "{meta}"
+    );
+    let methods: Vec<&str> = auto["candidates"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(methods, ["linear", "linear-sl"], "{auto}");
+    let why = auto["why"].as_str().unwrap();
+    assert!(
+        why.contains("compennet++-res's live pass takes")
+            && why.contains("over the 0.00 ms budget")
+            && why.contains("the climb is not trained"),
+        "{why}"
+    );
+    assert_eq!(live(&meta)["refresh_hz"], 1e9, "{auto}");
+    // Only `auto` weighs a climb, at a positive rate: exit 2, before any work.
+    for (method, hz, says) in [
+        ("linear", "60", "only `auto` weighs a climb's live pass"),
+        ("auto", "0", "expected a positive number"),
+        ("auto", "-60", "expected a positive number"),
+        ("auto", "NaN", "expected a positive number"),
+    ] {
+        let out = dir.path().join("refused");
+        let o = compend(&[
+            "train",
+            "--setup",
+            setup.to_str().unwrap(),
+            "--method",
+            method,
+            "--refresh-hz",
+            hz,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_code(&o, 2);
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+        assert!(!out.exists());
+    }
+}
+
+#[test]
 fn a_native_lattice_is_the_projectors_resolution() {
     let dir = tempfile::tempdir().unwrap();
     let setup = make_setup(dir.path(), 6, 1);

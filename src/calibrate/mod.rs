@@ -88,6 +88,9 @@ pub struct Options {
     /// Where a CompenNet++ rung trains (and so which one `auto` climbs to,
     /// [`fit::climb_rung`]); the linear rungs fit on the CPU.
     pub device: crate::fit::TrainDevice,
+    /// `auto` only: times the climb rung's live pass on the GPU that is to play the model, at
+    /// its display's refresh ([`crate::fit::LivePass`]); `None`: not weighed.
+    pub live: Option<Arc<dyn crate::fit::LivePass>>,
     /// Closed-loop pairs taken with the linear rung ([`refine`]); 0: none.
     pub loop_images: usize,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
@@ -578,6 +581,7 @@ fn request(opts: &Options, geometry: &Arc<crate::linear::GeometryMemo>) -> Reque
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
         climb_later: climbs_on_loop_pairs(opts),
         geometry_memo: Some(geometry.clone()),
+        live: opts.live.clone(),
     }
 }
 

@@ -7,6 +7,7 @@
 //! (`compend::rig::window_camera`). The V4L2 camera plugs into the same flow.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use compend::calibrate::runs::Runs;
@@ -108,6 +109,14 @@ pub struct Args {
     /// configuration's `loop_images`, else as many as --ntrain].
     #[arg(long, value_name = "N")]
     pub loop_images: Option<usize>,
+    /// auto only: the display refresh rate the climb's live pass is weighed at. The rung auto
+    /// would climb to is timed first on the GPU that is to play the model, at the projector's
+    /// resolution, and is not trained when its pass takes more than half of one refresh
+    /// period. Default: the projector window's refresh rate (window and camera rigs); the
+    /// virtual rig's projector plays through no GPU, so there it is weighed only when this is
+    /// given, on this machine's GPU; 0: not weighed.
+    #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
+    pub refresh_hz: Option<f64>,
     /// Frames averaged per capture [default: 3].
     #[arg(long)]
     pub average: Option<usize>,
@@ -161,6 +170,9 @@ struct Settings {
     device: compend::fit::TrainDevice,
     /// Closed-loop pairs (`--loop-images`, the config's `loop_images`).
     loop_images: usize,
+    /// `auto`: the refresh rate its climb's live pass is weighed at (`--refresh-hz`); `None`:
+    /// the window's; 0: not weighed.
+    refresh_hz: Option<f64>,
     average: usize,
     rig_latency_ms: Option<f64>,
     rig_fps: Option<f64>,
@@ -291,6 +303,7 @@ impl Settings {
             },
             device,
             loop_images,
+            refresh_hz: a.refresh_hz,
             average: a.average.unwrap_or(k.average),
             seed: a.seed.unwrap_or(r.seed),
             network: a.network.unwrap_or(k.network),
@@ -459,12 +472,14 @@ fn run_hardware(args: &Settings, out: &Path, device: &Path) -> Result<()> {
         FrameSource::size(&camera),
         args.data.display()
     );
+    let live = window_live_pass(args, &win)?;
     let done = calibrate_on(
         &mut win,
         &mut camera,
         args,
         size,
         format!("camera:{}", device.display()),
+        live,
     );
     install(done?, out)
 }
@@ -491,7 +506,25 @@ fn run_virtual(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
         args.data.display()
     );
     let rig = format!("virtual:{scene_name}");
-    let done = calibrate_on(&mut display, &mut camera, args, scene.projector.size(), rig)?;
+    // Its projector plays through no GPU: the climb's live pass is weighed only when asked,
+    // on this machine's GPU.
+    let live = match args.refresh_hz {
+        Some(hz) if hz > 0.0 && args.method == MethodChoice::Auto => {
+            let ctx = compend::gpu::GpuContext::new().context(
+                "--refresh-hz: opening this machine's GPU to time the climb's live pass",
+            )?;
+            Some(live_pass(ctx, hz)?)
+        }
+        _ => None,
+    };
+    let done = calibrate_on(
+        &mut display,
+        &mut camera,
+        args,
+        scene.projector.size(),
+        rig,
+        live,
+    )?;
     install(done, out)
 }
 
@@ -524,7 +557,15 @@ fn run_window(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
         args.data.display()
     );
     let rig = format!("window:{scene_name}");
-    let done = calibrate_on(&mut win, &mut camera, args, scene.projector.size(), rig);
+    let live = window_live_pass(args, &win)?;
+    let done = calibrate_on(
+        &mut win,
+        &mut camera,
+        args,
+        scene.projector.size(),
+        rig,
+        live,
+    );
     report_window_timing(&win, &camera, &scene);
     if let Ok(d) = &done {
         let trials = &d.record.latency.trials;
@@ -574,6 +615,32 @@ fn report_window_timing(win: &ProjectorWindow, camera: &WindowCamera, scene: &Sc
     );
 }
 
+/// `auto`'s climb weighed on the projector window's GPU, at `--refresh-hz` or the window's
+/// refresh rate; `None` for another method or `--refresh-hz 0`.
+fn window_live_pass(
+    args: &Settings,
+    win: &ProjectorWindow,
+) -> Result<Option<Arc<dyn compend::fit::LivePass>>> {
+    match args.refresh_hz.unwrap_or(win.refresh_hz()) {
+        hz if hz > 0.0 && args.method == MethodChoice::Auto => {
+            Ok(Some(live_pass(win.context().clone(), hz)?))
+        }
+        _ => Ok(None),
+    }
+}
+
+/// The timer of a climb's live pass on `ctx` at `hz`, said on stderr.
+fn live_pass(ctx: compend::gpu::GpuContext, hz: f64) -> Result<Arc<dyn compend::fit::LivePass>> {
+    eprintln!(
+        "calibrate: auto climbs only to a rung whose live pass on {} takes at most {:.2} ms \
+         ({} of one refresh period at {hz} Hz)",
+        ctx.describe(),
+        compend::fit::LIVE_SHARE * 1e3 / hz,
+        compend::fit::LIVE_SHARE
+    );
+    Ok(Arc::new(compend::gpu::live::GpuLivePass::new(ctx, hz)?))
+}
+
 /// Runs the calibration flow on a display and a camera and prints its record.
 fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
@@ -581,6 +648,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     args: &Settings,
     projector: ImageSize,
     rig: String,
+    live: Option<Arc<dyn compend::fit::LivePass>>,
 ) -> Result<Calibrated> {
     let opts = Options {
         patterns: PatternSet {
@@ -603,6 +671,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         iters: args.iters,
         device: args.device,
         loop_images: args.loop_images,
+        live,
         rig,
         cancel: None,
     };
@@ -714,6 +783,20 @@ fn check_counts(a: &Settings) -> compend::Result<()> {
             MethodChoice::Rung(_) => "--iters",
         };
         return bad(format!("{flag} 0: expected at least 1"));
+    }
+    if let Some(hz) = a.refresh_hz {
+        if !(hz.is_finite() && hz >= 0.0) {
+            return bad(format!(
+                "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
+            ));
+        }
+        if a.method != MethodChoice::Auto {
+            return bad(format!(
+                "--refresh-hz {hz}: only `--method auto` weighs a climb's live pass; {} is one \
+                 rung",
+                a.method
+            ));
+        }
     }
     for (flag, v) in [
         ("--rig-latency-ms", a.rig_latency_ms),

@@ -217,6 +217,7 @@ pub fn loop_pairs(
         climb_gain_db: None,
         climb_later: false,
         geometry_memo: None,
+        live: None,
     };
     let (model, _) = compend::fit::fit(setup, &req, |_, _, _| {})
         .context("fitting linear for the closed-loop pairs")?;

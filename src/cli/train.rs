@@ -71,6 +71,38 @@ pub struct Args {
     /// `compend pretrain` for the variant's channel width.
     #[arg(long, value_name = "shipped|none|FILE", default_value = "shipped")]
     pub photometric_init: compend::nn::pretrain::PhotometricInit,
+    /// `auto` only: weigh the climb's live pass for a display refreshing at HZ. The rung it
+    /// would climb to is timed first on this machine's GPU, at the setup's projector resolution,
+    /// and is not trained when its pass takes more than half of one refresh period. Default:
+    /// not weighed (the model may play on another machine); `calibrate` weighs it on the
+    /// projector window's GPU.
+    #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
+    pub refresh_hz: Option<f64>,
+}
+
+/// The timer of `--refresh-hz`, on this machine's GPU; checked before any work.
+fn live_pass(args: &Args) -> Result<Option<std::sync::Arc<dyn fit::LivePass>>> {
+    let Some(hz) = args.refresh_hz else {
+        return Ok(None);
+    };
+    if args.method != compend::model::MethodChoice::Auto {
+        return Err(compend::Error::Input(format!(
+            "--refresh-hz {hz}: only `auto` weighs a climb's live pass; {} is one rung",
+            args.method
+        ))
+        .into());
+    }
+    if !(hz.is_finite() && hz > 0.0) {
+        return Err(compend::Error::Input(format!(
+            "--refresh-hz {hz}: expected a positive number"
+        ))
+        .into());
+    }
+    let ctx = compend::gpu::GpuContext::new()
+        .context("--refresh-hz: opening this machine's GPU to time the climb's live pass")?;
+    Ok(Some(std::sync::Arc::new(
+        compend::gpu::live::GpuLivePass::new(ctx, hz)?,
+    )))
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -105,6 +137,7 @@ pub fn run(args: Args) -> Result<()> {
         climb_gain_db: args.climb_gain,
         climb_later: false,
         geometry_memo: None,
+        live: live_pass(&args)?,
     };
     if let Some(w) = args
         .climb_gain

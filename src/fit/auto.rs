@@ -128,6 +128,35 @@ pub(super) fn fit_auto(
     } else {
         None
     };
+    // The climb's live pass, timed where the model is to play, when the caller asked: a rung
+    // the display cannot keep up with is not trained.
+    let live = match (&no_climb, &req.live) {
+        (None, Some(probe)) => Some(live_cost(setup, req, rung, &data, probe.as_ref())),
+        _ => None,
+    };
+    let (no_climb, live) = match live {
+        Some(Ok(cost)) if !cost.fits() => (
+            Some(format!(
+                "{}: the climb is not trained, the linear rungs play",
+                cost.describe()
+            )),
+            Some(cost),
+        ),
+        Some(Ok(cost)) => (no_climb, Some(cost)),
+        Some(Err(e)) => (
+            Some(format!(
+                "{rung}'s live pass could not be timed on the GPU that is to play it ({e}): \
+                 the climb is not trained, the linear rungs play"
+            )),
+            None,
+        ),
+        None => (no_climb, None),
+    };
+    match &live {
+        Some(cost) if cost.fits() => tracing::info!("auto: {}", cost.describe()),
+        Some(cost) => tracing::warn!("auto: {}", cost.describe()),
+        None => {}
+    }
     // The linear rungs are scored on held-out sampling pairs when there are two to choose
     // from, or when the climb is judged there against the best of them. A lone `linear` judged
     // against nothing there is not fitted for it (a fit of its own, 15–20 s at 800×600).
@@ -148,6 +177,7 @@ pub(super) fn fit_auto(
             candidates: Vec::new(),
             closed_loop: Vec::new(),
             loop_held_out: None,
+            live,
         };
         return linear_rungs::fit_linear(
             setup,
@@ -268,6 +298,7 @@ pub(super) fn fit_auto(
         candidates,
         closed_loop: Vec::new(),
         loop_held_out,
+        live,
     };
     match climbed {
         Some((mut model, summary)) => {
@@ -287,6 +318,35 @@ pub(super) fn fit_auto(
             progress,
         ),
     }
+}
+
+/// Times the live pass of `rung` with `probe`, in the shapes this training would give it: the
+/// captures' camera size, `req`'s lattice (resolved), the data root's network size and the
+/// projector's resolution (the lattice's when unknown).
+fn live_cost(
+    setup: &Setup,
+    req: &Request,
+    rung: Method,
+    data: &TrainingData<'_>,
+    probe: &dyn super::LivePass,
+) -> Result<super::LiveCost> {
+    let network = setup.root().network_size()?;
+    let projector = super::projector_size(setup, req)?;
+    let lattice = req
+        .lattice
+        .unwrap_or_else(|| super::default_lattice(network, projector));
+    let camera = data
+        .captures
+        .first()
+        .map(|c| c.size())
+        .ok_or_else(|| crate::Error::Input("no training pairs to size the live pass".into()))?;
+    probe.cost(&super::PassShape {
+        method: rung,
+        camera,
+        lattice,
+        network,
+        projector: projector.unwrap_or(lattice),
+    })
 }
 
 /// A residual rung (`rung`, of `variant`) trained on every pair of `data` but the last sixth of its

@@ -14,10 +14,12 @@ mod auto;
 mod compennet;
 mod device;
 mod linear_rungs;
+mod live;
 mod rule;
 
 pub use auto::{climb_rung, judge_on_loop_pairs, judges_on_loop_pairs, lower_rung, settle_climb};
 pub use device::TrainDevice;
+pub use live::{LIVE_SHARE, LiveCost, LivePass, PassShape};
 pub use rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB};
 
 use std::borrow::Cow;
@@ -76,6 +78,10 @@ pub struct Request {
     /// a fit takes it only when it was fitted on the same things); `None`: `auto` shares one
     /// among its own fits, and any other request fits its geometry afresh.
     pub geometry_memo: Option<std::sync::Arc<crate::linear::GeometryMemo>>,
+    /// `auto` only: times the climb rung's live pass where the model is to play; a rung whose
+    /// pass does not fit the display's frame budget is not climbed to ([`LivePass`]). `None`:
+    /// the live pass is not weighed (the model may play elsewhere).
+    pub live: Option<std::sync::Arc<dyn LivePass>>,
 }
 
 /// The default output lattice of the `linear` rungs: the projector's resolution (`projector`,
@@ -167,13 +173,7 @@ fn with_lattice(
     if req.lattice.is_some() || variant.is_some_and(|v| !v.residual()) {
         return Ok(req.clone());
     }
-    let projector = match (req.projector, setup.root().projector_size()) {
-        (Some(size), _) | (None, Ok(size)) => Some(size),
-        (None, Err(Error::Missing { .. })) => {
-            crate::calibrate::manifest::recorded_projector(setup.path())?
-        }
-        (None, Err(e)) => return Err(e),
-    };
+    let projector = projector_size(setup, req)?;
     let network = setup.root().network_size()?;
     let lattice = default_lattice(network, projector);
     if lattice.width < network.width || lattice.height < network.height {
@@ -186,6 +186,18 @@ fn with_lattice(
     Ok(Request {
         lattice: Some(lattice),
         ..req.clone()
+    })
+}
+
+/// The projector's resolution: the caller's, else the structured-light patterns' size, else
+/// what a calibration recorded for this setup; `None` when none says.
+fn projector_size(setup: &Setup, req: &Request) -> Result<Option<ImageSize>> {
+    Ok(match (req.projector, setup.root().projector_size()) {
+        (Some(size), _) | (None, Ok(size)) => Some(size),
+        (None, Err(Error::Missing { .. })) => {
+            crate::calibrate::manifest::recorded_projector(setup.path())?
+        }
+        (None, Err(e)) => return Err(e),
     })
 }
 

@@ -227,11 +227,34 @@ pub fn synthetic_linear_model(
     network: ImageSize,
     seed: u64,
 ) -> crate::model::Model {
+    use crate::model::store::{FORMAT_VERSION, ModelMeta};
+    use crate::raster::Mask;
+
+    let model = synthetic_linear(camera, network, seed);
+    let meta = ModelMeta {
+        format_version: FORMAT_VERSION,
+        method: crate::model::Method::Linear,
+        network_size: network,
+        camera_size: camera,
+        canvas: None,
+        training: Default::default(),
+        metrics: serde_json::Value::Null,
+        timings: Default::default(),
+        written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
+        calibration: None,
+    };
+    crate::model::Model::linear(meta, Mask::full(camera.width, camera.height), model)
+}
+
+/// The `linear` model of [`synthetic_linear_model`].
+fn synthetic_linear(
+    camera: ImageSize,
+    network: ImageSize,
+    seed: u64,
+) -> crate::linear::LinearModel {
     use rand::{RngExt, SeedableRng};
 
     use crate::linear::{Coefficients, Curves, Geometry, LinearModel};
-    use crate::model::store::{FORMAT_VERSION, ModelMeta};
-    use crate::raster::Mask;
     use crate::sample::{Grid, pixel_to_norm};
 
     let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(seed);
@@ -252,7 +275,7 @@ pub fn synthetic_linear_model(
             k
         })
         .collect();
-    let model = LinearModel {
+    LinearModel {
         geometry: Geometry::Fixed(grid),
         curves: Curves::default(),
         coeffs: Coefficients {
@@ -262,20 +285,7 @@ pub fn synthetic_linear_model(
         },
         camera_size: camera,
         geometry_size: ImageSize::new(nw, nh),
-    };
-    let meta = ModelMeta {
-        format_version: FORMAT_VERSION,
-        method: crate::model::Method::Linear,
-        network_size: network,
-        camera_size: camera,
-        canvas: None,
-        training: Default::default(),
-        metrics: serde_json::Value::Null,
-        timings: Default::default(),
-        written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
-        calibration: None,
-    };
-    crate::model::Model::linear(meta, Mask::full(camera.width, camera.height), model)
+    }
 }
 
 /// A simplified CompenNet++ model with seeded weights (Kaiming normal, zero biases, as a fresh
@@ -289,9 +299,57 @@ pub fn synthetic_compennet_model(
     variant: crate::nn::compennetpp::Variant,
     seed: u64,
 ) -> Result<crate::model::Model> {
-    use crate::model::store::{FORMAT_VERSION, ModelMeta};
+    let (net, surface) = synthetic_network(camera, network, variant, seed)?;
+    let meta = synthetic_meta(variant, network, camera)?;
+    crate::model::Model::compennet(
+        meta,
+        crate::raster::Mask::full(camera.width, camera.height),
+        net,
+        surface,
+    )
+}
+
+/// A residual rung's model for timing (`variant` one of the residual rungs): the
+/// [`synthetic_linear_model`]'s `linear` part on `lattice`, and a correction network as
+/// [`synthetic_compennet_model`]'s, on the data root's `network` divided by the variant's
+/// divisor, its last layer at zero as a fresh rung starts.
+pub fn synthetic_residual_model(
+    camera: ImageSize,
+    lattice: ImageSize,
+    network: ImageSize,
+    variant: crate::nn::compennetpp::Variant,
+    seed: u64,
+) -> Result<crate::model::Model> {
+    if !variant.residual() {
+        return Err(Error::Input(format!(
+            "{}: not a residual rung",
+            variant.method()
+        )));
+    }
+    let div = variant.network_divisor();
+    let correction = ImageSize::new(network.width / div, network.height / div);
+    let (mut net, surface) = synthetic_network(camera, correction, variant, seed)?;
+    net.make_residual()
+        .map_err(|e| Error::Failed(format!("synthetic {}: {e}", variant.method())))?;
+    let meta = synthetic_meta(variant, lattice, camera)?;
+    crate::model::Model::residual(
+        meta,
+        crate::raster::Mask::full(camera.width, camera.height),
+        synthetic_linear(camera, lattice, seed),
+        net,
+        surface,
+    )
+}
+
+/// The seeded network of [`synthetic_compennet_model`] and its surface image.
+fn synthetic_network(
+    camera: ImageSize,
+    network: ImageSize,
+    variant: crate::nn::compennetpp::Variant,
+    seed: u64,
+) -> Result<(crate::nn::compennetpp::CompenNetPP, crate::raster::CamImage)> {
     use crate::nn::compennetpp::{CompenNetPP, GeometryInit};
-    use crate::raster::{CamImage, ImageSize, Mask};
+    use crate::raster::CamImage;
 
     if !network.width.is_multiple_of(4)
         || !network.height.is_multiple_of(4)
@@ -327,7 +385,18 @@ pub fn synthetic_compennet_model(
             })
             .collect(),
     )?;
-    let meta = ModelMeta {
+    Ok((net, surface))
+}
+
+/// The record of a synthetic model of `variant` whose output is `network` pixels.
+fn synthetic_meta(
+    variant: crate::nn::compennetpp::Variant,
+    network: ImageSize,
+    camera: ImageSize,
+) -> Result<crate::model::store::ModelMeta> {
+    use crate::model::store::{FORMAT_VERSION, ModelMeta};
+
+    Ok(ModelMeta {
         format_version: FORMAT_VERSION,
         method: crate::model::Method::from_name(variant.method())
             .ok_or_else(|| crate::Error::Shape(format!("no method named {}", variant.method())))?,
@@ -339,6 +408,5 @@ pub fn synthetic_compennet_model(
         timings: Default::default(),
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
         calibration: None,
-    };
-    crate::model::Model::compennet(meta, Mask::full(cw, ch), net, surface)
+    })
 }

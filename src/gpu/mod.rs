@@ -7,6 +7,7 @@
 //!   variant ([`linear`] for the `linear` rung, [`compennet`] for the CompenNet++ family,
 //!   [`residual`] for the residual rungs, which run both and add).
 //! - [`bench`]: per-frame GPU time of the pass against a plain texture copy of the same size.
+//! - [`live`]: a climb rung's pass timed where the model is to play, for `auto`'s frame budget.
 //!
 //! Every stage has a CPU reference in the core ([`crate::playback`]), and tests compare them.
 
@@ -15,6 +16,7 @@ pub mod compennet;
 pub mod context;
 mod kernel;
 pub mod linear;
+pub mod live;
 pub mod pass;
 pub mod residual;
 

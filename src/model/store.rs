@@ -118,6 +118,70 @@ pub struct ClimbRecord {
     pub loop_held_out: Option<LoopHeldOut>,
 }
 
+/// What a rung's compensation pass costs per frame on the GPU that is to play it, against the
+/// display's refresh ([`crate::fit::LivePass`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LiveCost {
+    /// The rung timed.
+    pub method: Method,
+    /// The adapter it was timed on, in words.
+    pub adapter: String,
+    /// The projector frame the pass wrote, projector pixels.
+    #[serde(with = "crate::raster::as_pair")]
+    pub projector: ImageSize,
+    /// The median time of its whole pass per frame (content frame to projector frame), ms:
+    /// GPU timestamps where the adapter has them, else submit to idle.
+    pub pass_ms: f64,
+    /// The display's refresh rate, Hz.
+    pub refresh_hz: f64,
+    /// What the pass may take: [`LIVE_SHARE`] of one refresh period, ms.
+    pub budget_ms: f64,
+}
+
+/// The share of one refresh period the compensation pass may take: the rest is left to the
+/// content's upload, the copy into the window's surface and the compositor.
+pub const LIVE_SHARE: f64 = 0.5;
+
+impl LiveCost {
+    /// A measurement, with the budget of `refresh_hz`.
+    pub fn new(
+        method: Method,
+        adapter: String,
+        projector: ImageSize,
+        pass_ms: f64,
+        refresh_hz: f64,
+    ) -> Self {
+        Self {
+            method,
+            adapter,
+            projector,
+            pass_ms,
+            refresh_hz,
+            budget_ms: LIVE_SHARE * 1e3 / refresh_hz,
+        }
+    }
+
+    /// Whether the pass fits its budget; a time that is not a number never does.
+    pub fn fits(&self) -> bool {
+        self.pass_ms.is_finite() && self.pass_ms <= self.budget_ms
+    }
+
+    /// The measurement in words, for logs and records.
+    pub fn describe(&self) -> String {
+        format!(
+            "{}'s live pass takes {:.2} ms per {} frame on {}, {} the {:.2} ms budget (half of \
+             one refresh period at {} Hz)",
+            self.method,
+            self.pass_ms,
+            self.projector,
+            self.adapter,
+            if self.fits() { "within" } else { "over" },
+            self.budget_ms,
+            self.refresh_hz
+        )
+    }
+}
+
 impl ClimbRecord {
     /// Where `psnr` and `replaced_psnr` were measured, in words.
     pub fn judged_on(&self) -> String {
@@ -278,6 +342,11 @@ pub struct AutoEvidence {
     /// the only one, `why` says so).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loop_held_out: Option<LoopHeldOut>,
+    /// The climb rung's live pass timed on the GPU that is to play it, when the caller asked
+    /// for it (`calibrate` through a projector window, `train --refresh-hz`): a rung whose pass
+    /// does not fit the frame budget is not climbed to.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub live: Option<LiveCost>,
 }
 
 /// `auto`'s climb judged on closed-loop pairs held out of training: each held-out pair's
@@ -369,6 +438,10 @@ impl AutoEvidence {
         }
         if let Some(why) = &self.why {
             out.push(format!("auto: {why}"));
+        }
+        // A pass over its budget is in `why`.
+        if let Some(live) = self.live.as_ref().filter(|l| l.fits()) {
+            out.push(format!("auto: {}", live.describe()));
         }
         if let Some(l) = &self.loop_held_out {
             let figures: Vec<String> = l

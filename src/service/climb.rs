@@ -166,6 +166,7 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
         climb_gain_db: None,
         climb_later: false,
         geometry_memo: None,
+        live: None,
     };
     let rule = fit::ClimbRule { gain_db: p.gain_db };
     // The residual rung on a calibration with closed-loop pairs is judged as `auto` judges it,

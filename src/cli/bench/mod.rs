@@ -386,6 +386,7 @@ impl SceneBench<'_> {
                 .filter(|_| method == compend::model::MethodChoice::Auto),
             climb_later: false,
             geometry_memo: None,
+            live: None,
         };
         let mut row = Row {
             scene: scene.into(),

@@ -136,6 +136,7 @@ fn calibration_options(
         iters: c.climb_iters.filter(|_| method == MethodChoice::Auto),
         device: c.device,
         loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
+        live: None,
         rig: rig_name(config),
         cancel: Some(cancel),
     }
