@@ -127,6 +127,12 @@ pub struct CalibrationConfig {
     /// on them, and `auto` with 8 or more judges its climb on them
     /// ([`crate::calibrate::refine`]).
     pub loop_images: Option<usize>,
+    /// The display refresh rate (Hz) a climb's live pass is weighed at (`method = "auto"`'s
+    /// and the progressive climb's): the rung is timed on the playback GPU first and not
+    /// trained when its pass takes more than half of one refresh period. `None`: the projector
+    /// window's rate (window and camera rigs; the virtual rig's climbs are then not weighed);
+    /// 0: not weighed.
+    pub refresh_hz: Option<f64>,
 }
 
 /// `[playback]`.
@@ -529,6 +535,12 @@ impl<'t> Walker<'t> {
                 format!("[calibration] verify = {verify} is more than ntest = {ntest}"),
             ));
         }
+        let refresh_hz = self.checked(t, "refresh_hz", None, |v: &Option<f64>| match v {
+            Some(hz) if !(hz.is_finite() && *hz >= 0.0) => Err(format!(
+                "{hz}: expected a refresh rate in Hz, or 0 (a climb's live pass not weighed)"
+            )),
+            _ => Ok(()),
+        });
         let span = span_of(t, "loop_images");
         let loop_images: Option<usize> = self.get(t, "loop_images");
         if let Some(n) = loop_images
@@ -588,6 +600,7 @@ impl<'t> Walker<'t> {
             climb_iters: self.get::<usize>(t, "climb_iters").filter(|&n| n > 0),
             device,
             loop_images,
+            refresh_hz,
         }
     }
 
@@ -1033,6 +1046,28 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    #[test]
+    fn the_refresh_rate_a_climb_is_weighed_at_is_a_rate_or_0() {
+        assert_eq!(parse("").unwrap().calibration.refresh_hz, None);
+        let c = parse("[calibration]\nrefresh_hz = 60\n").unwrap();
+        assert_eq!(c.calibration.refresh_hz, Some(60.0));
+        let c = parse("[calibration]\nrefresh_hz = 0.0\n").unwrap();
+        assert_eq!(c.calibration.refresh_hz, Some(0.0));
+        // Every wrong value is reported, each with its line.
+        let e = parse("[calibration]\nrefresh_hz = -50.0\n[rig]\nfps = \"fast\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("t.toml:2: [calibration] refresh_hz: -50: expected a refresh rate in Hz"),
+            "{e}"
+        );
+        assert!(e.contains("t.toml:4: [rig] fps"), "{e}");
+        let e = parse("[calibration]\nrefresh_hz = \"60 Hz\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("t.toml:2: [calibration] refresh_hz"), "{e}");
     }
 
     #[test]

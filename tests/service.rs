@@ -787,7 +787,12 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
     // A margin no rung can show: the climb trains, is judged and changes nothing. The residual
     // rung is judged as `auto` judges it, on closed-loop pairs held out of its training (the
     // calibration took 12 with `linear`).
-    std::fs::write(&config, climbing("compennet++-res", "100.0")).unwrap();
+    // Its live pass is timed first on the playback GPU, and fits a refresh every 1000 s.
+    std::fs::write(
+        &config,
+        climbing("compennet++-res", "100.0\nrefresh_hz = 0.001"),
+    )
+    .unwrap();
     let mut svc = Service::start(&config);
     svc.wait_for("playback of the calibrated model", 300, playing);
     let model = dir.path().join("state/model");
@@ -809,6 +814,12 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
     assert!(
         svc.log()
             .contains("on 4 held-out closed-loop pairs (against its own linear part)"),
+        "log:\n{}",
+        svc.log()
+    );
+    assert!(
+        svc.log()
+            .contains("progressive calibration: compennet++-res's live pass takes"),
         "log:\n{}",
         svc.log()
     );
@@ -863,6 +874,44 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
     let a = svc.status()["frames"]["shown"].as_u64().unwrap();
     std::thread::sleep(Duration::from_millis(700));
     assert!(svc.status()["frames"]["shown"].as_u64().unwrap() > a);
+    unsafe { libc::kill(svc.pid(), libc::SIGTERM) };
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+}
+
+#[test]
+fn a_climb_the_display_cannot_keep_up_with_is_not_trained() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), "textured-plane", 9, "", "enabled = false");
+    // A refresh a billion times a second: no pass fits half a nanosecond.
+    let text = std::fs::read_to_string(&config).unwrap().replace(
+        "network = \"64\"",
+        "network = \"64\"\nclimb = \"compennet++-res\"\nclimb_iters = 8\nrefresh_hz = 1e9",
+    );
+    std::fs::write(&config, text).unwrap();
+    let mut svc = Service::start(&config);
+    svc.wait_for("playback of the calibrated model", 300, playing);
+    let start = Instant::now();
+    while !svc.log().contains("is not climbed to") {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "log:\n{}",
+            svc.log()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let log = svc.log();
+    assert!(
+        log.contains("compennet++-res's live pass takes") && log.contains("over the 0.00 ms"),
+        "log:\n{log}"
+    );
+    assert!(
+        !log.contains("training compennet++-res beside playback"),
+        "log:\n{log}"
+    );
+    assert_eq!(svc.status()["model"]["method"], "linear");
     unsafe { libc::kill(svc.pid(), libc::SIGTERM) };
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }

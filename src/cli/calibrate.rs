@@ -112,9 +112,9 @@ pub struct Args {
     /// auto only: the display refresh rate the climb's live pass is weighed at. The rung auto
     /// would climb to is timed first on the GPU that is to play the model, at the projector's
     /// resolution, and is not trained when its pass takes more than half of one refresh
-    /// period. Default: the projector window's refresh rate (window and camera rigs); the
-    /// virtual rig's projector plays through no GPU, so there it is weighed only when this is
-    /// given, on this machine's GPU; 0: not weighed.
+    /// period; 0: not weighed. Default: the configuration's `refresh_hz`, else the projector
+    /// window's rate (window and camera rigs). The virtual rig's projector plays through no
+    /// GPU, so there it is weighed only when a rate is given, on this machine's GPU.
     #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     pub refresh_hz: Option<f64>,
     /// Frames averaged per capture [default: 3].
@@ -170,8 +170,8 @@ struct Settings {
     device: compend::fit::TrainDevice,
     /// Closed-loop pairs (`--loop-images`, the config's `loop_images`).
     loop_images: usize,
-    /// `auto`: the refresh rate its climb's live pass is weighed at (`--refresh-hz`); `None`:
-    /// the window's; 0: not weighed.
+    /// `auto`: the refresh rate its climb's live pass is weighed at (`--refresh-hz`, the
+    /// config's `refresh_hz`); `None`: the window's; 0: not weighed.
     refresh_hz: Option<f64>,
     average: usize,
     rig_latency_ms: Option<f64>,
@@ -210,6 +210,21 @@ impl Settings {
             if let Some(flag) = flag {
                 return Err(compend::Error::Input(format!(
                     "{flag}: only `--method auto` climbs the ladder; {method} is one rung"
+                ))
+                .into());
+            }
+        }
+        if let Some(hz) = a.refresh_hz {
+            if !(hz.is_finite() && hz >= 0.0) {
+                return Err(compend::Error::Input(format!(
+                    "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
+                ))
+                .into());
+            }
+            if method != MethodChoice::Auto {
+                return Err(compend::Error::Input(format!(
+                    "--refresh-hz {hz}: only `--method auto` weighs a climb's live pass; \
+                     {method} is one rung"
                 ))
                 .into());
             }
@@ -303,7 +318,7 @@ impl Settings {
             },
             device,
             loop_images,
-            refresh_hz: a.refresh_hz,
+            refresh_hz: a.refresh_hz.or(k.refresh_hz),
             average: a.average.unwrap_or(k.average),
             seed: a.seed.unwrap_or(r.seed),
             network: a.network.unwrap_or(k.network),
@@ -783,20 +798,6 @@ fn check_counts(a: &Settings) -> compend::Result<()> {
             MethodChoice::Rung(_) => "--iters",
         };
         return bad(format!("{flag} 0: expected at least 1"));
-    }
-    if let Some(hz) = a.refresh_hz {
-        if !(hz.is_finite() && hz >= 0.0) {
-            return bad(format!(
-                "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
-            ));
-        }
-        if a.method != MethodChoice::Auto {
-            return bad(format!(
-                "--refresh-hz {hz}: only `--method auto` weighs a climb's live pass; {} is one \
-                 rung",
-                a.method
-            ));
-        }
     }
     for (flag, v) in [
         ("--rig-latency-ms", a.rig_latency_ms),

@@ -19,10 +19,11 @@ pub struct PassShape {
     pub method: Method,
     /// The desired view's size, camera pixels.
     pub camera: ImageSize,
-    /// The `linear` part's output lattice, network pixels.
+    /// The output lattice of a linear rung or of a residual rung's `linear` part, network
+    /// pixels (unused by the other CompenNet++ rungs).
     pub lattice: ImageSize,
-    /// The data root's network size, network pixels (the correction's network is this divided
-    /// by the variant's divisor).
+    /// The data root's network size, network pixels (a CompenNet++ rung's network, or a
+    /// residual rung's correction network, is this divided by the variant's divisor).
     pub network: ImageSize,
     /// The projector frame the pass writes, projector pixels.
     pub projector: ImageSize,

@@ -1,15 +1,18 @@
 //! The climb's frame budget measured where the model is to play ([`crate::fit::LivePass`]): a
-//! residual rung's whole pass (its `linear` part, the correction network and their sum, onto
-//! the projector frame), built from a synthetic model of the shapes training would give it and
-//! timed on the playback GPU, against the display's refresh.
+//! rung's whole pass onto the projector frame (for a residual rung its `linear` part, the
+//! correction network and their sum), built from a synthetic model of the shapes training
+//! would give it and timed on the playback GPU, against the display's refresh.
 
 use super::GpuContext;
-use super::bench::{synthetic_residual_model, time_pass};
+use super::bench::{
+    synthetic_compennet_model, synthetic_linear_model, synthetic_residual_model, time_pass,
+};
 use super::pass::CompensationPass;
 use crate::error::{Error, Result};
 use crate::fit::{LiveCost, LivePass, PassShape};
 use crate::fov::DisplayRange;
 use crate::nn::compennetpp::Variant;
+use crate::raster::ImageSize;
 use crate::source::Pattern;
 
 /// Untimed frames before the timed ones: the first compiles the shaders (on software drivers)
@@ -40,16 +43,17 @@ impl GpuLivePass {
 
 impl LivePass for GpuLivePass {
     fn cost(&self, shape: &PassShape) -> Result<LiveCost> {
-        let variant = Variant::from_method(shape.method.name())
-            .filter(|v| v.residual())
-            .ok_or_else(|| {
-                Error::Input(format!(
-                    "{}: only the residual rungs' live pass is timed before a climb",
-                    shape.method
-                ))
-            })?;
-        let model =
-            synthetic_residual_model(shape.camera, shape.lattice, shape.network, variant, 0)?;
+        let model = match Variant::from_method(shape.method.name()) {
+            Some(v) if v.residual() => {
+                synthetic_residual_model(shape.camera, shape.lattice, shape.network, v, 0)?
+            }
+            Some(v) => {
+                let div = v.network_divisor();
+                let net = ImageSize::new(shape.network.width / div, shape.network.height / div);
+                synthetic_compennet_model(shape.camera, net, v, 0)?
+            }
+            None => synthetic_linear_model(shape.camera, shape.lattice, 0),
+        };
         let ctx = &self.ctx;
         let mut pass =
             CompensationPass::for_display(ctx, &model, shape.projector, DisplayRange::FULL)?;

@@ -138,6 +138,21 @@ impl Devices {
         }
     }
 
+    /// The timer of a climb's live pass on the playback GPU, at `refresh_hz` (`[calibration]
+    /// refresh_hz`), else at the projector window's rate; the virtual rig's climbs only when it
+    /// is set. `None`: not weighed (0, or a virtual rig without it).
+    pub(super) fn live_pass(
+        &self,
+        refresh_hz: Option<f64>,
+    ) -> Option<std::sync::Arc<dyn crate::fit::LivePass>> {
+        let (ctx, hz) = match self {
+            Devices::Virtual(v) => (&v.ctx, refresh_hz?),
+            Devices::Hardware(h) => (h.win.context(), refresh_hz.unwrap_or(h.win.refresh_hz())),
+        };
+        let pass = crate::gpu::live::GpuLivePass::new(ctx.clone(), hz).ok()?;
+        Some(std::sync::Arc::new(pass))
+    }
+
     pub(super) fn camera_size(&self) -> ImageSize {
         match self {
             Devices::Virtual(v) => v.scene.camera.size(),

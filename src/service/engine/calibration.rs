@@ -96,13 +96,14 @@ impl Drop for Training {
 }
 
 /// A calibration's options from the configuration's `[calibration]`, for a projector of
-/// `projector` pixels, stopped by `cancel`. For a drift refit (`refitting`, `on_drift =
-/// "refit"`): `[monitoring] refit_ntrain` sampling images, only the test images the
-/// verification projects, and the `linear` rung.
+/// `projector` pixels, stopped by `cancel`; `auto` weighs its climb's live pass with `live`.
+/// For a drift refit (`refitting`, `on_drift = "refit"`): `[monitoring] refit_ntrain` sampling
+/// images, only the test images the verification projects, and the `linear` rung.
 fn calibration_options(
     config: &Config,
     refitting: bool,
     projector: crate::raster::ImageSize,
+    live: Option<Arc<dyn crate::fit::LivePass>>,
     cancel: Arc<AtomicBool>,
 ) -> Options {
     let c = &config.calibration;
@@ -136,7 +137,7 @@ fn calibration_options(
         iters: c.climb_iters.filter(|_| method == MethodChoice::Auto),
         device: c.device,
         loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
-        live: None,
+        live: live.filter(|_| method == MethodChoice::Auto),
         rig: rig_name(config),
         cancel: Some(cancel),
     }
@@ -149,6 +150,7 @@ impl Engine {
             &self.config,
             self.refitting,
             self.devices.display_size(),
+            self.devices.live_pass(self.config.calibration.refresh_hz),
             cancel,
         )
     }
@@ -398,8 +400,13 @@ impl Engine {
             Ok(model) => {
                 tracing::info!("installed {} into {}", model.meta.method, out.display());
                 let c = &self.config.calibration;
-                self.climb_plan =
-                    climb::Plan::after_install(c, model.meta.method, &data, setup, &out);
+                self.climb_plan = climb::Plan::after_install(
+                    c,
+                    model.meta.method,
+                    (&data, setup),
+                    &out,
+                    self.devices.live_pass(c.refresh_hz),
+                );
                 let message = format!(
                     "installed {} into {} (verified {:.2} dB, {:+.2} dB over uncompensated)",
                     model.meta.method,
@@ -745,6 +752,16 @@ mod tests {
     use crate::fit::TrainDevice;
     use crate::raster::ImageSize;
 
+    /// A timer that times nothing.
+    #[derive(Debug)]
+    struct NoPass;
+
+    impl crate::fit::LivePass for NoPass {
+        fn cost(&self, _: &crate::fit::PassShape) -> Result<crate::fit::LiveCost> {
+            Err(Error::Failed("not timed".into()))
+        }
+    }
+
     #[test]
     fn a_calibration_takes_the_configured_method_and_device() {
         let mut config = Config::defaults();
@@ -752,15 +769,25 @@ mod tests {
         config.calibration.device = TrainDevice::Cuda(1);
         config.calibration.climb_iters = Some(300);
         let projector = ImageSize::new(800, 600);
-        let o = calibration_options(&config, false, projector, Arc::default());
+        let live: Arc<dyn crate::fit::LivePass> = Arc::new(NoPass);
+        let o = calibration_options(
+            &config,
+            false,
+            projector,
+            Some(live.clone()),
+            Arc::default(),
+        );
         assert_eq!(o.method, MethodChoice::Auto);
+        // `auto` weighs its climb with the playback GPU's timer.
+        assert!(o.live.is_some());
         assert_eq!(o.device, TrainDevice::Cuda(1));
         assert_eq!(o.iters, Some(300));
         assert_eq!(o.patterns.projector, projector);
         assert_eq!(o.patterns.ntrain, config.calibration.ntrain);
         // A drift refit fits `linear` on a handful of images, whatever the method.
-        let o = calibration_options(&config, true, projector, Arc::default());
+        let o = calibration_options(&config, true, projector, Some(live), Arc::default());
         assert_eq!(o.method, MethodChoice::Rung(Method::Linear));
+        assert!(o.live.is_none());
         assert_eq!(o.patterns.ntrain, config.monitoring.refit_ntrain);
         assert_eq!(o.iters, None);
     }

@@ -420,9 +420,35 @@ impl Engine {
         let fps = self.config.rig.fps;
         let drift_after = self.config.rig.drift_after_s;
         if let Some(plan) = self.climb_plan.take() {
-            match climb::Climb::start(plan) {
-                Ok(c) => self.climb = Some(c),
-                Err(e) => self.io.fail("progressive calibration", &e),
+            // A rung the display cannot keep up with is not trained: its pass is timed first,
+            // alone on the GPU, before this playback starts.
+            let method = plan.method;
+            let affordable = match plan.live_cost(self.devices.display_size()) {
+                Ok(None) => true,
+                Ok(Some(cost)) if cost.fits() => {
+                    tracing::info!("progressive calibration: {}", cost.describe());
+                    true
+                }
+                Ok(Some(cost)) => {
+                    tracing::warn!(
+                        "progressive calibration: {}: {method} is not climbed to",
+                        cost.describe()
+                    );
+                    false
+                }
+                Err(e) => {
+                    tracing::warn!(
+                        "progressive calibration: {method}'s live pass could not be timed on \
+                         the playback GPU ({e}): it is not climbed to"
+                    );
+                    false
+                }
+            };
+            if affordable {
+                match climb::Climb::start(plan) {
+                    Ok(c) => self.climb = Some(c),
+                    Err(e) => self.io.fail("progressive calibration", &e),
+                }
             }
         }
         // A calibration's model training beside this playback ends it when it is trained.
