@@ -566,6 +566,25 @@ fn inspect_gap_in_train_captures_exits_2_naming_the_first_missing_file() {
 }
 
 #[test]
+fn inspect_lists_fifty_problems_and_counts_each_once() {
+    let f = fixture();
+    // 55 damaged colour-cube references (the black and white ones, 1 and 2, stay readable).
+    for i in 3..58 {
+        fs::write(f.cam("ref", &format!("img_{i:04}.png")), b"garbage").unwrap();
+    }
+    let (o, v) = inspect_json(&f);
+    assert_code(&o, 2);
+    assert_eq!(v["total_problems"], 55, "{v}");
+    let listed = v["problems"].as_array().unwrap();
+    assert_eq!(listed.len(), 50, "{v}");
+    assert!(
+        listed[0].as_str().unwrap().contains("ref/img_0003.png"),
+        "{v}"
+    );
+    assert!(stderr(&o).contains("55 problems"), "{}", stderr(&o));
+}
+
+#[test]
 fn inspect_reports_all_problems_at_once() {
     let f = fixture();
     fs::write(f.cam("train", "img_0001.png"), b"garbage").unwrap();

@@ -68,9 +68,10 @@ pub struct Report {
 /// Opens the setup and checks it fully.
 pub fn report(args: &Args) -> Result<Report> {
     let setup = args.setup.open()?;
-    let v = setup.validate(MAX_PROBLEMS);
+    // Every problem is kept until the others are added, so that none is counted twice; at most
+    // MAX_PROBLEMS are listed.
+    let v = setup.validate(usize::MAX);
     let mut problems: Vec<String> = v.problems.iter().map(|e| e.to_string()).collect();
-    let mut total_problems = v.total_problems;
     // A calibration's closed-loop pairs start right after its sampling pairs (its manifest
     // says how many): a lost first view is a problem here too. An error the validation already
     // reported (an unreadable folder, a gap) is not counted twice.
@@ -80,7 +81,6 @@ pub fn report(args: &Args) -> Result<Report> {
     if let Err(e) = checked {
         let e = e.to_string();
         if !problems.contains(&e) {
-            total_problems += 1;
             problems.push(e);
         }
     }
@@ -88,11 +88,12 @@ pub fn report(args: &Args) -> Result<Report> {
         Ok(f) => f,
         Err(e) => {
             // A setup whose projector light cannot be found is not usable: report it as a problem.
-            total_problems += 1;
             problems.push(format!("{e:#}"));
             None
         }
     };
+    let total_problems = problems.len();
+    problems.truncate(MAX_PROBLEMS);
     Ok(Report {
         ok: total_problems == 0,
         setup: v.info,
