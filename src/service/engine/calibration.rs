@@ -95,6 +95,26 @@ impl Drop for Training {
     }
 }
 
+/// Why `[calibration] device` cannot train what the configuration trains on it (a network:
+/// `method`, or `climb`), in words; `None` when it can, or when nothing trains there. The
+/// playback needs no CUDA, so the service starts anyway and says so at once, rather than at
+/// its first training.
+pub(super) fn device_problem(c: &crate::config::CalibrationConfig) -> Option<String> {
+    let trains = c.method.may_train_a_network() || c.climb.is_some_and(|m| !m.is_linear());
+    if !trains || c.device == crate::fit::TrainDevice::Cpu {
+        return None;
+    }
+    c.device.candle().err().map(|e| {
+        format!(
+            "[calibration] device = \"{}\": {e}; every training of a CompenNet++ rung there \
+             (method = \"{}\", climb = \"{}\") will fail until it is mended",
+            c.device,
+            c.method,
+            c.climb.map_or("none", |m| m.name())
+        )
+    })
+}
+
 /// A calibration's options from the configuration's `[calibration]`, for a projector of
 /// `projector` pixels, stopped by `cancel`; `auto` weighs its climb's live pass with `live`.
 /// For a drift refit (`refitting`, `on_drift = "refit"`): `[monitoring] refit_ntrain` sampling
@@ -759,6 +779,27 @@ mod tests {
     impl crate::fit::LivePass for NoPass {
         fn cost(&self, _: &crate::fit::PassShape) -> Result<crate::fit::LiveCost> {
             Err(Error::Failed("not timed".into()))
+        }
+    }
+
+    #[test]
+    fn a_training_device_that_cannot_open_is_said_at_once() {
+        let mut c = Config::defaults().calibration;
+        // The CPU always trains; a linear method on a GPU trains nothing there.
+        assert_eq!(device_problem(&c), None);
+        c.device = TrainDevice::Cuda(1);
+        assert_eq!(device_problem(&c), None);
+        c.climb = Some(Method::CompenNetPpResFull);
+        match device_problem(&c) {
+            // This build has no CUDA (CI's): the device cannot open.
+            Some(w) if !cfg!(feature = "cuda") => assert!(
+                w.contains("[calibration] device = \"cuda:1\"")
+                    && w.contains("built without CUDA")
+                    && w.contains("climb = \"compennet++-res-full\""),
+                "{w}"
+            ),
+            // A CUDA build opens it only where there is such a GPU.
+            w => assert!(cfg!(feature = "cuda"), "{w:?}"),
         }
     }
 

@@ -125,6 +125,9 @@ impl Engine {
         {
             engine.io.fail("the installed model was not loaded", &e);
         }
+        if let Some(w) = calibration::device_problem(&engine.config.calibration) {
+            tracing::warn!("{w}");
+        }
         let runs = Runs::new(&engine.config.paths.data);
         tracing::info!(
             "compend {} serving {}; model: {}; source: {}",
@@ -273,6 +276,9 @@ impl Engine {
         }
         if c.playback.source != self.config.playback.source {
             self.source = c.playback.source.clone();
+        }
+        if let Some(w) = calibration::device_problem(&c.calibration) {
+            tracing::warn!("reload: {w}");
         }
         self.config.calibration = c.calibration;
         self.config.playback = c.playback;
