@@ -567,17 +567,16 @@ fn auto_climbs_only_to_a_rung_whose_live_pass_fits_the_frame_budget() {
     let why = auto["why"].as_str().unwrap();
     assert!(
         why.contains("compennet++-res's live pass takes")
-            && why.contains("over the 0.00 ms budget")
-            && why.contains("the climb is not trained"),
+            && why.contains("over the 5.00e-7 ms budget")
+            && why.contains("the climb is not trained, the best linear rung is kept"),
         "{why}"
     );
     assert_eq!(live(&meta)["refresh_hz"], 1e9, "{auto}");
     // Only `auto` weighs a climb, at a positive rate: exit 2, before any work.
     for (method, hz, says) in [
         ("linear", "60", "only `auto` weighs a climb's live pass"),
-        ("auto", "0", "expected a positive number"),
-        ("auto", "-60", "expected a positive number"),
-        ("auto", "NaN", "expected a positive number"),
+        ("auto", "-60", "expected a refresh rate in Hz, or 0"),
+        ("auto", "NaN", "expected a refresh rate in Hz, or 0"),
     ] {
         let out = dir.path().join("refused");
         let o = compend(&[
@@ -595,6 +594,28 @@ fn auto_climbs_only_to_a_rung_whose_live_pass_fits_the_frame_budget() {
         assert!(stderr(&o).contains(says), "{}", stderr(&o));
         assert!(!out.exists());
     }
+    // A setup that does not record the projector's resolution cannot size the pass: exit 2,
+    // naming the setup, before anything is fitted.
+    std::fs::remove_dir_all(dir.path().join("sl")).unwrap();
+    let out = dir.path().join("unsized");
+    let o = compend(&[
+        "train",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--method",
+        "auto",
+        "--refresh-hz",
+        "60",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("the projector's resolution is not known"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
 }
 
 #[test]

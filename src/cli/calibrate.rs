@@ -112,8 +112,8 @@ pub struct Args {
     /// auto only: the display refresh rate the climb's live pass is weighed at. The rung auto
     /// would climb to is timed first on the GPU that is to play the model, at the projector's
     /// resolution, and is not trained when its pass takes more than half of one refresh
-    /// period; 0: not weighed. Default: the configuration's `refresh_hz`, else the projector
-    /// window's rate (window and camera rigs). The virtual rig's projector plays through no
+    /// period, or cannot be timed; 0: not weighed. Default: the configuration's `refresh_hz`,
+    /// else the projector window's rate (window and camera rigs). The virtual rig's projector plays through no
     /// GPU, so there it is weighed only when a rate is given, on this machine's GPU.
     #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     pub refresh_hz: Option<f64>,
@@ -221,7 +221,7 @@ impl Settings {
                 ))
                 .into());
             }
-            if method != MethodChoice::Auto {
+            if method != MethodChoice::Auto && hz > 0.0 {
                 return Err(compend::Error::Input(format!(
                     "--refresh-hz {hz}: only `--method auto` weighs a climb's live pass; \
                      {method} is one rung"
@@ -525,9 +525,12 @@ fn run_virtual(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
     // on this machine's GPU.
     let live = match args.refresh_hz {
         Some(hz) if hz > 0.0 && args.method == MethodChoice::Auto => {
-            let ctx = compend::gpu::GpuContext::new().context(
-                "--refresh-hz: opening this machine's GPU to time the climb's live pass",
-            )?;
+            let ctx = compend::gpu::GpuContext::new().with_context(|| {
+                format!(
+                    "opening this machine's GPU to time the climb's live pass at {hz} Hz \
+                     (--refresh-hz, or the configuration's refresh_hz)"
+                )
+            })?;
             Some(live_pass(ctx, hz)?)
         }
         _ => None,

@@ -72,10 +72,11 @@ pub struct Args {
     #[arg(long, value_name = "shipped|none|FILE", default_value = "shipped")]
     pub photometric_init: compend::nn::pretrain::PhotometricInit,
     /// `auto` only: weigh the climb's live pass for a display refreshing at HZ. The rung it
-    /// would climb to is timed first on this machine's GPU, at the setup's projector resolution,
-    /// and is not trained when its pass takes more than half of one refresh period. Default:
-    /// not weighed (the model may play on another machine); `calibrate` weighs it on the
-    /// projector window's GPU.
+    /// would climb to is timed first on this machine's GPU, at the setup's projector resolution
+    /// (a setup that does not record it is refused), and is not trained when its pass takes
+    /// more than half of one refresh period, or cannot be timed. Default, or 0: not weighed
+    /// (the model may play on another machine); `calibrate` weighs it on the projector
+    /// window's GPU.
     #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     pub refresh_hz: Option<f64>,
 }
@@ -85,6 +86,15 @@ fn live_pass(args: &Args) -> Result<Option<std::sync::Arc<dyn fit::LivePass>>> {
     let Some(hz) = args.refresh_hz else {
         return Ok(None);
     };
+    if !(hz.is_finite() && hz >= 0.0) {
+        return Err(compend::Error::Input(format!(
+            "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
+        ))
+        .into());
+    }
+    if hz == 0.0 {
+        return Ok(None);
+    }
     if args.method != compend::model::MethodChoice::Auto {
         return Err(compend::Error::Input(format!(
             "--refresh-hz {hz}: only `auto` weighs a climb's live pass; {} is one rung",
@@ -92,14 +102,9 @@ fn live_pass(args: &Args) -> Result<Option<std::sync::Arc<dyn fit::LivePass>>> {
         ))
         .into());
     }
-    if !(hz.is_finite() && hz > 0.0) {
-        return Err(compend::Error::Input(format!(
-            "--refresh-hz {hz}: expected a positive number"
-        ))
-        .into());
-    }
-    let ctx = compend::gpu::GpuContext::new()
-        .context("--refresh-hz: opening this machine's GPU to time the climb's live pass")?;
+    let ctx = compend::gpu::GpuContext::new().with_context(|| {
+        format!("--refresh-hz {hz}: opening this machine's GPU to time the climb's live pass")
+    })?;
     Ok(Some(std::sync::Arc::new(
         compend::gpu::live::GpuLivePass::new(ctx, hz)?,
     )))

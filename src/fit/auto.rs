@@ -128,42 +128,13 @@ pub(super) fn fit_auto(
     } else {
         None
     };
-    // The climb's live pass, timed where the model is to play, when the caller asked: a rung
-    // the display cannot keep up with is not trained.
-    let live = match (&no_climb, &req.live) {
-        (None, Some(probe)) => Some(live_cost(setup, req, rung, &data, probe.as_ref())),
-        _ => None,
-    };
-    let (no_climb, live) = match live {
-        Some(Ok(cost)) if !cost.fits() => (
-            Some(format!(
-                "{}: the climb is not trained, the linear rungs play",
-                cost.describe()
-            )),
-            Some(cost),
-        ),
-        Some(Ok(cost)) => (no_climb, Some(cost)),
-        Some(Err(e)) => (
-            Some(format!(
-                "{rung}'s live pass could not be timed on the GPU that is to play it ({e}): \
-                 the climb is not trained, the linear rungs play"
-            )),
-            None,
-        ),
-        None => (no_climb, None),
-    };
-    match &live {
-        Some(cost) if cost.fits() => tracing::info!("auto: {}", cost.describe()),
-        Some(cost) => tracing::warn!("auto: {}", cost.describe()),
-        None => {}
-    }
     // The linear rungs are scored on held-out sampling pairs when there are two to choose
     // from, or when the climb is judged there against the best of them. A lone `linear` judged
     // against nothing there is not fitted for it (a fit of its own, 15–20 s at 800×600).
-    let compare =
-        linear_rungs::linear_rungs(setup).len() > 1 || (no_climb.is_none() && !on_loop_pairs);
+    let rungs = linear_rungs::linear_rungs(setup).len();
+    let compares = |no_climb: &Option<String>| rungs > 1 || (no_climb.is_none() && !on_loop_pairs);
     let held = held_out(sampling);
-    if compare && sampling < held + MIN_TRAIN {
+    if compares(&no_climb) && sampling < held + MIN_TRAIN {
         let evidence = AutoEvidence {
             rule: rule.describe("held-out training pairs"),
             chosen: Method::Linear,
@@ -177,7 +148,7 @@ pub(super) fn fit_auto(
             candidates: Vec::new(),
             closed_loop: Vec::new(),
             loop_held_out: None,
-            live,
+            live: None,
         };
         return linear_rungs::fit_linear(
             setup,
@@ -190,6 +161,38 @@ pub(super) fn fit_auto(
             progress,
         );
     }
+    // The climb's live pass, timed where the model is to play, when the caller asked: a rung
+    // the display cannot keep up with is not trained. A pass that cannot be sized is the
+    // caller's error; one that cannot be timed is a climb not taken.
+    let live = match (&no_climb, &req.live) {
+        (None, Some(probe)) => match live_cost(setup, req, rung, &data, probe.as_ref()) {
+            Err(e @ crate::Error::Input(_)) => return Err(e),
+            timed => Some(timed),
+        },
+        _ => None,
+    };
+    let (no_climb, live) = match live {
+        Some(Ok(cost)) if !cost.fits() => (
+            Some(format!(
+                "{}: the climb is not trained, the best linear rung is kept",
+                cost.describe()
+            )),
+            Some(cost),
+        ),
+        Some(Ok(cost)) => (no_climb, Some(cost)),
+        Some(Err(e)) => (
+            Some(format!(
+                "{rung}'s live pass could not be timed on the GPU that is to play it ({e}): \
+                 the climb is not trained, the best linear rung is kept"
+            )),
+            None,
+        ),
+        None => (no_climb, None),
+    };
+    if let Some(cost) = &live {
+        tracing::info!("auto: {}", cost.describe());
+    }
+    let compare = compares(&no_climb);
     let cut = sampling.saturating_sub(held);
     let (fit_pairs, held_pairs) = (
         (&data.captures[..cut], &data.targets[..cut]),
@@ -322,7 +325,7 @@ pub(super) fn fit_auto(
 
 /// Times the live pass of `rung` with `probe`, in the shapes this training would give it: the
 /// captures' camera size, `req`'s lattice (resolved), the data root's network size and the
-/// projector's resolution (the lattice's when unknown).
+/// projector's resolution (an input error when the setup does not record it).
 fn live_cost(
     setup: &Setup,
     req: &Request,
@@ -331,10 +334,17 @@ fn live_cost(
     probe: &dyn super::LivePass,
 ) -> Result<super::LiveCost> {
     let network = setup.root().network_size()?;
-    let projector = super::projector_size(setup, req)?;
+    let projector = super::projector_size(setup, req)?.ok_or_else(|| {
+        crate::Error::Input(format!(
+            "{}: the projector's resolution is not known (no structured-light patterns in its \
+             data root, no calibration manifest), so the climb's live pass cannot be sized for \
+             it; leave the refresh rate out, or train on a setup that records it",
+            setup.path().display()
+        ))
+    })?;
     let lattice = req
         .lattice
-        .unwrap_or_else(|| super::default_lattice(network, projector));
+        .unwrap_or_else(|| super::default_lattice(network, Some(projector)));
     let camera = data
         .captures
         .first()
@@ -345,7 +355,7 @@ fn live_cost(
         camera,
         lattice,
         network,
-        projector: projector.unwrap_or(lattice),
+        projector,
     })
 }
 

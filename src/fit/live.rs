@@ -59,8 +59,15 @@ mod tests {
         assert!(!at(f64::INFINITY, 60.0).fits());
         let words = at(12.0, 60.0).describe();
         assert!(
-            words.contains("12.00 ms per 1920x1080 frame on test, over the 8.33 ms budget"),
+            words.contains(
+                "12.00 ms per 1920x1080 frame on test, over the 8.33 ms budget (half of one \
+                 refresh period at 60.00 Hz)"
+            ),
             "{words}"
         );
+        // Rates far from a display's are written in few digits.
+        let words = at(1.0, 1e-300).describe();
+        assert!(words.contains("within the 5.00e302 ms budget"), "{words}");
+        assert!(words.contains("at 1.00e-300 Hz"), "{words}");
     }
 }

@@ -169,16 +169,25 @@ impl LiveCost {
     /// The measurement in words, for logs and records.
     pub fn describe(&self) -> String {
         format!(
-            "{}'s live pass takes {:.2} ms per {} frame on {}, {} the {:.2} ms budget (half of \
-             one refresh period at {} Hz)",
+            "{}'s live pass takes {} ms per {} frame on {}, {} the {} ms budget (half of one \
+             refresh period at {} Hz)",
             self.method,
-            self.pass_ms,
+            readable(self.pass_ms),
             self.projector,
             self.adapter,
             if self.fits() { "within" } else { "over" },
-            self.budget_ms,
-            self.refresh_hz
+            readable(self.budget_ms),
+            readable(self.refresh_hz)
         )
+    }
+}
+
+/// `v` with two decimals, in scientific notation when that would print many digits or none.
+fn readable(v: f64) -> String {
+    if v == 0.0 || (0.01..1e6).contains(&v.abs()) {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.2e}")
     }
 }
 
@@ -650,6 +659,16 @@ impl Tensors {
 
 /// Reads a model directory: metadata (version checked) and tensors.
 pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
+    let meta = load_meta(dir)?;
+    let weights_path = dir.join(WEIGHTS_FILE);
+    let bytes =
+        fs::read(&weights_path).map_err(|e| Error::io(&weights_path, "read model weights", e))?;
+    let tensors = Tensors::from_bytes(&bytes, &weights_path)?;
+    Ok((meta, tensors))
+}
+
+/// Reads a model directory's metadata alone (version checked).
+pub fn load_meta(dir: &Path) -> Result<ModelMeta> {
     let meta_path = dir.join(META_FILE);
     let text = fs::read_to_string(&meta_path)
         .map_err(|e| Error::io(&meta_path, "read model metadata", e))?;
@@ -673,17 +692,12 @@ pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
             )));
         }
     }
-    let meta: ModelMeta = serde_json::from_str(&text).map_err(|e| {
+    serde_json::from_str(&text).map_err(|e| {
         Error::Input(format!(
             "{}: invalid model metadata ({e})",
             meta_path.display()
         ))
-    })?;
-    let weights_path = dir.join(WEIGHTS_FILE);
-    let bytes =
-        fs::read(&weights_path).map_err(|e| Error::io(&weights_path, "read model weights", e))?;
-    let tensors = Tensors::from_bytes(&bytes, &weights_path)?;
-    Ok((meta, tensors))
+    })
 }
 
 /// Checks, before any work, that a model may be written at `dir`: nothing is there, an empty

@@ -41,21 +41,18 @@ pub(super) struct Plan {
     pub(super) setup: PathBuf,
     /// The installed model directory: what the climb must beat, and where it installs.
     pub(super) model: PathBuf,
-    /// Times the rung's live pass on the playback GPU before it trains (`[calibration]
-    /// refresh_hz`); `None`: not weighed.
-    pub(super) live: Option<Arc<dyn fit::LivePass>>,
 }
 
 impl Plan {
     /// The climb `[calibration]` (`c`) asks for once a calibration has installed a model of
-    /// `installed` into `model`, from the data root `root` and its setup `setup`, its live pass
-    /// weighed by `live`: `None` when it asks for none, or for the rung just installed.
+    /// `installed` into `model`, from the data root `root` and its setup `setup`: `None` when it
+    /// asks for none, or for the rung just installed.
     pub(super) fn after_install(
         c: &crate::config::CalibrationConfig,
         installed: Method,
-        (root, setup): (&Path, PathBuf),
+        root: &Path,
+        setup: PathBuf,
         model: &Path,
-        live: Option<Arc<dyn fit::LivePass>>,
     ) -> Option<Self> {
         c.climb.filter(|m| *m != installed).map(|method| Plan {
             method,
@@ -65,23 +62,24 @@ impl Plan {
             root: root.to_path_buf(),
             setup,
             model: model.to_path_buf(),
-            live,
         })
     }
 
-    /// Whether the rung's live pass fits the display's frame budget, timed on the playback GPU
-    /// in the shapes the climb would give it (the installed model's camera size and lattice,
-    /// the setup's network size, `projector`); `Ok(None)` when not weighed. Run on the
-    /// engine's thread before the playback starts, so that it times the pass alone.
+    /// The rung's live pass timed by `probe` on the playback GPU, in the shapes the climb
+    /// would give it (the installed model's camera size and lattice, the setup's network size,
+    /// `projector`); `Ok(None)` when not weighed: no probe, or a linear rung, which plays at
+    /// the installed one's cost. Run on the engine's thread before the playback starts, so
+    /// that it times the pass alone.
     pub(super) fn live_cost(
         &self,
+        probe: Option<&dyn fit::LivePass>,
         projector: crate::raster::ImageSize,
     ) -> Result<Option<crate::model::store::LiveCost>> {
-        let Some(probe) = &self.live else {
+        let Some(probe) = probe.filter(|_| !self.method.is_linear()) else {
             return Ok(None);
         };
         let setup = Setup::open(&self.setup, Some(&self.root))?;
-        let (installed, _) = crate::model::store::load(&self.model)?;
+        let installed = crate::model::store::load_meta(&self.model)?;
         probe
             .cost(&fit::PassShape {
                 method: self.method,
@@ -310,9 +308,9 @@ mod tests {
             Plan::after_install(
                 c,
                 installed,
-                (Path::new("runs/run-1"), PathBuf::from("runs/run-1/capture")),
+                Path::new("runs/run-1"),
+                PathBuf::from("runs/run-1/capture"),
                 Path::new("model"),
-                None,
             )
         };
         // No climb by default.

@@ -277,7 +277,9 @@ impl Engine {
         if c.playback.source != self.config.playback.source {
             self.source = c.playback.source.clone();
         }
-        if let Some(w) = calibration::device_problem(&c.calibration) {
+        if c.calibration != self.config.calibration
+            && let Some(w) = calibration::device_problem(&c.calibration)
+        {
             tracing::warn!("reload: {w}");
         }
         self.config.calibration = c.calibration;
@@ -383,6 +385,39 @@ impl Engine {
                     c.verification.psnr
                 ))
         );
+        if let Some(plan) = self.climb_plan.take() {
+            // A rung the display cannot keep up with is not trained: its pass is timed first,
+            // alone on the GPU, before this playback starts.
+            let method = plan.method;
+            let probe = self.devices.live_pass(self.config.calibration.refresh_hz);
+            let affordable = match plan.live_cost(probe.as_deref(), self.devices.display_size()) {
+                Ok(None) => true,
+                Ok(Some(cost)) if cost.fits() => {
+                    tracing::info!("progressive calibration: {}", cost.describe());
+                    true
+                }
+                Ok(Some(cost)) => {
+                    tracing::warn!(
+                        "progressive calibration: {}: {method} is not climbed to",
+                        cost.describe()
+                    );
+                    false
+                }
+                Err(e) => {
+                    tracing::warn!(
+                        "progressive calibration: {method}'s live pass could not be timed on \
+                         the playback GPU ({e}): it is not climbed to"
+                    );
+                    false
+                }
+            };
+            if affordable {
+                match climb::Climb::start(plan) {
+                    Ok(c) => self.climb = Some(c),
+                    Err(e) => self.io.fail("progressive calibration", &e),
+                }
+            }
+        }
         let src = self.source.clone();
         let before = self.io.shared.status().frames;
         self.io.shared.update(|s| {
@@ -425,38 +460,6 @@ impl Engine {
         let stats_every = Duration::from_secs_f64(self.config.log.stats_period_s);
         let fps = self.config.rig.fps;
         let drift_after = self.config.rig.drift_after_s;
-        if let Some(plan) = self.climb_plan.take() {
-            // A rung the display cannot keep up with is not trained: its pass is timed first,
-            // alone on the GPU, before this playback starts.
-            let method = plan.method;
-            let affordable = match plan.live_cost(self.devices.display_size()) {
-                Ok(None) => true,
-                Ok(Some(cost)) if cost.fits() => {
-                    tracing::info!("progressive calibration: {}", cost.describe());
-                    true
-                }
-                Ok(Some(cost)) => {
-                    tracing::warn!(
-                        "progressive calibration: {}: {method} is not climbed to",
-                        cost.describe()
-                    );
-                    false
-                }
-                Err(e) => {
-                    tracing::warn!(
-                        "progressive calibration: {method}'s live pass could not be timed on \
-                         the playback GPU ({e}): it is not climbed to"
-                    );
-                    false
-                }
-            };
-            if affordable {
-                match climb::Climb::start(plan) {
-                    Ok(c) => self.climb = Some(c),
-                    Err(e) => self.io.fail("progressive calibration", &e),
-                }
-            }
-        }
         // A calibration's model training beside this playback ends it when it is trained.
         let end_when = self.training.as_ref().map(|t| t.done.clone());
         let result = match &mut self.devices {
