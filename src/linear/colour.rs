@@ -27,12 +27,20 @@ pub(super) fn fit_colour(
         .max(grid.size().height)
         .div_ceil(CURVE_SAMPLES)
         .max(1);
+    let t = std::time::Instant::now();
     let curves = fit_curves(captures, targets, grid, start, ridge, stride, CURVE_SWEEPS);
+    let curves_s = t.elapsed().as_secs_f64();
     let warped: Vec<NetImage> = captures
         .par_iter()
         .map(|c| crate::sample::grid_sample(c, grid))
         .collect();
     let (coeffs, loss) = solve_colour(&warped, targets, &curves, ridge);
+    tracing::debug!(
+        "colour on {} pairs at {}: curves {curves_s:.1} s, coefficients {:.1} s",
+        captures.len(),
+        grid.size(),
+        t.elapsed().as_secs_f64() - curves_s
+    );
     (curves, coeffs, loss)
 }
 
@@ -75,22 +83,11 @@ fn solve_colour(
         height: h,
         data,
     };
-    let sse: f64 = (0..w * h)
-        .into_par_iter()
-        .map(|p| {
-            let k = &coeffs.data[p];
-            let mut s = 0f64;
-            for (wi, ti) in warped.iter().zip(targets) {
-                let a = features(curves, &wi.data()[p * 3..p * 3 + 3]);
-                let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
-                for c in 0..3 {
-                    let r = k[c * 3] * a[0] + k[c * 3 + 1] * a[1] + k[c * 3 + 2] * a[2] + k[9 + c]
-                        - y[c];
-                    s += (r * r) as f64;
-                }
-            }
-            s
-        })
+    // The squared residual from each pixel's sums: one pass over the data, not two.
+    let sse: f64 = normals
+        .par_iter()
+        .zip(&coeffs.data)
+        .map(|(ne, k)| ne.sse(k))
         .sum();
     (coeffs, sse / (n * w * h * 3) as f64)
 }
