@@ -572,6 +572,10 @@ fn auto_climbs_only_to_a_rung_whose_live_pass_fits_the_frame_budget() {
         "{why}"
     );
     assert_eq!(live(&meta)["refresh_hz"], 1e9, "{auto}");
+    // 0 Hz: not weighed, and any rung may be climbed to.
+    let meta = train_auto(&setup, &model, &[&forced[..], &["0"]].concat());
+    assert_eq!(meta["method"], "compennet++-res", "{meta}");
+    assert!(meta["training"]["auto"].get("live").is_none(), "{meta}");
     // Only `auto` weighs a climb, at a positive rate: exit 2, before any work.
     for (method, hz, says) in [
         ("linear", "60", "only `auto` weighs a climb's live pass"),

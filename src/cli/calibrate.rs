@@ -113,8 +113,9 @@ pub struct Args {
     /// would climb to is timed first on the GPU that is to play the model, at the projector's
     /// resolution, and is not trained when its pass takes more than half of one refresh
     /// period, or cannot be timed; 0: not weighed. Default: the configuration's `refresh_hz`,
-    /// else the projector window's rate (window and camera rigs). The virtual rig's projector plays through no
-    /// GPU, so there it is weighed only when a rate is given, on this machine's GPU.
+    /// else the projector window's rate (window and camera rigs). The virtual rig's projector
+    /// plays through no GPU, so there it is weighed only when a rate is given, on this
+    /// machine's GPU.
     #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
     pub refresh_hz: Option<f64>,
     /// Frames averaged per capture [default: 3].
@@ -650,11 +651,12 @@ fn window_live_pass(
 /// The timer of a climb's live pass on `ctx` at `hz`, said on stderr.
 fn live_pass(ctx: compend::gpu::GpuContext, hz: f64) -> Result<Arc<dyn compend::fit::LivePass>> {
     eprintln!(
-        "calibrate: auto climbs only to a rung whose live pass on {} takes at most {:.2} ms \
-         ({} of one refresh period at {hz} Hz)",
+        "calibrate: auto climbs only to a rung whose live pass on {} takes at most {} ms ({} \
+         of one refresh period at {} Hz)",
         ctx.describe(),
-        compend::fit::LIVE_SHARE * 1e3 / hz,
-        compend::fit::LIVE_SHARE
+        compend::model::store::readable(compend::fit::LIVE_SHARE * 1e3 / hz),
+        compend::fit::LIVE_SHARE,
+        compend::model::store::readable(hz)
     );
     Ok(Arc::new(compend::gpu::live::GpuLivePass::new(ctx, hz)?))
 }

@@ -163,12 +163,9 @@ pub(super) fn fit_auto(
     }
     // The climb's live pass, timed where the model is to play, when the caller asked: a rung
     // the display cannot keep up with is not trained. A pass that cannot be sized is the
-    // caller's error; one that cannot be timed is a climb not taken.
+    // caller's error; one that cannot be timed (or built on that GPU) is a climb not taken.
     let live = match (&no_climb, &req.live) {
-        (None, Some(probe)) => match live_cost(setup, req, rung, &data, probe.as_ref()) {
-            Err(e @ crate::Error::Input(_)) => return Err(e),
-            timed => Some(timed),
-        },
+        (None, Some(probe)) => Some(probe.cost(&pass_shape(setup, req, rung, &data)?)),
         _ => None,
     };
     let (no_climb, live) = match live {
@@ -323,16 +320,15 @@ pub(super) fn fit_auto(
     }
 }
 
-/// Times the live pass of `rung` with `probe`, in the shapes this training would give it: the
-/// captures' camera size, `req`'s lattice (resolved), the data root's network size and the
-/// projector's resolution (an input error when the setup does not record it).
-fn live_cost(
+/// The shapes this training would give `rung`'s live pass: the captures' camera size, `req`'s
+/// lattice (resolved), the data root's network size and the projector's resolution (an input
+/// error when the setup does not record it).
+fn pass_shape(
     setup: &Setup,
     req: &Request,
     rung: Method,
     data: &TrainingData<'_>,
-    probe: &dyn super::LivePass,
-) -> Result<super::LiveCost> {
+) -> Result<super::PassShape> {
     let network = setup.root().network_size()?;
     let projector = super::projector_size(setup, req)?.ok_or_else(|| {
         crate::Error::Input(format!(
@@ -350,7 +346,7 @@ fn live_cost(
         .first()
         .map(|c| c.size())
         .ok_or_else(|| crate::Error::Input("no training pairs to size the live pass".into()))?;
-    probe.cost(&super::PassShape {
+    Ok(super::PassShape {
         method: rung,
         camera,
         lattice,

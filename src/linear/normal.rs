@@ -67,7 +67,9 @@ impl Normal {
                     quad += beta[i] * ata(i, j) * beta[j];
                 }
             }
-            total += (self.yty[c] - 2.0 * cross + quad).max(0.0);
+            // Not `max`, which would turn a diverged fit's NaN into 0.
+            let v = self.yty[c] - 2.0 * cross + quad;
+            total += if v < 0.0 { 0.0 } else { v };
         }
         total
     }
@@ -179,6 +181,9 @@ mod tests {
         // At the least-squares solution (the residual is smallest, where cancellation is
         // worst) and away from it.
         let fitted = ne.solve(1e-9, &IDENTITY);
+        // A diverged fit's residual stays not-a-number: the fit is refused on it.
+        assert!(ne.sse(&[f32::NAN; 12]).is_nan());
+        assert!(!ne.sse(&[f32::INFINITY; 12]).is_finite());
         for k in [fitted, IDENTITY, [0.5; 12]] {
             let (from_sums, summed) = (ne.sse(&k), direct(&k));
             // The sums hold f32 products, so the difference loses digits: 5e-5 of the residual

@@ -183,7 +183,7 @@ impl LiveCost {
 }
 
 /// `v` with two decimals, in scientific notation when that would print many digits or none.
-fn readable(v: f64) -> String {
+pub fn readable(v: f64) -> String {
     if v == 0.0 || (0.01..1e6).contains(&v.abs()) {
         format!("{v:.2}")
     } else {
