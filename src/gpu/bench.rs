@@ -227,23 +227,13 @@ pub fn synthetic_linear_model(
     network: ImageSize,
     seed: u64,
 ) -> crate::model::Model {
-    use crate::model::store::{FORMAT_VERSION, ModelMeta};
-    use crate::raster::Mask;
-
     let model = synthetic_linear(camera, network, seed);
-    let meta = ModelMeta {
-        format_version: FORMAT_VERSION,
-        method: crate::model::Method::Linear,
-        network_size: network,
-        camera_size: camera,
-        canvas: None,
-        training: Default::default(),
-        metrics: serde_json::Value::Null,
-        timings: Default::default(),
-        written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
-        calibration: None,
-    };
-    crate::model::Model::linear(meta, Mask::full(camera.width, camera.height), model)
+    let meta = synthetic_meta(crate::model::Method::Linear, network, camera);
+    crate::model::Model::linear(
+        meta,
+        crate::raster::Mask::full(camera.width, camera.height),
+        model,
+    )
 }
 
 /// The `linear` model of [`synthetic_linear_model`].
@@ -300,7 +290,7 @@ pub fn synthetic_compennet_model(
     seed: u64,
 ) -> Result<crate::model::Model> {
     let (net, surface) = synthetic_network(camera, network, variant, seed)?;
-    let meta = synthetic_meta(variant, network, camera)?;
+    let meta = synthetic_meta(method_of(variant)?, network, camera);
     crate::model::Model::compennet(
         meta,
         crate::raster::Mask::full(camera.width, camera.height),
@@ -331,7 +321,7 @@ pub fn synthetic_residual_model(
     let (mut net, surface) = synthetic_network(camera, correction, variant, seed)?;
     net.make_residual()
         .map_err(|e| Error::Failed(format!("synthetic {}: {e}", variant.method())))?;
-    let meta = synthetic_meta(variant, lattice, camera)?;
+    let meta = synthetic_meta(method_of(variant)?, lattice, camera);
     crate::model::Model::residual(
         meta,
         crate::raster::Mask::full(camera.width, camera.height),
@@ -388,18 +378,23 @@ fn synthetic_network(
     Ok((net, surface))
 }
 
-/// The record of a synthetic model of `variant` whose output is `network` pixels.
+/// The method of `variant`.
+fn method_of(variant: crate::nn::compennetpp::Variant) -> Result<crate::model::Method> {
+    crate::model::Method::from_name(variant.method())
+        .ok_or_else(|| crate::Error::Shape(format!("no method named {}", variant.method())))
+}
+
+/// The record of a synthetic model of `method` whose output is `network` pixels.
 fn synthetic_meta(
-    variant: crate::nn::compennetpp::Variant,
+    method: crate::model::Method,
     network: ImageSize,
     camera: ImageSize,
-) -> Result<crate::model::store::ModelMeta> {
+) -> crate::model::store::ModelMeta {
     use crate::model::store::{FORMAT_VERSION, ModelMeta};
 
-    Ok(ModelMeta {
+    ModelMeta {
         format_version: FORMAT_VERSION,
-        method: crate::model::Method::from_name(variant.method())
-            .ok_or_else(|| crate::Error::Shape(format!("no method named {}", variant.method())))?,
+        method,
         network_size: network,
         camera_size: camera,
         canvas: None,
@@ -408,5 +403,5 @@ fn synthetic_meta(
         timings: Default::default(),
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
         calibration: None,
-    })
+    }
 }
