@@ -810,7 +810,16 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
         std::fs::read(model.join("model.safetensors")).unwrap(),
         weights
     );
-    assert_eq!(svc.status()["model"]["method"], "linear");
+    let s = svc.status();
+    assert_eq!(s["model"]["method"], "linear");
+    assert_eq!(s["last_climb"]["installed"], false, "{s}");
+    assert!(
+        s["last_climb"]["message"]
+            .as_str()
+            .unwrap()
+            .starts_with("kept linear: compennet++-res scored"),
+        "{s}"
+    );
     assert!(
         svc.log()
             .contains("on 4 held-out closed-loop pairs (against its own linear part)"),
@@ -849,6 +858,8 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
         playing(s) && s["model"]["method"] == "compennet++-cpu"
     });
     assert_eq!(s["calibrations"], 2, "{s}");
+    assert_eq!(s["last_climb"]["method"], "compennet++-cpu", "{s}");
+    assert_eq!(s["last_climb"]["installed"], true, "{s}");
     let climb = &s["model"]["climb"];
     assert_eq!(climb["replaced"], "linear", "{s}");
     assert!(
@@ -911,7 +922,19 @@ fn a_climb_the_display_cannot_keep_up_with_is_not_trained() {
         !log.contains("training compennet++-res beside playback"),
         "log:\n{log}"
     );
-    assert_eq!(svc.status()["model"]["method"], "linear");
+    let s = svc.status();
+    assert_eq!(s["model"]["method"], "linear");
+    // `status` says so too.
+    let climb = &s["last_climb"];
+    assert_eq!(climb["method"], "compennet++-res", "{s}");
+    assert_eq!(climb["installed"], false, "{s}");
+    assert!(
+        climb["message"]
+            .as_str()
+            .unwrap()
+            .contains("is not climbed to"),
+        "{s}"
+    );
     unsafe { libc::kill(svc.pid(), libc::SIGTERM) };
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }

@@ -228,6 +228,9 @@ fn describe(s: &Status) -> String {
     if let Some(c) = &s.last_calibration {
         out += &format!("last calibration: {}\n", c.message);
     }
+    if let Some(c) = &s.last_climb {
+        out += &format!("last climb: {}\n", c.message);
+    }
     if let Some(e) = &s.last_error {
         out += &format!("last error: {e}\n");
     }

@@ -91,6 +91,7 @@ impl Shared {
                 calibration: None,
                 calibrations: 0,
                 last_calibration: None,
+                last_climb: None,
                 last_error: None,
             }),
             events,
@@ -154,6 +155,17 @@ impl Io {
         tracing::error!("{what}: {e}");
         let msg = format!("{what}: {e}");
         self.shared.update(|s| s.last_error = Some(msg));
+    }
+
+    /// Says in `status` how the progressive climb to `method` ended.
+    fn climbed(&self, method: crate::model::Method, installed: bool, message: String) {
+        self.shared.update(|s| {
+            s.last_climb = Some(protocol::ClimbOutcome {
+                method: method.name().to_string(),
+                installed,
+                message,
+            })
+        });
     }
 }
 

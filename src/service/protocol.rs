@@ -216,6 +216,18 @@ pub struct CalibrationOutcome {
     pub message: String,
 }
 
+/// How the last progressive climb ended (`[calibration] climb`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ClimbOutcome {
+    /// The rung climbed to.
+    pub method: String,
+    /// It was installed (and plays).
+    pub installed: bool,
+    /// What happened, for the operator: installed, kept the model below and by how much, not
+    /// climbed to (its live pass over the frame budget), failed.
+    pub message: String,
+}
+
 /// What `status` answers.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Status {
@@ -236,6 +248,9 @@ pub struct Status {
     /// How the last of them ended.
     #[serde(default)]
     pub last_calibration: Option<CalibrationOutcome>,
+    /// How the last progressive climb ended, since the service started.
+    #[serde(default)]
+    pub last_climb: Option<ClimbOutcome>,
     /// The last thing that went wrong, for the operator.
     pub last_error: Option<String>,
 }

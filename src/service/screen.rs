@@ -256,14 +256,17 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         match outcome {
             Err(Error::Cancelled(_)) => {}
             Err(e) => {
-                let msg = format!("progressive calibration: climbing to {method} failed: {e}");
-                tracing::warn!("{msg}");
-                self.io.shared.update(|s| s.last_error = Some(msg));
+                let msg = format!("climbing to {method} failed: {e}");
+                tracing::warn!("progressive calibration: {msg}");
+                self.io.climbed(method, false, msg.clone());
+                self.io
+                    .shared
+                    .update(|s| s.last_error = Some(format!("progressive calibration: {msg}")));
             }
             Ok(Outcome::Kept(r)) => {
-                tracing::info!(
-                    "progressive calibration: kept {}: {method} scored {:.2} dB on {} against \
-                     {:.2} dB ({:+.2} dB, {:+.2} needed); {seconds:.0} s",
+                let msg = format!(
+                    "kept {}: {method} scored {:.2} dB on {} against {:.2} dB ({:+.2} dB, \
+                     {:+.2} needed); {seconds:.0} s",
                     r.replaced,
                     r.psnr,
                     r.judged_on(),
@@ -271,6 +274,8 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
                     r.psnr - r.replaced_psnr,
                     r.required_gain_db
                 );
+                tracing::info!("progressive calibration: {msg}");
+                self.io.climbed(method, false, msg);
             }
             Ok(Outcome::Candidate(c)) => {
                 if let Some(r) = c

@@ -517,17 +517,17 @@ impl Engine {
         let settled = verified.and_then(|v| climb::settle(c, &v));
         match settled {
             Ok(Ok(model)) => {
-                if let Some(r) = model
+                let figures = model
                     .meta
                     .calibration
                     .as_ref()
                     .and_then(|c| c.climb.as_ref())
-                    && let Some(cl) = &r.closed_loop
-                {
-                    tracing::info!(
-                        "progressive calibration: installed {method} into {}: {:.2} dB against \
-                         {:.2} dB for {} in closed loop on {} images ({:+.2} dB; held-out pairs \
-                         {:+.2} dB); {seconds:.0} s of training",
+                    .and_then(|r| r.closed_loop.as_ref().map(|cl| (r, cl)));
+                let msg = match figures {
+                    Some((r, cl)) => format!(
+                        "installed {method} into {}: {:.2} dB against {:.2} dB for {} in closed \
+                         loop on {} images ({:+.2} dB; held-out pairs {:+.2} dB); {seconds:.0} s \
+                         of training",
                         path.display(),
                         cl.psnr,
                         cl.replaced_psnr,
@@ -535,8 +535,11 @@ impl Engine {
                         cl.images,
                         cl.psnr - cl.replaced_psnr,
                         r.psnr - r.replaced_psnr
-                    );
-                }
+                    ),
+                    None => format!("installed {method} into {}", path.display()),
+                };
+                tracing::info!("progressive calibration: {msg}");
+                self.io.climbed(method, true, msg);
                 self.io.shared.update(|s| {
                     s.model = Some(ModelStatus::of(&path, &model));
                     s.monitoring = Monitoring::fresh(&s.monitoring);
@@ -546,11 +549,10 @@ impl Engine {
                 self.baseline = None;
             }
             Ok(Err(r)) => {
-                if let Some(cl) = &r.closed_loop {
-                    tracing::info!(
-                        "progressive calibration: kept {}: on the rig {method} scored {:.2} dB \
-                         against {:.2} dB in closed loop ({:+.2} dB, {:+.2} needed{}), though \
-                         {:+.2} dB on the held-out pairs",
+                let msg = match &r.closed_loop {
+                    Some(cl) => format!(
+                        "kept {}: on the rig {method} scored {:.2} dB against {:.2} dB in closed \
+                         loop ({:+.2} dB, {:+.2} needed{}), though {:+.2} dB on the held-out pairs",
                         r.replaced,
                         cl.psnr,
                         cl.replaced_psnr,
@@ -562,13 +564,18 @@ impl Engine {
                             "; it would not pass verification"
                         },
                         r.psnr - r.replaced_psnr
-                    );
-                }
+                    ),
+                    None => format!("kept {}: the rig did not confirm {method}", r.replaced),
+                };
+                tracing::info!("progressive calibration: {msg}");
+                self.io.climbed(method, false, msg);
             }
             Err(Error::Cancelled(_)) => {
                 tracing::info!("progressive calibration: the check of {method} was stopped");
             }
             Err(e) => {
+                self.io
+                    .climbed(method, false, format!("checking {method} failed: {e}"));
                 self.io
                     .fail(&format!("progressive calibration: checking {method}"), &e);
             }

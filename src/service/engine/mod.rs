@@ -397,17 +397,18 @@ impl Engine {
                     true
                 }
                 Ok(Some(cost)) => {
-                    tracing::warn!(
-                        "progressive calibration: {}: {method} is not climbed to",
-                        cost.describe()
-                    );
+                    let msg = format!("{}: {method} is not climbed to", cost.describe());
+                    tracing::warn!("progressive calibration: {msg}");
+                    self.io.climbed(method, false, msg);
                     false
                 }
                 Err(e) => {
-                    tracing::warn!(
-                        "progressive calibration: {method}'s live pass could not be timed on \
-                         the playback GPU ({e}): it is not climbed to"
+                    let msg = format!(
+                        "{method}'s live pass could not be timed on the playback GPU ({e}): it \
+                         is not climbed to"
                     );
+                    tracing::warn!("progressive calibration: {msg}");
+                    self.io.climbed(method, false, msg);
                     false
                 }
             };
