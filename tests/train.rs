@@ -576,12 +576,8 @@ fn auto_climbs_only_to_a_rung_whose_live_pass_fits_the_frame_budget() {
     let meta = train_auto(&setup, &model, &[&forced[..], &["0"]].concat());
     assert_eq!(meta["method"], "compennet++-res", "{meta}");
     assert!(meta["training"]["auto"].get("live").is_none(), "{meta}");
-    // Only `auto` weighs a climb, at a positive rate: exit 2, before any work.
-    for (method, hz, says) in [
-        ("linear", "60", "only `auto` weighs a climb's live pass"),
-        ("auto", "-60", "expected a refresh rate in Hz, or 0"),
-        ("auto", "NaN", "expected a refresh rate in Hz, or 0"),
-    ] {
+    // Refused with exit 2 before any work, nothing written, saying `says`.
+    let refused = |method: &str, hz: &str, says: &str| {
         let out = dir.path().join("refused");
         let o = compend(&[
             "train",
@@ -597,29 +593,19 @@ fn auto_climbs_only_to_a_rung_whose_live_pass_fits_the_frame_budget() {
         assert_code(&o, 2);
         assert!(stderr(&o).contains(says), "{}", stderr(&o));
         assert!(!out.exists());
+    };
+    // Only `auto` weighs a climb, at a positive rate.
+    for (method, hz, says) in [
+        ("linear", "60", "only `auto` weighs a climb's live pass"),
+        ("auto", "-60", "expected a refresh rate in Hz, or 0"),
+        ("auto", "NaN", "expected a refresh rate in Hz, or 0"),
+    ] {
+        refused(method, hz, says);
     }
-    // A setup that does not record the projector's resolution cannot size the pass: exit 2,
-    // naming the setup, before anything is fitted.
+    // A setup that does not record the projector's resolution cannot size the pass, and is
+    // named, before anything is fitted.
     std::fs::remove_dir_all(dir.path().join("sl")).unwrap();
-    let out = dir.path().join("unsized");
-    let o = compend(&[
-        "train",
-        "--setup",
-        setup.to_str().unwrap(),
-        "--method",
-        "auto",
-        "--refresh-hz",
-        "60",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert_code(&o, 2);
-    assert!(
-        stderr(&o).contains("the projector's resolution is not known"),
-        "{}",
-        stderr(&o)
-    );
-    assert!(!out.exists());
+    refused("auto", "60", "the projector's resolution is not known");
 }
 
 #[test]
