@@ -8,7 +8,7 @@
 use rayon::prelude::*;
 
 use super::model::Curves;
-use super::normal::{IDENTITY, features, targets_linear};
+use super::normal::IDENTITY;
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
 
@@ -102,7 +102,7 @@ pub(super) const CURVE_SWEEPS: usize = 12;
 
 /// Golden-section search for the minimum of `f` on `[lo, hi]` with `iters` shrinking steps;
 /// returns the better of the last two probes and its value.
-fn golden_min(mut lo: f32, mut hi: f32, iters: usize, f: impl Fn(f32) -> f64) -> (f32, f64) {
+fn golden_min(mut lo: f32, mut hi: f32, iters: usize, mut f: impl FnMut(f32) -> f64) -> (f32, f64) {
     let phi = 0.618_034_f32;
     let (mut a, mut b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
     let (mut fa, mut fb) = (f(a), f(b));
@@ -158,7 +158,11 @@ pub(super) fn fit_curves(
         .par_iter()
         .map(|c| crate::sample::grid_sample(c, &grid))
         .collect();
-    let cost = |cv: &Curves| forward_residual(&warped, &tgts, cv, ridge);
+    let mut samples = ForwardSamples::new(&warped, &tgts);
+    let mut cost = |cv: &Curves| {
+        samples.derive(cv);
+        forward_residual(&samples, cv, ridge)
+    };
     // Coordinates: [γc, γp0/γc, γp1/γc, γp2/γc] (the camera exponent of channel 0 speaks for all).
     let to_curves = |q: &[f32; 4]| Curves {
         camera_gamma: [q[0]; 3],
@@ -217,27 +221,94 @@ pub(super) fn fit_curves(
     to_curves(&best)
 }
 
+/// The curve search's samples, pixel-major (`[p * n + i]` for pixel `p` of pair `i`), and what
+/// the last cost evaluation derived from them through the curves, per channel: the camera
+/// features and weights (which depend on that channel's camera exponent only) and the projector
+/// light (its projector exponent only). A line search moves one coordinate at a time, and most
+/// of them leave the camera exponent alone, so most evaluations re-derive one channel of the
+/// projector light and nothing else. The values are those a direct evaluation computes.
+struct ForwardSamples {
+    /// Pairs.
+    n: usize,
+    /// Warped captures (camera-encoded values).
+    warped: Vec<[f32; 3]>,
+    /// Projector images (projector-encoded values).
+    shown: Vec<[f32; 3]>,
+    /// Per channel: the camera exponent, `f_c(w)` and [`encoding_weight`] of every sample
+    /// (NaN and empty until derived).
+    camera: [(f32, Vec<f32>, Vec<f32>); 3],
+    /// Per channel: the projector exponent and `f_p(x)` of every sample (NaN and empty until
+    /// derived).
+    projector: [(f32, Vec<f32>); 3],
+}
+
+impl ForwardSamples {
+    fn new(warped: &[NetImage], shown: &[NetImage]) -> Self {
+        let n = warped.len();
+        let pixels = shown[0].width() * shown[0].height();
+        let interleave = |images: &[NetImage]| -> Vec<[f32; 3]> {
+            (0..pixels * n)
+                .map(|k| {
+                    let (p, i) = (k / n, k % n);
+                    let d = &images[i].data()[p * 3..p * 3 + 3];
+                    [d[0], d[1], d[2]]
+                })
+                .collect()
+        };
+        Self {
+            n,
+            warped: interleave(warped),
+            shown: interleave(shown),
+            camera: std::array::from_fn(|_| (f32::NAN, Vec::new(), Vec::new())),
+            projector: std::array::from_fn(|_| (f32::NAN, Vec::new())),
+        }
+    }
+
+    /// Derives what `curves` changed since the last call.
+    fn derive(&mut self, curves: &Curves) {
+        for c in 0..3 {
+            let gamma = curves.camera_gamma[c];
+            // A NaN exponent (never derived) differs from every exponent.
+            if self.camera[c].0 != gamma {
+                let (features, weights) = self
+                    .warped
+                    .par_iter()
+                    .map(|x| (curves.camera_linear(c, x[c]), encoding_weight(x[c], gamma)))
+                    .unzip();
+                self.camera[c] = (gamma, features, weights);
+            }
+            let gamma = curves.projector_gamma[c];
+            if self.projector[c].0 != gamma {
+                let light = self
+                    .shown
+                    .par_iter()
+                    .map(|x| curves.projector_linear(c, x[c]))
+                    .collect();
+                self.projector[c] = (gamma, light);
+            }
+        }
+    }
+}
+
 /// Fits the weighted forward model per pixel and returns the summed squared residual of its
-/// prediction of the captures in camera-encoded values (clipped captures left out).
-fn forward_residual(warped: &[NetImage], targets: &[NetImage], curves: &Curves, ridge: f32) -> f64 {
-    let ImageSize {
-        width: w,
-        height: h,
-    } = targets[0].size();
-    let n = warped.len();
-    let sample = |wi: &NetImage, ti: &NetImage, p: usize| {
-        let x = &wi.data()[p * 3..p * 3 + 3];
-        let a = features(curves, x);
-        let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
-        let wt = [0, 1, 2].map(|c| encoding_weight(x[c], curves.camera_gamma[c]));
-        ([y[0], y[1], y[2], 1.0], [a[0], a[1], a[2]], wt)
-    };
-    let normals: Vec<ForwardNormal> = (0..w * h)
+/// prediction of the captures in camera-encoded values (clipped captures left out), from the
+/// samples as derived for `curves` ([`ForwardSamples::derive`]).
+fn forward_residual(samples: &ForwardSamples, curves: &Curves, ridge: f32) -> f64 {
+    let n = samples.n;
+    let pixels = samples.warped.len() / n.max(1);
+    let [c0, c1, c2] = &samples.camera;
+    let [p0, p1, p2] = &samples.projector;
+    // Sample k: features [f_p(x), 1], camera light f_c(w), weights.
+    let light = |k: usize| [p0.1[k], p1.1[k], p2.1[k]];
+    let normals: Vec<ForwardNormal> = (0..pixels)
         .into_par_iter()
         .map(|p| {
             let mut ne = ForwardNormal::default();
-            for (wi, ti) in warped.iter().zip(targets) {
-                let (f, a, wt) = sample(wi, ti, p);
+            for k in p * n..(p + 1) * n {
+                let y = light(k);
+                let f = [y[0], y[1], y[2], 1.0];
+                let a = [c0.1[k], c1.1[k], c2.1[k]];
+                let wt = [c0.2[k], c1.2[k], c2.2[k]];
                 ne.add(&f, &a, &wt);
             }
             ne
@@ -248,17 +319,17 @@ fn forward_residual(warped: &[NetImage], targets: &[NetImage], curves: &Curves, 
         global.merge(ne);
     }
     let total_w: f64 = (0..3).map(|c| global.ata[c][3][3]).sum::<f64>() / 3.0;
-    let mean_w = total_w / (n * w * h) as f64;
+    let mean_w = total_w / (n * pixels) as f64;
     let global_fwd = global.solve(1e-6 * total_w, &IDENTITY).unwrap_or(IDENTITY);
     let lambda = ridge as f64 * mean_w;
-    (0..w * h)
+    (0..pixels)
         .into_par_iter()
         .map(|p| {
             let k = normals[p].solve(lambda, &global_fwd).unwrap_or(global_fwd);
             let mut s = 0f64;
-            for (wi, ti) in warped.iter().zip(targets) {
-                let x = &wi.data()[p * 3..p * 3 + 3];
-                let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
+            for j in p * n..(p + 1) * n {
+                let x = &samples.warped[j];
+                let y = light(j);
                 for c in 0..3 {
                     if x[c] >= 0.995 {
                         continue;
@@ -271,4 +342,67 @@ fn forward_residual(warped: &[NetImage], targets: &[NetImage], curves: &Curves, 
             s
         })
         .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    /// What a line search re-derives: after curves that change one exponent, the samples hold
+    /// what a fresh derivation for those curves holds, and the residual is the same to the bit.
+    #[test]
+    fn samples_derived_step_by_step_equal_samples_derived_afresh() {
+        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(11);
+        let mut image =
+            || NetImage::from_fn(7, 5, |_, _| [0, 1, 2].map(|_| rng.random_range(0.0..1.0)));
+        let warped: Vec<NetImage> = (0..6).map(|_| image()).collect();
+        let shown: Vec<NetImage> = (0..6).map(|_| image()).collect();
+        let steps = [
+            Curves {
+                camera_gamma: [2.2; 3],
+                projector_gamma: [2.2, 2.0, 2.4],
+            },
+            // One projector exponent, then the camera's, then all of them.
+            Curves {
+                camera_gamma: [2.2; 3],
+                projector_gamma: [2.2, 1.7, 2.4],
+            },
+            Curves {
+                camera_gamma: [1.9; 3],
+                projector_gamma: [2.2, 1.7, 2.4],
+            },
+            Curves {
+                camera_gamma: [2.5; 3],
+                projector_gamma: [2.6, 2.1, 1.8],
+            },
+        ];
+        let mut cached = ForwardSamples::new(&warped, &shown);
+        for curves in &steps {
+            cached.derive(curves);
+            let mut fresh = ForwardSamples::new(&warped, &shown);
+            fresh.derive(curves);
+            for c in 0..3 {
+                assert_eq!(cached.camera[c].1, fresh.camera[c].1, "camera light {c}");
+                assert_eq!(cached.camera[c].2, fresh.camera[c].2, "weights {c}");
+                assert_eq!(
+                    cached.projector[c].1, fresh.projector[c].1,
+                    "projector light {c}"
+                );
+            }
+            let (a, b) = (
+                forward_residual(&cached, curves, 0.01),
+                forward_residual(&fresh, curves, 0.01),
+            );
+            assert!(a.is_finite() && a > 0.0);
+            assert_eq!(a.to_bits(), b.to_bits(), "{a} against {b}");
+        }
+        // The residual does depend on the curves (the cache is not stale).
+        let mut first = ForwardSamples::new(&warped, &shown);
+        first.derive(&steps[0]);
+        assert_ne!(
+            forward_residual(&first, &steps[0], 0.01),
+            forward_residual(&cached, &steps[3], 0.01)
+        );
+    }
 }
