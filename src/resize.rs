@@ -10,7 +10,7 @@
 use crate::raster::{ImageSize, Plane, Rgb, Space};
 
 /// Per-axis bilinear taps: (lower index, upper index, weight of the upper one).
-fn bilinear_taps(src: usize, dst: usize) -> Vec<(usize, usize, f32)> {
+pub(crate) fn bilinear_taps(src: usize, dst: usize) -> Vec<(usize, usize, f32)> {
     let scale = src as f64 / dst as f64;
     (0..dst)
         .map(|i| {

@@ -10,10 +10,16 @@ use rayon::prelude::*;
 use super::curve::{CURVE_SAMPLES, CURVE_SWEEPS, fit_curves};
 use super::model::{Coefficients, Curves};
 use super::normal::{Normal, features, global_solution, targets_linear};
+use super::stack::Stack;
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
 
-/// Curves and per-pixel coefficients at full resolution on all images, for a fixed grid.
+/// Curves and per-pixel coefficients at full resolution on all images, for a fixed grid: the
+/// model's lattice is the grid's size. The projector images (network size, or already the
+/// lattice's) are resampled bilinearly onto the lattice where it differs: the projector shows an
+/// image stretched bilinearly over the canvas (half-pixel centres), so that gives, at each
+/// lattice pixel, close to the value the projector showed there. Captures are sampled at the
+/// grid's positions and images resampled pixel by pixel ([`Stack`]), never whole.
 pub(super) fn fit_colour(
     captures: &[CamImage],
     targets: &[NetImage],
@@ -28,13 +34,10 @@ pub(super) fn fit_colour(
         .div_ceil(CURVE_SAMPLES)
         .max(1);
     let t = std::time::Instant::now();
-    let curves = fit_curves(captures, targets, grid, start, ridge, stride, CURVE_SWEEPS);
+    let (caps, shown) = (Stack::new(captures), Stack::new(targets));
+    let curves = fit_curves(&caps, &shown, grid, start, ridge, stride, CURVE_SWEEPS);
     let curves_s = t.elapsed().as_secs_f64();
-    let warped: Vec<NetImage> = captures
-        .par_iter()
-        .map(|c| crate::sample::grid_sample(c, grid))
-        .collect();
-    let (coeffs, loss) = solve_colour(&warped, targets, &curves, ridge);
+    let (coeffs, loss) = solve_colour(&caps, &shown, grid, &curves, ridge);
     tracing::debug!(
         "colour on {} pairs at {}: curves {curves_s:.1} s, coefficients {:.1} s",
         captures.len(),
@@ -44,25 +47,31 @@ pub(super) fn fit_colour(
     (curves, coeffs, loss)
 }
 
-/// Solves the per-pixel coefficients; returns them and the mean squared residual (linear light).
+/// Solves the per-pixel coefficients on the grid's lattice; returns them and the mean squared
+/// residual (linear light).
 fn solve_colour(
-    warped: &[NetImage],
-    targets: &[NetImage],
+    caps: &Stack,
+    shown: &Stack,
+    grid: &Grid<Network, Camera>,
     curves: &Curves,
     ridge: f32,
 ) -> (Coefficients, f64) {
     let ImageSize {
         width: w,
         height: h,
-    } = targets[0].size();
-    let n = warped.len();
-    let normals: Vec<Normal> = (0..w * h)
-        .into_par_iter()
-        .map(|p| {
+    } = grid.size();
+    let n = caps.images();
+    let resize = shown.resize_to(grid.size());
+    let normals: Vec<Normal> = grid
+        .data()
+        .par_iter()
+        .enumerate()
+        .map(|(p, &[gx, gy])| {
+            let taps = caps.taps(gx, gy);
             let mut ne = Normal::default();
-            for (wi, ti) in warped.iter().zip(targets) {
-                let a = features(curves, &wi.data()[p * 3..p * 3 + 3]);
-                let y = targets_linear(curves, &ti.data()[p * 3..p * 3 + 3]);
+            for i in 0..n {
+                let a = features(curves, &caps.sample(&taps, i));
+                let y = targets_linear(curves, &shown.resampled(&resize, p, i));
                 ne.add(&a, &y);
             }
             ne

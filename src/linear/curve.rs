@@ -9,7 +9,8 @@ use rayon::prelude::*;
 
 use super::model::Curves;
 use super::normal::IDENTITY;
-use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
+use super::stack::Stack;
+use crate::raster::{Camera, ImageSize, Network};
 use crate::sample::Grid;
 
 /// Weighted normal equations of one pixel for the forward model, one set per camera channel:
@@ -135,8 +136,8 @@ fn golden_min(mut lo: f32, mut hi: f32, iters: usize, mut f: impl FnMut(f32) -> 
 /// near black it amplifies camera noise, and minimising it drives both exponents towards 1,
 /// which cost 1–1.5 dB closed loop on the rig.
 pub(super) fn fit_curves(
-    caps: &[CamImage],
-    tgts: &[NetImage],
+    caps: &Stack,
+    shown: &Stack,
     grid: &Grid<Network, Camera>,
     start: Curves,
     ridge: f32,
@@ -149,16 +150,27 @@ pub(super) fn fit_curves(
         height: h,
     } = grid.size();
     let (sw, sh) = (w.div_ceil(stride), h.div_ceil(stride));
-    let grid = Grid::<Network, Camera>::from_fn(sw, sh, |x, y| grid.get(x * stride, y * stride));
-    let tgts: Vec<NetImage> = tgts
-        .iter()
-        .map(|t| NetImage::from_fn(sw, sh, |x, y| t.get(x * stride, y * stride)))
-        .collect();
-    let warped: Vec<NetImage> = caps
-        .par_iter()
-        .map(|c| crate::sample::grid_sample(c, &grid))
-        .collect();
-    let mut samples = ForwardSamples::new(&warped, &tgts);
+    // The captures warped by the grid and the projector images on its lattice, at those pixels.
+    let n = caps.images();
+    let resize = shown.resize_to(grid.size());
+    // Sample k is pair k % n at picked pixel k / n.
+    let (warped, shown): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..sw * sh * n)
+        .into_par_iter()
+        .map(|k| {
+            let (q, i) = (k / n, k % n);
+            let (x, y) = ((q % sw) * stride, (q / sw) * stride);
+            let [gx, gy] = grid.get(x, y);
+            let warped = caps.sample(&caps.taps(gx, gy), i);
+            (warped, shown.resampled(&resize, y * w + x, i))
+        })
+        .unzip();
+    let mut samples = ForwardSamples {
+        n,
+        warped,
+        shown,
+        camera: std::array::from_fn(|_| (f32::NAN, Vec::new(), Vec::new())),
+        projector: std::array::from_fn(|_| (f32::NAN, Vec::new())),
+    };
     let mut cost = |cv: &Curves| {
         samples.derive(cv);
         forward_residual(&samples, cv, ridge)
@@ -215,8 +227,7 @@ pub(super) fn fit_curves(
         }
     }
     tracing::debug!(
-        "curves: {swept} sweeps on {sw}x{sh} pixels of {} pairs, cost {best_cost:.4e}",
-        caps.len()
+        "curves: {swept} sweeps on {sw}x{sh} pixels of {n} pairs, cost {best_cost:.4e}"
     );
     to_curves(&best)
 }
@@ -243,27 +254,6 @@ struct ForwardSamples {
 }
 
 impl ForwardSamples {
-    fn new(warped: &[NetImage], shown: &[NetImage]) -> Self {
-        let n = warped.len();
-        let pixels = shown[0].width() * shown[0].height();
-        let interleave = |images: &[NetImage]| -> Vec<[f32; 3]> {
-            (0..pixels * n)
-                .map(|k| {
-                    let (p, i) = (k / n, k % n);
-                    let d = &images[i].data()[p * 3..p * 3 + 3];
-                    [d[0], d[1], d[2]]
-                })
-                .collect()
-        };
-        Self {
-            n,
-            warped: interleave(warped),
-            shown: interleave(shown),
-            camera: std::array::from_fn(|_| (f32::NAN, Vec::new(), Vec::new())),
-            projector: std::array::from_fn(|_| (f32::NAN, Vec::new())),
-        }
-    }
-
     /// Derives what `curves` changed since the last call.
     fn derive(&mut self, curves: &Curves) {
         for c in 0..3 {
@@ -347,7 +337,30 @@ fn forward_residual(samples: &ForwardSamples, curves: &Curves, ridge: f32) -> f6
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::raster::NetImage;
     use rand::{RngExt, SeedableRng};
+
+    impl ForwardSamples {
+        /// Samples of whole images (warped captures, projector images on one lattice).
+        fn of(warped: &[NetImage], shown: &[NetImage]) -> Self {
+            let n = warped.len();
+            let pixels = shown[0].width() * shown[0].height();
+            let interleave = |images: &[NetImage]| -> Vec<[f32; 3]> {
+                (0..pixels * n)
+                    .map(|k| {
+                        images[k % n].get((k / n) % shown[0].width(), (k / n) / shown[0].width())
+                    })
+                    .collect()
+            };
+            Self {
+                n,
+                warped: interleave(warped),
+                shown: interleave(shown),
+                camera: std::array::from_fn(|_| (f32::NAN, Vec::new(), Vec::new())),
+                projector: std::array::from_fn(|_| (f32::NAN, Vec::new())),
+            }
+        }
+    }
 
     /// What a line search re-derives: after curves that change one exponent, the samples hold
     /// what a fresh derivation for those curves holds, and the residual is the same to the bit.
@@ -377,10 +390,10 @@ mod tests {
                 projector_gamma: [2.6, 2.1, 1.8],
             },
         ];
-        let mut cached = ForwardSamples::new(&warped, &shown);
+        let mut cached = ForwardSamples::of(&warped, &shown);
         for curves in &steps {
             cached.derive(curves);
-            let mut fresh = ForwardSamples::new(&warped, &shown);
+            let mut fresh = ForwardSamples::of(&warped, &shown);
             fresh.derive(curves);
             for c in 0..3 {
                 assert_eq!(cached.camera[c].1, fresh.camera[c].1, "camera light {c}");
@@ -398,7 +411,7 @@ mod tests {
             assert_eq!(a.to_bits(), b.to_bits(), "{a} against {b}");
         }
         // The residual does depend on the curves (the cache is not stale).
-        let mut first = ForwardSamples::new(&warped, &shown);
+        let mut first = ForwardSamples::of(&warped, &shown);
         first.derive(&steps[0]);
         assert_ne!(
             forward_residual(&first, &steps[0], 0.01),

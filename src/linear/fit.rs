@@ -89,9 +89,7 @@ pub fn fit_with_memo(
                 settings.network_size,
                 lattice,
             );
-            let up = lattice_targets(targets, lattice);
-            let up = up.as_deref().unwrap_or(targets);
-            fit_colour(captures, up, &fine, geometry.curves, settings.ridge)
+            fit_colour(captures, targets, &fine, geometry.curves, settings.ridge)
         }
         _ => {
             let grid = geometry.grid(settings.network_size);
@@ -295,9 +293,7 @@ pub fn fit_on_grid(
         )));
     }
     // The grid's size is the model's lattice; finer than the projector images, they are
-    // resampled onto it (see [`lattice_targets`]).
-    let up = lattice_targets(targets, grid.size());
-    let targets = up.as_deref().unwrap_or(targets);
+    // resampled onto it (see [`fit_colour`]).
     let (curves, coeffs, loss) =
         fit_colour(captures, targets, &grid, Curves::default(), settings.ridge);
     Ok((
@@ -315,19 +311,6 @@ pub fn fit_on_grid(
             geometry_reused: false,
         },
     ))
-}
-
-/// The projector images resampled onto a model lattice of `size` (`None` when they already
-/// have that size). The projector shows an image stretched bilinearly over the canvas (half-pixel
-/// centres), so a bilinear resample with the same convention gives, at each lattice pixel, close
-/// to the value the projector showed there.
-fn lattice_targets(targets: &[NetImage], size: ImageSize) -> Option<Vec<NetImage>> {
-    (targets[0].size() != size).then(|| {
-        targets
-            .par_iter()
-            .map(|t| crate::resize::resize_bilinear(t, size.width, size.height))
-            .collect()
-    })
 }
 
 /// Checks that captures and projector images pair up and are each of one size.

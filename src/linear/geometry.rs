@@ -12,10 +12,11 @@ use super::curve::fit_curves;
 use super::model::Curves;
 use super::normal::{IDENTITY, Normal, global_solution, targets_linear};
 use super::settings::FitSettings;
+use super::stack::Stack;
 use crate::filter::gaussian_blur;
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rgb};
 use crate::resize::resize_area;
-use crate::sample::{Grid, norm_to_pixel};
+use crate::sample::Grid;
 use crate::warp::{OffsetField, TpsBasis, Warp};
 
 /// The coarse-to-fine affine + TPS fit that [`fit`] starts with (when
@@ -50,11 +51,13 @@ pub(super) fn fit_warp(
                 .map(|t| resize_area(t, lw, lh))
                 .collect();
             let basis = TpsBasis::new(lw, lh);
+            let stack = Stack::new(&caps);
+            drop(caps);
             if level == 0 {
                 // The curves are global: a coarse fit here, refined once at the end.
                 curves = fit_curves(
-                    &caps,
-                    &tgts,
+                    &stack,
+                    &Stack::new(&tgts),
                     &basis.grid(&warp),
                     curves,
                     settings.ridge,
@@ -62,8 +65,6 @@ pub(super) fn fit_warp(
                     2,
                 );
             }
-            let stack = CaptureStack::new(&caps);
-            drop(caps);
             let lut = PowLut::new(curves.camera_gamma);
             let ylin = linear_targets(&tgts, &curves);
             let values = ng * lw * lh;
@@ -115,7 +116,7 @@ pub(super) fn refine_geometry(
         height: nh,
     } = base.size();
     let ng = settings.geometry_images.clamp(1, captures.len());
-    let caps = CaptureStack::new(&captures[..ng]);
+    let caps = Stack::new(&captures[..ng]);
     let lut = PowLut::new(curves.camera_gamma);
     let ylin = linear_targets(&targets[..ng], curves);
     let values = ng * nw * nh;
@@ -235,15 +236,18 @@ struct Sample {
 /// squared residual (linear light), the gradient per pixel, and the global normal equations for
 /// the next step's prior. `ylin[p * n + i]` are the targets in linear projector light.
 fn geometry_step(
-    caps: &CaptureStack,
+    caps: &Stack,
     ylin: &[[f32; 3]],
     grid: &Grid<Network, Camera>,
     lut: &PowLut,
     prior: &[f32; 12],
     ridge: f32,
 ) -> (f64, Vec<[f32; 2]>, Normal) {
-    let n = caps.images;
-    let (cw, ch) = (caps.width, caps.height);
+    let n = caps.images();
+    let ImageSize {
+        width: cw,
+        height: ch,
+    } = caps.size();
     let (sx, sy) = (0.5 * (cw.max(2) - 1) as f32, 0.5 * (ch.max(2) - 1) as f32);
     let lambda = ridge as f64;
     let count = (n * grid.data().len() * 3) as f32;
@@ -305,106 +309,6 @@ fn geometry_step(
     (loss / count as f64, grad, global)
 }
 
-/// The geometry's captures interleaved pixel-major: the values of all captures at one camera
-/// pixel lie together (`data[((y * width + x) * images + i) * 3 + c]`, camera pixels, encoded
-/// values), so that sampling every capture at one grid position reads four short runs of
-/// memory instead of four scattered places per capture. Same values as the captures.
-struct CaptureStack {
-    width: usize,
-    height: usize,
-    images: usize,
-    data: Vec<f32>,
-}
-
-/// Where a normalised position falls in a [`CaptureStack`]: the offsets of its four bilinear
-/// neighbours in `data` for capture 0 (`None` outside the image: zero padding, as
-/// [`crate::sample::grid_sample`]) and the fractional position between them.
-struct Located {
-    corners: [Option<usize>; 4],
-    fx: f32,
-    fy: f32,
-}
-
-impl CaptureStack {
-    /// Interleaves captures of one size (the callers check the sizes).
-    fn new(caps: &[CamImage]) -> Self {
-        let ImageSize { width, height } = caps[0].size();
-        let images = caps.len();
-        let mut data = vec![0f32; width * height * images * 3];
-        data.par_chunks_mut(images * 3)
-            .enumerate()
-            .for_each(|(p, dst)| {
-                for (i, cap) in caps.iter().enumerate() {
-                    dst[i * 3..i * 3 + 3].copy_from_slice(&cap.data()[p * 3..p * 3 + 3]);
-                }
-            });
-        Self {
-            width,
-            height,
-            images,
-            data,
-        }
-    }
-
-    fn locate(&self, gx: f32, gy: f32) -> Located {
-        let (w, h) = (self.width, self.height);
-        let (u, v) = (norm_to_pixel(gx, w), norm_to_pixel(gy, h));
-        if !u.is_finite() || !v.is_finite() {
-            return Located {
-                corners: [None; 4],
-                fx: 0.0,
-                fy: 0.0,
-            };
-        }
-        let (x0, y0) = (u.floor(), v.floor());
-        let (fx, fy) = (u - x0, v - y0);
-        let (x0, y0) = (x0 as i64, y0 as i64);
-        let at = |x: i64, y: i64| -> Option<usize> {
-            (x >= 0 && y >= 0 && x < w as i64 && y < h as i64)
-                .then(|| (y as usize * w + x as usize) * self.images * 3)
-        };
-        Located {
-            corners: [
-                at(x0, y0),
-                at(x0 + 1, y0),
-                at(x0, y0 + 1),
-                at(x0 + 1, y0 + 1),
-            ],
-            fx,
-            fy,
-        }
-    }
-
-    /// The bilinear sample of capture `i` at `at` and its derivatives w.r.t. the pixel
-    /// coordinates (u, v), per channel.
-    #[inline]
-    fn sample_with_gradient(&self, at: &Located, i: usize) -> ([f32; 3], [[f32; 3]; 2]) {
-        let px = |corner: Option<usize>| -> [f32; 3] {
-            match corner {
-                Some(o) => {
-                    let j = o + i * 3;
-                    [self.data[j], self.data[j + 1], self.data[j + 2]]
-                }
-                None => [0.0; 3],
-            }
-        };
-        let [c00, c10, c01, c11] = at.corners;
-        let (p00, p10, p01, p11) = (px(c00), px(c10), px(c01), px(c11));
-        let (fx, fy) = (at.fx, at.fy);
-        let mut val = [0f32; 3];
-        let mut du = [0f32; 3];
-        let mut dv = [0f32; 3];
-        for c in 0..3 {
-            let top = p00[c] + fx * (p10[c] - p00[c]);
-            let bottom = p01[c] + fx * (p11[c] - p01[c]);
-            val[c] = top + fy * (bottom - top);
-            du[c] = (1.0 - fy) * (p10[c] - p00[c]) + fy * (p11[c] - p01[c]);
-            dv[c] = bottom - top;
-        }
-        (val, [du, dv])
-    }
-}
-
 /// Adam (Kingma & Ba) over a flat parameter vector.
 struct Adam {
     m: Vec<f32>,
@@ -428,68 +332,6 @@ impl Adam {
             self.m[i] = b1 * self.m[i] + (1.0 - b1) * grad[i];
             self.v[i] = b2 * self.v[i] + (1.0 - b2) * grad[i] * grad[i];
             params[i] -= lr * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + eps);
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use rand::{RngExt, SeedableRng};
-
-    /// The interleaved stack samples each capture as the plain bilinear sampler does (zero
-    /// padding, NaN positions give zero), and its derivatives are those of that sample.
-    #[test]
-    fn the_stack_samples_every_capture_as_the_bilinear_sampler_does() {
-        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(7);
-        let caps: Vec<CamImage> = (0..5)
-            .map(|_| CamImage::from_fn(9, 6, |_, _| [0, 1, 2].map(|_| rng.random_range(0.0..1.0))))
-            .collect();
-        let stack = CaptureStack::new(&caps);
-        // Inside, on the edges, outside (zero padding) and not a number.
-        let mut positions: Vec<[f32; 2]> = (0..40)
-            .map(|_| [rng.random_range(-1.3..1.3), rng.random_range(-1.3..1.3)])
-            .collect();
-        positions.extend([[-1.0, -1.0], [1.0, 1.0], [0.999, -0.2], [f32::NAN, 0.0]]);
-        let grid = Grid::<Network, Camera>::from_vec(positions.len(), 1, positions.clone())
-            .expect("one position per pixel");
-        let (w, h) = (9.0f32, 6.0f32);
-        for (i, cap) in caps.iter().enumerate() {
-            let plain = crate::sample::grid_sample(cap, &grid);
-            for (p, &[gx, gy]) in positions.iter().enumerate() {
-                let at = stack.locate(gx, gy);
-                let (value, [du, dv]) = stack.sample_with_gradient(&at, i);
-                let want = plain.get(p, 0);
-                if gx.is_nan() {
-                    assert_eq!(value, [0.0; 3]);
-                    assert_eq!((du, dv), ([0.0; 3], [0.0; 3]));
-                    continue;
-                }
-                for c in 0..3 {
-                    assert!(
-                        (value[c] - want[c]).abs() <= 1e-6,
-                        "capture {i} at ({gx}, {gy}) channel {c}: {} against {}",
-                        value[c],
-                        want[c]
-                    );
-                }
-                // Inside a cell the sample is bilinear, so a small step along u changes it by
-                // du per pixel (one pixel = 2 / (w − 1) in normalised coordinates).
-                let step = 1e-3f32;
-                let (u, v) = (norm_to_pixel(gx, 9), norm_to_pixel(gy, 6));
-                let inside_cell =
-                    |t: f32| (t - t.floor()) > 2.0 * step && (t - t.floor()) < 1.0 - 2.0 * step;
-                if inside_cell(u) && inside_cell(v) {
-                    let right = stack.locate(gx + step * 2.0 / (w - 1.0), gy);
-                    let down = stack.locate(gx, gy + step * 2.0 / (h - 1.0));
-                    let (vr, _) = stack.sample_with_gradient(&right, i);
-                    let (vd, _) = stack.sample_with_gradient(&down, i);
-                    for c in 0..3 {
-                        assert!(((vr[c] - value[c]) / step - du[c]).abs() < 2e-2, "du {c}");
-                        assert!(((vd[c] - value[c]) / step - dv[c]).abs() < 2e-2, "dv {c}");
-                    }
-                }
-            }
         }
     }
 }

@@ -40,6 +40,7 @@ mod geometry;
 mod model;
 mod normal;
 mod settings;
+mod stack;
 mod tensors;
 
 pub use fit::{FitReport, GeometryMemo, fit, fit_geometry, fit_on_grid, fit_with_memo};

@@ -1,0 +1,311 @@
+//! The training pairs as the `linear` fit reads them: each set of images (the captures, the
+//! projector images) interleaved pixel-major, so that the values of every pair at one position
+//! lie together in memory, and sampled where the fit needs them instead of warped or resized
+//! into whole images first. At a 1920×1080 lattice and 48 pairs, whole warped captures and
+//! resized projector images took 2.4 GB; the stacks take what the images they hold take.
+//!
+//! Each sampler repeats the arithmetic of the whole-image operation it stands in for, in the
+//! same order, so the fit's results are those of warping and resizing first, to the bit:
+//! [`Stack::sample`] that of [`crate::sample::grid_sample`] (camera pixels at normalised camera
+//! coordinates, align-corners, zero outside), [`Stack::resampled`] that of
+//! [`crate::resize::resize_bilinear`] (network pixels onto a lattice, half-pixel centres).
+
+use rayon::prelude::*;
+
+use crate::raster::{ImageSize, Rgb, Space};
+use crate::resize::bilinear_taps;
+use crate::sample::{for_each_tap, norm_to_pixel};
+
+/// Images of one size (RGB, values as stored) interleaved pixel-major:
+/// `data[(p * images + i) * 3 + c]` for pixel `p = y · width + x` of image `i`.
+pub(super) struct Stack {
+    width: usize,
+    height: usize,
+    images: usize,
+    data: Vec<f32>,
+}
+
+/// The bilinear neighbours of one position in a [`Stack`] as [`crate::sample::grid_sample`]
+/// takes them: the in-bounds neighbours with a non-zero weight, in its order (pixel offsets
+/// into the stack for image 0, weights).
+pub(super) struct Taps {
+    count: usize,
+    offset: [usize; 4],
+    weight: [f32; 4],
+}
+
+/// Where a normalised position falls, for [`Stack::sample_with_gradient`]: the offsets of its
+/// four bilinear neighbours for image 0 (`None` outside: zero padding) and the fractional
+/// position between them.
+pub(super) struct Located {
+    corners: [Option<usize>; 4],
+    fx: f32,
+    fy: f32,
+}
+
+/// The bilinear resize of a [`Stack`] onto a lattice, per axis: (lower index, upper index,
+/// weight of the upper one) of each lattice column and row ([`crate::resize`]'s taps).
+pub(super) struct Resize {
+    columns: Vec<(usize, usize, f32)>,
+    rows: Vec<(usize, usize, f32)>,
+    width: usize,
+}
+
+impl Stack {
+    /// Interleaves `images`, which must share one size (the fit checks its pairs first).
+    pub(super) fn new<S: Space>(images: &[Rgb<S>]) -> Self {
+        let ImageSize { width, height } = images.first().map_or(ImageSize::new(0, 0), Rgb::size);
+        let count = images.len();
+        let mut data = vec![0f32; width * height * count * 3];
+        if count > 0 {
+            data.par_chunks_mut(count * 3)
+                .enumerate()
+                .for_each(|(p, dst)| {
+                    for (i, img) in images.iter().enumerate() {
+                        dst[i * 3..i * 3 + 3].copy_from_slice(&img.data()[p * 3..p * 3 + 3]);
+                    }
+                });
+        }
+        Self {
+            width,
+            height,
+            images: count,
+            data,
+        }
+    }
+
+    pub(super) fn size(&self) -> ImageSize {
+        ImageSize::new(self.width, self.height)
+    }
+
+    pub(super) fn images(&self) -> usize {
+        self.images
+    }
+
+    /// Image `i` at pixel index `p`.
+    #[inline]
+    fn at(&self, p: usize, i: usize) -> [f32; 3] {
+        let j = (p * self.images + i) * 3;
+        [self.data[j], self.data[j + 1], self.data[j + 2]]
+    }
+
+    /// The neighbours [`Stack::sample`] reads at normalised (gx, gy).
+    #[inline]
+    pub(super) fn taps(&self, gx: f32, gy: f32) -> Taps {
+        let mut taps = Taps {
+            count: 0,
+            offset: [0; 4],
+            weight: [0.0; 4],
+        };
+        for_each_tap(gx, gy, self.width, self.height, |p, w| {
+            taps.offset[taps.count] = p;
+            taps.weight[taps.count] = w;
+            taps.count += 1;
+        });
+        taps
+    }
+
+    /// Image `i` sampled at `taps`: [`crate::sample::grid_sample`]'s value there.
+    #[inline]
+    pub(super) fn sample(&self, taps: &Taps, i: usize) -> [f32; 3] {
+        let mut px = [0f32; 3];
+        for k in 0..taps.count {
+            let v = self.at(taps.offset[k], i);
+            let w = taps.weight[k];
+            px[0] += w * v[0];
+            px[1] += w * v[1];
+            px[2] += w * v[2];
+        }
+        px
+    }
+
+    /// How [`Stack::resampled`] maps this stack onto a `size` lattice.
+    pub(super) fn resize_to(&self, size: ImageSize) -> Resize {
+        Resize {
+            columns: bilinear_taps(self.width, size.width),
+            rows: bilinear_taps(self.height, size.height),
+            width: size.width,
+        }
+    }
+
+    /// Image `i` at lattice pixel index `p` of `resize`: the value of
+    /// [`crate::resize::resize_bilinear`] there (the image itself when the sizes agree, as
+    /// there).
+    #[inline]
+    pub(super) fn resampled(&self, resize: &Resize, p: usize, i: usize) -> [f32; 3] {
+        let (x, y) = (p % resize.width, p / resize.width);
+        if resize.width == self.width && resize.rows.len() == self.height {
+            return self.at(p, i);
+        }
+        let (x0, x1, wx) = resize.columns[x];
+        let (y0, y1, wy) = resize.rows[y];
+        // The horizontal pass, then the vertical one, each summed from zero in tap order.
+        let row = |j: usize| -> [f32; 3] {
+            let (a, b) = (
+                self.at(j * self.width + x0, i),
+                self.at(j * self.width + x1, i),
+            );
+            std::array::from_fn(|c| {
+                let mut acc = 0f32;
+                acc += (1.0 - wx) * a[c];
+                acc += wx * b[c];
+                acc
+            })
+        };
+        let (top, bottom) = (row(y0), row(y1));
+        std::array::from_fn(|c| {
+            let mut acc = 0f32;
+            acc += (1.0 - wy) * top[c];
+            acc += wy * bottom[c];
+            acc
+        })
+    }
+
+    /// Where normalised (gx, gy) falls, for [`Stack::sample_with_gradient`].
+    #[inline]
+    pub(super) fn locate(&self, gx: f32, gy: f32) -> Located {
+        let (w, h) = (self.width, self.height);
+        let (u, v) = (norm_to_pixel(gx, w), norm_to_pixel(gy, h));
+        if !u.is_finite() || !v.is_finite() {
+            return Located {
+                corners: [None; 4],
+                fx: 0.0,
+                fy: 0.0,
+            };
+        }
+        let (x0, y0) = (u.floor(), v.floor());
+        let (fx, fy) = (u - x0, v - y0);
+        let (x0, y0) = (x0 as i64, y0 as i64);
+        let at = |x: i64, y: i64| -> Option<usize> {
+            (x >= 0 && y >= 0 && x < w as i64 && y < h as i64).then(|| y as usize * w + x as usize)
+        };
+        Located {
+            corners: [
+                at(x0, y0),
+                at(x0 + 1, y0),
+                at(x0, y0 + 1),
+                at(x0 + 1, y0 + 1),
+            ],
+            fx,
+            fy,
+        }
+    }
+
+    /// The bilinear sample of image `i` at `at` and its derivatives w.r.t. the pixel
+    /// coordinates (u, v), per channel (the geometry fit's sampler: zero padding, a NaN
+    /// position reads zero with zero derivatives).
+    #[inline]
+    pub(super) fn sample_with_gradient(&self, at: &Located, i: usize) -> ([f32; 3], [[f32; 3]; 2]) {
+        let px = |corner: Option<usize>| corner.map_or([0.0; 3], |p| self.at(p, i));
+        let [c00, c10, c01, c11] = at.corners;
+        let (p00, p10, p01, p11) = (px(c00), px(c10), px(c01), px(c11));
+        let (fx, fy) = (at.fx, at.fy);
+        let mut val = [0f32; 3];
+        let mut du = [0f32; 3];
+        let mut dv = [0f32; 3];
+        for c in 0..3 {
+            let top = p00[c] + fx * (p10[c] - p00[c]);
+            let bottom = p01[c] + fx * (p11[c] - p01[c]);
+            val[c] = top + fy * (bottom - top);
+            du[c] = (1.0 - fy) * (p10[c] - p00[c]) + fy * (p11[c] - p01[c]);
+            dv[c] = bottom - top;
+        }
+        (val, [du, dv])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::{CamImage, Camera, NetImage, Network};
+    use crate::sample::Grid;
+    use rand::{RngExt, SeedableRng};
+
+    fn random_images<S: Space>(n: usize, w: usize, h: usize, seed: u64) -> Vec<Rgb<S>> {
+        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(seed);
+        (0..n)
+            .map(|_| Rgb::from_fn(w, h, |_, _| [0, 1, 2].map(|_| rng.random_range(0.0..1.0))))
+            .collect()
+    }
+
+    /// The stack's samples are the whole-image operations' values to the bit: grid sampling at
+    /// positions inside, on the edges, outside and not a number, and bilinear resizes up, down,
+    /// along one axis only and to the same size.
+    #[test]
+    fn samples_equal_the_whole_image_operations_to_the_bit() {
+        let caps: Vec<CamImage> = random_images(5, 9, 6, 7);
+        let stack = Stack::new(&caps);
+        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(8);
+        let mut positions: Vec<[f32; 2]> = (0..60)
+            .map(|_| [rng.random_range(-1.3..1.3), rng.random_range(-1.3..1.3)])
+            .collect();
+        positions.extend([[-1.0, -1.0], [1.0, 1.0], [0.999, -0.2], [f32::NAN, 0.0]]);
+        let grid = Grid::<Network, Camera>::from_vec(positions.len(), 1, positions.clone())
+            .expect("one position per pixel");
+        for (i, cap) in caps.iter().enumerate() {
+            let whole = crate::sample::grid_sample(cap, &grid);
+            for (p, &[gx, gy]) in positions.iter().enumerate() {
+                let got = stack.sample(&stack.taps(gx, gy), i);
+                assert_eq!(got.map(f32::to_bits), whole.get(p, 0).map(f32::to_bits));
+            }
+        }
+        let shown: Vec<NetImage> = random_images(4, 7, 5, 9);
+        let stack = Stack::new(&shown);
+        for (w, h) in [(17, 12), (3, 2), (7, 11), (7, 5), (16, 5)] {
+            let resize = stack.resize_to(ImageSize::new(w, h));
+            for (i, img) in shown.iter().enumerate() {
+                let whole = crate::resize::resize_bilinear(img, w, h);
+                for p in 0..w * h {
+                    let got = stack.resampled(&resize, p, i);
+                    let want = whole.get(p % w, p / w);
+                    assert_eq!(got.map(f32::to_bits), want.map(f32::to_bits), "{w}x{h} {p}");
+                }
+            }
+        }
+    }
+
+    /// The geometry's sampler agrees with grid sampling (within rounding: it interpolates in
+    /// another order), and its derivatives are those of the sample inside a cell.
+    #[test]
+    fn the_geometry_sampler_and_its_derivatives_agree_with_the_bilinear_sample() {
+        let caps: Vec<CamImage> = random_images(5, 9, 6, 17);
+        let stack = Stack::new(&caps);
+        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(18);
+        let mut positions: Vec<[f32; 2]> = (0..40)
+            .map(|_| [rng.random_range(-1.3..1.3), rng.random_range(-1.3..1.3)])
+            .collect();
+        positions.extend([[-1.0, -1.0], [1.0, 1.0], [0.999, -0.2], [f32::NAN, 0.0]]);
+        let (w, h) = (9.0f32, 6.0f32);
+        for i in 0..caps.len() {
+            for &[gx, gy] in &positions {
+                let (value, [du, dv]) = stack.sample_with_gradient(&stack.locate(gx, gy), i);
+                if gx.is_nan() {
+                    assert_eq!((value, du, dv), ([0.0; 3], [0.0; 3], [0.0; 3]));
+                    continue;
+                }
+                let want = stack.sample(&stack.taps(gx, gy), i);
+                for c in 0..3 {
+                    assert!(
+                        (value[c] - want[c]).abs() <= 1e-6,
+                        "{value:?} against {want:?}"
+                    );
+                }
+                // One pixel is 2 / (side − 1) in normalised coordinates.
+                let step = 1e-3f32;
+                let (u, v) = (norm_to_pixel(gx, 9), norm_to_pixel(gy, 6));
+                let inside =
+                    |t: f32| (t - t.floor()) > 2.0 * step && (t - t.floor()) < 1.0 - 2.0 * step;
+                if inside(u) && inside(v) {
+                    let right = stack.locate(gx + step * 2.0 / (w - 1.0), gy);
+                    let down = stack.locate(gx, gy + step * 2.0 / (h - 1.0));
+                    let (vr, _) = stack.sample_with_gradient(&right, i);
+                    let (vd, _) = stack.sample_with_gradient(&down, i);
+                    for c in 0..3 {
+                        assert!(((vr[c] - value[c]) / step - du[c]).abs() < 2e-2, "du {c}");
+                        assert!(((vd[c] - value[c]) / step - dv[c]).abs() < 2e-2, "dv {c}");
+                    }
+                }
+            }
+        }
+    }
+}
