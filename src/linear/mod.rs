@@ -29,8 +29,9 @@
 //! ([`fit()`], [`fit_geometry`], [`fit_on_grid`]) and their settings; `geometry` the
 //! coarse-to-fine affine + TPS fit and the dense refinement (Adam on the fused per-pixel
 //! residual); `colour` the per-pixel normal equations and the closed-form colour solve; `curve`
-//! the response-curve search on the forward model; `tensors` the model directory's tensors
-//! ([`LinearModel::to_tensors`], [`LinearModel::from_tensors`]).
+//! the response-curve search on the forward model; `stack` the pixel-major stacks the fits read
+//! their pairs from (sampled in place, never warped or resized whole); `tensors` the model
+//! directory's tensors ([`LinearModel::to_tensors`], [`LinearModel::from_tensors`]).
 
 mod colour;
 mod curve;
