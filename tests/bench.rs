@@ -356,3 +356,67 @@ fn bench_auto_is_checked_on_the_rig_after_a_climb() {
     let linear = rows.iter().find(|r| r["method"] == "linear").unwrap();
     assert!(linear.get("rig_check").is_none(), "{linear}");
 }
+
+#[test]
+fn bench_weighs_autos_climb_against_the_frame_budget_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    // Only `auto` weighs a climb: refused with exit 2 before any scene is exported.
+    let refused = dir.path().join("refused");
+    let o = compend(&[
+        "bench",
+        "--out",
+        refused.to_str().unwrap(),
+        "--methods",
+        "linear",
+        "--refresh-hz",
+        "60",
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("add auto to --methods"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!refused.exists());
+    // The climb is timed on this machine's GPU (lavapipe in CI).
+    if crate::common::gpu().is_none() {
+        return;
+    }
+    // A refresh a billion times a second: no pass fits, so the climb the margin of -1000 dB
+    // would take is not trained, and the row says why.
+    let out = dir.path().join("bench");
+    let extra = [
+        "--methods",
+        "auto",
+        "--iters",
+        "3",
+        "--climb-gain",
+        "-1000",
+        "--ntrain",
+        "12",
+        "--refresh-hz",
+        "1e9",
+    ];
+    let (_, v) = tiny_bench(&out, &extra);
+    let rows = v["rows"].as_array().unwrap();
+    let auto = rows.iter().find(|r| r["method"] == "auto").unwrap();
+    assert!(
+        ["linear", "linear-sl"].contains(&auto["chosen"].as_str().unwrap()),
+        "{auto}"
+    );
+    let live = &auto["live"];
+    assert_eq!(live["method"], "compennet++-res", "{auto}");
+    assert_eq!(live["refresh_hz"], 1e9, "{auto}");
+    // The scene's projector frame.
+    assert_eq!(live["projector"], serde_json::json!([100, 75]), "{auto}");
+    assert!(live["pass_ms"].as_f64().unwrap() > 0.0, "{auto}");
+    // No climb, so nothing to check on the rig.
+    assert!(auto.get("rig_check").is_none(), "{auto}");
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    assert!(
+        md.contains("`auto`'s climb weighed against the display's frame budget")
+            && md.contains("compennet++-res's live pass takes")
+            && md.contains("over the 5.00e-7 ms budget"),
+        "{md}"
+    );
+}

@@ -30,6 +30,42 @@ pub fn exit_code(err: &anyhow::Error) -> u8 {
     1
 }
 
+/// The timer of `--refresh-hz HZ` (`train`, `bench`): `auto`'s climb weighed on this machine's
+/// GPU for a display refreshing at `hz`, checked before any work. `None` when not asked or 0.
+/// `auto`: whether the command runs `auto`, the only method that weighs a climb; `otherwise`:
+/// what the error says when it does not.
+pub fn refresh_timer(
+    hz: Option<f64>,
+    auto: bool,
+    otherwise: &str,
+) -> anyhow::Result<Option<std::sync::Arc<dyn compend::fit::LivePass>>> {
+    use anyhow::Context as _;
+    let Some(hz) = hz else {
+        return Ok(None);
+    };
+    if !(hz.is_finite() && hz >= 0.0) {
+        return Err(compend::Error::Input(format!(
+            "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
+        ))
+        .into());
+    }
+    if hz == 0.0 {
+        return Ok(None);
+    }
+    if !auto {
+        return Err(compend::Error::Input(format!(
+            "--refresh-hz {hz}: only `auto` weighs a climb's live pass; {otherwise}"
+        ))
+        .into());
+    }
+    let ctx = compend::gpu::GpuContext::new().with_context(|| {
+        format!("--refresh-hz {hz}: opening this machine's GPU to time the climb's live pass")
+    })?;
+    Ok(Some(std::sync::Arc::new(
+        compend::gpu::live::GpuLivePass::new(ctx, hz)?,
+    )))
+}
+
 /// A progress bar on stderr, hidden when stderr is not a terminal or JSON output was asked for.
 pub fn progress_bar(quiet: bool) -> indicatif::ProgressBar {
     if quiet {

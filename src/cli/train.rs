@@ -81,35 +81,6 @@ pub struct Args {
     pub refresh_hz: Option<f64>,
 }
 
-/// The timer of `--refresh-hz`, on this machine's GPU; checked before any work.
-fn live_pass(args: &Args) -> Result<Option<std::sync::Arc<dyn fit::LivePass>>> {
-    let Some(hz) = args.refresh_hz else {
-        return Ok(None);
-    };
-    if !(hz.is_finite() && hz >= 0.0) {
-        return Err(compend::Error::Input(format!(
-            "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
-        ))
-        .into());
-    }
-    if hz == 0.0 {
-        return Ok(None);
-    }
-    if args.method != compend::model::MethodChoice::Auto {
-        return Err(compend::Error::Input(format!(
-            "--refresh-hz {hz}: only `auto` weighs a climb's live pass; {} is one rung",
-            args.method
-        ))
-        .into());
-    }
-    let ctx = compend::gpu::GpuContext::new().with_context(|| {
-        format!("--refresh-hz {hz}: opening this machine's GPU to time the climb's live pass")
-    })?;
-    Ok(Some(std::sync::Arc::new(
-        compend::gpu::live::GpuLivePass::new(ctx, hz)?,
-    )))
-}
-
 pub fn run(args: Args) -> Result<()> {
     let setup = args.setup.open()?;
     let out = args
@@ -142,7 +113,11 @@ pub fn run(args: Args) -> Result<()> {
         climb_gain_db: args.climb_gain,
         climb_later: false,
         geometry_memo: None,
-        live: live_pass(&args)?,
+        live: super::refresh_timer(
+            args.refresh_hz,
+            args.method == compend::model::MethodChoice::Auto,
+            &format!("{} is one rung", args.method),
+        )?,
     };
     if let Some(w) = args
         .climb_gain

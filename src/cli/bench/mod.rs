@@ -74,6 +74,12 @@ pub struct Args {
     /// none].
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=500))]
     pub loop_images: u64,
+    /// `auto` only: weigh its climb's live pass for a display refreshing at HZ, on this
+    /// machine's GPU, as `train --refresh-hz` does: the rung it would climb to is not trained
+    /// when its pass takes more than half of one refresh period at the scene's projector
+    /// resolution. Default, or 0: not weighed.
+    #[arg(long, value_name = "HZ", allow_hyphen_values = true)]
+    pub refresh_hz: Option<f64>,
     /// Camera / projector / network sizes (defaults: the scenes' 640x480 / 800x600, 256).
     #[command(flatten)]
     pub scene_args: SceneArgs,
@@ -133,6 +139,11 @@ pub fn run(args: Args) -> Result<()> {
             eprintln!("warning: {w}");
         }
     }
+    let live = super::refresh_timer(
+        args.refresh_hz,
+        args.methods.contains(&compend::model::MethodChoice::Auto),
+        "add auto to --methods",
+    )?;
     let mut rows = Vec::new();
     let mut reach = Vec::new();
     for &seed in &args.seeds {
@@ -188,6 +199,7 @@ pub fn run(args: Args) -> Result<()> {
             let viewer = Simulator::new(&scene, seed, Phase::AfterDrift)?;
             rows.extend(bench_scene(
                 &args,
+                live.as_ref(),
                 &scene.name,
                 seed,
                 (&sim, &viewer),
@@ -261,6 +273,7 @@ fn scene_reach(
 
 fn bench_scene(
     args: &Args,
+    live: Option<&std::sync::Arc<dyn fit::LivePass>>,
     scene: &str,
     seed: u64,
     (calibration, sim): (&Simulator, &Simulator),
@@ -269,6 +282,7 @@ fn bench_scene(
 ) -> Result<Vec<Row>> {
     let bench = SceneBench {
         args,
+        live,
         scene,
         seed,
         calibration,
@@ -293,6 +307,8 @@ fn bench_scene(
 /// exported setup and its record, and the desired test images (camera pixels).
 struct SceneBench<'a> {
     args: &'a Args,
+    /// `auto`'s timer of its climb's live pass (`--refresh-hz`).
+    live: Option<&'a std::sync::Arc<dyn fit::LivePass>>,
     scene: &'a str,
     seed: u64,
     /// The rig during calibration: where `auto`'s climb is checked in closed loop.
@@ -386,7 +402,10 @@ impl SceneBench<'_> {
                 .filter(|_| method == compend::model::MethodChoice::Auto),
             climb_later: false,
             geometry_memo: None,
-            live: None,
+            live: self
+                .live
+                .filter(|_| method == compend::model::MethodChoice::Auto)
+                .cloned(),
         };
         let mut row = Row {
             scene: scene.into(),
@@ -413,6 +432,7 @@ impl SceneBench<'_> {
             chosen: None,
             rig_check: Vec::new(),
             loop_held_out: None,
+            live: None,
         };
         let trained = fit::fit(self.setup, &req, |_, _, _| {}).and_then(|(model, summary)| {
             if method != compend::model::MethodChoice::Auto {
@@ -455,10 +475,11 @@ impl SceneBench<'_> {
                     row.chosen = Some(a.chosen.to_string());
                     row.rig_check = a.closed_loop.clone();
                     row.loop_held_out = a.loop_held_out.clone();
+                    row.live = a.live.clone();
                 }
                 eprintln!(
                     "bench: {scene} {method}{} n={n}: {:.1} s, closed loop {:.2} dB (gap {:.2} \
-                     dB){}{}",
+                     dB){}{}{}",
                     row.chosen
                         .as_ref()
                         .map_or(String::new(), |c| format!(" → {c}")),
@@ -466,6 +487,9 @@ impl SceneBench<'_> {
                     s.psnr,
                     ceiling - s.psnr,
                     row.failure.map_or(String::new(), |f| format!(", {f}")),
+                    row.live
+                        .as_ref()
+                        .map_or(String::new(), |l| format!("; {}", l.describe())),
                     row.loop_held_out.as_ref().map_or(String::new(), |l| {
                         let psnr: Vec<String> = l
                             .scores
@@ -668,6 +692,23 @@ fn markdown(rows: &[Row], reach: &[SceneReach], device: fit::TrainDevice) -> Str
             f(r.paper.map(|s| s.psnr), 2),
             f(r.paper.map(|s| s.ssim), 3),
         );
+    }
+    let weighed: Vec<String> = rows
+        .iter()
+        .filter_map(|r| {
+            let l = r.live.as_ref()?;
+            Some(format!(
+                "- {} seed {} `{}`: {}.\n",
+                r.scene,
+                r.seed,
+                r.method,
+                l.describe()
+            ))
+        })
+        .collect();
+    if !weighed.is_empty() {
+        md.push_str("\n`auto`'s climb weighed against the display's frame budget:\n\n");
+        md.push_str(&weighed.concat());
     }
     md.push_str(&spread_table(rows));
     md.push_str(

@@ -42,6 +42,9 @@ pub struct Row {
     /// `auto` with closed-loop pairs: its judgement of the residual rung on those held out.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub loop_held_out: Option<compend::model::store::LoopHeldOut>,
+    /// `auto` with `--refresh-hz`: its climb's live pass against the display's frame budget.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub live: Option<compend::model::store::LiveCost>,
 }
 
 impl Row {
@@ -63,6 +66,7 @@ impl Row {
             chosen: None,
             rig_check: Vec::new(),
             loop_held_out: None,
+            live: None,
         }
     }
 }
