@@ -356,6 +356,52 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
         let mut s = UnixStream::connect(&svc.socket).unwrap();
         s.write_all(b"{\"cmd\":\"sta").unwrap();
     }
+    // Connections that never finish a request cannot lock the socket out. Past the service's
+    // 64 clients, each new one closes the longest idle of them, with a reply that says why;
+    // a client that has been asking on its own connection keeps it.
+    {
+        let kept = UnixStream::connect(&svc.socket).unwrap();
+        kept.set_read_timeout(Some(Duration::from_secs(20)))
+            .unwrap();
+        let mut kept_reader = BufReader::new(kept.try_clone().unwrap());
+        let mut ask_kept = || {
+            (&kept).write_all(b"{\"cmd\":\"status\"}\n").unwrap();
+            let mut line = String::new();
+            kept_reader.read_line(&mut line).unwrap();
+            assert!(line.contains("\"state\""), "{line}");
+        };
+        ask_kept();
+        let idle: Vec<UnixStream> = (0..70)
+            .map(|_| {
+                let mut s = UnixStream::connect(&svc.socket).unwrap();
+                s.write_all(b"{\"cmd\":").unwrap();
+                s
+            })
+            .collect();
+        // A new client is answered at once.
+        let start = Instant::now();
+        assert_eq!(svc.status()["state"], "playing");
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "{:?}",
+            start.elapsed()
+        );
+        // The first idle ones were closed, saying why.
+        let mut first = BufReader::new(idle[0].try_clone().unwrap());
+        idle[0]
+            .set_read_timeout(Some(Duration::from_secs(20)))
+            .unwrap();
+        let mut line = String::new();
+        first.read_line(&mut line).unwrap();
+        assert!(line.contains("closed to make room"), "{line}");
+        assert!(line.contains("at most 64 clients"), "{line}");
+        ask_kept();
+        assert!(
+            svc.log().contains("closing the longest idle"),
+            "{}",
+            svc.log()
+        );
+    }
     // None of that stopped the playback: frames are still being shown.
     let a = svc.status()["frames"]["shown"].as_u64().unwrap();
     std::thread::sleep(Duration::from_millis(700));

@@ -11,23 +11,32 @@
 //! that speaks TCP: there every request carries the token of `[socket] tcp_token_file` in a
 //! `token` field; a request without it, or with another, gets an error and the connection is
 //! closed.
+//!
+//! At most [`MAX_CLIENTS`] connections are served at once per listener. When a new one comes
+//! and all are taken, the longest-idle connection is closed to make room (with a reply that
+//! says why): first those that never completed a request (a client that leaked its
+//! connection, or holds half a line), then the least recently active. Connections that leak
+//! cannot lock the socket, and a controller that keeps one connection and asks now and then
+//! keeps it while such connections come and go.
 
+use std::collections::HashMap;
 use std::ffi::CString;
 use std::os::unix::fs::{FileTypeExt, PermissionsExt};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::time::Duration;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream, UnixListener, UnixStream};
-use tokio::sync::{Semaphore, oneshot};
+use tokio::sync::{Notify, Semaphore, oneshot};
 
 use super::protocol::{MAX_REQUEST_BYTES, Reply, Request};
 use super::{Envelope, Shared};
 use crate::config::SocketConfig;
 use crate::error::{Error, Result};
 
-/// Connections served at once; more wait for a free slot.
+/// Connections served at once per listener; a new one past them closes the longest-idle one
+/// ([`Clients::make_room`]), or waits for a slot while all are answering.
 const MAX_CLIENTS: usize = 64;
 
 /// How long a request waits for the engine (it answers between two refreshes, two captures).
@@ -237,16 +246,121 @@ impl Listener for TcpListener {
     }
 }
 
+/// The open connections of one listener, for [`Clients::make_room`].
+#[derive(Default)]
+struct Clients {
+    open: Mutex<HashMap<u64, Client>>,
+    next_id: Mutex<u64>,
+}
+
+/// What [`Clients::make_room`] weighs of one connection.
+struct Client {
+    /// Requests answered so far.
+    answered: u64,
+    /// When it connected, or when its last reply was written.
+    last_active: Instant,
+    /// Whether a request of its own is being answered.
+    busy: bool,
+    /// Tells it to close.
+    close: Arc<Notify>,
+}
+
+/// One connection's place among its listener's [`Clients`]; leaves it when dropped.
+struct Lease {
+    id: u64,
+    clients: Arc<Clients>,
+    close: Arc<Notify>,
+}
+
+impl Clients {
+    fn open(&self) -> std::sync::MutexGuard<'_, HashMap<u64, Client>> {
+        self.open.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// A new connection's lease.
+    fn join(self: &Arc<Self>) -> Lease {
+        let id = {
+            let mut next = self.next_id.lock().unwrap_or_else(|e| e.into_inner());
+            *next += 1;
+            *next
+        };
+        let close = Arc::new(Notify::new());
+        self.open().insert(
+            id,
+            Client {
+                answered: 0,
+                last_active: Instant::now(),
+                busy: false,
+                close: close.clone(),
+            },
+        );
+        Lease {
+            id,
+            clients: self.clone(),
+            close,
+        }
+    }
+
+    /// Tells the longest-idle connection that is not being answered to close: one that never
+    /// completed a request before one that did, then the least recently active. Whether there
+    /// was one.
+    fn make_room(&self) -> bool {
+        let open = self.open();
+        let idlest = open
+            .values()
+            .filter(|c| !c.busy)
+            .min_by_key(|c| (c.answered > 0, c.last_active));
+        match idlest {
+            Some(c) => {
+                c.close.notify_one();
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+impl Lease {
+    /// A request of its own is being answered.
+    fn busy(&self) {
+        if let Some(c) = self.clients.open().get_mut(&self.id) {
+            c.busy = true;
+        }
+    }
+
+    /// Its reply was written.
+    fn answered(&self) {
+        if let Some(c) = self.clients.open().get_mut(&self.id) {
+            c.busy = false;
+            c.answered += 1;
+            c.last_active = Instant::now();
+        }
+    }
+
+    /// Resolves when the connection is to close to make room for a new one.
+    async fn closing(&self) {
+        self.close.notified().await
+    }
+}
+
+impl Drop for Lease {
+    fn drop(&mut self) {
+        self.clients.open().remove(&self.id);
+    }
+}
+
 /// Accepts connections on `listener` until the runtime shuts down, at most [`MAX_CLIENTS`]
-/// served at once (more wait for a free slot), each by `serve` on a task of its own. `what`
-/// names the listener in the log.
+/// served at once, each by `serve` on a task of its own with its [`Lease`]. A new connection
+/// past them closes the longest-idle one ([`Clients::make_room`]); while every one is being
+/// answered, it waits for a slot. `what` names the listener in the log.
 async fn accept<L, F, Fut>(listener: L, what: &'static str, serve: F)
 where
     L: Listener,
-    F: Fn(L::Conn) -> Fut,
+    F: Fn(L::Conn, Lease) -> Fut,
     Fut: std::future::Future<Output = std::io::Result<()>> + Send + 'static,
 {
     let slots = Arc::new(Semaphore::new(MAX_CLIENTS));
+    let clients = Arc::new(Clients::default());
     loop {
         let conn = match listener.next().await {
             Ok(c) => c,
@@ -256,10 +370,15 @@ where
                 continue;
             }
         };
+        if slots.available_permits() == 0 && clients.make_room() {
+            tracing::info!(
+                "{what}: {MAX_CLIENTS} clients connected; closing the longest idle for a new one"
+            );
+        }
         let Ok(permit) = slots.clone().acquire_owned().await else {
             return;
         };
-        let served = serve(conn);
+        let served = serve(conn, clients.join());
         tokio::spawn(async move {
             if let Err(e) = served.await {
                 tracing::debug!("{what}: client ended: {e}");
@@ -271,27 +390,32 @@ where
 
 /// Accepts clients on the Unix socket until the runtime shuts down.
 pub async fn serve(listener: UnixListener, access: Access, shared: Arc<Shared>) {
-    accept(listener, "control socket", move |stream| {
+    accept(listener, "control socket", move |stream, lease| {
         let (access, shared) = (access.clone(), shared.clone());
-        async move { client(stream, &access, &shared).await }
+        async move { client(stream, &access, &shared, lease).await }
     })
     .await
 }
 
 /// Accepts TCP clients until the runtime shuts down; each request must carry `token`.
 pub async fn serve_tcp(listener: TcpListener, token: Token, shared: Arc<Shared>) {
-    accept(listener, "control port", move |(stream, peer)| {
+    accept(listener, "control port", move |(stream, peer), lease| {
         let (token, shared) = (token.clone(), shared.clone());
         async move {
             let (read, write) = stream.into_split();
-            requests(read, write, &shared, Some((&token, peer))).await
+            requests(read, write, &shared, Some((&token, peer)), lease).await
         }
     })
     .await
 }
 
 /// One client of the Unix socket, once its credentials allow it: its requests in order.
-async fn client(stream: UnixStream, access: &Access, shared: &Shared) -> std::io::Result<()> {
+async fn client(
+    stream: UnixStream,
+    access: &Access,
+    shared: &Shared,
+    lease: Lease,
+) -> std::io::Result<()> {
     let cred = stream.peer_cred()?;
     let (read, mut write) = stream.into_split();
     if !access.allows(cred.uid(), cred.gid()) {
@@ -309,17 +433,19 @@ async fn client(stream: UnixStream, access: &Access, shared: &Shared) -> std::io
         write.write_all(reply.to_line().as_bytes()).await?;
         return Ok(());
     }
-    requests(read, write, shared, None).await
+    requests(read, write, shared, None, lease).await
 }
 
-/// A connection's requests in order, one reply each, until the client hangs up. With
-/// `token` (TCP, and the peer's address for the log), each request must carry it; the first
-/// that does not is answered with an error and ends the connection.
+/// A connection's requests in order, one reply each, until the client hangs up or its `lease`
+/// is told to make room for a new client (between requests). With `token` (TCP, and the peer's
+/// address for the log), each request must carry it; the first that does not is answered with
+/// an error and ends the connection.
 async fn requests<R, W>(
     read: R,
     mut write: W,
     shared: &Shared,
     token: Option<(&Token, std::net::SocketAddr)>,
+    lease: Lease,
 ) -> std::io::Result<()>
 where
     R: tokio::io::AsyncRead + Unpin,
@@ -328,7 +454,21 @@ where
     let mut read = BufReader::new(read);
     let mut line = Vec::new();
     loop {
-        let reply = match read_line(&mut read, &mut line).await? {
+        let next = tokio::select! {
+            next = read_line(&mut read, &mut line) => next?,
+            () = lease.closing() => {
+                let reply = Reply::error(format!(
+                    "closed to make room: the service serves at most {MAX_CLIENTS} clients at \
+                     once, and this connection was the longest idle when another came"
+                ));
+                let text = reply.to_line();
+                let written = write.write_all(text.as_bytes());
+                let _ = tokio::time::timeout(Duration::from_secs(1), written).await;
+                return Ok(());
+            }
+        };
+        lease.busy();
+        let reply = match next {
             Line::End => return Ok(()),
             Line::TooLong => Reply::error(format!(
                 "request longer than {MAX_REQUEST_BYTES} bytes; it was skipped"
@@ -352,6 +492,7 @@ where
             },
         };
         write.write_all(reply.to_line().as_bytes()).await?;
+        lease.answered();
     }
 }
 
