@@ -110,8 +110,9 @@ pub fn default_lattice(network: ImageSize, projector: Option<ImageSize>) -> Imag
 
 /// The most pixels of a default lattice: 1920×1080. A 4K projector's default lattice is this
 /// many pixels of its aspect, stretched over the frame by the pass. At this size `linear` trained
-/// in 22 s with a 1.4 GB peak (curved scene with a 1920×1080 projector, 48 pairs, release build,
-/// 2 cores; docs/bench/ladder.md, "A leaner `linear` fit"), 0.27 dB below the physical ceiling.
+/// in 27–28 s with a 1.4 GB peak (curved scene with a 1920×1080 projector and a 640×480 camera,
+/// 48 pairs, release build, 2 cores, beside other work; docs/bench/ladder.md, "A faster, leaner
+/// `linear` fit"), 0.27 dB below the physical ceiling.
 pub const LATTICE_BUDGET: usize = 1920 * 1080;
 
 /// What training reports besides the model.

@@ -2,8 +2,10 @@
 //! (camera linear light → projector linear light), solved in closed form with a ridge pull towards
 //! one global model.
 //!
-//! Inputs are warped captures and projector images on the same lattice (network pixels, or the
-//! model's finer lattice); residuals are in linear projector light.
+//! Inputs are the captures (camera pixels), the projector images (network pixels) and the grid
+//! that maps the model's lattice (network pixels, or a finer lattice) to camera positions; each
+//! lattice pixel's pairs are sampled in place ([`Stack`]). Residuals are in linear projector
+//! light.
 
 use rayon::prelude::*;
 
@@ -92,11 +94,13 @@ fn solve_colour(
         height: h,
         data,
     };
-    // The squared residual from each pixel's sums: one pass over the data, not two.
-    let sse: f64 = normals
+    // The squared residual from each pixel's sums: one pass over the data, not two; summed in
+    // pixel order, so that a run reports the same loss as the last.
+    let sse: Vec<f64> = normals
         .par_iter()
         .zip(&coeffs.data)
         .map(|(ne, k)| ne.sse(k))
-        .sum();
+        .collect();
+    let sse: f64 = sse.iter().sum();
     (coeffs, sse / (n * w * h * 3) as f64)
 }

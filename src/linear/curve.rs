@@ -312,7 +312,9 @@ fn forward_residual(samples: &ForwardSamples, curves: &Curves, ridge: f32) -> f6
     let mean_w = total_w / (n * pixels) as f64;
     let global_fwd = global.solve(1e-6 * total_w, &IDENTITY).unwrap_or(IDENTITY);
     let lambda = ridge as f64 * mean_w;
-    (0..pixels)
+    // Per pixel in parallel, then summed in pixel order: the same cost every run (a parallel
+    // sum's order follows the threads' timing, and the search compares costs).
+    let per_pixel: Vec<f64> = (0..pixels)
         .into_par_iter()
         .map(|p| {
             let k = normals[p].solve(lambda, &global_fwd).unwrap_or(global_fwd);
@@ -331,7 +333,8 @@ fn forward_residual(samples: &ForwardSamples, curves: &Curves, ridge: f32) -> f6
             }
             s
         })
-        .sum()
+        .collect();
+    per_pixel.iter().sum()
 }
 
 #[cfg(test)]

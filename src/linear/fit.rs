@@ -154,8 +154,8 @@ impl FittedGeometry {
 /// The last geometry a [`fit_with_memo`] fitted, for the fits of one training or calibration to
 /// share. Those fits see the same first pairs (the sampling pairs; held-out and closed-loop
 /// pairs come after them) and the geometry uses only the first `geometry_images` of them, so
-/// it comes out the same each time: at the virtual rig's sizes 8–11 s of every fit on 2
-/// cores (release build), done once. A fit takes the memo's geometry only when a fingerprint of what the
+/// it comes out the same each time: at the virtual rig's sizes 8–11 s of every fit on 2 cores
+/// (release build), done once. A fit takes the memo's geometry only when a fingerprint of what the
 /// geometry depends on matches ([`geometry_key`]); otherwise it fits its own and leaves it
 /// there.
 #[derive(Debug, Default)]

@@ -35,9 +35,15 @@ use super::{Envelope, Shared};
 use crate::config::SocketConfig;
 use crate::error::{Error, Result};
 
+/// How often a new connection that finds every slot answering a request tries again.
+const ROOM_RETRY: Duration = Duration::from_millis(100);
+
 /// Connections served at once per listener; a new one past them closes the longest-idle one
 /// ([`Clients::make_room`]), or waits for a slot while all are answering.
 const MAX_CLIENTS: usize = 64;
+
+/// How long a reply may take to write: a client that does not read its replies is closed.
+const WRITE_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// How long a request waits for the engine (it answers between two refreshes, two captures).
 const ENGINE_TIMEOUT: Duration = Duration::from_secs(30);
@@ -250,7 +256,7 @@ impl Listener for TcpListener {
 #[derive(Default)]
 struct Clients {
     open: Mutex<HashMap<u64, Client>>,
-    next_id: Mutex<u64>,
+    next_id: std::sync::atomic::AtomicU64,
 }
 
 /// What [`Clients::make_room`] weighs of one connection.
@@ -261,6 +267,8 @@ struct Client {
     last_active: Instant,
     /// Whether a request of its own is being answered.
     busy: bool,
+    /// Whether it was told to close (it leaves once it has).
+    closing: bool,
     /// Tells it to close.
     close: Arc<Notify>,
 }
@@ -279,11 +287,9 @@ impl Clients {
 
     /// A new connection's lease.
     fn join(self: &Arc<Self>) -> Lease {
-        let id = {
-            let mut next = self.next_id.lock().unwrap_or_else(|e| e.into_inner());
-            *next += 1;
-            *next
-        };
+        let id = self
+            .next_id
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let close = Arc::new(Notify::new());
         self.open().insert(
             id,
@@ -291,6 +297,7 @@ impl Clients {
                 answered: 0,
                 last_active: Instant::now(),
                 busy: false,
+                closing: false,
                 close: close.clone(),
             },
         );
@@ -302,16 +309,20 @@ impl Clients {
     }
 
     /// Tells the longest-idle connection that is not being answered to close: one that never
-    /// completed a request before one that did, then the least recently active. Whether there
-    /// was one.
+    /// completed a request before one that did, then the least recently active. Nothing while
+    /// one told before is still closing. Whether one was told now.
     fn make_room(&self) -> bool {
-        let open = self.open();
+        let mut open = self.open();
+        if open.values().any(|c| c.closing) {
+            return false;
+        }
         let idlest = open
-            .values()
+            .values_mut()
             .filter(|c| !c.busy)
             .min_by_key(|c| (c.answered > 0, c.last_active));
         match idlest {
             Some(c) => {
+                c.closing = true;
                 c.close.notify_one();
                 true
             }
@@ -328,12 +339,15 @@ impl Lease {
         }
     }
 
-    /// Its reply was written.
-    fn answered(&self) {
+    /// Its reply was written; `counts`: the request counts as its client asking (not a line
+    /// refused before its sender was known, such as an oversized one on the TCP port).
+    fn answered(&self, counts: bool) {
         if let Some(c) = self.clients.open().get_mut(&self.id) {
             c.busy = false;
-            c.answered += 1;
-            c.last_active = Instant::now();
+            if counts {
+                c.answered += 1;
+                c.last_active = Instant::now();
+            }
         }
     }
 
@@ -352,7 +366,8 @@ impl Drop for Lease {
 /// Accepts connections on `listener` until the runtime shuts down, at most [`MAX_CLIENTS`]
 /// served at once, each by `serve` on a task of its own with its [`Lease`]. A new connection
 /// past them closes the longest-idle one ([`Clients::make_room`]); while every one is being
-/// answered, it waits for a slot. `what` names the listener in the log.
+/// answered, it tries again every [`ROOM_RETRY`] until one is idle or leaves. `what` names the
+/// listener in the log.
 async fn accept<L, F, Fut>(listener: L, what: &'static str, serve: F)
 where
     L: Listener,
@@ -361,6 +376,8 @@ where
 {
     let slots = Arc::new(Semaphore::new(MAX_CLIENTS));
     let clients = Arc::new(Clients::default());
+    // Connections closed to make room, and when that was last logged (at most once a minute).
+    let (mut evicted, mut logged) = (0u64, None::<Instant>);
     loop {
         let conn = match listener.next().await {
             Ok(c) => c,
@@ -370,13 +387,22 @@ where
                 continue;
             }
         };
-        if slots.available_permits() == 0 && clients.make_room() {
-            tracing::info!(
-                "{what}: {MAX_CLIENTS} clients connected; closing the longest idle for a new one"
-            );
-        }
-        let Ok(permit) = slots.clone().acquire_owned().await else {
-            return;
+        let permit = loop {
+            if slots.available_permits() == 0 && clients.make_room() {
+                evicted += 1;
+                if logged.is_none_or(|t| t.elapsed() >= Duration::from_secs(60)) {
+                    tracing::warn!(
+                        "{what}: {MAX_CLIENTS} clients connected; closing the longest idle for a \
+                         new one ({evicted} so far; a client may be leaking connections)"
+                    );
+                    logged = Some(Instant::now());
+                }
+            }
+            match tokio::time::timeout(ROOM_RETRY, slots.clone().acquire_owned()).await {
+                Ok(Ok(permit)) => break permit,
+                Ok(Err(_)) => return,
+                Err(_) => continue,
+            }
         };
         let served = serve(conn, clients.join());
         tokio::spawn(async move {
@@ -468,6 +494,8 @@ where
             }
         };
         lease.busy();
+        // On the TCP port a line refused before its token was read does not count as asking.
+        let counts = !(token.is_some() && matches!(next, Line::TooLong));
         let reply = match next {
             Line::End => return Ok(()),
             Line::TooLong => Reply::error(format!(
@@ -491,8 +519,17 @@ where
                 },
             },
         };
-        write.write_all(reply.to_line().as_bytes()).await?;
-        lease.answered();
+        let text = reply.to_line();
+        match tokio::time::timeout(WRITE_TIMEOUT, write.write_all(text.as_bytes())).await {
+            Ok(written) => written?,
+            Err(_) => {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::TimedOut,
+                    "the client did not read its reply",
+                ));
+            }
+        }
+        lease.answered(counts);
     }
 }
 
