@@ -88,7 +88,7 @@ pub struct Request {
 /// when the setup knows it), scaled down to at most [`LATTICE_BUDGET`] pixels with its aspect
 /// kept; without it, 1.5× the network size. Sides are rounded up to a multiple of 4 (256² →
 /// 384²). The per-pixel model costs little more on a finer lattice in time (memory grows about
-/// 0.35 kB per lattice pixel in training), and a network-size image stretched over the canvas
+/// 0.5 kB per lattice pixel in training), and a network-size image stretched over the canvas
 /// has fewer pixels across the displayable area than the camera sees there. On the virtual
 /// rig's white plane, textured plane and curved scene (seed 301, 48 pairs, 800×600
 /// projector), the projector's resolution took `linear` from 0.44–0.63 dB below the physical
@@ -110,9 +110,9 @@ pub fn default_lattice(network: ImageSize, projector: Option<ImageSize>) -> Imag
 
 /// The most pixels of a default lattice: 1920×1080. A 4K projector's default lattice is this
 /// many pixels of its aspect, stretched over the frame by the pass. At this size `linear` trained
-/// in 27–28 s with a 1.4 GB peak (curved scene with a 1920×1080 projector and a 640×480 camera,
-/// 48 pairs, release build, 2 cores, beside other work; docs/bench/ladder.md, "A faster, leaner
-/// `linear` fit"), 0.27 dB below the physical ceiling.
+/// in 15–17 s with a 1.4–1.6 GB peak (curved scene with a 1920×1080 projector and a 640×480
+/// camera, 48 pairs, release build, 2 cores; docs/bench/ladder.md, "A faster, leaner `linear`
+/// fit"), 0.27 dB below the physical ceiling.
 pub const LATTICE_BUDGET: usize = 1920 * 1080;
 
 /// What training reports besides the model.

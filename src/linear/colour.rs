@@ -4,7 +4,7 @@
 //!
 //! Inputs are the captures (camera pixels), the projector images (network pixels) and the grid
 //! that maps the model's lattice (network pixels, or a finer lattice) to camera positions; each
-//! lattice pixel's pairs are sampled in place ([`Stack`]). Residuals are in linear projector
+//! lattice pixel's pairs are sampled in place ([`Frames`], [`Stack`]). Residuals are in linear projector
 //! light.
 
 use rayon::prelude::*;
@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use super::curve::{CURVE_SAMPLES, CURVE_SWEEPS, fit_curves};
 use super::model::{Coefficients, Curves};
 use super::normal::{Normal, features, global_solution, targets_linear};
-use super::stack::Stack;
+use super::stack::{Frames, Stack};
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
 
@@ -21,7 +21,7 @@ use crate::sample::Grid;
 /// lattice's) are resampled bilinearly onto the lattice where it differs: the projector shows an
 /// image stretched bilinearly over the canvas (half-pixel centres), so that gives, at each
 /// lattice pixel, close to the value the projector showed there. Captures are sampled at the
-/// grid's positions and images resampled pixel by pixel ([`Stack`]), never whole.
+/// grid's positions and images resampled pixel by pixel ([`Frames`], [`Stack`]), never whole.
 pub(super) fn fit_colour(
     captures: &[CamImage],
     targets: &[NetImage],
@@ -36,7 +36,7 @@ pub(super) fn fit_colour(
         .div_ceil(CURVE_SAMPLES)
         .max(1);
     let t = std::time::Instant::now();
-    let (caps, shown) = (Stack::new(captures), Stack::new(targets));
+    let (caps, shown) = (Frames::new(captures), Stack::new(targets));
     let curves = fit_curves(&caps, &shown, grid, start, ridge, stride, CURVE_SWEEPS);
     let curves_s = t.elapsed().as_secs_f64();
     let (coeffs, loss) = solve_colour(&caps, &shown, grid, &curves, ridge);
@@ -52,7 +52,7 @@ pub(super) fn fit_colour(
 /// Solves the per-pixel coefficients on the grid's lattice; returns them and the mean squared
 /// residual (linear light).
 fn solve_colour(
-    caps: &Stack,
+    caps: &Frames,
     shown: &Stack,
     grid: &Grid<Network, Camera>,
     curves: &Curves,

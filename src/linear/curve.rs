@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use super::model::Curves;
 use super::normal::IDENTITY;
-use super::stack::Stack;
+use super::stack::{Captures, Stack};
 use crate::raster::{Camera, ImageSize, Network};
 use crate::sample::Grid;
 
@@ -136,7 +136,7 @@ fn golden_min(mut lo: f32, mut hi: f32, iters: usize, mut f: impl FnMut(f32) -> 
 /// near black it amplifies camera noise, and minimising it drives both exponents towards 1,
 /// which cost 1–1.5 dB closed loop on the rig.
 pub(super) fn fit_curves(
-    caps: &Stack,
+    caps: &impl Captures,
     shown: &Stack,
     grid: &Grid<Network, Camera>,
     start: Curves,

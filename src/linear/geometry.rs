@@ -42,17 +42,13 @@ pub(super) fn fit_warp(
                 width: lw,
                 height: lh,
             } = level_size(settings.network_size, side);
-            let caps: Vec<CamImage> = captures[..ng]
-                .par_iter()
-                .map(|c| blur_rgb(c, sigma))
-                .collect();
+            // Blurred a few at a time into the stack, never all beside it.
+            let stack = Stack::build(ng, captures[0].size(), |i| blur_rgb(&captures[i], sigma));
             let tgts: Vec<NetImage> = targets[..ng]
                 .iter()
                 .map(|t| resize_area(t, lw, lh))
                 .collect();
             let basis = TpsBasis::new(lw, lh);
-            let stack = Stack::new(&caps);
-            drop(caps);
             if level == 0 {
                 // The curves are global: a coarse fit here, refined once at the end.
                 curves = fit_curves(

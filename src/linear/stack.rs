@@ -1,18 +1,23 @@
-//! The training pairs as the `linear` fit reads them: each set of images (the captures, the
-//! projector images) interleaved pixel-major, so that the values of every pair at one position
-//! lie together in memory, and sampled where the fit needs them instead of warped or resized
-//! into whole images first. At a 1920×1080 lattice and 48 pairs, whole warped captures and
-//! resized projector images took 2.4 GB; the stacks take what the images they hold take.
+//! The training pairs as the `linear` fit reads them, sampled where the fit needs them instead
+//! of warped or resized into whole images first (at a 1920×1080 lattice and 48 pairs, whole
+//! warped captures and resized projector images took 2.4 GB):
+//! - [`Stack`]: images interleaved pixel-major, so that the values of every pair at one
+//!   position lie together in memory. The geometry fit samples its 24 captures from one (built
+//!   a few at a time, [`Stack::build`]); the colour solve resamples the projector images (network
+//!   size) from one.
+//! - [`Frames`]: the captures read where they lie, for the colour solve, whose lattice may be
+//!   coarser than a large camera's frame (a stack of 48 1920×1080 captures is 1.2 GB).
 //!
 //! Each sampler repeats the arithmetic of the whole-image operation it stands in for, in the
 //! same order, so the fit's results are those of warping and resizing first, to the bit:
-//! [`Stack::sample`] that of [`crate::sample::grid_sample`] (camera pixels at normalised camera
-//! coordinates, align-corners, zero outside), [`Stack::resampled`] that of
-//! [`crate::resize::resize_bilinear`] (network pixels onto a lattice, half-pixel centres).
+//! [`Stack::sample`] and [`Frames::sample`] that of [`crate::sample::grid_sample`] (camera
+//! pixels at normalised camera coordinates, align-corners, zero outside), [`Stack::resampled`]
+//! that of [`crate::resize::resize_bilinear`] (network pixels onto a lattice, half-pixel
+//! centres).
 
 use rayon::prelude::*;
 
-use crate::raster::{ImageSize, Rgb, Space};
+use crate::raster::{CamImage, ImageSize, Rgb, Space};
 use crate::resize::bilinear_taps;
 use crate::sample::{for_each_tap, norm_to_pixel};
 
@@ -25,9 +30,8 @@ pub(super) struct Stack {
     data: Vec<f32>,
 }
 
-/// The bilinear neighbours of one position in a [`Stack`] as [`crate::sample::grid_sample`]
-/// takes them: the in-bounds neighbours with a non-zero weight, in its order (pixel offsets
-/// into the stack for image 0, weights).
+/// The bilinear neighbours of one position as [`crate::sample::grid_sample`] takes them: the
+/// in-bounds neighbours with a non-zero weight, in its order (pixel indices, weights).
 pub(super) struct Taps {
     count: usize,
     offset: [usize; 4],
@@ -51,27 +55,162 @@ pub(super) struct Resize {
     width: usize,
 }
 
+impl Taps {
+    /// The neighbours of normalised (gx, gy) in a `width`×`height` image, as
+    /// [`crate::sample::for_each_tap`] gives them (pixel indices `y · width + x`).
+    #[inline]
+    fn at(gx: f32, gy: f32, width: usize, height: usize) -> Self {
+        let mut taps = Taps {
+            count: 0,
+            offset: [0; 4],
+            weight: [0.0; 4],
+        };
+        for_each_tap(gx, gy, width, height, |p, w| {
+            taps.offset[taps.count] = p;
+            taps.weight[taps.count] = w;
+            taps.count += 1;
+        });
+        taps
+    }
+
+    /// The weighted sum of `value(offset)` over the taps, in [`crate::sample::grid_sample`]'s
+    /// order and arithmetic.
+    #[inline]
+    fn blend(&self, value: impl Fn(usize) -> [f32; 3]) -> [f32; 3] {
+        let mut px = [0f32; 3];
+        for k in 0..self.count {
+            let v = value(self.offset[k]);
+            let w = self.weight[k];
+            px[0] += w * v[0];
+            px[1] += w * v[1];
+            px[2] += w * v[2];
+        }
+        px
+    }
+}
+
+/// Captures sampled with [`crate::sample::grid_sample`]'s arithmetic, wherever they are held:
+/// a [`Stack`] or [`Frames`].
+pub(super) trait Captures: Sync {
+    fn images(&self) -> usize;
+    fn taps(&self, gx: f32, gy: f32) -> Taps;
+    fn sample(&self, taps: &Taps, i: usize) -> [f32; 3];
+}
+
+impl Captures for Stack {
+    fn images(&self) -> usize {
+        Stack::images(self)
+    }
+    fn taps(&self, gx: f32, gy: f32) -> Taps {
+        Stack::taps(self, gx, gy)
+    }
+    fn sample(&self, taps: &Taps, i: usize) -> [f32; 3] {
+        Stack::sample(self, taps, i)
+    }
+}
+
+impl Captures for Frames<'_> {
+    fn images(&self) -> usize {
+        Frames::images(self)
+    }
+    fn taps(&self, gx: f32, gy: f32) -> Taps {
+        Frames::taps(self, gx, gy)
+    }
+    fn sample(&self, taps: &Taps, i: usize) -> [f32; 3] {
+        Frames::sample(self, taps, i)
+    }
+}
+
+/// Camera captures read where they lie (no copy): for the colour solve, whose lattice may be
+/// coarser than the camera's frame, so that a stack of whole captures would cost more memory
+/// than the lattice.
+pub(super) struct Frames<'a> {
+    images: &'a [CamImage],
+    width: usize,
+    height: usize,
+}
+
+impl<'a> Frames<'a> {
+    /// `images` must share one size (the fit checks its pairs first).
+    pub(super) fn new(images: &'a [CamImage]) -> Self {
+        let size = images.first().map_or(ImageSize::new(0, 0), Rgb::size);
+        Self {
+            images,
+            width: size.width,
+            height: size.height,
+        }
+    }
+
+    pub(super) fn images(&self) -> usize {
+        self.images.len()
+    }
+
+    /// The neighbours [`Frames::sample`] reads at normalised (gx, gy).
+    #[inline]
+    pub(super) fn taps(&self, gx: f32, gy: f32) -> Taps {
+        Taps::at(gx, gy, self.width, self.height)
+    }
+
+    /// Capture `i` sampled at `taps`: [`crate::sample::grid_sample`]'s value there.
+    #[inline]
+    pub(super) fn sample(&self, taps: &Taps, i: usize) -> [f32; 3] {
+        let d = self.images[i].data();
+        taps.blend(|p| [d[p * 3], d[p * 3 + 1], d[p * 3 + 2]])
+    }
+}
+
 impl Stack {
     /// Interleaves `images`, which must share one size (the fit checks its pairs first).
     pub(super) fn new<S: Space>(images: &[Rgb<S>]) -> Self {
-        let ImageSize { width, height } = images.first().map_or(ImageSize::new(0, 0), Rgb::size);
-        let count = images.len();
-        let mut data = vec![0f32; width * height * count * 3];
-        if count > 0 {
-            data.par_chunks_mut(count * 3)
-                .enumerate()
-                .for_each(|(p, dst)| {
-                    for (i, img) in images.iter().enumerate() {
-                        dst[i * 3..i * 3 + 3].copy_from_slice(&img.data()[p * 3..p * 3 + 3]);
-                    }
-                });
+        let size = images.first().map_or(ImageSize::new(0, 0), Rgb::size);
+        let mut stack = Self::empty(size, images.len());
+        for (i, img) in images.iter().enumerate() {
+            stack.put(i, img);
         }
+        stack
+    }
+
+    /// Interleaves `count` images of `size` that `image(i)` makes, a few at a time (as many as
+    /// there are threads), so that they are never all held beside the stack.
+    pub(super) fn build<S: Space>(
+        count: usize,
+        size: ImageSize,
+        image: impl Fn(usize) -> Rgb<S> + Sync,
+    ) -> Self {
+        let mut stack = Self::empty(size, count);
+        let batch = rayon::current_num_threads().max(1);
+        for start in (0..count).step_by(batch) {
+            let made: Vec<Rgb<S>> = (start..(start + batch).min(count))
+                .into_par_iter()
+                .map(&image)
+                .collect();
+            for (k, img) in made.iter().enumerate() {
+                stack.put(start + k, img);
+            }
+        }
+        stack
+    }
+
+    fn empty(size: ImageSize, n: usize) -> Self {
         Self {
-            width,
-            height,
-            images: count,
-            data,
+            width: size.width,
+            height: size.height,
+            images: n,
+            data: vec![0f32; size.width * size.height * n * 3],
         }
+    }
+
+    /// Copies `img` in as image `i`.
+    fn put<S: Space>(&mut self, i: usize, img: &Rgb<S>) {
+        let n = self.images;
+        if n == 0 {
+            return;
+        }
+        let src = img.data();
+        self.data
+            .par_chunks_mut(n * 3)
+            .enumerate()
+            .for_each(|(p, dst)| dst[i * 3..i * 3 + 3].copy_from_slice(&src[p * 3..p * 3 + 3]));
     }
 
     pub(super) fn size(&self) -> ImageSize {
@@ -92,31 +231,13 @@ impl Stack {
     /// The neighbours [`Stack::sample`] reads at normalised (gx, gy).
     #[inline]
     pub(super) fn taps(&self, gx: f32, gy: f32) -> Taps {
-        let mut taps = Taps {
-            count: 0,
-            offset: [0; 4],
-            weight: [0.0; 4],
-        };
-        for_each_tap(gx, gy, self.width, self.height, |p, w| {
-            taps.offset[taps.count] = p;
-            taps.weight[taps.count] = w;
-            taps.count += 1;
-        });
-        taps
+        Taps::at(gx, gy, self.width, self.height)
     }
 
     /// Image `i` sampled at `taps`: [`crate::sample::grid_sample`]'s value there.
     #[inline]
     pub(super) fn sample(&self, taps: &Taps, i: usize) -> [f32; 3] {
-        let mut px = [0f32; 3];
-        for k in 0..taps.count {
-            let v = self.at(taps.offset[k], i);
-            let w = taps.weight[k];
-            px[0] += w * v[0];
-            px[1] += w * v[1];
-            px[2] += w * v[2];
-        }
-        px
+        taps.blend(|q| self.at(q, i))
     }
 
     /// How [`Stack::resampled`] maps this stack onto a `size` lattice.
@@ -217,7 +338,7 @@ impl Stack {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::raster::{CamImage, Camera, NetImage, Network};
+    use crate::raster::{Camera, NetImage, Network};
     use crate::sample::Grid;
     use rand::{RngExt, SeedableRng};
 
@@ -242,10 +363,15 @@ mod tests {
         positions.extend([[-1.0, -1.0], [1.0, 1.0], [0.999, -0.2], [f32::NAN, 0.0]]);
         let grid = Grid::<Network, Camera>::from_vec(positions.len(), 1, positions.clone())
             .expect("one position per pixel");
+        let frames = Frames::new(&caps);
+        let built = Stack::build(caps.len(), caps[0].size(), |i| caps[i].clone());
+        assert_eq!(built.data, stack.data);
         for (i, cap) in caps.iter().enumerate() {
             let whole = crate::sample::grid_sample(cap, &grid);
             for (p, &[gx, gy]) in positions.iter().enumerate() {
                 let got = stack.sample(&stack.taps(gx, gy), i);
+                assert_eq!(got.map(f32::to_bits), whole.get(p, 0).map(f32::to_bits));
+                let got = frames.sample(&frames.taps(gx, gy), i);
                 assert_eq!(got.map(f32::to_bits), whole.get(p, 0).map(f32::to_bits));
             }
         }
