@@ -333,6 +333,15 @@ fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
         )));
     }
     let net_size = targets[0].size();
+    if [cam_size, net_size]
+        .iter()
+        .any(|s| s.width == 0 || s.height == 0)
+    {
+        return Err(Error::Shape(format!(
+            "linear fit needs captures and projector images of at least 1x1 pixels, got {} and {}",
+            cam_size, net_size
+        )));
+    }
     if let Some(t) = targets.iter().find(|t| t.size() != net_size) {
         return Err(Error::Shape(format!(
             "projector images differ in size: ({}, {}) and ({}, {})",
@@ -343,4 +352,21 @@ fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
         )));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Images with no pixels are refused with an error that names the sizes, not a panic.
+    #[test]
+    fn empty_images_are_refused() {
+        let caps = vec![CamImage::new(0, 0); 4];
+        let tgts = vec![NetImage::new(8, 8); 4];
+        let settings = FitSettings::default();
+        let init = Warp::from_affine([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        let err = fit(&caps, &tgts, init, &settings, |_, _, _| {}).expect_err("refused");
+        assert!(err.to_string().contains("at least 1x1 pixels"), "{err}");
+        assert!(err.to_string().contains("0x0"), "{err}");
+    }
 }
