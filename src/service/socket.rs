@@ -487,10 +487,7 @@ where
                     "closed to make room: the service serves at most {MAX_CLIENTS} clients at \
                      once, and this connection was the longest idle when another came"
                 ));
-                let text = reply.to_line();
-                let written = write.write_all(text.as_bytes());
-                let _ = tokio::time::timeout(Duration::from_secs(1), written).await;
-                return Ok(());
+                return reply_and_close(&mut read, &mut write, &reply).await;
             }
         };
         lease.busy();
@@ -507,14 +504,7 @@ where
                     Ok(request) => answer(&request, shared).await,
                     Err(reply) => {
                         tracing::warn!("control port: refused {peer}: no token, or the wrong one");
-                        write.write_all(reply.to_line().as_bytes()).await?;
-                        write.shutdown().await?;
-                        // What the client sent after it is read and dropped for a moment, so
-                        // that closing does not reset the connection before the reply is read.
-                        let mut sink = tokio::io::sink();
-                        let drain = tokio::io::copy(&mut read, &mut sink);
-                        let _ = tokio::time::timeout(Duration::from_secs(1), drain).await;
-                        return Ok(());
+                        return reply_and_close(&mut read, &mut write, &reply).await;
                     }
                 },
             },
@@ -531,6 +521,28 @@ where
         }
         lease.answered(counts);
     }
+}
+
+/// Writes a last `reply` (given a second at most), shuts the connection's write side, then
+/// reads and drops what the client still sends for a second, so that closing does not reset
+/// the connection before the client has read the reply.
+async fn reply_and_close<R, W>(read: &mut R, write: &mut W, reply: &Reply) -> std::io::Result<()>
+where
+    R: tokio::io::AsyncRead + Unpin,
+    W: tokio::io::AsyncWrite + Unpin,
+{
+    let text = reply.to_line();
+    let second = Duration::from_secs(1);
+    if tokio::time::timeout(second, write.write_all(text.as_bytes()))
+        .await
+        .is_err()
+    {
+        return Ok(());
+    }
+    let _ = tokio::time::timeout(second, write.shutdown()).await;
+    let mut sink = tokio::io::sink();
+    let _ = tokio::time::timeout(second, tokio::io::copy(read, &mut sink)).await;
+    Ok(())
 }
 
 enum Line {
