@@ -273,11 +273,13 @@ struct Client {
     close: Arc<Notify>,
 }
 
-/// One connection's place among its listener's [`Clients`]; leaves it when dropped.
+/// One connection's place among its listener's [`Clients`] and its slot; leaves both when
+/// dropped.
 struct Lease {
     id: u64,
     clients: Arc<Clients>,
     close: Arc<Notify>,
+    _slot: tokio::sync::OwnedSemaphorePermit,
 }
 
 impl Clients {
@@ -285,8 +287,8 @@ impl Clients {
         self.open.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// A new connection's lease.
-    fn join(self: &Arc<Self>) -> Lease {
+    /// A new connection's lease, holding its slot.
+    fn join(self: &Arc<Self>, slot: tokio::sync::OwnedSemaphorePermit) -> Lease {
         let id = self
             .next_id
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -305,6 +307,7 @@ impl Clients {
             id,
             clients: self.clone(),
             close,
+            _slot: slot,
         }
     }
 
@@ -404,12 +407,11 @@ where
                 Err(_) => continue,
             }
         };
-        let served = serve(conn, clients.join());
+        let served = serve(conn, clients.join(permit));
         tokio::spawn(async move {
             if let Err(e) = served.await {
                 tracing::debug!("{what}: client ended: {e}");
             }
-            drop(permit);
         });
     }
 }
@@ -487,7 +489,7 @@ where
                     "closed to make room: the service serves at most {MAX_CLIENTS} clients at \
                      once, and this connection was the longest idle when another came"
                 ));
-                return reply_and_close(&mut read, &mut write, &reply).await;
+                return reply_and_close(&mut read, &mut write, &reply, lease).await;
             }
         };
         lease.busy();
@@ -504,7 +506,7 @@ where
                     Ok(request) => answer(&request, shared).await,
                     Err(reply) => {
                         tracing::warn!("control port: refused {peer}: no token, or the wrong one");
-                        return reply_and_close(&mut read, &mut write, &reply).await;
+                        return reply_and_close(&mut read, &mut write, &reply, lease).await;
                     }
                 },
             },
@@ -523,10 +525,16 @@ where
     }
 }
 
-/// Writes a last `reply` (given a second at most), shuts the connection's write side, then
-/// reads and drops what the client still sends for a second, so that closing does not reset
-/// the connection before the client has read the reply.
-async fn reply_and_close<R, W>(read: &mut R, write: &mut W, reply: &Reply) -> std::io::Result<()>
+/// Writes a last `reply` (given a second at most), shuts the connection's write side and
+/// gives up its `lease` (its slot is free for the next client), then reads and drops what the
+/// client still sends for a second, so that closing does not reset the connection before the
+/// client has read the reply.
+async fn reply_and_close<R, W>(
+    read: &mut R,
+    write: &mut W,
+    reply: &Reply,
+    lease: Lease,
+) -> std::io::Result<()>
 where
     R: tokio::io::AsyncRead + Unpin,
     W: tokio::io::AsyncWrite + Unpin,
@@ -540,6 +548,7 @@ where
         return Ok(());
     }
     let _ = tokio::time::timeout(second, write.shutdown()).await;
+    drop(lease);
     let mut sink = tokio::io::sink();
     let _ = tokio::time::timeout(second, tokio::io::copy(read, &mut sink)).await;
     Ok(())
