@@ -349,6 +349,17 @@ mod tests {
             .collect()
     }
 
+    /// `n` random normalised positions, inside the frame and up to 0.3 outside it, then the
+    /// corners, one on an edge and one that is not a number.
+    fn test_positions(n: usize, seed: u64) -> Vec<[f32; 2]> {
+        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(seed);
+        let mut positions: Vec<[f32; 2]> = (0..n)
+            .map(|_| [rng.random_range(-1.3..1.3), rng.random_range(-1.3..1.3)])
+            .collect();
+        positions.extend([[-1.0, -1.0], [1.0, 1.0], [0.999, -0.2], [f32::NAN, 0.0]]);
+        positions
+    }
+
     /// The stack's samples are the whole-image operations' values to the bit: grid sampling at
     /// positions inside, on the edges, outside and not a number, and bilinear resizes up, down,
     /// along one axis only and to the same size.
@@ -356,11 +367,7 @@ mod tests {
     fn samples_equal_the_whole_image_operations_to_the_bit() {
         let caps: Vec<CamImage> = random_images(5, 9, 6, 7);
         let stack = Stack::new(&caps);
-        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(8);
-        let mut positions: Vec<[f32; 2]> = (0..60)
-            .map(|_| [rng.random_range(-1.3..1.3), rng.random_range(-1.3..1.3)])
-            .collect();
-        positions.extend([[-1.0, -1.0], [1.0, 1.0], [0.999, -0.2], [f32::NAN, 0.0]]);
+        let positions = test_positions(60, 8);
         let grid = Grid::<Network, Camera>::from_vec(positions.len(), 1, positions.clone())
             .expect("one position per pixel");
         let frames = Frames::new(&caps);
@@ -396,11 +403,7 @@ mod tests {
     fn the_geometry_sampler_and_its_derivatives_agree_with_the_bilinear_sample() {
         let caps: Vec<CamImage> = random_images(5, 9, 6, 17);
         let stack = Stack::new(&caps);
-        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(18);
-        let mut positions: Vec<[f32; 2]> = (0..40)
-            .map(|_| [rng.random_range(-1.3..1.3), rng.random_range(-1.3..1.3)])
-            .collect();
-        positions.extend([[-1.0, -1.0], [1.0, 1.0], [0.999, -0.2], [f32::NAN, 0.0]]);
+        let positions = test_positions(40, 18);
         let (w, h) = (9.0f32, 6.0f32);
         for i in 0..caps.len() {
             for &[gx, gy] in &positions {
