@@ -1,5 +1,7 @@
 // Convolution layers of the simplified CompenNet backbone (CompenNet++ family), one pipeline per
-// kernel kind (`conv`, `tconv`) shared by every layer; per-layer sizes come from the uniform.
+// kernel kind (`conv`, `conv_tiled`, `tconv`) shared by every layer; per-layer sizes come from
+// the uniform. `conv` and `conv_tiled` compute the same thing: `conv` suits CPU drivers
+// (lavapipe), `conv_tiled` GPUs (src/gpu/compennet/mod.rs, `ConvKernels`).
 //
 // Activations: f32 storage buffers, one image per channel, channel-major (C, H, W) row-major,
 // network-space pixels at the layer's resolution (the network size, /2 or /4). Values are whatever
@@ -44,27 +46,36 @@ const CLAMP1: u32 = 4u;
 @group(0) @binding(4) var<storage, read> add: array<f32>;
 @group(0) @binding(5) var<storage, read_write> dst: array<f32>;
 
-// Bias already in `acc`; adds the map, activates and stores up to 4·B channels.
-fn finish(acc: ptr<function, array<vec4<f32>, MAXB>>, id: vec3<u32>) {
+// Adds the map, activates and stores output channels co0..co0+3 (those below `cout`) of output
+// pixel `pix` (row-major index in the output plane); `v` holds their pre-activations, bias
+// included.
+fn store4(v: vec4<f32>, co0: u32, pix: u32) {
     let plane = p.out_size.x * p.out_size.y;
-    let pix = id.y * p.out_size.x + id.x;
-    for (var j = 0u; j < 4u * B; j++) {
-        let co = id.z * 4u * B + j;
+    for (var j = 0u; j < 4u; j++) {
+        let co = co0 + j;
         if (co >= p.cout) {
             break;
         }
         let o = co * plane + pix;
-        var v = (*acc)[j / 4u][j % 4u];
+        var x = v[j];
         if ((p.flags & ADD) != 0u) {
-            v += add[o];
+            x += add[o];
         }
         if ((p.flags & RELU) != 0u) {
-            v = max(v, 0.0);
+            x = max(x, 0.0);
         }
         if ((p.flags & CLAMP1) != 0u) {
-            v = min(v, 1.0);
+            x = min(x, 1.0);
         }
-        dst[o] = v;
+        dst[o] = x;
+    }
+}
+
+// Bias already in `acc`; stores the 4·B channels of block id.z at output pixel id.xy.
+fn finish(acc: ptr<function, array<vec4<f32>, MAXB>>, id: vec3<u32>) {
+    let pix = id.y * p.out_size.x + id.x;
+    for (var j = 0u; j < B; j++) {
+        store4((*acc)[j], (id.z * B + j) * 4u, pix);
     }
 }
 
@@ -174,4 +185,97 @@ fn tconv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) w
         }
     }
     finish(&acc, id);
+}
+
+// The same convolution as `conv`, as a tiled matrix product (implicit GEMM) for GPUs, whose
+// many cores `conv` leaves idle on the backbone's small, wide layers (64×64 pixels × 256
+// channels gives `conv` 16 384 invocations, each a long serial sum).
+//
+// out (M pixels × N channels) = A (M × K) · W (K × N), K = cin·k·k in the order (ci, ky, kx)
+// (the weights' packed row order), A[m, (ci, ky, kx)] = the input value under tap (ky, kx) of
+// output pixel m (zero outside the input). A workgroup of 16×16 invocations computes a tile of
+// TM = 64 output pixels × 64 output channels (16 vec4s of the padded channels): it stages
+// TK = 16 rows of K at a time in workgroup memory (each invocation loads 4 values of A and one
+// vec4 of W), then each invocation adds them into its 4 pixels (lid.x + 16·i) × 4 channels
+// (vec4 lid.y). Per staged value, 16 (A) or 64 (W) multiply-adds. The sum runs over K in the
+// same order as `conv`'s, bias first. Needs the weights packed with B = 4 (cout4 a multiple of
+// 4); pixels of the tile past the output and channel vec4s past cout4 compute zeros and are not
+// stored. Dispatch: (ceil(M / 64), ceil(cout4 / 16), 1).
+const TM: u32 = 64u;
+const TN4: u32 = 16u;
+const TK: u32 = 16u;
+
+var<workgroup> tile_a: array<f32, 1024>;       // [TK][TM]
+var<workgroup> tile_w: array<vec4<f32>, 256>;  // [TK][TN4]
+
+@compute @workgroup_size(16, 16, 1)
+fn conv_tiled(
+    @builtin(local_invocation_id) lid: vec3<u32>,
+    @builtin(workgroup_id) wg: vec3<u32>,
+) {
+    let t = lid.y * 16u + lid.x;
+    let plane_out = p.out_size.x * p.out_size.y;
+    let plane_in = p.in_size.x * p.in_size.y;
+    let kk = p.k * p.k;
+    let kdim = p.cin * kk;
+    let w_in = i32(p.in_size.x);
+    let h_in = i32(p.in_size.y);
+    let s = i32(p.stride);
+    let last_src = arrayLength(&src) - 1u;
+    let last_w = arrayLength(&weight) - 1u;
+
+    // This invocation's channel vec4 and its bias.
+    let n4 = wg.y * TN4 + lid.y;
+    let n_ok = n4 < p.cout4;
+    let b = select(vec4<f32>(0.0), bias[min(n4, arrayLength(&bias) - 1u)], n_ok);
+    var acc: array<vec4<f32>, 4>;
+    for (var i = 0u; i < 4u; i++) {
+        acc[i] = b;
+    }
+
+    // The pixel whose A values this invocation stages (column t % TM, rows t / TM + 4·r).
+    let mc = t % TM;
+    let m = wg.x * TM + mc;
+    let m_ok = m < plane_out;
+    let oy = i32(m / max(p.out_size.x, 1u));
+    let ox = i32(m % max(p.out_size.x, 1u));
+    let iy0 = oy * s - i32(p.pad);
+    let ix0 = ox * s - i32(p.pad);
+    // The W vec4 it stages: row t / TN4, column t % TN4 of the tile.
+    let wn4 = wg.y * TN4 + t % TN4;
+
+    for (var k0 = 0u; k0 < kdim; k0 += TK) {
+        for (var r = 0u; r < 4u; r++) {
+            let row = t / TM + 4u * r;
+            let kq = k0 + row;
+            let ci = kq / kk;
+            let tap = kq % kk;
+            let iy = iy0 + i32(tap / p.k);
+            let ix = ix0 + i32(tap % p.k);
+            let ok = m_ok && kq < kdim && iy >= 0 && iy < h_in && ix >= 0 && ix < w_in;
+            let idx = ci * plane_in + u32(clamp(iy, 0, h_in - 1) * w_in + clamp(ix, 0, w_in - 1));
+            tile_a[row * TM + mc] = select(0.0, src[min(idx, last_src)], ok);
+        }
+        let kw = k0 + t / TN4;
+        let w_ok = kw < kdim && wn4 < p.cout4;
+        tile_w[t] = select(vec4<f32>(0.0), weight[min(kw * p.cout4 + wn4, last_w)], w_ok);
+        workgroupBarrier();
+        for (var q = 0u; q < TK; q++) {
+            let wv = tile_w[q * TN4 + lid.y];
+            for (var i = 0u; i < 4u; i++) {
+                acc[i] += tile_a[q * TM + lid.x + 16u * i] * wv;
+            }
+        }
+        workgroupBarrier();
+    }
+
+    if (!n_ok) {
+        return;
+    }
+    for (var i = 0u; i < 4u; i++) {
+        let mi = wg.x * TM + lid.x + 16u * i;
+        if (mi < plane_out) {
+            store4(acc[i], n4 * 4u, mi);
+        }
+    }
 }

@@ -4,6 +4,7 @@
 
 use compend::fov::DisplayRange;
 use compend::gpu::CompensationPass;
+use compend::gpu::compennet::ConvKernels;
 use compend::linear::{Coefficients, Curves, Geometry, LinearModel};
 use compend::model::Model;
 use compend::model::store::{FORMAT_VERSION, ModelMeta};
@@ -220,7 +221,8 @@ fn pass_is_reused_across_frames() {
 }
 
 /// `compend bench-gpu` at tiny sizes: one row per projector size with the copy, the pass, their
-/// ratio and the virtual-rig counts, in JSON and markdown.
+/// ratio and the virtual-rig counts, in JSON and markdown, with the convolution kernels asked
+/// for.
 #[test]
 fn bench_gpu_writes_ratios() {
     if gpu().is_none() {
@@ -246,6 +248,8 @@ fn bench_gpu_writes_ratios() {
         "64x36",
         "--compennet-iters",
         "2",
+        "--conv-kernels",
+        "tiled",
     ]);
     crate::common::assert_code(&o, 0);
     let v: serde_json::Value =
@@ -256,6 +260,9 @@ fn bench_gpu_writes_ratios() {
     let software = v["software_adapter"].as_bool().unwrap();
     let md = std::fs::read_to_string(out.join("bench-gpu.md")).unwrap();
     assert_eq!(md.contains("renders in software"), software);
+    // The convolution kernels asked for (`--conv-kernels tiled`), in both reports.
+    assert_eq!(v["conv_kernels"], "tiled");
+    assert!(md.contains("tiled convolutions"), "{md}");
     for r in rows {
         // By default the `linear` model has the lattice training gives: the projector's
         // resolution (rounded up to multiples of 4) at these sizes.
@@ -469,9 +476,21 @@ fn compennet_test_model_of_width(seed: u64, width: usize) -> Model {
 /// (≤ 1e-5); the compensation image is f32 on both sides through 15 layers (differences from
 /// summation order only): ≤ 1e-4; the projector frame within one 8-bit step of the CPU reference
 /// rounded to 8 bits on every value (a step only where the f32 values straddle a rounding tie).
+/// Both convolution kernels of the wide layers (direct and tiled) are held to them.
 #[test]
 fn compennet_pass_matches_the_cpu_reference() {
     let Some(ctx) = gpu() else { return };
+    for kernels in [
+        ConvKernels::Direct,
+        ConvKernels::Tiled,
+        ConvKernels::Measured,
+    ] {
+        compennet_pass_matches(&ctx.with_conv_kernels(kernels));
+    }
+}
+
+/// [`compennet_pass_matches_the_cpu_reference`] with `ctx`'s convolution kernels.
+fn compennet_pass_matches(ctx: &compend::gpu::GpuContext) {
     let model = compennet_test_model(3);
     let placements = [
         Placement {
@@ -530,9 +549,10 @@ fn compennet_pass_matches_the_cpu_reference() {
             let worst = steps.iter().map(|d| d.abs()).max().unwrap();
             let off = steps.iter().filter(|d| **d != 0).count();
             eprintln!(
-                "compennet placement {k} content {w}x{h}: desired max |Δ| {e_desired:.2e}, \
+                "compennet ({:?}) placement {k} content {w}x{h}: desired max |Δ| {e_desired:.2e}, \
                  network max |Δ| {e_net:.2e} ({:.0}% of values inside (0,1)), frame: {off} of {} \
                  values off, worst {worst} step(s)",
+                ctx.conv,
                 100.0 * inside,
                 steps.len()
             );
@@ -583,13 +603,20 @@ fn residual_test_model(seed: u64, method: compend::model::Method) -> Model {
 /// The residual rungs' pass (linear, the correction network, their sum) against the CPU
 /// reference ([`compend::model::add_correction`] of the two parts), with the CompenNet
 /// tolerances: the compensation image within 1e-4, the frame within one 8-bit step; for both
-/// rungs' widths.
+/// rungs' widths and both convolution kernels.
 #[test]
 fn residual_pass_matches_the_cpu_reference() {
     use compend::model::Method;
     let Some(ctx) = gpu() else { return };
-    for method in [Method::CompenNetPpResFull, Method::CompenNetPpRes] {
-        residual_pass_matches(ctx, residual_test_model(5, method));
+    for kernels in [
+        ConvKernels::Direct,
+        ConvKernels::Tiled,
+        ConvKernels::Measured,
+    ] {
+        let ctx = ctx.with_conv_kernels(kernels);
+        for method in [Method::CompenNetPpResFull, Method::CompenNetPpRes] {
+            residual_pass_matches(&ctx, residual_test_model(5, method));
+        }
     }
 }
 
@@ -620,9 +647,9 @@ fn residual_pass_matches(ctx: &compend::gpu::GpuContext, model: Model) {
         .max()
         .unwrap();
     eprintln!(
-        "{}: network max |Δ| {e_net:.2e} (correction moves it by up to {moved:.2}), \
+        "{} ({:?}): network max |Δ| {e_net:.2e} (correction moves it by up to {moved:.2}), \
          frame worst {worst} step(s)",
-        model.meta.method
+        model.meta.method, ctx.conv
     );
     let m = model.meta.method;
     assert!(
@@ -637,14 +664,28 @@ fn residual_pass_matches(ctx: &compend::gpu::GpuContext, model: Model) {
 }
 
 /// Each layer's activation on the GPU against candle's, layer by layer, on one frame (a failure
-/// names the first layer that differs).
+/// names the first layer that differs), with each choice of convolution kernel for the wide
+/// layers; the layers with 16 or more output channels must run the kernel asked for, or when
+/// it is measured, both must have been timed and the faster kept.
 #[test]
 fn compennet_layers_match_candle() {
+    let Some(ctx) = gpu() else { return };
+    for (kernels, wide) in [
+        (ConvKernels::Direct, Some("conv")),
+        (ConvKernels::Tiled, Some("conv_tiled")),
+        (ConvKernels::Measured, None),
+    ] {
+        compennet_layers_match(&ctx.with_conv_kernels(kernels), wide);
+    }
+}
+
+/// [`compennet_layers_match_candle`] with `ctx`'s kernels; `wide` is the entry point the wide
+/// convolutions must use (`None`: the faster of the two as timed).
+fn compennet_layers_match(ctx: &compend::gpu::GpuContext, wide: Option<&str>) {
     use candle_core::Module;
     use compend::gpu::Photometric;
     use compend::model::Kind;
 
-    let Some(ctx) = gpu() else { return };
     let model = compennet_test_model(4);
     let p = Placement::for_model(&model, ImageSize::new(40, 30), DisplayRange::FULL).unwrap();
     let mut pass = CompensationPass::new(ctx, &model, p).unwrap();
@@ -704,6 +745,36 @@ fn compennet_layers_match_candle() {
     let mut names = vec!["x"];
     names.extend(stage.layer_names());
     assert_eq!(names, expected.map(|(n, _)| n));
+    // The widths at the paper's base width 32: the skips and conv6 have 3 output channels, the
+    // transposed convolutions their own kernel, every other layer 32 to 256.
+    let timings = stage.kernel_timings();
+    let mut timed = Vec::new();
+    for (name, entry) in stage.layer_kernels() {
+        let expect = match (name, wide) {
+            ("a6" | "a7", _) => "tconv",
+            ("skip1.0" | "skip1.1" | "res1" | "out", _) => "conv",
+            (_, Some(wide)) => wide,
+            (_, None) => {
+                // Measured: both kernels timed, the faster running.
+                let (_, t) = timings
+                    .iter()
+                    .find(|(n, _)| *n == name)
+                    .unwrap_or_else(|| panic!("layer {name}: no timings"));
+                let entries: Vec<&str> = t.iter().map(|(e, _)| *e).collect();
+                assert_eq!(entries, ["conv", "conv_tiled"], "layer {name}");
+                assert!(t.iter().all(|(_, ms)| ms.is_finite() && *ms > 0.0), "{t:?}");
+                timed.push(name);
+                t.iter().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap().0
+            }
+        };
+        assert_eq!(entry, expect, "layer {name} ({:?})", ctx.conv);
+    }
+    let timed_names: Vec<_> = timings.iter().map(|(n, _)| *n).collect();
+    assert_eq!(timed_names, timed, "layers timed ({:?})", ctx.conv);
+    if wide.is_none() {
+        eprintln!("measured kernels: {timings:?}");
+        assert_eq!(timed.len(), 7, "the wide convolutions a1..a5, res2, res3");
+    }
     for (name, t) in expected {
         let (c, h, w, gpu) = stage.read_activation(ctx, name).unwrap();
         assert_eq!(t.dims(), &[1, c, h, w], "{name}");
@@ -714,7 +785,10 @@ fn compennet_layers_match_candle() {
             .zip(&gpu)
             .map(|(a, b)| (a - b).abs())
             .fold(0f32, f32::max);
-        eprintln!("layer {name} ({c}x{h}x{w}): max |Δ| {diff:.2e}, max |value| {scale:.2}");
+        eprintln!(
+            "{:?} layer {name} ({c}x{h}x{w}): max |Δ| {diff:.2e}, max |value| {scale:.2}",
+            ctx.conv
+        );
         assert!(
             diff <= 1e-4 * scale.max(1.0),
             "layer {name} differs by {diff}"

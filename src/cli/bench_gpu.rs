@@ -15,6 +15,7 @@ use compend::gpu::bench::{
     Timing, synthetic_compennet_model, synthetic_linear_model, time_compennet_layers, time_copy,
     time_pass, time_stages,
 };
+use compend::gpu::compennet::ConvKernels;
 use compend::gpu::{CompensationPass, GpuContext};
 use compend::model::Model;
 use compend::playback::ContentFrame;
@@ -77,6 +78,11 @@ pub struct Args {
     /// hundreds of them to reach its working clock.
     #[arg(long, default_value_t = 5)]
     pub warmup: usize,
+    /// How CompenNet's wide convolutions run (the CompenNet columns and a trained residual
+    /// model's correction): `direct` or `tiled`. Default: what playback uses on this adapter
+    /// (direct on a CPU driver, tiled on a GPU).
+    #[arg(long, value_enum)]
+    pub conv_kernels: Option<ConvKernels>,
 }
 
 fn parse_pattern(s: &str) -> std::result::Result<Pattern, String> {
@@ -187,6 +193,10 @@ pub fn run(args: Args) -> Result<()> {
         None => None,
     };
     let ctx = GpuContext::new()?;
+    let ctx = match args.conv_kernels {
+        Some(k) => ctx.with_conv_kernels(k),
+        None => ctx,
+    };
     let cam = trained.as_ref().map_or(args.camera, Model::camera_size);
     let net = args.network;
     let compennet = if args.compennet_iters > 0 {
@@ -207,14 +217,15 @@ pub fn run(args: Args) -> Result<()> {
         content: compend::source::pattern::render(args.pattern, args.content, 0)?,
     };
     eprintln!(
-        "bench-gpu: {} (camera ({}, {}), network ({}, {}), content ({}, {}))",
+        "bench-gpu: {} (camera ({}, {}), network ({}, {}), content ({}, {}), {} convolutions)",
         ctx.describe(),
         cam.width,
         cam.height,
         net.width,
         net.height,
         bench.content.size().width,
-        bench.content.size().height
+        bench.content.size().height,
+        ctx.conv.name()
     );
     let rows = args
         .sizes
@@ -249,6 +260,7 @@ pub fn run(args: Args) -> Result<()> {
         "camera": [cam.width, cam.height],
         "network": [net.width, net.height],
         "compennet_iters": args.compennet_iters,
+        "conv_kernels": ctx.conv,
         "content": [bench.content.size().width, bench.content.size().height],
         "fps": args.fps,
         "rows": rows,
@@ -333,6 +345,23 @@ impl Bench<'_> {
             args.warmup,
             args.compennet_iters,
         )?;
+        if args.layers
+            && let compend::gpu::Photometric::CompenNet(stage) = pass.photometric()
+        {
+            for (name, entry) in stage.layer_kernels() {
+                let timed = stage
+                    .kernel_timings()
+                    .into_iter()
+                    .find(|(n, _)| *n == name)
+                    .map(|(_, t)| {
+                        let t: Vec<String> =
+                            t.iter().map(|(e, ms)| format!("{e} {ms:.3} ms")).collect();
+                        format!(" (timed alone: {})", t.join(", "))
+                    })
+                    .unwrap_or_default();
+                eprintln!("bench-gpu:   layer {name} runs {entry}{timed}");
+            }
+        }
         if args.layers {
             let layers =
                 time_compennet_layers(ctx, &mut pass, &self.content, 1, args.compennet_iters)?;
@@ -432,7 +461,7 @@ impl Bench<'_> {
         let mut md = format!(
             "# compend bench-gpu\n\nAdapter: {}. Timing: {timing}, median of {} frames ({} for CompenNet) after \
              {} untimed. Models: {linear}, its coefficient lattice in the second column; the simplified CompenNet \
-             backbone (synthetic, seeded), camera {}, network {}; content {} ({:?}). Times in ms as GPU timestamps / wall clock (submit to \
+             backbone (synthetic, seeded), camera {}, network {}, {} convolutions; content {} ({:?}). Times in ms as GPU timestamps / wall clock (submit to \
              idle) where the adapter has timestamps, else wall clock.\n\n| projector | linear lattice | copy | linear | linear stages alone: place / photometric / canvas | linear / copy | \
              within 3x | CompenNet | CompenNet / copy | virtual rig @ {} Hz: shown / dropped (source) / dropped (pipeline) | pipeline mean (ms) \
              | pipeline alone: shown / dropped (pipeline) / mean / max (ms) |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
@@ -442,6 +471,7 @@ impl Bench<'_> {
             args.warmup,
             args.camera,
             args.network,
+            ctx.conv.name(),
             self.content.size(),
             args.pattern,
             args.fps

@@ -5,6 +5,7 @@
 //! callers can skip or fall back; an adapter that exists but fails to open is another
 //! [`Error::Gpu`]. Every wgpu failure keeps its cause.
 
+use super::compennet::ConvKernels;
 use crate::error::{Error, Result};
 
 /// What a machine without a usable adapter is told.
@@ -20,6 +21,9 @@ pub struct GpuContext {
     pub adapter: wgpu::Adapter,
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
+    /// How CompenNet's wide convolutions run on this device: [`ConvKernels::for_adapter`]
+    /// unless changed with [`Self::with_conv_kernels`].
+    pub conv: ConvKernels,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -89,12 +93,23 @@ impl GpuContext {
                 e,
             )
         })?;
+        let conv = ConvKernels::for_adapter(&adapter.get_info());
         Ok(Self {
             instance,
             adapter,
             device,
             queue,
+            conv,
         })
+    }
+
+    /// The same device, building CompenNet's wide convolutions with `conv` (for benchmarks and
+    /// tests; passes already built keep theirs).
+    pub fn with_conv_kernels(&self, conv: ConvKernels) -> Self {
+        Self {
+            conv,
+            ..self.clone()
+        }
     }
 
     /// "name (backend, device type)".

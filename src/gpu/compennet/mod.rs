@@ -7,7 +7,8 @@
 //!    backbone input, a (3, H, W) f32 storage buffer in network pixels;
 //! 2. the backbone's 13 convolutions and transposed convolutions (`shaders/conv.wgsl`), each with
 //!    its bias, the constant surface-bias map s1..s4 or skip activation added, ReLU, and the final
-//!    `min(., 1)`; activations are (C, h, w) f32 storage buffers at the layer's resolution;
+//!    `min(., 1)`; activations are (C, h, w) f32 storage buffers at the layer's resolution; the
+//!    wide convolutions run as [`ConvKernels`] says (the context's choice for its adapter);
 //! 3. `store`: the output (projector input values in [0,1]) into the compensation image
 //!    (rgba32float storage texture, network pixels).
 //!
@@ -20,6 +21,7 @@ use bytemuck::{Pod, Zeroable};
 use candle_core::Tensor;
 
 use super::GpuContext;
+use super::bench::time_work;
 use super::kernel::{Slot, Stage, scratch, storage, uniform};
 use crate::error::{Error, Result};
 use crate::nn::compennetpp::SimplifiedCompenNet;
@@ -37,10 +39,67 @@ const LANES: usize = 4;
 /// vec4 accumulators per invocation (the shader's `B`) for layers with at least
 /// `4 * WIDE_BLOCK` output channels; 1 for the others (the 3-channel layers).
 const WIDE_BLOCK: usize = 4;
-/// Workgroup of the convolution kernels: 8×8 invocations of one channel block.
+/// Workgroup of the `conv` and `tconv` kernels: 8×8 invocations of one channel block.
 const WG: u32 = 8;
 /// Output pixels per invocation along x of the `conv` kernel (the shader's `P`).
 const PIXELS: u32 = 4;
+/// Tile of the `conv_tiled` kernel: output pixels (the shader's `TM`) and channel vec4s
+/// (`TN4`) per workgroup.
+const TILE_PIXELS: u32 = 64;
+const TILE_VEC4S: u32 = 16;
+
+/// How the backbone's wide convolutions (16 or more output channels; the 3-channel layers and
+/// the transposed convolutions always run the direct kernels) are computed on the GPU. Both
+/// kernels compute the same sums in the same order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ConvKernels {
+    /// `conv`: each invocation sums 4 pixels × 16 channels straight from the activations.
+    /// Few, long invocations: what a CPU driver (lavapipe) runs fastest (1.2–1.4× faster than
+    /// `tiled` there).
+    Direct,
+    /// `conv_tiled`: each workgroup computes 64 pixels × 64 channels as a matrix product
+    /// staged through workgroup memory: 4 to 16 times the invocations, for a GPU's many cores.
+    Tiled,
+    /// Each wide layer is timed with both kernels on this device when the stage is built, and
+    /// runs the faster: 12 dispatches of the layer alone, 6 timed (a few ms per layer on a
+    /// discrete GPU; playback on the same GPU waits behind them).
+    Measured,
+}
+
+impl ConvKernels {
+    /// The kernels for an adapter: direct on a CPU driver, measured on a GPU (no one kernel
+    /// is fastest on every GPU and layer shape).
+    pub fn for_adapter(info: &wgpu::AdapterInfo) -> Self {
+        if info.device_type == wgpu::DeviceType::Cpu {
+            Self::Direct
+        } else {
+            Self::Measured
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Direct => "direct",
+            Self::Tiled => "tiled",
+            Self::Measured => "measured",
+        }
+    }
+
+    /// The entry points a wide convolution may run with.
+    fn wide_entries(self) -> &'static [&'static str] {
+        match self {
+            Self::Direct => &["conv"],
+            Self::Tiled => &["conv_tiled"],
+            Self::Measured => &["conv", "conv_tiled"],
+        }
+    }
+}
+
+/// Rounds of timing per kernel when [`ConvKernels::Measured`] chooses, alternating the kernels;
+/// each round is one untimed and [`TUNE_FRAMES`] timed dispatches of the layer alone.
+const TUNE_ROUNDS: usize = 2;
+const TUNE_FRAMES: usize = 2;
 
 const FLAG_ADD: u32 = 1;
 const FLAG_RELU: u32 = 2;
@@ -85,10 +144,22 @@ struct Layer {
     kernel: usize,
     group: wgpu::BindGroup,
     groups: (u32, u32, u32),
+    /// Where the kernel was chosen by timing: each candidate's entry point and its best time
+    /// alone (ms: GPU timestamps where the device has them, else submit to idle).
+    timed: Vec<(&'static str, f64)>,
 }
 
-/// Key of a convolution pipeline: (transposed, vec4 accumulators per invocation).
-type KernelKind = (bool, usize);
+/// A way to run one layer: its pipeline (index into [`CompenNetStage::kernels`]), bind group
+/// and workgroup counts.
+struct Candidate {
+    entry: &'static str,
+    kernel: usize,
+    group: wgpu::BindGroup,
+    groups: (u32, u32, u32),
+}
+
+/// Key of a convolution pipeline: (entry point, vec4 accumulators per invocation).
+type KernelKind = (&'static str, usize);
 
 /// The simplified CompenNet backbone on the GPU, for one model (fixed network size).
 pub struct CompenNetStage {
@@ -336,14 +407,25 @@ impl<'c> Builder<'c> {
         }
     }
 
-    /// The pipeline for `w`'s kind, compiled on first use.
-    fn kernel(&mut self, w: &Weights) -> Result<usize> {
+    /// The entry points `w` may run with: `tconv`; for a wide convolution those of the
+    /// context's [`ConvKernels`]; `conv` for the others.
+    fn entries(&self, w: &Weights) -> &'static [&'static str] {
+        if w.transposed {
+            &["tconv"]
+        } else if w.block() == WIDE_BLOCK {
+            self.ctx.conv.wide_entries()
+        } else {
+            &["conv"]
+        }
+    }
+
+    /// The pipeline of `entry` for `w`'s block, compiled on first use.
+    fn kernel(&mut self, w: &Weights, entry: &'static str) -> Result<usize> {
         let block = w.block();
-        let key = (w.transposed, block);
+        let key = (entry, block);
         if let Some(i) = self.kernels.iter().position(|(k, _)| *k == key) {
             return Ok(i);
         }
-        let entry = if w.transposed { "tconv" } else { "conv" };
         let label = format!("{entry} x{}", LANES * block);
         let slots = [
             Slot::Uniform,
@@ -365,7 +447,53 @@ impl<'c> Builder<'c> {
         Ok(self.kernels.len() - 1)
     }
 
-    /// Allocates the layer's output, uploads its weights and records its bind group.
+    /// The candidate to keep for layer `name` (its index) and, where there is more than one,
+    /// each one's best time alone on this device: rounds alternate the candidates, so a GPU
+    /// still raising its clock slows each of them alike.
+    fn fastest(
+        &self,
+        name: &str,
+        candidates: &[Candidate],
+    ) -> Result<(usize, Vec<(&'static str, f64)>)> {
+        if candidates.len() < 2 {
+            return Ok((0, Vec::new()));
+        }
+        // A software adapter's timestamps do not show its real cost (docs/bench: lavapipe's
+        // copies): it is timed by the wall clock.
+        let software = self.ctx.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+        let mut best = vec![f64::INFINITY; candidates.len()];
+        for _ in 0..TUNE_ROUNDS {
+            for (c, b) in candidates.iter().zip(&mut best) {
+                let stage = &self.kernels[c.kernel].1;
+                let t = time_work(self.ctx, 1, TUNE_FRAMES, |enc| {
+                    let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some(name),
+                        timestamp_writes: None,
+                    });
+                    stage.dispatch_groups(&mut cp, &c.group, c.groups);
+                    Ok(())
+                })?;
+                *b = b.min(if software { t.wall_ms } else { t.best_ms() });
+            }
+        }
+        let i = (0..best.len())
+            .min_by(|&a, &b| best[a].total_cmp(&best[b]))
+            .unwrap_or(0);
+        let timed: Vec<_> = candidates.iter().map(|c| c.entry).zip(best).collect();
+        tracing::debug!(
+            "CompenNet layer {name}: {} ms; running {}",
+            timed
+                .iter()
+                .map(|(e, t)| format!("{e} {t:.3}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            candidates[i].entry
+        );
+        Ok((i, timed))
+    }
+
+    /// Allocates the layer's output, uploads its weights and records its bind group (for each
+    /// kernel it may run with, keeping the fastest: [`ConvKernels`]).
     fn push(&mut self, step: Planned) -> Result<()> {
         let Planned {
             name,
@@ -401,30 +529,58 @@ impl<'c> Builder<'c> {
             cout4,
             _pad: 0,
         };
-        let kernel = self.kernel(&w)?;
         let ctx = self.ctx;
-        let group = self.kernels[kernel].1.bind(
-            ctx,
-            name,
-            &[
-                uniform(ctx, name, &params).as_entire_binding(),
-                src.as_entire_binding(),
-                storage(ctx, name, &wp).as_entire_binding(),
-                storage(ctx, name, &bp).as_entire_binding(),
-                added.as_entire_binding(),
-                dst.buffer.as_entire_binding(),
-            ],
-        );
-        let per_x = if w.transposed { 1 } else { PIXELS };
+        let params = uniform(ctx, name, &params);
+        let (wp, bp) = (storage(ctx, name, &wp), storage(ctx, name, &bp));
+        let (ow, oh) = (out_size.width as u32, out_size.height as u32);
+        let mut candidates = Vec::new();
+        for &entry in self.entries(&w) {
+            let kernel = self.kernel(&w, entry)?;
+            let group = self.kernels[kernel].1.bind(
+                ctx,
+                name,
+                &[
+                    params.as_entire_binding(),
+                    src.as_entire_binding(),
+                    wp.as_entire_binding(),
+                    bp.as_entire_binding(),
+                    added.as_entire_binding(),
+                    dst.buffer.as_entire_binding(),
+                ],
+            );
+            let groups = match entry {
+                "conv_tiled" => (
+                    (ow * oh).div_ceil(TILE_PIXELS),
+                    cout4.div_ceil(TILE_VEC4S),
+                    1,
+                ),
+                "conv" => (
+                    ow.div_ceil(PIXELS).div_ceil(WG),
+                    oh.div_ceil(WG),
+                    cout4 / block as u32,
+                ),
+                _ => (ow.div_ceil(WG), oh.div_ceil(WG), cout4 / block as u32),
+            };
+            candidates.push(Candidate {
+                entry,
+                kernel,
+                group,
+                groups,
+            });
+        }
+        let (best, timed) = self.fastest(name, &candidates)?;
+        let Candidate {
+            kernel,
+            group,
+            groups,
+            ..
+        } = candidates.swap_remove(best);
         self.layers.push(Layer {
             name,
             kernel,
             group,
-            groups: (
-                (out_size.width as u32).div_ceil(per_x).div_ceil(WG),
-                (out_size.height as u32).div_ceil(WG),
-                cout4 / block as u32,
-            ),
+            groups,
+            timed,
         });
         self.acts.push((name, dst));
         Ok(())
@@ -562,6 +718,28 @@ impl CompenNetStage {
         {
             stage.dispatch_groups(pass, &l.group, l.groups);
         }
+    }
+
+    /// Each layer's name and the kernel (`shaders/conv.wgsl` entry point) that computes it, in
+    /// [`Self::layer_names`] order.
+    pub fn layer_kernels(&self) -> Vec<(&'static str, &'static str)> {
+        self.layers
+            .iter()
+            .map(|l| {
+                let entry = self.kernels.get(l.kernel).map_or("?", |((e, _), _)| *e);
+                (l.name, entry)
+            })
+            .collect()
+    }
+
+    /// For each layer whose kernel was chosen by timing ([`ConvKernels::Measured`]): its name
+    /// and each candidate kernel's best time alone, ms, in [`Self::layer_names`] order.
+    pub fn kernel_timings(&self) -> Vec<(&'static str, Vec<(&'static str, f64)>)> {
+        self.layers
+            .iter()
+            .filter(|l| !l.timed.is_empty())
+            .map(|l| (l.name, l.timed.clone()))
+            .collect()
     }
 
     /// Names of the intermediate activations in order ("x" is the sampled input; the output is
