@@ -169,6 +169,28 @@ impl Io {
     }
 }
 
+/// Characters of a client-given text written to the log ([`clipped`]): its first
+/// [`LOG_HEAD`] and last [`LOG_TAIL`].
+const LOG_HEAD: usize = 100;
+const LOG_TAIL: usize = 200;
+
+/// `text` as the log shows it when a client chose it (a model path, an error that quotes one):
+/// whole when short, else its start and end around a note of how many characters were left
+/// out, so that a long request cannot grow the log by more than a few hundred bytes per line.
+pub(crate) fn clipped(text: &str) -> std::borrow::Cow<'_, str> {
+    let n = text.chars().count();
+    if n <= LOG_HEAD + LOG_TAIL {
+        return text.into();
+    }
+    let head: String = text.chars().take(LOG_HEAD).collect();
+    let tail: String = text.chars().skip(n - LOG_TAIL).collect();
+    format!(
+        "{head}…[{} characters left out]…{tail}",
+        n - LOG_HEAD - LOG_TAIL
+    )
+    .into()
+}
+
 /// Runs the service until it is stopped (a `stop` request, SIGTERM, SIGINT). `config_path` is
 /// read again on SIGHUP.
 pub fn serve(config: Config, config_path: Option<PathBuf>) -> Result<()> {
@@ -242,5 +264,29 @@ async fn signals(shared: Arc<Shared>, config_path: Option<PathBuf>) {
                 },
             },
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn long_client_text_is_clipped_for_the_log() {
+        assert_eq!(clipped("/var/lib/compend/model"), "/var/lib/compend/model");
+        let exact = "é".repeat(LOG_HEAD + LOG_TAIL);
+        assert_eq!(clipped(&exact), exact.as_str());
+        // Multi-byte characters are cut between characters, start and end kept.
+        let long = format!("/{}: not found", "é".repeat(4000));
+        let c = clipped(&long);
+        assert!(c.starts_with("/éé") && c.ends_with("éé: not found"), "{c}");
+        assert!(
+            c.contains(&format!("[{} characters left out]", 4012 - 300)),
+            "{c}"
+        );
+        assert_eq!(
+            c.chars().count(),
+            300 + "…[3712 characters left out]…".chars().count()
+        );
     }
 }

@@ -27,6 +27,11 @@ use crate::model::store::{ClimbRecord, Verification};
 /// The longest request line taken, bytes; a longer one gets an error reply and is skipped.
 pub const MAX_REQUEST_BYTES: usize = 64 * 1024;
 
+/// The longest `path` or `source` a request may carry, bytes: Linux's PATH_MAX (4096, its
+/// terminating NUL included) less one. A longer one names no file: refused at parsing, so that
+/// it is neither tried nor written to the log.
+pub const MAX_PATH_BYTES: usize = 4095;
+
 /// A request.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "cmd", rename_all = "lowercase", deny_unknown_fields)]
@@ -81,7 +86,20 @@ impl Request {
                 ));
             }
         }
-        serde_json::from_value(value).map_err(|e| format!("bad request: {e}; {EXPECTED}"))
+        let request: Self =
+            serde_json::from_value(value).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
+        let (field, len) = match &request {
+            Request::Model { path } => ("path", path.as_os_str().len()),
+            Request::Play { source: Some(s) } => ("source", s.len()),
+            _ => return Ok(request),
+        };
+        if len > MAX_PATH_BYTES {
+            return Err(format!(
+                "bad request: `{field}` is {len} bytes long; at most {MAX_PATH_BYTES} (a path \
+                 on this system is shorter than 4096 bytes)"
+            ));
+        }
+        Ok(request)
     }
 }
 
@@ -322,6 +340,20 @@ mod tests {
             Request::parse(br#"{"cmd":"play"}"#),
             Ok(Request::Play { source: None })
         );
+        // A path or source as long as the system allows is taken; one byte more is refused,
+        // naming the field and its length.
+        let long = |field: &str, cmd: &str, n: usize| {
+            format!(r#"{{"cmd":"{cmd}","{field}":"/{}"}}"#, "a".repeat(n - 1)).into_bytes()
+        };
+        assert!(Request::parse(&long("path", "model", MAX_PATH_BYTES)).is_ok());
+        assert!(Request::parse(&long("source", "play", MAX_PATH_BYTES)).is_ok());
+        for (field, cmd) in [("path", "model"), ("source", "play")] {
+            let e = Request::parse(&long(field, cmd, MAX_PATH_BYTES + 1)).unwrap_err();
+            assert!(
+                e.contains(&format!("`{field}` is 4096 bytes long; at most 4095")),
+                "{e}"
+            );
+        }
         for bad in [
             &b""[..],
             b"status",

@@ -170,7 +170,10 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             envelope.answer(Reply::error(busy));
             return true;
         }
-        tracing::info!("loading {} to swap in while playing", path.display());
+        tracing::info!(
+            "loading {} to swap in while playing",
+            super::clipped(&path.display().to_string())
+        );
         let ctx = self.inner.context().clone();
         self.loading = Some(Loading::start(
             path.clone(),
@@ -207,7 +210,8 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         }) {
             Ok(done) => done,
             Err(e) => {
-                tracing::warn!("{} was not swapped in: {e}", l.path.display());
+                let why = format!("{} was not swapped in: {e}", l.path.display());
+                tracing::warn!("{}", super::clipped(&why));
                 l.envelope.answer(Reply::error(e.to_string()));
                 return None;
             }
