@@ -343,7 +343,7 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
         ),
         (
             &["--refresh-hz", "60"][..],
-            "only `--method auto` weighs a climb's live pass",
+            "only `auto` weighs a climb's live pass; linear is one rung",
         ),
         (
             &["--method", "auto", "--refresh-hz", "-1"][..],

@@ -215,21 +215,12 @@ impl Settings {
                 .into());
             }
         }
-        if let Some(hz) = a.refresh_hz {
-            if !(hz.is_finite() && hz >= 0.0) {
-                return Err(compend::Error::Input(format!(
-                    "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
-                ))
-                .into());
-            }
-            if method != MethodChoice::Auto && hz > 0.0 {
-                return Err(compend::Error::Input(format!(
-                    "--refresh-hz {hz}: only `--method auto` weighs a climb's live pass; \
-                     {method} is one rung"
-                ))
-                .into());
-            }
-        }
+        // The flag alone: the configuration's refresh_hz is checked with the file.
+        super::refresh_rate(
+            a.refresh_hz,
+            method == MethodChoice::Auto,
+            &format!("{method} is one rung"),
+        )?;
         if let Some(n) = a.iters {
             let closed_form = match method {
                 MethodChoice::Auto => Some("use --climb-iters for the rung `auto` climbs to"),

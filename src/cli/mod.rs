@@ -30,24 +30,17 @@ pub fn exit_code(err: &anyhow::Error) -> u8 {
     1
 }
 
-/// The timer of `--refresh-hz HZ` (`train`, `bench`): `auto`'s climb weighed on this machine's
-/// GPU for a display refreshing at `hz`, checked before any work. `None` when not asked or 0.
-/// `auto`: whether the command runs `auto`, the only method that weighs a climb; `otherwise`:
-/// what the error says when it does not.
-pub fn refresh_timer(
-    hz: Option<f64>,
-    auto: bool,
-    otherwise: &str,
-) -> anyhow::Result<Option<std::sync::Arc<dyn compend::fit::LivePass>>> {
-    use anyhow::Context as _;
+/// `--refresh-hz HZ` checked before any work (`train`, `bench`, `calibrate`): the rate `auto`'s
+/// climb is weighed at; `None` when not asked or 0. `auto`: whether the command runs `auto`, the
+/// only method that weighs a climb; `otherwise`: what the error says when it does not.
+pub fn refresh_rate(hz: Option<f64>, auto: bool, otherwise: &str) -> compend::Result<Option<f64>> {
     let Some(hz) = hz else {
         return Ok(None);
     };
     if !(hz.is_finite() && hz >= 0.0) {
         return Err(compend::Error::Input(format!(
             "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
-        ))
-        .into());
+        )));
     }
     if hz == 0.0 {
         return Ok(None);
@@ -55,9 +48,22 @@ pub fn refresh_timer(
     if !auto {
         return Err(compend::Error::Input(format!(
             "--refresh-hz {hz}: only `auto` weighs a climb's live pass; {otherwise}"
-        ))
-        .into());
+        )));
     }
+    Ok(Some(hz))
+}
+
+/// The timer of `--refresh-hz HZ` (`train`, `bench`): `auto`'s climb weighed on this machine's
+/// GPU for a display refreshing at `hz`, checked ([`refresh_rate`]) before any work.
+pub fn refresh_timer(
+    hz: Option<f64>,
+    auto: bool,
+    otherwise: &str,
+) -> anyhow::Result<Option<std::sync::Arc<dyn compend::fit::LivePass>>> {
+    use anyhow::Context as _;
+    let Some(hz) = refresh_rate(hz, auto, otherwise)? else {
+        return Ok(None);
+    };
     let ctx = compend::gpu::GpuContext::new().with_context(|| {
         format!("--refresh-hz {hz}: opening this machine's GPU to time the climb's live pass")
     })?;
