@@ -198,9 +198,9 @@ fn tconv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) w
 // TK = 16 rows of K at a time in workgroup memory (each invocation loads 4 values of A and one
 // vec4 of W), then each invocation adds them into its 4 pixels (lid.x + 16·i) × 4 channels
 // (vec4 lid.y). Per staged value, 16 (A) or 64 (W) multiply-adds. The sum runs over K in the
-// same order as `conv`'s, bias first. Needs the weights packed with B = 4 (cout4 a multiple of
-// 4); pixels of the tile past the output and channel vec4s past cout4 compute zeros and are not
-// stored. Dispatch: (ceil(M / 64), ceil(cout4 / 16), 1).
+// same order as `conv`'s, bias first. Pixels of the tile past the output and channel vec4s past
+// cout4 compute what their guarded reads give (the bias, zeros) and are not stored.
+// Dispatch: (ceil(M / 64), ceil(cout4 / 16), 1).
 const TM: u32 = 64u;
 const TN4: u32 = 16u;
 const TK: u32 = 16u;

@@ -11,11 +11,11 @@ use std::time::Duration;
 
 use anyhow::Result;
 use compend::fov::DisplayRange;
+use compend::gpu::ConvKernels;
 use compend::gpu::bench::{
     Timing, synthetic_compennet_model, synthetic_linear_model, time_compennet_layers, time_copy,
     time_pass, time_stages,
 };
-use compend::gpu::compennet::ConvKernels;
 use compend::gpu::{CompensationPass, GpuContext};
 use compend::model::Model;
 use compend::playback::ContentFrame;
@@ -79,8 +79,9 @@ pub struct Args {
     #[arg(long, default_value_t = 5)]
     pub warmup: usize,
     /// How CompenNet's wide convolutions run (the CompenNet columns and a trained residual
-    /// model's correction): `direct` or `tiled`. Default: what playback uses on this adapter
-    /// (direct on a CPU driver, tiled on a GPU).
+    /// model's correction): `direct`, `tiled`, or `measured` (each wide layer timed with both
+    /// when the pass is built, the faster kept). Default: what playback uses on this adapter
+    /// (direct on a CPU driver, measured on a GPU).
     #[arg(long, value_enum)]
     pub conv_kernels: Option<ConvKernels>,
 }

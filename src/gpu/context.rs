@@ -5,8 +5,57 @@
 //! callers can skip or fall back; an adapter that exists but fails to open is another
 //! [`Error::Gpu`]. Every wgpu failure keeps its cause.
 
-use super::compennet::ConvKernels;
 use crate::error::{Error, Result};
+
+/// How the backbone's wide convolutions (16 or more output channels; the 3-channel layers and
+/// the transposed convolutions always run the direct kernels) are computed on the GPU. Both
+/// kernels compute the same sums in the same order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ConvKernels {
+    /// `conv`: each invocation sums 4 pixels × 16 channels straight from the activations.
+    /// Few, long invocations: what a CPU driver (lavapipe) runs fastest (the whole 256²
+    /// backbone about 1.4–1.5× faster than with `tiled` there).
+    Direct,
+    /// `conv_tiled`: each workgroup computes 64 pixels × 64 channels as a matrix product
+    /// staged through workgroup memory: 4 to 16 times the invocations, for a GPU's many cores.
+    Tiled,
+    /// Each wide layer is timed with both kernels on this device when the stage is built, and
+    /// runs the faster: per wide layer, 2 rounds of each kernel, each round 2 untimed and 2
+    /// timed dispatches of the layer alone, each submitted and waited for (16 per layer, 112
+    /// for the 7 wide layers: an estimated 0.1 s from the per-layer times measured on an H100,
+    /// docs/bench/gpu-h100.md). Playback on the same GPU waits behind them.
+    Measured,
+}
+
+impl ConvKernels {
+    /// The kernels for an adapter: direct on a CPU driver, measured on a GPU (no one kernel
+    /// is fastest on every GPU and layer shape).
+    pub fn for_adapter(info: &wgpu::AdapterInfo) -> Self {
+        if info.device_type == wgpu::DeviceType::Cpu {
+            Self::Direct
+        } else {
+            Self::Measured
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Direct => "direct",
+            Self::Tiled => "tiled",
+            Self::Measured => "measured",
+        }
+    }
+
+    /// The entry points a wide convolution may run with (`shaders/conv.wgsl`).
+    pub(super) fn wide_entries(self) -> &'static [&'static str] {
+        match self {
+            Self::Direct => &["conv"],
+            Self::Tiled => &["conv_tiled"],
+            Self::Measured => &["conv", "conv_tiled"],
+        }
+    }
+}
 
 /// What a machine without a usable adapter is told.
 const NO_ADAPTER_HINT: &str =

@@ -8,6 +8,7 @@
 //!   [`residual`] for the residual rungs, which run both and add).
 //! - [`bench`]: per-frame GPU time of the pass against a plain texture copy of the same size.
 //! - [`live`]: a climb rung's pass timed where the model is to play, for `auto`'s frame budget.
+//! - [`timing`]: the timer of GPU work both use (GPU timestamps where the adapter has them).
 //!
 //! Every stage has a CPU reference in the core ([`crate::playback`]), and tests compare them.
 
@@ -19,6 +20,7 @@ pub mod linear;
 pub mod live;
 pub mod pass;
 pub mod residual;
+pub mod timing;
 
-pub use context::{GpuContext, NoAdapter, is_no_adapter};
+pub use context::{ConvKernels, GpuContext, NoAdapter, is_no_adapter};
 pub use pass::{CompensationPass, FRAME_FORMAT, PassStage, Photometric};

@@ -175,12 +175,28 @@ const LOG_HEAD: usize = 100;
 const LOG_TAIL: usize = 200;
 
 /// `text` as the log shows it when a client chose it (a model path, an error that quotes one):
-/// whole when short, else its start and end around a note of how many characters were left
-/// out, so that a long request cannot grow the log by more than a few hundred bytes per line.
+/// control characters escaped (`\n`, `\u{1b}`: a path cannot forge log lines or terminal
+/// codes), whole when short, else its start and end around a note of how many characters were
+/// left out, so that a long request cannot grow the log by more than a few hundred bytes per
+/// line.
 pub(crate) fn clipped(text: &str) -> std::borrow::Cow<'_, str> {
+    let text: std::borrow::Cow<'_, str> = if text.chars().any(char::is_control) {
+        text.chars()
+            .map(|c| {
+                if c.is_control() {
+                    c.escape_default().collect()
+                } else {
+                    c.to_string()
+                }
+            })
+            .collect::<String>()
+            .into()
+    } else {
+        text.into()
+    };
     let n = text.chars().count();
     if n <= LOG_HEAD + LOG_TAIL {
-        return text.into();
+        return text;
     }
     let head: String = text.chars().take(LOG_HEAD).collect();
     let tail: String = text.chars().skip(n - LOG_TAIL).collect();
@@ -287,6 +303,11 @@ mod tests {
         assert_eq!(
             c.chars().count(),
             300 + "…[3712 characters left out]…".chars().count()
+        );
+        // A line break or an escape sequence in a path is written as its escape.
+        assert_eq!(
+            clipped("/a\nINFO forged\u{1b}[31m"),
+            "/a\\nINFO forged\\u{1b}[31m"
         );
     }
 }

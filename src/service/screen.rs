@@ -53,7 +53,10 @@ impl Loading {
             });
         if let Err(e) = spawned {
             // The receiver then sees a closed channel, answered as a failed load.
-            tracing::error!("cannot start a thread to load {}: {e}", path.display());
+            tracing::error!(
+                "cannot start a thread to load {}: {e}",
+                super::clipped(&path.display().to_string())
+            );
         }
         Self {
             path,
@@ -219,7 +222,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         let seconds = l.started.elapsed().as_secs_f64();
         tracing::info!(
             "swapped in {} ({}) while playing, loaded in {seconds:.2} s",
-            l.path.display(),
+            super::clipped(&l.path.display().to_string()),
             model.meta.method
         );
         self.io.shared.update(|s| {

@@ -8,7 +8,7 @@
 //! 2. the backbone's 13 convolutions and transposed convolutions (`shaders/conv.wgsl`), each with
 //!    its bias, the constant surface-bias map s1..s4 or skip activation added, ReLU, and the final
 //!    `min(., 1)`; activations are (C, h, w) f32 storage buffers at the layer's resolution; the
-//!    wide convolutions run as [`ConvKernels`] says (the context's choice for its adapter);
+//!    wide convolutions run as [`super::ConvKernels`] says (the context's choice for its adapter);
 //! 3. `store`: the output (projector input values in [0,1]) into the compensation image
 //!    (rgba32float storage texture, network pixels).
 //!
@@ -21,8 +21,8 @@ use bytemuck::{Pod, Zeroable};
 use candle_core::Tensor;
 
 use super::GpuContext;
-use super::bench::time_work;
 use super::kernel::{Slot, Stage, scratch, storage, uniform};
+use super::timing::time_work;
 use crate::error::{Error, Result};
 use crate::nn::compennetpp::SimplifiedCompenNet;
 
@@ -48,57 +48,11 @@ const PIXELS: u32 = 4;
 const TILE_PIXELS: u32 = 64;
 const TILE_VEC4S: u32 = 16;
 
-/// How the backbone's wide convolutions (16 or more output channels; the 3-channel layers and
-/// the transposed convolutions always run the direct kernels) are computed on the GPU. Both
-/// kernels compute the same sums in the same order.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ConvKernels {
-    /// `conv`: each invocation sums 4 pixels × 16 channels straight from the activations.
-    /// Few, long invocations: what a CPU driver (lavapipe) runs fastest (1.2–1.4× faster than
-    /// `tiled` there).
-    Direct,
-    /// `conv_tiled`: each workgroup computes 64 pixels × 64 channels as a matrix product
-    /// staged through workgroup memory: 4 to 16 times the invocations, for a GPU's many cores.
-    Tiled,
-    /// Each wide layer is timed with both kernels on this device when the stage is built, and
-    /// runs the faster: 12 dispatches of the layer alone, 6 timed (a few ms per layer on a
-    /// discrete GPU; playback on the same GPU waits behind them).
-    Measured,
-}
-
-impl ConvKernels {
-    /// The kernels for an adapter: direct on a CPU driver, measured on a GPU (no one kernel
-    /// is fastest on every GPU and layer shape).
-    pub fn for_adapter(info: &wgpu::AdapterInfo) -> Self {
-        if info.device_type == wgpu::DeviceType::Cpu {
-            Self::Direct
-        } else {
-            Self::Measured
-        }
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Direct => "direct",
-            Self::Tiled => "tiled",
-            Self::Measured => "measured",
-        }
-    }
-
-    /// The entry points a wide convolution may run with.
-    fn wide_entries(self) -> &'static [&'static str] {
-        match self {
-            Self::Direct => &["conv"],
-            Self::Tiled => &["conv_tiled"],
-            Self::Measured => &["conv", "conv_tiled"],
-        }
-    }
-}
-
-/// Rounds of timing per kernel when [`ConvKernels::Measured`] chooses, alternating the kernels;
-/// each round is one untimed and [`TUNE_FRAMES`] timed dispatches of the layer alone.
+/// Rounds of timing per kernel when [`super::ConvKernels::Measured`] chooses, the kernels' order
+/// reversed from one round to the next; each round is [`TUNE_WARMUP`] untimed and
+/// [`TUNE_FRAMES`] timed dispatches of the layer alone.
 const TUNE_ROUNDS: usize = 2;
+const TUNE_WARMUP: usize = 2;
 const TUNE_FRAMES: usize = 2;
 
 const FLAG_ADD: u32 = 1;
@@ -408,7 +362,7 @@ impl<'c> Builder<'c> {
     }
 
     /// The entry points `w` may run with: `tconv`; for a wide convolution those of the
-    /// context's [`ConvKernels`]; `conv` for the others.
+    /// context's [`super::ConvKernels`]; `conv` for the others.
     fn entries(&self, w: &Weights) -> &'static [&'static str] {
         if w.transposed {
             &["tconv"]
@@ -448,8 +402,9 @@ impl<'c> Builder<'c> {
     }
 
     /// The candidate to keep for layer `name` (its index) and, where there is more than one,
-    /// each one's best time alone on this device: rounds alternate the candidates, so a GPU
-    /// still raising its clock slows each of them alike.
+    /// each one's best time alone on this device: each round times the candidates in the
+    /// reverse of the last round's order, so a GPU still raising its clock does not favour the
+    /// one timed last. The figure is the best round's median.
     fn fastest(
         &self,
         name: &str,
@@ -462,10 +417,15 @@ impl<'c> Builder<'c> {
         // copies): it is timed by the wall clock.
         let software = self.ctx.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
         let mut best = vec![f64::INFINITY; candidates.len()];
-        for _ in 0..TUNE_ROUNDS {
-            for (c, b) in candidates.iter().zip(&mut best) {
+        for round in 0..TUNE_ROUNDS {
+            let mut order: Vec<usize> = (0..candidates.len()).collect();
+            if round % 2 == 1 {
+                order.reverse();
+            }
+            for i in order {
+                let (c, b) = (&candidates[i], &mut best[i]);
                 let stage = &self.kernels[c.kernel].1;
-                let t = time_work(self.ctx, 1, TUNE_FRAMES, |enc| {
+                let t = time_work(self.ctx, TUNE_WARMUP, TUNE_FRAMES, |enc| {
                     let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                         label: Some(name),
                         timestamp_writes: None,
@@ -493,7 +453,7 @@ impl<'c> Builder<'c> {
     }
 
     /// Allocates the layer's output, uploads its weights and records its bind group (for each
-    /// kernel it may run with, keeping the fastest: [`ConvKernels`]).
+    /// kernel it may run with, keeping the fastest: [`super::ConvKernels`]).
     fn push(&mut self, step: Planned) -> Result<()> {
         let Planned {
             name,
@@ -732,8 +692,8 @@ impl CompenNetStage {
             .collect()
     }
 
-    /// For each layer whose kernel was chosen by timing ([`ConvKernels::Measured`]): its name
-    /// and each candidate kernel's best time alone, ms, in [`Self::layer_names`] order.
+    /// For each layer whose kernel was chosen by timing ([`super::ConvKernels::Measured`]): its
+    /// name and each candidate kernel's best time alone, ms, in [`Self::layer_names`] order.
     pub fn kernel_timings(&self) -> Vec<(&'static str, Vec<(&'static str, f64)>)> {
         self.layers
             .iter()

@@ -31,7 +31,7 @@ use super::monitor::{self, Tap};
 use super::notify::Notifier;
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::screen::{ServiceScreen, set_frames};
-use super::{Event, Io, Shared};
+use super::{Event, Io, Shared, clipped};
 use crate::calibrate::runs::Runs;
 use crate::config::{Config, DriftPolicy};
 use crate::device::{DisplaySink, FrameSource};
@@ -367,14 +367,15 @@ impl Engine {
         let source = match opened {
             Ok(s) => s,
             Err(e) => {
-                self.io.fail(&format!("cannot play {}", self.source), &e);
+                self.io
+                    .fail(&format!("cannot play {}", clipped(&self.source)), &e);
                 self.io.state(State::Idle, "idle: the source failed");
                 return;
             }
         };
         let line = format!(
             "playing {} with {}{}",
-            self.source,
+            clipped(&self.source),
             model.meta.method,
             model
                 .meta
@@ -570,13 +571,14 @@ impl Engine {
                     }
                     (None, None) if self.training_ended() => {}
                     (None, None) => {
-                        tracing::info!("{}: the source ended", self.source);
+                        tracing::info!("{}: the source ended", clipped(&self.source));
                         self.io.state(State::Idle, "idle: the source ended");
                     }
                 }
             }
             Ok(Ended { stats: Err(e), .. }) | Err(e) => {
-                self.io.fail(&format!("playing {}", self.source), &e);
+                self.io
+                    .fail(&format!("playing {}", clipped(&self.source)), &e);
                 self.io.state(State::Idle, "idle: playback failed");
             }
         }
