@@ -733,6 +733,74 @@ pub fn resolve(socket: Option<PathBuf>, config: Option<&Path>) -> Result<PathBuf
 mod tests {
     use super::*;
 
+    /// Connections numbered by the test, handed over through a channel.
+    struct Numbered(tokio::sync::Mutex<tokio::sync::mpsc::UnboundedReceiver<usize>>);
+
+    impl Listener for Numbered {
+        type Conn = usize;
+        async fn next(&self) -> std::io::Result<usize> {
+            let next = self.0.lock().await.recv().await;
+            next.ok_or_else(|| std::io::Error::other("no more connections"))
+        }
+    }
+
+    /// What a served connection did, in order.
+    #[derive(Debug, PartialEq)]
+    enum Did {
+        Served(usize),
+        Answered(usize),
+        Closed(usize),
+    }
+
+    /// Every slot taken by a connection whose request is being answered: a new connection
+    /// evicts none of them and waits; once one has its answer (and so is idle), the next retry
+    /// closes it and the new one is served in its slot.
+    #[tokio::test]
+    async fn a_new_connection_waits_while_every_connection_is_being_answered() {
+        let (conns, listener) = tokio::sync::mpsc::unbounded_channel();
+        let (did, mut done) = tokio::sync::mpsc::unbounded_channel();
+        let answers: Vec<Arc<Notify>> =
+            (0..=MAX_CLIENTS).map(|_| Arc::new(Notify::new())).collect();
+        let to_answer = answers.clone();
+        let accepting = tokio::spawn(accept(
+            Numbered(tokio::sync::Mutex::new(listener)),
+            "test listener",
+            move |n: usize, lease: Lease| {
+                let (did, answer) = (did.clone(), to_answer[n].clone());
+                async move {
+                    lease.busy();
+                    let _ = did.send(Did::Served(n));
+                    answer.notified().await;
+                    lease.answered(true);
+                    let _ = did.send(Did::Answered(n));
+                    lease.closing().await;
+                    let _ = did.send(Did::Closed(n));
+                    Ok(())
+                }
+            },
+        ));
+        let next = async |done: &mut tokio::sync::mpsc::UnboundedReceiver<Did>| {
+            tokio::time::timeout(Duration::from_secs(5), done.recv())
+                .await
+                .expect("an event within 5 s")
+                .expect("the listener runs")
+        };
+        for n in 0..MAX_CLIENTS {
+            conns.send(n).unwrap();
+            assert_eq!(next(&mut done).await, Did::Served(n));
+        }
+        // One more while all are busy: nobody is closed, it is not served.
+        conns.send(MAX_CLIENTS).unwrap();
+        let waited = tokio::time::timeout(3 * ROOM_RETRY + ROOM_RETRY / 2, done.recv()).await;
+        assert!(waited.is_err(), "while all were busy: {waited:?}");
+        // Connection 7 gets its answer: it is closed at the next retry, the new one served.
+        answers[7].notify_one();
+        assert_eq!(next(&mut done).await, Did::Answered(7));
+        assert_eq!(next(&mut done).await, Did::Closed(7));
+        assert_eq!(next(&mut done).await, Did::Served(MAX_CLIENTS));
+        accepting.abort();
+    }
+
     fn token(text: &str) -> Token {
         Token(Arc::new(text.as_bytes().to_vec()))
     }
