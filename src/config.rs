@@ -535,11 +535,11 @@ impl<'t> Walker<'t> {
                 format!("[calibration] verify = {verify} is more than ntest = {ntest}"),
             ));
         }
-        let refresh_hz = self.checked(t, "refresh_hz", None, |v: &Option<f64>| match v {
-            Some(hz) if !(hz.is_finite() && *hz >= 0.0) => Err(format!(
-                "{hz}: expected a refresh rate in Hz, or 0 (a climb's live pass not weighed)"
-            )),
-            _ => Ok(()),
+        let refresh_hz = self.checked(t, "refresh_hz", None, |v: &Option<f64>| {
+            match v.and_then(crate::fit::refresh_rate_problem) {
+                Some(problem) => Err(problem),
+                None => Ok(()),
+            }
         });
         let span = span_of(t, "loop_images");
         let loop_images: Option<usize> = self.get(t, "loop_images");

@@ -285,6 +285,22 @@ pub fn check_contents_removable(dir: &Path) -> Result<()> {
     })
 }
 
+/// Checks, before any work, that results can be written into the folder `dir` (a benchmark's
+/// `--out`): it is a folder, or can be made one, and a file can be created in it or in the
+/// nearest of its folders that exists ([`check_writable`]). An input error (exit 2) naming it
+/// otherwise.
+pub fn check_out_folder(dir: &Path) -> Result<()> {
+    match fs::metadata(dir) {
+        Ok(m) if m.is_dir() => check_writable(&dir.join("results")),
+        Ok(_) => Err(Error::Input(format!(
+            "{}: is a file, not a folder for the results",
+            dir.display()
+        ))),
+        // Made when the results are written: its nearest existing folder must take it.
+        Err(_) => check_writable(dir),
+    }
+}
+
 /// Checks, before any work, that `path` can be written: a file can be created in the nearest
 /// of its folders that exists (the missing ones are created when `path` is written, not now,
 /// so a run that fails leaves none behind). An input error (exit 2) naming the path otherwise.

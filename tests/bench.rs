@@ -136,6 +136,19 @@ fn bench_writes_rows_for_references_and_methods() {
         );
         assert!(!other.exists());
     }
+    // An --out that is a file is refused before any work by every benchmark, the file kept.
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "kept").unwrap();
+    for cmd in ["bench", "bench-gpu", "bench-train", "bench-serve"] {
+        let o = compend(&[cmd, "--out", file.to_str().unwrap()]);
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains("a-file: is a file, not a folder for the results"),
+            "{cmd}: {}",
+            stderr(&o)
+        );
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "kept");
+    }
 }
 
 /// `--loop-images`: the rungs that take closed-loop pairs train on them as `calibrate` does,

@@ -177,6 +177,7 @@ struct Bench<'a> {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    compend::files::check_out_folder(&args.out)?;
     let trained = match &args.model {
         Some(dir) => {
             let model = Model::load(dir)?;

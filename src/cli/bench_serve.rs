@@ -317,6 +317,7 @@ fn write_config(args: &Args, dir: &Path, scene: &str, extra: (&str, &str)) -> Re
 }
 
 pub fn run(args: Args) -> Result<()> {
+    compend::files::check_out_folder(&args.out)?;
     if args.out.exists() && std::fs::read_dir(&args.out)?.next().is_some() {
         return Err(compend::Error::Input(format!(
             "--out {}: not empty; bench-serve writes a service state there, so it takes an \

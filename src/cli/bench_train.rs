@@ -471,6 +471,7 @@ pub fn run(a: Args) -> Result<()> {
         )
         .into());
     }
+    compend::files::check_out_folder(&a.out)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let camera = a.camera;
     eprintln!("bench-train: measuring the machine's arithmetic rate");

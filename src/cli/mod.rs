@@ -37,10 +37,8 @@ pub fn refresh_rate(hz: Option<f64>, auto: bool, otherwise: &str) -> compend::Re
     let Some(hz) = hz else {
         return Ok(None);
     };
-    if !(hz.is_finite() && hz >= 0.0) {
-        return Err(compend::Error::Input(format!(
-            "--refresh-hz {hz}: expected a refresh rate in Hz, or 0 (not weighed)"
-        )));
+    if let Some(problem) = compend::fit::refresh_rate_problem(hz) {
+        return Err(compend::Error::Input(format!("--refresh-hz {problem}")));
     }
     if hz == 0.0 {
         return Ok(None);

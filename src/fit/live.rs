@@ -29,6 +29,25 @@ pub struct PassShape {
     pub projector: ImageSize,
 }
 
+/// What is wrong with `hz` as the rate a climb's live pass is weighed at (`--refresh-hz`, the
+/// configuration's `refresh_hz`): `None` for a positive rate or 0 (not weighed). Rates no
+/// display has are taken: far ones (1e-3 Hz, 1e9 Hz) decide a climb whatever the GPU, which
+/// the tests use.
+pub fn refresh_rate_problem(hz: f64) -> Option<String> {
+    if hz.is_finite() && hz >= 0.0 {
+        return None;
+    }
+    // 5e-324 as such, not as 324 digits.
+    let shown = if hz.is_finite() && !(1e-3..1e6).contains(&hz.abs()) {
+        format!("{hz:e}")
+    } else {
+        format!("{hz}")
+    };
+    Some(format!(
+        "{shown}: expected a refresh rate in Hz, or 0 (a climb's live pass not weighed)"
+    ))
+}
+
 /// Times a rung's live pass where it is to play, against that display's refresh.
 pub trait LivePass: Send + Sync + Debug {
     /// The median time of one frame of the pass of `shape`, with the display's budget.
@@ -38,6 +57,25 @@ pub trait LivePass: Send + Sync + Debug {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_refresh_rate_is_a_positive_rate_or_0() {
+        for ok in [0.0, 1e-3, 23.976, 60.0, 1e9] {
+            assert_eq!(refresh_rate_problem(ok), None, "{ok}");
+        }
+        for bad in [
+            -60.0,
+            -5e-324,
+            -1e308,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ] {
+            let e = refresh_rate_problem(bad).expect("refused");
+            assert!(e.contains("expected a refresh rate in Hz, or 0"), "{e}");
+            assert!(e.len() < 150, "{e}");
+        }
+    }
 
     #[test]
     fn a_pass_fits_half_of_one_refresh_period() {

@@ -19,7 +19,7 @@ mod rule;
 
 pub use auto::{climb_rung, judge_on_loop_pairs, judges_on_loop_pairs, lower_rung, settle_climb};
 pub use device::TrainDevice;
-pub use live::{LIVE_SHARE, LiveCost, LivePass, PassShape};
+pub use live::{LIVE_SHARE, LiveCost, LivePass, PassShape, refresh_rate_problem};
 pub use rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB};
 
 use std::borrow::Cow;

@@ -24,7 +24,8 @@ pub enum ConvKernels {
     /// runs the faster: per wide layer, 2 rounds of each kernel, each round 2 untimed and 2
     /// timed dispatches of the layer alone, each submitted and waited for (16 per layer, 112
     /// for the 7 wide layers: an estimated 0.1 s from the per-layer times measured on an H100,
-    /// docs/bench/gpu-h100.md). Playback on the same GPU waits behind them.
+    /// docs/bench/gpu-h100.md). Playback on the same GPU waits behind them. Each layer shape is
+    /// timed once per device and process; later passes take the choice made then.
     Measured,
 }
 
@@ -73,7 +74,16 @@ pub struct GpuContext {
     /// How CompenNet's wide convolutions run on this device: [`ConvKernels::for_adapter`]
     /// unless changed with [`Self::with_conv_kernels`].
     pub conv: ConvKernels,
+    /// The layer shapes timed on this device ([`ConvKernels::Measured`]), shared by its clones.
+    pub(crate) conv_timed: ConvTimings,
 }
+
+/// Kernel timings per layer shape on one device: the layer's uniform (`shaders/conv.wgsl`,
+/// sizes and flags as 12 words) → each candidate entry point and its best time alone, ms. A
+/// shape is timed once per process; later passes (a model swap, another display) reuse it.
+pub(crate) type ConvTimings = std::sync::Arc<
+    std::sync::Mutex<std::collections::HashMap<[u32; 12], Vec<(&'static str, f64)>>>,
+>;
 
 impl std::fmt::Debug for GpuContext {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -149,6 +159,7 @@ impl GpuContext {
             device,
             queue,
             conv,
+            conv_timed: ConvTimings::default(),
         })
     }
 

@@ -213,8 +213,11 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         }) {
             Ok(done) => done,
             Err(e) => {
-                let why = format!("{} was not swapped in: {e}", l.path.display());
-                tracing::warn!("{}", super::clipped(&why));
+                tracing::warn!(
+                    "{} was not swapped in: {}",
+                    super::clipped(&l.path.display().to_string()),
+                    super::clipped(&e.to_string())
+                );
                 l.envelope.answer(Reply::error(e.to_string()));
                 return None;
             }

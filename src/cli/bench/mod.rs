@@ -116,6 +116,7 @@ pub fn run(args: Args) -> Result<()> {
         ))
         .into());
     }
+    compend::files::check_out_folder(&args.out)?;
     // A device this build or machine cannot train on fails before any scene is exported, when
     // a method trains on it.
     let trains = args.methods.iter().any(|m| m.may_train_a_network());
