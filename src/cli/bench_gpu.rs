@@ -367,6 +367,12 @@ impl Bench<'_> {
         if args.layers {
             let layers =
                 time_compennet_layers(ctx, &mut pass, &self.content, 1, args.compennet_iters)?;
+            if ctx.adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+                eprintln!(
+                    "bench-gpu:   (a software adapter: its timestamps do not show the work; \
+                     read the wall times)"
+                );
+            }
             for (name, t) in layers {
                 eprintln!(
                     "bench-gpu:   layer {name}: {:.3} ms ({:.3} ms wall)",
