@@ -21,7 +21,41 @@ use crate::raster::{CamImage, ImageSize};
 use crate::rig::{Phase, VirtualRig};
 use crate::source::SourceSpec;
 
-/// A model being loaded, and its pass built, on a thread of its own while playback goes on.
+/// A job for the loading thread.
+type Job = Box<dyn FnOnce() + Send>;
+
+/// Runs `job` on the thread that loads every model swapped in while playing, started on first
+/// use (and again if it has gone). One thread for all swaps, not one per swap: glibc's
+/// allocator gives each thread that allocates an arena of its own and keeps what is freed
+/// there, so with a thread per swap each model landed in another arena and the service's
+/// memory grew with every swap (docs/service.md, "Memory"). A job that panics ends without
+/// an answer (its sender dropped); the thread goes on.
+fn on_loader(job: Job) -> std::io::Result<()> {
+    static LOADER: std::sync::Mutex<Option<mpsc::Sender<Job>>> = std::sync::Mutex::new(None);
+    let mut loader = LOADER.lock().unwrap_or_else(|e| e.into_inner());
+    let job = match loader.as_ref() {
+        Some(jobs) => match jobs.send(job) {
+            Ok(()) => return Ok(()),
+            // The thread has gone: start another.
+            Err(mpsc::SendError(job)) => job,
+        },
+        None => job,
+    };
+    let (jobs, next) = mpsc::channel::<Job>();
+    std::thread::Builder::new()
+        .name("compend-load".into())
+        .spawn(move || {
+            for job in next {
+                let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
+            }
+        })?;
+    jobs.send(job)
+        .map_err(|_| std::io::Error::other("the loading thread ended before its first job"))?;
+    *loader = Some(jobs);
+    Ok(())
+}
+
+/// A model being loaded, and its pass built, on the loading thread while playback goes on.
 struct Loading {
     path: PathBuf,
     envelope: Envelope,
@@ -41,16 +75,14 @@ impl Loading {
     ) -> Self {
         let (tx, result) = mpsc::channel();
         let from = path.clone();
-        let spawned = std::thread::Builder::new()
-            .name("compend-load".into())
-            .spawn(move || {
-                let built = load_model(&from, camera).and_then(|model| {
-                    let range = model.display_range();
-                    let pass = CompensationPass::for_display(&ctx, &model, display, range)?;
-                    Ok((model, pass))
-                });
-                let _ = tx.send(built);
+        let spawned = on_loader(Box::new(move || {
+            let built = load_model(&from, camera).and_then(|model| {
+                let range = model.display_range();
+                let pass = CompensationPass::for_display(&ctx, &model, display, range)?;
+                Ok((model, pass))
             });
+            let _ = tx.send(built);
+        }));
         if let Err(e) = spawned {
             // The receiver then sees a closed channel, answered as a failed load.
             tracing::error!(
