@@ -296,8 +296,19 @@ pub fn check_out_folder(dir: &Path) -> Result<()> {
             "{}: is a file, not a folder for the results",
             dir.display()
         ))),
+        // A link to nothing cannot be made a folder.
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound && fs::symlink_metadata(dir).is_ok() => {
+            Err(Error::Input(format!(
+                "{}: a link to nothing, not a folder for the results",
+                dir.display()
+            )))
+        }
         // Made when the results are written: its nearest existing folder must take it.
-        Err(_) => check_writable(dir),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => check_writable(dir),
+        Err(e) => Err(Error::Input(format!(
+            "{}: cannot be used as the folder for the results ({e})",
+            dir.display()
+        ))),
     }
 }
 
@@ -395,6 +406,36 @@ mod tests {
         assert!(
             e.to_string().contains("a folder on this path is a file"),
             "{e}"
+        );
+    }
+
+    #[test]
+    fn a_results_folder_is_checked_before_any_work() {
+        let dir = tempfile::tempdir().unwrap();
+        // A folder, or one to be made (nothing made now), and a folder that holds files.
+        let fresh = dir.path().join("a/b");
+        check_out_folder(&fresh).unwrap();
+        assert!(!dir.path().join("a").exists());
+        std::fs::write(dir.path().join("kept"), "x").unwrap();
+        check_out_folder(dir.path()).unwrap();
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+        assert_eq!(names.len(), 1, "the probe is gone");
+        // A file, or a link to nothing: input errors naming them.
+        let e = check_out_folder(&dir.path().join("kept")).unwrap_err();
+        assert!(
+            matches!(&e, Error::Input(m) if m.contains("kept: is a file")),
+            "{e}"
+        );
+        let link = dir.path().join("dangling");
+        std::os::unix::fs::symlink(dir.path().join("nowhere"), &link).unwrap();
+        let e = check_out_folder(&link).unwrap_err();
+        assert!(
+            matches!(&e, Error::Input(m) if m.contains("a link to nothing")),
+            "{e}"
+        );
+        assert_eq!(
+            std::fs::read_to_string(dir.path().join("kept")).unwrap(),
+            "x"
         );
     }
 

@@ -25,11 +25,10 @@ use crate::source::SourceSpec;
 type Job = Box<dyn FnOnce() + Send>;
 
 /// Runs `job` on the thread that loads every model swapped in while playing, started on first
-/// use (and again if it has gone). One thread for all swaps, not one per swap: glibc's
-/// allocator gives each thread that allocates an arena of its own and keeps what is freed
-/// there, so with a thread per swap each model landed in another arena and the service's
-/// memory grew with every swap (docs/service.md, "Memory"). A job that panics ends without
-/// an answer (its sender dropped); the thread goes on.
+/// use (and again if it has gone). One thread for all swaps, not one per swap: with a thread
+/// per swap the service's memory grew with the swaps, most likely as glibc's allocator gave the
+/// threads arenas of their own and kept what was freed in them (docs/service.md, "Memory"). A
+/// job that panics ends without an answer (its sender dropped); the thread goes on.
 fn on_loader(job: Job) -> std::io::Result<()> {
     static LOADER: std::sync::Mutex<Option<mpsc::Sender<Job>>> = std::sync::Mutex::new(None);
     let mut loader = LOADER.lock().unwrap_or_else(|e| e.into_inner());
@@ -233,7 +232,9 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             Err(TryRecvError::Empty) => return None,
             Ok(built) => built,
             Err(TryRecvError::Disconnected) => Err(Error::Failed(
-                "the thread loading the model ended without an answer".into(),
+                "loading the model ended without an answer (it panicked, or its thread could not \
+                 start; see the log)"
+                    .into(),
             )),
         };
         let l = self.loading.take()?;

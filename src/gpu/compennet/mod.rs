@@ -422,7 +422,13 @@ impl<'c> Builder<'c> {
             .unwrap_or_else(|e| e.into_inner())
             .get(&shape)
             .cloned();
-        if let Some(timed) = timed_before {
+        // Taken only if it timed these very candidates.
+        if let Some(timed) = timed_before
+            && timed
+                .iter()
+                .map(|(e, _)| *e)
+                .eq(candidates.iter().map(|c| c.entry))
+        {
             let fastest = timed
                 .iter()
                 .min_by(|a, b| a.1.total_cmp(&b.1))
