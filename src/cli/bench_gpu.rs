@@ -358,7 +358,10 @@ impl Bench<'_> {
                     .map(|(_, t)| {
                         let t: Vec<String> =
                             t.iter().map(|(e, ms)| format!("{e} {ms:.3} ms")).collect();
-                        format!(" (timed alone: {})", t.join(", "))
+                        format!(
+                            " (timed alone when a pass first had this shape: {})",
+                            t.join(", ")
+                        )
                     })
                     .unwrap_or_default();
                 eprintln!("bench-gpu:   layer {name} runs {entry}{timed}");

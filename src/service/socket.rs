@@ -748,6 +748,8 @@ mod tests {
     #[derive(Debug, PartialEq)]
     enum Did {
         Served(usize),
+        /// Told to close while its request was still being answered.
+        ToldWhileBusy(usize),
         Answered(usize),
         Closed(usize),
     }
@@ -770,7 +772,13 @@ mod tests {
                 async move {
                     lease.busy();
                     let _ = did.send(Did::Served(n));
-                    answer.notified().await;
+                    tokio::select! {
+                        _ = answer.notified() => {}
+                        _ = lease.closing() => {
+                            let _ = did.send(Did::ToldWhileBusy(n));
+                            return Ok(());
+                        }
+                    }
                     lease.answered(true);
                     let _ = did.send(Did::Answered(n));
                     lease.closing().await;
