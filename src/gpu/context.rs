@@ -14,14 +14,14 @@ use crate::error::{Error, Result};
 #[serde(rename_all = "lowercase")]
 pub enum ConvKernels {
     /// `conv`: each invocation sums 4 pixels × 16 channels straight from the activations.
-    /// Few, long invocations: what a CPU driver (lavapipe) runs fastest (the whole 256²
-    /// backbone about 1.4–1.5× faster than with `tiled` there).
+    /// Few, long invocations: what a CPU driver (lavapipe) runs fastest (the 256² backbone
+    /// 1.2–1.5× faster than with `tiled` there, in four runs).
     Direct,
     /// `conv_tiled`: each workgroup computes 64 pixels × 64 channels as a matrix product
     /// staged through workgroup memory: 4 to 16 times the invocations, for a GPU's many cores.
     Tiled,
-    /// Each wide layer is timed with both kernels on this device when the stage is built, and
-    /// runs the faster: per wide layer, 2 rounds of each kernel, each round 2 untimed and 2
+    /// Each wide layer is timed with both kernels on this device when a stage is first built
+    /// with its shape, and runs the faster: per wide layer, 2 rounds of each kernel, each round 2 untimed and 2
     /// timed dispatches of the layer alone, each submitted and waited for (16 per layer, 112
     /// for the 7 wide layers: an estimated 0.1 s from the per-layer times measured on an H100,
     /// docs/bench/gpu-h100.md). Playback on the same GPU waits behind them. Each layer shape is
