@@ -487,3 +487,35 @@ pub(super) fn set_frames(f: &mut Frames, s: &PlayStats, before: &Frames) {
     f.dropped_source = s.dropped_source;
     f.dropped_pipeline = s.dropped_pipeline;
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A job that panics is answered by its dropped sender, and the loading thread goes on: the
+    /// next jobs run, on that same thread.
+    #[test]
+    fn the_loading_thread_outlives_a_job_that_panics() {
+        let thread_of = || {
+            let (tx, rx) = mpsc::channel();
+            on_loader(Box::new(move || {
+                let _ = tx.send(std::thread::current().id());
+            }))
+            .unwrap();
+            rx.recv_timeout(Duration::from_secs(10)).unwrap()
+        };
+        let before = thread_of();
+        let (tx, rx) = mpsc::channel::<()>();
+        on_loader(Box::new(move || {
+            let _keep = tx;
+            panic!("a load that panics (expected in this test)");
+        }))
+        .unwrap();
+        assert_eq!(
+            rx.recv_timeout(Duration::from_secs(10)),
+            Err(mpsc::RecvTimeoutError::Disconnected)
+        );
+        assert_eq!(thread_of(), before);
+        assert_eq!(thread_of(), before);
+    }
+}
