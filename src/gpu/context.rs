@@ -21,11 +21,12 @@ pub enum ConvKernels {
     /// staged through workgroup memory: 4 to 16 times the invocations, for a GPU's many cores.
     Tiled,
     /// Each wide layer is timed with both kernels on this device when a stage is first built
-    /// with its shape, and runs the faster: per wide layer, 2 rounds of each kernel, each round 2 untimed and 2
-    /// timed dispatches of the layer alone, each submitted and waited for (16 per layer, 112
-    /// for the 7 wide layers: an estimated 0.1 s from the per-layer times measured on an H100,
-    /// docs/bench/gpu-h100.md). Playback on the same GPU waits behind them. Each layer shape is
-    /// timed once per device and process; later passes take the choice made then.
+    /// with its shape, and runs the faster: per wide layer, 2 rounds of each kernel, each
+    /// round 2 untimed and 2 timed dispatches of the layer alone, each submitted and waited
+    /// for (16 per layer, 112 for the 7 wide layers: an estimated 0.1 s from the per-layer
+    /// times measured on an H100 and an H200, docs/bench/gpu-h100.md). Playback on the same
+    /// GPU waits behind them. Each layer shape is timed once per device and process; later
+    /// passes take the choice made then.
     Measured,
 }
 
