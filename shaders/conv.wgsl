@@ -1,7 +1,8 @@
 // Convolution layers of the simplified CompenNet backbone (CompenNet++ family), one pipeline per
-// kernel kind (`conv`, `conv_tiled`, `tconv`) shared by every layer; per-layer sizes come from
-// the uniform. `conv` and `conv_tiled` compute the same thing: `conv` suits CPU drivers
-// (lavapipe), `conv_tiled` GPUs (src/gpu/compennet/mod.rs, `ConvKernels`).
+// kernel kind (`conv`, `conv_tiled`, `tconv`, `tconv_tiled`) shared by every layer; per-layer
+// sizes come from the uniform. `conv` and `conv_tiled` compute the same thing, as do `tconv` and
+// `tconv_tiled`: the direct kernels suit CPU drivers (lavapipe), the tiled ones GPUs
+// (src/gpu/context.rs, `ConvKernels`).
 //
 // Activations: f32 storage buffers, one image per channel, channel-major (C, H, W) row-major,
 // network-space pixels at the layer's resolution (the network size, /2 or /4). Values are whatever
@@ -12,10 +13,12 @@
 // CPU reference: compend::nn::compennet::Backbone::forward (candle conv2d / conv_transpose2d,
 // PyTorch semantics, dilation 1, no output padding), then `+ add`, ReLU, `min(., 1)` as flagged.
 //
-// Each invocation computes 4·B output channels (B vec4 accumulators; B is a pipeline constant,
-// 1 for layers with few output channels) of one output pixel (`tconv`) or of P consecutive output
-// pixels of a row (`conv`): x, y = output pixel (or group of P), z = output channel block. A workgroup is 8×8 pixels of one channel block, so its weight reads are the same
-// for every invocation (broadcast), and each input value read serves 4·B multiply-adds.
+// In the direct kernels, each invocation computes 4·B output channels (B vec4 accumulators; B is
+// a pipeline constant, 1 for layers with few output channels) of one output pixel (`tconv`) or
+// of P consecutive output pixels of a row (`conv`): x, y = output pixel (or group of P), z =
+// output channel block. A workgroup is 8×8 pixels of one channel block, so its weight reads are
+// the same for every invocation (broadcast), and each input value read serves 4·B multiply-adds.
+// The tiled kernels are described at `conv_tiled`.
 
 struct Conv {
     cin: u32,             // input channels
@@ -79,9 +82,10 @@ fn finish(acc: ptr<function, array<vec4<f32>, MAXB>>, id: vec3<u32>) {
     }
 }
 
-// out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, oy·s + ky − pad, ox·s + kx − pad] · w[co, ci, ky, kx]
-// (zero outside the input). Each invocation computes P consecutive output pixels of a row (x =
-// gid.x·P + i) for its 4·B channels: per input value read, 4·B multiply-adds; per weight read, P.
+// out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, oy·s + ky − pad, ox·s + kx − pad]
+// · w[co, ci, ky, kx] (zero outside the input). Each invocation computes P consecutive output
+// pixels of a row (x = gid.x·P + i) for its 4·B channels: per input value read, 4·B
+// multiply-adds; per weight read, P.
 // Reads are branch-free (clamped index, zero weight outside) so that all lanes stay converged.
 const P: u32 = 4u;
 
@@ -142,8 +146,8 @@ fn conv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg
     }
 }
 
-// Transposed convolution: out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, iy, ix] · w[ci, co, ky, kx]
-// over the input pixels with iy·s + ky − pad = oy and ix·s + kx − pad = ox.
+// Transposed convolution: out[co, oy, ox] = b[co] + Σ_ci Σ_ky,kx src[ci, iy, ix]
+// · w[ci, co, ky, kx] over the input pixels with iy·s + ky − pad = oy and ix·s + kx − pad = ox.
 @compute @workgroup_size(8, 8, 1)
 fn tconv(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wg: vec3<u32>) {
     let id = vec3<u32>(gid.xy, wg.z);
@@ -260,12 +264,7 @@ fn conv_tiled(
         let w_ok = kw < kdim && wn4 < p.cout4;
         tile_w[t] = select(vec4<f32>(0.0), weight[min(kw * p.cout4 + wn4, last_w)], w_ok);
         workgroupBarrier();
-        for (var q = 0u; q < TK; q++) {
-            let wv = tile_w[q * TN4 + lid.y];
-            for (var i = 0u; i < 4u; i++) {
-                acc[i] += tile_a[q * TM + lid.x + 16u * i] * wv;
-            }
-        }
+        add_tile(&acc, lid.xy);
         workgroupBarrier();
     }
 
@@ -276,6 +275,86 @@ fn conv_tiled(
         let mi = wg.x * TM + lid.x + 16u * i;
         if (mi < plane_out) {
             store4(acc[i], n4 * 4u, mi);
+        }
+    }
+}
+
+// Adds the staged tile (TK rows of K) into the accumulators of invocation `l` (local id): its
+// pixels l.x + 16·i (i = 0..3) of the tile × its channel vec4 l.y, in the order of K.
+fn add_tile(acc: ptr<function, array<vec4<f32>, 4>>, l: vec2<u32>) {
+    for (var q = 0u; q < TK; q++) {
+        let wv = tile_w[q * TN4 + l.y];
+        for (var i = 0u; i < 4u; i++) {
+            (*acc)[i] += tile_a[q * TM + l.x + 16u * i] * wv;
+        }
+    }
+}
+
+// The transposed convolution `tconv` for a kernel as wide as its stride (k = s, as the
+// backbone's 2×2 stride-2 layers: each output pixel lies under exactly one tap of one input
+// pixel), as k·k matrix products, one per tap (ty, tx) = (z / k, z % k) of the workgroup id z.
+// For input pixel m = (iy, ix): out[co, iy·s + ty − pad, ix·s + tx − pad] = b[co] +
+// Σ_ci src[ci, m] · w[ci, co, ty, tx], i.e. (M input pixels × N channels) = A (M × cin) · W_tap
+// (cin × N) with A[m, ci] = src[ci, m]. The same tiles as `conv_tiled` (K = cin), the sum over
+// ci in `tconv`'s order, bias first; output pixels past the crop are not stored.
+// Dispatch: (ceil(input pixels / 64), ceil(cout4 / 16), k·k).
+@compute @workgroup_size(16, 16, 1)
+fn tconv_tiled(
+    @builtin(local_invocation_id) lid: vec3<u32>,
+    @builtin(workgroup_id) wg: vec3<u32>,
+) {
+    let t = lid.y * 16u + lid.x;
+    let plane_in = p.in_size.x * p.in_size.y;
+    let tap = wg.z;
+    let last_src = arrayLength(&src) - 1u;
+    let last_w = arrayLength(&weight) - 1u;
+
+    // This invocation's channel vec4 and its bias.
+    let n4 = wg.y * TN4 + lid.y;
+    let n_ok = n4 < p.cout4;
+    let b = select(vec4<f32>(0.0), bias[min(n4, arrayLength(&bias) - 1u)], n_ok);
+    var acc: array<vec4<f32>, 4>;
+    for (var i = 0u; i < 4u; i++) {
+        acc[i] = b;
+    }
+
+    // The input pixel whose values this invocation stages (column t % TM, rows t / TM + 4·r),
+    // and the W vec4 (row t / TN4, column t % TN4 of the tile).
+    let mc = t % TM;
+    let m = wg.x * TM + mc;
+    let m_ok = m < plane_in;
+    let wn4 = wg.y * TN4 + t % TN4;
+
+    for (var k0 = 0u; k0 < p.cin; k0 += TK) {
+        for (var r = 0u; r < 4u; r++) {
+            let row = t / TM + 4u * r;
+            let ci = k0 + row;
+            let ok = m_ok && ci < p.cin;
+            tile_a[row * TM + mc] = select(0.0, src[min(ci * plane_in + m, last_src)], ok);
+        }
+        let cw = k0 + t / TN4;
+        let w_ok = cw < p.cin && wn4 < p.cout4;
+        let wi = (cw * p.k * p.k + tap) * p.cout4 + wn4;
+        tile_w[t] = select(vec4<f32>(0.0), weight[min(wi, last_w)], w_ok);
+        workgroupBarrier();
+        add_tile(&acc, lid.xy);
+        workgroupBarrier();
+    }
+
+    if (!n_ok) {
+        return;
+    }
+    let w_in = max(p.in_size.x, 1u);
+    let s = i32(p.stride);
+    let ty = i32(tap / max(p.k, 1u)) - i32(p.pad);
+    let tx = i32(tap % max(p.k, 1u)) - i32(p.pad);
+    for (var i = 0u; i < 4u; i++) {
+        let mi = wg.x * TM + lid.x + 16u * i;
+        let oy = i32(mi / w_in) * s + ty;
+        let ox = i32(mi % w_in) * s + tx;
+        let inside = oy >= 0 && ox >= 0 && oy < i32(p.out_size.y) && ox < i32(p.out_size.x);
+        if (mi < plane_in && inside) {
+            store4(acc[i], n4 * 4u, u32(oy) * p.out_size.x + u32(ox));
         }
     }
 }

@@ -664,15 +664,15 @@ fn residual_pass_matches(ctx: &compend::gpu::GpuContext, model: Model) {
 }
 
 /// Each layer's activation on the GPU against candle's, layer by layer, on one frame (a failure
-/// names the first layer that differs), with each choice of convolution kernel for the wide
-/// layers; the layers with 16 or more output channels must run the kernel asked for, or when
-/// it is measured, both must have been timed and the faster kept.
+/// names the first layer that differs), with each choice of kernel for the wide layers; the
+/// layers with 16 or more output channels must run the kernel asked for, or when it is
+/// measured, both must have been timed and the faster kept.
 #[test]
 fn compennet_layers_match_candle() {
     let Some(ctx) = gpu() else { return };
     for (kernels, wide) in [
-        (ConvKernels::Direct, Some("conv")),
-        (ConvKernels::Tiled, Some("conv_tiled")),
+        (ConvKernels::Direct, Some(["conv", "tconv"])),
+        (ConvKernels::Tiled, Some(["conv_tiled", "tconv_tiled"])),
         (ConvKernels::Measured, None),
     ] {
         compennet_layers_match(&ctx.with_conv_kernels(kernels), wide);
@@ -680,8 +680,8 @@ fn compennet_layers_match_candle() {
 }
 
 /// [`compennet_layers_match_candle`] with `ctx`'s kernels; `wide` is the entry point the wide
-/// convolutions must use (`None`: the faster of the two as timed).
-fn compennet_layers_match(ctx: &compend::gpu::GpuContext, wide: Option<&str>) {
+/// convolutions and the transposed ones must use (`None`: the faster of the two as timed).
+fn compennet_layers_match(ctx: &compend::gpu::GpuContext, wide: Option<[&str; 2]>) {
     use candle_core::Module;
     use compend::gpu::Photometric;
     use compend::model::Kind;
@@ -745,15 +745,22 @@ fn compennet_layers_match(ctx: &compend::gpu::GpuContext, wide: Option<&str>) {
     let mut names = vec!["x"];
     names.extend(stage.layer_names());
     assert_eq!(names, expected.map(|(n, _)| n));
-    // The widths at the paper's base width 32: the skips and conv6 have 3 output channels, the
-    // transposed convolutions their own kernel, every other layer 32 to 256.
+    // The widths at the paper's base width 32: the skips and conv6 have 3 output channels, every
+    // other layer 32 to 256; the transposed convolutions a6 and a7 (2×2, stride 2) their own
+    // kernels.
     let timings = stage.kernel_timings();
     let mut timed = Vec::new();
     for (name, entry) in stage.layer_kernels() {
+        let transposed = matches!(name, "a6" | "a7");
         let expect = match (name, wide) {
-            ("a6" | "a7", _) => "tconv",
             ("skip1.0" | "skip1.1" | "res1" | "out", _) => "conv",
-            (_, Some(wide)) => wide,
+            (_, Some([conv, tconv])) => {
+                if transposed {
+                    tconv
+                } else {
+                    conv
+                }
+            }
             (_, None) => {
                 // Measured: both kernels timed, the faster running.
                 let (_, t) = timings
@@ -761,7 +768,12 @@ fn compennet_layers_match(ctx: &compend::gpu::GpuContext, wide: Option<&str>) {
                     .find(|(n, _)| *n == name)
                     .unwrap_or_else(|| panic!("layer {name}: no timings"));
                 let entries: Vec<&str> = t.iter().map(|(e, _)| *e).collect();
-                assert_eq!(entries, ["conv", "conv_tiled"], "layer {name}");
+                let both = if transposed {
+                    ["tconv", "tconv_tiled"]
+                } else {
+                    ["conv", "conv_tiled"]
+                };
+                assert_eq!(entries, both, "layer {name}");
                 assert!(
                     t.iter().all(|(_, ms)| ms.is_finite() && *ms >= 0.0),
                     "{t:?}"
@@ -776,7 +788,11 @@ fn compennet_layers_match(ctx: &compend::gpu::GpuContext, wide: Option<&str>) {
     assert_eq!(timed_names, timed, "layers timed ({:?})", ctx.conv);
     if wide.is_none() {
         eprintln!("measured kernels: {timings:?}");
-        assert_eq!(timed.len(), 7, "the wide convolutions a1..a5, res2, res3");
+        assert_eq!(
+            timed.len(),
+            9,
+            "the wide convolutions a1..a5, res2, res3 and the transposed a6, a7"
+        );
         // A second pass on the same device takes the choices timed for these shapes.
         let again = CompensationPass::new(ctx, &model, p).unwrap();
         let Photometric::CompenNet(again) = again.photometric() else {

@@ -78,7 +78,7 @@ pub struct Args {
     /// hundreds of them to reach its working clock.
     #[arg(long, default_value_t = 5)]
     pub warmup: usize,
-    /// How CompenNet's wide convolutions run (the CompenNet columns and a trained residual
+    /// How CompenNet's wide layers run (the CompenNet columns and a trained residual
     /// model's correction): `direct`, `tiled`, or `measured` (each wide layer timed with both
     /// when the pass is built, the faster kept). Default: what playback uses on this adapter
     /// (direct on a CPU driver, measured on a GPU).

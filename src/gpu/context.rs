@@ -7,26 +7,28 @@
 
 use crate::error::{Error, Result};
 
-/// How the backbone's wide convolutions (16 or more output channels; the 3-channel layers and
-/// the transposed convolutions always run the direct kernels) are computed on the GPU. Both
-/// kernels compute the same sums in the same order.
+/// How the backbone's wide layers (16 or more output channels: convolutions, and transposed
+/// convolutions whose kernel is as wide as their stride, uncropped; the 3-channel layers run the
+/// direct kernel) are computed on the GPU. The direct and the tiled kernel of a layer compute
+/// the same sums in the same order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ConvKernels {
-    /// `conv`: each invocation sums 4 pixels × 16 channels straight from the activations.
-    /// Few, long invocations: what a CPU driver (lavapipe) runs fastest (the 256² backbone
-    /// 1.2–1.5× faster than with `tiled` there, in four runs).
+    /// `conv` (`tconv`): each invocation sums 4 pixels (1 pixel) × 16 channels straight from
+    /// the activations. Few, long invocations: what a CPU driver (lavapipe) runs fastest (the
+    /// 256² backbone 1.2–1.5× faster than with `tiled` convolutions there, in four runs).
     Direct,
-    /// `conv_tiled`: each workgroup computes 64 pixels × 64 channels as a matrix product
-    /// staged through workgroup memory: 4 to 16 times the invocations, for a GPU's many cores.
+    /// `conv_tiled` (`tconv_tiled`): each workgroup computes 64 pixels × 64 channels as a
+    /// matrix product staged through workgroup memory: 4 to 16 times the invocations, for a
+    /// GPU's many cores.
     Tiled,
     /// Each wide layer is timed with both kernels on this device when a stage is first built
     /// with its shape, and runs the faster: per wide layer, 2 rounds of each kernel, each
     /// round 2 untimed and 2 timed dispatches of the layer alone, each submitted and waited
-    /// for (16 per layer, 112 for the 7 wide layers: an estimated 0.1 s from the per-layer
-    /// times measured on an H100 and an H200, docs/bench/gpu-h100.md). Playback on the same
-    /// GPU waits behind them. Each layer shape is timed once per device and process; later
-    /// passes take the choice made then.
+    /// for (16 per layer, 144 for the backbone's 9 wide layers: an estimated 0.1 s from the
+    /// per-layer times measured on an H100 and an H200, docs/bench/gpu-h100.md). Playback on
+    /// the same GPU waits behind them. Each layer shape is timed once per device and process;
+    /// later passes take the choice made then.
     Measured,
 }
 
@@ -49,12 +51,17 @@ impl ConvKernels {
         }
     }
 
-    /// The entry points a wide convolution may run with (`shaders/conv.wgsl`).
-    pub(super) fn wide_entries(self) -> &'static [&'static str] {
-        match self {
-            Self::Direct => &["conv"],
-            Self::Tiled => &["conv_tiled"],
-            Self::Measured => &["conv", "conv_tiled"],
+    /// The entry points a wide layer may run with (`shaders/conv.wgsl`): a convolution's, or
+    /// where `transposed`, a transposed convolution's whose kernel is as wide as its stride and
+    /// which crops nothing.
+    pub(super) fn wide_entries(self, transposed: bool) -> &'static [&'static str] {
+        match (self, transposed) {
+            (Self::Direct, false) => &["conv"],
+            (Self::Tiled, false) => &["conv_tiled"],
+            (Self::Measured, false) => &["conv", "conv_tiled"],
+            (Self::Direct, true) => &["tconv"],
+            (Self::Tiled, true) => &["tconv_tiled"],
+            (Self::Measured, true) => &["tconv", "tconv_tiled"],
         }
     }
 }

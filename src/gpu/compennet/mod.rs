@@ -8,7 +8,7 @@
 //! 2. the backbone's 13 convolutions and transposed convolutions (`shaders/conv.wgsl`), each with
 //!    its bias, the constant surface-bias map s1..s4 or skip activation added, ReLU, and the final
 //!    `min(., 1)`; activations are (C, h, w) f32 storage buffers at the layer's resolution; the
-//!    wide convolutions run as [`super::ConvKernels`] says (the context's choice for its adapter);
+//!    wide layers run as [`super::ConvKernels`] says (the context's choice for its adapter);
 //! 3. `store`: the output (projector input values in [0,1]) into the compensation image
 //!    (rgba32float storage texture, network pixels).
 //!
@@ -43,8 +43,8 @@ const WIDE_BLOCK: usize = 4;
 const WG: u32 = 8;
 /// Output pixels per invocation along x of the `conv` kernel (the shader's `P`).
 const PIXELS: u32 = 4;
-/// Tile of the `conv_tiled` kernel: output pixels (the shader's `TM`) and channel vec4s
-/// (`TN4`) per workgroup.
+/// Tile of the `conv_tiled` and `tconv_tiled` kernels: output (input) pixels (the shader's
+/// `TM`) and channel vec4s (`TN4`) per workgroup.
 const TILE_PIXELS: u32 = 64;
 const TILE_VEC4S: u32 = 16;
 
@@ -361,13 +361,16 @@ impl<'c> Builder<'c> {
         }
     }
 
-    /// The entry points `w` may run with: `tconv`; for a wide convolution those of the
-    /// context's [`super::ConvKernels`]; `conv` for the others.
+    /// The entry points `w` may run with: for a wide layer (a convolution, or a transposed one
+    /// whose kernel is as wide as its stride and crops nothing, as the backbone's: the case
+    /// `tconv_tiled` is tested on) those of the context's [`super::ConvKernels`]; `tconv` or
+    /// `conv` for the others.
     fn entries(&self, w: &Weights) -> &'static [&'static str] {
-        if w.transposed {
+        let tileable = !w.transposed || (w.k == w.stride && w.pad == 0);
+        if w.block() == WIDE_BLOCK && tileable {
+            self.ctx.conv.wide_entries(w.transposed)
+        } else if w.transposed {
             &["tconv"]
-        } else if w.block() == WIDE_BLOCK {
-            self.ctx.conv.wide_entries()
         } else {
             &["conv"]
         }
@@ -551,6 +554,12 @@ impl<'c> Builder<'c> {
                     (ow * oh).div_ceil(TILE_PIXELS),
                     cout4.div_ceil(TILE_VEC4S),
                     1,
+                ),
+                // One matrix product per tap, over the input pixels.
+                "tconv_tiled" => (
+                    (params_words.in_size[0] * params_words.in_size[1]).div_ceil(TILE_PIXELS),
+                    cout4.div_ceil(TILE_VEC4S),
+                    (w.k * w.k) as u32,
                 ),
                 "conv" => (
                     ow.div_ceil(PIXELS).div_ceil(WG),
