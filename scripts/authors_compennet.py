@@ -24,6 +24,13 @@ shipped with compend), and
 - compensates the setup's desired test images as their main.py does and writes them to
   SETUP/prj/cmp/test/NAME, where `compend sim score` scores them in closed loop beside compend's.
 
+Recorded data (e.g. `scripts/import_fpc.py`'s) has no desired test images and only the three
+reference captures compend needs (black, white, gray, by name), while their loader reads the
+references by position in a full listing of 126 and the desired images unconditionally. For
+such a setup the script shows their loader the references in a scratch folder, named in order
+(positions it does not read point at the black capture), and a missing `cam/desire/test` as the
+test captures; it then skips the compensation images and the uncompensated row (`null`).
+
 Usage (PyTorch, OpenCV and scikit-image from PyPI: python3 -m pip install torch
 opencv-python-headless scikit-image):
 
@@ -149,6 +156,29 @@ def main():
     import CompenNetPlusplusModel as models
     import trainNetwork as tn
 
+    # Recorded data: references by name, no desired test images (see the module's doc).
+    ref_dir = os.path.join(setup, "cam", "raw", "ref")
+    desire_dir = os.path.join(setup, "cam", "desire", "test")
+    has_desired = os.path.isdir(desire_dir)
+    redirect = {}
+    if not os.path.isfile(os.path.join(ref_dir, "img_0002.png")):
+        refs = os.path.join(scratch, "ref")
+        os.makedirs(refs)
+        for i in range(1, 127):
+            name = f"img_{i:04d}.png"
+            own = os.path.join(ref_dir, name)
+            target = own if os.path.isfile(own) else os.path.join(ref_dir, "img_0001.png")
+            os.symlink(target, os.path.join(refs, name))
+        redirect[os.path.normpath(ref_dir)] = refs
+    if not has_desired:
+        redirect[os.path.normpath(desire_dir)] = os.path.join(setup, "cam", "raw", "test")
+    read_imgs = tn.readImgsMT
+
+    def read_redirected(img_dir, *args, **kwargs):
+        return read_imgs(redirect.get(os.path.normpath(img_dir), img_dir), *args, **kwargs)
+
+    tn.readImgsMT = read_redirected
+
     # Plotting is off in effect: their montage uses an scikit-image argument that no longer
     # exists, and the stand-in would draw nothing anyway.
     tn.plotMontage = lambda *a, **k: None
@@ -203,16 +233,19 @@ def main():
     seconds = time.time() - start
 
     # Compensation of the desired test images, as their main.py does.
-    desire = tn.readImgsMT(os.path.join(setup, "cam", "desire", "test")).to(device)
-    surf = cam_surf.expand_as(desire).to(device)
-    with torch.no_grad():
-        model.simplify(surf[0, ...].unsqueeze(0))
-        model.eval()
-        cmp = model(desire, surf).detach()
-    out = os.path.join(setup, "prj", "cmp", "test", a.name)
-    os.makedirs(out, exist_ok=True)
-    tn.saveImgs(cmp, out)
-    uncmp = tn.computeMetrics(cam_raw_valid, cam_desire_valid)
+    out, uncmp = None, None
+    if has_desired:
+        desire = tn.readImgsMT(desire_dir).to(device)
+        surf = cam_surf.expand_as(desire).to(device)
+        with torch.no_grad():
+            model.simplify(surf[0, ...].unsqueeze(0))
+            model.eval()
+            cmp = model(desire, surf).detach()
+        out = os.path.join(setup, "prj", "cmp", "test", a.name)
+        os.makedirs(out, exist_ok=True)
+        tn.saveImgs(cmp, out)
+        m = tn.computeMetrics(cam_raw_valid, cam_desire_valid)
+        uncmp = {"psnr": m[0], "rmse": m[1], "ssim": m[2]}
     print(
         json.dumps(
             {
@@ -225,7 +258,7 @@ def main():
                 "train_seconds": seconds,
                 "ms_per_sample": 1e3 * seconds / (a.iters * a.batch),
                 "paper": {"psnr": psnr, "rmse": rmse, "ssim": ssim},
-                "uncompensated_paper": {"psnr": uncmp[0], "rmse": uncmp[1], "ssim": uncmp[2]},
+                "uncompensated_paper": uncmp,
                 "compensation_images": out,
             }
         )
