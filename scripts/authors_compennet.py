@@ -162,6 +162,10 @@ def main():
     has_desired = os.path.isdir(desire_dir)
     redirect = {}
     if not os.path.isfile(os.path.join(ref_dir, "img_0002.png")):
+        for name, what in (("img_0001.png", "black"), ("img_0125.png", "white"),
+                           ("img_0126.png", "gray surface")):
+            if not os.path.isfile(os.path.join(ref_dir, name)):
+                sys.exit(f"{os.path.join(ref_dir, name)}: missing (the {what} reference capture)")
         refs = os.path.join(scratch, "ref")
         os.makedirs(refs)
         for i in range(1, 127):

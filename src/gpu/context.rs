@@ -79,7 +79,7 @@ pub struct GpuContext {
     pub adapter: wgpu::Adapter,
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
-    /// How CompenNet's wide convolutions run on this device: [`ConvKernels::for_adapter`]
+    /// How CompenNet's wide layers run on this device: [`ConvKernels::for_adapter`]
     /// unless changed with [`Self::with_conv_kernels`].
     pub conv: ConvKernels,
     /// The layer shapes timed on this device ([`ConvKernels::Measured`]), shared by its clones.
@@ -171,7 +171,7 @@ impl GpuContext {
         })
     }
 
-    /// The same device, building CompenNet's wide convolutions with `conv` (for benchmarks and
+    /// The same device, building CompenNet's wide layers with `conv` (for benchmarks and
     /// tests; passes already built keep theirs).
     pub fn with_conv_kernels(&self, conv: ConvKernels) -> Self {
         Self {
