@@ -228,14 +228,10 @@ fn conv_tiled(
     let last_src = arrayLength(&src) - 1u;
     let last_w = arrayLength(&weight) - 1u;
 
-    // This invocation's channel vec4 and its bias.
+    // This invocation's channel vec4, its bias in each accumulator.
     let n4 = wg.y * TN4 + lid.y;
     let n_ok = n4 < p.cout4;
-    let b = select(vec4<f32>(0.0), bias[min(n4, arrayLength(&bias) - 1u)], n_ok);
-    var acc: array<vec4<f32>, 4>;
-    for (var i = 0u; i < 4u; i++) {
-        acc[i] = b;
-    }
+    var acc = tile_bias(n4);
 
     // The pixel whose A values this invocation stages (column t % TM, rows t / TM + 4·r).
     let mc = t % TM;
@@ -279,6 +275,13 @@ fn conv_tiled(
     }
 }
 
+// The bias of channel vec4 `n4` (zero past cout4) in each of a tiled invocation's 4
+// accumulators.
+fn tile_bias(n4: u32) -> array<vec4<f32>, 4> {
+    let b = select(vec4<f32>(0.0), bias[min(n4, arrayLength(&bias) - 1u)], n4 < p.cout4);
+    return array<vec4<f32>, 4>(b, b, b, b);
+}
+
 // Adds the staged tile (TK rows of K) into the accumulators of invocation `l` (local id): its
 // pixels l.x + 16·i (i = 0..3) of the tile × its channel vec4 l.y, in the order of K.
 fn add_tile(acc: ptr<function, array<vec4<f32>, 4>>, l: vec2<u32>) {
@@ -309,14 +312,10 @@ fn tconv_tiled(
     let last_src = arrayLength(&src) - 1u;
     let last_w = arrayLength(&weight) - 1u;
 
-    // This invocation's channel vec4 and its bias.
+    // This invocation's channel vec4, its bias in each accumulator.
     let n4 = wg.y * TN4 + lid.y;
     let n_ok = n4 < p.cout4;
-    let b = select(vec4<f32>(0.0), bias[min(n4, arrayLength(&bias) - 1u)], n_ok);
-    var acc: array<vec4<f32>, 4>;
-    for (var i = 0u; i < 4u; i++) {
-        acc[i] = b;
-    }
+    var acc = tile_bias(n4);
 
     // The input pixel whose values this invocation stages (column t % TM, rows t / TM + 4·r),
     // and the W vec4 (row t / TN4, column t % TN4 of the tile).
