@@ -239,8 +239,12 @@ def main():
     }
     (setup / "import.json").write_text(json.dumps(record, indent=1) + "\n")
     if a.out.exists():
-        a.out.rmdir()  # checked empty above
-    tmp.rename(a.out)
+        # The empty folder given stays; what was written moves into it.
+        for child in tmp.iterdir():
+            child.rename(a.out / child.name)
+        tmp.rmdir()
+    else:
+        tmp.rename(a.out)
     print(json.dumps({k: record[k] for k in ("left_out", "repaired", "dark_level_8bit")}))
     counts = f"{len(split['train'])} training and {len(split['test'])} test pairs"
     print(f"{counts} in {a.out / a.setup}")
