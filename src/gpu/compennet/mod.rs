@@ -557,7 +557,7 @@ impl<'c> Builder<'c> {
                 ),
                 // One matrix product per tap, over the input pixels.
                 "tconv_tiled" => (
-                    (params_words.in_size[0] * params_words.in_size[1]).div_ceil(TILE_PIXELS),
+                    ((in_size.width * in_size.height) as u32).div_ceil(TILE_PIXELS),
                     cout4.div_ceil(TILE_VEC4S),
                     (w.k * w.k) as u32,
                 ),
