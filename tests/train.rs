@@ -472,12 +472,31 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
         ev["compensated"]["psnr"].as_f64().unwrap() > ev["uncompensated"]["psnr"].as_f64().unwrap()
     );
 
-    // With no margin to clear, the CompenNet++ rung is kept as trained on the 12 pairs.
+    // With no margin to clear, the CompenNet++ rung climbs. Judged as it trained on the 12
+    // pairs, it settled past the margin at the second checkpoint after the start (one per
+    // iteration here) and stopped; the model kept is the rung trained again on all 16 pairs,
+    // for every iteration.
     let climbed = dir.path().join("climbed");
     let meta = train_auto(&setup, &climbed, &["--iters", "3", "--climb-gain", "-1000"]);
     assert_eq!(meta["method"], "compennet++-res", "{meta}");
-    assert_eq!(meta["training"]["auto"]["required_gain_db"], -1000.0);
-    assert_eq!(meta["training"]["ntrain"], 12);
+    let auto = &meta["training"]["auto"];
+    assert_eq!(auto["required_gain_db"], -1000.0);
+    let judged = &auto["judged"];
+    assert_eq!(judged["settled_at"], 2, "{auto}");
+    assert!(judged.get("stopped_at").is_none(), "{auto}");
+    let curve = judged["curve"].as_array().unwrap();
+    assert_eq!(curve.len(), 3, "{auto}");
+    // The candidate's figure is the judged training's last checkpoint.
+    let rung = &auto["candidates"].as_array().unwrap()[2];
+    assert_eq!(rung["method"], "compennet++-res", "{auto}");
+    assert_eq!(curve[2]["psnr"], rung["held_out_psnr"], "{auto}");
+    assert_eq!(auto["retrained"]["pairs"], 16, "{auto}");
+    assert_eq!(auto["retrained"]["method"], "compennet++-res", "{auto}");
+    assert!(
+        auto["retrained"]["seconds"].as_f64().unwrap() > 0.0,
+        "{auto}"
+    );
+    assert_eq!(meta["training"]["ntrain"], 16);
     assert_eq!(meta["training"]["iterations"], 3);
     eval_json(&climbed, &setup);
 

@@ -15,11 +15,12 @@ pub struct Args {
     /// 256² sample (`compennet++-cpu`: about 4–4.5 minutes in all): see --iters. `auto` fits
     /// `linear` and `linear-sl` on all but a sixth of the sampling pairs and scores them on the
     /// held-out ones (paper-protocol PSNR); then trains the CompenNet++ rung the device affords
-    /// (`compennet++-res` on the CPU, `compennet++-res-full` with --device cuda) and keeps it
-    /// only if it beats the rung below by --climb-gain, otherwise refitting the best linear
-    /// rung on all pairs. On a setup with 8 or more closed-loop pairs (a calibration's) that
-    /// rung is judged on the last sixth of those, held out of its training, against its own
-    /// linear part; otherwise on the sampling pairs held out. The evidence goes into
+    /// (`compennet++-res` on the CPU, `compennet++-res-full` with --device cuda), scoring it
+    /// on held-out pairs as it trains, and climbs to it only if it beats the rung below by
+    /// --climb-gain: the rung is then trained again on all pairs. Otherwise it refits the best
+    /// linear rung on all pairs. On a setup with 8 or more closed-loop pairs (a calibration's)
+    /// that rung is judged on the last sixth of those, held out of its training, against its
+    /// own linear part; otherwise on the sampling pairs held out. The evidence goes into
     /// model.json.
     #[arg(long, value_enum)]
     pub method: compend::model::MethodChoice,

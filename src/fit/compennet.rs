@@ -13,7 +13,8 @@ use crate::fov;
 use crate::linear::FitSettings;
 use crate::metrics::Scores;
 use crate::model::store::{
-    AutoCandidate, FORMAT_VERSION, LoopCheckpoint, LoopHeldOut, ModelMeta, Timings, TrainingRecord,
+    AutoCandidate, FORMAT_VERSION, JudgedTraining, LoopCheckpoint, LoopHeldOut, ModelMeta, Timings,
+    TrainingRecord,
 };
 use crate::model::{Method, Model};
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
@@ -23,17 +24,24 @@ use crate::sample::Grid;
 /// paper's, as for fine-tuning.
 const RESIDUAL_LEARNING_RATE: f64 = 2e-4;
 
-/// `auto`'s judgement of the residual rung while it trains ([`LoopHeldOut`]): closed-loop pairs
-/// held out of its training, and the margin it must reach on them.
+/// `auto`'s judgement of the residual rung while it trains ([`LoopHeldOut`]): pairs held out of
+/// its training, and the margin it must reach on them.
 pub(super) struct Judge<'a> {
     /// 1-based indices of the held-out pairs in `captures` and `targets`.
     pub(super) indices: Vec<usize>,
+    /// Whether they are closed-loop pairs, judged on their desired views
+    /// ([`closed_loop_data`]), or sampling pairs, judged by the paper protocol (a capture in,
+    /// its projector image the target).
+    pub(super) closed_loop: bool,
+    /// The held-out PSNR (dB) the rung must beat by the margin; `None`: its own linear part's.
+    pub(super) lower_psnr: Option<f64>,
     /// Every pair, the held-out ones included: captures masked by the FOV (camera pixels) and
     /// projector images (network pixels).
     pub(super) captures: &'a [CamImage],
     pub(super) targets: &'a [NetImage],
     /// The climbing rule: the training stops once the rung cannot reach its margin
-    /// ([`ClimbRule::out_of_reach`]).
+    /// ([`ClimbRule::out_of_reach`]) or once its gain has settled past it
+    /// ([`ClimbRule::settled`]).
     pub(super) rule: ClimbRule,
 }
 
@@ -42,8 +50,9 @@ pub(super) struct Judge<'a> {
 const CHECKPOINTS: usize = 10;
 
 /// Trains a CompenNet++ variant on already masked captures. With a `judge` (the residual rung
-/// only), the rung is scored on the judge's held-out closed-loop pairs as it trains and the
-/// judgement is returned too; the training stops early when it cannot reach the margin.
+/// only), the rung is scored on the judge's held-out pairs as it trains and the judgement is
+/// returned too; the training stops early when it cannot reach the margin, or when its gain has
+/// settled past it.
 pub(super) fn train_compennet(
     setup: &Setup,
     req: &Request,
@@ -56,7 +65,7 @@ pub(super) fn train_compennet(
     use crate::nn::train::Settings;
     if judge.is_some() && !variant.residual() {
         return Err(Error::Failed(format!(
-            "{method}: only the residual rungs are judged on closed-loop pairs as they train"
+            "{method}: only the residual rungs are judged on held-out pairs as they train"
         )));
     }
     let TrainingData {
@@ -163,6 +172,7 @@ pub(super) fn train_compennet(
     let every = (total / CHECKPOINTS).max(1);
     let mut curve: Vec<LoopCheckpoint> = Vec::new();
     let mut last: Option<Scores> = None;
+    let mut settled_at = None;
     let (net, report) = crate::nn::train::train(
         &prepared.data,
         init,
@@ -182,23 +192,33 @@ pub(super) fn train_compennet(
                 psnr: scores.psnr,
             });
             last = Some(scores);
+            let lower = judge.lower_psnr.unwrap_or(held.linear.psnr);
             let gains: Vec<(usize, f64)> = curve
                 .iter()
-                .map(|c| (c.iteration, c.psnr - held.linear.psnr))
+                .map(|c| (c.iteration, c.psnr - lower))
                 .collect();
             let stop = judge.rule.out_of_reach(&gains, total);
             if let (true, [.., (i1, g1), (i2, g2)]) = (stop, gains.as_slice()) {
                 tracing::info!(
                     "auto: {method} stops at iteration {done} of {total}: {g2:+.2} dB over \
-                     `linear` on the held-out closed-loop pairs, its rise slowed to {:+.3} dB \
-                     in the last {} iterations; at that rate it would not reach {:+} dB by the \
-                     end",
+                     the rung below on the held-out pairs, its rise slowed to {:+.3} dB in the \
+                     last {} iterations; at that rate it would not reach {:+} dB by the end",
                     g2 - g1,
                     i2 - i1,
                     judge.rule.gain_db
                 );
             }
-            Ok(!stop)
+            let settled = !stop && done < total && judge.rule.settled(&gains);
+            if let (true, [.., (_, g1), (_, g2)]) = (settled, gains.as_slice()) {
+                tracing::info!(
+                    "auto: {method} stops at iteration {done} of {total}: {g1:+.2} and then \
+                     {g2:+.2} dB over the rung below on the held-out pairs, past the {:+} dB \
+                     margin",
+                    judge.rule.gain_db
+                );
+                settled_at = Some(done);
+            }
+            Ok(!stop && !settled)
         },
     )?;
     let net = weights_to_cpu(net, &prepared.device, prepared.size, variant)?;
@@ -262,9 +282,13 @@ pub(super) fn train_compennet(
                     entry(Method::Linear, &held.linear, 0.0),
                     entry(method, &up, seconds),
                 ],
-                iterations: total,
-                stopped_at: report.stopped_early.then_some(report.iterations),
-                curve,
+                training: JudgedTraining {
+                    iterations: total,
+                    stopped_at: (report.stopped_early && settled_at.is_none())
+                        .then_some(report.iterations),
+                    settled_at,
+                    curve,
+                },
             })
         }
         _ => None,
@@ -272,9 +296,10 @@ pub(super) fn train_compennet(
     Ok((model, summary, judged))
 }
 
-/// The held-out closed-loop pairs of a [`Judge`], for scoring the residual rung as it trains:
-/// the network's inputs (desired views, camera pixels), `linear`'s compensations of them on its
-/// output lattice, and the pairs' targets ([`closed_loop_data`], network pixels).
+/// The held-out pairs of a [`Judge`], for scoring the residual rung as it trains: the network's
+/// inputs (camera pixels: desired views of closed-loop pairs, or sampling captures), `linear`'s
+/// outputs for them on its output lattice, and the pairs' targets (network pixels: from
+/// [`closed_loop_data`], or the projector images).
 struct HeldOut {
     inputs: candle_core::Tensor,
     surface: candle_core::Tensor,
@@ -296,13 +321,34 @@ impl HeldOut {
         let size = judge.targets[0].size();
         let lin =
             |c: &CamImage| crate::resize::unstretch(&simplified.apply(c), size.width, size.height);
-        let (inputs, _, goals) = closed_loop_data(
-            setup,
-            &judge.indices,
-            (fov, grid),
-            (judge.captures, judge.targets),
-            lin,
-        )?;
+        let (inputs, goals) = if judge.closed_loop {
+            let (inputs, _, goals) = closed_loop_data(
+                setup,
+                &judge.indices,
+                (fov, grid),
+                (judge.captures, judge.targets),
+                lin,
+            )?;
+            (inputs, goals)
+        } else {
+            let pair = |i: usize| {
+                let k = i.checked_sub(1);
+                let found = k.and_then(|k| judge.captures.get(k).zip(judge.targets.get(k)));
+                found.ok_or_else(|| {
+                    Error::Failed(format!(
+                        "held-out pair {i} of {} training pairs",
+                        judge.captures.len()
+                    ))
+                })
+            };
+            judge
+                .indices
+                .iter()
+                .map(|&i| pair(i).map(|(c, t)| (c.clone(), t.clone())))
+                .collect::<Result<Vec<_>>>()?
+                .into_iter()
+                .unzip()
+        };
         let lattice: Vec<NetImage> = inputs.iter().map(|d| simplified.apply(d)).collect();
         let linear = Self::scores(lattice.iter().map(|a| a.clamp01()), &goals)?;
         Ok(Self {

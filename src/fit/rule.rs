@@ -110,6 +110,19 @@ impl ClimbRule {
         g2 + rate.max(0.0) * ((total - i2) as f64) < self.gain_db
     }
 
+    /// Whether a climb judged while its rung trains is settled: its gain (as for
+    /// [`ClimbRule::out_of_reach`]) is at or above the margin at the last two checkpoints after
+    /// the start. Its training then stops and the rung climbs: the model kept is the rung
+    /// trained again from its start on every pair (`auto`), so the rest of this training would
+    /// only have refined a figure already past the margin. Two checkpoints, so that one
+    /// checkpoint alone does not decide. A gain that is not a number never settles.
+    pub fn settled(&self, gains: &[(usize, f64)]) -> bool {
+        let [.., (i1, g1), (_, g2)] = gains else {
+            return false;
+        };
+        *i1 > 0 && g1.is_finite() && g2.is_finite() && *g1 >= self.gain_db && *g2 >= self.gain_db
+    }
+
     /// `rule`, the rule of the held-out comparison in words, followed by the rig's
     /// confirmation ([`ClimbRule::confirms`]).
     pub fn describe_on_rig(&self, rule: &str) -> String {
@@ -174,6 +187,21 @@ mod tests {
                 .out_of_reach(&[(0, 0.0), (100, -0.2), (200, -0.3)], 1000)
         );
         assert!(rule.out_of_reach(&[(0, 0.0), (100, f64::NAN)], 1000));
+    }
+
+    #[test]
+    fn a_judged_training_settles_once_two_checkpoints_after_the_start_reach_the_margin() {
+        let rule = ClimbRule { gain_db: 0.5 };
+        assert!(!rule.settled(&[]));
+        assert!(!rule.settled(&[(0, 0.0), (100, 0.7)]));
+        assert!(rule.settled(&[(0, 0.0), (100, 0.5), (200, 0.7)]));
+        assert!(!rule.settled(&[(0, 0.0), (100, 0.49), (200, 0.7)]));
+        assert!(!rule.settled(&[(0, 0.0), (100, 0.6), (200, 0.4)]));
+        assert!(rule.settled(&[(0, 0.0), (100, 0.1), (200, 0.6), (300, 0.8)]));
+        assert!(!rule.settled(&[(0, 0.0), (100, 0.6), (200, f64::NAN)]));
+        assert!(!rule.settled(&[(0, 0.0), (100, f64::INFINITY), (200, 0.6)]));
+        // A negative margin settles at the second checkpoint after the start.
+        assert!(ClimbRule { gain_db: -100.0 }.settled(&[(0, 0.0), (100, -0.2), (200, -0.3)]));
     }
 
     #[test]

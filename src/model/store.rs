@@ -351,6 +351,13 @@ pub struct AutoEvidence {
     /// the only one, `why` says so).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loop_held_out: Option<LoopHeldOut>,
+    /// When the climb was judged on held-out sampling pairs (its figures are among
+    /// `candidates`): how the climb rung's training went there.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub judged: Option<JudgedTraining>,
+    /// When it climbed: the training of the model kept (the judged one saw fewer pairs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub retrained: Option<Retrained>,
     /// The climb rung's live pass timed on the GPU that is to play it, when the caller asked
     /// for it (`calibrate` through a projector window, `train --refresh-hz`): a rung whose pass
     /// does not fit the frame budget is not climbed to.
@@ -376,18 +383,64 @@ pub struct LoopHeldOut {
     /// `linear`, then the climbed rung: PSNR (dB) and SSIM against the targets, and the
     /// climbed rung's training time (`linear`'s is part of it: 0).
     pub scores: Vec<AutoCandidate>,
-    /// The climbed rung's planned iterations (0 in records written before this was recorded).
+    /// How its judged training went: the last point of its curve gives `scores`.
+    #[serde(flatten)]
+    pub training: JudgedTraining,
+}
+
+/// A climb rung's training while `auto` judged it on held-out pairs, scored as it went
+/// ([`crate::fit::ClimbRule`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct JudgedTraining {
+    /// The planned iterations (0 in records written before this was recorded).
     #[serde(default)]
     pub iterations: usize,
-    /// The iteration its training stopped at, when its held-out gain could no longer reach the
-    /// margin ([`crate::fit::ClimbRule::out_of_reach`]); `None` when it ran to the end.
+    /// The iteration it stopped at when its held-out gain could no longer reach the margin
+    /// ([`crate::fit::ClimbRule::out_of_reach`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stopped_at: Option<usize>,
-    /// The climbed rung's PSNR on the held-out pairs as it trained, its output computed as
-    /// inference computes it: at iteration 0 (its correction at zero, so `linear`'s own
-    /// figure) and every tenth of its iterations. The last point gives `scores`.
+    /// The iteration it stopped at when its held-out gain had settled at or above the margin
+    /// ([`crate::fit::ClimbRule::settled`]): the rung climbs. Neither this nor `stopped_at`:
+    /// it ran to the end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settled_at: Option<usize>,
+    /// Its PSNR (dB) on the held-out pairs as it trained, its output computed as inference
+    /// computes it: at iteration 0 (its correction at zero, so its own linear part's figure)
+    /// and every tenth of its iterations.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub curve: Vec<LoopCheckpoint>,
+}
+
+impl JudgedTraining {
+    /// Where it stopped and why, in words after a `;`; empty when it ran to the end.
+    pub fn stop(&self) -> String {
+        match (self.stopped_at, self.settled_at) {
+            (Some(at), _) => format!(
+                "; its training stopped at iteration {at} of {}, its gain out of reach of the \
+                 margin",
+                self.iterations
+            ),
+            (None, Some(at)) => format!(
+                "; its training stopped at iteration {at} of {}, its gain settled past the \
+                 margin",
+                self.iterations
+            ),
+            (None, None) => String::new(),
+        }
+    }
+}
+
+/// The model `auto` keeps after a climb (unless the rig then keeps the linear rung): the
+/// climbed rung trained again from its start, on every training pair (the held-out ones
+/// included), with the same settings and seed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Retrained {
+    /// The climbed rung (the rig may still keep the linear rung instead: `chosen`).
+    pub method: Method,
+    /// Training pairs.
+    pub pairs: usize,
+    /// Time of this training, seconds.
+    pub seconds: f64,
 }
 
 /// One point of [`LoopHeldOut::curve`].
@@ -445,6 +498,14 @@ impl AutoEvidence {
                 figures.join(", ")
             ));
         }
+        if let Some(j) = &self.judged {
+            let curve: Vec<String> = j.curve.iter().map(|c| format!("{:.2}", c.psnr)).collect();
+            out.push(format!(
+                "auto: the climb rung on the held-out pairs as it trained: {} dB{}",
+                curve.join(", "),
+                j.stop()
+            ));
+        }
         if let Some(why) = &self.why {
             out.push(format!("auto: {why}"));
         }
@@ -476,11 +537,7 @@ impl AutoEvidence {
                 l.pairs,
                 l.trained_on,
                 figures.join(", "),
-                l.stopped_at.map_or(String::new(), |at| format!(
-                    "; its training stopped at iteration {at} of {}, its gain out of reach of \
-                     the margin",
-                    l.iterations
-                ))
+                l.training.stop()
             ));
         }
         if !self.closed_loop.is_empty() {
@@ -506,6 +563,13 @@ impl AutoEvidence {
             "auto: chose {} by the rule: {}",
             self.chosen, self.rule
         ));
+        if let Some(r) = &self.retrained {
+            out.push(format!(
+                "auto: having climbed, {} trained again from its start on all {} training \
+                 pairs ({:.1} s)",
+                r.method, r.pairs, r.seconds
+            ));
+        }
         if !self.chosen.is_linear() && self.closed_loop.is_empty() && self.loop_held_out.is_none() {
             out.push(
                 "auto: this climb rests on held-out captures alone, where capture noise favours \
@@ -773,4 +837,44 @@ pub fn save(dir: &Path, meta: &ModelMeta, tensors: &Tensors) -> Result<()> {
         let _ = fs::remove_dir_all(&tmp);
     }
     result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_judgement_on_closed_loop_pairs_reads_as_written_before_and_now() {
+        // As a model written before `iterations` and `settled_at` were recorded has it.
+        let older = r#"{"pairs": 4, "trained_on": 8, "scores": [],
+            "stopped_at": 300, "curve": [{"iteration": 0, "psnr": 30.5}]}"#;
+        let l: LoopHeldOut = serde_json::from_str(older).unwrap();
+        assert_eq!(l.training.iterations, 0);
+        assert_eq!(l.training.stopped_at, Some(300));
+        assert_eq!(l.training.settled_at, None);
+        assert_eq!(l.training.curve.len(), 1);
+        assert!(l.training.stop().contains("out of reach"));
+        // Now: the judged training's fields sit beside the pairs, as before.
+        let now = LoopHeldOut {
+            training: JudgedTraining {
+                iterations: 1000,
+                settled_at: Some(300),
+                ..l.training.clone()
+            },
+            ..l
+        };
+        let json = serde_json::to_value(&now).unwrap();
+        assert_eq!(json["settled_at"], 300, "{json}");
+        assert_eq!(json["iterations"], 1000, "{json}");
+        assert!(json.get("training").is_none(), "{json}");
+        assert_eq!(serde_json::from_value::<LoopHeldOut>(json).unwrap(), now);
+        // Out of reach is said first: it is the one that stopped the training.
+        assert!(now.training.stop().contains("out of reach"));
+        let settled = JudgedTraining {
+            stopped_at: None,
+            ..now.training
+        };
+        assert!(settled.stop().contains("settled past the margin"));
+        assert_eq!(JudgedTraining::default().stop(), "");
+    }
 }

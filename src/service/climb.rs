@@ -3,9 +3,9 @@
 //! captures. It is judged on the calibration's held-out test pairs (captured, never trained on;
 //! the paper protocol) against the installed model; a residual rung on a calibration with
 //! closed-loop pairs is judged as `auto` judges it, on some of those held out of its training
-//! against its own linear part ([`fit::judge_on_loop_pairs`]). Only if it beats it there by
-//! `climb_gain_db` ([`fit::ClimbRule`], the rule of `--method auto`) does it become a
-//! [`Candidate`]: the playback ends, the engine projects the verification images compensated by
+//! against its own linear part, and trained again on every pair when it climbs
+//! ([`fit::judge_on_loop_pairs`]). Only if it beats it there by `climb_gain_db`
+//! ([`fit::ClimbRule`], the rule of `--method auto`) does it become a [`Candidate`]: the playback ends, the engine projects the verification images compensated by
 //! both models ([`crate::calibrate::verify_after`]), and [`settle`] installs the candidate (the
 //! atomic model-directory swap) only if the rig confirms the margin in closed loop
 //! ([`fit::ClimbRule::confirms`]); playback then resumes with the model installed. The viewer
@@ -198,7 +198,7 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
     // The residual rung on a calibration with closed-loop pairs is judged as `auto` judges it,
     // on some of them held out of its training (which stops early when it cannot reach the
     // margin); otherwise on the test pairs.
-    let (mut model, new, old, loop_held_out) =
+    let (model, new, old, loop_held_out) =
         match fit::judge_on_loop_pairs(&setup, &req, rule, |_, _, _| {})? {
             Some((model, judged)) => {
                 let psnr = |i: usize| judged.scores.get(i).map_or(f64::NAN, |c| c.held_out_psnr);
@@ -209,7 +209,7 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
                 let pairs = setup.load_test(None)?;
                 let (new, _) = crate::model::paper_protocol(&model, &pairs)?;
                 let (old, _) = crate::model::paper_protocol(&installed, &pairs)?;
-                (model, new.psnr, old.psnr, None)
+                (Some(model), new.psnr, old.psnr, None)
             }
         };
     let record = ClimbRecord {
@@ -224,9 +224,11 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
     if let Some(w) = rule.caveat("[calibration] climb_gain_db") {
         tracing::warn!("progressive calibration: {w}");
     }
-    if !rule.climbs(new, old) {
+    // A residual rung judged on closed-loop pairs comes trained again on every pair when it
+    // climbs, and with no model when it does not.
+    let Some(mut model) = model.filter(|_| rule.climbs(new, old)) else {
         return Ok(Outcome::Kept(record));
-    }
+    };
     // The climbed model plays with the calibration it was trained on (its exposure, range and
     // latency).
     let Some(mut calibration) = installed.meta.calibration.clone() else {

@@ -501,10 +501,7 @@ impl SceneBench<'_> {
                             "; on {} held-out closed-loop pairs: {} dB{}",
                             l.pairs,
                             psnr.join(", "),
-                            l.stopped_at.map_or(String::new(), |at| format!(
-                                " (its training stopped at iteration {at} of {})",
-                                l.iterations
-                            ))
+                            l.training.stop()
                         )
                     })
                 );
