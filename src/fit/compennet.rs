@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use super::rule::ClimbRule;
+use super::rule::{ClimbRule, Stop};
 use super::{Request, Summary, TrainingData, common_record, sl_grid};
 use crate::dataset::{Reference, Setup};
 use crate::error::{Error, Result};
@@ -197,8 +197,8 @@ pub(super) fn train_compennet(
                 .iter()
                 .map(|c| (c.iteration, c.psnr - lower))
                 .collect();
-            let stop = judge.rule.out_of_reach(&gains, total);
-            if let (true, [.., (i1, g1), (i2, g2)]) = (stop, gains.as_slice()) {
+            let stop = judge.rule.stop_at(&gains, done, total);
+            if let (Some(Stop::OutOfReach), [.., (i1, g1), (i2, g2)]) = (stop, gains.as_slice()) {
                 tracing::info!(
                     "auto: {method} stops at iteration {done} of {total}: {g2:+.2} dB over \
                      the rung below on the held-out pairs, its rise slowed to {:+.3} dB in the \
@@ -208,8 +208,7 @@ pub(super) fn train_compennet(
                     judge.rule.gain_db
                 );
             }
-            let settled = !stop && done < total && judge.rule.settled(&gains);
-            if let (true, [.., (_, g1), (_, g2)]) = (settled, gains.as_slice()) {
+            if let (Some(Stop::Settled), [.., (_, g1), (_, g2)]) = (stop, gains.as_slice()) {
                 tracing::info!(
                     "auto: {method} stops at iteration {done} of {total}: {g1:+.2} and then \
                      {g2:+.2} dB over the rung below on the held-out pairs, past the {:+} dB \
@@ -218,7 +217,7 @@ pub(super) fn train_compennet(
                 );
                 settled_at = Some(done);
             }
-            Ok(!stop && !settled)
+            Ok(stop.is_none())
         },
     )?;
     let net = weights_to_cpu(net, &prepared.device, prepared.size, variant)?;
@@ -365,15 +364,20 @@ impl HeldOut {
     /// output, the sum brought into [0, 1] (what the projector can show), then to the targets'
     /// size.
     fn score(&self, net: &crate::nn::compennetpp::CompenNetPP) -> Result<Scores> {
-        let r = net
-            .forward(&self.inputs, &self.surface)?
-            .to_device(&candle_core::Device::Cpu)?;
-        let outputs = (0..self.goals.len())
-            .map(|k| {
+        // A few pairs at a time: a large data set holds many pairs out, each a camera image.
+        const CHUNK: usize = 8;
+        let n = self.goals.len();
+        let mut outputs = Vec::with_capacity(n);
+        for lo in (0..n).step_by(CHUNK) {
+            let len = CHUNK.min(n - lo);
+            let r = net
+                .forward(&self.inputs.narrow(0, lo, len)?, &self.surface)?
+                .to_device(&candle_core::Device::Cpu)?;
+            for k in 0..len {
                 let r: NetImage = crate::nn::tensor_to_image(&r, k)?;
-                crate::model::add_correction(&self.lattice[k], &r)
-            })
-            .collect::<Result<Vec<_>>>()?;
+                outputs.push(crate::model::add_correction(&self.lattice[lo + k], &r)?);
+            }
+        }
         Self::scores(outputs.into_iter(), &self.goals)
     }
 

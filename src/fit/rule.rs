@@ -22,6 +22,15 @@ impl Default for ClimbRule {
     }
 }
 
+/// Why a judged training stopped before its end ([`ClimbRule::stop_at`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stop {
+    /// Its gain cannot reach the margin by the end.
+    OutOfReach,
+    /// Its gain is past the margin: it climbs.
+    Settled,
+}
+
 /// The default margin of [`ClimbRule`], dB.
 pub const DEFAULT_CLIMB_GAIN_DB: f64 = 0.5;
 
@@ -115,12 +124,33 @@ impl ClimbRule {
     /// the start. Its training then stops and the rung climbs: the model kept is the rung
     /// trained again from its start on every pair (`auto`), so the rest of this training would
     /// only have refined a figure already past the margin. Two checkpoints, so that one
-    /// checkpoint alone does not decide. A gain that is not a number never settles.
+    /// checkpoint alone does not decide. A gain that is not a number never settles, and nor
+    /// does any gain against a margin below zero (a margin that forces a climb, which then
+    /// shows the whole curve: docs/bench/ladder.md).
     pub fn settled(&self, gains: &[(usize, f64)]) -> bool {
         let [.., (i1, g1), (_, g2)] = gains else {
             return false;
         };
-        *i1 > 0 && g1.is_finite() && g2.is_finite() && *g1 >= self.gain_db && *g2 >= self.gain_db
+        self.gain_db >= 0.0
+            && *i1 > 0
+            && g1.is_finite()
+            && g2.is_finite()
+            && *g1 >= self.gain_db
+            && *g2 >= self.gain_db
+    }
+
+    /// Whether a judged training stops at its checkpoint at iteration `done` of `total`, and
+    /// why ([`ClimbRule::out_of_reach`] first, then [`ClimbRule::settled`]); `gains` as for
+    /// those, this checkpoint's last. The last iteration is never a stop: the training ends
+    /// there anyway.
+    pub fn stop_at(&self, gains: &[(usize, f64)], done: usize, total: usize) -> Option<Stop> {
+        if self.out_of_reach(gains, total) {
+            Some(Stop::OutOfReach)
+        } else if done < total && self.settled(gains) {
+            Some(Stop::Settled)
+        } else {
+            None
+        }
     }
 
     /// `rule`, the rule of the held-out comparison in words, followed by the rig's
@@ -200,8 +230,31 @@ mod tests {
         assert!(rule.settled(&[(0, 0.0), (100, 0.1), (200, 0.6), (300, 0.8)]));
         assert!(!rule.settled(&[(0, 0.0), (100, 0.6), (200, f64::NAN)]));
         assert!(!rule.settled(&[(0, 0.0), (100, f64::INFINITY), (200, 0.6)]));
-        // A negative margin settles at the second checkpoint after the start.
-        assert!(ClimbRule { gain_db: -100.0 }.settled(&[(0, 0.0), (100, -0.2), (200, -0.3)]));
+        // A margin of zero settles; one below zero never does.
+        assert!(ClimbRule { gain_db: 0.0 }.settled(&[(0, 0.0), (100, 0.0), (200, 0.1)]));
+        assert!(!ClimbRule { gain_db: -100.0 }.settled(&[(0, 0.0), (100, 0.2), (200, 0.3)]));
+        // Out of reach is the stop where both would hold (it cannot: a gain past the margin is
+        // in reach); neither stops the last iteration but out of reach, which it never is there.
+        assert_eq!(
+            rule.stop_at(&[(0, 0.0), (100, 0.6), (200, 0.7)], 200, 1000),
+            Some(Stop::Settled)
+        );
+        assert_eq!(
+            rule.stop_at(&[(0, 0.0), (100, 0.6), (200, 0.7)], 1000, 1000),
+            None
+        );
+        assert_eq!(
+            rule.stop_at(&[(0, 0.0), (100, 0.3), (200, 0.31)], 200, 1000),
+            Some(Stop::OutOfReach)
+        );
+        assert_eq!(
+            rule.stop_at(&[(0, 0.0), (100, 0.1), (200, 0.2)], 200, 1000),
+            None
+        );
+        assert_eq!(
+            rule.stop_at(&[(0, 0.0), (100, f64::NAN)], 100, 1000),
+            Some(Stop::OutOfReach)
+        );
     }
 
     #[test]

@@ -566,8 +566,15 @@ impl AutoEvidence {
         if let Some(r) = &self.retrained {
             out.push(format!(
                 "auto: having climbed, {} trained again from its start on all {} training \
-                 pairs ({:.1} s)",
-                r.method, r.pairs, r.seconds
+                 pairs ({:.1} s){}",
+                r.method,
+                r.pairs,
+                r.seconds,
+                if self.chosen == r.method {
+                    String::new()
+                } else {
+                    format!("; the rig then kept {}", self.chosen)
+                }
             ));
         }
         if !self.chosen.is_linear() && self.closed_loop.is_empty() && self.loop_held_out.is_none() {
