@@ -265,6 +265,39 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     let held = &m["training"]["auto"]["loop_held_out"];
     assert_eq!(held["pairs"], 4, "{m}");
     assert_eq!(held["trained_on"], 8, "{m}");
+    // The service's progressive climb judges the residual rung the same way: a climb comes
+    // with the rung trained again on every pair, and no climb with no model.
+    let setup = compend::dataset::Setup::open(&data.join("capture"), None).unwrap();
+    let req = compend::fit::Request {
+        method: compend::model::MethodChoice::Rung(compend::model::Method::CompenNetPpRes),
+        ntrain: None,
+        seed: 0,
+        iters: Some(3),
+        batch: None,
+        device: compend::fit::TrainDevice::Cpu,
+        lattice: None,
+        projector: None,
+        photometric: Default::default(),
+        cancel: None,
+        climb_gain_db: None,
+        climb_later: false,
+        geometry_memo: None,
+        live: None,
+    };
+    let judge = |gain_db: f64| {
+        let rule = compend::fit::ClimbRule { gain_db };
+        compend::fit::judge_on_loop_pairs(&setup, &req, rule, |_, _, _| {})
+            .unwrap()
+            .unwrap()
+    };
+    let (model, judged) = judge(-1000.0);
+    let model = model.expect("a climb comes with its model");
+    assert_eq!(model.meta.training.ntrain, 24);
+    assert_eq!(judged.pairs, 4);
+    assert_eq!(judged.trained_on, 8);
+    let (model, judged) = judge(1000.0);
+    assert!(model.is_none());
+    assert_eq!(judged.scores.len(), 2);
     // A damaged held-out desired view: exit 2 naming it, and no model.
     let view = data.join("capture/cam/desire/train/img_0024.png");
     std::fs::write(&view, b"not a png").unwrap();
