@@ -329,6 +329,34 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     // all 12.
     assert_eq!(m["training"]["auto"]["judged"]["iterations"], 3, "{m}");
     assert_eq!(m["training"]["auto"]["retrained"]["pairs"], 12, "{m}");
+    // `train --method auto` on that setup, whose 5 closed-loop pairs now follow the 12: judged
+    // on the sampling pairs, the rung is trained again on those 12 alone, as it was judged
+    // (paper protocol), not with its correction on the 5 closed-loop pairs.
+    let again = dir.path().join("again");
+    let o = compend(&[
+        "train",
+        "--setup",
+        few.join("capture").to_str().unwrap(),
+        "--method",
+        "auto",
+        "--iters",
+        "3",
+        "--climb-gain",
+        "-1000",
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    assert_code(&o, 0);
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(again.join("model.json")).unwrap()).unwrap();
+    assert_eq!(m["method"], "compennet++-res", "{m}");
+    assert_eq!(m["training"]["auto"]["retrained"]["pairs"], 12, "{m}");
+    assert_eq!(m["training"]["ntrain"], 12, "{m}");
+    assert_eq!(
+        m["training"]["correction"],
+        "12 pairs, paper protocol (input a capture, target its projector image)",
+        "{m}"
+    );
     assert_eq!(
         m["training"]["correction"],
         "12 pairs, paper protocol (input a capture, target its projector image)",

@@ -17,7 +17,8 @@ pub struct Args {
     /// held-out ones (paper-protocol PSNR); then trains the CompenNet++ rung the device affords
     /// (`compennet++-res` on the CPU, `compennet++-res-full` with --device cuda), scoring it
     /// on held-out pairs as it trains, and climbs to it only if it beats the rung below by
-    /// --climb-gain: the rung is then trained again on all pairs. Otherwise it refits the best
+    /// --climb-gain: the rung is then trained again on the held-out pairs too (every pair when
+    /// judged on closed-loop pairs, every sampling pair otherwise). Otherwise it refits the best
     /// linear rung on all pairs. On a setup with 8 or more closed-loop pairs (a calibration's)
     /// that rung is judged on the last sixth of those, held out of its training, against its
     /// own linear part; otherwise on the sampling pairs held out. The evidence goes into

@@ -485,7 +485,8 @@ fn retrain(
 /// judged as `auto` judges its climb on a
 /// setup with closed-loop pairs (see the module documentation): on every pair but the last
 /// sixth of the closed-loop ones, then on those against its own linear part; its training
-/// stops early when it cannot reach `rule`'s margin. For the service's progressive
+/// stops early when it cannot reach `rule`'s margin, or once it has been past it at two
+/// checkpoints in a row. For the service's progressive
 /// calibration, which climbs by `auto`'s rule. Returns the judgement, and when it climbs by
 /// `rule`, the rung trained again on every pair ([`retrain`]). `None` when the request is
 /// another rung or the setup has too few closed-loop pairs ([`judges_on_loop_pairs`]).
@@ -504,8 +505,13 @@ pub fn judge_on_loop_pairs(
         return Ok(None);
     };
     super::check_request(req, Some(variant))?;
+    // The judged training and the retraining see the same first pairs: one geometry fit.
     let every = Request {
         ntrain: None,
+        geometry_memo: req
+            .geometry_memo
+            .clone()
+            .or_else(|| Some(Default::default())),
         ..super::with_lattice(setup, req, Some(variant))?
     };
     let n = super::train_count(setup, &every, Some(variant))?;

@@ -77,7 +77,9 @@ impl ClimbRule {
              out of its training, its compensations of the desired views come at least {} dB \
              closer (PSNR) than `linear`'s to the projector \
              images that move the captures towards those views (its training stops early once \
-             its gain there has slowed too much to reach that margin){}",
+             its gain there has slowed too much to reach that margin, or once it has been past \
+             it at two checkpoints in a row; a rung that climbs is then trained again on every \
+             pair){}",
             self.gain_db,
             if self.gain_db < 0.0 {
                 " (a negative margin: a rung that scores lower can be kept)"
@@ -141,7 +143,7 @@ impl ClimbRule {
 
     /// Whether a judged training stops at its checkpoint at iteration `done` of `total`, and
     /// why ([`ClimbRule::out_of_reach`] first, then [`ClimbRule::settled`]); `gains` as for
-    /// those, this checkpoint's last. The last iteration is never a stop: the training ends
+    /// those, this checkpoint's last. The last iteration never settles: the training ends
     /// there anyway.
     pub fn stop_at(&self, gains: &[(usize, f64)], done: usize, total: usize) -> Option<Stop> {
         if self.out_of_reach(gains, total) {

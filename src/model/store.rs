@@ -431,8 +431,10 @@ impl JudgedTraining {
 }
 
 /// The model `auto` keeps after a climb (unless the rig then keeps the linear rung): the
-/// climbed rung trained again from its start, on every training pair (the held-out ones
-/// included), with the same settings and seed.
+/// climbed rung trained again from its start, with the same settings and seed, on every pair
+/// of the kind it was judged on, the held-out ones included (every pair when judged on
+/// closed-loop pairs; the sampling pairs, without closed-loop pairs after them, when judged on
+/// sampling pairs).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Retrained {
     /// The climbed rung (the rig may still keep the linear rung instead: `chosen`).
@@ -565,8 +567,8 @@ impl AutoEvidence {
         ));
         if let Some(r) = &self.retrained {
             out.push(format!(
-                "auto: having climbed, {} trained again from its start on all {} training \
-                 pairs ({:.1} s){}",
+                "auto: having climbed, {} trained again from its start on {} pairs, the \
+                 held-out ones included ({:.1} s){}",
                 r.method,
                 r.pairs,
                 r.seconds,

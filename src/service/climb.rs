@@ -197,7 +197,8 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
     let rule = fit::ClimbRule { gain_db: p.gain_db };
     // The residual rung on a calibration with closed-loop pairs is judged as `auto` judges it,
     // on some of them held out of its training (which stops early when it cannot reach the
-    // margin); otherwise on the test pairs.
+    // margin or has settled past it), then trained again on every pair if it climbs; otherwise
+    // on the test pairs.
     let (model, new, old, loop_held_out) =
         match fit::judge_on_loop_pairs(&setup, &req, rule, |_, _, _| {})? {
             Some((model, judged)) => {
