@@ -242,8 +242,7 @@ pub(super) fn fit_auto(
                 rule,
                 &mut progress,
             )?;
-            let psnr = |i: usize| judged.scores.get(i).map_or(f64::NAN, |c| c.held_out_psnr);
-            let (up, lin) = (psnr(1), psnr(0));
+            let (up, lin) = judged.figures();
             loop_held_out = Some(judged);
             (up, lin)
         } else {
@@ -529,8 +528,8 @@ pub fn judge_on_loop_pairs(
         rule,
         &mut progress,
     )?;
-    let psnr = |i: usize| judged.scores.get(i).map_or(f64::NAN, |c| c.held_out_psnr);
-    if !rule.climbs(psnr(1), psnr(0)) {
+    let (up, lin) = judged.figures();
+    if !rule.climbs(up, lin) {
         return Ok(Some((None, judged)));
     }
     let (model, _, _) = retrain(setup, &every, (rung, variant), &data, progress)?;

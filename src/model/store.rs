@@ -388,6 +388,15 @@ pub struct LoopHeldOut {
     pub training: JudgedTraining,
 }
 
+impl LoopHeldOut {
+    /// The held-out PSNR (dB) of the climbed rung and of `linear`, in that order; not a number
+    /// where a score is missing (a climb never follows from one).
+    pub fn figures(&self) -> (f64, f64) {
+        let psnr = |i: usize| self.scores.get(i).map_or(f64::NAN, |c| c.held_out_psnr);
+        (psnr(1), psnr(0))
+    }
+}
+
 /// A climb rung's training while `auto` judged it on held-out pairs, scored as it went
 /// ([`crate::fit::ClimbRule`]).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -863,6 +872,9 @@ mod tests {
         assert_eq!(l.training.settled_at, None);
         assert_eq!(l.training.curve.len(), 1);
         assert!(l.training.stop().contains("out of reach"));
+        // No scores: figures that climb nowhere.
+        let (up, lin) = l.figures();
+        assert!(up.is_nan() && lin.is_nan());
         // Now: the judged training's fields sit beside the pairs, as before.
         let now = LoopHeldOut {
             training: JudgedTraining {

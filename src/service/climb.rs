@@ -202,8 +202,8 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
     let (model, new, old, loop_held_out) =
         match fit::judge_on_loop_pairs(&setup, &req, rule, |_, _, _| {})? {
             Some((model, judged)) => {
-                let psnr = |i: usize| judged.scores.get(i).map_or(f64::NAN, |c| c.held_out_psnr);
-                (model, psnr(1), psnr(0), Some(judged))
+                let (up, lin) = judged.figures();
+                (model, up, lin, Some(judged))
             }
             None => {
                 let (model, _) = fit::fit(&setup, &req, |_, _, _| {})?;
