@@ -172,7 +172,8 @@ pub(super) fn train_compennet(
     let every = (total / CHECKPOINTS).max(1);
     let mut curve: Vec<LoopCheckpoint> = Vec::new();
     let mut last: Option<Scores> = None;
-    let mut settled_at = None;
+    // Where the judged training stopped early, and why.
+    let mut stopped: Option<(usize, Stop)> = None;
     let (net, report) = crate::nn::train::train(
         &prepared.data,
         init,
@@ -215,8 +216,8 @@ pub(super) fn train_compennet(
                      margin",
                     judge.rule.gain_db
                 );
-                settled_at = Some(done);
             }
+            stopped = stop.map(|s| (done, s));
             Ok(stop.is_none())
         },
     )?;
@@ -274,6 +275,7 @@ pub(super) fn train_compennet(
                 held_out_ssim: s.ssim,
                 fit_seconds,
             };
+            let at = |why: Stop| stopped.filter(|(_, s)| *s == why).map(|(i, _)| i);
             Some(LoopHeldOut {
                 pairs: judge.indices.len(),
                 trained_on: correction.loop_pairs(),
@@ -283,9 +285,8 @@ pub(super) fn train_compennet(
                 ],
                 training: JudgedTraining {
                     iterations: total,
-                    stopped_at: (report.stopped_early && settled_at.is_none())
-                        .then_some(report.iterations),
-                    settled_at,
+                    stopped_at: at(Stop::OutOfReach),
+                    settled_at: at(Stop::Settled),
                     curve,
                 },
             })

@@ -235,8 +235,7 @@ mod tests {
         // A margin of zero settles; one below zero never does.
         assert!(ClimbRule { gain_db: 0.0 }.settled(&[(0, 0.0), (100, 0.0), (200, 0.1)]));
         assert!(!ClimbRule { gain_db: -100.0 }.settled(&[(0, 0.0), (100, 0.2), (200, 0.3)]));
-        // Out of reach is the stop where both would hold (it cannot: a gain past the margin is
-        // in reach); neither stops the last iteration but out of reach, which it never is there.
+        // Settled stops only before the last iteration; out of reach is checked first.
         assert_eq!(
             rule.stop_at(&[(0, 0.0), (100, 0.6), (200, 0.7)], 200, 1000),
             Some(Stop::Settled)
