@@ -269,20 +269,10 @@ fn auto_climbs_only_when_the_rig_confirms_it_in_closed_loop() {
     // with the rung trained again on every pair, and no climb with no model.
     let setup = compend::dataset::Setup::open(&data.join("capture"), None).unwrap();
     let req = compend::fit::Request {
-        method: compend::model::MethodChoice::Rung(compend::model::Method::CompenNetPpRes),
-        ntrain: None,
-        seed: 0,
         iters: Some(3),
-        batch: None,
-        device: compend::fit::TrainDevice::Cpu,
-        lattice: None,
-        projector: None,
-        photometric: Default::default(),
-        cancel: None,
-        climb_gain_db: None,
-        climb_later: false,
-        geometry_memo: None,
-        live: None,
+        ..compend::fit::Request::new(compend::model::MethodChoice::Rung(
+            compend::model::Method::CompenNetPpRes,
+        ))
     };
     let judge = |gain_db: f64| {
         let rule = compend::fit::ClimbRule { gain_db };

@@ -566,22 +566,19 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
 /// The fit the calibration asks for, on its `ntrain` sampling pairs, sharing `geometry`.
 fn request(opts: &Options, geometry: &Arc<crate::linear::GeometryMemo>) -> Request {
     Request {
-        method: opts.method,
         ntrain: Some(opts.patterns.ntrain),
         seed: opts.fit_seed,
         iters: opts
             .iters
             .filter(|_| !matches!(opts.method, MethodChoice::Rung(m) if m.is_linear())),
-        batch: None,
         device: opts.device,
-        lattice: None,
         projector: Some(opts.patterns.projector),
-        photometric: Default::default(),
         cancel: opts.cancel.clone(),
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
         climb_later: climbs_on_loop_pairs(opts),
         geometry_memo: Some(geometry.clone()),
         live: opts.live.clone(),
+        ..Request::new(opts.method)
     }
 }
 

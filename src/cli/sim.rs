@@ -204,20 +204,9 @@ pub fn loop_pairs(
     use compend::model::{Method, MethodChoice};
     let ntrain = record.train_captures;
     let req = compend::fit::Request {
-        method: MethodChoice::Rung(Method::Linear),
         ntrain: Some(ntrain),
         seed: record.seed,
-        iters: None,
-        batch: None,
-        device: Default::default(),
-        lattice: None,
-        projector: None,
-        photometric: Default::default(),
-        cancel: None,
-        climb_gain_db: None,
-        climb_later: false,
-        geometry_memo: None,
-        live: None,
+        ..compend::fit::Request::new(MethodChoice::Rung(Method::Linear))
     };
     let (model, _) = compend::fit::fit(setup, &req, |_, _, _| {})
         .context("fitting linear for the closed-loop pairs")?;

@@ -92,7 +92,6 @@ pub fn run(args: Args) -> Result<()> {
     // Before any work: only a model directory is ever replaced, and the place must be writable.
     compend::model::store::check_output(&out)?;
     let req = Request {
-        method: args.method,
         ntrain: args.ntrain,
         seed: args.seed,
         iters: args.iters,
@@ -109,17 +108,14 @@ pub fn run(args: Args) -> Result<()> {
                 )
             })?),
         },
-        projector: None,
         photometric: args.photometric_init.clone(),
-        cancel: None,
         climb_gain_db: args.climb_gain,
-        climb_later: false,
-        geometry_memo: None,
         live: super::refresh_timer(
             args.refresh_hz,
             args.method == compend::model::MethodChoice::Auto,
             &format!("{} is one rung", args.method),
         )?,
+        ..Request::new(args.method)
     };
     if let Some(w) = args
         .climb_gain

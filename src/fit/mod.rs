@@ -84,6 +84,32 @@ pub struct Request {
     pub live: Option<std::sync::Arc<dyn LivePass>>,
 }
 
+impl Request {
+    /// `method` on every available pair (see [`Request::ntrain`]), seed 0, its schedule's
+    /// iterations and batch, on the CPU, the default lattice and photometric start, no
+    /// cancellation, `auto` with the default margin and its climb judged now, retrained at once
+    /// and not weighed for a live pass: what a caller changes is then written beside
+    /// `..Request::new(method)`.
+    pub fn new(method: MethodChoice) -> Self {
+        Request {
+            method,
+            ntrain: None,
+            seed: 0,
+            iters: None,
+            batch: None,
+            device: TrainDevice::Cpu,
+            lattice: None,
+            projector: None,
+            photometric: Default::default(),
+            cancel: None,
+            climb_gain_db: None,
+            climb_later: false,
+            geometry_memo: None,
+            live: None,
+        }
+    }
+}
+
 /// The default output lattice of the `linear` rungs: the projector's resolution (`projector`,
 /// when the setup knows it), scaled down to at most [`LATTICE_BUDGET`] pixels with its aspect
 /// kept; without it, 1.5× the network size. Sides are rounded up to a multiple of 4 (256² →

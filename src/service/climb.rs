@@ -179,20 +179,11 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Outcome> {
     let residual =
         crate::nn::compennetpp::Variant::from_method(p.method.name()).is_some_and(|v| v.residual());
     let req = fit::Request {
-        method: MethodChoice::Rung(p.method),
-        ntrain: None,
-        seed: 0,
         iters: p.iters,
-        batch: None,
         device: p.device,
         lattice: residual.then_some(installed.meta.network_size),
-        projector: None,
-        photometric: Default::default(),
         cancel: Some(cancel.clone()),
-        climb_gain_db: None,
-        climb_later: false,
-        geometry_memo: None,
-        live: None,
+        ..fit::Request::new(MethodChoice::Rung(p.method))
     };
     let rule = fit::ClimbRule { gain_db: p.gain_db };
     // The residual rung on a calibration with closed-loop pairs is judged as `auto` judges it,

@@ -387,26 +387,20 @@ impl SceneBench<'_> {
         let loops = (compend::calibrate::refines(method) && args.loop_images > 0)
             .then_some(args.loop_images as usize);
         let req = Request {
-            method,
             ntrain: Some(n + loops.unwrap_or(0)),
             seed,
             // The closed-form linear rungs train in no iterations.
             iters: args.iters.filter(|_| trains),
             batch: args.batch.filter(|_| trains),
             device: args.device,
-            lattice: None,
-            projector: None,
-            photometric: Default::default(),
-            cancel: None,
             climb_gain_db: args
                 .climb_gain
                 .filter(|_| method == compend::model::MethodChoice::Auto),
-            climb_later: false,
-            geometry_memo: None,
             live: self
                 .live
                 .filter(|_| method == compend::model::MethodChoice::Auto)
                 .cloned(),
+            ..Request::new(method)
         };
         let mut row = Row {
             scene: scene.into(),
