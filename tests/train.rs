@@ -523,6 +523,40 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
         weights(&res) == weights(&climbed),
         "the climbed model differs from the rung's"
     );
+    // The judgement scores the rung as inference runs it: the rung trained on the 12 pairs it
+    // was judged after (the same weights: the judged training ran to its end) gives, by the
+    // paper protocol on the 4 held-out pairs, the judgement's last figure. Its correction is
+    // not zero after 3 iterations, so this checks the correction's path too.
+    let judged_rung = dir.path().join("judged");
+    let o = compend(&[
+        "train",
+        "--setup",
+        setup.to_str().unwrap(),
+        "--method",
+        "compennet++-res",
+        "--iters",
+        "3",
+        "--ntrain",
+        "12",
+        "--out",
+        judged_rung.to_str().unwrap(),
+    ]);
+    assert_code(&o, 0);
+    let judged_model = compend::model::Model::load(&judged_rung).unwrap();
+    let mut pairs = compend::dataset::Setup::open(&setup, None)
+        .unwrap()
+        .load_train(Some(16))
+        .unwrap();
+    pairs.captures.drain(..12);
+    pairs.inputs.drain(..12);
+    let (scored, _) = compend::model::paper_protocol(&judged_model, &pairs).unwrap();
+    assert!(
+        (scored.psnr - at(&curve[3])).abs() < 1e-3,
+        "held-out {} dB by the judgement, {} by inference",
+        at(&curve[3]),
+        scored.psnr
+    );
+    assert!((at(&curve[3]) - at(&curve[0])).abs() > 1e-4, "{auto}");
 
     // Without structured-light captures, `linear` is the only linear candidate, scored on the
     // held-out pairs the climb is judged on.
