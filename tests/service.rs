@@ -440,6 +440,44 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     );
     assert_code(&o, 1);
     assert!(stdout(&o).contains("\"ok\":false"), "{}", stdout(&o));
+    // Nor does a source that parses but cannot be played: a damaged image, an empty folder.
+    // Each is refused, naming it, and the picture that is on stays on: the playback is not
+    // even restarted (its frame count, reset when a playback starts, goes on growing).
+    let source = svc.status()["source"].clone();
+    std::thread::sleep(Duration::from_millis(1500));
+    let damaged = dir.path().join("damaged.png");
+    std::fs::write(&damaged, &b"\x89PNG\r\n\x1a\n"[..]).unwrap();
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    for (bad, says) in [
+        (&damaged, "not a readable image"),
+        (&empty, "no PNG or JPEG images"),
+    ] {
+        let a = svc.status()["frames"]["shown"].as_u64().unwrap();
+        let o = client(&["play", "--source", bad.to_str().unwrap()], &svc.socket);
+        assert_code(&o, 1);
+        let said = format!("{}{}", stdout(&o), stderr(&o));
+        assert!(said.contains(says), "{said}");
+        assert!(said.contains(bad.to_str().unwrap()), "{said}");
+        std::thread::sleep(Duration::from_millis(700));
+        let s = svc.status();
+        assert_eq!(s["state"], "playing", "{s}");
+        assert_eq!(s["source"], source, "{s}");
+        assert!(s["frames"]["shown"].as_u64().unwrap() > a, "{a} then {s}");
+    }
+    // Paused, the same: the request is refused and the service stays paused.
+    assert_code(&client(&["pause"], &svc.socket), 0);
+    svc.wait_for("pause", 20, |s| s["state"] == "paused");
+    let o = client(
+        &["play", "--source", damaged.to_str().unwrap()],
+        &svc.socket,
+    );
+    assert_code(&o, 1);
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(svc.status()["state"], "paused");
+    assert_code(&client(&["play"], &svc.socket), 0);
+    svc.wait_for("playback again", 30, playing);
+    assert_eq!(svc.status()["source"], source);
 
     assert_code(&client(&["stop"], &svc.socket), 0);
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());

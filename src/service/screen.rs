@@ -184,10 +184,11 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             self.pending = Some(ev);
             return false;
         };
-        // A play request for a source that cannot be parsed changes nothing: answered here, so
-        // the playback goes on.
+        // A play request for a source that cannot be played (unparsed, a damaged image, an
+        // empty folder, a missing file) changes nothing: answered here, so the playback goes
+        // on.
         if let Request::Play { source: Some(text) } = &envelope.request
-            && let Err(e) = SourceSpec::parse(text)
+            && let Err(e) = SourceSpec::parse(text).and_then(|spec| crate::source::check(&spec))
         {
             envelope.answer(Reply::error(e.to_string()));
             return true;

@@ -87,6 +87,37 @@ pub fn open(spec: &SourceSpec) -> Result<Box<dyn VideoSource>> {
     }
 }
 
+/// Whether `spec` names a source that can be played, without starting it: a still image is
+/// decoded, and so is the first image of a folder; a raw source's file, FIFO or device and a
+/// camera's device must exist (neither is opened: a FIFO's open waits for its writer, and a
+/// frame read here would be lost to the playback). The service checks a `play` request with
+/// it before the picture that is on stops.
+pub fn check(spec: &SourceSpec) -> Result<()> {
+    let exists = |p: &Path, what: &str| match std::fs::metadata(p) {
+        Ok(m) if m.is_dir() => Err(Error::Input(format!(
+            "{}: a folder, not {what}",
+            p.display()
+        ))),
+        Ok(_) => Ok(()),
+        Err(e) => Err(Error::io(p, "look up", e)),
+    };
+    match spec {
+        SourceSpec::Image(path) => read_image(path).map(|_| ()),
+        SourceSpec::Folder { dir, period } => {
+            let show = Slideshow::new(dir, *period)?;
+            show.files
+                .first()
+                .map_or(Ok(()), |p| read_image(p).map(|_| ()))
+        }
+        SourceSpec::Raw { path: Some(p), .. } => exists(p, "a raw source"),
+        SourceSpec::Raw { path: None, .. } | SourceSpec::Pattern { .. } => Ok(()),
+        #[cfg(target_os = "linux")]
+        SourceSpec::V4l2 { device, .. } => exists(device, "a V4L2 device"),
+        #[cfg(not(target_os = "linux"))]
+        SourceSpec::V4l2 { .. } => Err(Error::Input("V4L2 sources exist only on Linux".into())),
+    }
+}
+
 /// Decodes a PNG or JPEG file to an RGBA frame.
 pub fn read_image(path: &Path) -> Result<ContentFrame> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, "read", e))?;
@@ -165,13 +196,29 @@ impl VideoSource for Slideshow {
             self.period.as_secs_f64()
         )
     }
+    /// The next image that decodes: one that does not (damaged, or changed since the folder
+    /// was listed) is skipped with a warning, so one bad file does not stop the show; an error
+    /// only when none of them does.
     fn next(&mut self) -> Result<Next> {
-        let path = &self.files[self.index % self.files.len()];
-        self.index += 1;
-        Ok(Next::Frame {
-            frame: read_image(path)?,
-            wait: Some(self.period),
-        })
+        let mut last = None;
+        for _ in 0..self.files.len() {
+            let path = &self.files[self.index % self.files.len()];
+            self.index += 1;
+            match read_image(path) {
+                Ok(frame) => {
+                    return Ok(Next::Frame {
+                        frame,
+                        wait: Some(self.period),
+                    });
+                }
+                Err(e) => {
+                    tracing::warn!("slideshow: skipping {}: {e}", path.display());
+                    last = Some(e);
+                }
+            }
+        }
+        Err(last
+            .unwrap_or_else(|| Error::Input(format!("{}: no images to show", self.dir.display()))))
     }
     fn ends_playback(&self) -> bool {
         false
@@ -239,5 +286,60 @@ impl VideoSource for Raw {
 
     fn ends_playback(&self) -> bool {
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 2×1 PNG of one grey level.
+    fn png(level: u8) -> Vec<u8> {
+        let mut out = Vec::new();
+        image::RgbImage::from_pixel(2, 1, image::Rgb([level; 3]))
+            .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)
+            .unwrap();
+        out
+    }
+
+    #[test]
+    fn a_slideshow_skips_a_damaged_image_and_check_reads_what_play_would() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.png"), dir.path().join("b.png"));
+        std::fs::write(&a, &png(10)[..20]).unwrap();
+        std::fs::write(&b, png(200)).unwrap();
+        let spec = SourceSpec::Folder {
+            dir: dir.path().to_path_buf(),
+            period: Duration::from_secs(1),
+        };
+        // The first image is the damaged one: `check` reads it, as the show would first.
+        let e = check(&spec).unwrap_err().to_string();
+        assert!(
+            e.contains("a.png") && e.contains("not a readable image"),
+            "{e}"
+        );
+        // The show itself goes on past it, to the good one, again and again.
+        let mut show = open(&spec).unwrap();
+        for _ in 0..3 {
+            match show.next().unwrap() {
+                Next::Frame { frame, .. } => assert_eq!(frame.rgba[0], 200),
+                Next::End => panic!("a slideshow does not end"),
+            }
+        }
+        // With none readable, it says so.
+        std::fs::write(&b, b"not a png").unwrap();
+        let e = show.next().err().unwrap().to_string();
+        assert!(e.contains("not a readable image"), "{e}");
+        // A still image and a raw file are checked without playing them; a pattern always
+        // plays.
+        assert!(check(&SourceSpec::Image(b.clone())).is_err());
+        let raw = |p: &Path| SourceSpec::Raw {
+            path: Some(p.to_path_buf()),
+            size: ImageSize::new(2, 1),
+            format: RawFormat::Rgb24,
+        };
+        assert!(check(&raw(&b)).is_ok());
+        assert!(check(&raw(&dir.path().join("missing"))).is_err());
+        assert!(check(&raw(dir.path())).is_err());
     }
 }

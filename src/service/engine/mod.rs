@@ -300,8 +300,9 @@ impl Engine {
                 ))
             }
             Request::Play { source } => {
+                // A source that cannot be played changes nothing: the one in place stays.
                 if let Some(s) = source
-                    && let Err(e) = SourceSpec::parse(s)
+                    && let Err(e) = SourceSpec::parse(s).and_then(|spec| source::check(&spec))
                 {
                     return Reply::error(e.to_string());
                 }
