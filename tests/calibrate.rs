@@ -912,6 +912,36 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
     let o = compend(&calibrate_args(d, &["--rig", "virtual", "--seed", "9"]));
     assert_code(&o, 2);
     assert!(stderr(&o).contains("another pattern set"), "{}", stderr(&o));
+    // Its patterns without its captures (the setup set aside): another seed is refused too,
+    // naming the first pattern that differs, and so is an image of someone else's in place of
+    // one of this set's; the patterns stay as they were.
+    let aside = dir.path().join("capture-aside");
+    std::fs::rename(data.join("capture"), &aside).unwrap();
+    let first = data.join("train/img_0001.png");
+    let pattern = std::fs::read(&first).unwrap();
+    let o = compend(&calibrate_args(d, &["--rig", "virtual", "--seed", "9"]));
+    assert_code(&o, 2);
+    let e = stderr(&o);
+    assert!(e.contains(first.to_str().unwrap()), "{e}");
+    assert!(e.contains("another image, not the pattern"), "{e}");
+    assert!(e.contains("choose another --data folder"), "{e}");
+    assert_eq!(std::fs::read(&first).unwrap(), pattern);
+    let theirs = data.join("test/img_0002.png");
+    let kept = std::fs::read(&theirs).unwrap();
+    std::fs::copy(data.join("ref/img_0125.png"), &theirs).unwrap();
+    let o = compend(&calibrate_args(d, &["--rig", "virtual"]));
+    assert_code(&o, 2);
+    let e = stderr(&o);
+    assert!(e.contains(theirs.to_str().unwrap()), "{e}");
+    assert_eq!(
+        std::fs::read(&theirs).unwrap(),
+        std::fs::read(data.join("ref/img_0125.png")).unwrap()
+    );
+    std::fs::write(&theirs, kept).unwrap();
+    if data.join("capture").exists() {
+        std::fs::remove_dir_all(data.join("capture")).unwrap();
+    }
+    std::fs::rename(&aside, data.join("capture")).unwrap();
 
     // An output path holding something else, and a rig that is not one.
     let notes = dir.path().join("notes.txt");
