@@ -671,8 +671,8 @@ impl<'t> Walker<'t> {
                 self.error(
                     span,
                     format!(
-                        "`{name}` must be a section ([{name}]), not a {}",
-                        other.type_str()
+                        "`{name}` must be a section ([{name}]), not {}",
+                        with_article(other.type_str())
                     ),
                 );
                 empty
@@ -686,7 +686,7 @@ impl<'t> Walker<'t> {
         let i = t.entries.iter().position(|(k, _, _)| k == key)?;
         let (_, _, value) = t.entries.remove(i);
         let span = value.span();
-        let type_name = value.get_ref().type_str();
+        let type_name = with_article(value.get_ref().type_str());
         match T::deserialize(ValueDeserializer::from(value)) {
             Ok(v) => Some(v),
             Err(e) => {
@@ -694,7 +694,7 @@ impl<'t> Walker<'t> {
                 self.error(
                     span,
                     format!(
-                        "[{}] {key}: {} (expected {}, got a {type_name})",
+                        "[{}] {key}: {} (expected {}, got {type_name})",
                         t.name,
                         e.message().trim(),
                         expected_name(what)
@@ -939,6 +939,16 @@ fn edit_distance(a: &str, b: &str) -> usize {
         }
     }
     d[a.len()][b.len()]
+}
+
+/// A TOML type's name with its article: "an integer", "a string".
+fn with_article(name: &str) -> String {
+    let article = if name.starts_with(['a', 'e', 'i', 'o', 'u']) {
+        "an"
+    } else {
+        "a"
+    };
+    format!("{article} {name}")
 }
 
 #[cfg(test)]

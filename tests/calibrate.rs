@@ -923,7 +923,11 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
     assert_code(&o, 2);
     let e = stderr(&o);
     assert!(e.contains(first.to_str().unwrap()), "{e}");
-    assert!(e.contains("another image, not the pattern"), "{e}");
+    assert!(
+        e.contains("another image, not the image to be written"),
+        "{e}"
+    );
+    assert!(e.contains("sampling seed 9"), "{e}");
     assert!(e.contains("choose another --data folder"), "{e}");
     assert_eq!(std::fs::read(&first).unwrap(), pattern);
     let theirs = data.join("test/img_0002.png");

@@ -542,6 +542,42 @@ fn cli_writes_a_deterministic_dataset() {
         compend::pngio::read_rgb(&a.join("test/img_0002.png")).unwrap();
     let lib = compend::pngio::quantize(&sampling_image(5, Set::Test, 1, 16, 8));
     assert_eq!(img, lib);
+
+    // Into a root that already holds them: the same set again keeps them; another seed is
+    // refused, naming the first image it would replace, and replaces none.
+    let before = bytes(&a, "train/img_0001.png");
+    run("a", "5");
+    let again = |seed: &str| {
+        compend(&[
+            "patterns",
+            "--out",
+            a.to_str().unwrap(),
+            "--ntrain",
+            "3",
+            "--ntest",
+            "2",
+            "--seed",
+            seed,
+            "--size",
+            "16x8",
+            "--projector",
+            "20x10",
+            "--gray-level",
+            "100",
+        ])
+    };
+    let o = again("6");
+    assert_code(&o, 2);
+    let e = stderr(&o);
+    assert!(e.contains("img_000") && e.contains("another image"), "{e}");
+    assert!(e.contains("never replaced"), "{e}");
+    assert_eq!(bytes(&a, "train/img_0001.png"), before);
+    for dir in ["train", "test"] {
+        for n in png_names(&a.join(dir)) {
+            let rel = format!("{dir}/{n}");
+            assert_eq!(bytes(&a, &rel), bytes(&b, &rel), "{rel} was replaced");
+        }
+    }
 }
 
 #[test]

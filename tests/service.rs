@@ -699,18 +699,48 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
     assert_code(&o, 2);
     assert!(stderr(&o).contains("none.toml"), "{}", stderr(&o));
 
-    // The model path holds something that is not a model: refused at start, the file kept.
+    // The model path holds something that is not a model: refused at start, the file kept;
+    // `config check` says so too, as it does of a scene that does not exist and of a data path
+    // that is a file.
     let config = write_config(dir.path(), "curved", 0, "", "");
     let model = dir.path().join("state/model");
     std::fs::create_dir_all(&model).unwrap();
     std::fs::write(model.join("notes.txt"), "mine").unwrap();
-    let o = compend(&["serve", "--config", config.to_str().unwrap()]);
-    assert_code(&o, 2);
-    assert!(
-        stderr(&o).contains("not a model directory"),
-        "{}",
-        stderr(&o)
-    );
+    for args in [
+        ["serve", "--config", config.to_str().unwrap()],
+        ["config", "check", config.to_str().unwrap()],
+    ] {
+        let o = compend(&args);
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains("not a model directory"),
+            "{args:?}: {}",
+            stderr(&o)
+        );
+    }
+    let text = std::fs::read_to_string(&config).unwrap();
+    let elsewhere = dir.path().join("elsewhere.toml");
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "mine").unwrap();
+    for (from, to, says) in [
+        (
+            "scene = \"curved\"",
+            "scene = \"no-such-scene\"",
+            "no-such-scene",
+        ),
+        (
+            "[paths]\n",
+            &format!("[paths]\ndata = \"{}\"\n", file.display()),
+            "[paths] data",
+        ),
+    ] {
+        assert!(text.contains(from), "{text}");
+        std::fs::write(&elsewhere, text.replace(from, to)).unwrap();
+        let o = compend(&["config", "check", elsewhere.to_str().unwrap()]);
+        assert_code(&o, 2);
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
     assert_eq!(
         std::fs::read_to_string(model.join("notes.txt")).unwrap(),
         "mine"
@@ -759,6 +789,20 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
     assert!(stderr(&o).contains("is not a socket"), "{}", stderr(&o));
     assert_eq!(std::fs::read_to_string(&socket).unwrap(), "not a socket");
     std::fs::remove_file(&socket).unwrap();
+
+    // A second service on the same state directory, even on another socket, is refused: the
+    // first holds the directory's lock.
+    let lock = std::fs::File::create(dir.path().join("state/compend.lock")).unwrap();
+    lock.try_lock().unwrap();
+    let o = compend(&["serve", "--config", config.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("another `compend serve` holds this state directory"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!socket.exists());
+    drop(lock);
 
     // A second service on a live socket is refused; the first goes on.
     let listener = std::os::unix::net::UnixListener::bind(&socket).unwrap();

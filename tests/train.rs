@@ -136,6 +136,50 @@ fn train_eval_compensate_linear_and_linear_sl() {
             );
         }
     }
+    // `compensate` replaces its own earlier images, but never the inputs or someone else's
+    // files of the same names, and an --out that is a file is refused: each exits 2, naming
+    // the path, and leaves the files as they were.
+    let m = dir.path().join("model-linear");
+    let desire = setup.join("cam/desire/test");
+    let run = |out: &Path| {
+        compend(&[
+            "compensate",
+            "--model",
+            m.to_str().unwrap(),
+            "--input",
+            desire.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    assert_code(&run(&setup.join("prj/cmp/test/linear")), 0);
+    let theirs = dir.path().join("theirs");
+    std::fs::create_dir(&theirs).unwrap();
+    std::fs::write(theirs.join("img_0002.png"), b"mine").unwrap();
+    let file = dir.path().join("notes.txt");
+    std::fs::write(&file, b"mine").unwrap();
+    let inputs: Vec<Vec<u8>> = (1..=4)
+        .map(|i| std::fs::read(desire.join(format!("img_{i:04}.png"))).unwrap())
+        .collect();
+    for (out, says) in [
+        (&desire, "would replace the inputs"),
+        (&theirs, "did not write"),
+        (&file, "not a folder"),
+    ] {
+        let o = run(out);
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains(out.to_str().unwrap()) && stderr(&o).contains(says),
+            "{}",
+            stderr(&o)
+        );
+    }
+    assert_eq!(std::fs::read(theirs.join("img_0002.png")).unwrap(), b"mine");
+    assert_eq!(std::fs::read(&file).unwrap(), b"mine");
+    for (i, bytes) in inputs.iter().enumerate() {
+        let p = desire.join(format!("img_{:04}.png", i + 1));
+        assert_eq!(&std::fs::read(&p).unwrap(), bytes, "{}", p.display());
+    }
 }
 
 #[test]

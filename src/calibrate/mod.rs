@@ -741,70 +741,36 @@ pub fn install(done: Calibrated, out: &Path) -> Result<Model> {
 /// Writes the projector-side images the calibration projects, where not already there:
 /// `train/`, `test/`, the colour cube and the gray image (network size).
 /// An image already there (an interrupted run's, or another's) is kept only if it is the one
-/// this pattern set would write; any other is an input error naming it, so a calibration never
-/// projects, and trains on, images its record does not describe.
+/// this pattern set would write; any other is an input error naming it
+/// ([`DataRoot::write_new`]), so a calibration never projects, and trains on, images its
+/// record does not describe.
 fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
     let (w, h) = (p.network.width, p.network.height);
+    let ours = |r: Result<()>| {
+        r.map_err(|e| match e {
+            Error::Input(m) => Error::Input(format!(
+                "{m}; this calibration projects sampling seed {}, network {}, gray level {}: \
+                 choose another --data folder",
+                p.seed, p.network, p.gray_level
+            )),
+            e => e,
+        })
+    };
     for (set, pset, n) in [
         (Set::Train, ProjectorSet::Train, p.ntrain),
         (Set::Test, ProjectorSet::Test, p.ntest),
     ] {
         for i in 1..=n {
             let img = patterns::sampling_image(p.seed, set, i - 1, w, h);
-            if !pattern_in_place(&root.image_path(pset, i), &img, p)? {
-                root.write(pset, i, &img)?;
-            }
+            ours(root.write_new(pset, i, &img))?;
         }
     }
     // The whole colour cube, so the root is a complete one (`inspect` checks that `ref/` is
     // numbered without gaps); only black (1) and white (125) are projected.
     for i in 1..=patterns::CUBE_COUNT {
-        let img = patterns::color_cube(i, w, h)?;
-        if !pattern_in_place(&root.image_path(ProjectorSet::Ref, i), &img, p)? {
-            root.write(ProjectorSet::Ref, i, &img)?;
-        }
+        ours(root.write_new(ProjectorSet::Ref, i, &patterns::color_cube(i, w, h)?))?;
     }
-    let img = patterns::gray_image(p.gray_level, w, h);
-    if !pattern_in_place(&root.gray_input_path(), &img, p)? {
-        root.write_gray_input(&img)?;
-    }
-    Ok(())
-}
-
-/// Whether `path` already holds the pattern `img` of the set `p` (as written: 8-bit); `false`
-/// when nothing is there. Anything else there (another image, another size, not a PNG) is an
-/// input error naming it and what was expected.
-fn pattern_in_place(path: &Path, img: &PrjImage, p: &PatternSet) -> Result<bool> {
-    if !path.exists() {
-        return Ok(false);
-    }
-    let other = |what: String| {
-        Error::Input(format!(
-            "{}: {what}, not the pattern this calibration projects there (sampling seed {},              network {}, gray level {}); a data root holds one pattern set: choose another \
-             --data folder",
-            path.display(),
-            p.seed,
-            p.network,
-            p.gray_level
-        ))
-    };
-    let found: PrjImage = match crate::pngio::read_rgb(path) {
-        Ok(found) => found,
-        Err(e) => return Err(other(format!("unreadable ({e})"))),
-    };
-    if found.size() != img.size() {
-        return Err(other(format!("a {} image", found.size())));
-    }
-    let expected = crate::pngio::quantize(img);
-    let differs = found
-        .data()
-        .iter()
-        .zip(expected.data())
-        .any(|(a, b)| (a - b).abs() > 0.25 / 255.0);
-    if differs {
-        return Err(other("another image".into()));
-    }
-    Ok(true)
+    ours(root.write_new_gray_input(&patterns::gray_image(p.gray_level, w, h)))
 }
 
 /// One capture to take: where it goes (relative to the setup) and what is shown.

@@ -16,14 +16,26 @@ pub struct Args {
     #[arg(long)]
     pub input: PathBuf,
     /// Folder for the network-space compensation PNGs (same file names as the inputs), e.g.
-    /// SETUP/prj/cmp/test/MODEL.
+    /// SETUP/prj/cmp/test/MODEL. A file already there is replaced only in a folder an earlier
+    /// `compensate` wrote (it leaves a `.compend-compensated` marker); never the inputs.
     #[arg(long)]
     pub out: PathBuf,
 }
 
+/// The marker `compensate` leaves in its output folder: a later run may replace the images
+/// there, and no others.
+const MARKER: &str = ".compend-compensated";
+
 pub fn run(args: Args) -> Result<()> {
     let model = Model::load(&args.model)?;
     let inputs = list_inputs(&args.input)?;
+    check_out(&args.out, &inputs)?;
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| compend::Error::io(&args.out, "create folder", e))?;
+    compend::files::write_atomically(
+        &args.out.join(MARKER),
+        b"compensation images written by `compend compensate`\n",
+    )?;
     for path in &inputs {
         let img =
             pngio::read_rgb_sized::<Camera>(path, model.camera_size(), "the model's camera size")?;
@@ -37,6 +49,54 @@ pub fn run(args: Args) -> Result<()> {
         inputs.len(),
         args.out.display()
     );
+    Ok(())
+}
+
+/// Whether `out` may take the compensation images of `inputs`: a folder (or nothing yet), not
+/// the one the inputs are in, and holding none of their names unless an earlier `compensate`
+/// wrote it ([`MARKER`]). Input errors name the path.
+fn check_out(out: &Path, inputs: &[PathBuf]) -> Result<()> {
+    if out.exists() && !out.is_dir() {
+        return Err(compend::Error::Input(format!(
+            "{}: not a folder; --out takes the folder the compensation images go to",
+            out.display()
+        ))
+        .into());
+    }
+    let here = out.canonicalize().ok();
+    if let Some(p) = inputs.iter().find(|p| {
+        let dir = p.parent().map(|d| {
+            if d.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                d
+            }
+        });
+        here.is_some() && dir.and_then(|d| d.canonicalize().ok()) == here
+    }) {
+        return Err(compend::Error::Input(format!(
+            "{}: the folder of the input {}; the compensation images would replace the inputs: \
+             choose another --out",
+            out.display(),
+            p.display()
+        ))
+        .into());
+    }
+    if out.join(MARKER).is_file() {
+        return Ok(());
+    }
+    if let Some(dest) = inputs
+        .iter()
+        .filter_map(|p| p.file_name().map(|n| out.join(n)))
+        .find(|d| d.exists())
+    {
+        return Err(compend::Error::Input(format!(
+            "{}: already there, in a folder `compend compensate` did not write (no {MARKER}), \
+             so it is not replaced: choose another --out",
+            dest.display()
+        ))
+        .into());
+    }
     Ok(())
 }
 

@@ -15,8 +15,9 @@ use rayon::prelude::*;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Data root to write into: ROOT/train, ROOT/test, ROOT/ref and ROOT/sl (created as needed;
-    /// files of the same name are replaced).
+    /// Data root to write into: ROOT/train, ROOT/test, ROOT/ref and ROOT/sl (created as needed).
+    /// An image already there is kept when it is the one to be written, and refused otherwise
+    /// (a root's captures were taken of its images).
     #[arg(long)]
     pub out: PathBuf,
     /// Number of training sampling images (ROOT/train/img_0001.png …).
@@ -73,23 +74,22 @@ pub fn run(args: Args) -> Result<()> {
     for (set, n) in [(Set::Train, ntrain), (Set::Test, ntest)] {
         parallel(n, set.folder(), |i| {
             let img = patterns::sampling_image(args.seed, set, i, net.width, net.height);
-            root.write(set.projector_set(), i + 1, &img).map(drop)
+            root.write_new(set.projector_set(), i + 1, &img)
         })?;
         warn_extra(&root.dir(set.projector_set()), n);
     }
 
     parallel(CUBE_COUNT, "ref", |i| {
         let img = patterns::color_cube(i + 1, net.width, net.height)?;
-        root.write(ProjectorSet::Ref, i + 1, &img).map(drop)
+        root.write_new(ProjectorSet::Ref, i + 1, &img)
     })?;
     let gray = patterns::gray_image(args.gray_level, net.width, net.height);
-    root.write_gray_input(&gray)?;
+    root.write_new_gray_input(&gray)?;
     warn_extra(&root.dir(ProjectorSet::Ref), CUBE_COUNT);
 
     let code = GrayCode::new(args.projector.width, args.projector.height)?;
     parallel(code.len(), "sl", |i| {
-        root.write(ProjectorSet::Sl, i + 1, &code.pattern(i)?)
-            .map(drop)
+        root.write_new(ProjectorSet::Sl, i + 1, &code.pattern(i)?)
     })?;
     warn_extra(&root.dir(ProjectorSet::Sl), code.len());
 

@@ -321,6 +321,8 @@ pub fn config(a: ConfigArgs) -> Result<()> {
 
 fn check(file: &Path, json: bool) -> Result<()> {
     let c = Config::load(file)?;
+    // What `serve` would refuse at its start, besides the file itself.
+    compend::service::preflight(&c).with_context(|| format!("{}", file.display()))?;
     if json {
         println!("{}", serde_json::to_string_pretty(&c)?);
     } else {

@@ -259,6 +259,7 @@ fn export(a: ExportArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| PathBuf::from(&scene.name));
     // Before anything is written.
+    rig::export::check_setup_free(&a.out, &setup)?;
     rig::export::check_loop_slots(&a.out, &setup, a.ntrain as usize, a.loop_images as usize)?;
     // Projector-side images exactly as `compend patterns` writes them.
     super::patterns::run(super::patterns::Args {

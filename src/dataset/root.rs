@@ -235,6 +235,55 @@ impl DataRoot {
         pngio::write_rgb(&p, img)?;
         Ok(p)
     }
+
+    /// [`DataRoot::write`], unless the file already holds `img` (as written: 8-bit values).
+    /// Anything else there (another image, another size, an unreadable file, a folder) is an
+    /// input error naming it: a root's captures were taken of its images, so writers that
+    /// may meet a root already in use (`calibrate`, `patterns`, `sim export`) replace none.
+    pub fn write_new(&self, set: ProjectorSet, index: usize, img: &PrjImage) -> Result<()> {
+        check_index(index)?;
+        if !holds(&self.image_path(set, index), img)? {
+            self.write(set, index, img)?;
+        }
+        Ok(())
+    }
+
+    /// [`DataRoot::write_gray_input`] as [`DataRoot::write_new`] writes.
+    pub fn write_new_gray_input(&self, img: &PrjImage) -> Result<()> {
+        if !holds(&self.gray_input_path(), img)? {
+            self.write_gray_input(img)?;
+        }
+        Ok(())
+    }
+}
+
+/// Whether `path` holds `img` as [`pngio::write_rgb`] writes it; `false` when nothing is there,
+/// an input error naming it when something else is.
+fn holds(path: &Path, img: &PrjImage) -> Result<bool> {
+    if fs::symlink_metadata(path).is_err() {
+        return Ok(false);
+    }
+    let other = |what: String| {
+        Error::Input(format!(
+            "{}: {what}, not the image to be written there; the images of a data root are \
+             never replaced (its captures were taken of them)",
+            path.display()
+        ))
+    };
+    let found: PrjImage = pngio::read_rgb(path).map_err(|e| other(format!("unreadable ({e})")))?;
+    if found.size() != img.size() {
+        return Err(other(format!("a {} image", found.size())));
+    }
+    let expected = pngio::quantize(img);
+    let same = found
+        .data()
+        .iter()
+        .zip(expected.data())
+        .all(|(a, b)| (a - b).abs() <= 0.25 / 255.0);
+    if !same {
+        return Err(other("another image".into()));
+    }
+    Ok(true)
 }
 
 fn is_root(p: &Path) -> bool {

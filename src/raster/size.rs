@@ -31,9 +31,25 @@ impl ImageSize {
         self.width as f64 / self.height as f64
     }
 
-    /// Parses `WxH` (e.g. `800x600`), or `N` for N×N when `square_ok`; sides from 1 to 65 536.
-    /// The error says what was expected.
+    /// Parses `WxH` (e.g. `800x600`), or `N` for N×N when `square_ok`; sides from 1 to 65 536,
+    /// at most [`ImageSize::MAX_PIXELS`] in all. The error says what was expected.
     pub fn parse(s: &str, square_ok: bool) -> Result<Self, String> {
+        let size = Self::parse_sides(s, square_ok)?;
+        if size.area() > Self::MAX_PIXELS {
+            return Err(format!(
+                "{size} is {} million pixels; at most {} million (8192x8192) are accepted",
+                size.area() / 1_000_000,
+                Self::MAX_PIXELS / 1_000_000
+            ));
+        }
+        Ok(size)
+    }
+
+    /// The most pixels a size given on the command line may have: 8192×8192, twice an 8K
+    /// projector's. One float RGB image of it is 805 MB, and a calibration holds dozens.
+    pub const MAX_PIXELS: usize = 8192 * 8192;
+
+    fn parse_sides(s: &str, square_ok: bool) -> Result<Self, String> {
         let side = |t: &str| -> Result<usize, String> {
             match t.trim().parse::<usize>() {
                 Ok(0) => Err("sides must be at least 1 pixel".to_string()),
@@ -99,5 +115,34 @@ impl From<ImageSize> for (usize, usize) {
 impl fmt::Display for ImageSize {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}x{}", self.width, self.height)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_size_parses_within_its_limits_and_says_what_is_wrong() {
+        assert_eq!(
+            ImageSize::parse("800x600", false),
+            Ok(ImageSize::new(800, 600))
+        );
+        assert_eq!(ImageSize::parse("64", true), Ok(ImageSize::new(64, 64)));
+        assert_eq!(
+            ImageSize::parse("8192x8192", false),
+            Ok(ImageSize::new(8192, 8192))
+        );
+        for (text, says) in [
+            ("64", "WIDTHxHEIGHT"),
+            ("0x4", "at least 1"),
+            ("ax4", "not a whole number"),
+            ("70000x1", "too large"),
+            ("30000x30000", "900 million pixels"),
+            ("8193x8192", "at most 67 million"),
+        ] {
+            let e = ImageSize::parse(text, false).unwrap_err();
+            assert!(e.contains(says), "{text}: {e}");
+        }
     }
 }

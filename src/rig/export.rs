@@ -97,6 +97,26 @@ pub struct ExportSummary {
     pub seconds: f64,
 }
 
+/// Whether an export may write the setup `setup` under the data root `root`: over an earlier
+/// export (a pure function of its scene and seed, `rig.json` beside it), but never over
+/// captures that did not come from one (a calibration's, a recorded data set's): an input error
+/// naming the folder.
+pub fn check_setup_free(root: &Path, setup: &Path) -> Result<()> {
+    let dir = root.join(setup);
+    let raw = dir.join("cam").join("raw");
+    let holds_captures = std::fs::read_dir(&raw).is_ok_and(|mut d| d.next().is_some());
+    if holds_captures && !dir.join(RIG_FILE).is_file() {
+        return Err(Error::Input(format!(
+            "{}: holds captures and no {RIG_FILE} (the record `sim export` writes when it \
+             ends), so they may be a calibration's or a recorded set's, and are never replaced: \
+             choose another --out or --setup (or remove the folder, if it is an export that was \
+             interrupted)",
+            dir.display()
+        )));
+    }
+    Ok(())
+}
+
 /// The full projector frame as a canvas.
 pub fn full_canvas(sim: &Simulator) -> Rect {
     Rect::covering(sim.projector_size())
@@ -115,6 +135,7 @@ pub fn export_setup(
 ) -> Result<ExportSummary> {
     let start = Instant::now();
     let net = root.network_size()?;
+    check_setup_free(root.path(), setup)?;
     let setup = Setup::create(root, setup)?;
     let rig = Capturing {
         sim,

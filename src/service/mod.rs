@@ -27,7 +27,7 @@ pub mod protocol;
 mod screen;
 pub mod socket;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::Receiver;
 use std::sync::{Arc, Mutex, MutexGuard, mpsc};
@@ -35,7 +35,7 @@ use std::time::Instant;
 
 use tokio::sync::oneshot;
 
-use crate::config::Config;
+use crate::config::{Config, RigKind};
 use crate::error::{Error, Result};
 use notify::Notifier;
 use protocol::{Reply, Request, State, Status};
@@ -207,17 +207,48 @@ pub(crate) fn clipped(text: &str) -> std::borrow::Cow<'_, str> {
     .into()
 }
 
+/// What the service checks of its configuration's surroundings before it starts, and
+/// `compend config check` with it: the virtual rig's scene loads at the configured sizes, the
+/// TCP token file reads, `[paths] model` is a model directory or nothing yet, and `[paths]
+/// state` and `data` are folders or nothing yet. The first problem is an input error naming
+/// the key and the path.
+pub fn preflight(config: &Config) -> Result<()> {
+    let r = &config.rig;
+    if matches!(r.kind, RigKind::Virtual | RigKind::Window) {
+        let scene = crate::rig::scene::load(&r.scene)?;
+        let cam = r.camera_size.unwrap_or(scene.camera.size());
+        let prj = r.projector.unwrap_or(scene.projector.size());
+        scene.with_resolution(cam, prj).validate()?;
+    }
+    if let (Some(_), Some(file)) = (config.socket.tcp, &config.socket.tcp_token_file) {
+        socket::Token::read(file)?;
+    }
+    for (key, dir) in [
+        ("[paths] state", &config.paths.state),
+        ("[paths] data", &config.paths.data),
+    ] {
+        if dir.exists() && !dir.is_dir() {
+            return Err(Error::Input(format!(
+                "{key} = \"{}\": not a folder",
+                dir.display()
+            )));
+        }
+    }
+    crate::model::store::check_output(&config.paths.model)
+}
+
 /// Runs the service until it is stopped (a `stop` request, SIGTERM, SIGINT). `config_path` is
 /// read again on SIGHUP.
 pub fn serve(config: Config, config_path: Option<PathBuf>) -> Result<()> {
+    preflight(&config)?;
     let (tx, rx) = mpsc::channel();
     let rig_name = engine::rig_name(&config);
     let shared = Arc::new(Shared::new(rig_name, tx));
     std::fs::create_dir_all(&config.paths.state)
         .map_err(|e| Error::io(&config.paths.state, "create state directory", e))?;
-    // Only a model directory is ever replaced: a `[paths] model` that holds anything else is
-    // refused now, not after a whole calibration.
-    crate::model::store::check_output(&config.paths.model)?;
+    // One service per state directory: two would calibrate into, prune and install into the
+    // same folders. Held until this returns.
+    let _lock = lock_state(&config.paths.state)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("compend-control")
@@ -253,6 +284,40 @@ pub fn serve(config: Config, config_path: Option<PathBuf>) -> Result<()> {
     // is gone.
     let _ = std::fs::remove_file(&socket_path);
     result
+}
+
+/// The lock file in the state directory `state` (`compend.lock`, holding the pid), locked
+/// exclusively for as long as the returned file is kept; the kernel lets it go when the process
+/// ends, however it ends. Another service holding it is an input error naming it.
+fn lock_state(state: &Path) -> Result<std::fs::File> {
+    use std::io::Write;
+    let path = state.join("compend.lock");
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| Error::io(&path, "open the state directory's lock file", e))?;
+    match file.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let pid = std::fs::read_to_string(&path).unwrap_or_default();
+            return Err(Error::Input(format!(
+                "{}: another `compend serve` holds this state directory (pid {}); one service \
+                 runs per state directory: stop that one, or give this one another --state",
+                state.display(),
+                pid.trim()
+            )));
+        }
+        Err(std::fs::TryLockError::Error(e)) => {
+            return Err(Error::io(&path, "lock the state directory", e));
+        }
+    }
+    file.set_len(0)
+        .and_then(|()| writeln!(file, "{}", std::process::id()))
+        .map_err(|e| Error::io(&path, "write the pid to", e))?;
+    Ok(file)
 }
 
 /// SIGTERM and SIGINT stop the service; SIGHUP reloads the configuration.

@@ -50,6 +50,37 @@ pub enum Request {
     Stop,
 }
 
+/// A JSON object whose keys are each given once (its values are not looked at).
+struct UniqueKeys;
+
+impl<'de> serde::Deserialize<'de> for UniqueKeys {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Keys;
+        impl<'de> serde::de::Visitor<'de> for Keys {
+            type Value = UniqueKeys;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a JSON object")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<UniqueKeys, A::Error> {
+                let mut seen = std::collections::HashSet::new();
+                while let Some(key) = map.next_key::<String>()? {
+                    map.next_value::<serde::de::IgnoredAny>()?;
+                    if !seen.insert(key.clone()) {
+                        return Err(serde::de::Error::custom(format!(
+                            "the field `{key}` is given twice"
+                        )));
+                    }
+                }
+                Ok(UniqueKeys)
+            }
+        }
+        d.deserialize_map(Keys)
+    }
+}
+
 impl Request {
     /// Parses one request line (without its newline). The error says what was wrong and what
     /// is expected, for the reply.
@@ -66,6 +97,11 @@ impl Request {
                                 calibrate, recalibrate, play, pause, model, stop";
         let value: serde_json::Value =
             serde_json::from_str(text).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
+        // A JSON value keeps the last of a key given twice, so `{"cmd":"status","cmd":"stop"}`
+        // would stop the service: a key given twice is refused.
+        if value.is_object() {
+            serde_json::from_str::<UniqueKeys>(text).map_err(|e| format!("bad request: {e}"))?;
+        }
         // serde ignores `deny_unknown_fields` on the unit variants of an internally tagged
         // enum, so the fields each request may carry are checked here.
         if let Some(object) = value.as_object()
@@ -354,6 +390,8 @@ mod tests {
                 "{e}"
             );
         }
+        let e = Request::parse(br#"{"cmd":"status","cmd":"stop"}"#).unwrap_err();
+        assert!(e.contains("the field `cmd` is given twice"), "{e}");
         for bad in [
             &b""[..],
             b"status",

@@ -315,6 +315,22 @@ fn exported_closed_loop_pairs_and_their_guards() {
         &["--setup", "other", "--loop-images", "2"],
         "another setup's closed-loop pairs",
     );
+    // Captures that no export wrote (no rig.json: a calibration's, a recorded set's) are never
+    // exported over, nor the root's images under them replaced by another seed's.
+    std::fs::remove_file(setup.join("rig.json")).unwrap();
+    let before = files(&root);
+    let o = export_tiny_output(&root, "curved", 3, &["--no-cube", "--loop-images", "4"]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("no rig.json"), "{}", stderr(&o));
+    assert!(files(&root) == before, "nothing written");
+    let o = export_tiny_output(&root, "curved", 4, &["--no-cube", "--setup", "fresh"]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("another image"), "{}", stderr(&o));
+    let after = files(&root);
+    assert!(
+        before.iter().all(|f| after.contains(f)),
+        "an image was replaced"
+    );
 }
 
 #[test]
