@@ -164,7 +164,7 @@ fn train_eval_compensate_linear_and_linear_sl() {
     for (out, says) in [
         (&desire, "would replace the inputs"),
         (&theirs, "did not write"),
-        (&file, "not a folder"),
+        (&file, "not a folder; it takes the folder"),
     ] {
         let o = run(out);
         assert_code(&o, 2);

@@ -56,13 +56,7 @@ pub fn run(args: Args) -> Result<()> {
 /// the one the inputs are in, and holding none of their names unless an earlier `compensate`
 /// wrote it ([`MARKER`]). Input errors name the path.
 fn check_out(out: &Path, inputs: &[PathBuf]) -> Result<()> {
-    if out.exists() && !out.is_dir() {
-        return Err(compend::Error::Input(format!(
-            "{}: not a folder; --out takes the folder the compensation images go to",
-            out.display()
-        ))
-        .into());
-    }
+    super::check_out_folder(out, "--out")?;
     let here = out.canonicalize().ok();
     if let Some(p) = inputs.iter().find(|p| {
         let dir = p.parent().map(|d| {

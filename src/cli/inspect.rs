@@ -180,6 +180,9 @@ fn overlay(white: &CamImage, mask: &Mask<Camera>, bbox: Rect, area: Option<Rect>
 }
 
 pub fn run(args: Args) -> Result<()> {
+    if let Some(dir) = &args.out {
+        super::check_out_folder(dir, "--out")?;
+    }
     let r = report(&args)?;
     if args.json {
         println!("{}", serde_json::to_string(&r)?);

@@ -21,6 +21,18 @@ pub mod train;
 
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
 /// 1 when there is none.
+/// An output folder's flag (`flag`) and value (`path`): a folder, or nothing yet (the writer
+/// creates it). Anything else there is an input error naming it, found before any work.
+pub fn check_out_folder(path: &std::path::Path, flag: &str) -> compend::Result<()> {
+    if path.exists() && !path.is_dir() {
+        return Err(compend::Error::Input(format!(
+            "{flag} {}: not a folder; it takes the folder to write into",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
 pub fn exit_code(err: &anyhow::Error) -> u8 {
     for cause in err.chain() {
         if let Some(e) = cause.downcast_ref::<compend::Error>() {

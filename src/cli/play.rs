@@ -89,6 +89,9 @@ pub fn run(args: Args) -> Result<()> {
         .into());
     };
     let spec = SourceSpec::parse(source_text)?;
+    if let Some(dir) = &args.out {
+        super::check_out_folder(dir, "--out")?;
+    }
     let model = Model::load(model_dir)?;
     let rig = args.rig.as_deref().map(parse_rig).transpose()?;
     // Open the source before the GPU so a bad source fails fast.

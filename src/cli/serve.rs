@@ -9,7 +9,7 @@ use compend::config::{Config, RigKind};
 use compend::service::protocol::{Reply, Request, State, Status};
 use compend::service::socket;
 
-#[derive(clap::Args, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct ServeArgs {
     /// The configuration file (TOML; config/compend.toml documents every key) [default: every
     /// key at its default: the virtual rig, state in $STATE_DIRECTORY or /var/lib/compend].
@@ -132,7 +132,16 @@ fn configure(a: &ServeArgs) -> Result<Config> {
 
 pub fn serve(a: ServeArgs) -> Result<()> {
     let config = configure(&a)?;
-    compend::service::serve(config, a.config.clone()).context("compend serve")
+    let reload: Option<compend::service::Reload> = a.config.is_some().then(|| {
+        let a = a.clone();
+        Box::new(move || {
+            configure(&a).map_err(|e| match e.downcast::<compend::Error>() {
+                Ok(e) => e,
+                Err(e) => compend::Error::Input(format!("{e:#}")),
+            })
+        }) as compend::service::Reload
+    });
+    compend::service::serve(config, reload).context("compend serve")
 }
 
 fn socket_of(c: &ClientArgs) -> Result<PathBuf> {

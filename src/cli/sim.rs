@@ -332,6 +332,7 @@ fn sheet(a: SheetArgs) -> Result<()> {
     if a.image == 0 {
         return Err(compend::Error::Input("--image counts from 1".into()).into());
     }
+    super::check_out_folder(&a.out, "--out")?;
     std::fs::create_dir_all(&a.out).map_err(|e| compend::Error::io(&a.out, "create folder", e))?;
     let sa = &a.scene_args;
     let (nw, nh) = (sa.network.width, sa.network.height);

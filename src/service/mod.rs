@@ -27,7 +27,7 @@ pub mod protocol;
 mod screen;
 pub mod socket;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::Receiver;
 use std::sync::{Arc, Mutex, MutexGuard, mpsc};
@@ -237,9 +237,14 @@ pub fn preflight(config: &Config) -> Result<()> {
     crate::model::store::check_output(&config.paths.model)
 }
 
-/// Runs the service until it is stopped (a `stop` request, SIGTERM, SIGINT). `config_path` is
-/// read again on SIGHUP.
-pub fn serve(config: Config, config_path: Option<PathBuf>) -> Result<()> {
+/// How the service reads its configuration again on SIGHUP: the file with the command line's
+/// overrides applied as at the start, so that what the command line set is not reported as
+/// changed. `None`: no file to read again.
+pub type Reload = Box<dyn Fn() -> Result<Config> + Send + Sync>;
+
+/// Runs the service until it is stopped (a `stop` request, SIGTERM, SIGINT). `reload` reads the
+/// configuration again on SIGHUP.
+pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
     preflight(&config)?;
     let (tx, rx) = mpsc::channel();
     let rig_name = engine::rig_name(&config);
@@ -275,9 +280,8 @@ pub fn serve(config: Config, config_path: Option<PathBuf>) -> Result<()> {
         tracing::info!("control port: listening on {addr} (requests carry the token)");
         runtime.spawn(socket::serve_tcp(listener, token, shared.clone()));
     }
-    runtime.spawn(signals(shared.clone(), config_path.clone()));
-    let result = engine::Engine::start(config, config_path, shared.clone(), rx)
-        .and_then(|engine| engine.run());
+    runtime.spawn(signals(shared.clone(), reload));
+    let result = engine::Engine::start(config, shared.clone(), rx).and_then(|engine| engine.run());
     shared.closing.store(true, Ordering::Relaxed);
     runtime.shutdown_timeout(std::time::Duration::from_secs(1));
     // The socket is ours (bind replaced only a dead one): remove it so clients see the service
@@ -321,7 +325,7 @@ fn lock_state(state: &Path) -> Result<std::fs::File> {
 }
 
 /// SIGTERM and SIGINT stop the service; SIGHUP reloads the configuration.
-async fn signals(shared: Arc<Shared>, config_path: Option<PathBuf>) {
+async fn signals(shared: Arc<Shared>, reload: Option<Reload>) {
     use tokio::signal::unix::{SignalKind, signal};
     let (Ok(mut term), Ok(mut int), Ok(mut hup)) = (
         signal(SignalKind::terminate()),
@@ -335,9 +339,9 @@ async fn signals(shared: Arc<Shared>, config_path: Option<PathBuf>) {
         tokio::select! {
             _ = term.recv() => shared.signal(Event::Terminate("SIGTERM")),
             _ = int.recv() => shared.signal(Event::Terminate("SIGINT")),
-            _ = hup.recv() => match &config_path {
+            _ = hup.recv() => match &reload {
                 None => tracing::warn!("SIGHUP: no --config file to reload; nothing changed"),
-                Some(path) => match Config::load(path) {
+                Some(reload) => match reload() {
                     Ok(c) => shared.signal(Event::Reload(Box::new(c))),
                     Err(e) => tracing::error!(
                         "SIGHUP: the configuration was not reloaded, the running one stays: {e}"

@@ -89,12 +89,7 @@ pub struct Engine {
 
 impl Engine {
     /// Opens the devices, loads the installed model and decides what to do first.
-    pub fn start(
-        config: Config,
-        _config_path: Option<PathBuf>,
-        shared: Arc<Shared>,
-        rx: Receiver<Event>,
-    ) -> Result<Self> {
+    pub fn start(config: Config, shared: Arc<Shared>, rx: Receiver<Event>) -> Result<Self> {
         let devices = Devices::open(&config)?;
         let mut engine = Engine {
             model_path: config.paths.model.clone(),
