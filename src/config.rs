@@ -366,7 +366,15 @@ impl<'t> Walker<'t> {
         let (root, parse_errors) = DeTable::parse_recoverable(self.text);
         for e in &parse_errors {
             let span = e.span().unwrap_or(0..0);
-            self.error(span, format!("not valid TOML: {}", e.message().trim()));
+            // What the span covers (a key given twice, a bad value), when it is short.
+            let at = self
+                .text
+                .get(span.clone())
+                .and_then(|s| s.lines().next())
+                .map(str::trim)
+                .filter(|s| !s.is_empty() && s.chars().count() <= 80)
+                .map_or(String::new(), |s| format!(" (at `{s}`)"));
+            self.error(span, format!("not valid TOML: {}{at}", e.message().trim()));
         }
         if !parse_errors.is_empty() {
             return None;
@@ -527,13 +535,20 @@ impl<'t> Walker<'t> {
                 ))
             }
         });
+        // Compared only when both were read without error (a wrong one stands at its
+        // default), at the line of whichever of them the file gives (verify's first).
+        let errors = self.errors.len();
+        let at = match span_of(t, "verify") {
+            s if s != (0..0) => s,
+            _ => span_of(t, "ntest"),
+        };
         let ntest = self.checked(t, "ntest", 10usize, |&n| at_least_one(n));
         let verify = self.checked(t, "verify", 5usize, |&n| at_least_one(n));
-        if verify > ntest {
-            self.errors.push((
-                self.line(0),
+        if verify > ntest && self.errors.len() == errors {
+            self.error(
+                at,
                 format!("[calibration] verify = {verify} is more than ntest = {ntest}"),
-            ));
+            );
         }
         let refresh_hz = self.checked(t, "refresh_hz", None, |v: &Option<f64>| {
             match v.and_then(crate::fit::refresh_rate_problem) {
@@ -990,6 +1005,24 @@ mod tests {
     fn broken_toml_is_named() {
         let e = parse("[rig\nkind = 1").unwrap_err().to_string();
         assert!(e.contains("t.toml:1: not valid TOML"), "{e}");
+        let e = parse("[calibration]\nntrain = 12\nntrain = 13\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("t.toml:3: not valid TOML"), "{e}");
+        assert!(e.contains("ntrain"), "{e}");
+        // More verification images than test images: named at the line that sets them; not
+        // said at all when ntest itself was wrong (its default would be quoted).
+        let e = parse("[rig]\nkind = \"virtual\"\n[calibration]\nntest = 4\nverify = 6\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("t.toml:5: [calibration] verify = 6 is more than ntest = 4"),
+            "{e}"
+        );
+        let e = parse("[calibration]\nntest = 0\nverify = 12\n")
+            .unwrap_err()
+            .to_string();
+        assert!(!e.contains("more than ntest"), "{e}");
     }
 
     #[test]

@@ -137,7 +137,7 @@ impl Model {
     /// Loads a model directory; an unknown method, a version mismatch, a missing or mis-shaped
     /// tensor is an input error naming the file.
     pub fn load(dir: &Path) -> Result<Self> {
-        if !dir.is_dir() {
+        if !dir.exists() {
             return Err(Error::Missing {
                 path: dir.to_path_buf(),
                 expected: format!(

@@ -751,6 +751,12 @@ pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
 
 /// Reads a model directory's metadata alone (version checked).
 pub fn load_meta(dir: &Path) -> Result<ModelMeta> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(Error::Input(format!(
+            "{}: a file, not a model directory (a folder holding {META_FILE} and {WEIGHTS_FILE})",
+            dir.display()
+        )));
+    }
     let meta_path = dir.join(META_FILE);
     let text = fs::read_to_string(&meta_path)
         .map_err(|e| Error::io(&meta_path, "read model metadata", e))?;
@@ -792,7 +798,8 @@ pub fn check_output(dir: &Path) -> Result<()> {
     let refuse = |what: &str| {
         Err(Error::Input(format!(
             "{}: {what}; only a model directory ({META_FILE} + {WEIGHTS_FILE}) is ever replaced: \
-             choose another --out or move it away",
+             choose another place for the model (--out, or [paths] model for the service) or \
+             move it away",
             dir.display()
         )))
     };
@@ -800,7 +807,7 @@ pub fn check_output(dir: &Path) -> Result<()> {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
         Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
             return Err(Error::Input(format!(
-                "{}: a folder on this path is a file; choose another --out",
+                "{}: a folder on this path is a file; choose another place for the model",
                 dir.display()
             )));
         }
