@@ -67,7 +67,7 @@ fn bench_writes_rows_for_references_and_methods() {
     assert!(md.contains("| textured-plane | 0 | "), "{md}");
     assert!(md.contains("| scene | seed | unreachable % |"), "{md}");
     assert!(
-        out.join("data/seed0/textured-plane/cam/unreachable.png")
+        out.join("data/seed0-textured-plane/textured-plane/cam/unreachable.png")
             .is_file()
     );
     // Both charts are drawn: real PNGs of the chart size with more than the white background.

@@ -928,7 +928,7 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
         "{e}"
     );
     assert!(e.contains("sampling seed 9"), "{e}");
-    assert!(e.contains("choose another --data folder"), "{e}");
+    assert!(e.contains("choose another data folder (--data"), "{e}");
     assert_eq!(std::fs::read(&first).unwrap(), pattern);
     let theirs = data.join("test/img_0002.png");
     let kept = std::fs::read(&theirs).unwrap();

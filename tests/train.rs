@@ -163,7 +163,7 @@ fn train_eval_compensate_linear_and_linear_sl() {
         .collect();
     for (out, says) in [
         (&desire, "would replace the inputs"),
-        (&theirs, "did not write"),
+        (&theirs, "not written by `compend compensate`"),
         (&file, "not a folder; it takes the folder"),
     ] {
         let o = run(out);

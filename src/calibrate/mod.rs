@@ -750,7 +750,7 @@ fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
         r.map_err(|e| match e {
             Error::Input(m) => Error::Input(format!(
                 "{m}; this calibration projects sampling seed {}, network {}, gray level {}: \
-                 choose another --data folder",
+                 choose another data folder (--data, or [paths] data for the service)",
                 p.seed, p.network, p.gray_level
             )),
             e => e,

@@ -16,26 +16,36 @@ pub struct Args {
     #[arg(long)]
     pub input: PathBuf,
     /// Folder for the network-space compensation PNGs (same file names as the inputs), e.g.
-    /// SETUP/prj/cmp/test/MODEL. A file already there is replaced only in a folder an earlier
-    /// `compensate` wrote (it leaves a `.compend-compensated` marker); never the inputs.
+    /// SETUP/prj/cmp/test/MODEL. A file already there is replaced only when an earlier
+    /// `compensate` wrote it (they are listed in the folder's `.compend-compensated`); never the
+    /// inputs.
     #[arg(long)]
     pub out: PathBuf,
 }
 
-/// The marker `compensate` leaves in its output folder: a later run may replace the images
-/// there, and no others.
+/// The list `compensate` keeps in its output folder of the images it wrote there, one name a
+/// line after a header: a later run may replace those, and nothing else.
 const MARKER: &str = ".compend-compensated";
+const MARKER_HEADER: &str = "# compensation images written by `compend compensate`";
 
 pub fn run(args: Args) -> Result<()> {
     let model = Model::load(&args.model)?;
     let inputs = list_inputs(&args.input)?;
-    check_out(&args.out, &inputs)?;
+    let mut ours = check_out(&args.out, &inputs)?;
     std::fs::create_dir_all(&args.out)
         .map_err(|e| compend::Error::io(&args.out, "create folder", e))?;
-    compend::files::write_atomically(
-        &args.out.join(MARKER),
-        b"compensation images written by `compend compensate`\n",
-    )?;
+    // Listed before they are written: a run stopped half-way may be run again.
+    ours.extend(
+        inputs
+            .iter()
+            .filter_map(|p| p.file_name())
+            .map(|n| n.to_string_lossy().into_owned()),
+    );
+    let list: String = std::iter::once(MARKER_HEADER.to_string())
+        .chain(ours)
+        .map(|l| l + "\n")
+        .collect();
+    compend::files::write_atomically(&args.out.join(MARKER), list.as_bytes())?;
     for path in &inputs {
         let img =
             pngio::read_rgb_sized::<Camera>(path, model.camera_size(), "the model's camera size")?;
@@ -53,9 +63,10 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 /// Whether `out` may take the compensation images of `inputs`: a folder (or nothing yet), not
-/// the one the inputs are in, and holding none of their names unless an earlier `compensate`
-/// wrote it ([`MARKER`]). Input errors name the path.
-fn check_out(out: &Path, inputs: &[PathBuf]) -> Result<()> {
+/// the one the inputs are in, where a file of one of their names is there only if an earlier
+/// `compensate` wrote it ([`MARKER`]). Returns the names the marker lists. Input errors name
+/// the path.
+fn check_out(out: &Path, inputs: &[PathBuf]) -> Result<std::collections::BTreeSet<String>> {
     super::check_out_folder(out, "--out")?;
     let here = out.canonicalize().ok();
     if let Some(p) = inputs.iter().find(|p| {
@@ -76,22 +87,33 @@ fn check_out(out: &Path, inputs: &[PathBuf]) -> Result<()> {
         ))
         .into());
     }
-    if out.join(MARKER).is_file() {
-        return Ok(());
-    }
+    let marker = out.join(MARKER);
+    let ours: std::collections::BTreeSet<String> = match std::fs::read_to_string(&marker) {
+        Ok(text) => text
+            .lines()
+            .filter(|l| !l.is_empty() && !l.starts_with('#'))
+            .map(str::to_string)
+            .collect(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Default::default(),
+        Err(e) => return Err(compend::Error::io(&marker, "read", e).into()),
+    };
     if let Some(dest) = inputs
         .iter()
-        .filter_map(|p| p.file_name().map(|n| out.join(n)))
+        .filter_map(|p| p.file_name())
+        .filter(|n| !ours.contains(n.to_string_lossy().as_ref()))
+        .map(|n| out.join(n))
         .find(|d| d.exists())
     {
         return Err(compend::Error::Input(format!(
-            "{}: already there, in a folder `compend compensate` did not write (no {MARKER}), \
-             so it is not replaced: choose another --out",
-            dest.display()
+            "{}: already there, and not written by `compend compensate` (not listed in {}), so \
+             it is not replaced: choose another --out (or, if an older compend wrote it, remove \
+             it)",
+            dest.display(),
+            marker.display()
         ))
         .into());
     }
-    Ok(())
+    Ok(ours)
 }
 
 fn list_inputs(input: &Path) -> Result<Vec<PathBuf>> {

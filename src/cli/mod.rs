@@ -19,8 +19,6 @@ pub mod show;
 pub mod sim;
 pub mod train;
 
-/// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
-/// 1 when there is none.
 /// An output folder's flag (`flag`) and value (`path`): a folder, or nothing yet (the writer
 /// creates it). Anything else there is an input error naming it, found before any work.
 pub fn check_out_folder(path: &std::path::Path, flag: &str) -> compend::Result<()> {
@@ -33,6 +31,8 @@ pub fn check_out_folder(path: &std::path::Path, flag: &str) -> compend::Result<(
     Ok(())
 }
 
+/// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
+/// 1 when there is none.
 pub fn exit_code(err: &anyhow::Error) -> u8 {
     for cause in err.chain() {
         if let Some(e) = cause.downcast_ref::<compend::Error>() {

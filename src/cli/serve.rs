@@ -78,7 +78,9 @@ pub struct ConfigArgs {
 
 #[derive(clap::Subcommand, Debug)]
 pub enum ConfigCommand {
-    /// Check a configuration file: every error at once, each with its line (exit 2 if any).
+    /// Check a configuration file: every error at once, each with its line (exit 2 if any); then
+    /// what `serve` would refuse of the file's surroundings (the scene, the paths, the token
+    /// file), without writing anything.
     Check {
         file: PathBuf,
         /// Print the configuration with every default filled in, as JSON.
@@ -331,7 +333,7 @@ pub fn config(a: ConfigArgs) -> Result<()> {
 fn check(file: &Path, json: bool) -> Result<()> {
     let c = Config::load(file)?;
     // What `serve` would refuse at its start, besides the file itself.
-    compend::service::preflight(&c).with_context(|| format!("{}", file.display()))?;
+    compend::service::preflight(&c, false).with_context(|| format!("{}", file.display()))?;
     if json {
         println!("{}", serde_json::to_string_pretty(&c)?);
     } else {

@@ -795,6 +795,23 @@ pub fn load_meta(dir: &Path) -> Result<ModelMeta> {
 /// The folder that will hold `dir` must be writable, and so must a model directory there (its
 /// files are removed once the new one is in place).
 pub fn check_output(dir: &Path) -> Result<()> {
+    if shape(dir, true)? {
+        crate::files::check_contents_removable(dir)?;
+    }
+    crate::files::check_writable(dir)
+}
+
+/// What [`check_output`] checks of what is at `dir`, without needing to write there (for
+/// `compend config check`, which may run as another user than the service): nothing, an empty
+/// folder or a model directory. What this process may not look at is taken as nothing.
+pub fn check_model_path(dir: &Path) -> Result<()> {
+    shape(dir, false).map(drop)
+}
+
+/// Whether `dir` holds a model directory (`Ok(false)`: nothing there, or an empty folder);
+/// anything else is an input error naming it. `strict`: a path this process cannot look at
+/// is an error too.
+fn shape(dir: &Path, strict: bool) -> Result<bool> {
     let refuse = |what: &str| {
         Err(Error::Input(format!(
             "{}: {what}; only a model directory ({META_FILE} + {WEIGHTS_FILE}) is ever replaced: \
@@ -804,18 +821,21 @@ pub fn check_output(dir: &Path) -> Result<()> {
         )))
     };
     match fs::symlink_metadata(dir) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-        Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
-            return Err(Error::Input(format!(
-                "{}: a folder on this path is a file; choose another place for the model",
-                dir.display()
-            )));
-        }
-        Err(e) => return Err(Error::io(dir, "inspect the output path", e)),
-        Ok(m) if m.file_type().is_symlink() => return refuse("is a symbolic link"),
-        Ok(m) if !m.is_dir() => return refuse("is a file, not a model directory"),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+        Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => Err(Error::Input(format!(
+            "{}: a folder on this path is a file; choose another place for the model",
+            dir.display()
+        ))),
+        Err(_) if !strict => Ok(false),
+        Err(e) => Err(Error::io(dir, "inspect the output path", e)),
+        Ok(m) if m.file_type().is_symlink() => refuse("is a symbolic link"),
+        Ok(m) if !m.is_dir() => refuse("is a file, not a model directory"),
         Ok(_) => {
-            let entries = fs::read_dir(dir).map_err(|e| Error::io(dir, "list", e))?;
+            let entries = match fs::read_dir(dir) {
+                Ok(entries) => entries,
+                Err(_) if !strict => return Ok(false),
+                Err(e) => return Err(Error::io(dir, "list", e)),
+            };
             let mut names = Vec::new();
             for entry in entries {
                 let entry = entry.map_err(|e| Error::io(dir, "list", e))?;
@@ -829,12 +849,9 @@ pub fn check_output(dir: &Path) -> Result<()> {
                     "has no readable {META_FILE} with a format_version"
                 ));
             }
-            if !names.is_empty() {
-                crate::files::check_contents_removable(dir)?;
-            }
+            Ok(!names.is_empty())
         }
     }
-    crate::files::check_writable(dir)
 }
 
 /// Whether `path` is a compend model's metadata file (JSON with a `format_version`).

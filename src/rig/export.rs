@@ -25,6 +25,9 @@ use crate::raster::{ImageSize, PrjImage, Rect};
 
 /// Name of the file in the setup folder that records how the setup was simulated.
 pub const RIG_FILE: &str = "rig.json";
+/// Written in a setup before an export's first capture and removed once [`RIG_FILE`] is there:
+/// an export that was interrupted may be run again over its own captures.
+const EXPORTING_FILE: &str = ".exporting";
 
 /// First frame index of each capture set: noise depends on the frame index, and fixed bases
 /// keep, e.g., the test captures the same whatever the number of training images.
@@ -98,19 +101,18 @@ pub struct ExportSummary {
 }
 
 /// Whether an export may write the setup `setup` under the data root `root`: over an earlier
-/// export (a pure function of its scene and seed, `rig.json` beside it), but never over
-/// captures that did not come from one (a calibration's, a recorded data set's): an input error
-/// naming the folder.
+/// export (its scene and seed made it; `rig.json` beside it, or the marker of one that was
+/// interrupted), but never over captures that did not come from one (a calibration's, a
+/// recorded data set's): an input error naming the folder.
 pub fn check_setup_free(root: &Path, setup: &Path) -> Result<()> {
     let dir = root.join(setup);
     let raw = dir.join("cam").join("raw");
     let holds_captures = std::fs::read_dir(&raw).is_ok_and(|mut d| d.next().is_some());
-    if holds_captures && !dir.join(RIG_FILE).is_file() {
+    let exported = dir.join(RIG_FILE).is_file() || dir.join(EXPORTING_FILE).is_file();
+    if holds_captures && !exported {
         return Err(Error::Input(format!(
-            "{}: holds captures and no {RIG_FILE} (the record `sim export` writes when it \
-             ends), so they may be a calibration's or a recorded set's, and are never replaced: \
-             choose another --out or --setup (or remove the folder, if it is an export that was \
-             interrupted)",
+            "{}: holds captures that no export made (no {RIG_FILE}), a calibration's or a \
+             recorded set's, which are never replaced: export into another folder",
             dir.display()
         )));
     }
@@ -137,6 +139,8 @@ pub fn export_setup(
     let net = root.network_size()?;
     check_setup_free(root.path(), setup)?;
     let setup = Setup::create(root, setup)?;
+    let exporting = setup.path().join(EXPORTING_FILE);
+    crate::files::write_atomically(&exporting, b"a `compend sim export` under way\n")?;
     let rig = Capturing {
         sim,
         root,
@@ -172,6 +176,7 @@ pub fn export_setup(
         test_captures: opts.ntest,
     };
     write_record(&rig.setup, &record)?;
+    std::fs::remove_file(&exporting).map_err(|e| Error::io(&exporting, "remove", e))?;
     Ok(ExportSummary {
         setup: rig.setup.path().to_path_buf(),
         record,

@@ -207,12 +207,14 @@ pub(crate) fn clipped(text: &str) -> std::borrow::Cow<'_, str> {
     .into()
 }
 
-/// What the service checks of its configuration's surroundings before it starts, and
-/// `compend config check` with it: the virtual rig's scene loads at the configured sizes, the
-/// TCP token file reads, `[paths] model` is a model directory or nothing yet, and `[paths]
-/// state` and `data` are folders or nothing yet. The first problem is an input error naming
-/// the key and the path.
-pub fn preflight(config: &Config) -> Result<()> {
+/// What the service checks of its configuration's surroundings before it starts: the virtual
+/// rig's scene loads at the configured sizes, the TCP token file reads, `[paths] model` is a
+/// model directory or nothing yet (and can be written: `for_service`), and `[paths] state` and
+/// `data` are folders or nothing yet. The first problem is an error naming the key or the path.
+/// `compend config check`, which may run as another user than the service, leaves out what
+/// needs the service's own access (`for_service` false): the token file is only looked up, and
+/// the model path is not written to.
+pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
     let r = &config.rig;
     if matches!(r.kind, RigKind::Virtual | RigKind::Window) {
         let scene = crate::rig::scene::load(&r.scene)?;
@@ -221,7 +223,16 @@ pub fn preflight(config: &Config) -> Result<()> {
         scene.with_resolution(cam, prj).validate()?;
     }
     if let (Some(_), Some(file)) = (config.socket.tcp, &config.socket.tcp_token_file) {
-        socket::Token::read(file)?;
+        if for_service {
+            socket::Token::read(file)?;
+        } else if let Err(e) = std::fs::metadata(file)
+            && e.kind() == std::io::ErrorKind::NotFound
+        {
+            return Err(Error::Input(format!(
+                "[socket] tcp_token_file = \"{}\": no such file",
+                file.display()
+            )));
+        }
     }
     for (key, dir) in [
         ("[paths] state", &config.paths.state),
@@ -234,7 +245,11 @@ pub fn preflight(config: &Config) -> Result<()> {
             )));
         }
     }
-    crate::model::store::check_output(&config.paths.model)
+    if for_service {
+        crate::model::store::check_output(&config.paths.model)
+    } else {
+        crate::model::store::check_model_path(&config.paths.model)
+    }
 }
 
 /// How the service reads its configuration again on SIGHUP: the file with the command line's
@@ -245,7 +260,7 @@ pub type Reload = Box<dyn Fn() -> Result<Config> + Send + Sync>;
 /// Runs the service until it is stopped (a `stop` request, SIGTERM, SIGINT). `reload` reads the
 /// configuration again on SIGHUP.
 pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
-    preflight(&config)?;
+    preflight(&config, true)?;
     let (tx, rx) = mpsc::channel();
     let rig_name = engine::rig_name(&config);
     let shared = Arc::new(Shared::new(rig_name, tx));

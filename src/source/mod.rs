@@ -88,7 +88,7 @@ pub fn open(spec: &SourceSpec) -> Result<Box<dyn VideoSource>> {
 }
 
 /// Whether `spec` names a source that can be played, without starting it: a still image is
-/// decoded, and so is the first image of a folder; a raw source's file, FIFO or device and a
+/// decoded, and so is the first image of a folder that decodes; a raw source's file, FIFO or device and a
 /// camera's device must exist (neither is opened: a FIFO's open waits for its writer, and a
 /// frame read here would be lost to the playback). The service checks a `play` request with
 /// it before the picture that is on stops.
@@ -103,12 +103,8 @@ pub fn check(spec: &SourceSpec) -> Result<()> {
     };
     match spec {
         SourceSpec::Image(path) => read_image(path).map(|_| ()),
-        SourceSpec::Folder { dir, period } => {
-            let show = Slideshow::new(dir, *period)?;
-            show.files
-                .first()
-                .map_or(Ok(()), |p| read_image(p).map(|_| ()))
-        }
+        // As the show plays it: past images that do not decode, to the first that does.
+        SourceSpec::Folder { dir, period } => Slideshow::new(dir, *period)?.next().map(|_| ()),
         SourceSpec::Raw { path: Some(p), .. } => exists(p, "a raw source"),
         SourceSpec::Raw { path: None, .. } | SourceSpec::Pattern { .. } => Ok(()),
         #[cfg(target_os = "linux")]
@@ -155,6 +151,8 @@ struct Slideshow {
     files: Vec<PathBuf>,
     period: Duration,
     index: usize,
+    /// The images skipped so far (each is warned of once).
+    skipped: std::collections::HashSet<usize>,
 }
 
 const IMAGE_EXTENSIONS: &[&str] = &["png", "jpg", "jpeg"];
@@ -183,6 +181,7 @@ impl Slideshow {
             files,
             period,
             index: 0,
+            skipped: Default::default(),
         })
     }
 }
@@ -202,9 +201,9 @@ impl VideoSource for Slideshow {
     fn next(&mut self) -> Result<Next> {
         let mut last = None;
         for _ in 0..self.files.len() {
-            let path = &self.files[self.index % self.files.len()];
+            let k = self.index % self.files.len();
             self.index += 1;
-            match read_image(path) {
+            match read_image(&self.files[k]) {
                 Ok(frame) => {
                     return Ok(Next::Frame {
                         frame,
@@ -212,7 +211,9 @@ impl VideoSource for Slideshow {
                     });
                 }
                 Err(e) => {
-                    tracing::warn!("slideshow: skipping {}: {e}", path.display());
+                    if self.skipped.insert(k) {
+                        tracing::warn!("slideshow: skipping {}: {e}", self.files[k].display());
+                    }
                     last = Some(e);
                 }
             }
@@ -312,13 +313,9 @@ mod tests {
             dir: dir.path().to_path_buf(),
             period: Duration::from_secs(1),
         };
-        // The first image is the damaged one: `check` reads it, as the show would first.
-        let e = check(&spec).unwrap_err().to_string();
-        assert!(
-            e.contains("a.png") && e.contains("not a readable image"),
-            "{e}"
-        );
-        // The show itself goes on past it, to the good one, again and again.
+        // The first image is the damaged one: `check`, as the show, goes on past it to the good
+        // one, and the show shows that one again and again.
+        check(&spec).unwrap();
         let mut show = open(&spec).unwrap();
         for _ in 0..3 {
             match show.next().unwrap() {
@@ -326,9 +323,11 @@ mod tests {
                 Next::End => panic!("a slideshow does not end"),
             }
         }
-        // With none readable, it says so.
+        // With none readable, both say so.
         std::fs::write(&b, b"not a png").unwrap();
         let e = show.next().err().unwrap().to_string();
+        assert!(e.contains("not a readable image"), "{e}");
+        let e = check(&spec).unwrap_err().to_string();
         assert!(e.contains("not a readable image"), "{e}");
         // A still image and a raw file are checked without playing them; a pattern always
         // plays.

@@ -157,13 +157,13 @@ pub fn run(args: Args) -> Result<()> {
         for name in &scenes {
             let scene = super::sim::resolve(name, &sa)?;
             eprintln!("bench: scene {} seed {seed}", scene.name);
-            // Closed-loop pairs are one scene's compensation images, written after the
-            // sampling images: with them each scene has a data root of its own.
-            let root_dir = args.out.join("data").join(if args.loop_images > 0 {
-                format!("seed{seed}-{}", scene.name)
-            } else {
-                format!("seed{seed}")
-            });
+            // Each scene has a data root of its own: its closed-loop pairs are its own
+            // compensation images, and its projector may have a resolution of its own (a
+            // root's images are never replaced by others).
+            let root_dir = args
+                .out
+                .join("data")
+                .join(format!("seed{seed}-{}", scene.name));
             rig::export::check_loop_slots(
                 &root_dir,
                 Path::new(&scene.name),
@@ -178,6 +178,13 @@ pub fn run(args: Args) -> Result<()> {
                 size: sa.network,
                 projector: scene.projector.size(),
                 gray_level: compend::patterns::DEFAULT_GRAY_LEVEL,
+            })
+            .with_context(|| {
+                format!(
+                    "the bench's data root {} (another --network or --ntrain than the run \
+                     that wrote it?): choose another --out",
+                    root_dir.display()
+                )
             })?;
             let root = DataRoot::open(&root_dir)?;
             let sim = Simulator::new(&scene, seed, Phase::Calibration)?;
