@@ -912,6 +912,11 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
     let o = compend(&calibrate_args(d, &["--rig", "virtual", "--seed", "9"]));
     assert_code(&o, 2);
     assert!(stderr(&o).contains("another pattern set"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("this calibration projects seed 9, 12 training"),
+        "{}",
+        stderr(&o)
+    );
     // Its patterns without its captures (the setup set aside): another seed is refused too,
     // naming the first pattern that differs, and so is an image of someone else's in place of
     // one of this set's; the patterns stay as they were.

@@ -31,6 +31,16 @@ pub struct PatternSet {
     pub gray_level: u8,
 }
 
+impl std::fmt::Display for PatternSet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "seed {}, {} training and {} test images, network {}, projector {}, gray level {}",
+            self.seed, self.ntrain, self.ntest, self.network, self.projector, self.gray_level
+        )
+    }
+}
+
 /// The manifest: the pattern set and the captures written so far (paths relative to the setup).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -185,9 +195,9 @@ impl Manifest {
                 })?;
                 if m.patterns != *patterns {
                     return Err(Error::Input(format!(
-                        "{}: these captures belong to another pattern set ({:?}, this \
-                         calibration projects {:?}); choose another --data folder or move this \
-                         one away",
+                        "{}: these captures belong to another pattern set ({}; this \
+                         calibration projects {}); choose another data folder (--data, or \
+                         [paths] data for the service) or move this one away",
                         setup.display(),
                         m.patterns,
                         patterns
