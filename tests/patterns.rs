@@ -452,9 +452,8 @@ fn png_names(dir: &std::path::Path) -> Vec<String> {
 #[test]
 fn cli_writes_a_deterministic_dataset() {
     let tmp = tempfile::tempdir().unwrap();
-    let run = |name: &str, seed: &str| {
-        let root = tmp.path().join(name);
-        let o = compend(&[
+    let patterns = |root: &std::path::Path, seed: &str| {
+        compend(&[
             "patterns",
             "--out",
             root.to_str().unwrap(),
@@ -470,7 +469,11 @@ fn cli_writes_a_deterministic_dataset() {
             "20x10",
             "--gray-level",
             "100",
-        ]);
+        ])
+    };
+    let run = |name: &str, seed: &str| {
+        let root = tmp.path().join(name);
+        let o = patterns(&root, seed);
         assert_code(&o, 0);
         assert!(
             stderr(&o).contains("wrote"),
@@ -547,26 +550,7 @@ fn cli_writes_a_deterministic_dataset() {
     // refused, naming the first image it would replace, and replaces none.
     let before = bytes(&a, "train/img_0001.png");
     run("a", "5");
-    let again = |seed: &str| {
-        compend(&[
-            "patterns",
-            "--out",
-            a.to_str().unwrap(),
-            "--ntrain",
-            "3",
-            "--ntest",
-            "2",
-            "--seed",
-            seed,
-            "--size",
-            "16x8",
-            "--projector",
-            "20x10",
-            "--gray-level",
-            "100",
-        ])
-    };
-    let o = again("6");
+    let o = patterns(&a, "6");
     assert_code(&o, 2);
     let e = stderr(&o);
     assert!(e.contains("img_000") && e.contains("another image"), "{e}");

@@ -549,19 +549,25 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
     eval_json(&climbed, &setup);
     // It is the model `--method compennet++-res` trains on those pairs with that seed, to the
     // byte.
+    // The residual rung for 3 iterations on the first `n` pairs, into `out`.
+    let res_on = |n: &str, out: &Path| {
+        let o = compend(&[
+            "train",
+            "--setup",
+            setup.to_str().unwrap(),
+            "--method",
+            "compennet++-res",
+            "--iters",
+            "3",
+            "--ntrain",
+            n,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_code(&o, 0);
+    };
     let res = dir.path().join("res");
-    let o = compend(&[
-        "train",
-        "--setup",
-        setup.to_str().unwrap(),
-        "--method",
-        "compennet++-res",
-        "--iters",
-        "3",
-        "--out",
-        res.to_str().unwrap(),
-    ]);
-    assert_code(&o, 0);
+    res_on("16", &res);
     let weights = |m: &Path| std::fs::read(m.join("model.safetensors")).unwrap();
     assert!(
         weights(&res) == weights(&climbed),
@@ -572,20 +578,7 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
     // paper protocol on the 4 held-out pairs, the judgement's last figure. Its correction is
     // not zero after 3 iterations, so this checks the correction's path too.
     let judged_rung = dir.path().join("judged");
-    let o = compend(&[
-        "train",
-        "--setup",
-        setup.to_str().unwrap(),
-        "--method",
-        "compennet++-res",
-        "--iters",
-        "3",
-        "--ntrain",
-        "12",
-        "--out",
-        judged_rung.to_str().unwrap(),
-    ]);
-    assert_code(&o, 0);
+    res_on("12", &judged_rung);
     let judged_model = compend::model::Model::load(&judged_rung).unwrap();
     let mut pairs = compend::dataset::Setup::open(&setup, None)
         .unwrap()
