@@ -105,6 +105,12 @@ fn parse_size(spec: &str, v: &str) -> Result<ImageSize> {
             format!("size {v:?} must be 1..16384 on each side"),
         ));
     }
+    if w * h > ImageSize::MAX_PIXELS {
+        return Err(bad(
+            spec,
+            format!("size {v:?} is more than the 8192x8192 pixels a frame may have"),
+        ));
+    }
     Ok(ImageSize::new(w, h))
 }
 
@@ -338,6 +344,7 @@ mod tests {
             "raw:-?size=12",
             "raw:-?size=4x4&format=yuv",
             "raw:-?size=4x4&fps=3",
+            "raw:-?size=16384x16384",
             "pattern:nope",
             "/definitely/not/here.png",
         ] {
