@@ -595,6 +595,49 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
     );
     assert!((at(&curve[3]) - at(&curve[0])).abs() > 1e-4, "{auto}");
 
+    // A margin of zero, which the rung's gain reaches early (with seed 3): its judged training
+    // stops once the gain has been at or past it at two checkpoints after the start (settled),
+    // before the end of its 8 iterations, and the rung climbs. The model kept is the rung
+    // trained again from its start for all 8 iterations on all 16 pairs, to the byte.
+    let settled = dir.path().join("settled");
+    let args = ["--iters", "8", "--seed", "3"];
+    let meta = train_auto(
+        &setup,
+        &settled,
+        &[&args[..], &["--climb-gain", "0"]].concat(),
+    );
+    assert_eq!(meta["method"], "compennet++-res", "{meta}");
+    let auto = &meta["training"]["auto"];
+    let judged = &auto["judged"];
+    let at_stop = judged["settled_at"].as_u64().unwrap() as usize;
+    assert!(at_stop >= 2 && at_stop < 8, "{auto}");
+    assert!(judged.get("stopped_at").is_none(), "{auto}");
+    let curve = judged["curve"].as_array().unwrap();
+    assert_eq!(curve.len(), at_stop + 1, "{auto}");
+    let lin = psnr(&auto["candidates"][0]);
+    assert!(curve[at_stop - 1..].iter().all(|c| at(c) >= lin), "{auto}");
+    assert_eq!(auto["retrained"]["pairs"], 16, "{auto}");
+    assert_eq!(meta["training"]["iterations"], 8);
+    let alone = dir.path().join("alone");
+    let o = compend(
+        &[
+            &["train", "--setup", setup.to_str().unwrap()][..],
+            &[
+                "--method",
+                "compennet++-res",
+                "--out",
+                alone.to_str().unwrap(),
+            ],
+            &args,
+        ]
+        .concat(),
+    );
+    assert_code(&o, 0);
+    assert!(
+        weights(&alone) == weights(&settled),
+        "the settled climb's model differs from the rung's"
+    );
+
     // Without structured-light captures, `linear` is the only linear candidate, scored on the
     // held-out pairs the climb is judged on.
     std::fs::remove_dir_all(setup.join("cam/raw/sl")).unwrap();
