@@ -963,25 +963,59 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
     // Its training stopped once its gain had slowed out of reach of the margin.
     assert!(svc.log().contains("would not reach"), "log:\n{}", svc.log());
 
-    // Any gain will do (reloaded with SIGHUP), and a recalibration: the climbed rung beats the
+    // A new configuration, reloaded with SIGHUP (the `n`th reload), and a recalibration.
+    let recalibrate_with = |svc: &mut Service, text: String, n: usize| {
+        std::fs::write(&config, text).unwrap();
+        unsafe { libc::kill(svc.pid(), libc::SIGHUP) };
+        let start = Instant::now();
+        while svc.log().matches("reload: configuration applied").count() < n {
+            assert!(
+                start.elapsed() < Duration::from_secs(20),
+                "log:\n{}",
+                svc.log()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        assert_eq!(svc.ask(r#"{"cmd":"recalibrate"}"#)["ok"], true);
+    };
+
+    // The residual rung with any gain: judged on the closed-loop pairs held out of its
+    // training, trained again on every pair, confirmed by the rig and installed.
+    recalibrate_with(
+        &mut svc,
+        climbing("compennet++-res", "-100.0\nrefresh_hz = 0.001"),
+        1,
+    );
+    let s = svc.wait_for("the residual rung playing", 300, |s| {
+        playing(s) && s["model"]["method"] == "compennet++-res"
+    });
+    assert_eq!(s["calibrations"], 2, "{s}");
+    assert_eq!(s["last_climb"]["installed"], true, "{s}");
+    assert_eq!(s["model"]["climb"]["replaced"], "linear", "{s}");
+    assert_eq!(s["model"]["climb"]["closed_loop"]["passed"], true, "{s}");
+    // A margin below zero never settles: judged at every one of its 8 iterations.
+    let judged = &s["model"]["climb"]["loop_held_out"];
+    assert_eq!(judged["pairs"], 4, "{s}");
+    assert_eq!(judged["iterations"], 8, "{s}");
+    assert_eq!(judged["curve"].as_array().unwrap().len(), 9, "{s}");
+    let meta: Value =
+        serde_json::from_slice(&std::fs::read(model.join("model.json")).unwrap()).unwrap();
+    assert_eq!(meta["method"], "compennet++-res", "{meta}");
+    assert!(
+        svc.log()
+            .contains("compennet++-res climbs; training it again from its start on all"),
+        "log:\n{}",
+        svc.log()
+    );
+
+    // Any gain will do, and a recalibration: the climbed rung beats the
     // installed one on the held-out pairs, the playback stops while the rig projects both, and
     // it is installed and played, with its evidence.
-    std::fs::write(&config, climbing("compennet++-cpu", "-100.0")).unwrap();
-    unsafe { libc::kill(svc.pid(), libc::SIGHUP) };
-    let start = Instant::now();
-    while !svc.log().contains("reload: configuration applied") {
-        assert!(
-            start.elapsed() < Duration::from_secs(20),
-            "log:\n{}",
-            svc.log()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    assert_eq!(svc.ask(r#"{"cmd":"recalibrate"}"#)["ok"], true);
+    recalibrate_with(&mut svc, climbing("compennet++-cpu", "-100.0"), 2);
     let s = svc.wait_for("the climbed model playing", 300, |s| {
         playing(s) && s["model"]["method"] == "compennet++-cpu"
     });
-    assert_eq!(s["calibrations"], 2, "{s}");
+    assert_eq!(s["calibrations"], 3, "{s}");
     assert_eq!(s["last_climb"]["method"], "compennet++-cpu", "{s}");
     assert_eq!(s["last_climb"]["installed"], true, "{s}");
     let climb = &s["model"]["climb"];
