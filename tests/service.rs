@@ -792,16 +792,40 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
 
     // A second service on the same state directory, even on another socket, is refused: the
     // first holds the directory's lock.
-    let lock = std::fs::File::create(dir.path().join("state/compend.lock")).unwrap();
+    let lock_path = dir.path().join("state/compend.lock");
+    std::fs::write(&lock_path, "4242 serve\n").unwrap();
+    let lock = std::fs::File::open(&lock_path).unwrap();
     lock.try_lock().unwrap();
     let o = compend(&["serve", "--config", config.to_str().unwrap()]);
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains("another `compend serve` holds this state directory"),
+        stderr(&o).contains(
+            "`compend serve` (pid 4242) holds this state directory; one service runs per state"
+        ),
         "{}",
         stderr(&o)
     );
     assert!(!socket.exists());
+    // Nor does `calibrate` on the service's configuration capture from its rig and install
+    // into its model path while it runs; the service calibrates on request.
+    let o = compend(&["calibrate", "--config", config.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("(pid 4242) holds this state directory; the running service calibrates on request (`compend recalibrate`)"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.path().join("state/model").exists());
+    assert_eq!(std::fs::read_to_string(&lock_path).unwrap(), "4242 serve\n");
+    // A calibration holding it keeps a service from starting.
+    std::fs::write(&lock_path, "4243 calibrate\n").unwrap();
+    let o = compend(&["serve", "--config", config.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("`compend calibrate` (pid 4243) holds this state directory; wait"),
+        "{}",
+        stderr(&o)
+    );
     drop(lock);
 
     // A second service on a live socket is refused; the first goes on.

@@ -610,7 +610,7 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
     let auto = &meta["training"]["auto"];
     let judged = &auto["judged"];
     let at_stop = judged["settled_at"].as_u64().unwrap() as usize;
-    assert!(at_stop >= 2 && at_stop < 8, "{auto}");
+    assert!((2..8).contains(&at_stop), "{auto}");
     assert!(judged.get("stopped_at").is_none(), "{auto}");
     let curve = judged["curve"].as_array().unwrap();
     assert_eq!(curve.len(), at_stop + 1, "{auto}");

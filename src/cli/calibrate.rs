@@ -185,6 +185,9 @@ struct Settings {
     /// With `--config` and no `--data`: the runs folder (`[paths] data`) and how many runs to
     /// keep; the calibration goes to a run folder of its own, as the service's do.
     runs: Option<(Runs, usize)>,
+    /// With `--config`: the service's state directory (`[paths] state`), locked while this
+    /// calibration runs ([`compend::service::lock_state`]).
+    state: Option<PathBuf>,
 }
 
 impl Settings {
@@ -316,6 +319,7 @@ impl Settings {
             network: a.network.unwrap_or(k.network),
             json: a.json,
             runs,
+            state: file.map(|f| f.paths.state),
         })
     }
 }
@@ -353,6 +357,13 @@ pub fn run(args: Args) -> Result<()> {
     // Before any work: where the model goes must take a model, and the numbers must make sense.
     compend::model::store::check_output(&out)?;
     check_counts(&args)?;
+    // A service on this configuration drives its rig and installs into its model path: not
+    // while it runs, and it does not start while this does. A state directory not made yet has
+    // no service.
+    let _lock = match &args.state {
+        Some(state) if state.is_dir() => compend::service::lock_state_if_held(state, "calibrate")?,
+        _ => None,
+    };
     let Some((runs, keep)) = args.runs.take() else {
         return dispatch(&args, &out);
     };

@@ -268,7 +268,7 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
         .map_err(|e| Error::io(&config.paths.state, "create state directory", e))?;
     // One service per state directory: two would calibrate into, prune and install into the
     // same folders. Held until this returns.
-    let _lock = lock_state(&config.paths.state)?;
+    let _lock = lock_state(&config.paths.state, "serve")?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("compend-control")
@@ -305,37 +305,87 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
     result
 }
 
-/// The lock file in the state directory `state` (`compend.lock`, holding the pid), locked
-/// exclusively for as long as the returned file is kept; the kernel lets it go when the process
-/// ends, however it ends. Another service holding it is an input error naming it.
-fn lock_state(state: &Path) -> Result<std::fs::File> {
-    use std::io::Write;
+/// The lock file in the state directory `state` (`compend.lock`), locked exclusively by `holder`
+/// (`serve`, or `calibrate` with a `--config`) for as long as the returned file is kept; the
+/// kernel lets it go when the process ends, however it ends. The file holds the pid and the
+/// holder, for the message another one gets: an input error naming it. One process drives a
+/// configuration's rig and writes into its state at a time: two would capture from one camera
+/// and install into one model directory.
+pub fn lock_state(state: &Path, holder: &str) -> Result<std::fs::File> {
     let path = state.join("compend.lock");
-    let mut file = std::fs::OpenOptions::new()
+    let file = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
         .create(true)
         .truncate(false)
         .open(&path)
         .map_err(|e| Error::io(&path, "open the state directory's lock file", e))?;
+    take_lock(file, true, state, holder)
+}
+
+/// [`lock_state`] for a process that may not be able to write `state` (`calibrate --config`
+/// run by another user, its captures and model elsewhere): a lock file it cannot open for
+/// writing is locked read-only (flock needs no write access), and where there is none and none
+/// can be made, no process holds the directory (every holder makes one): `None`.
+pub fn lock_state_if_held(state: &Path, holder: &str) -> Result<Option<std::fs::File>> {
+    match lock_state(state, holder) {
+        Ok(file) => Ok(Some(file)),
+        Err(Error::Io { source, .. }) if source.kind() == std::io::ErrorKind::PermissionDenied => {
+            let path = state.join("compend.lock");
+            match std::fs::File::open(&path) {
+                Ok(file) => take_lock(file, false, state, holder).map(Some),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+                Err(e) => Err(Error::io(&path, "open the state directory's lock file", e)),
+            }
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// Locks `file`, the lock file of `state`, for `holder`, and writes the pid and holder into it
+/// when `writable`.
+fn take_lock(
+    mut file: std::fs::File,
+    writable: bool,
+    state: &Path,
+    holder: &str,
+) -> Result<std::fs::File> {
+    use std::io::Write;
+    let path = state.join("compend.lock");
     match file.try_lock() {
         Ok(()) => {}
         Err(std::fs::TryLockError::WouldBlock) => {
-            let pid = std::fs::read_to_string(&path).unwrap_or_default();
+            let text = std::fs::read_to_string(&path).unwrap_or_default();
+            let mut words = text.split_whitespace();
+            let pid = words.next().unwrap_or("unknown");
+            // A lock written before the holder was recorded is a service's.
+            let other = words.next().unwrap_or("serve");
+            let hint = match (holder, other) {
+                ("serve", "serve") => {
+                    "one service runs per state directory: stop that one, or give this one \
+                     another --state"
+                }
+                ("serve", _) => "wait for the calibration to end, then start the service",
+                (_, "serve") => {
+                    "the running service calibrates on request (`compend recalibrate`); or stop \
+                     it first"
+                }
+                _ => "wait for that calibration to end",
+            };
             return Err(Error::Input(format!(
-                "{}: another `compend serve` holds this state directory (pid {}); one service \
-                 runs per state directory: stop that one, or give this one another --state",
+                "{}: `compend {other}` (pid {pid}) holds this state directory; {hint}",
                 state.display(),
-                pid.trim()
             )));
         }
         Err(std::fs::TryLockError::Error(e)) => {
             return Err(Error::io(&path, "lock the state directory", e));
         }
     }
-    file.set_len(0)
-        .and_then(|()| writeln!(file, "{}", std::process::id()))
-        .map_err(|e| Error::io(&path, "write the pid to", e))?;
+    if writable {
+        file.set_len(0)
+            .and_then(|()| writeln!(file, "{} {holder}", std::process::id()))
+            .map_err(|e| Error::io(&path, "write the pid to", e))?;
+    }
     Ok(file)
 }
 
