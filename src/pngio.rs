@@ -88,6 +88,27 @@ pub fn png_size(path: &Path) -> Result<ImageSize> {
     Ok(ImageSize::new(w as usize, h as usize))
 }
 
+/// Whether a PNG is grayscale (with or without alpha), from its header.
+pub fn is_grayscale(path: &Path) -> Result<bool> {
+    use image::ImageDecoder;
+    let decoder = image::ImageReader::open(path)
+        .map_err(|e| Error::io(path, "open", e))?
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, "read", e))?
+        .into_decoder()
+        .map_err(|e| Error::Decode {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+    Ok(matches!(
+        decoder.color_type(),
+        image::ColorType::L8
+            | image::ColorType::La8
+            | image::ColorType::L16
+            | image::ColorType::La16
+    ))
+}
+
 /// Converts a value in [0,1] to 8 bits, rounding to nearest and clamping.
 #[inline]
 pub fn to_u8(v: f32) -> u8 {

@@ -805,3 +805,36 @@ fn a_native_lattice_is_the_projectors_resolution() {
         serde_json::json!([NET * 3 / 2, NET * 3 / 2])
     );
 }
+
+#[test]
+fn grayscale_and_translucent_captures_are_read_with_a_warning_naming_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = make_setup(dir.path(), 8, 2);
+    let model = dir.path().join("model");
+    // Colour captures: no warning.
+    let o = train_linear(&setup, &model);
+    assert_code(&o, 0);
+    assert!(!stderr(&o).contains("WARN"), "{}", stderr(&o));
+    // One capture saved as gray, another with transparency: both are read (as RGB), and each
+    // is named.
+    let s = Setup::open(&setup, None).unwrap();
+    let gray = s.capture_path(CaptureSet::Train, 2);
+    let rgb = image::open(&gray).unwrap();
+    rgb.to_luma8().save(&gray).unwrap();
+    let clear = s.capture_path(CaptureSet::Train, 5);
+    let mut rgba = image::open(&clear).unwrap().to_rgba8();
+    rgba.get_pixel_mut(0, 0).0[3] = 10;
+    rgba.save(&clear).unwrap();
+    let o = train_linear(&setup, &model);
+    assert_code(&o, 0);
+    let e = stderr(&o);
+    assert!(
+        e.contains("1 of 8 captures are grayscale")
+            && e.contains(&format!("(the first: {})", gray.display())),
+        "{e}"
+    );
+    assert!(
+        e.contains(&format!("{}: alpha channel dropped, 1 of", clear.display())),
+        "{e}"
+    );
+}

@@ -340,12 +340,14 @@ impl Setup {
             return Ok(Vec::new());
         }
         let paths: Vec<PathBuf> = (1..=n).map(|i| self.capture_path(set, i)).collect();
-        read_all(
+        let images = read_all(
             &paths,
             self.camera_size()?,
             &self.camera_why(),
             &self.reference_path(Reference::Black),
-        )
+        )?;
+        warn_if_grayscale(&dir, &paths);
+        Ok(images)
     }
 
     /// Loads the first `n` desired images of `cam/desire/test` (all when `None`) at camera size.
@@ -431,6 +433,30 @@ impl Setup {
         pngio::write_rgb(&p, img)?;
         Ok(p)
     }
+}
+
+/// Captures read as gray (a grayscale PNG has the same value in R, G and B): a colour model
+/// fitted on them cannot tell the projector's channels apart on the surface, so colour content
+/// is compensated wrongly. Logged as a warning naming the folder, the count and the first file
+/// (a capture whose header cannot be read was already refused by the read).
+fn warn_if_grayscale(dir: &Path, paths: &[PathBuf]) {
+    let gray: Vec<&PathBuf> =
+        super::load::par_map(paths, |p| pngio::is_grayscale(p).unwrap_or(false))
+            .into_iter()
+            .zip(paths)
+            .filter_map(|(g, p)| g.then_some(p))
+            .collect();
+    let Some(first) = gray.first() else {
+        return;
+    };
+    tracing::warn!(
+        "{}: {} of {} captures are grayscale (the first: {}); compend fits colour and reads them \
+         as gray, so colour content will be compensated wrongly: capture in colour (RGB)",
+        dir.display(),
+        gray.len(),
+        paths.len(),
+        first.display()
+    );
 }
 
 /// [`Setup::loop_desired_dir`] of the setup folder `setup`, which need not exist yet.
