@@ -21,7 +21,7 @@
 
 use std::collections::HashMap;
 use std::ffi::CString;
-use std::os::unix::fs::{FileTypeExt, PermissionsExt};
+use std::os::unix::fs::{FileTypeExt, MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -52,7 +52,8 @@ const ENGINE_TIMEOUT: Duration = Duration::from_secs(30);
 #[derive(Clone, Debug)]
 pub struct Access {
     own_uid: u32,
-    group: Option<u32>,
+    /// The socket's group: its members may connect.
+    group: u32,
     allow_uids: Vec<u32>,
 }
 
@@ -62,10 +63,7 @@ impl Access {
         if uid == 0 || uid == self.own_uid || self.allow_uids.contains(&uid) {
             return true;
         }
-        match self.group {
-            Some(g) => gid == g || user_in_group(uid, g),
-            None => false,
-        }
+        gid == self.group || user_in_group(uid, self.group)
     }
 }
 
@@ -109,9 +107,14 @@ pub fn bind(cfg: &SocketConfig) -> Result<(UnixListener, Access)> {
                 ))
             })?;
             chown_group(path, gid)?;
-            Some(gid)
+            gid
         }
-        None => None,
+        // The group the socket file was made with: the service user's (its effective group),
+        // unless the folder's set-group-ID bit gave it the folder's. Its members may open the
+        // 0660 file, and so may talk to the service.
+        None => std::fs::metadata(path)
+            .map_err(|e| Error::io(path, "inspect", e))?
+            .gid(),
     };
     // SAFETY: geteuid has no preconditions and cannot fail.
     let own_uid = unsafe { libc::geteuid() };
@@ -123,6 +126,13 @@ pub fn bind(cfg: &SocketConfig) -> Result<(UnixListener, Access)> {
             allow_uids: cfg.allow_uids.clone(),
         },
     ))
+}
+
+/// Whether a token file of `mode` in the group `gid` may be read by anyone but the service's
+/// user and its group `own_gid`: other users' bits, or group bits of another group. The
+/// service's group may read it: its members control the service through the socket anyway.
+fn others_may_read(mode: u32, gid: u32, own_gid: u32) -> bool {
+    mode & 0o007 != 0 || (mode & 0o070 != 0 && gid != own_gid)
 }
 
 /// Shortest token accepted, bytes: 16 random bytes as hex or base64 are longer.
@@ -145,7 +155,8 @@ impl Token {
         let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
             std::io::ErrorKind::NotFound => Error::Input(format!(
                 "[socket] tcp_token_file: {} does not exist; write a random token into it (e.g. \
-                 `openssl rand -hex 32 > {0}; chmod 600 {0}`)",
+                 `openssl rand -hex 32 > {0}`) that only the service's user and group may read \
+                 (mode 600 or 640, owned by that user or in that group)",
                 path.display()
             )),
             std::io::ErrorKind::PermissionDenied => Error::Input(format!(
@@ -173,13 +184,18 @@ impl Token {
                 }
             )));
         }
+        // SAFETY: getegid has no preconditions and cannot fail.
+        let own_gid = unsafe { libc::getegid() };
         if let Ok(meta) = std::fs::metadata(path)
-            && meta.permissions().mode() & 0o077 != 0
+            && others_may_read(meta.permissions().mode(), meta.gid(), own_gid)
         {
             tracing::warn!(
-                "[socket] tcp_token_file: {} may be read by other users (mode {:o}); chmod 600 it",
+                "[socket] tcp_token_file: {} may be read by users outside the service's user and \
+                 group (mode {:o}, group id {}); chmod 600 it, or give it the service's group and \
+                 chmod 640",
                 path.display(),
-                meta.permissions().mode() & 0o777
+                meta.permissions().mode() & 0o777,
+                meta.gid()
             );
         }
         Ok(Self(Arc::new(token.as_bytes().to_vec())))
@@ -732,6 +748,46 @@ pub fn resolve(socket: Option<PathBuf>, config: Option<&Path>) -> Result<PathBuf
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Without `[socket] group` the socket's group is the one the file was made with (the
+    /// service user's), and its members may connect; others only when root, the service's own
+    /// user or listed.
+    #[test]
+    fn a_token_file_may_be_read_by_the_services_user_and_group_only() {
+        for (mode, gid, warns) in [
+            (0o600, 5, false),
+            (0o640, 7, false),
+            (0o640, 5, true),
+            (0o604, 7, true),
+            (0o660, 7, false),
+            (0o400, 5, false),
+        ] {
+            assert_eq!(
+                others_may_read(mode, gid, 7),
+                warns,
+                "mode {mode:o} group {gid}"
+            );
+        }
+    }
+
+    #[tokio::test]
+    async fn the_socket_group_defaults_to_the_files_and_its_members_may_connect() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = crate::config::Config::defaults().socket;
+        cfg.path = dir.path().join("s.sock");
+        cfg.group = None;
+        cfg.allow_uids = vec![4321];
+        let (_listener, access) = bind(&cfg).unwrap();
+        let file_gid = std::fs::metadata(&cfg.path).unwrap().gid();
+        assert_eq!(access.group, file_gid);
+        // A uid with no passwd entry is in no group but its primary one.
+        let stranger = 987_654;
+        assert!(access.allows(stranger, file_gid));
+        assert!(!access.allows(stranger, file_gid + 1));
+        assert!(access.allows(4321, file_gid + 1));
+        assert!(access.allows(0, file_gid + 1));
+        assert!(access.allows(access.own_uid, file_gid + 1));
+    }
 
     /// Connections numbered by the test, handed over through a channel.
     struct Numbered(tokio::sync::Mutex<tokio::sync::mpsc::UnboundedReceiver<usize>>);
