@@ -266,20 +266,7 @@ impl Config {
 
     /// Reads and parses `path`.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read(path).map_err(|e| match e.kind() {
-            std::io::ErrorKind::NotFound => Error::Missing {
-                path: path.to_path_buf(),
-                expected: "a compend configuration file (TOML)".into(),
-            },
-            _ => Error::io(path, "read", e),
-        })?;
-        let text = String::from_utf8(text).map_err(|e| {
-            Error::Input(format!(
-                "{}: not a text file (invalid UTF-8 at byte {}); expected a TOML configuration",
-                path.display(),
-                e.utf8_error().valid_up_to()
-            ))
-        })?;
+        let text = crate::files::read_text(path, "a compend configuration file (TOML)")?;
         Self::parse(&text, path)
     }
 

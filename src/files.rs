@@ -22,6 +22,87 @@ const TMP_MARK: &str = ".tmp-";
 /// Marker of a previous directory moved aside by the fallback swap: `.NAME.old-PID`.
 const OLD_MARK: &str = ".old-";
 
+/// The bytes of `path`, which must be a regular file (symbolic links followed) of at most
+/// `max_bytes`, described as `what` ("a PNG image", say) in the errors. A FIFO, a device or a
+/// socket is refused without waiting for a writer (opened non-blocking, then checked), as is a
+/// folder: an input error naming it. A missing file is [`Error::Missing`]; a file larger than
+/// `max_bytes` (`/dev/zero` would be endless) is an input error before it is read.
+pub fn read_regular(path: &Path, what: &str, max_bytes: u64) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let (file, len) = open_regular(path, what)?;
+    let too_big = |len: u64| {
+        Error::Input(format!(
+            "{}: {len} bytes or more; {what} may hold at most {max_bytes} bytes",
+            path.display()
+        ))
+    };
+    if len > max_bytes {
+        return Err(too_big(len));
+    }
+    let mut bytes = Vec::with_capacity(len as usize);
+    // A file that grows while it is read stops at the cap.
+    file.take(max_bytes + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| Error::io(path, "read", e))?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(too_big(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
+/// `path` opened for reading, with its length in bytes, when it is a regular file (symbolic
+/// links followed); the errors as for [`read_regular`].
+pub fn open_regular(path: &Path, what: &str) -> Result<(fs::File, u64)> {
+    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    let file = fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)
+        .map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => Error::Missing {
+                path: path.to_path_buf(),
+                expected: what.to_string(),
+            },
+            _ => Error::io(path, "open", e),
+        })?;
+    let meta = file.metadata().map_err(|e| Error::io(path, "inspect", e))?;
+    let kind = meta.file_type();
+    let not = |is: &str| Error::Input(format!("{}: {is}, not {what}", path.display()));
+    if kind.is_dir() {
+        return Err(not("a folder"));
+    }
+    if kind.is_fifo() {
+        return Err(not("a FIFO (named pipe)"));
+    }
+    if kind.is_char_device() || kind.is_block_device() {
+        return Err(not("a device"));
+    }
+    if kind.is_socket() {
+        return Err(not("a socket"));
+    }
+    Ok((file, meta.len()))
+}
+
+/// The most bytes an image file compend reads may hold: a 16-bit RGBA PNG of the largest size
+/// compend takes ([`crate::raster::ImageSize::MAX_PIXELS`]), stored uncompressed, with room.
+pub const MAX_IMAGE_BYTES: u64 = 1 << 30;
+
+/// The most bytes a text file compend reads (a configuration, a model's or a scene's JSON, a
+/// capture manifest) may hold.
+pub const MAX_TEXT_BYTES: u64 = 64 << 20;
+
+/// The text of `path`, a regular file of at most [`MAX_TEXT_BYTES`] ([`read_regular`]) holding
+/// UTF-8; `what` names it in the errors.
+pub fn read_text(path: &Path, what: &str) -> Result<String> {
+    String::from_utf8(read_regular(path, what, MAX_TEXT_BYTES)?).map_err(|e| {
+        Error::Input(format!(
+            "{}: not text (invalid UTF-8 at byte {}); expected {what}",
+            path.display(),
+            e.utf8_error().valid_up_to()
+        ))
+    })
+}
+
 /// The folder holding `path` (`.` for a bare name).
 pub fn parent_of(path: &Path) -> &Path {
     path.parent()
@@ -371,6 +452,43 @@ pub fn check_writable(path: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A regular file is read whole; a folder, a FIFO, a device, a missing path and a file
+    /// over the cap are errors naming the path, at once (a FIFO with no writer is not waited
+    /// on).
+    #[test]
+    fn only_a_regular_file_within_the_cap_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("a.png");
+        fs::write(&file, b"12345").unwrap();
+        assert_eq!(read_regular(&file, "an image", 5).unwrap(), b"12345");
+        let fifo = dir.path().join("f.png");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        for (path, says, code) in [
+            (
+                file.clone(),
+                "5 bytes or more; an image may hold at most 4 bytes",
+                2,
+            ),
+            (dir.path().to_path_buf(), "a folder, not an image", 2),
+            (fifo, "a FIFO (named pipe), not an image", 2),
+            (PathBuf::from("/dev/zero"), "a device, not an image", 2),
+            (dir.path().join("none.png"), "none.png", 2),
+        ] {
+            let e = read_regular(&path, "an image", 4).unwrap_err();
+            assert_eq!(e.exit_code(), code, "{e}");
+            let e = e.to_string();
+            assert!(e.contains(says), "{e}");
+            assert!(e.contains(&path.display().to_string()), "{e}");
+        }
+        let e = read_text(&file.with_extension("bin"), "text").unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        fs::write(&file, [0xff, 0xfe]).unwrap();
+        let e = read_text(&file, "a TOML file").unwrap_err().to_string();
+        assert!(e.contains("not text (invalid UTF-8 at byte 0)"), "{e}");
+    }
 
     #[test]
     fn a_folder_is_exchanged_whole_and_the_old_one_removed() {

@@ -2,7 +2,6 @@
 //! in memory they are f32 in [0,1]. Writing rounds to the nearest 8-bit level (never truncates).
 //! 16-bit PNGs are read at full precision; grayscale and alpha inputs are converted to RGB.
 
-use std::fs;
 use std::path::Path;
 
 use crate::error::{Error, Result};
@@ -10,7 +9,7 @@ use crate::raster::{ImageSize, Mask, Plane, Rgb, Space};
 
 /// Reads a PNG as an RGB f32 image in space `S`.
 pub fn read_rgb<S: Space>(path: &Path) -> Result<Rgb<S>> {
-    let bytes = fs::read(path).map_err(|e| Error::io(path, "read", e))?;
+    let bytes = crate::files::read_regular(path, "a PNG image", crate::files::MAX_IMAGE_BYTES)?;
     let img =
         image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
             Error::Decode {
@@ -77,8 +76,8 @@ pub fn read_rgb_sized<S: Space>(path: &Path, expected: ImageSize, why: &str) -> 
 
 /// Only the (width, height) of a PNG, from its header.
 pub fn png_size(path: &Path) -> Result<ImageSize> {
-    let reader = image::ImageReader::open(path)
-        .map_err(|e| Error::io(path, "open", e))?
+    let (file, _) = crate::files::open_regular(path, "a PNG image")?;
+    let reader = image::ImageReader::new(std::io::BufReader::new(file))
         .with_guessed_format()
         .map_err(|e| Error::io(path, "read", e))?;
     let (w, h) = reader.into_dimensions().map_err(|e| Error::Decode {
@@ -91,8 +90,8 @@ pub fn png_size(path: &Path) -> Result<ImageSize> {
 /// Whether a PNG is grayscale (with or without alpha), from its header.
 pub fn is_grayscale(path: &Path) -> Result<bool> {
     use image::ImageDecoder;
-    let decoder = image::ImageReader::open(path)
-        .map_err(|e| Error::io(path, "open", e))?
+    let (file, _) = crate::files::open_regular(path, "a PNG image")?;
+    let decoder = image::ImageReader::new(std::io::BufReader::new(file))
         .with_guessed_format()
         .map_err(|e| Error::io(path, "read", e))?
         .into_decoder()

@@ -100,6 +100,29 @@ fn bench_writes_rows_for_references_and_methods() {
         );
         assert!(!other.exists());
     }
+    // Sizes `sim export` refuses, and a value given twice (the same work twice), before
+    // anything is written.
+    for (flag, value, says) in [
+        (
+            "--ntrain",
+            "1000000000",
+            "--ntrain sizes must be from 4 to 9999",
+        ),
+        ("--ntrain", "2,48", "--ntrain sizes must be from 4 to 9999"),
+        ("--ntest", "100000", "--ntest from 1 to 9999"),
+        (
+            "--scenes",
+            "curved,curved",
+            "--scenes: curved is given twice",
+        ),
+        ("--ntrain", "8,8", "--ntrain: 8 is given twice"),
+        ("--seeds", "0,0", "--seeds: 0 is given twice"),
+    ] {
+        let o = compend(&["bench", "--out", other.to_str().unwrap(), flag, value]);
+        assert_code(&o, 2);
+        assert!(stderr(&o).contains(says), "{flag} {value}: {}", stderr(&o));
+        assert!(!other.exists());
+    }
     // And a climbing margin for methods that do not climb.
     let o = compend(&[
         "bench",

@@ -449,12 +449,29 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     std::fs::write(&damaged, &b"\x89PNG\r\n\x1a\n"[..]).unwrap();
     let empty = dir.path().join("empty");
     std::fs::create_dir(&empty).unwrap();
+    // A FIFO named like an image, and a device, are refused without waiting for a writer or
+    // reading without end.
+    let fifo = dir.path().join("fifo.png");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let zero = PathBuf::from("/dev/zero");
     for (bad, says) in [
         (&damaged, "not a readable image"),
         (&empty, "no PNG or JPEG images"),
+        (&fifo, "a FIFO (named pipe), not an image"),
+        (&zero, "a device, not an image"),
     ] {
         let a = svc.status()["frames"]["shown"].as_u64().unwrap();
-        let o = client(&["play", "--source", bad.to_str().unwrap()], &svc.socket);
+        let spelt = format!("image:{}", bad.display());
+        let spelt = if bad == &empty {
+            bad.display().to_string()
+        } else {
+            spelt
+        };
+        let o = client(&["play", "--source", &spelt], &svc.socket);
         assert_code(&o, 1);
         let said = format!("{}{}", stdout(&o), stderr(&o));
         assert!(said.contains(says), "{said}");
@@ -478,6 +495,12 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     assert_code(&client(&["play"], &svc.socket), 0);
     svc.wait_for("playback again", 30, playing);
     assert_eq!(svc.status()["source"], source);
+    // A raw FIFO no one writes into plays (its first frame waits on the source's own thread):
+    // the service answers and stops as ever.
+    let raw = format!("raw:{}?size=8x8", fifo.display());
+    assert_code(&client(&["play", "--source", &raw], &svc.socket), 0);
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(svc.status()["source"], raw.as_str());
 
     assert_code(&client(&["stop"], &svc.socket), 0);
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
@@ -1002,6 +1025,26 @@ fn progressive_calibration_climbs_only_when_the_held_out_pairs_and_the_rig_say_s
         }
         assert_eq!(svc.ask(r#"{"cmd":"recalibrate"}"#)["ok"], true);
     };
+
+    // A configuration whose next start would fail (a scene that does not exist) is not
+    // applied: the running one stays.
+    std::fs::write(
+        &config,
+        climbing("compennet++-res", "-100.0").replace("curved-ambient", "no-such-scene"),
+    )
+    .unwrap();
+    unsafe { libc::kill(svc.pid(), libc::SIGHUP) };
+    let start = Instant::now();
+    while !svc.log().contains("the configuration was not reloaded") {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "log:\n{}",
+            svc.log()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(svc.log().contains("no-such-scene"), "log:\n{}", svc.log());
+    assert!(!svc.log().contains("reload: configuration applied"));
 
     // The residual rung with any gain: judged on the closed-loop pairs held out of its
     // training, trained again on every pair, confirmed by the rig and installed.

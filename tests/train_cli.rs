@@ -250,6 +250,41 @@ fn bad_compensate_inputs(dir: &Path, m: &str) {
         "{}",
         stderr(&out)
     );
+    // A folder of inputs where an image's name leads nowhere (a broken link) or to a folder:
+    // named, not skipped; `metrics` on that folder says the same.
+    for odd in ["link", "folder"] {
+        let inputs = dir.join(format!("inputs-{odd}"));
+        std::fs::create_dir_all(&inputs).unwrap();
+        let bad = inputs.join("img_0002.png");
+        match odd {
+            "link" => std::os::unix::fs::symlink(dir.join("nowhere.png"), &bad).unwrap(),
+            _ => std::fs::create_dir(&bad).unwrap(),
+        }
+        let out = compend(&[
+            "compensate",
+            "--model",
+            m,
+            "--input",
+            inputs.to_str().unwrap(),
+            "--out",
+            dir.join(format!("o-{odd}")).to_str().unwrap(),
+        ]);
+        assert_code(&out, 2);
+        assert!(
+            stderr(&out).contains("img_0002.png: not a regular file"),
+            "{}",
+            stderr(&out)
+        );
+        assert!(!dir.join(format!("o-{odd}")).exists());
+        let i = inputs.to_str().unwrap();
+        let out = compend(&["metrics", i, i]);
+        assert_code(&out, 2);
+        assert!(
+            stderr(&out).contains("img_0002.png: not a regular file"),
+            "{}",
+            stderr(&out)
+        );
+    }
 }
 
 #[test]

@@ -63,16 +63,10 @@ const PROJECTOR_SIDES: std::ops::RangeInclusive<usize> = 1..=16384;
 /// from it) in the message.
 fn recorded<T: serde::de::DeserializeOwned>(setup: &Path, why: &str) -> Result<Option<T>> {
     let path = setup.join(MANIFEST_FILE);
-    let text = match std::fs::read_to_string(&path) {
+    let text = match crate::files::read_text(&path, "the calibration manifest (JSON)") {
         Ok(text) => text,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(_) if path.is_dir() => {
-            return Err(Error::Input(format!(
-                "{}: a folder where the calibration manifest (a JSON file) should be",
-                path.display()
-            )));
-        }
-        Err(e) => return Err(Error::io(&path, "read the calibration manifest", e)),
+        Err(Error::Missing { .. }) => return Ok(None),
+        Err(e) => return Err(e),
     };
     serde_json::from_str(&text).map(Some).map_err(|e| {
         Error::Input(format!(
@@ -184,7 +178,7 @@ impl Manifest {
     /// captures without a manifest, are an input error naming the folder.
     pub fn open(setup: &Path, patterns: &PatternSet) -> Result<Self> {
         let path = setup.join(MANIFEST_FILE);
-        match std::fs::read_to_string(&path) {
+        match crate::files::read_text(&path, "the calibration manifest (JSON)") {
             Ok(text) => {
                 let m: Manifest = serde_json::from_str(&text).map_err(|e| {
                     Error::Input(format!(
@@ -205,7 +199,7 @@ impl Manifest {
                 }
                 Ok(m)
             }
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            Err(Error::Missing { .. }) => {
                 if setup.join("cam").exists() {
                     return Err(Error::Input(format!(
                         "{}: holds captures but no {MANIFEST_FILE}, so they cannot be matched \
@@ -220,7 +214,7 @@ impl Manifest {
                     loop_written: 0,
                 })
             }
-            Err(e) => Err(Error::io(&path, "read", e)),
+            Err(e) => Err(e),
         }
     }
 
@@ -300,6 +294,10 @@ mod tests {
         std::fs::create_dir(&path).unwrap();
         let e = recorded_projector(setup).unwrap_err();
         assert_eq!(e.exit_code(), 2, "{e}");
-        assert!(e.to_string().contains("a folder where"), "{e}");
+        assert!(
+            e.to_string()
+                .contains("a folder, not the calibration manifest"),
+            "{e}"
+        );
     }
 }

@@ -71,7 +71,12 @@ impl Runs {
     /// The interrupted run and whether it was a refit.
     fn interrupted_marker(&self) -> Option<(PathBuf, bool)> {
         let path = self.marker();
-        let bytes = std::fs::read(&path).ok()?;
+        let bytes = crate::files::read_regular(
+            &path,
+            "a calibration run marker (JSON)",
+            crate::files::MAX_TEXT_BYTES,
+        )
+        .ok()?;
         match serde_json::from_slice::<Marker>(&bytes) {
             Ok(m) if is_run_name(&m.run) => Some((self.root.join(m.run), m.refit)),
             Ok(m) => {

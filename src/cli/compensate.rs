@@ -26,26 +26,18 @@ pub struct Args {
 /// The list `compensate` keeps in its output folder of the images it wrote there, one name a
 /// line after a header: a later run may replace those, and nothing else.
 const MARKER: &str = ".compend-compensated";
-const MARKER_HEADER: &str = "# compensation images written by `compend compensate`";
 
 pub fn run(args: Args) -> Result<()> {
     let model = Model::load(&args.model)?;
     let inputs = list_inputs(&args.input)?;
-    let mut ours = check_out(&args.out, &inputs)?;
-    std::fs::create_dir_all(&args.out)
-        .map_err(|e| compend::Error::io(&args.out, "create folder", e))?;
-    // Listed before they are written: a run stopped half-way may be run again.
-    ours.extend(
-        inputs
-            .iter()
-            .filter_map(|p| p.file_name())
-            .map(|n| n.to_string_lossy().into_owned()),
-    );
-    let list: String = std::iter::once(MARKER_HEADER.to_string())
-        .chain(ours)
-        .map(|l| l + "\n")
+    let names: Vec<String> = inputs
+        .iter()
+        .filter_map(|p| p.file_name())
+        .map(|n| n.to_string_lossy().into_owned())
         .collect();
-    compend::files::write_atomically(&args.out.join(MARKER), list.as_bytes())?;
+    let mut out = check_out(&args.out, &inputs)?;
+    out.check(&names)?;
+    out.claim(&names)?;
     for path in &inputs {
         let img =
             pngio::read_rgb_sized::<Camera>(path, model.camera_size(), "the model's camera size")?;
@@ -64,9 +56,9 @@ pub fn run(args: Args) -> Result<()> {
 
 /// Whether `out` may take the compensation images of `inputs`: a folder (or nothing yet), not
 /// the one the inputs are in, where a file of one of their names is there only if an earlier
-/// `compensate` wrote it ([`MARKER`]). Returns the names the marker lists. Input errors name
-/// the path.
-fn check_out(out: &Path, inputs: &[PathBuf]) -> Result<std::collections::BTreeSet<String>> {
+/// `compensate` wrote it ([`MARKER`]). Returns the folder with the names its marker lists.
+/// Input errors name the path.
+fn check_out(out: &Path, inputs: &[PathBuf]) -> Result<super::OwnedOut> {
     super::check_out_folder(out, "--out")?;
     let here = out.canonicalize().ok();
     if let Some(p) = inputs.iter().find(|p| {
@@ -87,33 +79,12 @@ fn check_out(out: &Path, inputs: &[PathBuf]) -> Result<std::collections::BTreeSe
         ))
         .into());
     }
-    let marker = out.join(MARKER);
-    let ours: std::collections::BTreeSet<String> = match std::fs::read_to_string(&marker) {
-        Ok(text) => text
-            .lines()
-            .filter(|l| !l.is_empty() && !l.starts_with('#'))
-            .map(str::to_string)
-            .collect(),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Default::default(),
-        Err(e) => return Err(compend::Error::io(&marker, "read", e).into()),
-    };
-    if let Some(dest) = inputs
-        .iter()
-        .filter_map(|p| p.file_name())
-        .filter(|n| !ours.contains(n.to_string_lossy().as_ref()))
-        .map(|n| out.join(n))
-        .find(|d| d.exists())
-    {
-        return Err(compend::Error::Input(format!(
-            "{}: already there, and not written by `compend compensate` (not listed in {}), so \
-             it is not replaced: choose another --out (or, if an older compend wrote it, remove \
-             it)",
-            dest.display(),
-            marker.display()
-        ))
-        .into());
-    }
-    Ok(ours)
+    Ok(super::OwnedOut::open(
+        out,
+        "--out",
+        MARKER,
+        "compend compensate",
+    )?)
 }
 
 fn list_inputs(input: &Path) -> Result<Vec<PathBuf>> {
@@ -130,8 +101,18 @@ fn list_inputs(input: &Path) -> Result<Vec<PathBuf>> {
     let mut out: Vec<PathBuf> = std::fs::read_dir(input)
         .map_err(|e| compend::Error::io(input, "list folder", e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
+        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
         .collect();
+    // A name of an image that is no image (a folder, a FIFO, a broken link) is not skipped
+    // quietly.
+    if let Some(odd) = out.iter().find(|p| !p.is_file()) {
+        return Err(compend::Error::Input(format!(
+            "{}: not a regular file (a folder, a FIFO, a device or a broken link), in the input \
+             folder of images",
+            odd.display()
+        ))
+        .into());
+    }
     out.sort();
     if out.is_empty() {
         return Err(compend::Error::Input(format!(

@@ -108,16 +108,27 @@ fn pair_paths(a: &Path, b: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
     }
 }
 
-/// Sorted names of the `.png` files directly in `dir`.
+/// Sorted names of the `.png` files directly in `dir`; a `.png` name that is not a regular
+/// file is an input error.
 fn png_names(dir: &Path) -> Result<Vec<String>> {
     let mut names = Vec::new();
     let entries = std::fs::read_dir(dir).map_err(|e| compend::Error::io(dir, "list folder", e))?;
     for entry in entries {
         let entry = entry.map_err(|e| compend::Error::io(dir, "list folder", e))?;
         let name = entry.file_name().to_string_lossy().into_owned();
-        if name.to_ascii_lowercase().ends_with(".png") && entry.path().is_file() {
-            names.push(name);
+        if !name.to_ascii_lowercase().ends_with(".png") {
+            continue;
         }
+        // A name of an image that is no image is not skipped quietly.
+        if !entry.path().is_file() {
+            return Err(compend::Error::Input(format!(
+                "{}: not a regular file (a folder, a FIFO, a device or a broken link), among \
+                 the images to compare",
+                entry.path().display()
+            ))
+            .into());
+        }
+        names.push(name);
     }
     names.sort();
     Ok(names)

@@ -31,6 +31,79 @@ pub fn check_out_folder(path: &std::path::Path, flag: &str) -> compend::Result<(
     Ok(())
 }
 
+/// An output folder of the user's (`--out`) that a command writes named files into, listed in a
+/// marker file there (`marker`): a later run replaces only files an earlier run listed, and a
+/// file of a name it would write that it did not list is an input error naming it.
+pub struct OwnedOut {
+    dir: std::path::PathBuf,
+    marker: std::path::PathBuf,
+    /// The command, for the marker's first line and the messages (`compend compensate`).
+    command: &'static str,
+    listed: std::collections::BTreeSet<String>,
+}
+
+impl OwnedOut {
+    /// `dir` (given as `flag`), which must be a folder or nothing yet, and the names its marker
+    /// `marker` lists.
+    pub fn open(
+        dir: &std::path::Path,
+        flag: &str,
+        marker: &str,
+        command: &'static str,
+    ) -> compend::Result<Self> {
+        check_out_folder(dir, flag)?;
+        let path = dir.join(marker);
+        let listed = match compend::files::read_text(&path, "a list of file names") {
+            Ok(text) => text
+                .lines()
+                .filter(|l| !l.is_empty() && !l.starts_with('#'))
+                .map(str::to_string)
+                .collect(),
+            Err(compend::Error::Missing { .. }) => Default::default(),
+            Err(e) => return Err(e),
+        };
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            marker: path,
+            command,
+            listed,
+        })
+    }
+
+    /// An input error when a file of one of `names` (paths relative to the folder, `/` between
+    /// parts) is there and not listed.
+    pub fn check(&self, names: &[String]) -> compend::Result<()> {
+        match names
+            .iter()
+            .filter(|n| !self.listed.contains(n.as_str()))
+            .map(|n| self.dir.join(n))
+            .find(|d| d.symlink_metadata().is_ok())
+        {
+            Some(dest) => Err(compend::Error::Input(format!(
+                "{}: already there, and not written by `{}` (not listed in {}), so it is not \
+                 replaced: choose another --out (or, if an older compend wrote it, remove it)",
+                dest.display(),
+                self.command,
+                self.marker.display()
+            ))),
+            None => Ok(()),
+        }
+    }
+
+    /// Lists `names` beside those listed before, creating the folder: before they are written,
+    /// so that a run stopped half-way may be run again.
+    pub fn claim(&mut self, names: &[String]) -> compend::Result<()> {
+        std::fs::create_dir_all(&self.dir)
+            .map_err(|e| compend::Error::io(&self.dir, "create folder", e))?;
+        self.listed.extend(names.iter().cloned());
+        let list: String = std::iter::once(format!("# files written by `{}`", self.command))
+            .chain(self.listed.iter().cloned())
+            .map(|l| l + "\n")
+            .collect();
+        compend::files::write_atomically(&self.marker, list.as_bytes())
+    }
+}
+
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
 /// 1 when there is none.
 pub fn exit_code(err: &anyhow::Error) -> u8 {

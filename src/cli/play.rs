@@ -94,7 +94,9 @@ pub fn run(args: Args) -> Result<()> {
     }
     let model = Model::load(model_dir)?;
     let rig = args.rig.as_deref().map(parse_rig).transpose()?;
-    // Open the source before the GPU so a bad source fails fast.
+    // Check and open the source before the GPU so a bad source fails fast (a raw file or FIFO
+    // is opened by its first frame).
+    source::check(&spec)?;
     let source = source::open(&spec)?;
     let mode = match args.pace {
         Pace::Display => FeedMode::Latest,

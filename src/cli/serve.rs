@@ -137,10 +137,14 @@ pub fn serve(a: ServeArgs) -> Result<()> {
     let reload: Option<compend::service::Reload> = a.config.is_some().then(|| {
         let a = a.clone();
         Box::new(move || {
-            configure(&a).map_err(|e| match e.downcast::<compend::Error>() {
+            let c = configure(&a).map_err(|e| match e.downcast::<compend::Error>() {
                 Ok(e) => e,
                 Err(e) => compend::Error::Input(format!("{e:#}")),
-            })
+            })?;
+            // What `config check` refuses is refused here too, so that a reload the next
+            // restart would fail on is not applied (the running service keeps its own).
+            compend::service::preflight(&c, false)?;
+            Ok(c)
         }) as compend::service::Reload
     });
     compend::service::serve(config, reload).context("compend serve")

@@ -390,6 +390,9 @@ impl Row {
 /// First frame index of the closed-loop captures (apart from the export's).
 const FRAMES_SCORE: u64 = 2_000_000;
 
+/// The list `sim score --out` keeps in its folder of the camera views it wrote there.
+const SCORE_MARKER: &str = ".compend-scored";
+
 fn score(a: ScoreArgs) -> Result<()> {
     use compend::dataset::ProjectorSet;
 
@@ -413,6 +416,45 @@ fn score(a: ScoreArgs) -> Result<()> {
             setup.path().display()
         ))
         .into());
+    }
+    let models = if a.model.is_empty() {
+        setup.compensated_models()?
+    } else {
+        a.model.clone()
+    };
+    // Where the camera views go, checked before any work: outside the data root (views in it
+    // would be taken for models or captures), and replacing only views an earlier run wrote.
+    let mut out = match &a.out {
+        Some(dir) => {
+            let owned = super::OwnedOut::open(dir, "--out", SCORE_MARKER, "compend sim score")?;
+            let root = setup.root().path().canonicalize().ok();
+            let inside = std::iter::successors(Some(dir.as_path()), |d| d.parent())
+                .filter_map(|d| d.canonicalize().ok())
+                .any(|d| Some(d) == root);
+            if inside {
+                return Err(compend::Error::Input(format!(
+                    "--out {}: inside the data root {}; the camera views would be taken for \
+                     models or captures: choose a folder outside it",
+                    dir.display(),
+                    setup.root().path().display()
+                ))
+                .into());
+            }
+            let names: Vec<String> = models
+                .iter()
+                .map(String::as_str)
+                .chain(["desired", "uncompensated", "oracle"])
+                .flat_map(|folder| {
+                    (1..=n).map(move |k| format!("{folder}/{}", compend::pngio::indexed_name(k)))
+                })
+                .collect();
+            Some((owned, names))
+        }
+        None => None,
+    };
+    if let Some((owned, names)) = &mut out {
+        owned.check(names)?;
+        owned.claim(names)?;
     }
     let desired = setup.load_desired(Some(n))?;
     let area = record.displayable_area;
@@ -441,11 +483,6 @@ fn score(a: ScoreArgs) -> Result<()> {
         },
         frames,
     )?;
-    let models = if a.model.is_empty() {
-        setup.compensated_models()?
-    } else {
-        a.model.clone()
-    };
     let ceiling = refs.oracle.psnr;
     let mut rows = vec![
         Row::new("uncompensated", &refs.uncompensated, ceiling),

@@ -263,10 +263,11 @@ struct Scans {
 
 /// The image files of each pixel space.
 struct SpacePaths {
-    /// Network size: the root's train, test and ref images and the gray image x0 (the first
-    /// `n_root`), then the compensation images of every model.
+    /// Network size: the root's train, test and ref images and the gray image x0.
     network: Vec<PathBuf>,
-    n_root: usize,
+    /// The compensation images of each model (`prj/cmp/test/NAME`): any size, one per model
+    /// (a linear rung writes them on its lattice, a CompenNet++ rung at the network size).
+    models: Vec<Vec<PathBuf>>,
     /// Projector size: the structured-light patterns.
     projector: Vec<PathBuf>,
     /// Camera size: every capture set, then the desired images, then the closed-loop pairs'
@@ -430,8 +431,7 @@ fn space_paths(root: &DataRoot, scans: &Scans) -> SpacePaths {
     if gray_input {
         network.push(root.gray_input_path());
     }
-    let n_root = network.len();
-    network.extend(scans.model_scans.iter().flat_map(Folder::paths));
+    let models = scans.model_scans.iter().map(Folder::paths).collect();
     let projector = scans.prj.get(ProjectorSet::Sl).paths();
     let mut camera = Vec::new();
     for f in scans.cap.all() {
@@ -443,7 +443,7 @@ fn space_paths(root: &DataRoot, scans: &Scans) -> SpacePaths {
     camera.extend(paths_of(&scans.loop_dir, &scans.loop_views));
     SpacePaths {
         network,
-        n_root,
+        models,
         projector,
         camera,
         gray_input,
@@ -482,10 +482,10 @@ fn space_sizes(setup: &Setup, paths: &SpacePaths) -> SpaceSizes {
 /// Reads every file, in report order: root sets, sl patterns, captures, desired, models.
 /// Returns the number of files read.
 fn check_files(paths: &SpacePaths, sizes: &SpaceSizes, decode: bool, pr: &mut Problems) -> usize {
-    let n_root = paths.n_root;
     let mut jobs: Vec<(&Path, Option<&Expect>)> = Vec::new();
     jobs.extend(
-        paths.network[..n_root]
+        paths
+            .network
             .iter()
             .map(|p| (p.as_path(), sizes.network.as_ref())),
     );
@@ -501,11 +501,25 @@ fn check_files(paths: &SpacePaths, sizes: &SpaceSizes, decode: bool, pr: &mut Pr
             .iter()
             .map(|p| (p.as_path(), sizes.camera.as_ref())),
     );
-    jobs.extend(
-        paths.network[n_root..]
-            .iter()
-            .map(|p| (p.as_path(), sizes.network.as_ref())),
-    );
+    // Each model's images have the size of its first (itself checked as an image).
+    let firsts: Vec<Option<Expect>> = paths
+        .models
+        .iter()
+        .map(|m| {
+            let first = m.first()?;
+            Some(Expect {
+                size: pngio::png_size(first).ok()?,
+                why: format!("the size of this model's first image, {}", first.display()),
+            })
+        })
+        .collect();
+    for (m, first) in paths.models.iter().zip(&firsts) {
+        jobs.extend(
+            m.iter()
+                .enumerate()
+                .map(|(k, p)| (p.as_path(), if k == 0 { None } else { first.as_ref() })),
+        );
+    }
     for r in par_map(&jobs, |(p, x)| check_file(p, *x, decode)) {
         if let Err(e) = r {
             pr.push(e);

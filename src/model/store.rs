@@ -739,12 +739,19 @@ impl Tensors {
     }
 }
 
+/// The most bytes a model's weights file may hold (the full-size residual rung's are tens of
+/// megabytes).
+const MAX_WEIGHTS_BYTES: u64 = 4 << 30;
+
 /// Reads a model directory: metadata (version checked) and tensors.
 pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
     let meta = load_meta(dir)?;
     let weights_path = dir.join(WEIGHTS_FILE);
-    let bytes =
-        fs::read(&weights_path).map_err(|e| Error::io(&weights_path, "read model weights", e))?;
+    let bytes = crate::files::read_regular(
+        &weights_path,
+        "the model's weights (safetensors)",
+        MAX_WEIGHTS_BYTES,
+    )?;
     let tensors = Tensors::from_bytes(&bytes, &weights_path)?;
     Ok((meta, tensors))
 }
@@ -758,8 +765,7 @@ pub fn load_meta(dir: &Path) -> Result<ModelMeta> {
         )));
     }
     let meta_path = dir.join(META_FILE);
-    let text = fs::read_to_string(&meta_path)
-        .map_err(|e| Error::io(&meta_path, "read model metadata", e))?;
+    let text = crate::files::read_text(&meta_path, "the model's metadata (JSON)")?;
     // Check the version before the full schema, so an old or newer model says so plainly.
     let version = serde_json::from_str::<serde_json::Value>(&text)
         .map_err(|e| Error::Input(format!("{}: not valid JSON ({e})", meta_path.display())))?
@@ -856,7 +862,7 @@ fn shape(dir: &Path, strict: bool) -> Result<bool> {
 
 /// Whether `path` is a compend model's metadata file (JSON with a `format_version`).
 fn is_model_meta(path: &Path) -> bool {
-    fs::read_to_string(path)
+    crate::files::read_text(path, "JSON")
         .ok()
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
         .is_some_and(|v| v.get("format_version").is_some_and(|v| v.is_u64()))

@@ -186,11 +186,13 @@ impl Pretrained {
 
     /// Reads `path` (safetensors) and the JSON file beside it.
     pub fn load(path: &Path) -> Result<Self> {
-        let bytes =
-            std::fs::read(path).map_err(|e| Error::io(path, "read pre-trained weights", e))?;
+        let bytes = crate::files::read_regular(
+            path,
+            "pre-trained weights (safetensors)",
+            crate::files::MAX_IMAGE_BYTES,
+        )?;
         let mpath = meta_path(path);
-        let json = std::fs::read_to_string(&mpath)
-            .map_err(|e| Error::io(&mpath, "read the pre-trained weights' metadata", e))?;
+        let json = crate::files::read_text(&mpath, "the pre-trained weights' metadata (JSON)")?;
         Self::parse(&bytes, &json, path, &mpath, path.display().to_string())
     }
 

@@ -391,7 +391,7 @@ fn write_record(setup: &Setup, record: &RigRecord) -> Result<()> {
 /// Reads `SETUP/rig.json`.
 pub fn read_record(setup: &Path) -> Result<RigRecord> {
     let path = setup.join(RIG_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, "read", e))?;
+    let text = crate::files::read_text(&path, "a virtual-rig record (JSON)")?;
     serde_json::from_str(&text).map_err(|e| {
         Error::Input(format!(
             "{}: not a virtual-rig record ({e})",

@@ -152,23 +152,26 @@ impl Token {
     /// Reads the token from `path`: its text without surrounding white space, at least
     /// [`MIN_TOKEN_BYTES`] long. A file others may read is used, with a warning.
     pub fn read(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
-            std::io::ErrorKind::NotFound => Error::Input(format!(
+        let text = crate::files::read_text(path, "a token file").map_err(|e| match e {
+            Error::Missing { .. } => Error::Input(format!(
                 "[socket] tcp_token_file: {} does not exist; write a random token into it (e.g. \
                  `openssl rand -hex 32 > {0}`) that only the service's user and group may read \
                  (mode 600 or 640, owned by that user or in that group)",
                 path.display()
             )),
-            std::io::ErrorKind::PermissionDenied => Error::Input(format!(
-                "[socket] tcp_token_file: {} cannot be read by this user ({e}); let the \
-                 service's user read it",
-                path.display()
-            )),
-            std::io::ErrorKind::InvalidData => Error::Input(format!(
+            Error::Io { source, .. } if source.kind() == std::io::ErrorKind::PermissionDenied => {
+                Error::Input(format!(
+                    "[socket] tcp_token_file: {} cannot be read by this user ({source}); let \
+                     the service's user read it",
+                    path.display()
+                ))
+            }
+            Error::Input(m) if m.contains("not text") => Error::Input(format!(
                 "[socket] tcp_token_file: {} is not text; expected a token such as 64 hex digits",
                 path.display()
             )),
-            _ => Error::io(path, "read the TCP token", e),
+            Error::Input(m) => Error::Input(format!("[socket] tcp_token_file: {m}")),
+            e => e,
         })?;
         let token = text.trim();
         if token.len() < MIN_TOKEN_BYTES || token.chars().any(char::is_whitespace) {

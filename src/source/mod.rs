@@ -53,14 +53,14 @@ pub fn open(spec: &SourceSpec) -> Result<Box<dyn VideoSource>> {
         })),
         SourceSpec::Folder { dir, period } => Ok(Box::new(Slideshow::new(dir, *period)?)),
         SourceSpec::Raw { path, size, format } => {
-            let (reader, name): (Box<dyn Read + Send>, String) = match path {
-                None => (Box::new(std::io::stdin()), "standard input".into()),
-                Some(p) => (
-                    Box::new(
-                        std::fs::File::open(p).map_err(|e| Error::io(p, "open raw source", e))?,
-                    ),
-                    p.display().to_string(),
+            let (reader, name): (RawInput, String) = match path {
+                None => (
+                    RawInput::Open(Box::new(std::io::stdin())),
+                    "standard input".into(),
                 ),
+                // Opened by the first frame, on the source's own thread: a FIFO's open waits for
+                // its writer.
+                Some(p) => (RawInput::Closed(p.clone()), p.display().to_string()),
             };
             Ok(Box::new(Raw {
                 reader,
@@ -116,7 +116,11 @@ pub fn check(spec: &SourceSpec) -> Result<()> {
 
 /// Decodes a PNG or JPEG file to an RGBA frame.
 pub fn read_image(path: &Path) -> Result<ContentFrame> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, "read", e))?;
+    let bytes = crate::files::read_regular(
+        path,
+        "an image (PNG or JPEG)",
+        crate::files::MAX_IMAGE_BYTES,
+    )?;
     let img = image::load_from_memory(&bytes)
         .map_err(|e| Error::Input(format!("{}: not a readable image ({e})", path.display())))?;
     let rgba = img.to_rgba8();
@@ -226,9 +230,16 @@ impl VideoSource for Slideshow {
     }
 }
 
+/// Where a [`Raw`] source reads from.
+enum RawInput {
+    /// A file, FIFO or device, not opened yet.
+    Closed(PathBuf),
+    Open(Box<dyn Read + Send>),
+}
+
 /// Raw 8-bit frames back to back on a pipe, a FIFO or in a file.
 struct Raw {
-    reader: Box<dyn Read + Send>,
+    reader: RawInput,
     name: String,
     size: ImageSize,
     format: RawFormat,
@@ -249,10 +260,17 @@ impl VideoSource for Raw {
             height: h,
         } = self.size;
         let len = w * h * self.format.bytes_per_pixel();
+        if let RawInput::Closed(p) = &self.reader {
+            let file = std::fs::File::open(p).map_err(|e| Error::io(p, "open raw source", e))?;
+            self.reader = RawInput::Open(Box::new(file));
+        }
+        let RawInput::Open(reader) = &mut self.reader else {
+            return Ok(Next::End);
+        };
         let mut buf = vec![0u8; len];
         let mut got = 0;
         while got < len {
-            match self.reader.read(&mut buf[got..]) {
+            match reader.read(&mut buf[got..]) {
                 Ok(0) => break,
                 Ok(n) => got += n,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}

@@ -39,6 +39,28 @@ fn sim_list_and_show() {
     assert_code(&o, 2);
     assert!(stderr(&o).contains("nothing"), "{}", stderr(&o));
 
+    // A scene file whose sizes no machine could hold is refused before anything is made.
+    let mut huge = scene.clone();
+    huge.projector.width = 100_000_000;
+    let path = dir.path().join("huge.json");
+    std::fs::write(&path, serde_json::to_string(&huge).expect("JSON")).expect("scene file");
+    let sheet = dir.path().join("sheet");
+    let o = compend(&[
+        "sim",
+        "sheet",
+        "--scene",
+        path.to_str().unwrap(),
+        "--out",
+        sheet.to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("projector.width/height 100000000x")
+            && stderr(&o).contains("more than the 8192x8192 pixels"),
+        "{}",
+        stderr(&o)
+    );
+
     let o = compend(&["sim", "show", "no-such-scene"]);
     assert_code(&o, 2);
     assert!(
@@ -119,7 +141,62 @@ fn exported_setup_goes_through_the_offline_commands() {
     inspect_finds_no_problem(s);
     desired_images_lie_in_the_lit_area(&setup);
     train_and_compensate(&setup, s);
+    // `compensate`'s images (a linear rung's, on its lattice) are no problem either.
+    inspect_finds_no_problem(s);
     score_lies_between_uncompensated_and_oracle(s);
+    score_writes_views_only_where_it_may(s);
+}
+
+/// `compend sim score --out`: the camera views of every row, into a folder outside the data
+/// root; a second run replaces its own views, never a file it did not write.
+fn score_writes_views_only_where_it_may(s: &str) {
+    use common_cli::*;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let views = dir.path().join("views");
+    let score = |out: &std::path::Path| {
+        compend(&[
+            "sim",
+            "score",
+            "--setup",
+            s,
+            "--ntest",
+            "2",
+            "--out",
+            out.to_str().expect("utf-8"),
+        ])
+    };
+    for _ in 0..2 {
+        assert_code(&score(&views), 0);
+        for row in ["desired", "linear", "uncompensated", "oracle"] {
+            assert!(views.join(row).join("img_0002.png").is_file(), "{row}");
+        }
+    }
+    // A file of the user's where a view would go is kept, and nothing is written.
+    let mine = dir.path().join("mine");
+    std::fs::create_dir_all(mine.join("oracle")).expect("folder");
+    std::fs::write(mine.join("oracle/img_0001.png"), "mine").expect("file");
+    let o = score(&mine);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("not written by `compend sim score`"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        std::fs::read_to_string(mine.join("oracle/img_0001.png")).expect("file"),
+        "mine"
+    );
+    assert!(!mine.join("desired").exists());
+    // Inside the data root, the views would be taken for models or captures.
+    let inside = std::path::Path::new(s).join("prj-views");
+    let o = score(&inside);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("inside the data root"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!inside.exists());
 }
 
 /// `compend inspect` on the exported setup `s`: no problem, every capture counted.

@@ -100,13 +100,39 @@ pub fn run(args: Args) -> Result<()> {
         .iter()
         .max()
         .context("--ntrain needs at least one size")?;
-    if max_train < fit::MIN_TRAIN || args.ntest == 0 || args.seeds.is_empty() {
+    // As `sim export` takes them: the sets are written to disk for every scene and seed.
+    let most = 9999;
+    let fewest = args.ntrain.iter().min().copied().unwrap_or(0);
+    if fewest < fit::MIN_TRAIN
+        || max_train > most
+        || args.ntest == 0
+        || args.ntest > most
+        || args.seeds.is_empty()
+    {
         return Err(compend::Error::Input(format!(
-            "--ntrain sizes must be at least {}, --ntest at least 1, and --seeds non-empty",
+            "--ntrain sizes must be from {} to {most}, --ntest from 1 to {most}, and --seeds \
+             non-empty",
             fit::MIN_TRAIN
         ))
         .into());
     }
+    // A value given twice would run the same work twice.
+    let twice = |flag: &str, values: Vec<String>| -> compend::Result<()> {
+        let mut seen = std::collections::BTreeSet::new();
+        match values.into_iter().find(|v| !seen.insert(v.clone())) {
+            Some(v) => Err(compend::Error::Input(format!("{flag}: {v} is given twice"))),
+            None => Ok(()),
+        }
+    };
+    twice("--scenes", scenes.clone())?;
+    twice(
+        "--ntrain",
+        args.ntrain.iter().map(|n| n.to_string()).collect(),
+    )?;
+    twice(
+        "--seeds",
+        args.seeds.iter().map(|n| n.to_string()).collect(),
+    )?;
     if args.loop_images > 0 && args.ntrain.len() > 1 {
         return Err(compend::Error::Input(format!(
             "--loop-images {}: closed-loop pairs follow the sampling pairs, so give one --ntrain \

@@ -34,7 +34,7 @@ pub fn load(name_or_path: &str) -> Result<Scene> {
     if !path.is_file() {
         return builtin(name_or_path);
     }
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, "read", e))?;
+    let text = crate::files::read_text(path, "a scene description (JSON)")?;
     let scene: Scene = serde_json::from_str(&text).map_err(|e| {
         Error::Input(format!(
             "{}: not a scene description ({e}); `compend sim show NAME` prints one",

@@ -433,6 +433,18 @@ impl Scene {
         if p.width < 2 || p.height < 2 {
             return self.bad("projector.width/height", "must be at least 2");
         }
+        let max = crate::raster::ImageSize::MAX_PIXELS as u128;
+        for (name, w, h) in [
+            ("camera.width/height", c.width, c.height),
+            ("projector.width/height", p.width, p.height),
+        ] {
+            if w as u128 * h as u128 > max {
+                return self.bad(
+                    name,
+                    &format!("{w}x{h} is more than the 8192x8192 pixels compend accepts"),
+                );
+            }
+        }
         for (name, fov) in [
             ("camera.hfov_deg", c.hfov_deg),
             ("projector.hfov_deg", p.hfov_deg),
