@@ -28,8 +28,18 @@ pub struct Args {
     pub out: Option<PathBuf>,
     /// Canvas aspect ratio (width/height) for the displayable area [default: the network
     /// image's aspect].
-    #[arg(long)]
+    #[arg(long, value_parser = parse_aspect)]
     pub aspect: Option<f64>,
+}
+
+/// `--aspect`: a width over height that a rectangle can have.
+fn parse_aspect(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(a) if a.is_finite() && (0.01..=100.0).contains(&a) => Ok(a),
+        _ => Err(format!(
+            "expected a width over height from 0.01 to 100 (e.g. 1.333), got {s:?}"
+        )),
+    }
 }
 
 /// The projector's field of view as seen by the camera, from the black and white references.

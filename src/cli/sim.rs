@@ -155,9 +155,9 @@ pub struct SheetArgs {
     /// Which test image (sampling image of the test set, 1-based) to show.
     #[arg(long, default_value_t = 1)]
     pub image: usize,
-    /// Panel width in pixels (panels are the camera frame scaled down).
-    #[arg(long, default_value_t = 320)]
-    pub panel: usize,
+    /// Panel width in pixels (panels are the camera frame scaled down), 16 to 4096.
+    #[arg(long, default_value_t = 320, value_parser = clap::value_parser!(u16).range(16..=4096))]
+    pub panel: u16,
 }
 
 pub fn parse_size(s: &str) -> std::result::Result<ImageSize, String> {
@@ -347,7 +347,8 @@ fn sheet(a: SheetArgs) -> Result<()> {
         let sim = Simulator::new(&scene, sa.seed, Phase::Calibration)?;
         let (area, range) = rig::sheet::display_target(&sim)
             .with_context(|| format!("finding the displayable area of scene {name:?}"))?;
-        let (img, s) = rig::sheet::contact_sheet(&sim, &sample, &test, area, range, a.panel)?;
+        let (img, s) =
+            rig::sheet::contact_sheet(&sim, &sample, &test, area, range, usize::from(a.panel))?;
         let path = a.out.join(format!("{}.png", scene.name));
         compend::pngio::write_rgb(&path, &img)?;
         let cell = |x: &compend::metrics::Scores| format!("{:.2} dB / {:.3}", x.psnr, x.ssim);
