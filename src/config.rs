@@ -179,8 +179,7 @@ pub struct SocketConfig {
     pub path: PathBuf,
     /// File mode of the socket (octal in the file, e.g. "0660").
     pub mode: u32,
-    /// Group the socket belongs to; its members may connect (None: the group the file is made
-    /// with, the service user's).
+    /// Group the socket belongs to; its members may connect (None: the service user's).
     pub group: Option<String>,
     /// User ids allowed besides root, the service's own user and the group's members.
     pub allow_uids: Vec<u32>,

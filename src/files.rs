@@ -54,34 +54,49 @@ pub fn read_regular(path: &Path, what: &str, max_bytes: u64) -> Result<Vec<u8>> 
 /// links followed); the errors as for [`read_regular`].
 pub fn open_regular(path: &Path, what: &str) -> Result<(fs::File, u64)> {
     use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    let not = |kind: fs::FileType| {
+        let is = if kind.is_dir() {
+            "a folder"
+        } else if kind.is_fifo() {
+            "a FIFO (named pipe)"
+        } else if kind.is_char_device() || kind.is_block_device() {
+            "a device"
+        } else if kind.is_socket() {
+            "a socket"
+        } else {
+            "not a regular file"
+        };
+        Error::Input(format!("{}: {is}, not {what}", path.display()))
+    };
+    let missing = |e: std::io::Error| match e.kind() {
+        std::io::ErrorKind::NotFound => Error::Missing {
+            path: path.to_path_buf(),
+            expected: what.to_string(),
+        },
+        _ => Error::io(path, "open", e),
+    };
+    // Looked at before it is opened (opening a device can act: a terminal, a watchdog), and
+    // again once open, in case it was swapped in between; non-blocking and without taking a
+    // terminal, so that the open itself never waits or acts.
+    let kind = fs::metadata(path).map_err(missing)?.file_type();
+    if !kind.is_file() {
+        return Err(not(kind));
+    }
     let file = fs::OpenOptions::new()
         .read(true)
-        .custom_flags(libc::O_NONBLOCK)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
         .open(path)
-        .map_err(|e| match e.kind() {
-            std::io::ErrorKind::NotFound => Error::Missing {
-                path: path.to_path_buf(),
-                expected: what.to_string(),
-            },
-            _ => Error::io(path, "open", e),
-        })?;
+        .map_err(missing)?;
     let meta = file.metadata().map_err(|e| Error::io(path, "inspect", e))?;
-    let kind = meta.file_type();
-    let not = |is: &str| Error::Input(format!("{}: {is}, not {what}", path.display()));
-    if kind.is_dir() {
-        return Err(not("a folder"));
-    }
-    if kind.is_fifo() {
-        return Err(not("a FIFO (named pipe)"));
-    }
-    if kind.is_char_device() || kind.is_block_device() {
-        return Err(not("a device"));
-    }
-    if kind.is_socket() {
-        return Err(not("a socket"));
+    if !meta.file_type().is_file() {
+        return Err(not(meta.file_type()));
     }
     Ok((file, meta.len()))
 }
+
+/// The most bytes a weights file compend reads may hold (a model's, a pre-initialisation's;
+/// the full-size residual rung's are tens of megabytes).
+pub const MAX_WEIGHTS_BYTES: u64 = 4 << 30;
 
 /// The most bytes an image file compend reads may hold: a 16-bit RGBA PNG of the largest size
 /// compend takes ([`crate::raster::ImageSize::MAX_PIXELS`]), stored uncompressed, with room.

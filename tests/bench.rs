@@ -113,7 +113,12 @@ fn bench_writes_rows_for_references_and_methods() {
         (
             "--scenes",
             "curved,curved",
-            "--scenes: curved is given twice",
+            "--scenes (by scene name): curved is given twice",
+        ),
+        (
+            "--methods",
+            "linear,linear",
+            "--methods: linear is given twice",
         ),
         ("--ntrain", "8,8", "--ntrain: 8 is given twice"),
         ("--seeds", "0,0", "--seeds: 0 is given twice"),

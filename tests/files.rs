@@ -95,6 +95,20 @@ fn train_out_refuses_anything_but_a_model_directory_before_any_work() {
     fs::create_dir(&empty).unwrap();
     assert_code(&train_linear(&setup, &empty), 0);
     Model::load(&empty).unwrap();
+
+    // A model's metadata beside a folder named like its weights, holding someone's work: not a
+    // model directory, so nothing in it is removed.
+    let like = dir.path().join("like-a-model");
+    fs::create_dir_all(like.join("model.safetensors")).unwrap();
+    fs::copy(model.join("model.json"), like.join("model.json")).unwrap();
+    fs::write(like.join("model.safetensors/thesis.txt"), b"chapter 1").unwrap();
+    let o = train_linear(&setup, &like);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("not a plain file"), "{}", stderr(&o));
+    assert_eq!(
+        fs::read(like.join("model.safetensors/thesis.txt")).unwrap(),
+        b"chapter 1"
+    );
 }
 
 #[test]

@@ -816,15 +816,17 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
     // A second service on the same state directory, even on another socket, is refused: the
     // first holds the directory's lock.
     let lock_path = dir.path().join("state/compend.lock");
-    std::fs::write(&lock_path, "4242 serve\n").unwrap();
+    // Held by a live process (this one) that says it is a service.
+    let me = std::process::id();
+    std::fs::write(&lock_path, format!("{me} serve\n")).unwrap();
     let lock = std::fs::File::open(&lock_path).unwrap();
     lock.try_lock().unwrap();
     let o = compend(&["serve", "--config", config.to_str().unwrap()]);
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains(
-            "`compend serve` (pid 4242) holds this state directory; one service runs per state"
-        ),
+        stderr(&o).contains(&format!(
+            "`compend serve` (pid {me}) holds this state directory; one service runs per state"
+        )),
         "{}",
         stderr(&o)
     );
@@ -834,18 +836,50 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
     let o = compend(&["calibrate", "--config", config.to_str().unwrap()]);
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains("(pid 4242) holds this state directory; the running service calibrates on request (`compend recalibrate`)"),
+        stderr(&o).contains(&format!("(pid {me}) holds this state directory; the running service calibrates on request (`compend recalibrate`)")),
         "{}",
         stderr(&o)
     );
     assert!(!dir.path().join("state/model").exists());
-    assert_eq!(std::fs::read_to_string(&lock_path).unwrap(), "4242 serve\n");
+    // Nor without the configuration, into the service's model path.
+    let o = compend(&[
+        "calibrate",
+        "--rig",
+        "virtual:curved",
+        "--out",
+        dir.path().join("state/model").to_str().unwrap(),
+        "--data",
+        dir.path().join("elsewhere").to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains(&format!("(pid {me}) holds this state directory")),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.path().join("state/model").exists());
+    assert_eq!(
+        std::fs::read_to_string(&lock_path).unwrap(),
+        format!("{me} serve\n")
+    );
     // A calibration holding it keeps a service from starting.
-    std::fs::write(&lock_path, "4243 calibrate\n").unwrap();
+    std::fs::write(&lock_path, format!("{me} calibrate\n")).unwrap();
     let o = compend(&["serve", "--config", config.to_str().unwrap()]);
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains("`compend calibrate` (pid 4243) holds this state directory; wait"),
+        stderr(&o).contains(&format!(
+            "`compend calibrate` (pid {me}) holds this state directory; wait"
+        )),
+        "{}",
+        stderr(&o)
+    );
+    // A pid that no longer runs (left by a holder that could not write the file) is not
+    // named as the holder.
+    std::fs::write(&lock_path, "999999999 serve\n").unwrap();
+    let o = compend(&["serve", "--config", config.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("another compend process holds this state directory"),
         "{}",
         stderr(&o)
     );

@@ -361,9 +361,22 @@ pub fn run(args: Args) -> Result<()> {
     // while it runs, and it does not start while this does. A state directory not made yet has
     // no service.
     let _lock = match &args.state {
-        Some(state) if state.is_dir() => compend::service::lock_state_if_held(state, "calibrate")?,
+        Some(state) if state.is_dir() => {
+            let lock = compend::service::lock_state_if_held(state, "calibrate")?;
+            if lock.is_none() {
+                tracing::warn!(
+                    "{}: this user cannot read the state directory's lock file, so cannot tell \
+                     whether a service runs on this configuration",
+                    state.display()
+                );
+            }
+            lock
+        }
         _ => None,
     };
+    // And a model path in a service's state directory, named by --out.
+    let held = args.state.as_deref().filter(|_| _lock.is_some());
+    let _model_lock = super::lock_model_state(&out, held, "calibrate")?;
     let Some((runs, keep)) = args.runs.take() else {
         return dispatch(&args, &out);
     };

@@ -30,11 +30,17 @@ const MARKER: &str = ".compend-compensated";
 pub fn run(args: Args) -> Result<()> {
     let model = Model::load(&args.model)?;
     let inputs = list_inputs(&args.input)?;
+    // Names kept as they are (the list holds one per line): an input named otherwise is refused.
     let names: Vec<String> = inputs
         .iter()
-        .filter_map(|p| p.file_name())
-        .map(|n| n.to_string_lossy().into_owned())
-        .collect();
+        .map(|p| match p.file_name().and_then(|n| n.to_str()) {
+            Some(n) if !n.contains('\n') => Ok(n.to_string()),
+            _ => Err(compend::Error::Input(format!(
+                "{}: a name that is not UTF-8 text on one line; rename it to compensate it",
+                p.display()
+            ))),
+        })
+        .collect::<compend::Result<_>>()?;
     let mut out = check_out(&args.out, &inputs)?;
     out.check(&names)?;
     out.claim(&names)?;

@@ -191,7 +191,14 @@ fn overlay(white: &CamImage, mask: &Mask<Camera>, bbox: Rect, area: Option<Rect>
 
 pub fn run(args: Args) -> Result<()> {
     if let Some(dir) = &args.out {
-        super::check_out_folder(dir, "--out")?;
+        // Only pictures an earlier `inspect` wrote there are replaced.
+        let names: Vec<String> = ["fov_mask.png", "fov_overlay.png", "unreachable.png"]
+            .map(String::from)
+            .to_vec();
+        let mut owned =
+            super::OwnedOut::open(dir, "--out", ".compend-inspected", "compend inspect")?;
+        owned.check(&names)?;
+        owned.claim(&names)?;
     }
     let r = report(&args)?;
     if args.json {

@@ -104,6 +104,54 @@ impl OwnedOut {
     }
 }
 
+/// Where `path` leads once made: the deepest part of it that exists with its links and `..`
+/// resolved (`canonicalize`), then the rest as written, a `..` there taking off the part before
+/// it (as `create_dir_all` would make it).
+pub fn resolved(path: &std::path::Path) -> std::io::Result<std::path::PathBuf> {
+    use std::path::Component;
+    let absolute = std::path::absolute(path)?;
+    let parts: Vec<Component> = absolute.components().collect();
+    let mut k = parts.len();
+    let mut base = std::path::PathBuf::new();
+    while k > 0 {
+        let prefix: std::path::PathBuf = parts[..k].iter().collect();
+        if let Ok(real) = prefix.canonicalize() {
+            base = real;
+            break;
+        }
+        k -= 1;
+    }
+    for part in &parts[k..] {
+        match part {
+            Component::ParentDir => {
+                base.pop();
+            }
+            Component::CurDir => {}
+            other => base.push(other),
+        }
+    }
+    Ok(base)
+}
+
+/// The lock of the state directory a model goes into (`out`'s folder holds a `compend.lock`:
+/// a service's state, whose model path is `STATE/model`), held by `holder` for as long as it is
+/// kept, unless `held` is that folder already (locked by this process). A running service
+/// there is an input error naming it; `None` when there is no such lock file.
+pub fn lock_model_state(
+    out: &std::path::Path,
+    held: Option<&std::path::Path>,
+    holder: &str,
+) -> compend::Result<Option<std::fs::File>> {
+    let Some(state) = out.parent().filter(|p| p.join("compend.lock").is_file()) else {
+        return Ok(None);
+    };
+    let same = |a: &std::path::Path| a.canonicalize().ok() == state.canonicalize().ok();
+    if held.is_some_and(same) {
+        return Ok(None);
+    }
+    compend::service::lock_state_if_held(state, holder)
+}
+
 /// Exit code for an error chain: the first library error's code (2 = input, 1 = operation),
 /// 1 when there is none.
 pub fn exit_code(err: &anyhow::Error) -> u8 {

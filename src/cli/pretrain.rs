@@ -111,7 +111,11 @@ fn check_weights_out(out: &std::path::Path) -> compend::Result<()> {
             )));
         }
         Ok(_) => {
-            let bytes = std::fs::read(out).map_err(|e| compend::Error::io(out, "read", e))?;
+            let bytes = compend::files::read_regular(
+                out,
+                "a weights file (safetensors)",
+                compend::files::MAX_WEIGHTS_BYTES,
+            )?;
             if safetensors::SafeTensors::deserialize(&bytes).is_err() {
                 return Err(compend::Error::Input(format!(
                     "{}: exists and is not a safetensors file; only earlier weights are \

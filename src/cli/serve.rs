@@ -143,7 +143,7 @@ pub fn serve(a: ServeArgs) -> Result<()> {
             })?;
             // What `config check` refuses is refused here too, so that a reload the next
             // restart would fail on is not applied (the running service keeps its own).
-            compend::service::preflight(&c, false)?;
+            compend::service::preflight(&c, true)?;
             Ok(c)
         }) as compend::service::Reload
     });

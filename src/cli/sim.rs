@@ -333,8 +333,28 @@ fn sheet(a: SheetArgs) -> Result<()> {
         return Err(compend::Error::Input("--image counts from 1".into()).into());
     }
     super::check_out_folder(&a.out, "--out")?;
-    std::fs::create_dir_all(&a.out).map_err(|e| compend::Error::io(&a.out, "create folder", e))?;
     let sa = &a.scene_args;
+    // Every scene resolved first: a bad one is refused before anything is written, and only
+    // sheets an earlier `sim sheet` wrote are replaced.
+    let scenes: Vec<scene::Scene> = names
+        .iter()
+        .map(|n| resolve(n, sa))
+        .collect::<Result<_>>()?;
+    let files: Vec<String> = scenes.iter().map(|s| format!("{}.png", s.name)).collect();
+    if let Some(twice) = files
+        .iter()
+        .enumerate()
+        .find(|(i, f)| files[..*i].contains(f))
+    {
+        return Err(compend::Error::Input(format!(
+            "two scenes are named {:?}; their sheets would have one file",
+            twice.1.trim_end_matches(".png")
+        ))
+        .into());
+    }
+    let mut owned = super::OwnedOut::open(&a.out, "--out", ".compend-sheets", "compend sim sheet")?;
+    owned.check(&files)?;
+    owned.claim(&files)?;
     let (nw, nh) = (sa.network.width, sa.network.height);
     let sample = patterns::sampling_image(sa.seed, Set::Train, a.image - 1, nw, nh);
     let test = patterns::sampling_image(sa.seed, Set::Test, a.image - 1, nw, nh);
@@ -342,9 +362,9 @@ fn sheet(a: SheetArgs) -> Result<()> {
         "{:<16} {:>22} {:>22} {:>22}",
         "scene", "uncompensated", "geometry-only", "oracle"
     );
-    for name in &names {
-        let scene = resolve(name, sa)?;
-        let sim = Simulator::new(&scene, sa.seed, Phase::Calibration)?;
+    for scene in &scenes {
+        let name = &scene.name;
+        let sim = Simulator::new(scene, sa.seed, Phase::Calibration)?;
         let (area, range) = rig::sheet::display_target(&sim)
             .with_context(|| format!("finding the displayable area of scene {name:?}"))?;
         let (img, s) =
@@ -429,9 +449,9 @@ fn score(a: ScoreArgs) -> Result<()> {
         Some(dir) => {
             let owned = super::OwnedOut::open(dir, "--out", SCORE_MARKER, "compend sim score")?;
             let root = setup.root().path().canonicalize().ok();
-            let inside = std::iter::successors(Some(dir.as_path()), |d| d.parent())
-                .filter_map(|d| d.canonicalize().ok())
-                .any(|d| Some(d) == root);
+            let inside = root
+                .as_ref()
+                .is_some_and(|r| super::resolved(dir).is_ok_and(|d| d.starts_with(r)));
             if inside {
                 return Err(compend::Error::Input(format!(
                     "--out {}: inside the data root {}; the camera views would be taken for \
@@ -440,6 +460,18 @@ fn score(a: ScoreArgs) -> Result<()> {
                     setup.root().path().display()
                 ))
                 .into());
+            }
+            // Each model's views go into a folder of its name: a plain name, and none of the
+            // reference rows'.
+            for m in &models {
+                setup.compensation_dir(m)?;
+                if ["desired", "uncompensated", "oracle"].contains(&m.as_str()) {
+                    return Err(compend::Error::Input(format!(
+                        "--model {m}: with --out, a model may not be named like a reference row \
+                         (desired, uncompensated, oracle), whose views have that folder"
+                    ))
+                    .into());
+                }
             }
             let names: Vec<String> = models
                 .iter()

@@ -91,6 +91,8 @@ pub fn run(args: Args) -> Result<()> {
         .unwrap_or_else(|| setup.path().join("models").join(args.method.name()));
     // Before any work: only a model directory is ever replaced, and the place must be writable.
     compend::model::store::check_output(&out)?;
+    // Not into a running service's model path.
+    let _lock = super::lock_model_state(&out, None, "train")?;
     let req = Request {
         ntrain: args.ntrain,
         seed: args.seed,

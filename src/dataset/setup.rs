@@ -346,7 +346,10 @@ impl Setup {
             &self.camera_why(),
             &self.reference_path(Reference::Black),
         )?;
-        warn_if_grayscale(&dir, &paths);
+        // Structured light needs only intensity.
+        if set != CaptureSet::Sl {
+            warn_if_grayscale(&dir, &paths);
+        }
         Ok(images)
     }
 

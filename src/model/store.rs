@@ -739,10 +739,6 @@ impl Tensors {
     }
 }
 
-/// The most bytes a model's weights file may hold (the full-size residual rung's are tens of
-/// megabytes).
-const MAX_WEIGHTS_BYTES: u64 = 4 << 30;
-
 /// Reads a model directory: metadata (version checked) and tensors.
 pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
     let meta = load_meta(dir)?;
@@ -750,7 +746,7 @@ pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
     let bytes = crate::files::read_regular(
         &weights_path,
         "the model's weights (safetensors)",
-        MAX_WEIGHTS_BYTES,
+        crate::files::MAX_WEIGHTS_BYTES,
     )?;
     let tensors = Tensors::from_bytes(&bytes, &weights_path)?;
     Ok((meta, tensors))
@@ -845,7 +841,16 @@ fn shape(dir: &Path, strict: bool) -> Result<bool> {
             let mut names = Vec::new();
             for entry in entries {
                 let entry = entry.map_err(|e| Error::io(dir, "list", e))?;
-                names.push(entry.file_name().to_string_lossy().into_owned());
+                let name = entry.file_name().to_string_lossy().into_owned();
+                // A model's two files are plain files: a folder or a FIFO of that name is
+                // someone else's.
+                let plain = entry.file_type().is_ok_and(|t| t.is_file());
+                if (name == META_FILE || name == WEIGHTS_FILE) && !plain {
+                    return refuse(&format!(
+                        "holds `{name}` that is not a plain file, so it is not a model directory"
+                    ));
+                }
+                names.push(name);
             }
             if let Some(other) = names.iter().find(|n| *n != META_FILE && *n != WEIGHTS_FILE) {
                 return refuse(&format!("holds `{other}`, so it is not a model directory"));

@@ -189,7 +189,7 @@ impl Pretrained {
         let bytes = crate::files::read_regular(
             path,
             "pre-trained weights (safetensors)",
-            crate::files::MAX_IMAGE_BYTES,
+            crate::files::MAX_WEIGHTS_BYTES,
         )?;
         let mpath = meta_path(path);
         let json = crate::files::read_text(&mpath, "the pre-trained weights' metadata (JSON)")?;

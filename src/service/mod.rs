@@ -225,13 +225,23 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
     if let (Some(_), Some(file)) = (config.socket.tcp, &config.socket.tcp_token_file) {
         if for_service {
             socket::Token::read(file)?;
-        } else if let Err(e) = std::fs::metadata(file)
-            && e.kind() == std::io::ErrorKind::NotFound
-        {
-            return Err(Error::Input(format!(
-                "[socket] tcp_token_file = \"{}\": no such file",
-                file.display()
-            )));
+        } else {
+            match std::fs::metadata(file) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    return Err(Error::Input(format!(
+                        "[socket] tcp_token_file = \"{}\": no such file",
+                        file.display()
+                    )));
+                }
+                Ok(m) if !m.is_file() => {
+                    return Err(Error::Input(format!(
+                        "[socket] tcp_token_file = \"{}\": not a plain file (a folder, a FIFO \
+                         or a device)",
+                        file.display()
+                    )));
+                }
+                _ => {}
+            }
         }
     }
     for (key, dir) in [
@@ -310,36 +320,53 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
 /// kernel lets it go when the process ends, however it ends. The file holds the pid and the
 /// holder, for the message another one gets: an input error naming it. One process drives a
 /// configuration's rig and writes into its state at a time: two would capture from one camera
-/// and install into one model directory.
+/// and install into one model directory. A lock file this user cannot write (one root made) is
+/// locked read-only ([`lock_state_if_held`]).
 pub fn lock_state(state: &Path, holder: &str) -> Result<std::fs::File> {
-    let path = state.join("compend.lock");
-    let file = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(false)
-        .open(&path)
-        .map_err(|e| Error::io(&path, "open the state directory's lock file", e))?;
-    take_lock(file, true, state, holder)
+    lock_state_if_held(state, holder)?.ok_or_else(|| {
+        Error::Input(format!(
+            "{}: this user can neither make nor read the lock file compend.lock in the state \
+             directory; run as the directory's owner, or give another --state",
+            state.display()
+        ))
+    })
 }
 
 /// [`lock_state`] for a process that may not be able to write `state` (`calibrate --config`
 /// run by another user, its captures and model elsewhere): a lock file it cannot open for
-/// writing is locked read-only (flock needs no write access), and where there is none and none
-/// can be made, no process holds the directory (every holder makes one): `None`.
+/// writing is locked read-only (flock needs no write access); where there is none it can read
+/// and none can be made, `None`: this user cannot tell whether a process holds it. Made by root,
+/// the file is given to the directory's owner, so that the service can write it later.
 pub fn lock_state_if_held(state: &Path, holder: &str) -> Result<Option<std::fs::File>> {
-    match lock_state(state, holder) {
-        Ok(file) => Ok(Some(file)),
-        Err(Error::Io { source, .. }) if source.kind() == std::io::ErrorKind::PermissionDenied => {
-            let path = state.join("compend.lock");
-            match std::fs::File::open(&path) {
-                Ok(file) => take_lock(file, false, state, holder).map(Some),
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-                Err(e) => Err(Error::io(&path, "open the state directory's lock file", e)),
+    use std::io::ErrorKind::{NotFound, PermissionDenied};
+    use std::os::unix::fs::MetadataExt;
+    let path = state.join("compend.lock");
+    let opened = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path);
+    let (file, writable) = match opened {
+        Ok(file) => {
+            // SAFETY: geteuid has no preconditions and cannot fail.
+            if unsafe { libc::geteuid() } == 0
+                && let (Ok(dir), Ok(meta)) = (state.metadata(), file.metadata())
+                && meta.uid() != dir.uid()
+            {
+                std::os::unix::fs::fchown(&file, Some(dir.uid()), Some(dir.gid()))
+                    .map_err(|e| Error::io(&path, "give the lock file to the state's owner", e))?;
             }
+            (file, true)
         }
-        Err(e) => Err(e),
-    }
+        Err(e) if e.kind() == PermissionDenied => match std::fs::File::open(&path) {
+            Ok(file) => (file, false),
+            Err(e) if matches!(e.kind(), NotFound | PermissionDenied) => return Ok(None),
+            Err(e) => return Err(Error::io(&path, "open the state directory's lock file", e)),
+        },
+        Err(e) => return Err(Error::io(&path, "open the state directory's lock file", e)),
+    };
+    take_lock(file, writable, state, holder).map(Some)
 }
 
 /// Locks `file`, the lock file of `state`, for `holder`, and writes the pid and holder into it
@@ -360,6 +387,19 @@ fn take_lock(
             let pid = words.next().unwrap_or("unknown");
             // A lock written before the holder was recorded is a service's.
             let other = words.next().unwrap_or("serve");
+            // A holder that could not write the file (another user's calibration) left an
+            // older process's pid in it.
+            let alive = pid
+                .parse::<u32>()
+                .is_ok_and(|p| Path::new(&format!("/proc/{p}")).exists());
+            if !alive {
+                return Err(Error::Input(format!(
+                    "{}: another compend process holds this state directory (its lock file \
+                     names pid {pid}, which no longer runs: the holder could not write it); \
+                     wait for it to end",
+                    state.display(),
+                )));
+            }
             let hint = match (holder, other) {
                 ("serve", "serve") => {
                     "one service runs per state directory: stop that one, or give this one \

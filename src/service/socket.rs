@@ -109,12 +109,15 @@ pub fn bind(cfg: &SocketConfig) -> Result<(UnixListener, Access)> {
             chown_group(path, gid)?;
             gid
         }
-        // The group the socket file was made with: the service user's (its effective group),
-        // unless the folder's set-group-ID bit gave it the folder's. Its members may open the
-        // 0660 file, and so may talk to the service.
-        None => std::fs::metadata(path)
-            .map_err(|e| Error::io(path, "inspect", e))?
-            .gid(),
+        // The service user's group (its effective group), set on the file even where the
+        // folder's set-group-ID bit gave it the folder's: its members may open the 0660 file,
+        // and so may talk to the service.
+        None => {
+            // SAFETY: getegid has no preconditions and cannot fail.
+            let gid = unsafe { libc::getegid() };
+            chown_group(path, gid)?;
+            gid
+        }
     };
     // SAFETY: geteuid has no preconditions and cannot fail.
     let own_uid = unsafe { libc::geteuid() };
@@ -166,11 +169,9 @@ impl Token {
                     path.display()
                 ))
             }
-            Error::Input(m) if m.contains("not text") => Error::Input(format!(
-                "[socket] tcp_token_file: {} is not text; expected a token such as 64 hex digits",
-                path.display()
+            Error::Input(m) => Error::Input(format!(
+                "[socket] tcp_token_file: {m}; expected a token such as 64 hex digits"
             )),
-            Error::Input(m) => Error::Input(format!("[socket] tcp_token_file: {m}")),
             e => e,
         })?;
         let token = text.trim();
@@ -752,9 +753,8 @@ pub fn resolve(socket: Option<PathBuf>, config: Option<&Path>) -> Result<PathBuf
 mod tests {
     use super::*;
 
-    /// Without `[socket] group` the socket's group is the one the file was made with (the
-    /// service user's), and its members may connect; others only when root, the service's own
-    /// user or listed.
+    /// A token file readable by others than the service's user and group is warned about; one
+    /// in the service's group is not.
     #[test]
     fn a_token_file_may_be_read_by_the_services_user_and_group_only() {
         for (mode, gid, warns) in [
@@ -773,8 +773,10 @@ mod tests {
         }
     }
 
+    /// Without `[socket] group` the socket's group is the service user's (set on the file), and
+    /// its members may connect; others only when root, the service's own user or listed.
     #[tokio::test]
-    async fn the_socket_group_defaults_to_the_files_and_its_members_may_connect() {
+    async fn the_socket_group_defaults_to_the_services_and_its_members_may_connect() {
         let dir = tempfile::tempdir().unwrap();
         let mut cfg = crate::config::Config::defaults().socket;
         cfg.path = dir.path().join("s.sock");
@@ -782,6 +784,8 @@ mod tests {
         cfg.allow_uids = vec![4321];
         let (_listener, access) = bind(&cfg).unwrap();
         let file_gid = std::fs::metadata(&cfg.path).unwrap().gid();
+        // SAFETY: getegid has no preconditions.
+        assert_eq!(file_gid, unsafe { libc::getegid() });
         assert_eq!(access.group, file_gid);
         // A uid with no passwd entry is in no group but its primary one.
         let stranger = 987_654;

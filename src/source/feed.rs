@@ -167,6 +167,20 @@ impl Drop for Feed {
 }
 
 fn run(source: &mut dyn VideoSource, shared: &Shared, mode: FeedMode) {
+    // A source stopped while it waited here (a FIFO no one wrote into yet) reads nothing: a
+    // later source on the same FIFO has the stream to itself.
+    let prepared = source.prepare();
+    {
+        let mut slot = shared.lock();
+        if slot.stop {
+            return;
+        }
+        if let Err(e) = prepared {
+            slot.error = Some(e);
+            shared.changed.notify_all();
+            return;
+        }
+    }
     let mut due = Instant::now();
     loop {
         let next = source.next();

@@ -37,6 +37,11 @@ pub enum Next {
 pub trait VideoSource: Send {
     /// For messages: what is being played.
     fn describe(&self) -> String;
+    /// What may block before the first frame (a FIFO's open waits for its writer), run on the
+    /// source's own thread before any `next`; nothing by default.
+    fn prepare(&mut self) -> Result<()> {
+        Ok(())
+    }
     /// The next frame, or the end.
     fn next(&mut self) -> Result<Next>;
     /// Whether playback should end when the source ends (streams), rather than hold the last
@@ -105,7 +110,24 @@ pub fn check(spec: &SourceSpec) -> Result<()> {
         SourceSpec::Image(path) => read_image(path).map(|_| ()),
         // As the show plays it: past images that do not decode, to the first that does.
         SourceSpec::Folder { dir, period } => Slideshow::new(dir, *period)?.next().map(|_| ()),
-        SourceSpec::Raw { path: Some(p), .. } => exists(p, "a raw source"),
+        SourceSpec::Raw { path: Some(p), .. } => {
+            exists(p, "a raw source")?;
+            // Readable by this process, asked without opening it (a FIFO's open would wait).
+            let c = std::ffi::CString::new(p.as_os_str().as_encoded_bytes())
+                .map_err(|_| Error::Input(format!("{}: a path with a NUL byte", p.display())))?;
+            // SAFETY: `c` is a valid NUL-terminated path; faccessat only reads it.
+            let rc = unsafe {
+                libc::faccessat(libc::AT_FDCWD, c.as_ptr(), libc::R_OK, libc::AT_EACCESS)
+            };
+            if rc != 0 {
+                return Err(Error::Input(format!(
+                    "{}: this user cannot read it ({}); a raw source must be readable",
+                    p.display(),
+                    std::io::Error::last_os_error()
+                )));
+            }
+            Ok(())
+        }
         SourceSpec::Raw { path: None, .. } | SourceSpec::Pattern { .. } => Ok(()),
         #[cfg(target_os = "linux")]
         SourceSpec::V4l2 { device, .. } => exists(device, "a V4L2 device"),
@@ -254,16 +276,21 @@ impl VideoSource for Raw {
         )
     }
 
+    fn prepare(&mut self) -> Result<()> {
+        if let RawInput::Closed(p) = &self.reader {
+            let file = std::fs::File::open(p).map_err(|e| Error::io(p, "open raw source", e))?;
+            self.reader = RawInput::Open(Box::new(file));
+        }
+        Ok(())
+    }
+
     fn next(&mut self) -> Result<Next> {
         let ImageSize {
             width: w,
             height: h,
         } = self.size;
         let len = w * h * self.format.bytes_per_pixel();
-        if let RawInput::Closed(p) = &self.reader {
-            let file = std::fs::File::open(p).map_err(|e| Error::io(p, "open raw source", e))?;
-            self.reader = RawInput::Open(Box::new(file));
-        }
+        self.prepare()?;
         let RawInput::Open(reader) = &mut self.reader else {
             return Ok(Next::End);
         };

@@ -197,6 +197,47 @@ fn score_writes_views_only_where_it_may(s: &str) {
         stderr(&o)
     );
     assert!(!inside.exists());
+    // Relative to a working folder in the data root, too.
+    let o = compend_in(
+        std::path::Path::new(s),
+        &[
+            "sim", "score", "--setup", ".", "--ntest", "2", "--out", "views",
+        ],
+    );
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("inside the data root"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!std::path::Path::new(s).join("views").exists());
+    // Through a link into it.
+    let lnk = dir.path().join("lnk");
+    std::os::unix::fs::symlink(std::path::Path::new(s).join("cam"), &lnk).expect("link");
+    for out in [lnk.join("views"), lnk.clone()] {
+        let o = score(&out);
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains("inside the data root"),
+            "{}",
+            stderr(&o)
+        );
+    }
+    // A model named like a reference row would share its folder.
+    let o = compend(&[
+        "sim",
+        "score",
+        "--setup",
+        s,
+        "--ntest",
+        "2",
+        "--model",
+        "oracle",
+        "--out",
+        dir.path().join("v2").to_str().expect("utf-8"),
+    ]);
+    assert_code(&o, 2);
+    assert!(!dir.path().join("v2").exists());
 }
 
 /// `compend inspect` on the exported setup `s`: no problem, every capture counted.

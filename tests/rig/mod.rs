@@ -104,7 +104,7 @@ fn show(s: &Scores) -> String {
 }
 
 mod common_cli {
-    pub use crate::common::{assert_code, compend, stderr, stdout};
+    pub use crate::common::{assert_code, compend, compend_in, stderr, stdout};
 }
 
 fn mean(img: &CamImage, mask: Option<&Mask<Camera>>) -> f64 {

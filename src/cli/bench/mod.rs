@@ -124,7 +124,13 @@ pub fn run(args: Args) -> Result<()> {
             None => Ok(()),
         }
     };
-    twice("--scenes", scenes.clone())?;
+    // By the name each scene has (a scene file may hold a built-in's name): its data root and
+    // rows are named by it.
+    let names = scenes
+        .iter()
+        .map(|s| rig::scene::load(s).map(|scene| scene.name))
+        .collect::<compend::Result<Vec<_>>>()?;
+    twice("--scenes (by scene name)", names)?;
     twice(
         "--ntrain",
         args.ntrain.iter().map(|n| n.to_string()).collect(),
@@ -132,6 +138,10 @@ pub fn run(args: Args) -> Result<()> {
     twice(
         "--seeds",
         args.seeds.iter().map(|n| n.to_string()).collect(),
+    )?;
+    twice(
+        "--methods",
+        args.methods.iter().map(|m| m.to_string()).collect(),
     )?;
     if args.loop_images > 0 && args.ntrain.len() > 1 {
         return Err(compend::Error::Input(format!(
