@@ -23,9 +23,9 @@ const TMP_MARK: &str = ".tmp-";
 const OLD_MARK: &str = ".old-";
 
 /// The bytes of `path`, which must be a regular file (symbolic links followed) of at most
-/// `max_bytes`, described as `what` ("a PNG image", say) in the errors. A FIFO, a device or a
-/// socket is refused without waiting for a writer (opened non-blocking, then checked), as is a
-/// folder: an input error naming it. A missing file is [`Error::Missing`]; a file larger than
+/// `max_bytes`, described as `what` ("a PNG image", say) in the errors. A FIFO, a device, a
+/// socket or a folder is refused before it is opened ([`open_regular`]): an input error naming
+/// it, with no wait for a writer. A missing file is [`Error::Missing`]; a file larger than
 /// `max_bytes` (`/dev/zero` would be endless) is an input error before it is read.
 pub fn read_regular(path: &Path, what: &str, max_bytes: u64) -> Result<Vec<u8>> {
     use std::io::Read;
