@@ -154,6 +154,43 @@ fn raw_pipe_plays_through_the_virtual_rig() {
     let b =
         compend::pngio::read_rgb::<compend::raster::Camera>(&out.join("cam_000003.png")).unwrap();
     assert!(compend::metrics::score_pairs([(&a, &b)]).unwrap().psnr < 40.0);
+    // Into a folder an earlier `play` wrote into: its files are replaced.
+    let again = |out: &std::path::Path| {
+        play_with_stdin(
+            &[
+                "--model",
+                m,
+                "--source",
+                src,
+                "--rig",
+                "virtual",
+                "--pace",
+                "source",
+                "--out",
+                out.to_str().unwrap(),
+                "--json",
+            ],
+            &frames,
+        )
+        .0
+    };
+    assert_code(&again(&out), 0);
+    // Into a folder holding a file of one of its names that it did not write: refused, kept.
+    let mine = dir.path().join("mine");
+    std::fs::create_dir(&mine).unwrap();
+    std::fs::write(mine.join("cam_000002.png"), "mine").unwrap();
+    let o = again(&mine);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("not written by `compend play`"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        std::fs::read_to_string(mine.join("cam_000002.png")).unwrap(),
+        "mine"
+    );
+    assert!(!mine.join("play.json").exists());
 
     // Live pacing at 60 Hz: the pipe is faster than the display, so frames are dropped at the
     // source, but every frame is accounted for and the last one is shown.

@@ -2,7 +2,7 @@
 //! virtual rig (`--rig virtual[:SCENE]`), which replaces the window by the rig's projector and
 //! writes what its camera sees.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use compend::device::DisplaySink;
@@ -90,7 +90,7 @@ pub fn run(args: Args) -> Result<()> {
     };
     let spec = SourceSpec::parse(source_text)?;
     if let Some(dir) = &args.out {
-        super::check_out_folder(dir, "--out")?;
+        check_out(dir)?;
     }
     let model = Model::load(model_dir)?;
     let rig = args.rig.as_deref().map(parse_rig).transpose()?;
@@ -109,12 +109,52 @@ pub fn run(args: Args) -> Result<()> {
     eprintln!("play: {}", stats.summary());
     let json = serde_json::to_string(&stats)?;
     if let Some(dir) = &args.out {
+        mark_out(dir)?;
         compend::files::write_atomically(&dir.join("play.json"), format!("{json}\n").as_bytes())?;
     }
     if args.json {
         println!("{json}");
     }
     Ok(())
+}
+
+/// The list `play --out` keeps in its folder. The camera views' names are not known before the
+/// playback ends, so it names what `play` writes there rather than each file.
+const PLAY_MARKER: &str = ".compend-played";
+
+/// Whether `dir` may take `play`'s files (`play.json`, `cam_NNNNNN.png`): a folder (or nothing
+/// yet) that holds none of them, or one an earlier `play` wrote them into (its marker is
+/// there). Input errors name the path. [`mark_out`] marks it before the first is written.
+fn check_out(dir: &Path) -> compend::Result<()> {
+    super::check_out_folder(dir, "--out")?;
+    let marker = dir.join(PLAY_MARKER);
+    if !marker.exists() {
+        let ours = |name: &str| {
+            name == "play.json" || (name.starts_with("cam_") && name.ends_with(".png"))
+        };
+        if let Ok(entries) = std::fs::read_dir(dir)
+            && let Some(name) = entries
+                .filter_map(|e| e.ok())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .find(|n| ours(n))
+        {
+            return Err(compend::Error::Input(format!(
+                "{}: already there, and not written by `compend play` (no {PLAY_MARKER} \
+                 beside it), so it is not replaced: choose another --out",
+                dir.join(name).display()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Makes `dir` and marks it as `play`'s ([`check_out`]).
+fn mark_out(dir: &Path) -> compend::Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| compend::Error::io(dir, "create folder", e))?;
+    compend::files::write_atomically(
+        &dir.join(PLAY_MARKER),
+        b"# play.json and cam_NNNNNN.png here are written by `compend play`\n",
+    )
 }
 
 /// Plays on the projector window until the source ends (streams), `--frames`, or the window is
@@ -166,8 +206,7 @@ fn play_virtual(
     );
     let views: ViewSink = match &args.out {
         Some(dir) => {
-            std::fs::create_dir_all(dir)
-                .map_err(|e| compend::Error::io(dir, "create folder", e))?;
+            mark_out(dir)?;
             let dir = dir.clone();
             Box::new(move |seq, _, img| {
                 compend::pngio::write_rgb(&dir.join(format!("cam_{seq:06}.png")), img)
