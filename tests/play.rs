@@ -342,6 +342,11 @@ fn assert_usage_errors(m: &str) {
             ],
             "no-such-scene",
         ),
+        // A device named as a bare path: how to spell it as a raw source.
+        (
+            vec!["--model", m, "--source", "/dev/zero", "--rig", "virtual"],
+            "not a regular file (a FIFO or a device); to play raw frames from it, spell it raw:",
+        ),
     ] {
         let mut full = vec!["play"];
         full.extend(args);

@@ -177,6 +177,13 @@ impl SourceSpec {
             })
         } else if path.is_file() {
             Ok(Self::Image(path))
+        } else if path.exists() {
+            // A FIFO or a device: a raw source, spelled as one.
+            Err(Error::Input(format!(
+                "{}: not a regular file (a FIFO or a device); to play raw frames from it, spell \
+                 it raw:{0}?size=WxH",
+                path.display()
+            )))
         } else {
             Err(Error::Missing {
                 path,
