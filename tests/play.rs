@@ -112,22 +112,25 @@ fn raw_pipe_plays_through_the_virtual_rig() {
 
     // Offline pacing: every frame shown exactly once, one camera view each.
     let out = dir.path().join("views");
-    let (o, v) = play_with_stdin(
-        &[
-            "--model",
-            m,
-            "--source",
-            src,
-            "--rig",
-            "virtual",
-            "--pace",
-            "source",
-            "--out",
-            out.to_str().unwrap(),
-            "--json",
-        ],
-        &frames,
-    );
+    let offline = |out: &std::path::Path| {
+        play_with_stdin(
+            &[
+                "--model",
+                m,
+                "--source",
+                src,
+                "--rig",
+                "virtual",
+                "--pace",
+                "source",
+                "--out",
+                out.to_str().unwrap(),
+                "--json",
+            ],
+            &frames,
+        )
+    };
+    let (o, v) = offline(&out);
     assert_code(&o, 0);
     let v = v.unwrap();
     eprintln!("{v}");
@@ -155,31 +158,12 @@ fn raw_pipe_plays_through_the_virtual_rig() {
         compend::pngio::read_rgb::<compend::raster::Camera>(&out.join("cam_000003.png")).unwrap();
     assert!(compend::metrics::score_pairs([(&a, &b)]).unwrap().psnr < 40.0);
     // Into a folder an earlier `play` wrote into: its files are replaced.
-    let again = |out: &std::path::Path| {
-        play_with_stdin(
-            &[
-                "--model",
-                m,
-                "--source",
-                src,
-                "--rig",
-                "virtual",
-                "--pace",
-                "source",
-                "--out",
-                out.to_str().unwrap(),
-                "--json",
-            ],
-            &frames,
-        )
-        .0
-    };
-    assert_code(&again(&out), 0);
+    assert_code(&offline(&out).0, 0);
     // Into a folder holding a file of one of its names that it did not write: refused, kept.
     let mine = dir.path().join("mine");
     std::fs::create_dir(&mine).unwrap();
     std::fs::write(mine.join("cam_000002.png"), "mine").unwrap();
-    let o = again(&mine);
+    let o = offline(&mine).0;
     assert_code(&o, 2);
     assert!(
         stderr(&o).contains("not written by `compend play`"),

@@ -549,25 +549,26 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
     eval_json(&climbed, &setup);
     // It is the model `--method compennet++-res` trains on those pairs with that seed, to the
     // byte.
-    // The residual rung for 3 iterations on the first `n` pairs, into `out`.
-    let res_on = |n: &str, out: &Path| {
-        let o = compend(&[
-            "train",
-            "--setup",
-            setup.to_str().unwrap(),
-            "--method",
-            "compennet++-res",
-            "--iters",
-            "3",
-            "--ntrain",
-            n,
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+    // The residual rung trained alone with `args` (its count of pairs, iterations, seed), into
+    // `out`.
+    let res_on = |args: &[&str], out: &Path| {
+        let o = compend(
+            &[
+                &["train", "--setup", setup.to_str().unwrap()][..],
+                &[
+                    "--method",
+                    "compennet++-res",
+                    "--out",
+                    out.to_str().unwrap(),
+                ],
+                args,
+            ]
+            .concat(),
+        );
         assert_code(&o, 0);
     };
     let res = dir.path().join("res");
-    res_on("16", &res);
+    res_on(&["--iters", "3", "--ntrain", "16"], &res);
     let weights = |m: &Path| std::fs::read(m.join("model.safetensors")).unwrap();
     assert!(
         weights(&res) == weights(&climbed),
@@ -578,7 +579,7 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
     // paper protocol on the 4 held-out pairs, the judgement's last figure. Its correction is
     // not zero after 3 iterations, so this checks the correction's path too.
     let judged_rung = dir.path().join("judged");
-    res_on("12", &judged_rung);
+    res_on(&["--iters", "3", "--ntrain", "12"], &judged_rung);
     let judged_model = compend::model::Model::load(&judged_rung).unwrap();
     let mut pairs = compend::dataset::Setup::open(&setup, None)
         .unwrap()
@@ -619,20 +620,7 @@ fn auto_climbs_the_ladder_only_as_far_as_held_out_pairs_show_a_gain_and_records_
     assert_eq!(auto["retrained"]["pairs"], 16, "{auto}");
     assert_eq!(meta["training"]["iterations"], 8);
     let alone = dir.path().join("alone");
-    let o = compend(
-        &[
-            &["train", "--setup", setup.to_str().unwrap()][..],
-            &[
-                "--method",
-                "compennet++-res",
-                "--out",
-                alone.to_str().unwrap(),
-            ],
-            &args,
-        ]
-        .concat(),
-    );
-    assert_code(&o, 0);
+    res_on(&args, &alone);
     assert!(
         weights(&alone) == weights(&settled),
         "the settled climb's model differs from the rung's"

@@ -94,9 +94,12 @@ pub fn run(args: Args) -> Result<()> {
     }
     let model = Model::load(model_dir)?;
     let rig = args.rig.as_deref().map(parse_rig).transpose()?;
-    // Check and open the source before the GPU so a bad source fails fast (a raw file or FIFO
-    // is opened by its first frame).
-    source::check(&spec)?;
+    // Open the source before the GPU so a bad source fails fast. A raw file or FIFO is opened
+    // by its first frame, so it is checked here; the others fail in `open` itself (checking a
+    // still image would decode it twice).
+    if matches!(spec, SourceSpec::Raw { .. }) {
+        source::check(&spec)?;
+    }
     let source = source::open(&spec)?;
     let mode = match args.pace {
         Pace::Display => FeedMode::Latest,
