@@ -31,6 +31,7 @@ fn test_meta(method: compend::model::Method, network: ImageSize) -> ModelMeta {
         metrics: serde_json::Value::Null,
         timings: Default::default(),
         written_by: "test".into(),
+        weights_sha256: None,
         calibration: None,
     }
 }

@@ -432,6 +432,18 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     assert_eq!(s["state"], "paused", "{s}");
     assert_eq!(s["calibrations"], 2, "{s}");
     assert_eq!(s["last_calibration"]["installed"], true, "{s}");
+    // A model swapped in while paused keeps the projector dark: no frame until `play`.
+    let shown = s["frames"]["shown"].clone();
+    let r = svc.ask(&format!(
+        r#"{{"cmd":"model","path":"{}"}}"#,
+        model.display()
+    ));
+    assert_eq!(r["ok"], true, "{r}");
+    assert!(r["message"].as_str().unwrap().starts_with("paused"), "{r}");
+    std::thread::sleep(Duration::from_millis(700));
+    let s = svc.status();
+    assert_eq!(s["state"], "paused", "{s}");
+    assert_eq!(s["frames"]["shown"], shown, "{s}");
     assert_code(&client(&["play"], &svc.socket), 0);
     svc.wait_for("playback again", 30, playing);
     let o = client(

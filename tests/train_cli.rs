@@ -204,6 +204,21 @@ fn bad_model_files(dir: &Path, model: &Path, s: &str) {
         stderr(&out)
     );
 
+    // Weights that are not the ones model.json was saved with (here one value altered; a
+    // file from another model of the same shapes alike) are refused, naming both files.
+    let mut weights = std::fs::read(model.join("model.safetensors")).unwrap();
+    let last = weights.len() - 1;
+    weights[last] ^= 0x01;
+    std::fs::write(bad.join("model.safetensors"), &weights).unwrap();
+    let out = compend(&["eval", "--model", bad.to_str().unwrap(), "--setup", s]);
+    assert_code(&out, 2);
+    assert!(
+        stderr(&out).contains("model.safetensors: not the weights")
+            && stderr(&out).contains("model.json"),
+        "{}",
+        stderr(&out)
+    );
+
     let json = std::fs::read_to_string(model.join("model.json")).unwrap();
     std::fs::write(
         bad.join("model.json"),

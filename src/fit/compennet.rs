@@ -251,6 +251,7 @@ pub(super) fn train_compennet(
             ms_per_sample: Some(report.ms_per_sample),
         },
         written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
+        weights_sha256: None,
         calibration: None,
     };
     let summary = Summary {

@@ -71,6 +71,7 @@ pub(super) fn fit_linear(
             ms_per_sample: None,
         },
         written_by: format!("compend {}", env!("CARGO_PKG_VERSION")),
+        weights_sha256: None,
         calibration: None,
     };
     let summary = Summary {

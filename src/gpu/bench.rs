@@ -295,6 +295,7 @@ fn synthetic_meta(
         metrics: serde_json::Value::Null,
         timings: Default::default(),
         written_by: concat!("compend ", env!("CARGO_PKG_VERSION"), " (synthetic)").into(),
+        weights_sha256: None,
         calibration: None,
     }
 }

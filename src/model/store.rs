@@ -49,6 +49,11 @@ pub struct ModelMeta {
     pub timings: Timings,
     /// The compend version that wrote the model.
     pub written_by: String,
+    /// SHA-256 of `model.safetensors` (lowercase hex), set by [`save`] and checked by [`load`]:
+    /// weights from another model, or altered since, are refused. Absent in models written
+    /// before it was recorded; those load unchecked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weights_sha256: Option<String>,
     /// `compend calibrate`: latency, phase times and the verification that let it be installed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<CalibrationRecord>,
@@ -749,7 +754,28 @@ pub fn load(dir: &Path) -> Result<(ModelMeta, Tensors)> {
         crate::files::MAX_WEIGHTS_BYTES,
     )?;
     let tensors = Tensors::from_bytes(&bytes, &weights_path)?;
+    if let Some(recorded) = &meta.weights_sha256 {
+        let found = sha256_hex(&bytes);
+        if !found.eq_ignore_ascii_case(recorded) {
+            return Err(Error::Input(format!(
+                "{}: not the weights {} was written with (SHA-256 {found}, recorded {recorded}): \
+                 the two files of a model directory must come from one save; copy or move the \
+                 whole directory, or train the model again",
+                weights_path.display(),
+                dir.join(META_FILE).display()
+            )));
+        }
+    }
     Ok((meta, tensors))
+}
+
+/// The SHA-256 of `bytes` in lowercase hex.
+fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// Reads a model directory's metadata alone (version checked).
@@ -880,7 +906,11 @@ fn is_model_meta(path: &Path) -> bool {
 pub fn save(dir: &Path, meta: &ModelMeta, tensors: &Tensors) -> Result<()> {
     check_output(dir)?;
     let weights = tensors.to_bytes()?;
-    let json = serde_json::to_vec_pretty(meta)
+    let meta = ModelMeta {
+        weights_sha256: Some(sha256_hex(&weights)),
+        ..meta.clone()
+    };
+    let json = serde_json::to_vec_pretty(&meta)
         .map_err(|e| Error::Failed(format!("model metadata: {e}")))?;
     let tmp = crate::files::temp_dir_for(dir)?;
     let result = crate::files::write_synced(&tmp.join(WEIGHTS_FILE), &weights)

@@ -56,7 +56,8 @@ fn sim_list_and_show() {
     assert_code(&o, 2);
     assert!(
         stderr(&o).contains("projector.width/height 100000000x")
-            && stderr(&o).contains("more than the 8192x8192 pixels"),
+            && stderr(&o).contains("more than the 8192x8192 pixels")
+            && stderr(&o).contains(&format!("{}: scene", path.display())),
         "{}",
         stderr(&o)
     );

@@ -41,7 +41,11 @@ pub fn load(name_or_path: &str) -> Result<Scene> {
             path.display()
         ))
     })?;
-    scene.validate()?;
+    // A scene's own errors name its `name`; the file it came from is what the user edits.
+    scene.validate().map_err(|e| match e {
+        Error::Input(why) => Error::Input(format!("{}: {why}", path.display())),
+        other => other,
+    })?;
     Ok(scene)
 }
 

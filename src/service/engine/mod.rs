@@ -317,6 +317,12 @@ impl Engine {
                 Reply::ok("paused")
             }
             Request::Model { path } => match self.use_model(path) {
+                // Paused stays paused: the projector stays dark until the operator plays.
+                Ok(()) if self.io.shared.status().state == State::Paused => Reply::ok(format!(
+                    "paused; {} is the model now, and compend play shows {} with it",
+                    path.display(),
+                    self.source
+                )),
                 Ok(()) => {
                     self.next = Next::Play;
                     Reply::ok(format!("playing {} with {}", self.source, path.display()))
