@@ -111,8 +111,8 @@ pub struct CalibrationConfig {
     #[serde(serialize_with = "display_or_none")]
     pub climb: Option<crate::model::Method>,
     /// PSNR gain (dB) the climbed rung needs over the installed model (or, under `method =
-    /// "auto"`, over the best linear rung) on the held-out pairs (paper protocol) and then in
-    /// closed loop on the rig, to be installed.
+    /// "auto"`, over the best linear rung) in closed loop on the rig, on the verification
+    /// images, to be installed.
     pub climb_gain_db: f64,
     /// Iterations of the climbed rung's training (the progressive climb's and `auto`'s);
     /// `None`: its own schedule.
@@ -596,7 +596,7 @@ impl<'t> Walker<'t> {
             climb_gain_db: self.checked(
                 t,
                 "climb_gain_db",
-                crate::fit::DEFAULT_CLIMB_GAIN_DB,
+                crate::fit::DEFAULT_RIG_GAIN_DB,
                 |v: &f64| finite(*v),
             ),
             climb_iters: self.get::<usize>(t, "climb_iters").filter(|&n| n > 0),
@@ -1025,10 +1025,7 @@ mod tests {
             c.calibration.climb,
             Some(crate::model::Method::CompenNetPpRes)
         );
-        assert_eq!(
-            c.calibration.climb_gain_db,
-            crate::fit::DEFAULT_CLIMB_GAIN_DB
-        );
+        assert_eq!(c.calibration.climb_gain_db, crate::fit::DEFAULT_RIG_GAIN_DB);
         let e = parse("[monitoring]\nrefit_ntrain = 2\n[calibration]\nclimb = \"up\"\n")
             .unwrap_err()
             .to_string();

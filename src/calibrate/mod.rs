@@ -12,15 +12,15 @@
 //!    captured synchronised and averaged ([`sync::Capturer`]), written atomically in the
 //!    dataset layout as it arrives and recorded in the manifest ([`manifest`]); captures already
 //!    on disk for the same pattern set are not taken again (an interrupted run resumes);
-//! 4. **training**: the requested rung on the setup ([`crate::fit`]); when `auto` climbed to a
-//!    CompenNet++ rung on the held-out pairs, the best linear rung is fitted too, for the rig
-//!    to confirm the climb. With `loop_images` > 0 and a linear rung, a residual rung or
+//! 4. **training**: the requested rung on the setup ([`crate::fit`]); `auto` trains the
+//!    CompenNet++ rung the machine can afford on every pair, with no held-out judgement, and
+//!    fits the best linear rung beside it, for the rig to judge the climb in phase 5. With `loop_images` > 0 and a linear rung, a residual rung or
 //!    `auto` that kept a linear rung, **closed-loop pairs** follow: the linear rung's
 //!    compensation of sampling images placed as desired views, projected and captured; these
 //!    pairs sit in the range the desired images use, and the rung is fitted on every pair
 //!    ([`refine`]). With 8 or more of them `auto` waits for them before it climbs: [`train`]
-//!    chooses among the linear rungs, and [`refit`] judges the residual rung on closed-loop
-//!    pairs held out of its training ([`crate::fit::judges_on_loop_pairs`]);
+//!    chooses among the linear rungs, and [`refit`] trains the residual rung's correction on
+//!    all of them ([`crate::fit::judges_on_loop_pairs`]);
 //! 5. **verification**: held-out test images, compensated by the new model and as they are,
 //!    projected, captured and scored inside the displayable area against the view they should
 //!    give. After a climb, the linear rung is projected on the same images and the climbed one
@@ -79,8 +79,8 @@ pub struct Options {
     pub verify_images: usize,
     /// PSNR gain over the uncompensated projection a model needs, dB.
     pub required_gain_db: f64,
-    /// `method = auto`: the PSNR gain (dB, held-out pairs) a CompenNet++ rung needs over the
-    /// best linear rung ([`crate::fit::ClimbRule`]).
+    /// `method = auto`: the PSNR gain (dB) a CompenNet++ rung needs over the best linear rung
+    /// in closed loop on the verification images ([`crate::fit::ClimbRule`]; the rig judges).
     pub climb_gain_db: f64,
     /// Training iterations of a CompenNet++ rung: the one asked for, or the one `auto` climbs
     /// to; `None`: its schedule. Ignored by the linear rungs.
@@ -319,7 +319,7 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 /// The second step of [`refine`], which needs no device: the requested rung fitted on all
 /// `ntrain + N` pairs: a linear rung on every pair, the residual rung's correction on the
 /// closed-loop ones ([`crate::fit`]); `auto` that waited for the pairs
-/// ([`climbs_on_loop_pairs`]) judges its climb on them, and after a climb the linear rung is
+/// ([`climbs_on_loop_pairs`]) trains its climb on them, and after a climb the linear rung is
 /// fitted beside the climbed one for the rig to compare. Returns the model for
 /// [`verify_model`].
 pub fn refit(
@@ -576,14 +576,17 @@ fn request(opts: &Options, geometry: &Arc<crate::linear::GeometryMemo>) -> Reque
         cancel: opts.cancel.clone(),
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
         climb_later: climbs_on_loop_pairs(opts),
+        // The verification projects a climbed rung beside the best linear rung: the rig judges.
+        rig_judges: opts.method == MethodChoice::Auto,
         geometry_memo: Some(geometry.clone()),
         live: opts.live.clone(),
         ..Request::new(opts.method)
     }
 }
 
-/// Whether `auto`'s climb waits for the closed-loop pairs: `auto` with enough of them to judge
-/// the residual rung on ([`fit::judges_on_loop_pairs`]). [`train`] then chooses among the
+/// Whether `auto`'s climb waits for the closed-loop pairs: `auto` with enough of them for the
+/// residual rung's correction to train on ([`fit::judges_on_loop_pairs`], the count offline
+/// `auto` needs to judge it on some held out). [`train`] then chooses among the
 /// linear rungs alone, and [`refit`] fits `auto` again once the chosen rung has taken them.
 fn climbs_on_loop_pairs(opts: &Options) -> bool {
     opts.method == MethodChoice::Auto && fit::judges_on_loop_pairs(opts.loop_images)

@@ -82,10 +82,9 @@ pub struct Args {
     /// [default: 1].
     #[arg(long)]
     pub min_gain: Option<f64>,
-    /// `--method auto` only: the PSNR gain in dB the CompenNet++ rung needs over the rung
-    /// below, on held-out pairs (with 8 or more closed-loop pairs: some of those, held out of
-    /// its training) and then in closed loop on the rig [default: the configuration's
-    /// `climb_gain_db`, 0.5].
+    /// `--method auto` only: the PSNR gain in dB the CompenNet++ rung, trained on every pair,
+    /// needs over the best linear rung in closed loop on the rig (the verification images) to
+    /// be installed [default: the configuration's `climb_gain_db`, 0.2].
     #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
     /// `--method auto` only: training iterations of the CompenNet++ rung it climbs to
@@ -105,7 +104,7 @@ pub struct Args {
     /// compensation of N sampling images placed as desired views and capture them
     /// (closed-loop pairs: they sit in the range the desired images use); a linear rung (and
     /// the one auto keeps) is refitted on every pair, a residual rung trains its correction on
-    /// them, and auto with 8 or more judges its climb on them; 0: none [default: the
+    /// them, and auto with 8 or more trains its climb's correction on them; 0: none [default: the
     /// configuration's `loop_images`, else as many as --ntrain].
     #[arg(long, value_name = "N")]
     pub loop_images: Option<usize>,

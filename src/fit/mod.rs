@@ -17,10 +17,10 @@ mod linear_rungs;
 mod live;
 mod rule;
 
-pub use auto::{climb_rung, judge_on_loop_pairs, judges_on_loop_pairs, lower_rung, settle_climb};
+pub use auto::{climb_rung, judges_on_loop_pairs, lower_rung, settle_climb};
 pub use device::TrainDevice;
 pub use live::{LIVE_SHARE, LiveCost, LivePass, PassShape, refresh_rate_problem};
-pub use rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB};
+pub use rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB, DEFAULT_RIG_GAIN_DB};
 
 use std::borrow::Cow;
 use std::time::Instant;
@@ -68,12 +68,19 @@ pub struct Request {
     /// Set by another thread to stop a CompenNet++ training at its next iteration
     /// ([`crate::Error::Cancelled`]); the closed-form `linear` rungs run to their end.
     pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
-    /// `auto` only: the PSNR gain (dB, held-out pairs) a CompenNet++ rung needs over the best
-    /// linear rung to be chosen; `None` = [`DEFAULT_CLIMB_GAIN_DB`].
+    /// `auto` only: the PSNR gain (dB) a CompenNet++ rung needs over the best linear rung to be
+    /// chosen: on held-out pairs, or in closed loop on the rig with `rig_judges`; `None` =
+    /// [`DEFAULT_CLIMB_GAIN_DB`], or [`DEFAULT_RIG_GAIN_DB`] with `rig_judges`.
     pub climb_gain_db: Option<f64>,
     /// `auto` only: choose among the linear rungs and leave the climb for a later fit on the
     /// closed-loop pairs the chosen rung takes (`calibrate` does, [`judges_on_loop_pairs`]).
     pub climb_later: bool,
+    /// `auto` only: the caller projects the climbed rung and the best linear rung on the rig and
+    /// keeps the one the rig shows better by the margin ([`settle_climb`]; `calibrate`, the
+    /// service, `bench`). The climb rung is then trained on every pair of its kind, with no
+    /// held-out judgement, and returned for that check; `climb_gain_db` is the rig's margin
+    /// ([`DEFAULT_RIG_GAIN_DB`] when `None`).
+    pub rig_judges: bool,
     /// The `linear` geometry shared by the fits of one calibration ([`crate::linear::GeometryMemo`]:
     /// a fit takes it only when it was fitted on the same things); `None`: `auto` shares one
     /// among its own fits, and any other request fits its geometry afresh.
@@ -104,6 +111,7 @@ impl Request {
             cancel: None,
             climb_gain_db: None,
             climb_later: false,
+            rig_judges: false,
             geometry_memo: None,
             live: None,
         }

@@ -205,7 +205,8 @@ impl clap::ValueEnum for MethodChoice {
             MethodChoice::Auto => {
                 "the best linear rung on held-out pairs, or the CompenNet++ rung the device \
                  affords (compennet++-res on the CPU, compennet++-res-full on a GPU) if it \
-                 scores --climb-gain dB higher (evidence in model.json)"
+                 scores --climb-gain dB higher (train: on held-out pairs; calibrate and bench: \
+                 in closed loop on the rig; evidence in model.json)"
             }
             MethodChoice::Rung(Method::Linear) => "learned affine+TPS geometry, per-pixel colour",
             MethodChoice::Rung(Method::LinearSl) => "structured-light geometry, per-pixel colour",

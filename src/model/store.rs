@@ -100,8 +100,9 @@ pub struct CalibrationRecord {
 }
 
 /// Progressive calibration's evidence: the climbed rung and the model it replaced, scored on the
-/// calibration's held-out test pairs (paper protocol: network pixels, encoded values) or on
-/// held-out closed-loop pairs (`loop_held_out`), then on the rig.
+/// calibration's held-out test pairs (paper protocol: network pixels, encoded values; earlier
+/// builds judged a residual rung on held-out closed-loop pairs, `loop_held_out`), then on the
+/// rig, which decides.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ClimbRecord {
     /// The method of the model it replaced.
@@ -109,16 +110,17 @@ pub struct ClimbRecord {
     /// Held-out PSNR of this model and of the one it replaced, dB.
     pub psnr: f64,
     pub replaced_psnr: f64,
-    /// The gain it needed, dB.
+    /// The gain it needed in closed loop on the rig, dB (earlier builds: on the held-out pairs
+    /// too).
     pub required_gain_db: f64,
     /// Training and scoring, seconds.
     pub seconds: f64,
     /// The rig's check of the climb: both models projected on the verification images.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub closed_loop: Option<ClimbClosedLoop>,
-    /// A residual rung on a calibration with closed-loop pairs: judged on some of those held
-    /// out of its training, as `auto` judges it; `psnr` and `replaced_psnr` are then its figure
-    /// and its own linear part's there (the installed `linear` trained on those pairs too).
+    /// Written by earlier builds: a residual rung on a calibration with closed-loop pairs was
+    /// judged on some of those held out of its training; `psnr` and `replaced_psnr` were then
+    /// its figure and its own linear part's there. Read, never written now.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub loop_held_out: Option<LoopHeldOut>,
 }
@@ -445,10 +447,10 @@ impl JudgedTraining {
 }
 
 /// The model `auto` keeps after a climb (unless the rig then keeps the linear rung): the
-/// climbed rung trained again from its start, with the same settings and seed, on every pair
-/// of the kind it was judged on, the held-out ones included (every pair when judged on
-/// closed-loop pairs; the sampling pairs, without closed-loop pairs after them, when judged on
-/// sampling pairs).
+/// climbed rung trained from its start, with the request's settings and seed, on every pair of
+/// its kind (every pair with closed-loop pairs; the sampling pairs, without closed-loop pairs
+/// after them, otherwise). Offline, it is trained again after it was judged on held-out pairs,
+/// the held-out ones now included; under `calibrate` it is trained once, for the rig to judge.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Retrained {
     /// The climbed rung (the rig may still keep the linear rung instead: `chosen`).
@@ -457,6 +459,14 @@ pub struct Retrained {
     pub pairs: usize,
     /// Time of this training, seconds.
     pub seconds: f64,
+    /// Whether a training judged on held-out pairs came first (false: the rig judges this
+    /// training alone). Records of earlier builds, which always judged first, read as true.
+    #[serde(default = "judged_first")]
+    pub after_judgement: bool,
+}
+
+fn judged_first() -> bool {
+    true
 }
 
 /// One point of [`LoopHeldOut::curve`].
@@ -580,18 +590,23 @@ impl AutoEvidence {
             self.chosen, self.rule
         ));
         if let Some(r) = &self.retrained {
-            out.push(format!(
-                "auto: having climbed, {} trained again from its start on {} pairs, the \
-                 held-out ones included ({:.1} s){}",
-                r.method,
-                r.pairs,
-                r.seconds,
-                if self.chosen == r.method {
-                    String::new()
-                } else {
-                    format!("; the rig then kept {}", self.chosen)
-                }
-            ));
+            let kept = if self.chosen == r.method {
+                String::new()
+            } else {
+                format!("; the rig then kept {}", self.chosen)
+            };
+            out.push(if r.after_judgement {
+                format!(
+                    "auto: having climbed, {} trained again from its start on {} pairs, the \
+                     held-out ones included ({:.1} s){kept}",
+                    r.method, r.pairs, r.seconds
+                )
+            } else {
+                format!(
+                    "auto: {} trained on all {} pairs for the rig to judge ({:.1} s){kept}",
+                    r.method, r.pairs, r.seconds
+                )
+            });
         }
         if !self.chosen.is_linear() && self.closed_loop.is_empty() && self.loop_held_out.is_none() {
             out.push(

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, TryRecvError};
 use std::time::{Duration, Instant};
 
-use super::climb::{Candidate, Climb, Outcome};
+use super::climb::{Candidate, Climb};
 use super::devices::{load_model, match_exposure};
 use super::monitor::Tap;
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request};
@@ -286,9 +286,8 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         Some(pass)
     }
 
-    /// The climb's outcome, once there is one: a candidate ends the playback, for the engine
-    /// to check it on the rig ([`super::climb::settle`]); otherwise the log says why nothing
-    /// changed.
+    /// The climb's outcome, once there is one: a trained candidate ends the playback, for the
+    /// engine to check it on the rig ([`super::climb::settle`]); a failed climb is logged.
     fn climbed(&mut self) {
         let Some(outcome) = self.climb.as_ref().and_then(Climb::poll) else {
             return;
@@ -307,21 +306,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
                     .shared
                     .update(|s| s.last_error = Some(format!("progressive calibration: {msg}")));
             }
-            Ok(Outcome::Kept(r)) => {
-                let msg = format!(
-                    "kept {}: {method} scored {:.2} dB on {} against {:.2} dB ({:+.2} dB, \
-                     {:+.2} needed); {seconds:.0} s",
-                    r.replaced,
-                    r.psnr,
-                    r.judged_on(),
-                    r.replaced_psnr,
-                    r.psnr - r.replaced_psnr,
-                    r.required_gain_db
-                );
-                tracing::info!("progressive calibration: {msg}");
-                self.io.climbed(method, false, msg);
-            }
-            Ok(Outcome::Candidate(c)) => {
+            Ok(c) => {
                 if let Some(r) = c
                     .model
                     .meta

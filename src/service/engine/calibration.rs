@@ -526,7 +526,7 @@ impl Engine {
                 let msg = match figures {
                     Some((r, cl)) => format!(
                         "installed {method} into {}: {:.2} dB against {:.2} dB for {} in closed \
-                         loop on {} images ({:+.2} dB; held-out pairs {:+.2} dB); {seconds:.0} s \
+                         loop on {} images ({:+.2} dB; held-out test pairs {:+.2} dB); {seconds:.0} s \
                          of training",
                         path.display(),
                         cl.psnr,
@@ -552,7 +552,7 @@ impl Engine {
                 let msg = match &r.closed_loop {
                     Some(cl) => format!(
                         "kept {}: on the rig {method} scored {:.2} dB against {:.2} dB in closed \
-                         loop ({:+.2} dB, {:+.2} needed{}), though {:+.2} dB on the held-out pairs",
+                         loop ({:+.2} dB, {:+.2} needed{}); {:+.2} dB on {}",
                         r.replaced,
                         cl.psnr,
                         cl.replaced_psnr,
@@ -563,7 +563,8 @@ impl Engine {
                         } else {
                             "; it would not pass verification"
                         },
-                        r.psnr - r.replaced_psnr
+                        r.psnr - r.replaced_psnr,
+                        r.judged_on()
                     ),
                     None => format!("kept {}: the rig did not confirm {method}", r.replaced),
                 };
