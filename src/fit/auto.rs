@@ -243,98 +243,93 @@ pub(super) fn fit_auto(
     let mut loop_held_out = None;
     let mut judged_on_sampling = None;
     let mut retrained = None;
-    if let (None, Some(variant), true) = (&no_climb, variant, req.rig_judges) {
-        // The rig judges: the rung trained on every pair of its kind, as it trains alone, for
-        // the caller to project beside the best linear rung.
-        let pairs = if on_loop_pairs { n } else { sampling };
-        tracing::info!(
-            "auto: training {rung} on all {pairs} pairs for the rig to judge beside the best \
-             linear rung"
-        );
-        let (model, summary, record) = retrain(
-            setup,
-            req,
-            (rung, variant),
-            &data.first(pairs),
-            &mut progress,
-        )?;
-        retrained = Some(Retrained {
-            after_judgement: false,
-            ..record
-        });
-        climbed = Some((model, summary));
-    } else if let (None, Some(variant)) = (&no_climb, variant) {
-        let (upper, lower) = if on_loop_pairs {
-            let judged = train_judged(
-                setup,
-                req,
-                (rung, variant),
-                &data,
-                loops,
-                rule,
-                &mut progress,
-            )?;
-            let (up, lin) = judged.figures();
-            loop_held_out = Some(judged);
-            (up, lin)
-        } else {
-            // The rung trains on the sampling pairs the linear rungs were fitted on (its linear
-            // part on the request's lattice, as theirs) and is judged on the held-out ones
-            // against the best of them.
-            let t0 = Instant::now();
-            let sub_req = Request {
-                method: MethodChoice::Rung(rung),
-                ntrain: Some(cut),
-                ..req.clone()
-            };
-            let judge = compennet::Judge {
-                indices: (cut + 1..=sampling).collect(),
-                closed_loop: false,
-                lower_psnr: Some(best_linear.1),
-                captures: &data.captures,
-                targets: &data.targets,
-                rule,
-            };
-            let (_, _, judged) = compennet::train_compennet(
-                setup,
-                &sub_req,
-                (rung, variant),
-                data.first(cut),
-                Some(judge),
-                t0,
-                &mut progress,
-            )?;
-            let judged = judged.ok_or_else(|| {
-                crate::error::Error::Failed(format!("{rung}: its training returned no judgement"))
-            })?;
-            let up = judged.scores.get(1).ok_or_else(|| {
-                crate::error::Error::Failed(format!("{rung}: its judgement has no score"))
-            })?;
-            candidates.push(AutoCandidate {
-                fit_seconds: t0.elapsed().as_secs_f64(),
-                ..up.clone()
-            });
-            tracing::info!(
-                "auto: {rung} {:.2} dB against {} {:.2} dB on {held} held-out pairs (climbs \
+    if let (None, Some(variant)) = (&no_climb, variant) {
+        // The rig judges (`req.rig_judges`): no held-out judgement, the rung trained on every
+        // pair of its kind, as it trains alone, for the caller to project beside the best
+        // linear rung. Otherwise it is judged on held-out pairs first.
+        let climbs = req.rig_judges || {
+            let (upper, lower) = if on_loop_pairs {
+                let judged = train_judged(
+                    setup,
+                    req,
+                    (rung, variant),
+                    &data,
+                    loops,
+                    rule,
+                    &mut progress,
+                )?;
+                let (up, lin) = judged.figures();
+                loop_held_out = Some(judged);
+                (up, lin)
+            } else {
+                // The rung trains on the sampling pairs the linear rungs were fitted on (its linear
+                // part on the request's lattice, as theirs) and is judged on the held-out ones
+                // against the best of them.
+                let t0 = Instant::now();
+                let sub_req = Request {
+                    method: MethodChoice::Rung(rung),
+                    ntrain: Some(cut),
+                    ..req.clone()
+                };
+                let judge = compennet::Judge {
+                    indices: (cut + 1..=sampling).collect(),
+                    closed_loop: false,
+                    lower_psnr: Some(best_linear.1),
+                    captures: &data.captures,
+                    targets: &data.targets,
+                    rule,
+                };
+                let (_, _, judged) = compennet::train_compennet(
+                    setup,
+                    &sub_req,
+                    (rung, variant),
+                    data.first(cut),
+                    Some(judge),
+                    t0,
+                    &mut progress,
+                )?;
+                let judged = judged.ok_or_else(|| {
+                    crate::error::Error::Failed(format!(
+                        "{rung}: its training returned no judgement"
+                    ))
+                })?;
+                let up = judged.scores.get(1).ok_or_else(|| {
+                    crate::error::Error::Failed(format!("{rung}: its judgement has no score"))
+                })?;
+                candidates.push(AutoCandidate {
+                    fit_seconds: t0.elapsed().as_secs_f64(),
+                    ..up.clone()
+                });
+                tracing::info!(
+                    "auto: {rung} {:.2} dB against {} {:.2} dB on {held} held-out pairs (climbs \
                      at {:+} dB){}",
-                up.held_out_psnr,
-                best_linear.0,
-                best_linear.1,
-                rule.gain_db,
-                judged.training.stop()
-            );
-            let up = up.held_out_psnr;
-            judged_on_sampling = Some(judged.training);
-            (up, best_linear.1)
+                    up.held_out_psnr,
+                    best_linear.0,
+                    best_linear.1,
+                    rule.gain_db,
+                    judged.training.stop()
+                );
+                let up = up.held_out_psnr;
+                judged_on_sampling = Some(judged.training);
+                (up, best_linear.1)
+            };
+            rule.climbs(upper, lower)
         };
-        if rule.climbs(upper, lower) {
+        if climbs {
             // On the pairs of its kind: judged on sampling pairs (paper protocol), it trains
             // again on those, not on a few closed-loop pairs after them, which would make its
             // correction another one (on closed-loop pairs) than the one judged.
             let pairs = if on_loop_pairs { n } else { sampling };
-            tracing::info!(
-                "auto: {rung} climbs; training it again from its start on all {pairs} pairs"
-            );
+            if req.rig_judges {
+                tracing::info!(
+                    "auto: training {rung} on all {pairs} pairs for the rig to judge beside \
+                     the best linear rung"
+                );
+            } else {
+                tracing::info!(
+                    "auto: {rung} climbs; training it again from its start on all {pairs} pairs"
+                );
+            }
             let (model, summary, record) = retrain(
                 setup,
                 req,
@@ -342,7 +337,10 @@ pub(super) fn fit_auto(
                 &data.first(pairs),
                 &mut progress,
             )?;
-            retrained = Some(record);
+            retrained = Some(Retrained {
+                after_judgement: !req.rig_judges,
+                ..record
+            });
             climbed = Some((model, summary));
         }
     }
