@@ -14,8 +14,9 @@
 //!    on disk for the same pattern set are not taken again (an interrupted run resumes);
 //! 4. **training**: the requested rung on the setup ([`crate::fit`]); `auto` trains the
 //!    CompenNet++ rung the machine can afford on every pair, with no held-out judgement, and
-//!    fits the best linear rung beside it, for the rig to judge the climb in phase 5. With `loop_images` > 0 and a linear rung, a residual rung or
-//!    `auto` that kept a linear rung, **closed-loop pairs** follow: the linear rung's
+//!    fits the best linear rung beside it, for the rig to judge the climb in phase 5. With
+//!    `loop_images` > 0 and a linear rung, a residual rung or `auto` that kept a linear rung,
+//!    **closed-loop pairs** follow: the linear rung's
 //!    compensation of sampling images placed as desired views, projected and captured; these
 //!    pairs sit in the range the desired images use, and the rung is fitted on every pair
 //!    ([`refine`]). With 8 or more of them `auto` waits for them before it climbs: [`train`]

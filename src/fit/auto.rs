@@ -262,9 +262,9 @@ pub(super) fn fit_auto(
                 loop_held_out = Some(judged);
                 (up, lin)
             } else {
-                // The rung trains on the sampling pairs the linear rungs were fitted on (its linear
-                // part on the request's lattice, as theirs) and is judged on the held-out ones
-                // against the best of them.
+                // The rung trains on the sampling pairs the linear rungs were fitted on (its
+                // linear part on the request's lattice, as theirs) and is judged on the
+                // held-out ones against the best of them.
                 let t0 = Instant::now();
                 let sub_req = Request {
                     method: MethodChoice::Rung(rung),
