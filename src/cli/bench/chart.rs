@@ -92,6 +92,18 @@ fn draw(spec: &Spec, points: &[(usize, f64, f64)], methods: &[&str], path: &Path
     Ok(())
 }
 
+/// A tick label of the logarithmic axis (seconds or milliseconds): as many decimals as a value
+/// of its size needs, so that "20" is not "20.0" and 0.25 is not "0".
+fn axis_number(v: f64) -> String {
+    if v >= 10.0 {
+        format!("{v:.0}")
+    } else if v >= 1.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.2}")
+    }
+}
+
 fn draw_into(
     spec: &Spec,
     points: &[(usize, f64, f64)],
@@ -111,6 +123,7 @@ fn draw_into(
         .build_cartesian_2d((x0..x1).log_scale(), 0.0..y1)?;
     chart
         .configure_mesh()
+        .x_label_formatter(&|v| axis_number(*v))
         .x_desc(spec.x_label)
         .y_desc("gap to the oracle (dB, lower is better)")
         .draw()?;
