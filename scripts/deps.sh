@@ -5,8 +5,18 @@
 #   libclang-dev: bindgen, used by the V4L2 camera crates at build time
 #   imagemagick: screenshots of the virtual display in tests
 #   systemd, procps: systemd-analyze and /bin/kill (ExecReload=), to verify the units in systemd/
+#   GStreamer, for films, streams, screens and sound (README, "Media"):
+#     libgstreamer1.0-dev, libgstreamer-plugins-base1.0-dev: the headers gstreamer-rs builds on
+#     gstreamer1.0-plugins-base: playbin, videoconvert, appsink/appsrc, Ogg/Theora/Vorbis/Opus
+#     gstreamer1.0-plugins-good: MP4/MOV and Matroska/WebM, VP8/VP9 (libvpx), ximagesrc,
+#       v4l2sink, PulseAudio
+#     gstreamer1.0-plugins-bad: OpenH264 (H.264 encode and decode), AV1 (aom), shmsink, SRT
+#     gstreamer1.0-libav: FFmpeg's decoders: H.264, H.265, ProRes, HAP, AAC, AC-3, ...
+#     gstreamer1.0-tools: gst-launch-1.0 and gst-inspect-1.0, to try a pipeline by hand
 set -euo pipefail
-pkgs=(mesa-vulkan-drivers libvulkan1 xvfb libclang-dev imagemagick systemd procps)
+pkgs=(mesa-vulkan-drivers libvulkan1 xvfb libclang-dev imagemagick systemd procps
+  libgstreamer1.0-dev libgstreamer-plugins-base1.0-dev gstreamer1.0-plugins-base
+  gstreamer1.0-plugins-good gstreamer1.0-plugins-bad gstreamer1.0-libav gstreamer1.0-tools)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -138,11 +138,35 @@ pub struct CalibrationConfig {
 /// `[playback]`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PlaybackConfig {
-    /// What to play (`compend play --help` lists the spellings).
-    pub source: String,
+    /// What to play: one source (`compend play --help` lists the spellings) or a playlist,
+    /// with `repeat`.
+    pub source: crate::source::Playlist,
     /// Play the source as soon as a verified model is installed (at start and after each
     /// calibration).
     pub autoplay: bool,
+}
+
+/// `[audio]`: where media sources' sound goes.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AudioConfig {
+    /// Play the sound of films and streams.
+    pub enabled: bool,
+    /// A GStreamer audio sink description: `autoaudiosink`, `alsasink device=hw:1`,
+    /// `pulsesink device=NAME`.
+    pub device: String,
+    /// A trim added to the measured picture latency the sound is delayed by, ms (positive:
+    /// the sound later).
+    pub delay_ms: f64,
+}
+
+impl AudioConfig {
+    /// The sound's way out for the sources.
+    pub fn out(&self) -> crate::source::AudioOut {
+        crate::source::AudioOut {
+            sink: self.enabled.then(|| self.device.clone()),
+            delay_ms: self.delay_ms,
+        }
+    }
 }
 
 /// What the service does when monitoring finds drift.
@@ -203,6 +227,7 @@ pub struct Config {
     pub paths: PathsConfig,
     pub calibration: CalibrationConfig,
     pub playback: PlaybackConfig,
+    pub audio: AudioConfig,
     pub monitoring: MonitoringConfig,
     pub socket: SocketConfig,
     pub log: LogConfig,
@@ -396,18 +421,48 @@ impl<'t> Walker<'t> {
         self.finish(t);
 
         let mut t = self.table(root, "playback");
+        let items = self.playlist(&mut t);
+        let repeat = self.get(&mut t, "repeat").unwrap_or(true);
         let playback = PlaybackConfig {
-            source: self.checked(
+            source: match items {
+                Some(items) if items.len() > 1 || items[0].loops != 1 => {
+                    crate::source::Playlist { items, repeat }
+                }
+                Some(mut items) => crate::source::Playlist {
+                    items: vec![items.remove(0)],
+                    repeat: false,
+                },
+                None => crate::source::Playlist::single("pattern:bars"),
+            },
+            autoplay: self.get(&mut t, "autoplay").unwrap_or(true),
+        };
+        self.finish(t);
+
+        let mut t = self.table(root, "audio");
+        let audio = AudioConfig {
+            enabled: self.get(&mut t, "enabled").unwrap_or(true),
+            device: self.checked(
                 &mut t,
-                "source",
-                "pattern:bars".to_string(),
+                "device",
+                "autoaudiosink".to_string(),
                 |s: &String| {
-                    crate::source::SourceSpec::parse(s)
-                        .map(|_| ())
-                        .map_err(|e| e.to_string())
+                    if s.trim().is_empty() {
+                        Err(
+                            "an empty sink; e.g. \"autoaudiosink\" or \"alsasink device=hw:1\""
+                                .into(),
+                        )
+                    } else {
+                        Ok(())
+                    }
                 },
             ),
-            autoplay: self.get(&mut t, "autoplay").unwrap_or(true),
+            delay_ms: self.checked(&mut t, "delay_ms", 0.0, |v: &f64| {
+                if v.is_finite() && v.abs() <= 10_000.0 {
+                    Ok(())
+                } else {
+                    Err(format!("{v} ms: expected -10000 to 10000"))
+                }
+            }),
         };
         self.finish(t);
 
@@ -454,10 +509,106 @@ impl<'t> Walker<'t> {
             paths,
             calibration,
             playback,
+            audio,
             monitoring,
             socket,
             log,
         }
+    }
+
+    /// `[playback] source`: a source's spelling, or a list of items, each a spelling or a
+    /// table `{ src = "...", loop = N, duration_s = S }`. `None` when absent or wrong
+    /// (recorded, each wrong item at its line).
+    fn playlist(&mut self, t: &mut Table<'t>) -> Option<Vec<crate::source::PlaylistItem>> {
+        use crate::source::{PlaylistItem, SourceSpec};
+        let span = span_of(t, "source");
+        let value: serde_json::Value = self.get(t, "source")?;
+        let mut errors = Vec::new();
+        let mut item = |i: Option<usize>, v: &serde_json::Value| -> Option<PlaylistItem> {
+            let at = i.map_or(String::new(), |i| format!(" item {}", i + 1));
+            let mut it = match v {
+                serde_json::Value::String(s) => PlaylistItem::once(s.clone()),
+                serde_json::Value::Object(o) => {
+                    if let Some(k) = o
+                        .keys()
+                        .find(|k| !["src", "loop", "duration_s"].contains(&k.as_str()))
+                    {
+                        errors.push(format!(
+                            "[playback] source{at}: unknown key `{k}` (known: src, loop, \
+                             duration_s)"
+                        ));
+                        return None;
+                    }
+                    let Some(src) = o.get("src").and_then(|s| s.as_str()) else {
+                        errors.push(format!(
+                            "[playback] source{at}: needs `src`, the source's spelling"
+                        ));
+                        return None;
+                    };
+                    let loops = match o.get("loop") {
+                        None => 1,
+                        Some(l) => match l.as_u64().filter(|&n| n <= u32::MAX as u64) {
+                            Some(n) => n as u32,
+                            None => {
+                                errors.push(format!(
+                                    "[playback] source{at}: loop must be a whole number of \
+                                     passes (0: until the operator moves on), got {l}"
+                                ));
+                                return None;
+                            }
+                        },
+                    };
+                    let duration_s = match o.get("duration_s") {
+                        None => None,
+                        Some(d) => match d.as_f64().filter(|d| d.is_finite() && *d > 0.0) {
+                            Some(d) => Some(d),
+                            None => {
+                                errors.push(format!(
+                                    "[playback] source{at}: duration_s must be a positive \
+                                     number of seconds, got {d}"
+                                ));
+                                return None;
+                            }
+                        },
+                    };
+                    PlaylistItem {
+                        source: src.to_string(),
+                        loops,
+                        duration_s,
+                    }
+                }
+                other => {
+                    errors.push(format!(
+                        "[playback] source{at}: expected a source's spelling or a table with \
+                         src, got {other}"
+                    ));
+                    return None;
+                }
+            };
+            if let Err(e) = SourceSpec::parse(&it.source) {
+                errors.push(format!("[playback] source{at}: {e}"));
+                return None;
+            }
+            it.source = it.source.trim().to_string();
+            Some(it)
+        };
+        let items: Vec<Option<PlaylistItem>> = match &value {
+            serde_json::Value::Array(list) if list.is_empty() => {
+                errors.push("[playback] source: an empty list; give at least one item".into());
+                Vec::new()
+            }
+            serde_json::Value::Array(list) => list
+                .iter()
+                .enumerate()
+                .map(|(i, v)| item(Some(i), v))
+                .collect(),
+            v => vec![item(None, v)],
+        };
+        let ok = errors.is_empty();
+        for e in errors {
+            self.error(span.clone(), e);
+        }
+        ok.then(|| items.into_iter().flatten().collect())
     }
 
     fn rig(&mut self, t: &mut Table<'t>) -> RigConfig {
@@ -851,11 +1002,12 @@ impl<'t> Walker<'t> {
 }
 
 /// The sections, in the order of the shipped file.
-const SECTIONS: [&str; 7] = [
+const SECTIONS: [&str; 8] = [
     "rig",
     "paths",
     "calibration",
     "playback",
+    "audio",
     "monitoring",
     "socket",
     "log",

@@ -58,6 +58,18 @@ pub enum Error {
     #[error("tensor operation failed: {0}")]
     Candle(#[from] candle_core::Error),
 
+    /// Media could not be played or written (GStreamer): `message` says which and why in words;
+    /// `input` says whether the request was at fault (a missing file, not media, a codec no
+    /// plugin decodes: exit 2) or the operation (a stream or device that failed: exit 1).
+    /// GStreamer's own error is kept as the source.
+    #[error("{message}")]
+    Media {
+        message: String,
+        input: bool,
+        #[source]
+        source: Option<Box<dyn std::error::Error + Send + Sync + 'static>>,
+    },
+
     /// The GPU (wgpu) failed: no adapter, a lost device, a failed read-back. The cause is kept.
     #[error("GPU: {what}: {source}")]
     Gpu {
@@ -73,6 +85,13 @@ impl Error {
         match self {
             Error::Missing { .. } | Error::Decode { .. } | Error::Size { .. } | Error::Input(_) => {
                 2
+            }
+            Error::Media { input, .. } => {
+                if *input {
+                    2
+                } else {
+                    1
+                }
             }
             // I/O failures (disk full, permission denied) are the operation's, not the user's
             // input: a service manager restarts on 1 and gives up on 2.

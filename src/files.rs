@@ -144,6 +144,30 @@ pub fn temp_sibling(path: &Path) -> Result<PathBuf> {
     Ok(parent_of(path).join(format!(".{name}{TMP_MARK}{}", std::process::id())))
 }
 
+/// Moves the complete file `tmp` (a temporary sibling) to `path`, never over a file there: the
+/// file is synced, linked under the new name (which fails when it is taken) and the temporary
+/// name removed, then the folder synced. A name taken meanwhile is an input error naming it,
+/// with `tmp` left for the user.
+pub fn rename_no_replace(tmp: &Path, path: &Path) -> Result<()> {
+    if let Ok(f) = fs::File::open(tmp) {
+        f.sync_all().map_err(|e| Error::io(tmp, "sync", e))?;
+    }
+    match fs::hard_link(tmp, path) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+            return Err(Error::Input(format!(
+                "{}: a file appeared there while it was written; the output is kept as {}",
+                path.display(),
+                tmp.display()
+            )));
+        }
+        Err(e) => return Err(Error::io(path, "move into place", e)),
+    }
+    fs::remove_file(tmp).map_err(|e| Error::io(tmp, "remove", e))?;
+    sync_dir(parent_of(path));
+    Ok(())
+}
+
 /// Writes `bytes` to `path` atomically (temporary sibling, fsync, rename, fsync of the folder).
 /// The folder is created when missing.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {

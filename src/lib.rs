@@ -18,7 +18,7 @@
 //! - [`rig`]: the virtual rig, a simulated projector, surface and camera.
 //!
 //! **Shell** (devices): [`gpu`] (the compensation pass), [`window`] (the projector window),
-//! [`source`] (video sources), [`camera`] (the V4L2 camera), [`playback`]`::player` (the one
+//! [`media`] (GStreamer: its errors in words, media outputs), [`source`] (video sources), [`camera`] (the V4L2 camera), [`playback`]`::player` (the one
 //! playback loop), [`config`] (the service's TOML configuration), [`service`] (`compend serve`:
 //! the engine, the control socket, systemd notification); the binary's commands live in
 //! `src/main.rs` and `src/cli/`.
@@ -40,6 +40,7 @@ pub mod fit;
 pub mod fov;
 pub mod gpu;
 pub mod linear;
+pub mod media;
 pub mod metrics;
 pub mod model;
 pub mod morph;

@@ -61,8 +61,15 @@ enum Command {
     Inspect(cli::inspect::Args),
     /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
     Metrics(cli::metrics::Args),
-    /// Pause the service's playback (the projector shows black).
+    /// Pause the service's playback: a film or stream holds its frame (`play` resumes it),
+    /// anything else stops (the projector shows black).
     Pause(cli::serve::ClientArgs),
+    /// The service's playlist: the next item.
+    Next(cli::serve::ClientArgs),
+    /// The service's playlist: the previous item.
+    Previous(cli::serve::ClientArgs),
+    /// The service's film: go to a time from its start.
+    Seek(cli::serve::SeekArgs),
     /// Live compensation of a video source on the projector window or the virtual rig; without
     /// --model, asks the running service to play the source.
     Play(cli::play::Args),
@@ -208,6 +215,16 @@ fn main() -> ExitCode {
         Command::Metrics(a) => cli::metrics::run(a),
         Command::Patterns(a) => cli::patterns::run(a),
         Command::Pause(a) => cli::serve::simple(&a, compend::service::protocol::Request::Pause),
+        Command::Next(a) => cli::serve::simple(&a, compend::service::protocol::Request::Next),
+        Command::Previous(a) => {
+            cli::serve::simple(&a, compend::service::protocol::Request::Previous)
+        }
+        Command::Seek(a) => cli::serve::simple(
+            &a.client,
+            compend::service::protocol::Request::Seek {
+                position_s: a.position_s,
+            },
+        ),
         Command::Play(a) => cli::play::run(a),
         Command::Pretrain(a) => cli::pretrain::run(a),
         Command::Recalibrate(a) => cli::serve::recalibrate(a),

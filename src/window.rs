@@ -500,6 +500,11 @@ impl Screen for ProjectorWindow {
         self.pump()
     }
 
+    /// The frame presented is scanned out at the next vertical sync: one refresh later.
+    fn display_delay(&self) -> std::time::Duration {
+        std::time::Duration::from_secs_f64(1.0 / self.refresh_hz)
+    }
+
     fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
         self.present_texture(pass.output())?;
         if let Show::New { index: 1, .. } = show {

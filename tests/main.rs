@@ -13,6 +13,7 @@ mod gpu;
 mod image;
 mod layout;
 mod linear;
+mod media;
 mod metrics;
 mod nn;
 mod patterns;

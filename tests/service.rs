@@ -16,7 +16,13 @@ use serde_json::Value;
 use crate::common::{assert_code, compend, stderr, stdout};
 
 /// A configuration for tiny sizes: a calibration takes seconds in the test profile.
-fn write_config(dir: &Path, scene: &str, seed: u64, rig: &str, monitoring: &str) -> PathBuf {
+pub(crate) fn write_config(
+    dir: &Path,
+    scene: &str,
+    seed: u64,
+    rig: &str,
+    monitoring: &str,
+) -> PathBuf {
     let state = dir.join("state");
     let socket = dir.join("compend.sock");
     let text = format!(
@@ -61,14 +67,14 @@ stats_period_s = 2.0
 }
 
 /// A running `compend serve`; killed (and its log printed) if the test ends without stopping it.
-struct Service {
+pub(crate) struct Service {
     child: Option<Child>,
-    socket: PathBuf,
+    pub(crate) socket: PathBuf,
     log: PathBuf,
 }
 
 impl Service {
-    fn start(config: &Path) -> Self {
+    pub(crate) fn start(config: &Path) -> Self {
         Self::start_on(config, None)
     }
 
@@ -95,12 +101,12 @@ impl Service {
         }
     }
 
-    fn log(&self) -> String {
+    pub(crate) fn log(&self) -> String {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 
     /// One request line, one reply.
-    fn ask(&self, line: &str) -> Value {
+    pub(crate) fn ask(&self, line: &str) -> Value {
         let mut s = UnixStream::connect(&self.socket)
             .unwrap_or_else(|e| panic!("connect: {e}\nlog:\n{}", self.log()));
         s.set_read_timeout(Some(Duration::from_secs(40))).unwrap();
@@ -111,7 +117,7 @@ impl Service {
         serde_json::from_str(reply.trim()).unwrap_or_else(|e| panic!("{e}: {reply:?}"))
     }
 
-    fn status(&self) -> Value {
+    pub(crate) fn status(&self) -> Value {
         let r = self.ask(r#"{"cmd":"status"}"#);
         assert_eq!(r["ok"], true, "{r}");
         r["status"].clone()
@@ -119,7 +125,12 @@ impl Service {
 
     /// Polls the status until `done` holds; panics with the log after `secs`. The process must
     /// stay alive meanwhile.
-    fn wait_for(&mut self, what: &str, secs: u64, done: impl Fn(&Value) -> bool) -> Value {
+    pub(crate) fn wait_for(
+        &mut self,
+        what: &str,
+        secs: u64,
+        done: impl Fn(&Value) -> bool,
+    ) -> Value {
         let start = Instant::now();
         loop {
             if let Some(code) = self.child.as_mut().unwrap().try_wait().unwrap() {
@@ -151,7 +162,7 @@ impl Service {
     }
 
     /// Waits for the process to exit; its code.
-    fn wait_exit(&mut self, secs: u64) -> Option<i32> {
+    pub(crate) fn wait_exit(&mut self, secs: u64) -> Option<i32> {
         let start = Instant::now();
         let child = self.child.as_mut().unwrap();
         loop {
@@ -197,7 +208,7 @@ fn playing(s: &Value) -> bool {
     s["state"] == "playing" && s["frames"]["shown"].as_u64().unwrap_or(0) > 5
 }
 
-fn client(args: &[&str], socket: &Path) -> std::process::Output {
+pub(crate) fn client(args: &[&str], socket: &Path) -> std::process::Output {
     let mut a = args.to_vec();
     a.extend_from_slice(&["--socket", socket.to_str().unwrap()]);
     compend(&a)

@@ -8,14 +8,17 @@ use anyhow::{Context, Result};
 use compend::device::DisplaySink;
 use compend::fov::DisplayRange;
 use compend::gpu::GpuContext;
+use compend::media::output::{MediaOutput, OutputSpec, Teed};
 use compend::model::Model;
-use compend::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
+use compend::playback::player::{
+    Headless, PlayStats, Player, Refresh, Screen, ViewSink, WatchedSink,
+};
 use compend::rig::{self, Phase, Simulator, VirtualRig, scene};
-use compend::source::{self, FeedMode, SourceSpec, VideoSource};
+use compend::source::{self, AudioOut, FeedMode, SourceSpec, VideoSource};
 use compend::window::ProjectorWindow;
 
 #[derive(clap::Args, Debug)]
-#[command(after_help = compend::source::HELP)]
+#[command(after_help = const_format_help())]
 pub struct Args {
     /// The model directory (any method: linear, linear-sl, the CompenNet++ family). Without it,
     /// the running service (`compend serve`) is asked to play the source with its model.
@@ -59,6 +62,36 @@ pub struct Args {
     /// Print the frame counts as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Also send the compensated frames (the projector canvas) to a file or a GStreamer
+    /// pipeline (spellings below).
+    #[arg(long, value_name = "OUT")]
+    pub to: Option<String>,
+    /// With --to: no projector window, only the output (offline rendering of a film with
+    /// --pace source).
+    #[arg(long, requires = "to", conflicts_with = "rig")]
+    pub no_window: bool,
+    /// Where a film's sound goes: a GStreamer audio sink (`autoaudiosink`, `alsasink
+    /// device=hw:1`, `pulsesink`) or `none`. Sound plays only with --pace display.
+    #[arg(long, value_name = "SINK", default_value = "autoaudiosink")]
+    pub audio: String,
+    /// A trim of the sound's delay, ms, added to the measured picture latency (positive: the
+    /// sound later).
+    #[arg(
+        long,
+        value_name = "MS",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    pub audio_delay: f64,
+}
+
+/// The source and output spellings under `compend play --help`.
+fn const_format_help() -> String {
+    format!(
+        "{}\n\n{}",
+        compend::source::HELP,
+        compend::media::output::HELP
+    )
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -89,6 +122,14 @@ pub fn run(args: Args) -> Result<()> {
         .into());
     };
     let spec = SourceSpec::parse(source_text)?;
+    let to = args.to.as_deref().map(OutputSpec::parse).transpose()?;
+    if !(args.audio_delay.is_finite() && args.audio_delay.abs() <= 10_000.0) {
+        return Err(compend::Error::Input(format!(
+            "--audio-delay {}: expected milliseconds from -10000 to 10000",
+            args.audio_delay
+        ))
+        .into());
+    }
     if let Some(dir) = &args.out {
         check_out(dir)?;
     }
@@ -100,14 +141,36 @@ pub fn run(args: Args) -> Result<()> {
     if matches!(spec, SourceSpec::Raw { .. }) {
         source::check(&spec)?;
     }
-    let source = source::open(&spec)?;
+    // Media is probed (its first frame decoded): a bad file fails here, and an output
+    // rendered offline takes the film's frame rate.
+    let probed = match &spec {
+        SourceSpec::Media(m) => Some(source::media::probe(m, source::MEDIA_CHECK_TIMEOUT)?),
+        _ => None,
+    };
+    let audio = AudioOut {
+        sink: (args.audio != "none").then(|| args.audio.clone()),
+        delay_ms: args.audio_delay,
+    };
+    let source = source::open_with(&spec, &audio)?;
     let mode = match args.pace {
         Pace::Display => FeedMode::Latest,
         Pace::Source => FeedMode::Queue,
     };
+    // The output's frame rate: offline the source's own (a film's, a pattern's), live the
+    // display's.
+    let source_fps = match (&spec, &probed) {
+        (_, Some(p)) => p.fps,
+        (SourceSpec::Pattern { fps, .. }, _) => Some(*fps),
+        _ => None,
+    };
+    let out = to.map(|spec| Output {
+        spec,
+        offline_fps: source_fps.unwrap_or(args.fps),
+    });
     let stats = match rig {
-        Some(scene_name) => play_virtual(&args, &model, scene_name.as_deref(), source, mode)?,
-        None => play_window(&args, &model, source, mode)?,
+        Some(scene_name) => play_virtual(&args, &model, scene_name.as_deref(), source, mode, out)?,
+        None if args.no_window => play_headless(&args, &model, source, mode, out)?,
+        None => play_window(&args, &model, source, mode, out)?,
     };
     eprintln!("play: {}", stats.summary());
     let json = serde_json::to_string(&stats)?;
@@ -160,6 +223,41 @@ fn mark_out(dir: &Path) -> compend::Result<()> {
     )
 }
 
+/// A media output (`--to`) and the frame rate it is written at offline.
+struct Output {
+    spec: OutputSpec,
+    offline_fps: f64,
+}
+
+/// Plays `player` on `screen`, its frames also to `out` when given (started for `size`
+/// projector pixels at the display's rate live, the source's offline).
+fn run_teed<S: Screen + ?Sized>(
+    player: &mut Player,
+    screen: &mut S,
+    out: Option<Output>,
+    size: compend::raster::ImageSize,
+    frames: Option<u64>,
+) -> Result<PlayStats> {
+    let Some(out) = out else {
+        return Ok(player.run(screen, frames)?);
+    };
+    let live = player.feed.mode() == FeedMode::Latest;
+    let fps = if live {
+        match screen.refresh() {
+            Refresh::Vsync(hz) | Refresh::Timer(hz) => hz,
+        }
+    } else {
+        out.offline_fps
+    };
+    let output = MediaOutput::start(&out.spec, size, fps, live)?;
+    eprintln!(
+        "play: compensated frames also to {:?} at {fps:.3} fps",
+        out.spec
+    );
+    let mut teed = Teed::new(screen, output);
+    Ok(player.run(&mut teed, frames)?)
+}
+
 /// Plays on the projector window until the source ends (streams), `--frames`, or the window is
 /// closed.
 fn play_window(
@@ -167,6 +265,7 @@ fn play_window(
     model: &Model,
     source: Box<dyn VideoSource>,
     mode: FeedMode,
+    out: Option<Output>,
 ) -> Result<PlayStats> {
     let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
     let size = DisplaySink::size(&win);
@@ -179,7 +278,46 @@ fn play_window(
         win.refresh_hz(),
         win.context().describe()
     );
-    Ok(player.run(&mut win, args.frames)?)
+    run_teed(&mut player, &mut win, out, size, args.frames)
+}
+
+/// Plays with no display, only to the output: at the model's projector size (its calibration
+/// record's), paced at `--fps` live, as fast as it goes offline.
+fn play_headless(
+    args: &Args,
+    model: &Model,
+    source: Box<dyn VideoSource>,
+    mode: FeedMode,
+    out: Option<Output>,
+) -> Result<PlayStats> {
+    let size = projector_size(model)?;
+    let ctx = GpuContext::new()?;
+    let range = model.display_range();
+    let mut player = Player::start(&ctx, model, size, range, source, mode)?;
+    eprintln!(
+        "play: {} to the output only, projector canvas {} ({})",
+        player.feed.describe(),
+        size,
+        ctx.describe()
+    );
+    let mut screen = Headless::new(&ctx, args.fps);
+    run_teed(&mut player, &mut screen, out, size, args.frames)
+}
+
+/// The projector size for output without a window: the one a calibration's canvas covers
+/// (`compend calibrate` places the canvas over the whole projector frame).
+fn projector_size(model: &Model) -> Result<compend::raster::ImageSize> {
+    let canvas = model.meta.canvas.ok_or_else(|| {
+        compend::Error::Input(format!(
+            "--no-window: the model ({}) was trained on recorded data and records no projector \
+             canvas; play it on the window or on the virtual rig",
+            model.meta.method
+        ))
+    })?;
+    Ok(compend::raster::ImageSize::new(
+        canvas.x + canvas.width,
+        canvas.y + canvas.height,
+    ))
 }
 
 /// Plays on the virtual rig (`scene_name`, or the rig the model was calibrated on) at `--fps`,
@@ -190,6 +328,7 @@ fn play_virtual(
     scene_name: Option<&str>,
     source: Box<dyn VideoSource>,
     mode: FeedMode,
+    out: Option<Output>,
 ) -> Result<PlayStats> {
     let (rig, range) = virtual_rig(model, scene_name, args.seed)?;
     let ctx = GpuContext::new()?;
@@ -217,8 +356,9 @@ fn play_virtual(
         }
         None => Box::new(|_, _, _| Ok(())),
     };
+    let size = placement.projector_size;
     let mut screen = WatchedSink::new(&ctx, args.fps, rig.clone(), rig, views);
-    Ok(player.run(&mut screen, args.frames)?)
+    run_teed(&mut player, &mut screen, out, size, args.frames)
 }
 
 /// `virtual` → None, `virtual:SCENE` → Some(SCENE).

@@ -41,6 +41,15 @@ pub struct ClientArgs {
 }
 
 #[derive(clap::Args, Debug)]
+pub struct SeekArgs {
+    /// The time to go to, seconds from the film's start.
+    #[arg(value_name = "SECONDS")]
+    pub position_s: f64,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
+#[derive(clap::Args, Debug)]
 pub struct StatusArgs {
     #[command(flatten)]
     pub client: ClientArgs,
@@ -127,9 +136,58 @@ fn configure(a: &ServeArgs) -> Result<Config> {
     }
     if let Some(s) = &a.source {
         compend::source::SourceSpec::parse(s)?;
-        c.playback.source = s.clone();
+        c.playback.source = compend::source::Playlist::single(s.clone());
     }
     Ok(c)
+}
+
+/// The media line of `status`: the playlist item, the position in the film, its rate and
+/// size, the sound, problems.
+fn media_line(m: &compend::media::MediaStatus) -> String {
+    let mut parts = Vec::new();
+    if let Some(i) = &m.item {
+        parts.push(format!(
+            "item {} of {} ({}){}",
+            i.index,
+            i.count,
+            i.source,
+            if i.pass > 1 {
+                format!(", pass {}", i.pass)
+            } else {
+                String::new()
+            }
+        ));
+    }
+    match (m.position_s, m.duration_s) {
+        (Some(p), Some(d)) => parts.push(format!("at {p:.1} of {d:.1} s")),
+        (Some(p), None) => parts.push(format!("at {p:.1} s")),
+        _ => {}
+    }
+    if let (Some(f), Some((w, h))) = (m.fps, m.size) {
+        parts.push(format!("{w}x{h} at {f:.3} fps"));
+    }
+    parts.push(if m.audio {
+        format!(
+            "sound delayed {:.0} ms to meet the picture",
+            m.audio_delay_ms
+        )
+    } else {
+        "no sound".into()
+    });
+    if m.paused {
+        parts.push("paused".into());
+    }
+    if m.reconnects > 0 {
+        parts.push(format!("{} reconnection(s)", m.reconnects));
+    }
+    if m.warnings > 0 {
+        parts.push(format!("{} decoder warning(s)", m.warnings));
+    }
+    let mut line = format!("media: {}\n", parts.join(", "));
+    if let Some(p) = &m.last_problem {
+        line += &format!("media problem: {p}\n");
+    }
+    line
 }
 
 pub fn serve(a: ServeArgs) -> Result<()> {
@@ -222,6 +280,9 @@ fn describe(s: &Status) -> String {
              pipeline ({} shown in all)\n",
             f.shown, f.held, f.dropped_source, f.dropped_pipeline, f.shown_total
         );
+    }
+    if let Some(m) = &s.media {
+        out += &media_line(m);
     }
     let m = &s.monitoring;
     if let Some(p) = m.psnr {

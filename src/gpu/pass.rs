@@ -425,6 +425,12 @@ impl CompensationPass {
         read_rgba8(ctx, &self.output)
     }
 
+    /// The projector frame the pass wrote, as its 8-bit RGBA bytes (projector pixels, row-major,
+    /// no padding): what a media output encodes.
+    pub fn read_output_rgba(&self, ctx: &GpuContext) -> Result<Vec<u8>> {
+        ctx.read_texture(&self.output, 4)
+    }
+
     /// The compensation image (network pixels, f32) read back, for tests.
     pub fn read_network(&self, ctx: &GpuContext) -> Result<NetImage> {
         read_rgba32f(ctx, &self.network)

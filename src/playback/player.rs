@@ -67,6 +67,17 @@ pub struct PlayStats {
     pub camera_views_skipped: u64,
     /// Wall time of the playback loop, s.
     pub seconds: f64,
+    /// Mean picture latency of the shown frames, ms: from the source's delivery of a frame
+    /// (for media, its presentation time on the pipeline's clock) to its presentation, plus
+    /// the display's own delay ([`Screen::display_delay`]). A media source's sound is delayed
+    /// by as much.
+    pub latency_ms_mean: f64,
+    /// Frames written to a media output (`--to`), when there is one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub output_frames: Option<u64>,
+    /// A media source's counts (position, length, frame rate, sound, warnings, reconnects).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub media: Option<crate::media::MediaStatus>,
 }
 
 impl PlayStats {
@@ -152,6 +163,12 @@ pub trait Screen {
     /// with a new frame, and the time from its upload to the end of this call is the frame's
     /// pipeline time.
     fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()>;
+
+    /// How long after `present` returns the picture is seen (a window: about one refresh from
+    /// the swap to the scan-out); zero by default.
+    fn display_delay(&self) -> Duration {
+        Duration::ZERO
+    }
 
     /// Called once after the last refresh, also when playback failed: the display's own counts
     /// go into `stats` (camera views).
@@ -250,8 +267,9 @@ impl Pacer {
 /// What the feed had for one refresh.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Step {
-    /// A new frame (source sequence number) was compensated and submitted.
-    New(u64),
+    /// A new frame (source sequence number, when the source delivered it) was compensated and
+    /// submitted.
+    New(u64, Instant),
     /// Nothing new: the last frame stays.
     Held,
     /// The source ended and every frame was shown.
@@ -270,6 +288,10 @@ pub struct Player {
     stats: PlayStats,
     /// Sum of the pipeline times of the frames shown, s.
     pipeline_total: f64,
+    /// Sum of the picture latencies of the frames shown, s.
+    latency_total: f64,
+    /// The latency given to a media source's sound last, and when.
+    latency_applied: Option<(Duration, Instant)>,
 }
 
 impl Player {
@@ -301,6 +323,8 @@ impl Player {
             last: None,
             stats,
             pipeline_total: 0.0,
+            latency_total: 0.0,
+            latency_applied: None,
         }
     }
 
@@ -336,6 +360,7 @@ impl Player {
         played?;
         finished?;
         self.count_feed();
+        self.stats.media = self.feed.control().map(|c| c.status());
         self.stats.seconds = start.elapsed().as_secs_f64();
         Ok(self.stats.clone())
     }
@@ -360,12 +385,15 @@ impl Player {
             }
             let t = Instant::now();
             let presented = match self.next(screen.context(), wait)? {
-                Step::New(seq) => {
+                Step::New(seq, at) => {
                     self.stats.refreshes += 1;
                     self.stats.shown += 1;
                     let index = self.stats.shown;
                     screen.present(&self.pass, Show::New { seq, index })?;
                     self.record_pipeline(t.elapsed().as_secs_f64());
+                    if pacer.live {
+                        self.record_latency(at.elapsed() + screen.display_delay());
+                    }
                     true
                 }
                 Step::Held if pacer.frames_only() => continue,
@@ -391,13 +419,13 @@ impl Player {
         };
         self.count_feed();
         match poll {
-            Poll::Frame { seq, frame } => {
+            Poll::Frame { seq, frame, at } => {
                 if let Some(pass) = self.next_pass.take() {
                     self.pass = pass;
                 }
                 self.pass.run(ctx, &frame)?;
                 self.last = Some(frame);
-                Ok(Step::New(seq))
+                Ok(Step::New(seq, at))
             }
             Poll::Nothing => Ok(Step::Held),
             Poll::Ended => Ok(Step::Ended),
@@ -427,6 +455,33 @@ impl Player {
         let fs = self.feed.stats();
         self.stats.received = fs.received;
         self.stats.dropped_source = fs.dropped;
+    }
+
+    /// Records the picture latency of a shown frame (live pacing) and hands the running mean to
+    /// a media source, whose sound is delayed by it: after the first 10 frames, then when it
+    /// moved by more than 2 ms, at most once a second (each change may click).
+    fn record_latency(&mut self, latency: Duration) {
+        self.latency_total += latency.as_secs_f64();
+        let n = self.stats.shown.max(1) as f64;
+        self.stats.latency_ms_mean = self.latency_total * 1e3 / n;
+        let Some(control) = self.feed.control() else {
+            return;
+        };
+        if self.stats.shown < 10 {
+            return;
+        }
+        let mean = Duration::from_secs_f64(self.latency_total / n);
+        let due = match self.latency_applied {
+            None => true,
+            Some((applied, when)) => {
+                when.elapsed() >= Duration::from_secs(1)
+                    && (mean.as_secs_f64() - applied.as_secs_f64()).abs() > 0.002
+            }
+        };
+        if due {
+            control.set_picture_latency(mean);
+            self.latency_applied = Some((mean, Instant::now()));
+        }
     }
 
     /// Records the pipeline time of a shown frame, s.

@@ -86,6 +86,7 @@ impl Shared {
                 rig,
                 model: None,
                 source: None,
+                media: None,
                 frames: Default::default(),
                 monitoring: Default::default(),
                 calibration: None,

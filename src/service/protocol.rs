@@ -8,7 +8,10 @@
 //! {"cmd":"calibrate"}  {"cmd":"recalibrate"} calibrate now (resuming captures on disk)
 //! {"cmd":"play"}  {"cmd":"play","source":"pattern:bars"}
 //!                                           play the configured source, or this one
-//! {"cmd":"pause"}                           stop playing; the projector shows black
+//! {"cmd":"pause"}                           a film or stream: pause it (its frame stays);
+//!                                           anything else: stop playing (black)
+//! {"cmd":"seek","position_s":12.5}          a film: go to this time from its start
+//! {"cmd":"next"}  {"cmd":"previous"}        a playlist: the next or previous item
 //! {"cmd":"model","path":"/var/lib/compend/other-model"}
 //!                                           load and play another model directory
 //! {"cmd":"stop"}                            shut the service down (exit 0)
@@ -44,6 +47,11 @@ pub enum Request {
         source: Option<String>,
     },
     Pause,
+    Seek {
+        position_s: f64,
+    },
+    Next,
+    Previous,
     Model {
         path: PathBuf,
     },
@@ -94,7 +102,8 @@ impl Request {
             );
         }
         const EXPECTED: &str = "expected a JSON object with \"cmd\": one of status, \
-                                calibrate, recalibrate, play, pause, model, stop";
+                                calibrate, recalibrate, play, pause, seek, next, previous, \
+                                model, stop";
         let value: serde_json::Value =
             serde_json::from_str(text).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
         // A JSON value keeps the last of a key given twice, so `{"cmd":"status","cmd":"stop"}`
@@ -110,6 +119,7 @@ impl Request {
             let allowed: &[&str] = match cmd {
                 "play" => &["cmd", "source"],
                 "model" => &["cmd", "path"],
+                "seek" => &["cmd", "position_s"],
                 _ => &["cmd"],
             };
             if let Some(extra) = object.keys().find(|k| !allowed.contains(&k.as_str())) {
@@ -124,6 +134,14 @@ impl Request {
         }
         let request: Self =
             serde_json::from_value(value).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
+        if let Request::Seek { position_s } = &request
+            && !(position_s.is_finite() && *position_s >= 0.0)
+        {
+            return Err(format!(
+                "bad request: `position_s` is {position_s}; expected seconds from the start, 0 \
+                 or more"
+            ));
+        }
         let (field, len) = match &request {
             Request::Model { path } => ("path", path.as_os_str().len()),
             Request::Play { source: Some(s) } => ("source", s.len()),
@@ -294,6 +312,9 @@ pub struct Status {
     pub model: Option<ModelStatus>,
     /// What is playing (or was last).
     pub source: Option<String>,
+    /// A media source's position, length, playlist item, sound and problems.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub media: Option<crate::media::MediaStatus>,
     pub frames: Frames,
     pub monitoring: Monitoring,
     pub calibration: Option<CalibrationProgress>,

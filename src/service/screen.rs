@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use super::climb::{Candidate, Climb};
 use super::devices::{load_model, match_exposure};
 use super::monitor::Tap;
-use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request};
+use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::{Envelope, Event, Io};
 use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, GpuContext};
@@ -139,6 +139,12 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     /// The frame a check waits for and its desired view: later frames with the same desired
     /// view are the same content, not a change.
     checked: Option<(u64, CamImage)>,
+    /// The media source playing (a film, a stream, a playlist): pause, resume, seek, next and
+    /// previous act on it without ending the playback.
+    pub(super) media: Option<crate::media::Control>,
+    /// A `play` request whose source is being checked on a thread of its own (a film is
+    /// prerolled, a stream connected: seconds the picture must not wait for).
+    checking: Option<(Envelope, mpsc::Receiver<Result<()>>)>,
 }
 
 impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
@@ -174,6 +180,119 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             swapped: None,
             changes: None,
             checked: None,
+            media: None,
+            checking: None,
+        }
+    }
+
+    /// Starts checking the source of a `play` request on a thread of its own; the answer comes
+    /// from [`ServiceScreen::checked_source`].
+    fn check_source(&mut self, envelope: Envelope, text: String) {
+        if self.checking.is_some() {
+            envelope.answer(Reply::error(
+                "busy: still checking the source asked for before; ask again in a moment",
+            ));
+            return;
+        }
+        let (tx, rx) = mpsc::channel();
+        let spawned = std::thread::Builder::new()
+            .name("compend-check".into())
+            .spawn(move || {
+                let _ =
+                    tx.send(SourceSpec::parse(&text).and_then(|spec| crate::source::check(&spec)));
+            });
+        match spawned {
+            Ok(_) => self.checking = Some((envelope, rx)),
+            Err(e) => envelope.answer(Reply::error(format!(
+                "cannot start a thread to check the source: {e}"
+            ))),
+        }
+    }
+
+    /// A source check that has finished: a source that plays ends this playback (the engine
+    /// plays it); one that does not is refused and this playback goes on. `wait`: wait for
+    /// it (the playback is ending). Returns whether the playback goes on.
+    fn checked_source(&mut self, wait: bool) -> bool {
+        let Some((_, rx)) = &self.checking else {
+            return true;
+        };
+        let got = if wait {
+            rx.recv().map_err(|_| TryRecvError::Disconnected)
+        } else {
+            rx.try_recv()
+        };
+        let result = match got {
+            Err(TryRecvError::Empty) => return true,
+            Ok(r) => r,
+            Err(TryRecvError::Disconnected) => Err(crate::Error::Failed(
+                "the source check ended without an answer".into(),
+            )),
+        };
+        let (envelope, _) = self.checking.take().expect("checked above");
+        match result {
+            Ok(()) if self.pending.is_none() => {
+                self.pending = Some(Event::Request(envelope));
+                false
+            }
+            Ok(()) => {
+                envelope.answer(Reply::error(
+                    "another request ended the playback first; ask again",
+                ));
+                true
+            }
+            Err(e) => {
+                envelope.answer(Reply::error(e.to_string()));
+                true
+            }
+        }
+    }
+
+    /// A pause, resume, seek, next or previous for the media playing, answered here so that
+    /// the playback goes on; `None` when the request is not one of those (or, for pause and
+    /// play, the source cannot do it: the engine then stops or restarts the playback).
+    fn media_request(&mut self, request: &Request) -> Option<Reply> {
+        let c = self.media.clone()?;
+        let at = |c: &crate::media::Control| {
+            c.status()
+                .position_s
+                .map_or(String::new(), |p| format!(" at {p:.1} s"))
+        };
+        match request {
+            Request::Pause => {
+                c.pause().ok()?;
+                let line = format!("paused{}; compend play resumes", at(&c));
+                self.io.state(State::Paused, &line);
+                tracing::info!("{line}");
+                Some(Reply::ok(line))
+            }
+            Request::Play { source: None } if c.status().paused => {
+                c.resume().ok()?;
+                let line = format!("playing on{}", at(&c));
+                self.io.state(State::Playing, &line);
+                tracing::info!("{line}");
+                Some(Reply::ok(line))
+            }
+            Request::Seek { position_s } => {
+                Some(match c.seek(Duration::from_secs_f64(*position_s)) {
+                    Ok(()) => {
+                        tracing::info!("seek to {position_s:.3} s");
+                        Reply::ok(format!("at {position_s:.3} s"))
+                    }
+                    Err(e) => Reply::error(e.to_string()),
+                })
+            }
+            Request::Next | Request::Previous => {
+                let delta = if *request == Request::Next { 1 } else { -1 };
+                Some(match c.skip(delta) {
+                    Ok(()) => {
+                        let what = if delta > 0 { "next" } else { "previous" };
+                        tracing::info!("playlist: {what} item");
+                        Reply::ok(format!("the {what} item"))
+                    }
+                    Err(e) => Reply::error(e.to_string()),
+                })
+            }
+            _ => None,
         }
     }
 
@@ -184,13 +303,16 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             self.pending = Some(ev);
             return false;
         };
-        // A play request for a source that cannot be played (unparsed, a damaged image, an
-        // empty folder, a missing file) changes nothing: answered here, so the playback goes
-        // on.
-        if let Request::Play { source: Some(text) } = &envelope.request
-            && let Err(e) = SourceSpec::parse(text).and_then(|spec| crate::source::check(&spec))
-        {
-            envelope.answer(Reply::error(e.to_string()));
+        // A play request is checked on a thread of its own (a film prerolls, a stream
+        // connects) while the picture goes on; a source that cannot be played (unparsed, a
+        // damaged image, an empty folder, a missing file, not media) changes nothing.
+        if let Request::Play { source: Some(text) } = &envelope.request {
+            let text = text.clone();
+            self.check_source(envelope, text);
+            return true;
+        }
+        if let Some(reply) = self.media_request(&envelope.request) {
+            envelope.answer(reply);
             return true;
         }
         let Request::Model { path } = &envelope.request else {
@@ -333,6 +455,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
     /// answered and, loaded, it is served from the next playback on.
     pub(super) fn settle(&mut self) {
         let _ = self.loaded(true);
+        self.checked_source(true);
     }
 }
 
@@ -349,9 +472,16 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
         self.inner.begin(live)
     }
 
+    fn display_delay(&self) -> Duration {
+        self.inner.display_delay()
+    }
+
     fn keep_going(&mut self) -> bool {
         self.io.notify.ping();
         if self.pending.is_some() || self.candidate.is_some() {
+            return false;
+        }
+        if !self.checked_source(false) {
             return false;
         }
         match self.io.rx.try_recv() {
@@ -398,10 +528,14 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
         if now.duration_since(self.last_counts) >= Duration::from_millis(100) {
             self.last_counts = now;
             let age = self.last_check.map(|t| t.elapsed().as_secs_f64());
+            let media = self.media.as_ref().map(|c| c.status());
             self.io.shared.update(|s| {
                 set_frames(&mut s.frames, stats, &self.before);
                 if age.is_some() {
                     s.monitoring.age_s = age;
+                }
+                if media.is_some() {
+                    s.media = media;
                 }
             });
         }

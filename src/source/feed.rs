@@ -36,8 +36,13 @@ pub struct FeedStats {
 /// What the mailbox holds for the render loop.
 #[derive(Debug)]
 pub enum Poll {
-    /// A frame not seen before; `seq` counts the source's frames from 1.
-    Frame { seq: u64, frame: ContentFrame },
+    /// A frame not seen before; `seq` counts the source's frames from 1; `at` is when the
+    /// source delivered it (the frame's wait in the mailbox is part of the picture's latency).
+    Frame {
+        seq: u64,
+        frame: ContentFrame,
+        at: Instant,
+    },
     /// Nothing new yet: hold the last frame.
     Nothing,
     /// The source ended and every frame was taken.
@@ -46,7 +51,7 @@ pub enum Poll {
 
 #[derive(Default)]
 struct Slot {
-    frame: Option<(u64, ContentFrame)>,
+    frame: Option<(u64, ContentFrame, Instant)>,
     stats: FeedStats,
     ended: bool,
     error: Option<Error>,
@@ -70,6 +75,7 @@ pub struct Feed {
     describe: String,
     ends_playback: bool,
     mode: FeedMode,
+    control: Option<crate::media::Control>,
 }
 
 impl Feed {
@@ -79,8 +85,10 @@ impl Feed {
             slot: Mutex::new(Slot::default()),
             changed: Condvar::new(),
         });
+        source.set_live(mode == FeedMode::Latest);
         let describe = source.describe();
         let ends_playback = source.ends_playback();
+        let control = source.control();
         let theirs = shared.clone();
         std::thread::Builder::new()
             .name("compend-source".into())
@@ -91,7 +99,13 @@ impl Feed {
             describe,
             ends_playback,
             mode,
+            control,
         })
+    }
+
+    /// The media source's handle (pause, resume, seek, counts), for media sources.
+    pub fn control(&self) -> Option<&crate::media::Control> {
+        self.control.as_ref()
     }
 
     /// How frames are handed over: newest first (live) or every one (offline).
@@ -142,9 +156,9 @@ impl Feed {
 }
 
 fn take(slot: &mut Slot, changed: &Condvar) -> Result<Poll> {
-    if let Some((seq, frame)) = slot.frame.take() {
+    if let Some((seq, frame, at)) = slot.frame.take() {
         changed.notify_all();
-        return Ok(Poll::Frame { seq, frame });
+        return Ok(Poll::Frame { seq, frame, at });
     }
     if let Some(e) = slot.error.take() {
         slot.ended = true;
@@ -202,9 +216,13 @@ fn run(source: &mut dyn VideoSource, shared: &Shared, mode: FeedMode) {
                 if slot.frame.is_some() {
                     slot.stats.dropped += 1;
                 }
-                slot.frame = Some((slot.stats.received, frame));
+                slot.frame = Some((slot.stats.received, frame, Instant::now()));
                 shared.changed.notify_all();
                 wait
+            }
+            Ok(Next::Idle) => {
+                due = Instant::now();
+                continue;
             }
             Ok(Next::End) => {
                 slot.ended = true;

@@ -1,11 +1,14 @@
-//! Video sources for playback: still images, slideshows, raw frames on a pipe or FIFO, V4L2
-//! cameras ([`crate::camera`]) and generated test patterns (spellings in [`spec::HELP`]), and the [`Feed`]
-//! that runs a source on its own thread so decoding never blocks the render loop.
+//! Video sources for playback: video files, network streams, screens and GStreamer pipelines
+//! ([`media`]), still images, slideshows, raw frames on a pipe or FIFO, V4L2 cameras
+//! ([`crate::camera`]) and generated test patterns (spellings in [`spec::HELP`]), and the
+//! [`Feed`] that runs a source on its own thread so decoding never blocks the render loop.
 //!
 //! Frames are 8-bit RGBA, sRGB-encoded as stored ([`ContentFrame`], content pixels).
 
 pub mod feed;
+pub mod media;
 pub mod pattern;
+pub mod playlist;
 pub mod spec;
 #[cfg(target_os = "linux")]
 pub mod v4l2;
@@ -15,7 +18,9 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 pub use feed::{Feed, FeedMode, FeedStats, Poll};
-pub use spec::{HELP, Pattern, RawFormat, SourceSpec};
+pub use media::AudioOut;
+pub use playlist::{Playlist, PlaylistItem};
+pub use spec::{HELP, MediaSpec, Pattern, RawFormat, ScreenSpec, SourceSpec};
 
 use crate::error::{Error, Result};
 use crate::playback::ContentFrame;
@@ -29,6 +34,9 @@ pub enum Next {
         frame: ContentFrame,
         wait: Option<Duration>,
     },
+    /// Nothing yet (a stream reconnecting, a paused film): ask again. It lets the feed's
+    /// thread notice that it was stopped.
+    Idle,
     /// No more frames.
     End,
 }
@@ -47,11 +55,29 @@ pub trait VideoSource: Send {
     /// Whether playback should end when the source ends (streams), rather than hold the last
     /// frame (still images).
     fn ends_playback(&self) -> bool;
+    /// Told once before `prepare`: whether frames are shown in real time (the newest wins) or
+    /// offline (every frame, as fast as they come). Media paced by a clock uses it.
+    fn set_live(&mut self, live: bool) {
+        let _ = live;
+    }
+    /// A handle to pause, resume and seek the media and read its counts (media sources only).
+    fn control(&self) -> Option<crate::media::Control> {
+        None
+    }
 }
 
-/// Opens the source a spec names.
+/// How long [`check`] lets media take to show that it plays (its first frame prerolled).
+pub const MEDIA_CHECK_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Opens the source a spec names, media with its sound to the default audio sink.
 pub fn open(spec: &SourceSpec) -> Result<Box<dyn VideoSource>> {
+    open_with(spec, &AudioOut::default())
+}
+
+/// Opens the source a spec names; media plays its sound as `audio` says.
+pub fn open_with(spec: &SourceSpec, audio: &AudioOut) -> Result<Box<dyn VideoSource>> {
     match spec {
+        SourceSpec::Media(m) => Ok(Box::new(media::MediaSource::new(m, audio.clone())?)),
         SourceSpec::Image(path) => Ok(Box::new(Still {
             path: path.clone(),
             frame: Some(read_image(path)?),
@@ -96,7 +122,8 @@ pub fn open(spec: &SourceSpec) -> Result<Box<dyn VideoSource>> {
 /// decoded, and so is the first image of a folder that decodes; a raw source's file, FIFO or device and a
 /// camera's device must exist (neither is opened: a FIFO's open waits for its writer, and a
 /// frame read here would be lost to the playback). The service checks a `play` request with
-/// it before the picture that is on stops.
+/// it before the picture that is on stops. Media is brought to its first frame and stopped,
+/// within [`MEDIA_CHECK_TIMEOUT`].
 pub fn check(spec: &SourceSpec) -> Result<()> {
     let exists = |p: &Path, what: &str| match std::fs::metadata(p) {
         Ok(m) if m.is_dir() => Err(Error::Input(format!(
@@ -107,6 +134,7 @@ pub fn check(spec: &SourceSpec) -> Result<()> {
         Err(e) => Err(Error::io(p, "look up", e)),
     };
     match spec {
+        SourceSpec::Media(m) => media::check(m, MEDIA_CHECK_TIMEOUT),
         SourceSpec::Image(path) => read_image(path).map(|_| ()),
         // As the show plays it: past images that do not decode, to the first that does.
         SourceSpec::Folder { dir, period } => Slideshow::new(dir, *period)?.next().map(|_| ()),
@@ -365,7 +393,7 @@ mod tests {
         for _ in 0..3 {
             match show.next().unwrap() {
                 Next::Frame { frame, .. } => assert_eq!(frame.rgba[0], 200),
-                Next::End => panic!("a slideshow does not end"),
+                Next::End | Next::Idle => panic!("a slideshow has an image every time"),
             }
         }
         // With none readable, both say so.

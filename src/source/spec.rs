@@ -9,7 +9,19 @@ use crate::raster::ImageSize;
 /// The spellings, as `compend play --help` shows them.
 pub const HELP: &str = "\
 Video sources (SRC):
-  PATH                     a still image (PNG or JPEG) or a folder of them (slideshow)
+  PATH                     a video file, a still image (PNG or JPEG) or a folder of images
+                           (slideshow), by what is there
+  file:PATH                a video file (MP4, MKV, MOV, WebM, ...; any codec the installed
+                           GStreamer plugins decode), with its sound
+  uri:URI                  a network stream or file URI GStreamer opens: http(s)://, rtsp://,
+                           srt://, udp://, file:///...; a stream that drops is reconnected
+  screen:[x11][?display=:0&xid=N&fps=F]
+                           another program's output: an X11 display, or one window of it by
+                           its id (xwininfo); default the DISPLAY of the service, 30 fps
+  screen:pipewire?node=N[&fps=F]
+                           a PipeWire screen-cast stream (Wayland), by node id
+  gst:PIPELINE             any GStreamer pipeline; compend appends its own sink, e.g.
+                           gst:videotestsrc pattern=ball ! video/x-raw,width=1280,height=720
   image:PATH               a still image, held until playback stops
   folder:DIR[?period=S]    a slideshow of the folder's images in name order, S seconds each
                            (default 5), looping
@@ -81,7 +93,41 @@ pub enum SourceSpec {
         fps: f64,
         frames: Option<u64>,
     },
+    /// Media decoded by GStreamer ([`crate::source::media`]).
+    Media(MediaSpec),
 }
+
+/// Media that GStreamer decodes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MediaSpec {
+    /// A video file (with its sound).
+    File(PathBuf),
+    /// A URI GStreamer opens (network streams; reconnected when they drop).
+    Uri(String),
+    /// Another program's output on the screen.
+    Screen(ScreenSpec),
+    /// A GStreamer pipeline description, to which compend appends its sink.
+    Pipeline(String),
+}
+
+/// A screen to capture.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ScreenSpec {
+    /// An X11 display (`None`: the `DISPLAY` of the process), or one window of it by id.
+    X11 {
+        display: Option<String>,
+        xid: Option<u64>,
+        fps: u32,
+    },
+    /// A PipeWire screen-cast node.
+    PipeWire { node: String, fps: u32 },
+}
+
+/// File name endings played as video files when a bare path is given.
+pub const VIDEO_EXTENSIONS: &[&str] = &[
+    "mp4", "m4v", "mkv", "mov", "webm", "avi", "ts", "mts", "m2ts", "mxf", "ogv", "mpg", "mpeg",
+    "flv", "wmv",
+];
 
 fn bad(spec: &str, why: impl std::fmt::Display) -> Error {
     Error::Input(format!(
@@ -145,11 +191,33 @@ impl SourceSpec {
     /// (a missing path is an error naming it).
     pub fn parse(spec: &str) -> Result<Self> {
         let (scheme, rest) = match spec.split_once(':') {
-            Some((s, r)) if ["image", "folder", "raw", "v4l2", "pattern"].contains(&s) => {
+            Some((s, r))
+                if [
+                    "image", "folder", "raw", "v4l2", "pattern", "file", "uri", "screen", "gst",
+                ]
+                .contains(&s) =>
+            {
                 (Some(s), r)
             }
             _ => (None, spec),
         };
+        // Whole rest, queries and all: a URI and a pipeline have their own syntax.
+        match scheme {
+            Some("uri") => return Self::uri(spec, rest),
+            Some("gst") => {
+                if rest.trim().is_empty() {
+                    return Err(bad(spec, "gst: needs a pipeline description"));
+                }
+                return Ok(Self::Media(MediaSpec::Pipeline(rest.trim().to_string())));
+            }
+            Some("file") => {
+                if rest.is_empty() {
+                    return Err(bad(spec, "file: needs a path"));
+                }
+                return Ok(Self::Media(MediaSpec::File(PathBuf::from(rest))));
+            }
+            _ => {}
+        }
         let (body, query) = match rest.split_once('?') {
             Some((b, q)) => (b, Some(q)),
             None => (rest, None),
@@ -163,18 +231,26 @@ impl SourceSpec {
             Some("folder") => Self::folder(spec, body, query),
             Some("raw") => Self::raw(spec, body, query),
             Some("v4l2") => Self::v4l2(spec, body, query),
+            Some("screen") => Self::screen(spec, body, query),
             _ => Self::pattern(spec, body, query),
         }
     }
 
-    /// A bare path: a folder is a slideshow, a file an image.
+    /// A bare path: a folder is a slideshow, a file with a video file's ending a video file,
+    /// any other file an image.
     fn bare_path(spec: &str) -> Result<Self> {
         let path = PathBuf::from(spec);
+        let video = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| VIDEO_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()));
         if path.is_dir() {
             Ok(Self::Folder {
                 dir: path,
                 period: Duration::from_secs(5),
             })
+        } else if path.is_file() && video {
+            Ok(Self::Media(MediaSpec::File(path)))
         } else if path.is_file() {
             Ok(Self::Image(path))
         } else if path.exists() {
@@ -187,8 +263,9 @@ impl SourceSpec {
         } else {
             Err(Error::Missing {
                 path,
-                expected: "an image or a folder of images to play (or a source spelled raw:, \
-                           v4l2:, pattern:; see `compend play --help`)"
+                expected: "a video file, an image or a folder of images to play (or a source \
+                           spelled uri:, screen:, gst:, raw:, v4l2:, pattern:; see `compend play \
+                           --help`)"
                     .into(),
             })
         }
@@ -255,6 +332,87 @@ impl SourceSpec {
             device: PathBuf::from(body),
             size,
         })
+    }
+
+    /// `uri:URI`: a URI with a scheme GStreamer may open.
+    fn uri(spec: &str, uri: &str) -> Result<Self> {
+        let scheme = uri.split_once("://").map(|(s, _)| s).unwrap_or_default();
+        if scheme.is_empty()
+            || !scheme
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
+        {
+            return Err(bad(
+                spec,
+                "uri: needs a URI with a scheme, e.g. uri:rtsp://camera.local/stream or \
+                 uri:https://host/film.mp4",
+            ));
+        }
+        Ok(Self::Media(MediaSpec::Uri(uri.to_string())))
+    }
+
+    /// `screen:[x11][?display=:0&xid=N&fps=F]` or `screen:pipewire?node=N[&fps=F]`.
+    fn screen(spec: &str, body: &str, query: Option<&str>) -> Result<Self> {
+        let fps = |v: &str| -> Result<u32> {
+            match v.parse::<u32>() {
+                Ok(f) if (1..=240).contains(&f) => Ok(f),
+                _ => Err(bad(
+                    spec,
+                    format!("fps {v:?} is not a whole number from 1 to 240"),
+                )),
+            }
+        };
+        match body {
+            "" | "x11" => {
+                let (mut display, mut xid, mut rate) = (None, None, 30);
+                for (k, v) in options(spec, query, &["display", "xid", "fps"])? {
+                    match k {
+                        "display" => display = Some(v.to_string()),
+                        "xid" => {
+                            let parsed = match v.strip_prefix("0x") {
+                                Some(hex) => u64::from_str_radix(hex, 16).ok(),
+                                None => v.parse().ok(),
+                            };
+                            xid = Some(parsed.ok_or_else(|| {
+                                bad(
+                                    spec,
+                                    format!("xid {v:?} is not a window id (0x1a00003 or decimal)"),
+                                )
+                            })?);
+                        }
+                        _ => rate = fps(v)?,
+                    }
+                }
+                Ok(Self::Media(MediaSpec::Screen(ScreenSpec::X11 {
+                    display,
+                    xid,
+                    fps: rate,
+                })))
+            }
+            "pipewire" => {
+                let (mut node, mut rate) = (None, 30);
+                for (k, v) in options(spec, query, &["node", "fps"])? {
+                    match k {
+                        "node" => node = Some(v.to_string()),
+                        _ => rate = fps(v)?,
+                    }
+                }
+                let node = node.ok_or_else(|| {
+                    bad(
+                        spec,
+                        "screen:pipewire needs ?node=N (the screen-cast's node id)",
+                    )
+                })?;
+                Ok(Self::Media(MediaSpec::Screen(ScreenSpec::PipeWire {
+                    node,
+                    fps: rate,
+                })))
+            }
+            other => Err(bad(
+                spec,
+                format!("unknown screen {other:?} (known: x11, pipewire)"),
+            )),
+        }
     }
 
     /// `pattern:NAME?size=WxH&fps=F&frames=N`.

@@ -41,7 +41,7 @@ use crate::model::Model;
 use crate::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
 use crate::rig::VirtualRig;
 use crate::rig::scene::Latency;
-use crate::source::{self, FeedMode, SourceSpec};
+use crate::source::{self, FeedMode, Playlist, SourceSpec};
 
 /// What the engine does next.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -60,12 +60,12 @@ pub struct Engine {
     model: Option<Model>,
     /// Where the model being served came from.
     model_path: PathBuf,
-    /// What `play` plays.
-    source: String,
+    /// What `play` plays: the configured source or playlist, or the source a request named.
+    source: Playlist,
     next: Next,
     /// The first monitoring score of the current model and the source it was measured on: what
     /// drift is measured against, dB.
-    baseline: Option<(String, f64)>,
+    baseline: Option<(Playlist, f64)>,
     /// A configuration that came while calibrating, applied after it.
     reload: Option<Box<Config>>,
     /// Progressive calibration: the climb to start with the next playback, or the one under way.
@@ -136,7 +136,7 @@ impl Engine {
                     m.meta.method,
                     path.display()
                 )),
-            engine.source
+            engine.source.describe()
         );
         engine.next = match (&engine.model, runs.interrupted()) {
             (_, Some(run)) => {
@@ -307,25 +307,33 @@ impl Engine {
                     );
                 }
                 if let Some(s) = source {
-                    self.source = s.clone();
+                    self.source = Playlist::single(s.clone());
                 }
                 self.next = Next::Play;
-                Reply::ok(format!("playing {}", self.source))
+                Reply::ok(format!("playing {}", self.source.describe()))
             }
             Request::Pause => {
                 self.next = Next::Pause;
                 Reply::ok("paused")
             }
+            Request::Seek { .. } | Request::Next | Request::Previous => Reply::error(
+                "nothing is playing: seek, next and previous act on a film or playlist while it \
+                 plays (compend play starts it)",
+            ),
             Request::Model { path } => match self.use_model(path) {
                 // Paused stays paused: the projector stays dark until the operator plays.
                 Ok(()) if self.io.shared.status().state == State::Paused => Reply::ok(format!(
                     "paused; {} is the model now, and compend play shows {} with it",
                     path.display(),
-                    self.source
+                    self.source.describe()
                 )),
                 Ok(()) => {
                     self.next = Next::Play;
-                    Reply::ok(format!("playing {} with {}", self.source, path.display()))
+                    Reply::ok(format!(
+                        "playing {} with {}",
+                        self.source.describe(),
+                        path.display()
+                    ))
                 }
                 Err(e) => Reply::error(e.to_string()),
             },
@@ -365,19 +373,21 @@ impl Engine {
             self.next = Next::Wait;
             return;
         };
-        let opened = SourceSpec::parse(&self.source).and_then(|spec| source::open(&spec));
+        let opened = self.source.open(&self.config.audio.out());
         let source = match opened {
             Ok(s) => s,
             Err(e) => {
-                self.io
-                    .fail(&format!("cannot play {}", clipped(&self.source)), &e);
+                self.io.fail(
+                    &format!("cannot play {}", clipped(&self.source.describe())),
+                    &e,
+                );
                 self.io.state(State::Idle, "idle: the source failed");
                 return;
             }
         };
         let line = format!(
             "playing {} with {}{}",
-            clipped(&self.source),
+            clipped(&self.source.describe()),
             model.meta.method,
             model
                 .meta
@@ -422,10 +432,11 @@ impl Engine {
                 }
             }
         }
-        let src = self.source.clone();
+        let src = self.source.describe();
         let before = self.io.shared.status().frames;
         self.io.shared.update(|s| {
             s.source = Some(src);
+            s.media = None;
             s.frames.refreshes = 0;
             s.frames.shown = 0;
             s.frames.held = 0;
@@ -573,14 +584,14 @@ impl Engine {
                     }
                     (None, None) if self.training_ended() => {}
                     (None, None) => {
-                        tracing::info!("{}: the source ended", clipped(&self.source));
+                        tracing::info!("{}: the source ended", clipped(&self.source.describe()));
                         self.io.state(State::Idle, "idle: the source ended");
                     }
                 }
             }
             Ok(Ended { stats: Err(e), .. }) | Err(e) => {
                 self.io
-                    .fail(&format!("playing {}", clipped(&self.source)), &e);
+                    .fail(&format!("playing {}", clipped(&self.source.describe())), &e);
                 self.io.state(State::Idle, "idle: playback failed");
             }
         }
@@ -658,6 +669,7 @@ fn play_virtual(
     screen.climb = climb.take();
     screen.end_when = around.end_when;
     screen.drift = around.bump;
+    screen.media = player.feed.control().cloned();
     let stats = player.run(&mut screen, None);
     screen.settle();
     *climb = screen.climb.take();
@@ -741,6 +753,7 @@ fn play_hardware(
         if watcher.is_some() {
             screen.changes = Some(tx);
         }
+        screen.media = player.feed.control().cloned();
         let stats = player.run(&mut screen, None);
         screen.settle();
         *climb = screen.climb.take();

@@ -1,0 +1,388 @@
+//! Compensated frames to other software (`play --to`, `compensate` of a film): the projector
+//! canvas (projector pixels, 8-bit RGBA as presented) pushed into a GStreamer pipeline through
+//! an `appsrc`, as well as or instead of the window.
+//!
+//! - `gst:PIPELINE`: any pipeline that takes raw video, e.g. `videoconvert ! x264enc ! mp4mux !
+//!   filesink location=out.mp4`, `v4l2sink device=/dev/video10` (v4l2loopback),
+//!   `shmsink socket-path=/tmp/compend`, `ndisink` where the plugin is installed.
+//! - `file:PATH`: an encoded file chosen by its ending (`.mp4`, `.mov`, `.mkv`: H.264; `.webm`:
+//!   VP8; an odd side padded with one black row or column, as 4:2:0 needs), written to a
+//!   temporary sibling and renamed when the stream is complete, so a run
+//!   that is killed or fails leaves no half-written file under the name; an existing file is
+//!   never replaced.
+//!
+//! Timestamps: offline (`--pace source`) frame `n` (from 0) is at `n / fps`, so a film renders
+//! faster than real time with its own timing; live, a frame is stamped with the time since the
+//! first was presented.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use gstreamer as gst;
+use gstreamer::prelude::*;
+use gstreamer_app as gst_app;
+use gstreamer_video as gst_video;
+
+use super::{Watch, fault};
+use crate::error::{Error, Result};
+use crate::gpu::{CompensationPass, GpuContext};
+use crate::playback::player::{PlayStats, Refresh, Screen, Show};
+use crate::raster::ImageSize;
+
+/// The spellings of `--to`, as `compend play --help` shows them.
+pub const HELP: &str = "\
+Outputs (--to, [output] to):
+  file:PATH                an encoded video file by its ending: .mp4, .mov, .mkv (H.264),
+                           .webm (VP8); written complete or not at all, never over a file
+  gst:PIPELINE             any GStreamer pipeline that takes raw RGBA video at the projector's
+                           size, e.g. gst:videoconvert ! v4l2sink device=/dev/video10";
+
+/// Where compensated frames go.
+#[derive(Clone, Debug, PartialEq)]
+pub enum OutputSpec {
+    /// An encoded file, written to a temporary sibling and renamed when complete.
+    File(PathBuf),
+    /// A pipeline description that takes raw video.
+    Pipeline(String),
+}
+
+impl OutputSpec {
+    /// Parses a `--to` value.
+    pub fn parse(to: &str) -> Result<Self> {
+        let bad =
+            |why: &str| Error::Input(format!("--to {to:?}: {why} (see `compend play --help`)"));
+        match to.split_once(':') {
+            Some(("gst", p)) if !p.trim().is_empty() => Ok(Self::Pipeline(p.trim().to_string())),
+            Some(("gst", _)) => Err(bad("gst: needs a pipeline description")),
+            Some(("file", p)) if !p.is_empty() => {
+                let path = PathBuf::from(p);
+                encoder_for(&path)?;
+                Ok(Self::File(path))
+            }
+            Some(("file", _)) => Err(bad("file: needs a path")),
+            _ => Err(bad("expected file:PATH or gst:PIPELINE")),
+        }
+    }
+}
+
+/// The encoding pipeline for a file by its ending (without the sink).
+fn encoder_for(path: &Path) -> Result<String> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    let h264 = || -> Result<&'static str> {
+        // The best H.264 encoder installed: x264 (plugins-ugly), else OpenH264 (plugins-bad).
+        if super::has_element("x264enc") {
+            Ok("x264enc speed-preset=veryfast bitrate=20000 key-int-max=60")
+        } else if super::has_element("openh264enc") {
+            Ok("openh264enc bitrate=20000000 complexity=low")
+        } else {
+            Err(Error::Input(format!(
+                "{}: no H.264 encoder is installed: the Debian package gstreamer1.0-plugins-ugly \
+                 (x264enc) or gstreamer1.0-plugins-bad (openh264enc) brings one",
+                path.display()
+            )))
+        }
+    };
+    let mux = match ext.as_str() {
+        "mp4" | "m4v" => "mp4mux",
+        "mov" => "qtmux",
+        "mkv" => "matroskamux",
+        "webm" => {
+            return Ok(
+                "videoconvert ! video/x-raw,format=I420 ! vp8enc deadline=1 \
+                       target-bitrate=20000000 ! webmmux"
+                    .into(),
+            );
+        }
+        _ => {
+            return Err(Error::Input(format!(
+                "{}: not a video file ending compend writes (.mp4, .mov, .mkv, .webm)",
+                path.display()
+            )));
+        }
+    };
+    Ok(format!(
+        "videoconvert ! video/x-raw,format=I420 ! {} ! h264parse ! {mux}",
+        h264()?
+    ))
+}
+
+/// A running output: frames in through `appsrc`.
+pub struct MediaOutput {
+    pipeline: gst::Pipeline,
+    src: gst_app::AppSrc,
+    watch: Watch,
+    what: String,
+    size: ImageSize,
+    fps: f64,
+    /// For a file: (the temporary sibling written, the final path).
+    file: Option<(PathBuf, PathBuf)>,
+    frames: u64,
+    finished: bool,
+}
+
+impl MediaOutput {
+    /// Starts the output for frames of `size` (projector pixels) at `fps`. `live`: frames
+    /// arrive in real time (the appsrc is live and does not block the render loop: a frame the
+    /// pipeline has no room for is dropped and counted by GStreamer); offline, a frame waits
+    /// for room. A file already at the path, an unknown element or a pipeline that cannot
+    /// start is an input error, before any frame.
+    pub fn start(spec: &OutputSpec, size: ImageSize, fps: f64, live: bool) -> Result<Self> {
+        super::init()?;
+        if !(fps.is_finite() && fps > 0.0) {
+            return Err(Error::Input(format!(
+                "output frame rate must be positive, got {fps}"
+            )));
+        }
+        let (tail, file, what) = match spec {
+            OutputSpec::Pipeline(p) => (p.clone(), None, format!("output pipeline {p:?}")),
+            OutputSpec::File(path) => {
+                if std::fs::symlink_metadata(path).is_ok() {
+                    return Err(Error::Input(format!(
+                        "{}: already there; compend does not write over a file (choose another \
+                         path or remove it)",
+                        path.display()
+                    )));
+                }
+                let tmp = crate::files::temp_sibling(path)?;
+                let parent = crate::files::parent_of(path);
+                if !parent.is_dir() {
+                    return Err(Error::Missing {
+                        path: parent.to_path_buf(),
+                        expected: "the folder the output file goes into".into(),
+                    });
+                }
+                let loc = tmp
+                    .to_str()
+                    .ok_or_else(|| Error::Input(format!("{}: not a UTF-8 path", path.display())))?;
+                // 4:2:0 encoders take even sizes: an odd projector side gets one black row or
+                // column (the projector's pixels stay as they are, none scaled).
+                let pad = if size.width % 2 == 1 || size.height % 2 == 1 {
+                    format!(
+                        "videobox right=-{} bottom=-{} fill=black ! ",
+                        size.width % 2,
+                        size.height % 2
+                    )
+                } else {
+                    String::new()
+                };
+                (
+                    format!(
+                        "{pad}{} ! filesink location=\"{}\"",
+                        encoder_for(path)?,
+                        loc.replace('\\', "\\\\").replace('"', "\\\"")
+                    ),
+                    Some((tmp, path.clone())),
+                    format!("output file {}", path.display()),
+                )
+            }
+        };
+        let desc = format!("appsrc name=compend-src ! queue max-size-buffers=4 ! {tail}");
+        let pipeline = gst::parse::launch(&desc)
+            .map_err(|e| fault::parse_error(&tail, e))?
+            .downcast::<gst::Pipeline>()
+            .map_err(|_| Error::Failed("GStreamer: the output is not a pipeline".into()))?;
+        let src = pipeline
+            .by_name("compend-src")
+            .and_then(|e| e.downcast::<gst_app::AppSrc>().ok())
+            .ok_or_else(|| Error::Failed("GStreamer: the output has no appsrc".into()))?;
+        let rate = gst::Fraction::approximate_f64(fps)
+            .ok_or_else(|| Error::Input(format!("output frame rate {fps} is not a fraction")))?;
+        let caps = gst_video::VideoCapsBuilder::new()
+            .format(gst_video::VideoFormat::Rgba)
+            .width(size.width as i32)
+            .height(size.height as i32)
+            .framerate(rate)
+            .build();
+        src.set_caps(Some(&caps));
+        src.set_format(gst::Format::Time);
+        src.set_is_live(live);
+        src.set_block(!live);
+        src.set_max_bytes((size.width * size.height * 4 * 3) as u64);
+        if live {
+            src.set_leaky_type(gst_app::AppLeakyType::Downstream);
+        }
+        let mut watch = Watch::new(&pipeline, &what);
+        if pipeline.set_state(gst::State::Playing).is_err() {
+            let f = watch.poll();
+            super::stop(&pipeline);
+            if let Some((tmp, _)) = &file {
+                let _ = std::fs::remove_file(tmp);
+            }
+            return Err(f
+                .map(|f| f.into_error())
+                .unwrap_or_else(|| Error::Input(format!("{what}: GStreamer could not start it"))));
+        }
+        Ok(Self {
+            pipeline,
+            src,
+            watch,
+            what,
+            size,
+            fps,
+            file,
+            frames: 0,
+            finished: false,
+        })
+    }
+
+    /// Pushes one frame (RGBA, `size` of the output) at `pts` from the output's start.
+    pub fn push(&mut self, rgba: Vec<u8>, pts: Duration) -> Result<()> {
+        let expected = self.size.width * self.size.height * 4;
+        if rgba.len() != expected {
+            return Err(Error::Shape(format!(
+                "{}: a frame of {} bytes, expected {expected} ({} RGBA)",
+                self.what,
+                rgba.len(),
+                self.size
+            )));
+        }
+        if let Some(f) = self.watch.poll() {
+            return Err(f.into_error());
+        }
+        let mut buffer = gst::Buffer::from_mut_slice(rgba);
+        {
+            let b = buffer.get_mut().expect("a new buffer is writable");
+            b.set_pts(super::clock_time(pts));
+            b.set_duration(super::clock_time(Duration::from_secs_f64(1.0 / self.fps)));
+        }
+        match self.src.push_buffer(buffer) {
+            Ok(_) => {
+                self.frames += 1;
+                Ok(())
+            }
+            Err(flow) => Err(self
+                .watch
+                .poll()
+                .map(|f| f.into_error())
+                .unwrap_or_else(|| {
+                    Error::Failed(format!(
+                        "{}: it stopped taking frames ({flow:?})",
+                        self.what
+                    ))
+                })),
+        }
+    }
+
+    /// Ends the stream and waits for the pipeline to write it out (a file is complete and
+    /// renamed into place); returns the frames written.
+    pub fn finish(mut self) -> Result<u64> {
+        self.finished = true;
+        self.close(Duration::from_secs(120))?;
+        Ok(self.frames)
+    }
+
+    fn close(&mut self, timeout: Duration) -> Result<()> {
+        let ended = match self.src.end_of_stream() {
+            Ok(_) => self.watch.wait_eos(timeout),
+            Err(_) => Ok(false),
+        };
+        super::stop(&self.pipeline);
+        let ended = match ended {
+            Ok(true) => Ok(()),
+            Ok(false) => Err(Error::Failed(format!(
+                "{}: the stream did not end within {:.0} s",
+                self.what,
+                timeout.as_secs_f64()
+            ))),
+            Err(e) => Err(e),
+        };
+        if let Some((tmp, path)) = self.file.take() {
+            match &ended {
+                Ok(()) if self.frames > 0 => {
+                    crate::files::rename_no_replace(&tmp, &path)?;
+                }
+                _ => {
+                    let _ = std::fs::remove_file(&tmp);
+                }
+            }
+        }
+        ended
+    }
+}
+
+impl Drop for MediaOutput {
+    /// An output dropped without [`MediaOutput::finish`] (playback failed): the stream is ended
+    /// briefly so a file is still complete up to there; errors only logged.
+    fn drop(&mut self) {
+        if !self.finished
+            && let Err(e) = self.close(Duration::from_secs(10))
+        {
+            tracing::warn!("{e}");
+        }
+    }
+}
+
+/// A screen whose every new frame also goes to a [`MediaOutput`] (read back from the GPU as
+/// presented). With [`crate::playback::player::Headless`] as the inner screen, the output replaces the window.
+pub struct Teed<'a, S: Screen + ?Sized> {
+    inner: &'a mut S,
+    out: Option<MediaOutput>,
+    live: bool,
+    fps: f64,
+    start: Option<Instant>,
+}
+
+impl<'a, S: Screen + ?Sized> Teed<'a, S> {
+    pub fn new(inner: &'a mut S, out: MediaOutput) -> Self {
+        let fps = out.fps;
+        Self {
+            inner,
+            out: Some(out),
+            live: true,
+            fps,
+            start: None,
+        }
+    }
+}
+
+impl<S: Screen + ?Sized> Screen for Teed<'_, S> {
+    fn context(&self) -> &GpuContext {
+        self.inner.context()
+    }
+    fn refresh(&self) -> Refresh {
+        self.inner.refresh()
+    }
+    fn begin(&mut self, live: bool) -> Result<()> {
+        self.live = live;
+        self.inner.begin(live)
+    }
+    fn keep_going(&mut self) -> bool {
+        self.inner.keep_going()
+    }
+    fn take_pass(&mut self) -> Option<CompensationPass> {
+        self.inner.take_pass()
+    }
+    fn refreshed(&mut self, stats: &PlayStats) {
+        self.inner.refreshed(stats)
+    }
+    fn display_delay(&self) -> Duration {
+        self.inner.display_delay()
+    }
+    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
+        self.inner.present(pass, show)?;
+        let Show::New { index, .. } = show else {
+            return Ok(());
+        };
+        let Some(out) = self.out.as_mut() else {
+            return Ok(());
+        };
+        let rgba = pass.read_output_rgba(self.inner.context())?;
+        let pts = if self.live {
+            self.start.get_or_insert_with(Instant::now).elapsed()
+        } else {
+            Duration::from_secs_f64((index - 1) as f64 / self.fps)
+        };
+        out.push(rgba, pts)
+    }
+    fn finish(&mut self, stats: &mut PlayStats) -> Result<()> {
+        let inner = self.inner.finish(stats);
+        if let Some(out) = self.out.take() {
+            stats.output_frames = Some(out.finish()?);
+        }
+        inner
+    }
+}
