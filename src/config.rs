@@ -169,6 +169,29 @@ impl AudioConfig {
     }
 }
 
+/// `[output]`: the compensated frames to other software as well as the projector.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OutputConfig {
+    /// `file:PATH` (each playback to `NAME-NNNN.EXT` beside it) or `gst:PIPELINE`; None: off.
+    #[serde(serialize_with = "output_or_none")]
+    pub to: Option<crate::media::output::OutputSpec>,
+}
+
+fn output_or_none<S: serde::Serializer>(
+    v: &Option<crate::media::output::OutputSpec>,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    match v {
+        Some(crate::media::output::OutputSpec::File(p)) => {
+            s.collect_str(&format_args!("file:{}", p.display()))
+        }
+        Some(crate::media::output::OutputSpec::Pipeline(p)) => {
+            s.collect_str(&format_args!("gst:{p}"))
+        }
+        None => s.serialize_str("none"),
+    }
+}
+
 /// What the service does when monitoring finds drift.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -228,6 +251,7 @@ pub struct Config {
     pub calibration: CalibrationConfig,
     pub playback: PlaybackConfig,
     pub audio: AudioConfig,
+    pub output: OutputConfig,
     pub monitoring: MonitoringConfig,
     pub socket: SocketConfig,
     pub log: LogConfig,
@@ -466,6 +490,14 @@ impl<'t> Walker<'t> {
         };
         self.finish(t);
 
+        let mut t = self.table(root, "output");
+        let output = OutputConfig {
+            to: self.parsed_with(&mut t, "to", |s| {
+                crate::media::output::OutputSpec::parse(s).map_err(|e| e.to_string())
+            }),
+        };
+        self.finish(t);
+
         let mut t = self.table(root, "monitoring");
         let monitoring = MonitoringConfig {
             enabled: self.get(&mut t, "enabled").unwrap_or(true),
@@ -510,6 +542,7 @@ impl<'t> Walker<'t> {
             calibration,
             playback,
             audio,
+            output,
             monitoring,
             socket,
             log,
@@ -1002,12 +1035,13 @@ impl<'t> Walker<'t> {
 }
 
 /// The sections, in the order of the shipped file.
-const SECTIONS: [&str; 8] = [
+const SECTIONS: [&str; 9] = [
     "rig",
     "paths",
     "calibration",
     "playback",
     "audio",
+    "output",
     "monitoring",
     "socket",
     "log",
@@ -1293,6 +1327,62 @@ mod tests {
         assert!(e.contains("t.toml:2: [monitoring] period_s"), "{e}");
         assert!(e.contains("t.toml:4: [rig] drift_after_s"), "{e}");
         assert!(parse("[monitoring]\nperiod_s = 86400\n").is_ok());
+    }
+
+    #[test]
+    fn a_playlist_parses_and_its_wrong_items_are_named_at_their_line() {
+        let c = parse(
+            "[playback]\nsource = [\"pattern:bars\", { src = \"pattern:gray\", loop = 2, \
+             duration_s = 1.5 }]\nrepeat = false\n[audio]\nenabled = false\n",
+        )
+        .unwrap();
+        let list = &c.playback.source;
+        assert_eq!(list.items.len(), 2);
+        assert_eq!(list.items[1].loops, 2);
+        assert_eq!(list.items[1].duration_s, Some(1.5));
+        assert!(!list.repeat);
+        assert_eq!(c.audio.out().sink, None);
+        // One source is a playlist of one, played as `compend play` plays it.
+        let c = parse("[playback]\nsource = \"pattern:gray\"\n").unwrap();
+        assert_eq!(
+            c.playback.source,
+            crate::source::Playlist::single("pattern:gray")
+        );
+        let e = parse(
+            "[playback]\n\nsource = [\"pattern:nope\", { src = \"pattern:gray\", loops = 2 }, \
+             { loop = 1 }, 5, { src = \"pattern:gray\", duration_s = -1 }]\n",
+        )
+        .unwrap_err()
+        .to_string();
+        for want in [
+            "t.toml:3: [playback] source item 1: --source \"pattern:nope\": unknown pattern",
+            "item 2: unknown key `loops`",
+            "item 3: needs `src`",
+            "item 4: expected a source's spelling",
+            "item 5: duration_s must be a positive",
+        ] {
+            assert!(e.contains(want), "{want}: {e}");
+        }
+        let e = parse("[playback]\nsource = []\n").unwrap_err().to_string();
+        assert!(e.contains("an empty list"), "{e}");
+        let e = parse("[audio]\ndelay_ms = 1e9\ndevice = \" \"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("[audio] delay_ms") && e.contains("[audio] device"),
+            "{e}"
+        );
+        let e = parse("[output]\nto = \"file:x.gif\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("[output] to") && e.contains("ending"), "{e}");
+        let c = parse("[output]\nto = \"gst:fakesink\"\n").unwrap();
+        assert_eq!(
+            c.output.to,
+            Some(crate::media::output::OutputSpec::Pipeline(
+                "fakesink".into()
+            ))
+        );
     }
 
     #[test]

@@ -38,6 +38,10 @@ enum Command {
     /// Per-frame GPU time of the compensation pass against a plain texture copy, and frames
     /// dropped at 60 Hz on the virtual rig and by the pipeline alone.
     BenchGpu(cli::bench_gpu::Args),
+    /// Films through compend on this machine: decode cost, live playback of a film through the
+    /// pass (frames dropped, latency, CPU), offline compensation's speed, and the sound's
+    /// offset from the picture on the virtual rig.
+    BenchMedia(cli::bench_media::Args),
     /// The service's targets on the virtual rig, driven through its socket: status while
     /// training, a flood of malformed requests, drops during model swaps, drift detection.
     BenchServe(cli::bench_serve::Args),
@@ -203,6 +207,7 @@ fn main() -> ExitCode {
     let dispatch = move || match args.command {
         Command::Bench(a) => cli::bench::run(a),
         Command::BenchGpu(a) => cli::bench_gpu::run(a),
+        Command::BenchMedia(a) => cli::bench_media::run(a),
         Command::BenchServe(a) => cli::bench_serve::run(a),
         Command::BenchTrain(a) => cli::bench_train::run(a),
         Command::Cameras(a) => cli::cameras::run(a),

@@ -159,6 +159,37 @@ fn a_film_plays_on_the_virtual_rig_and_renders_to_a_file() {
     assert!(stderr(&o).contains("already there"), "{}", stderr(&o));
     assert_eq!(std::fs::metadata(&rendered).unwrap().len(), before);
 
+    // `compensate` of a film: a compensated film at the projector's size, frame for frame.
+    let compensated = dir.path().join("compensated.mkv");
+    let o = compend(&[
+        "compensate",
+        "--model",
+        m,
+        "--input",
+        film.to_str().unwrap(),
+        "--out",
+        compensated.to_str().unwrap(),
+        "--projector",
+        "120x90",
+    ]);
+    assert_code(&o, 0);
+    assert!(stderr(&o).contains("real time"), "{}", stderr(&o));
+    assert_eq!(decoded_frames(&compensated), 12);
+    // A model trained on recorded data records no canvas: the projector's size is asked for.
+    let again = dir.path().join("again.mp4");
+    let o = compend(&[
+        "compensate",
+        "--model",
+        m,
+        "--input",
+        film.to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("--projector"), "{}", stderr(&o));
+    assert!(!again.exists());
+
     // Live, at the film's pace on a 60 Hz rig: its 12 frames over about 0.4 s, none lost by
     // the pipeline, its sound played (to a fake sink here) and delayed by the measured latency.
     let (o, v) = play_json(&[
@@ -373,4 +404,46 @@ fn the_service_plays_a_playlist_from_its_configuration() {
     assert_eq!(svc.wait_exit(30), Some(0));
     let log = svc.log();
     assert!(log.contains("playlist: item 2 of 2"), "{log}");
+}
+
+#[test]
+fn another_programs_screen_is_captured_and_compensated_under_xvfb() {
+    if gpu().is_none() {
+        return;
+    }
+    let Some(x) = crate::window::Xvfb::start(160, 120) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let model = tiny_model(dir.path());
+    let m = model.to_str().unwrap();
+    let screen = format!("screen:x11?display={}&fps=20", x.display);
+    let (o, v) = play_json(&[
+        "--model",
+        m,
+        "--source",
+        &screen,
+        "--rig",
+        "virtual:textured-plane",
+        "--pace",
+        "source",
+        "--frames",
+        "4",
+        "--json",
+    ]);
+    assert_code(&o, 0);
+    let v = v.unwrap();
+    assert_eq!(count(&v, "shown"), 4, "{v}");
+    assert_eq!(v["media"]["size"], serde_json::json!([160, 120]), "{v}");
+    // A display that is not there: refused in words before any frame.
+    let (o, _) = play_json(&[
+        "--model",
+        m,
+        "--source",
+        "screen:x11?display=:987",
+        "--rig",
+        "virtual:textured-plane",
+    ]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("screen :987"), "{}", stderr(&o));
 }

@@ -1,4 +1,5 @@
-//! `compend compensate`: compensation images for desired camera-view images.
+//! `compend compensate`: compensation images for desired camera-view images, or a compensated
+//! film for a film (the projector canvas of every frame, encoded, with the film's timing).
 
 use std::path::{Path, PathBuf};
 
@@ -12,15 +13,22 @@ pub struct Args {
     /// The model directory.
     #[arg(long)]
     pub model: PathBuf,
-    /// A desired camera-view PNG, or a folder of them (e.g. SETUP/cam/desire/test).
+    /// A desired camera-view PNG, or a folder of them (e.g. SETUP/cam/desire/test); or a
+    /// film (a video file: MP4, MKV, MOV, WebM, ...), compensated frame by frame as `play`
+    /// would show it.
     #[arg(long)]
     pub input: PathBuf,
     /// Folder for the network-space compensation PNGs (same file names as the inputs), e.g.
     /// SETUP/prj/cmp/test/MODEL. A file already there is replaced only when an earlier
     /// `compensate` wrote it (they are listed in the folder's `.compend-compensated`); never the
-    /// inputs.
+    /// inputs. For a film: the compensated video file (.mp4, .mov, .mkv, .webm), never over a
+    /// file that is there.
     #[arg(long)]
     pub out: PathBuf,
+    /// For a film: the projector's size, WxH [default: the one the model's calibration
+    /// placed its canvas on].
+    #[arg(long, value_name = "WxH")]
+    pub projector: Option<String>,
 }
 
 /// The list `compensate` keeps in its output folder of the images it wrote there, one name a
@@ -28,6 +36,15 @@ pub struct Args {
 const MARKER: &str = ".compend-compensated";
 
 pub fn run(args: Args) -> Result<()> {
+    if let Some(film) = film_input(&args.input) {
+        return compensate_film(&args, film);
+    }
+    if args.projector.is_some() {
+        return Err(compend::Error::Input(
+            "--projector is for a film; compensation images are network-size".into(),
+        )
+        .into());
+    }
     let model = Model::load(&args.model)?;
     let inputs = list_inputs(&args.input)?;
     // Names kept as they are (the list holds one per line): an input named otherwise is refused.
@@ -128,4 +145,82 @@ fn list_inputs(input: &Path) -> Result<Vec<PathBuf>> {
         .into());
     }
     Ok(out)
+}
+
+/// The film `input` names: a file with a video file's ending.
+fn film_input(input: &Path) -> Option<compend::source::MediaSpec> {
+    let ext = input.extension()?.to_str()?.to_ascii_lowercase();
+    compend::source::spec::VIDEO_EXTENSIONS
+        .contains(&ext.as_str())
+        .then(|| compend::source::MediaSpec::File(input.to_path_buf()))
+}
+
+/// A film through the model, frame by frame, offline (every frame, as fast as it goes), to an
+/// encoded file at the film's frame rate; the same pass and placement as `play`.
+fn compensate_film(args: &Args, film: compend::source::MediaSpec) -> Result<()> {
+    use compend::media::output::{MediaOutput, OutputSpec, Teed};
+    use compend::playback::player::{Headless, Player};
+    use compend::source::{self, AudioOut, FeedMode, SourceSpec};
+    let out = OutputSpec::parse(&format!("file:{}", args.out.display()))?;
+    let projector = args
+        .projector
+        .as_deref()
+        .map(|s| compend::raster::ImageSize::parse(s, false).map_err(compend::Error::Input))
+        .transpose()?;
+    let model = Model::load(&args.model)?;
+    let size = match (projector, model.meta.canvas) {
+        (Some(p), _) => p,
+        (None, Some(c)) => compend::raster::ImageSize::new(c.x + c.width, c.y + c.height),
+        (None, None) => {
+            return Err(compend::Error::Input(format!(
+                "the model ({}) was trained on recorded data and records no projector canvas: \
+                 give --projector WxH",
+                model.meta.method
+            ))
+            .into());
+        }
+    };
+    let probe = source::media::probe(&film, source::MEDIA_CHECK_TIMEOUT)?;
+    let fps = match probe.fps {
+        Some(f) => f,
+        None => {
+            eprintln!("compensate: the film declares no frame rate; writing it at 30 fps");
+            30.0
+        }
+    };
+    let no_sound = AudioOut {
+        sink: None,
+        delay_ms: 0.0,
+    };
+    let source = source::open_with(&SourceSpec::Media(film), &no_sound)?;
+    let ctx = compend::gpu::GpuContext::new()?;
+    let mut player = Player::start(
+        &ctx,
+        &model,
+        size,
+        model.display_range(),
+        source,
+        FeedMode::Queue,
+    )?;
+    let output = MediaOutput::start(&out, size, fps, false)?;
+    eprintln!(
+        "compensate: {} ({}) to {} at {size}, {fps:.3} fps, with {}",
+        player.feed.describe(),
+        probe
+            .duration_s
+            .map_or("length unknown".to_string(), |d| format!("{d:.1} s")),
+        args.out.display(),
+        ctx.describe()
+    );
+    let mut screen = Headless::new(&ctx, fps);
+    let stats = player.run(&mut Teed::new(&mut screen, output), None)?;
+    let film_s = stats.shown as f64 / fps;
+    eprintln!(
+        "compensate: {} frames ({film_s:.1} s of film) in {:.1} s: {:.2}x real time; wrote {}",
+        stats.output_frames.unwrap_or(0),
+        stats.seconds,
+        film_s / stats.seconds.max(1e-9),
+        args.out.display()
+    );
+    Ok(())
 }

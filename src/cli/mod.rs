@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod bench_gpu;
+pub mod bench_media;
 pub mod bench_serve;
 pub mod bench_train;
 pub mod calibrate;

@@ -375,7 +375,7 @@ fn parse_rig(s: &str) -> compend::Result<Option<String>> {
 
 /// The rig the model was calibrated on (its setup's rig.json), or `scene` at the model's camera
 /// size; with the display range desired images were scaled into there.
-fn virtual_rig(
+pub(super) fn virtual_rig(
     model: &Model,
     scene_name: Option<&str>,
     seed: Option<u64>,

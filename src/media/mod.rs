@@ -88,11 +88,18 @@ pub fn set_state(
         ))),
         Ok(_) => Ok(()),
         Err(_) => {
-            // The bus says why; failing that, the state change alone.
+            // The bus says why; failing that, the state change alone. A resource that does not
+            // open as it starts (a display or a host that is not there) is what the request
+            // named: an input error.
             let watch = Watch::new(pipeline, what);
             Err(watch
                 .first_error(Duration::from_millis(200))
-                .map(|f| f.into_error())
+                .map(|mut f| {
+                    if f.transient {
+                        f.input = true;
+                    }
+                    f.into_error()
+                })
                 .unwrap_or_else(|| {
                     Error::Failed(format!("{what}: GStreamer could not start it ({state:?})"))
                 }))
@@ -206,6 +213,11 @@ impl Control {
         c.pipeline = pipeline;
         c.audio_sinks = audio_sinks;
         Self::apply_delay(&mut c);
+    }
+
+    /// The pipeline playing now, if any (for benchmarks that read its elements).
+    pub fn pipeline(&self) -> Option<gst::Pipeline> {
+        self.lock().pipeline.clone()
     }
 
     /// Updates the counts.

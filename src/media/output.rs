@@ -47,6 +47,30 @@ pub enum OutputSpec {
 }
 
 impl OutputSpec {
+    /// For a service that plays many times into one configured file: the first free
+    /// `NAME-0001.EXT`, `NAME-0002.EXT`, ... beside it (a pipeline is used as it is).
+    pub fn numbered(&self) -> Self {
+        let Self::File(path) = self else {
+            return self.clone();
+        };
+        let stem = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let ext = path
+            .extension()
+            .map(|e| format!(".{}", e.to_string_lossy()))
+            .unwrap_or_default();
+        let mut n = 1u32;
+        loop {
+            let candidate = path.with_file_name(format!("{stem}-{n:04}{ext}"));
+            if std::fs::symlink_metadata(&candidate).is_err() || n == u32::MAX {
+                return Self::File(candidate);
+            }
+            n += 1;
+        }
+    }
+
     /// Parses a `--to` value.
     pub fn parse(to: &str) -> Result<Self> {
         let bad =
@@ -317,7 +341,8 @@ impl Drop for MediaOutput {
 }
 
 /// A screen whose every new frame also goes to a [`MediaOutput`] (read back from the GPU as
-/// presented). With [`crate::playback::player::Headless`] as the inner screen, the output replaces the window.
+/// presented), when there is one. With [`crate::playback::player::Headless`] as the inner
+/// screen, the output replaces the window.
 pub struct Teed<'a, S: Screen + ?Sized> {
     inner: &'a mut S,
     out: Option<MediaOutput>,
@@ -327,11 +352,12 @@ pub struct Teed<'a, S: Screen + ?Sized> {
 }
 
 impl<'a, S: Screen + ?Sized> Teed<'a, S> {
-    pub fn new(inner: &'a mut S, out: MediaOutput) -> Self {
-        let fps = out.fps;
+    pub fn new(inner: &'a mut S, out: impl Into<Option<MediaOutput>>) -> Self {
+        let out = out.into();
+        let fps = out.as_ref().map_or(60.0, |o| o.fps);
         Self {
             inner,
-            out: Some(out),
+            out,
             live: true,
             fps,
             start: None,
@@ -380,6 +406,8 @@ impl<S: Screen + ?Sized> Screen for Teed<'_, S> {
     }
     fn finish(&mut self, stats: &mut PlayStats) -> Result<()> {
         let inner = self.inner.finish(stats);
+        // The output's frames are counted and the file completed even when the display
+        // failed.
         if let Some(out) = self.out.take() {
             stats.output_frames = Some(out.finish()?);
         }

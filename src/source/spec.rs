@@ -504,7 +504,57 @@ mod tests {
             SourceSpec::parse("folder:/x?period=0.5").unwrap(),
             SourceSpec::Folder { .. }
         ));
+        // Media: a URI and a pipeline are taken whole, queries and all.
+        assert_eq!(
+            SourceSpec::parse("uri:rtsp://cam.local:554/live?token=a&b=c").unwrap(),
+            SourceSpec::Media(MediaSpec::Uri(
+                "rtsp://cam.local:554/live?token=a&b=c".into()
+            ))
+        );
+        assert_eq!(
+            SourceSpec::parse("gst:videotestsrc ! video/x-raw,width=8,height=8").unwrap(),
+            SourceSpec::Media(MediaSpec::Pipeline(
+                "videotestsrc ! video/x-raw,width=8,height=8".into()
+            ))
+        );
+        assert_eq!(
+            SourceSpec::parse("file:/srv/show/a film?.mp4").unwrap(),
+            SourceSpec::Media(MediaSpec::File("/srv/show/a film?.mp4".into()))
+        );
+        assert_eq!(
+            SourceSpec::parse("screen:x11?display=:1&xid=0x1a00003&fps=25").unwrap(),
+            SourceSpec::Media(MediaSpec::Screen(ScreenSpec::X11 {
+                display: Some(":1".into()),
+                xid: Some(0x1a00003),
+                fps: 25
+            }))
+        );
+        assert_eq!(
+            SourceSpec::parse("screen:pipewire?node=42").unwrap(),
+            SourceSpec::Media(MediaSpec::Screen(ScreenSpec::PipeWire {
+                node: "42".into(),
+                fps: 30
+            }))
+        );
+        // A bare path by what is there: a video file's ending is a film.
+        let dir = tempfile::tempdir().unwrap();
+        let film = dir.path().join("Intro.MP4");
+        std::fs::write(&film, b"x").unwrap();
+        assert_eq!(
+            SourceSpec::parse(film.to_str().unwrap()).unwrap(),
+            SourceSpec::Media(MediaSpec::File(film))
+        );
         for bad in [
+            "uri:",
+            "uri:no-scheme",
+            "gst:",
+            "gst:   ",
+            "file:",
+            "screen:wayland",
+            "screen:pipewire",
+            "screen:x11?fps=0",
+            "screen:x11?xid=zz",
+            "screen:x11?size=4x4",
             "raw:-",
             "raw:-?size=12",
             "raw:-?size=4x4&format=yuv",

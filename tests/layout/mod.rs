@@ -293,9 +293,10 @@ fn no_import_circle_between_files() {
 }
 
 /// The shell of the library (docs/architecture.md, "Layers"): the modules that talk to devices.
-const SHELL: [&[&str]; 7] = [
+const SHELL: [&[&str]; 8] = [
     &["gpu"],
     &["window"],
+    &["media"],
     &["source"],
     &["camera"],
     &["playback", "player"],

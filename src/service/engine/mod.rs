@@ -37,8 +37,10 @@ use crate::config::{Config, DriftPolicy};
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::Result;
 use crate::fov::DisplayRange;
+use crate::media::output::{MediaOutput, OutputSpec, Teed};
 use crate::model::Model;
 use crate::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
+use crate::raster::ImageSize;
 use crate::rig::VirtualRig;
 use crate::rig::scene::Latency;
 use crate::source::{self, FeedMode, Playlist, SourceSpec};
@@ -279,6 +281,8 @@ impl Engine {
         }
         self.config.calibration = c.calibration;
         self.config.playback = c.playback;
+        self.config.audio = c.audio;
+        self.config.output = c.output;
         self.config.monitoring = c.monitoring;
         self.config.log = c.log;
         tracing::info!("reload: configuration applied");
@@ -477,6 +481,7 @@ impl Engine {
         let drift_after = self.config.rig.drift_after_s;
         // A calibration's model training beside this playback ends it when it is trained.
         let end_when = self.training.as_ref().map(|t| t.done.clone());
+        let output = self.config.output.to.clone();
         let result = match &mut self.devices {
             Devices::Virtual(v) => {
                 let bump = v.bump.as_mut().and_then(|b| b.arm(drift_after));
@@ -490,6 +495,7 @@ impl Engine {
                         before: &before,
                         end_when,
                         bump,
+                        output: output.clone(),
                     },
                 )
             }
@@ -505,6 +511,7 @@ impl Engine {
                         before: &before,
                         end_when,
                         bump,
+                        output: output.clone(),
                     },
                 )
             }
@@ -663,7 +670,9 @@ fn play_virtual(
     };
     let mut sink = WatchedSink::new(&v.ctx, fps, v.rig.clone(), v.rig.clone(), views);
     let sizes = (v.scene.camera.size(), v.scene.projector.size());
-    let mut screen = ServiceScreen::new(&mut sink, io, monitor, timing, sizes);
+    let output = start_output(around.output, sizes.1, fps, io);
+    let mut teed = Teed::new(&mut sink, output);
+    let mut screen = ServiceScreen::new(&mut teed, io, monitor, timing, sizes);
     screen.before = around.before.clone();
     screen.rig = Some(v.rig.clone());
     screen.climb = climb.take();
@@ -745,7 +754,10 @@ fn play_hardware(
             }
             _ => None,
         };
-        let mut screen = ServiceScreen::new(win, io, monitor.clone(), timing, sizes);
+        let hz = win.refresh_hz();
+        let output = start_output(around.output, sizes.1, hz, io);
+        let mut teed = Teed::new(&mut *win, output);
+        let mut screen = ServiceScreen::new(&mut teed, io, monitor.clone(), timing, sizes);
         screen.before = around.before.clone();
         screen.climb = climb.take();
         screen.end_when = around.end_when;
@@ -784,6 +796,33 @@ struct Around<'a> {
     before: &'a Frames,
     end_when: Option<Arc<AtomicBool>>,
     bump: Option<(VirtualRig, Instant)>,
+    /// `[output] to`: the compensated frames to a file or a pipeline as well.
+    output: Option<OutputSpec>,
+}
+
+/// Starts `[output] to` for a playback on a display of `size` at `fps`: a file goes to the
+/// next free `NAME-NNNN.EXT`. An output that cannot start is logged and left out: the show
+/// goes on without it.
+fn start_output(
+    spec: Option<OutputSpec>,
+    size: ImageSize,
+    fps: f64,
+    io: &Io,
+) -> Option<MediaOutput> {
+    let spec = spec?.numbered();
+    match MediaOutput::start(&spec, size, fps, true) {
+        Ok(o) => {
+            tracing::info!("output: compensated frames also to {spec:?}");
+            Some(o)
+        }
+        Err(e) => {
+            io.fail(
+                "[output] to: the output could not start; playing without it",
+                &e,
+            );
+            None
+        }
+    }
 }
 
 /// How a playback ended: its counts, the event that ended it (none: the source ended,
