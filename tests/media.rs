@@ -360,6 +360,16 @@ fn the_service_plays_a_playlist_from_its_configuration() {
         assert_eq!(r["ok"], false, "{r}");
         assert!(r["error"].as_str().unwrap().contains(words), "{r}");
     }
+    // A pipeline is not taken from a client: it could run any element as the service.
+    let r = svc.ask(r#"{"cmd":"play","source":"gst:videotestsrc ! fakesink"}"#);
+    assert_eq!(r["ok"], false, "{r}");
+    assert!(
+        r["error"]
+            .as_str()
+            .unwrap()
+            .contains("not taken from a client"),
+        "{r}"
+    );
     let s = svc.status();
     assert_eq!(s["state"], "playing", "{s}");
     assert_eq!(item(&s), 1, "{s}");
@@ -435,6 +445,30 @@ fn another_programs_screen_is_captured_and_compensated_under_xvfb() {
     let v = v.unwrap();
     assert_eq!(count(&v, "shown"), 4, "{v}");
     assert_eq!(v["media"]["size"], serde_json::json!([160, 120]), "{v}");
+    // A live pipeline that ends after its first frames (a stream that dropped) is started
+    // again after a second, the last frame held meanwhile.
+    let (o, v) = play_json(&[
+        "--model",
+        m,
+        "--source",
+        "gst:videotestsrc is-live=true num-buffers=6 ! video/x-raw,width=40,height=30,framerate=30/1",
+        "--rig",
+        "virtual:textured-plane",
+        "--frames",
+        "150",
+        "--json",
+    ]);
+    assert_code(&o, 0);
+    let v = v.unwrap();
+    assert!(v["media"]["reconnects"].as_u64().unwrap() >= 1, "{v}");
+    assert!(count(&v, "received") >= 12, "{v}");
+    assert!(
+        v["media"]["last_problem"]
+            .as_str()
+            .unwrap()
+            .contains("the stream ended"),
+        "{v}"
+    );
     // A display that is not there: refused in words before any frame.
     let (o, _) = play_json(&[
         "--model",

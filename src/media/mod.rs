@@ -65,13 +65,14 @@ pub fn clock_time(d: Duration) -> gst::ClockTime {
 
 /// Sets `pipeline` to `state`, and for a target of PAUSED or PLAYING waits up to `timeout` for
 /// it to get there (a file prerolls its first frame), reading its bus for the reason when it
-/// does not. `what` names the media in messages.
+/// does not. `what` names the media in messages. Returns whether the pipeline is live (its
+/// source produces in real time and does not preroll: a camera, a screen, a network stream).
 pub fn set_state(
     pipeline: &gst::Pipeline,
     state: gst::State,
     timeout: Duration,
     what: &str,
-) -> Result<()> {
+) -> Result<bool> {
     let changed = pipeline.set_state(state);
     let waited = match changed {
         Ok(gst::StateChangeSuccess::Async) => {
@@ -86,7 +87,12 @@ pub fn set_state(
              that waits for data)",
             timeout.as_secs_f64()
         ))),
-        Ok(_) => Ok(()),
+        Ok(gst::StateChangeSuccess::NoPreroll) => Ok(true),
+        // There now: a live pipeline says so when its latency is asked.
+        Ok(_) => {
+            let mut q = gst::query::Latency::new();
+            Ok(pipeline.query(&mut q) && q.result().0)
+        }
         Err(_) => {
             // The bus says why; failing that, the state change alone. A resource that does not
             // open as it starts (a display or a host that is not there) is what the request

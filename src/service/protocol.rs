@@ -35,6 +35,21 @@ pub const MAX_REQUEST_BYTES: usize = 64 * 1024;
 /// it is neither tried nor written to the log.
 pub const MAX_PATH_BYTES: usize = 4095;
 
+/// Whether a client may ask the service to play `source`: anything `compend play` takes except
+/// a `gst:` pipeline, which can run any GStreamer element (a `filesink` writes any file the
+/// service's user may write). Pipelines are for the configuration (`[playback] source`), which
+/// only its owner edits.
+pub fn check_requested_source(source: &str) -> Result<(), String> {
+    if source.trim_start().starts_with("gst:") {
+        return Err(
+            "a gst: pipeline is not taken from a client (it can run any GStreamer element and \
+             write files as the service); put it in [playback] source of the configuration"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
 /// A request.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "cmd", rename_all = "lowercase", deny_unknown_fields)]

@@ -307,6 +307,10 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         // connects) while the picture goes on; a source that cannot be played (unparsed, a
         // damaged image, an empty folder, a missing file, not media) changes nothing.
         if let Request::Play { source: Some(text) } = &envelope.request {
+            if let Err(e) = super::protocol::check_requested_source(text) {
+                envelope.answer(Reply::error(e));
+                return true;
+            }
             let text = text.clone();
             self.check_source(envelope, text);
             return true;

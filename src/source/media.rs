@@ -13,9 +13,10 @@
 //! - The sound is delayed by the picture's measured latency (set through [`Control`] by the
 //!   player) plus the configured trim, on the audio sink's `ts-offset`.
 //! - Errors are GStreamer's in words ([`crate::media::fault`]). Before the first frame an error
-//!   fails the source; after it, a network stream or a screen that drops is reconnected with
-//!   backoff (1 s doubling to 30 s, the last frame held meanwhile), and a damaged or truncated
-//!   file ends where it stops decoding, the problem reported.
+//!   fails the source; after it, a network stream, a screen or any live pipeline that drops
+//!   (an error, or the end of a live stream) is reconnected with backoff (1 s doubling to 30 s,
+//!   the last frame held meanwhile), and a damaged or truncated file ends where it stops
+//!   decoding, the problem reported.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -91,6 +92,8 @@ pub struct MediaSource {
     frames: u64,
     /// When a dropped stream is tried again, and the wait after that.
     retry: Option<(Instant, Duration)>,
+    /// The pipeline is live (it did not preroll: a camera, a screen, a network stream).
+    live_source: bool,
 }
 
 impl MediaSource {
@@ -115,6 +118,7 @@ impl MediaSource {
             control,
             frames: 0,
             retry: None,
+            live_source: false,
         })
     }
 
@@ -127,29 +131,49 @@ impl MediaSource {
             sink,
             watch,
         };
-        media::set_state(
+        // A file is never live (a pipeline of one may answer the latency query as live when
+        // its sinks are synchronised); other sources say so themselves.
+        let live = media::set_state(
             &stream.pipeline,
             gst::State::Playing,
             start_timeout(&self.spec),
             &self.describe,
         )?;
+        // A film over HTTP or a file URI ends like a file.
+        let film = match &self.spec {
+            MediaSpec::File(_) => true,
+            MediaSpec::Uri(u) => ["http://", "https://", "file://"]
+                .iter()
+                .any(|p| u.to_ascii_lowercase().starts_with(p)),
+            _ => false,
+        };
+        self.live_source = live && !film;
         self.control
             .attach(Some(stream.pipeline.clone()), audio_sinks.clone());
         let duration = stream
             .pipeline
             .query_duration::<gst::ClockTime>()
             .map(|t| t.nseconds() as f64 / 1e9);
+        // playbin knows how many sound streams the media has; a film without one plays
+        // silently.
+        let streams = if stream.pipeline.find_property("n-audio").is_some() {
+            stream.pipeline.property::<i32>("n-audio")
+        } else {
+            0
+        };
+        let audio = !audio_sinks.is_empty() && streams > 0;
         self.control.update(|s| {
-            s.audio = !audio_sinks.is_empty();
+            s.audio = audio;
             s.duration_s = duration;
         });
         self.stream = Some(stream);
         Ok(())
     }
 
-    /// Whether a failure after the first frame is worth a reconnection.
+    /// Whether a failure after the first frame is worth a reconnection: a network stream, a
+    /// screen, any live pipeline (a film ends instead).
     fn reconnects(&self) -> bool {
-        matches!(self.spec, MediaSpec::Uri(_) | MediaSpec::Screen(_))
+        self.live_source || matches!(self.spec, MediaSpec::Uri(_) | MediaSpec::Screen(_))
     }
 
     /// A fault while playing: before the first frame it fails the source; after it a stream is
@@ -231,10 +255,20 @@ impl VideoSource for MediaSource {
         }
         let warnings = stream.watch.warnings;
         let Some(sample) = stream.sink.try_pull_sample(media::clock_time(PULL_SLICE)) else {
-            if stream.sink.is_eos() {
-                return Ok(Next::End);
+            if !stream.sink.is_eos() {
+                return Ok(Next::Idle);
             }
-            return Ok(Next::Idle);
+            // A live stream that ends (a server that went away, a camera that stopped)
+            // dropped: it is reconnected. A film, or a file over the network, ends.
+            if self.frames > 0 && self.live_source {
+                return self.fault(media::Fault {
+                    message: format!("{}: the stream ended", self.describe),
+                    input: false,
+                    transient: true,
+                    source: None,
+                });
+            }
+            return Ok(Next::End);
         };
         let (frame, fps) = to_frame(&sample, &self.describe)?;
         // The frame's place in the media, s (its timestamp in the stream's segment).
@@ -528,7 +562,7 @@ pub fn probe(spec: &MediaSpec, timeout: Duration) -> Result<Probe> {
         },
         false,
     )?;
-    let result = media::set_state(&pipeline, gst::State::Paused, timeout, &what).map(|()| {
+    let result = media::set_state(&pipeline, gst::State::Paused, timeout, &what).map(|_| {
         let mut probe = Probe {
             duration_s: pipeline
                 .query_duration::<gst::ClockTime>()

@@ -301,6 +301,11 @@ impl Engine {
             Request::Play { source } => {
                 // A source that cannot be played changes nothing: the one in place stays.
                 if let Some(s) = source
+                    && let Err(e) = super::protocol::check_requested_source(s)
+                {
+                    return Reply::error(e);
+                }
+                if let Some(s) = source
                     && let Err(e) = SourceSpec::parse(s).and_then(|spec| source::check(&spec))
                 {
                     return Reply::error(e.to_string());
