@@ -107,14 +107,7 @@ pub fn run(args: Args) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .map_err(|e| compend::Error::io(&args.out, "create folder", e))?;
     let model = Model::load(&args.model)?;
-    let canvas = model.meta.canvas.ok_or_else(|| {
-        compend::Error::Input(format!(
-            "{}: a model made by `compend calibrate` is needed (this one records no projector \
-             canvas)",
-            args.model.display()
-        ))
-    })?;
-    let projector = ImageSize::new(canvas.x + canvas.width, canvas.y + canvas.height);
+    let projector = super::model_projector(&model, None)?;
     compend::media::init()?;
 
     let film = args.out.join("film.mp4");

@@ -168,18 +168,7 @@ fn compensate_film(args: &Args, film: compend::source::MediaSpec) -> Result<()> 
         .map(|s| compend::raster::ImageSize::parse(s, false).map_err(compend::Error::Input))
         .transpose()?;
     let model = Model::load(&args.model)?;
-    let size = match (projector, model.meta.canvas) {
-        (Some(p), _) => p,
-        (None, Some(c)) => compend::raster::ImageSize::new(c.x + c.width, c.y + c.height),
-        (None, None) => {
-            return Err(compend::Error::Input(format!(
-                "the model ({}) was trained on recorded data and records no projector canvas: \
-                 give --projector WxH",
-                model.meta.method
-            ))
-            .into());
-        }
-    };
+    let size = super::model_projector(&model, projector)?;
     let probe = source::media::probe(&film, source::MEDIA_CHECK_TIMEOUT)?;
     let fps = match probe.fps {
         Some(f) => f,

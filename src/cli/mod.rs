@@ -237,3 +237,32 @@ impl SetupArgs {
         compend::dataset::Setup::open(&self.setup, self.data.as_deref())
     }
 }
+
+/// The projector size a model plays at without a window (`play --no-window`, `compensate` of a
+/// film, `bench-media`): `given` (`--projector`), else the extent of the canvas the model
+/// records, else the projector size its calibration's captures record; an input error asking
+/// for `--projector` when none is known.
+pub fn model_projector(
+    model: &compend::model::Model,
+    given: Option<compend::raster::ImageSize>,
+) -> compend::Result<compend::raster::ImageSize> {
+    if let Some(p) = given {
+        return Ok(p);
+    }
+    if let Some(c) = model.meta.canvas {
+        return Ok(compend::raster::ImageSize::new(
+            c.x + c.width,
+            c.y + c.height,
+        ));
+    }
+    if let Some(setup) = model.meta.training.setup.as_deref()
+        && let Ok(Some(p)) = compend::calibrate::manifest::recorded_projector(setup)
+    {
+        return Ok(p);
+    }
+    Err(compend::Error::Input(format!(
+        "the model ({}) records no projector size (it was trained on recorded data, or its \
+         calibration's captures are gone): give --projector WxH",
+        model.meta.method
+    )))
+}

@@ -18,7 +18,7 @@ use compend::source::{self, AudioOut, FeedMode, SourceSpec, VideoSource};
 use compend::window::ProjectorWindow;
 
 #[derive(clap::Args, Debug)]
-#[command(after_help = const_format_help())]
+#[command(after_help = sources_and_outputs_help())]
 pub struct Args {
     /// The model directory (any method: linear, linear-sl, the CompenNet++ family). Without it,
     /// the running service (`compend serve`) is asked to play the source with its model.
@@ -70,6 +70,10 @@ pub struct Args {
     /// --pace source).
     #[arg(long, requires = "to", conflicts_with = "rig")]
     pub no_window: bool,
+    /// With --no-window: the projector's size, WxH [default: the one the model was calibrated
+    /// for].
+    #[arg(long, value_name = "WxH", requires = "no_window", value_parser = super::sim::parse_size)]
+    pub projector: Option<compend::raster::ImageSize>,
     /// Where a film's sound goes: a GStreamer audio sink (`autoaudiosink`, `alsasink
     /// device=hw:1`, `pulsesink`) or `none`. Sound plays only with --pace display.
     #[arg(long, value_name = "SINK", default_value = "autoaudiosink")]
@@ -86,7 +90,7 @@ pub struct Args {
 }
 
 /// The source and output spellings under `compend play --help`.
-fn const_format_help() -> String {
+fn sources_and_outputs_help() -> String {
     format!(
         "{}\n\n{}",
         compend::source::HELP,
@@ -290,7 +294,7 @@ fn play_headless(
     mode: FeedMode,
     out: Option<Output>,
 ) -> Result<PlayStats> {
-    let size = projector_size(model)?;
+    let size = super::model_projector(model, args.projector)?;
     let ctx = GpuContext::new()?;
     let range = model.display_range();
     let mut player = Player::start(&ctx, model, size, range, source, mode)?;
@@ -302,22 +306,6 @@ fn play_headless(
     );
     let mut screen = Headless::new(&ctx, args.fps);
     run_teed(&mut player, &mut screen, out, size, args.frames)
-}
-
-/// The projector size for output without a window: the one a calibration's canvas covers
-/// (`compend calibrate` places the canvas over the whole projector frame).
-fn projector_size(model: &Model) -> Result<compend::raster::ImageSize> {
-    let canvas = model.meta.canvas.ok_or_else(|| {
-        compend::Error::Input(format!(
-            "--no-window: the model ({}) was trained on recorded data and records no projector \
-             canvas; play it on the window or on the virtual rig",
-            model.meta.method
-        ))
-    })?;
-    Ok(compend::raster::ImageSize::new(
-        canvas.x + canvas.width,
-        canvas.y + canvas.height,
-    ))
 }
 
 /// Plays on the virtual rig (`scene_name`, or the rig the model was calibrated on) at `--fps`,
