@@ -143,7 +143,7 @@ pub fn run(args: Args) -> Result<()> {
     if !sync_film.exists() {
         make_film(
             &sync_film,
-            ImageSize::new(320, 240),
+            ImageSize::new(64, 48),
             args.film_fps,
             (args.marks as u64 + 1) * args.film_fps as u64,
             Some(args.film_fps),
@@ -180,7 +180,8 @@ pub fn run(args: Args) -> Result<()> {
 
 /// Makes a film: `frames` frames of `size` at `fps` with sound. `flash_every`: black frames
 /// with a white one every that many frames (from frame `fps`: one second in), and a 100 ms
-/// 1 kHz beep starting with each; otherwise a moving test picture and a steady tone.
+/// 1 kHz beep starting with each (pushed from here); otherwise GStreamer's moving ball and a
+/// steady tone.
 fn make_film(
     path: &Path,
     size: ImageSize,
@@ -190,6 +191,23 @@ fn make_film(
 ) -> Result<()> {
     let loc = path.to_str().context("a UTF-8 path")?;
     let (w, h) = (size.width, size.height);
+    if flash_every.is_none() {
+        // The content film from GStreamer's own test sources (a moving ball, a tone).
+        let encoder = if compend::media::has_element("x264enc") {
+            "x264enc speed-preset=veryfast bitrate=8000 key-int-max=30"
+        } else {
+            "openh264enc bitrate=8000000"
+        };
+        let desc = format!(
+            "videotestsrc num-buffers={frames} pattern=ball ! \
+             video/x-raw,width={w},height={h},framerate={fps}/1 ! videoconvert ! \
+             video/x-raw,format=I420 ! {encoder} ! h264parse ! mp4mux name=mux ! \
+             filesink location=\"{loc}\" audiotestsrc num-buffers={frames} \
+             samplesperbuffer={} ! audioconvert ! avenc_aac ! aacparse ! mux.",
+            44_100 / fps
+        );
+        return run_to_end(&desc, path);
+    }
     let encoder = if compend::media::has_element("x264enc") {
         "x264enc speed-preset=veryfast bitrate=8000 key-int-max=30"
     } else {
@@ -202,7 +220,8 @@ fn make_film(
          framerate={fps}/1\" ! videoconvert ! video/x-raw,format=I420 ! {encoder} ! h264parse ! \
          mp4mux name=mux ! filesink location=\"{loc}\" \
          appsrc name=a format=time caps=\"audio/x-raw,format=F32LE,rate=44100,channels=1,\
-         layout=interleaved\" ! audioconvert ! avenc_aac ! aacparse ! mux."
+         layout=interleaved\" ! queue max-size-buffers=0 max-size-bytes=0 max-size-time=0 ! \
+         audioconvert ! avenc_aac ! aacparse ! mux."
     );
     let p = gst::parse::launch(&desc)?
         .downcast::<gst::Pipeline>()
@@ -215,8 +234,14 @@ fn make_film(
         .by_name("a")
         .and_then(|e| e.downcast::<gstreamer_app::AppSrc>().ok())
         .context("audio appsrc")?;
+    // The sound is small: its source never blocks (an unbounded queue behind it), so the
+    // muxer always has the sound it waits for while the picture pushes back.
     v.set_block(true);
-    a.set_block(true);
+    // Room for a few frames: with less than one frame of room the picture's source waits on
+    // every frame and the muxer can starve.
+    v.set_max_bytes((w * h * 4 * 4) as u64);
+    a.set_block(false);
+    a.set_max_bytes(0);
     p.set_state(gst::State::Playing)?;
     let frame_ns = 1_000_000_000 / fps as u64;
     // A picture that moves (the decoder has work to do) or the flashes.
@@ -238,7 +263,6 @@ fn make_film(
             b.set_pts(gst::ClockTime::from_nseconds(n * frame_ns));
             b.set_duration(gst::ClockTime::from_nseconds(frame_ns));
         }
-        v.push_buffer(b)?;
         let samples: Vec<f32> = (0..spb)
             .map(|i| {
                 let t = i as f32 / 44_100.0;
@@ -260,9 +284,30 @@ fn make_film(
             ab.set_duration(gst::ClockTime::from_nseconds(frame_ns));
         }
         a.push_buffer(ab)?;
+        v.push_buffer(b)?;
     }
     v.end_of_stream()?;
     a.end_of_stream()?;
+    let bus = p.bus().context("bus")?;
+    let msg = bus
+        .timed_pop_filtered(
+            gst::ClockTime::from_seconds(600),
+            &[gst::MessageType::Eos, gst::MessageType::Error],
+        )
+        .context("the film was not written within 10 minutes")?;
+    p.set_state(gst::State::Null)?;
+    if let gst::MessageView::Error(e) = msg.view() {
+        bail!("making {}: {}", path.display(), e.error());
+    }
+    Ok(())
+}
+
+/// Runs a pipeline description to its end (10 minutes at most).
+fn run_to_end(desc: &str, path: &Path) -> Result<()> {
+    let p = gst::parse::launch(desc)?
+        .downcast::<gst::Pipeline>()
+        .map_err(|_| anyhow::anyhow!("not a pipeline"))?;
+    p.set_state(gst::State::Playing)?;
     let bus = p.bus().context("bus")?;
     let msg = bus
         .timed_pop_filtered(
