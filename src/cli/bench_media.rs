@@ -234,14 +234,12 @@ fn make_film(
         .by_name("a")
         .and_then(|e| e.downcast::<gstreamer_app::AppSrc>().ok())
         .context("audio appsrc")?;
-    // The sound is small: its source never blocks (an unbounded queue behind it), so the
-    // muxer always has the sound it waits for while the picture pushes back.
-    v.set_block(true);
-    // Room for a few frames: with less than one frame of room the picture's source waits on
-    // every frame and the muxer can starve.
-    v.set_max_bytes((w * h * 4 * 4) as u64);
-    a.set_block(false);
-    a.set_max_bytes(0);
+    // The sync film is small (64x48): both sources take everything at once (no limit, no
+    // waiting), so no push waits on a muxer that waits for the other stream.
+    for src in [&v, &a] {
+        src.set_block(false);
+        src.set_max_bytes(0);
+    }
     p.set_state(gst::State::Playing)?;
     let frame_ns = 1_000_000_000 / fps as u64;
     // A picture that moves (the decoder has work to do) or the flashes.
@@ -450,7 +448,13 @@ fn live_run(
 /// The flash-and-beep film on the virtual rig: when each flash is seen against when its beep
 /// is rendered.
 fn sync_run(model: &Model, film: &Path, args: &Args) -> Result<SyncRun> {
-    let (rig, range) = super::play::virtual_rig(model, None, None)?;
+    // The scene the model was calibrated on (`calibrate --rig virtual:SCENE` records it).
+    let scene = model
+        .meta
+        .calibration
+        .as_ref()
+        .and_then(|c| c.rig.strip_prefix("virtual:").map(str::to_string));
+    let (rig, range) = super::play::virtual_rig(model, scene.as_deref(), None)?;
     let ctx = GpuContext::new()?;
     let sim = rig.simulator();
     // The beep onsets, from the audio sink: an appsink on the pipeline's clock (it releases a
