@@ -286,18 +286,7 @@ fn make_film(
     }
     v.end_of_stream()?;
     a.end_of_stream()?;
-    let bus = p.bus().context("bus")?;
-    let msg = bus
-        .timed_pop_filtered(
-            gst::ClockTime::from_seconds(600),
-            &[gst::MessageType::Eos, gst::MessageType::Error],
-        )
-        .context("the film was not written within 10 minutes")?;
-    p.set_state(gst::State::Null)?;
-    if let gst::MessageView::Error(e) = msg.view() {
-        bail!("making {}: {}", path.display(), e.error());
-    }
-    Ok(())
+    wait_end(&p, path)
 }
 
 /// Runs a pipeline description to its end (10 minutes at most).
@@ -306,6 +295,11 @@ fn run_to_end(desc: &str, path: &Path) -> Result<()> {
         .downcast::<gst::Pipeline>()
         .map_err(|_| anyhow::anyhow!("not a pipeline"))?;
     p.set_state(gst::State::Playing)?;
+    wait_end(&p, path)
+}
+
+/// Waits for a playing pipeline writing `path` to end (10 minutes at most), then stops it.
+fn wait_end(p: &gst::Pipeline, path: &Path) -> Result<()> {
     let bus = p.bus().context("bus")?;
     let msg = bus
         .timed_pop_filtered(
