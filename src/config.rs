@@ -182,12 +182,7 @@ fn output_or_none<S: serde::Serializer>(
     s: S,
 ) -> std::result::Result<S::Ok, S::Error> {
     match v {
-        Some(crate::media::output::OutputSpec::File(p)) => {
-            s.collect_str(&format_args!("file:{}", p.display()))
-        }
-        Some(crate::media::output::OutputSpec::Pipeline(p)) => {
-            s.collect_str(&format_args!("gst:{p}"))
-        }
+        Some(o) => s.collect_str(o),
         None => s.serialize_str("none"),
     }
 }

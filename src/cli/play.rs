@@ -255,7 +255,7 @@ fn run_teed<S: Screen + ?Sized>(
     };
     let output = MediaOutput::start(&out.spec, size, fps, live)?;
     eprintln!(
-        "play: compensated frames also to {:?} at {fps:.3} fps",
+        "play: compensated frames also to {} at {fps:.3} fps",
         out.spec
     );
     let mut teed = Teed::new(screen, output);

@@ -46,6 +46,16 @@ pub enum OutputSpec {
     Pipeline(String),
 }
 
+impl std::fmt::Display for OutputSpec {
+    /// The spelling `--to` takes.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::File(p) => write!(f, "file:{}", p.display()),
+            Self::Pipeline(p) => write!(f, "gst:{p}"),
+        }
+    }
+}
+
 impl OutputSpec {
     /// For a service that plays many times into one configured file: the first free
     /// `NAME-0001.EXT`, `NAME-0002.EXT`, ... beside it (a pipeline is used as it is).

@@ -817,7 +817,7 @@ fn start_output(
     let spec = spec?.numbered();
     match MediaOutput::start(&spec, size, fps, true) {
         Ok(o) => {
-            tracing::info!("output: compensated frames also to {spec:?}");
+            tracing::info!("output: compensated frames also to {spec}");
             Some(o)
         }
         Err(e) => {
