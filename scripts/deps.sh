@@ -12,11 +12,15 @@
 #       v4l2sink, PulseAudio
 #     gstreamer1.0-plugins-bad: OpenH264 (H.264 encode and decode), AV1 (aom), shmsink, SRT
 #     gstreamer1.0-libav: FFmpeg's decoders: H.264, H.265, ProRes, HAP, AAC, AC-3, ...
+#     gstreamer1.0-alsa: alsasink, the sound card when no sound server runs
 #     gstreamer1.0-tools: gst-launch-1.0 and gst-inspect-1.0, to try a pipeline by hand
+#   chromium, chromium-driver: the console's page tested in a real browser (WebDriver)
+#   openssl: a certificate authority and a certificate for the console's HTTPS test
 set -euo pipefail
 pkgs=(mesa-vulkan-drivers libvulkan1 xvfb libclang-dev imagemagick systemd procps
   libgstreamer1.0-dev libgstreamer-plugins-base1.0-dev gstreamer1.0-plugins-base
-  gstreamer1.0-plugins-good gstreamer1.0-plugins-bad gstreamer1.0-libav gstreamer1.0-tools)
+  gstreamer1.0-plugins-good gstreamer1.0-plugins-bad gstreamer1.0-libav gstreamer1.0-alsa
+  gstreamer1.0-tools chromium chromium-driver openssl)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

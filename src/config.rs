@@ -151,8 +151,8 @@ pub struct PlaybackConfig {
 pub struct AudioConfig {
     /// Play the sound of films and streams.
     pub enabled: bool,
-    /// A GStreamer audio sink description: `autoaudiosink`, `alsasink device=hw:1`,
-    /// `pulsesink device=NAME`.
+    /// `auto` (PulseAudio or PipeWire, else ALSA's default device) or a GStreamer audio sink
+    /// description: `alsasink device=hw:1`, `pulsesink device=NAME`, `jackaudiosink`.
     pub device: String,
     /// A trim added to the measured picture latency the sound is delayed by, ms (positive:
     /// the sound later).
@@ -231,6 +231,54 @@ pub struct SocketConfig {
     pub tcp_token_file: Option<PathBuf>,
 }
 
+/// `[http]`: the operator's console (a web page), its event stream and metrics.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HttpConfig {
+    /// Where it listens (None: off). Loopback by default; another address needs `token_file`
+    /// and `allow`.
+    #[serde(serialize_with = "display_or_none")]
+    pub listen: Option<std::net::SocketAddr>,
+    /// The file holding the token a client from another machine gives (a header, or the login
+    /// page's cookie).
+    pub token_file: Option<PathBuf>,
+    /// Networks clients from other machines may come from (`10.0.0.0/24`); loopback always may.
+    #[serde(serialize_with = "displayed_list")]
+    pub allow: Vec<ipnet::IpNet>,
+    /// HTTPS: the certificate chain and its private key (PEM files); both or neither.
+    pub tls: Option<TlsFiles>,
+}
+
+/// A certificate chain and its private key, PEM files.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TlsFiles {
+    pub cert: PathBuf,
+    pub key: PathBuf,
+}
+
+fn displayed_list<T: std::fmt::Display, S: serde::Serializer>(
+    v: &[T],
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    s.collect_seq(v.iter().map(|x| x.to_string()))
+}
+
+/// `[osc]`: Open Sound Control for show-control software.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OscConfig {
+    /// The UDP address it listens on (None: off, the default).
+    #[serde(serialize_with = "display_or_none")]
+    pub listen: Option<std::net::SocketAddr>,
+    /// Networks senders on other machines may come from; loopback always may.
+    #[serde(serialize_with = "displayed_list")]
+    pub allow: Vec<ipnet::IpNet>,
+    /// Where the service's state and events are sent (`IP:PORT`).
+    #[serde(serialize_with = "displayed_list")]
+    pub peers: Vec<std::net::SocketAddr>,
+}
+
+/// The console's address unless `[http] listen` says otherwise.
+pub const DEFAULT_HTTP: &str = "127.0.0.1:7421";
+
 /// `[log]`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct LogConfig {
@@ -249,6 +297,8 @@ pub struct Config {
     pub output: OutputConfig,
     pub monitoring: MonitoringConfig,
     pub socket: SocketConfig,
+    pub http: HttpConfig,
+    pub osc: OscConfig,
     pub log: LogConfig,
 }
 
@@ -463,13 +513,10 @@ impl<'t> Walker<'t> {
             device: self.checked(
                 &mut t,
                 "device",
-                "autoaudiosink".to_string(),
+                crate::media::audio::AUTO.to_string(),
                 |s: &String| {
                     if s.trim().is_empty() {
-                        Err(
-                            "an empty sink; e.g. \"autoaudiosink\" or \"alsasink device=hw:1\""
-                                .into(),
-                        )
+                        Err("an empty sink; e.g. \"auto\" or \"alsasink device=hw:1\"".into())
                     } else {
                         Ok(())
                     }
@@ -525,6 +572,14 @@ impl<'t> Walker<'t> {
         let socket = self.socket(&mut t);
         self.finish(t);
 
+        let mut t = self.table(root, "http");
+        let http = self.http(&mut t);
+        self.finish(t);
+
+        let mut t = self.table(root, "osc");
+        let osc = self.osc(&mut t);
+        self.finish(t);
+
         let mut t = self.table(root, "log");
         let log = LogConfig {
             stats_period_s: self.positive(&mut t, "stats_period_s", 60.0),
@@ -540,6 +595,8 @@ impl<'t> Walker<'t> {
             output,
             monitoring,
             socket,
+            http,
+            osc,
             log,
         }
     }
@@ -833,6 +890,142 @@ impl<'t> Walker<'t> {
         }
     }
 
+    fn http(&mut self, t: &mut Table<'t>) -> HttpConfig {
+        let listen_span = span_of(t, "listen");
+        let listen = self
+            .parsed_with(t, "listen", |s: &str| {
+                if s == "off" {
+                    return Ok(None);
+                }
+                s.parse::<std::net::SocketAddr>().map(Some).map_err(|_| {
+                    format!(
+                        "\"{s}\" is not an address; expected IP:PORT such as \"{DEFAULT_HTTP}\", \
+                         or \"off\""
+                    )
+                })
+            })
+            .unwrap_or_else(|| DEFAULT_HTTP.parse().ok());
+        let token_file: Option<PathBuf> = self.get(t, "token_file");
+        let nets = self.networks(t);
+        if let Some(addr) = listen
+            && !addr.ip().is_loopback()
+        {
+            if token_file.is_none() {
+                self.error(
+                    listen_span.clone(),
+                    format!(
+                        "[http] listen = \"{addr}\" is reachable from other machines: it needs \
+                         token_file, a file holding the token their requests carry"
+                    ),
+                );
+            }
+            if nets.is_empty() {
+                self.error(
+                    listen_span,
+                    format!(
+                        "[http] listen = \"{addr}\" is reachable from other machines: it needs \
+                         allow, the networks they may come from (e.g. [\"10.0.0.0/24\"])"
+                    ),
+                );
+            }
+        }
+        let cert_span = span_of(t, "tls_cert");
+        let cert: Option<PathBuf> = self.get(t, "tls_cert");
+        let key_span = span_of(t, "tls_key");
+        let key: Option<PathBuf> = self.get(t, "tls_key");
+        let tls = match (cert, key) {
+            (Some(cert), Some(key)) => Some(TlsFiles { cert, key }),
+            (None, None) => None,
+            (Some(_), None) => {
+                self.error(
+                    cert_span,
+                    "[http] tls_cert needs tls_key, the certificate's private key".into(),
+                );
+                None
+            }
+            (None, Some(_)) => {
+                self.error(
+                    key_span,
+                    "[http] tls_key needs tls_cert, the certificate chain it signs for".into(),
+                );
+                None
+            }
+        };
+        HttpConfig {
+            listen,
+            token_file,
+            allow: nets,
+            tls,
+        }
+    }
+
+    /// `allow`: networks (`10.0.0.0/24`) or single addresses.
+    fn networks(&mut self, t: &mut Table<'t>) -> Vec<ipnet::IpNet> {
+        let span = span_of(t, "allow");
+        let allow: Vec<String> = self.get(t, "allow").unwrap_or_default();
+        let mut nets = Vec::new();
+        for a in &allow {
+            match a
+                .parse::<ipnet::IpNet>()
+                .or_else(|_| a.parse::<std::net::IpAddr>().map(ipnet::IpNet::from))
+            {
+                Ok(n) => nets.push(n),
+                Err(_) => self.error(
+                    span.clone(),
+                    format!(
+                        "[{}] allow: \"{a}\" is not a network; expected an address or \
+                         ADDRESS/BITS such as \"10.0.0.0/24\"",
+                        t.name
+                    ),
+                ),
+            }
+        }
+        nets
+    }
+
+    fn osc(&mut self, t: &mut Table<'t>) -> OscConfig {
+        let listen_span = span_of(t, "listen");
+        let listen = self.parsed_with(t, "listen", |s: &str| {
+            s.parse::<std::net::SocketAddr>().map_err(|_| {
+                format!("\"{s}\" is not an address; expected IP:PORT such as \"127.0.0.1:7422\"")
+            })
+        });
+        let allow = self.networks(t);
+        let peers_span = span_of(t, "peers");
+        let peers: Vec<String> = self.get(t, "peers").unwrap_or_default();
+        let mut addrs = Vec::new();
+        for p in &peers {
+            match p.parse::<std::net::SocketAddr>() {
+                Ok(a) => addrs.push(a),
+                Err(_) => self.error(
+                    peers_span.clone(),
+                    format!(
+                        "[osc] peers: \"{p}\" is not an address; expected IP:PORT such as \
+                         \"10.0.0.9:53000\""
+                    ),
+                ),
+            }
+        }
+        if let Some(addr) = listen
+            && !addr.ip().is_loopback()
+            && allow.is_empty()
+        {
+            self.error(
+                listen_span,
+                format!(
+                    "[osc] listen = \"{addr}\" is reachable from other machines: it needs allow, \
+                     the networks senders may come from (e.g. [\"10.0.0.0/24\"]); OSC carries no \
+                     token"
+                ),
+            );
+        }
+        OscConfig {
+            listen,
+            allow,
+            peers: addrs,
+        }
+    }
+
     /// Takes section `name` out of `root`; a missing one is empty.
     fn table(&mut self, root: &mut Table<'t>, name: &'static str) -> Table<'t> {
         let empty = Table {
@@ -1030,7 +1223,7 @@ impl<'t> Walker<'t> {
 }
 
 /// The sections, in the order of the shipped file.
-const SECTIONS: [&str; 9] = [
+const SECTIONS: [&str; 11] = [
     "rig",
     "paths",
     "calibration",
@@ -1039,6 +1232,8 @@ const SECTIONS: [&str; 9] = [
     "output",
     "monitoring",
     "socket",
+    "http",
+    "osc",
     "log",
 ];
 
@@ -1322,6 +1517,39 @@ mod tests {
         assert!(e.contains("t.toml:2: [monitoring] period_s"), "{e}");
         assert!(e.contains("t.toml:4: [rig] drift_after_s"), "{e}");
         assert!(parse("[monitoring]\nperiod_s = 86400\n").is_ok());
+    }
+
+    #[test]
+    fn the_console_listens_on_loopback_and_elsewhere_only_with_a_token_and_networks() {
+        let c = parse("").unwrap();
+        assert_eq!(c.http.listen, Some(DEFAULT_HTTP.parse().unwrap()));
+        let c = parse("[http]\nlisten = \"off\"\n").unwrap();
+        assert_eq!(c.http.listen, None);
+        let c = parse(
+            "[http]\nlisten = \"0.0.0.0:7421\"\ntoken_file = \"/etc/t\"\n\
+             allow = [\"10.0.0.0/24\", \"192.168.1.7\"]\n",
+        )
+        .unwrap();
+        assert_eq!(c.http.allow.len(), 2);
+        assert!(c.http.allow[1].contains(&"192.168.1.7".parse::<std::net::IpAddr>().unwrap()));
+        let e = parse("[http]\nlisten = \"0.0.0.0:7421\"\nallow = [\"10.0.0.0/33\"]\n")
+            .unwrap_err()
+            .to_string();
+        for want in [
+            "t.toml:2: [http] listen = \"0.0.0.0:7421\" is reachable from other machines: it \
+             needs token_file",
+            "it needs allow",
+            "t.toml:3: [http] allow: \"10.0.0.0/33\" is not a network",
+        ] {
+            assert!(e.contains(want), "{want:?} in:\n{e}");
+        }
+        let e = parse("[http]\nlisten = \"localhost\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("[http] listen: \"localhost\" is not an address"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -165,3 +165,52 @@ fn check<S: Space>(a: &Rgb<S>, b: &Rgb<S>) -> Result<()> {
     }
     Ok(())
 }
+
+/// How sharp a camera image is, for focusing: the variance of the 4-neighbour Laplacian of its
+/// luma (Rec. 709 weights on the encoded values), over the interior pixels. Larger is sharper;
+/// the figure depends on the scene, so it is compared while the focus ring turns, not across
+/// rigs. 0 for an image smaller than 3×3.
+pub fn sharpness<S: Space>(img: &Rgb<S>) -> f64 {
+    let (w, h) = (img.width(), img.height());
+    if w < 3 || h < 3 {
+        return 0.0;
+    }
+    let luma: Vec<f64> = img
+        .data()
+        .chunks_exact(3)
+        .map(|p| 0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2]))
+        .collect();
+    let (mut sum, mut sum2, mut n) = (0.0, 0.0, 0.0);
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let c = luma[y * w + x];
+            let l = luma[y * w + x - 1]
+                + luma[y * w + x + 1]
+                + luma[(y - 1) * w + x]
+                + luma[(y + 1) * w + x]
+                - 4.0 * c;
+            sum += l;
+            sum2 += l * l;
+            n += 1.0;
+        }
+    }
+    let mean = sum / n;
+    (sum2 / n - mean * mean).max(0.0)
+}
+
+/// The shares of pixels (0 to 1) with a channel at the top of the range (≥ 254.5/255: clipped
+/// highlights, the exposure is too long) and with every channel at the bottom (≤ 0.5/255:
+/// crushed shadows), in encoded values.
+pub fn clipping<S: Space>(img: &Rgb<S>) -> (f64, f64) {
+    let n = (img.width() * img.height()).max(1) as f64;
+    let (mut high, mut low) = (0usize, 0usize);
+    for p in img.data().chunks_exact(3) {
+        if p.iter().any(|&v| v >= 254.5 / 255.0) {
+            high += 1;
+        }
+        if p.iter().all(|&v| v <= 0.5 / 255.0) {
+            low += 1;
+        }
+    }
+    (high as f64 / n, low as f64 / n)
+}

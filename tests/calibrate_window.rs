@@ -47,12 +47,12 @@ const TINY: [&str; 15] = [
 
 /// `compend ARGS` on the display of `x`.
 fn on_display(x: &Xvfb, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_compend"))
-        .args(args)
-        .env("DISPLAY", &x.display)
-        .env_remove("WAYLAND_DISPLAY")
-        .output()
-        .expect("the compend binary runs")
+    crate::common::output_within(
+        Command::new(env!("CARGO_BIN_EXE_compend"))
+            .args(args)
+            .env("DISPLAY", &x.display)
+            .env_remove("WAYLAND_DISPLAY"),
+    )
 }
 
 /// The value of `key=` on the stderr line starting with `prefix`.

@@ -6,6 +6,7 @@ mod calibrate;
 mod calibrate_window;
 mod camera;
 mod common;
+mod console;
 mod dataset;
 mod files;
 mod fov;

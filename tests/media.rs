@@ -269,15 +269,15 @@ fn gst_pipelines_play_and_bad_media_is_refused_in_words() {
     );
     // A codec no installed plugin decodes (the H.264 decoders taken out of the registry's
     // choice): named, with the Debian package that decodes it.
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_compend"))
-        .args(["play", "--model", m, "--source", film.to_str().unwrap()])
-        .args(rig)
-        .env(
-            "GST_PLUGIN_FEATURE_RANK",
-            "avdec_h264:NONE,openh264dec:NONE",
-        )
-        .output()
-        .unwrap();
+    let o = crate::common::output_within(
+        std::process::Command::new(env!("CARGO_BIN_EXE_compend"))
+            .args(["play", "--model", m, "--source", film.to_str().unwrap()])
+            .args(rig)
+            .env(
+                "GST_PLUGIN_FEATURE_RANK",
+                "avdec_h264:NONE,openh264dec:NONE",
+            ),
+    );
     assert_code(&o, 2);
     let e = stderr(&o);
     assert!(

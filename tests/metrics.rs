@@ -206,3 +206,48 @@ fn bad_inputs_exit_2_and_name_the_file() {
     let out = compend(&["metrics", a]);
     assert_code(&out, 2);
 }
+
+#[test]
+fn sharpness_falls_as_an_image_blurs_and_clipping_counts_the_ends() {
+    use compend::raster::CamImage;
+    let sharp = CamImage::from_fn(40, 30, |x, y| {
+        let v = if (x / 4 + y / 4) % 2 == 0 { 0.8 } else { 0.2 };
+        [v; 3]
+    });
+    // A 3×3 box blur of it, then another.
+    let blur = |img: &CamImage| {
+        CamImage::from_fn(40, 30, |x, y| {
+            let mut s = 0.0;
+            let mut n = 0.0;
+            for dy in -1i32..=1 {
+                for dx in -1i32..=1 {
+                    let (xx, yy) = (x as i32 + dx, y as i32 + dy);
+                    if (0..40).contains(&xx) && (0..30).contains(&yy) {
+                        s += img.get(xx as usize, yy as usize)[0];
+                        n += 1.0;
+                    }
+                }
+            }
+            [s / n; 3]
+        })
+    };
+    let once = blur(&sharp);
+    let twice = blur(&once);
+    let (a, b, c) = (
+        compend::metrics::sharpness(&sharp),
+        compend::metrics::sharpness(&once),
+        compend::metrics::sharpness(&twice),
+    );
+    assert!(a > b && b > c && c > 0.0, "{a} {b} {c}");
+    assert_eq!(
+        compend::metrics::sharpness(&CamImage::filled(40, 30, [0.5; 3])),
+        0.0
+    );
+    // A quarter white, a quarter black, the rest in between.
+    let img = CamImage::from_fn(4, 4, |x, _| match x {
+        0 => [1.0, 0.3, 0.3],
+        1 => [0.0; 3],
+        _ => [0.5; 3],
+    });
+    assert_eq!(compend::metrics::clipping(&img), (0.25, 0.25));
+}

@@ -55,6 +55,9 @@ period_s = 0.5
 [socket]
 path = "{socket}"
 
+[http]
+listen = "127.0.0.1:0"
+
 [log]
 stats_period_s = 2.0
 "#,
@@ -204,7 +207,7 @@ fn unique(p: PathBuf) -> PathBuf {
     p
 }
 
-fn playing(s: &Value) -> bool {
+pub(crate) fn playing(s: &Value) -> bool {
     s["state"] == "playing" && s["frames"]["shown"].as_u64().unwrap_or(0) > 5
 }
 
@@ -214,7 +217,7 @@ pub(crate) fn client(args: &[&str], socket: &Path) -> std::process::Output {
     compend(&a)
 }
 
-fn gpu_or_skip() -> bool {
+pub(crate) fn gpu_or_skip() -> bool {
     crate::common::gpu().is_some()
 }
 
@@ -1422,7 +1425,7 @@ fn the_service_monitors_a_real_camera() {
             "[rig]\nkind = \"camera\"\ncamera = \"{camera}\"\nmonitor = \"{monitor}\"\n\
              [paths]\nstate = \"{}\"\n[calibration]\nntrain = 24\n\
              [playback]\nsource = \"pattern:bars\"\n[monitoring]\nperiod_s = 2.0\n\
-             [socket]\npath = \"{}\"\n",
+             [socket]\npath = \"{}\"\n[http]\nlisten = \"127.0.0.1:0\"\n",
             state.display(),
             socket.display()
         ),

@@ -301,7 +301,7 @@ fn write_config(args: &Args, dir: &Path, scene: &str, extra: (&str, &str)) -> Re
         "[rig]\nkind = \"virtual\"\nscene = {scene:?}\nseed = {seed}\ncamera_size = \"{cam}\"\n\
          projector = \"{prj}\"\nfps = {fps}\n{rig}\n\n[paths]\nstate = {state:?}\n\n\
          [calibration]\nntrain = {ntrain}\n\n[playback]\nsource = \"pattern:moving?size={prj}&fps={fps}\"\n\n\
-         [monitoring]\n{monitoring}\n\n[socket]\npath = {socket:?}\n\n[log]\nstats_period_s = 10.0\n",
+         [monitoring]\n{monitoring}\n\n[socket]\npath = {socket:?}\n\n[http]\nlisten = \"127.0.0.1:0\"\n\n[log]\nstats_period_s = 10.0\n",
         seed = args.seed,
         cam = args.camera,
         prj = args.projector,

@@ -74,9 +74,10 @@ pub struct Args {
     /// for].
     #[arg(long, value_name = "WxH", requires = "no_window", value_parser = super::sim::parse_size)]
     pub projector: Option<compend::raster::ImageSize>,
-    /// Where a film's sound goes: a GStreamer audio sink (`autoaudiosink`, `alsasink
-    /// device=hw:1`, `pulsesink`) or `none`. Sound plays only with --pace display.
-    #[arg(long, value_name = "SINK", default_value = "autoaudiosink")]
+    /// Where a film's sound goes: `auto` (PulseAudio or PipeWire, else ALSA's default
+    /// device), a GStreamer audio sink (`alsasink device=hw:1`, `pulsesink`, `jackaudiosink`)
+    /// or `none`. Sound plays only with --pace display.
+    #[arg(long, value_name = "SINK", default_value = "auto")]
     pub audio: String,
     /// A trim of the sound's delay, ms, added to the measured picture latency (positive: the
     /// sound later).

@@ -39,5 +39,5 @@ mod validate;
 pub use info::{References, SetCounts, SetupInfo};
 pub use names::{parse_indexed_name, scan_indices};
 pub use root::{DataRoot, GRAY_INPUT_NAME, ProjectorSet};
-pub use setup::{CaptureSet, Pairs, Reference, Setup, loop_desired_dir};
+pub use setup::{CaptureSet, Pairs, Reference, Setup, loop_desired_dir, unreachable_path_of};
 pub use validate::Validation;

@@ -97,6 +97,12 @@ pub struct Pairs {
     pub inputs: Vec<PrjImage>,
 }
 
+/// `cam/unreachable.png` of the setup folder `setup` ([`Setup::unreachable_path`]), for a reader
+/// that has the folder's path from a record and does not open the setup.
+pub fn unreachable_path_of(setup: &Path) -> PathBuf {
+    setup.join("cam").join("unreachable.png")
+}
+
 /// A setup: a folder of captures under (usually) a data root.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Setup {
@@ -194,7 +200,7 @@ impl Setup {
     /// `cam/unreachable.png`: where in the displayable area no model can compensate, and why
     /// ([`crate::fov::Reach::picture`]), as calibration found it.
     pub fn unreachable_path(&self) -> PathBuf {
-        self.path.join("cam").join("unreachable.png")
+        unreachable_path_of(&self.path)
     }
 
     /// `cam/desire/test`: desired viewer images z' in camera view.

@@ -1,12 +1,13 @@
 //! GStreamer, the media stack compend plays and writes media through (shell): starting it once
 //! per process, turning its errors into messages a person can act on ([`fault`]), watching a
-//! pipeline's bus ([`Watch`]), and the outputs that send compensated frames to other software
+//! pipeline's bus ([`Watch`]), choosing a sound output ([`audio`]), and the outputs that send compensated frames to other software
 //! ([`output`]). The video sources built on it live in [`crate::source::media`].
 //!
 //! Frames cross into and out of GStreamer as 8-bit RGBA, sRGB-encoded as stored (content pixels
 //! on the way in, projector pixels on the way out); timestamps are GStreamer clock times in
 //! nanoseconds.
 
+pub mod audio;
 pub mod fault;
 pub mod output;
 

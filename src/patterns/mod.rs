@@ -9,9 +9,11 @@
 
 pub mod graycode;
 pub mod sampling;
+pub mod setup;
 
 pub use graycode::{Correspondence, DecodeParams, Decoder, GrayCode, PatternKind};
 pub use sampling::{Set, sampling_image};
+pub use setup::{SETUP_PATTERNS, SetupPattern};
 
 use crate::error::{Error, Result};
 use crate::raster::PrjImage;

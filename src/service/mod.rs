@@ -21,11 +21,15 @@
 mod climb;
 mod devices;
 pub mod engine;
+pub mod events;
+pub mod http;
 mod monitor;
 pub mod notify;
+pub mod osc;
 pub mod protocol;
 mod screen;
 pub mod socket;
+pub mod views;
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -73,6 +77,10 @@ pub struct Shared {
     pub cancel: Arc<AtomicBool>,
     /// Set once the service is shutting down.
     closing: AtomicBool,
+    /// What happened, for subscribers ([`events`]).
+    pub hub: events::Hub,
+    /// What the camera saw, for the console ([`views`]).
+    pub views: views::Views,
 }
 
 impl Shared {
@@ -94,11 +102,16 @@ impl Shared {
                 last_calibration: None,
                 last_climb: None,
                 last_error: None,
+                http: None,
+                osc: None,
+                setup: None,
             }),
             events,
             started: Instant::now(),
             cancel: Arc::new(AtomicBool::new(false)),
             closing: AtomicBool::new(false),
+            hub: events::Hub::default(),
+            views: views::Views::default(),
         }
     }
 
@@ -114,9 +127,42 @@ impl Shared {
         s
     }
 
-    /// Changes the status.
+    /// Changes the status, and publishes what the change moved ([`events::Watched`]).
     pub fn update(&self, f: impl FnOnce(&mut Status)) {
-        f(&mut self.lock());
+        let drafts = {
+            let mut s = self.lock();
+            let before = events::Watched::of(&s);
+            f(&mut s);
+            let after = events::Watched::of(&s);
+            if after == before {
+                return;
+            }
+            before.changes(&after, &s)
+        };
+        for d in drafts {
+            self.hub.publish(d);
+        }
+    }
+
+    /// Says in the log and to subscribers that `origin` asked `request` and how it ended.
+    pub fn requested(&self, origin: &str, request: &Request, reply: &Reply) {
+        let asked = serde_json::to_string(request).unwrap_or_else(|_| format!("{request:?}"));
+        let asked = clipped(&asked);
+        let outcome = match (&reply.error, &reply.message) {
+            (Some(e), _) => format!("refused: {e}"),
+            (None, Some(m)) => m.clone(),
+            (None, None) => "done".to_string(),
+        };
+        let outcome = clipped(&outcome);
+        if reply.ok {
+            tracing::info!("request from {origin}: {asked}: {outcome}");
+        } else {
+            tracing::warn!("request from {origin}: {asked}: {outcome}");
+        }
+        let mut d = events::Draft::new(events::Kind::Request, format!("{asked}: {outcome}"));
+        d.origin = Some(origin.to_string());
+        d.ok = Some(reply.ok);
+        self.hub.publish(d);
     }
 
     /// Sends a request to the engine; false once the service is shutting down. A `stop` also
@@ -223,26 +269,41 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
         let prj = r.projector.unwrap_or(scene.projector.size());
         scene.with_resolution(cam, prj).validate()?;
     }
-    if let (Some(_), Some(file)) = (config.socket.tcp, &config.socket.tcp_token_file) {
-        if for_service {
-            socket::Token::read(file)?;
-        } else {
-            match std::fs::metadata(file) {
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                    return Err(Error::Input(format!(
-                        "[socket] tcp_token_file = \"{}\": no such file",
-                        file.display()
-                    )));
-                }
-                Ok(m) if !m.is_file() => {
-                    return Err(Error::Input(format!(
-                        "[socket] tcp_token_file = \"{}\": not a plain file (a folder, a FIFO \
-                         or a device)",
-                        file.display()
-                    )));
-                }
-                _ => {}
+    let tokens = [
+        (
+            "[socket] tcp_token_file",
+            config.socket.tcp.and(config.socket.tcp_token_file.as_ref()),
+        ),
+        (
+            "[http] token_file",
+            config.http.listen.and(config.http.token_file.as_ref()),
+        ),
+    ];
+    let tls = config.http.listen.and(config.http.tls.as_ref());
+    let tokens = tokens.into_iter().chain([
+        ("[http] tls_cert", tls.map(|t| &t.cert)),
+        ("[http] tls_key", tls.map(|t| &t.key)),
+    ]);
+    for (key, file) in tokens {
+        let Some(file) = file else { continue };
+        if for_service && !key.contains("tls_") {
+            socket::Token::read(file, key)?;
+            continue;
+        }
+        match std::fs::metadata(file) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(Error::Input(format!(
+                    "{key} = \"{}\": no such file",
+                    file.display()
+                )));
             }
+            Ok(m) if !m.is_file() => {
+                return Err(Error::Input(format!(
+                    "{key} = \"{}\": not a plain file (a folder, a FIFO or a device)",
+                    file.display()
+                )));
+            }
+            _ => {}
         }
     }
     for (key, dir) in [
@@ -290,11 +351,26 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
     // device is opened. The TCP port before the Unix socket, which a failure would leave behind.
     let tcp = match (config.socket.tcp, &config.socket.tcp_token_file) {
         (Some(addr), Some(file)) => {
-            let token = socket::Token::read(file)?;
+            let token = socket::Token::read(file, "[socket] tcp_token_file")?;
             let _guard = runtime.enter();
             Some((socket::bind_tcp(addr)?, token, addr))
         }
         _ => None,
+    };
+    let console = {
+        let _guard = runtime.enter();
+        match http::bind(&config.http)? {
+            Some(l) => Some((
+                l,
+                http::tls_config(&config.http)?,
+                Arc::new(http::Console::new(&config.http, shared.clone())?),
+            )),
+            None => None,
+        }
+    };
+    let osc = {
+        let _guard = runtime.enter();
+        osc::bind(&config.osc)?
     };
     let (listener, access) = {
         let _guard = runtime.enter();
@@ -305,6 +381,32 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
     if let Some((listener, token, addr)) = tcp {
         tracing::info!("control port: listening on {addr} (requests carry the token)");
         runtime.spawn(socket::serve_tcp(listener, token, shared.clone()));
+    }
+    if let Some((listener, tls, console)) = console {
+        let addr = listener
+            .local_addr()
+            .map_or_else(|_| "?".to_string(), |a| a.to_string());
+        let scheme = if tls.is_some() { "https" } else { "http" };
+        tracing::info!("console: {scheme}://{addr}/");
+        if tls.is_none() && config.http.listen.is_some_and(|a| !a.ip().is_loopback()) {
+            tracing::warn!(
+                "console: plain HTTP on {addr}: its token crosses the network in clear; set \
+                 [http] tls_cert and tls_key, or reach it through SSH"
+            );
+        }
+        shared.update(|s| s.http = Some(addr));
+        runtime.spawn(http::serve(listener, tls, console));
+    }
+    if let Some(sock) = osc {
+        let addr = sock
+            .local_addr()
+            .map_or_else(|_| "?".to_string(), |a| a.to_string());
+        tracing::info!(
+            "osc: listening on udp {addr}; events to {} peer(s)",
+            config.osc.peers.len()
+        );
+        shared.update(|s| s.osc = Some(addr));
+        runtime.spawn(osc::serve(sock, config.osc.clone(), shared.clone()));
     }
     runtime.spawn(signals(shared.clone(), reload));
     let result = engine::Engine::start(config, shared.clone(), rx).and_then(|engine| engine.run());

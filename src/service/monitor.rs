@@ -134,6 +134,7 @@ impl Tap {
                 return;
             }
         };
+        shared.views.set_pair(&desired, view, area);
         let baseline = {
             let mut b = self.baseline.lock().unwrap_or_else(|e| e.into_inner());
             *b.get_or_insert(s.psnr)
@@ -304,6 +305,7 @@ pub(super) fn watch_camera<C: FrameSource + ?Sized>(
             },
         };
         let arrival = Instant::now();
+        shared.views.offer_camera(&frame.image);
         if let Some(c) = &mut clock {
             c.observe(&frame, arrival);
         } else if let Some(f) = &mut finder {

@@ -70,6 +70,11 @@ pub enum Request {
     Model {
         path: PathBuf,
     },
+    /// The setup view: a test pattern projected as it is, the camera watched at its full rate.
+    Setup {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pattern: Option<String>,
+    },
     Stop,
 }
 
@@ -108,6 +113,29 @@ impl Request {
     /// Parses one request line (without its newline). The error says what was wrong and what
     /// is expected, for the reply.
     pub fn parse(line: &[u8]) -> Result<Self, String> {
+        Self::parse_with_id(line).0
+    }
+
+    /// [`Request::parse`], and the request's `request_id` (any request may carry one: a
+    /// number, or a string of at most 64 bytes), which the reply echoes whether the request
+    /// was good or not; None when absent or unreadable.
+    pub fn parse_with_id(line: &[u8]) -> (Result<Self, String>, Option<serde_json::Value>) {
+        let id = std::str::from_utf8(line)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(t.trim()).ok())
+            .and_then(|v| v.get("request_id").cloned());
+        let result = match &id {
+            Some(serde_json::Value::Number(_)) | None => Self::parse_line(line),
+            Some(serde_json::Value::String(s)) if s.len() <= 64 => Self::parse_line(line),
+            Some(_) => Err(
+                "bad request: `request_id` must be a number or a string of at most 64 bytes".into(),
+            ),
+        };
+        let id = id.filter(|v| v.is_number() || v.as_str().is_some_and(|s| s.len() <= 64));
+        (result, id)
+    }
+
+    fn parse_line(line: &[u8]) -> Result<Self, String> {
         let text = std::str::from_utf8(line)
             .map_err(|e| format!("the request is not UTF-8 text (byte {})", e.valid_up_to()))?;
         let text = text.trim();
@@ -118,7 +146,7 @@ impl Request {
         }
         const EXPECTED: &str = "expected a JSON object with \"cmd\": one of status, \
                                 calibrate, recalibrate, play, pause, seek, next, previous, \
-                                model, stop";
+                                model, setup, stop";
         let value: serde_json::Value =
             serde_json::from_str(text).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
         // A JSON value keeps the last of a key given twice, so `{"cmd":"status","cmd":"stop"}`
@@ -135,9 +163,13 @@ impl Request {
                 "play" => &["cmd", "source"],
                 "model" => &["cmd", "path"],
                 "seek" => &["cmd", "position_s"],
+                "setup" => &["cmd", "pattern"],
                 _ => &["cmd"],
             };
-            if let Some(extra) = object.keys().find(|k| !allowed.contains(&k.as_str())) {
+            if let Some(extra) = object
+                .keys()
+                .find(|k| !allowed.contains(&k.as_str()) && *k != "request_id")
+            {
                 return Err(format!(
                     "bad request: unknown field `{extra}` for \"{cmd}\"; it takes {}",
                     match allowed {
@@ -147,8 +179,17 @@ impl Request {
                 ));
             }
         }
+        let mut value = value;
+        if let Some(o) = value.as_object_mut() {
+            o.remove("request_id");
+        }
         let request: Self =
             serde_json::from_value(value).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
+        if let Request::Setup { pattern: Some(p) } = &request
+            && let Err(e) = p.parse::<crate::patterns::SetupPattern>()
+        {
+            return Err(format!("bad request: {e}"));
+        }
         if let Request::Seek { position_s } = &request
             && !(position_s.is_finite() && *position_s >= 0.0)
         {
@@ -184,6 +225,8 @@ pub enum State {
     Training,
     /// Projecting held-out test images compensated and uncompensated, scoring them.
     Verifying,
+    /// The setup view: a test pattern up, the camera watched for aim, focus and exposure.
+    Setup,
     /// Playing the source through the model.
     Playing,
     /// Asked to pause; the projector shows black.
@@ -199,6 +242,7 @@ impl State {
             State::Calibrating => "calibrating",
             State::Training => "training",
             State::Verifying => "verifying",
+            State::Setup => "setup",
             State::Playing => "playing",
             State::Paused => "paused",
             State::Stopping => "stopping",
@@ -217,6 +261,13 @@ pub struct ModelStatus {
     /// it replaced.
     #[serde(default)]
     pub climb: Option<ClimbRecord>,
+    /// The share of the displayable area no model can compensate, and why, as its calibration
+    /// found it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unreachable: Option<crate::fov::ReachSummary>,
+    /// The captures it was trained on (their `cam/unreachable.png` shows where).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub setup: Option<PathBuf>,
 }
 
 impl ModelStatus {
@@ -235,6 +286,12 @@ impl ModelStatus {
                 .calibration
                 .as_ref()
                 .and_then(|c| c.climb.clone()),
+            unreachable: model
+                .meta
+                .calibration
+                .as_ref()
+                .and_then(|c| c.unreachable.clone()),
+            setup: model.meta.training.setup.clone(),
         }
     }
 }
@@ -315,6 +372,22 @@ pub struct ClimbOutcome {
     pub message: String,
 }
 
+/// The setup view: what the camera sees of a test pattern.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SetupStatus {
+    /// The pattern up: grid, crosshair, white or black.
+    pub pattern: String,
+    /// Camera frames looked at so far.
+    pub frames: u64,
+    /// How sharp the last frame is ([`crate::metrics::sharpness`]): turn the focus ring for the
+    /// largest.
+    pub sharpness: f64,
+    /// Its pixels with a channel at full scale, percent: above a few, shorten the exposure.
+    pub clipped_pct: f64,
+    /// Its pixels black in every channel, percent.
+    pub crushed_pct: f64,
+}
+
 /// What `status` answers.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Status {
@@ -343,6 +416,15 @@ pub struct Status {
     pub last_climb: Option<ClimbOutcome>,
     /// The last thing that went wrong, for the operator.
     pub last_error: Option<String>,
+    /// The console's address (`[http] listen`, the port chosen when it was 0); None: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub http: Option<String>,
+    /// The setup view's figures, while it is up.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub setup: Option<SetupStatus>,
+    /// The OSC port (`[osc] listen`, the port chosen when it was 0); None: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub osc: Option<String>,
 }
 
 /// A reply.
@@ -355,6 +437,9 @@ pub struct Reply {
     pub message: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub status: Option<Box<Status>>,
+    /// The request's `request_id`, echoed (a number or a string the client chose).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub request_id: Option<serde_json::Value>,
 }
 
 impl Reply {
@@ -364,6 +449,7 @@ impl Reply {
             error: None,
             message: Some(message.into()),
             status: None,
+            request_id: None,
         }
     }
 
@@ -373,6 +459,7 @@ impl Reply {
             error: Some(error.into()),
             message: None,
             status: None,
+            request_id: None,
         }
     }
 
@@ -382,6 +469,7 @@ impl Reply {
             error: None,
             message: None,
             status: Some(Box::new(status)),
+            request_id: None,
         }
     }
 
@@ -440,6 +528,24 @@ mod tests {
             let e = Request::parse(bad).unwrap_err();
             assert!(!e.is_empty());
         }
+    }
+
+    #[test]
+    fn a_request_id_is_taken_out_and_given_back_even_for_a_bad_request() {
+        let (r, id) = Request::parse_with_id(br#"{"cmd":"pause","request_id":7}"#);
+        assert_eq!(r, Ok(Request::Pause));
+        assert_eq!(id, Some(serde_json::json!(7)));
+        let (r, id) = Request::parse_with_id(br#"{"cmd":"dance","request_id":"a-1"}"#);
+        assert!(r.is_err());
+        assert_eq!(id, Some(serde_json::json!("a-1")));
+        let (r, id) = Request::parse_with_id(br#"{"cmd":"pause","request_id":[1]}"#);
+        assert!(r.unwrap_err().contains("request_id"));
+        assert_eq!(id, None);
+        let (r, _) = Request::parse_with_id(br#"{"cmd":"pause","request_id":1,"request_id":2}"#);
+        assert!(r.unwrap_err().contains("given twice"));
+        let mut reply = Reply::ok("paused");
+        reply.request_id = Some(serde_json::json!(7));
+        assert!(reply.to_line().contains("\"request_id\":7"));
     }
 
     #[test]

@@ -152,32 +152,33 @@ impl std::fmt::Debug for Token {
 }
 
 impl Token {
-    /// Reads the token from `path`: its text without surrounding white space, at least
-    /// [`MIN_TOKEN_BYTES`] long. A file others may read is used, with a warning.
-    pub fn read(path: &Path) -> Result<Self> {
+    /// Reads the token from `path`, the file the configuration's `key` names: its text without
+    /// surrounding white space, at least [`MIN_TOKEN_BYTES`] long. A file others may read is
+    /// used, with a warning.
+    pub fn read(path: &Path, key: &str) -> Result<Self> {
         let text = crate::files::read_text(path, "a token file").map_err(|e| match e {
             Error::Missing { .. } => Error::Input(format!(
-                "[socket] tcp_token_file: {} does not exist; write a random token into it (e.g. \
+                "{key}: {} does not exist; write a random token into it (e.g. \
                  `openssl rand -hex 32 > {0}`) that only the service's user and group may read \
                  (mode 600 or 640, owned by that user or in that group)",
                 path.display()
             )),
             Error::Io { source, .. } if source.kind() == std::io::ErrorKind::PermissionDenied => {
                 Error::Input(format!(
-                    "[socket] tcp_token_file: {} cannot be read by this user ({source}); let \
+                    "{key}: {} cannot be read by this user ({source}); let \
                      the service's user read it",
                     path.display()
                 ))
             }
             Error::Input(m) => Error::Input(format!(
-                "[socket] tcp_token_file: {m}; expected a token such as 64 hex digits"
+                "{key}: {m}; expected a token such as 64 hex digits"
             )),
             e => e,
         })?;
         let token = text.trim();
         if token.len() < MIN_TOKEN_BYTES || token.chars().any(char::is_whitespace) {
             return Err(Error::Input(format!(
-                "[socket] tcp_token_file: {} must hold one token of at least {MIN_TOKEN_BYTES} \
+                "{key}: {} must hold one token of at least {MIN_TOKEN_BYTES} \
                  characters without spaces (it holds {} characters{})",
                 path.display(),
                 token.chars().count(),
@@ -194,7 +195,7 @@ impl Token {
             && others_may_read(meta.permissions().mode(), meta.gid(), own_gid)
         {
             tracing::warn!(
-                "[socket] tcp_token_file: {} may be read by users outside the service's user and \
+                "{key}: {} may be read by users outside the service's user and \
                  group (mode {:o}, group id {}); chmod 600 it, or give it the service's group and \
                  chmod 640",
                 path.display(),
@@ -206,7 +207,7 @@ impl Token {
     }
 
     /// Whether `given` is the token; in time that does not depend on where they differ.
-    fn matches(&self, given: &[u8]) -> bool {
+    pub(crate) fn matches(&self, given: &[u8]) -> bool {
         let want = self.0.as_slice();
         let mut diff = want.len() ^ given.len();
         for (i, &w) in want.iter().enumerate() {
@@ -451,7 +452,8 @@ pub async fn serve_tcp(listener: TcpListener, token: Token, shared: Arc<Shared>)
         let (token, shared) = (token.clone(), shared.clone());
         async move {
             let (read, write) = stream.into_split();
-            requests(read, write, &shared, Some((&token, peer)), lease).await
+            let origin = format!("tcp {peer}");
+            requests(read, write, (&shared, &origin), Some((&token, peer)), lease).await
         }
     })
     .await
@@ -481,7 +483,8 @@ async fn client(
         write.write_all(reply.to_line().as_bytes()).await?;
         return Ok(());
     }
-    requests(read, write, shared, None, lease).await
+    let origin = format!("unix uid {}", cred.uid());
+    requests(read, write, (shared, &origin), None, lease).await
 }
 
 /// A connection's requests in order, one reply each, until the client hangs up or its `lease`
@@ -491,7 +494,7 @@ async fn client(
 async fn requests<R, W>(
     read: R,
     mut write: W,
-    shared: &Shared,
+    (shared, origin): (&Shared, &str),
     token: Option<(&Token, std::net::SocketAddr)>,
     lease: Lease,
 ) -> std::io::Result<()>
@@ -520,16 +523,24 @@ where
             Line::TooLong => Reply::error(format!(
                 "request longer than {MAX_REQUEST_BYTES} bytes; it was skipped"
             )),
-            Line::Complete => match token {
-                None => answer(&line, shared).await,
-                Some((token, peer)) => match token.strip(&line) {
-                    Ok(request) => answer(&request, shared).await,
-                    Err(reply) => {
-                        tracing::warn!("control port: refused {peer}: no token, or the wrong one");
-                        return reply_and_close(&mut read, &mut write, &reply, lease).await;
-                    }
-                },
-            },
+            Line::Complete => {
+                let request = match token {
+                    None => std::mem::take(&mut line),
+                    Some((token, peer)) => match token.strip(&line) {
+                        Ok(request) => request,
+                        Err(reply) => {
+                            tracing::warn!(
+                                "control port: refused {peer}: no token, or the wrong one"
+                            );
+                            return reply_and_close(&mut read, &mut write, &reply, lease).await;
+                        }
+                    },
+                };
+                if let Some(id) = subscription(&request) {
+                    return subscribe(&mut read, &mut write, (shared, origin), id, lease).await;
+                }
+                answer(&request, shared, origin).await
+            }
         };
         let text = reply.to_line();
         match tokio::time::timeout(WRITE_TIMEOUT, write.write_all(text.as_bytes())).await {
@@ -621,30 +632,119 @@ async fn read_line<R: tokio::io::AsyncBufRead + Unpin>(
     }
 }
 
-/// The reply to one request line.
-async fn answer(line: &[u8], shared: &Shared) -> Reply {
-    let request = match Request::parse(line) {
-        Ok(r) => r,
-        Err(e) => return Reply::error(e),
+/// Whether `line` is `{"cmd":"subscribe"}` (with a `request_id`, or not): Some(its id).
+fn subscription(line: &[u8]) -> Option<Option<serde_json::Value>> {
+    let v: serde_json::Value = serde_json::from_slice(line).ok()?;
+    let o = v.as_object()?;
+    if o.get("cmd")?.as_str()? != "subscribe" || o.keys().any(|k| k != "cmd" && k != "request_id") {
+        return None;
+    }
+    Some(o.get("request_id").cloned())
+}
+
+/// `subscribe`: the connection becomes a stream of the service's events, one line each
+/// (`{"event":{...}}`, as the console's `/api/events`), until the client hangs up or the service
+/// stops; what the client sends after it is read and dropped. A subscriber that falls behind by
+/// more than the hub keeps is sent `{"lagged":N}` and goes on. Subscribers are never closed to
+/// make room; there are at most [`super::events::MAX_SUBSCRIBERS`] at once, over all surfaces.
+async fn subscribe<R, W>(
+    read: &mut R,
+    write: &mut W,
+    (shared, origin): (&Shared, &str),
+    id: Option<serde_json::Value>,
+    lease: Lease,
+) -> std::io::Result<()>
+where
+    R: tokio::io::AsyncBufRead + Unpin,
+    W: tokio::io::AsyncWrite + Unpin,
+{
+    let Some(_slot) = shared.hub.slot() else {
+        let mut reply = Reply::error(format!(
+            "{} subscribers are connected already; close one",
+            super::events::MAX_SUBSCRIBERS
+        ));
+        reply.request_id = id;
+        send_line(write, reply.to_line()).await?;
+        lease.answered(true);
+        return Ok(());
     };
+    let mut rx = shared.hub.subscribe();
+    let mut reply = Reply::ok("subscribed: one event per line from now on");
+    reply.request_id = id;
+    send_line(write, reply.to_line()).await?;
+    tracing::info!("{origin} subscribed to the events");
+    loop {
+        let line = tokio::select! {
+            got = rx.recv() => match got {
+                Ok(e) => format!("{}\n", serde_json::json!({ "event": e })),
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                    format!("{}\n", serde_json::json!({ "lagged": n }))
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => return Ok(()),
+            },
+            more = read.fill_buf() => {
+                let n = more?.len();
+                if n == 0 {
+                    return Ok(());
+                }
+                read.consume(n);
+                continue;
+            }
+        };
+        send_line(write, line).await?;
+    }
+}
+
+/// Writes `text` within [`WRITE_TIMEOUT`].
+async fn send_line<W: tokio::io::AsyncWrite + Unpin>(
+    w: &mut W,
+    text: String,
+) -> std::io::Result<()> {
+    match tokio::time::timeout(WRITE_TIMEOUT, w.write_all(text.as_bytes())).await {
+        Ok(r) => r,
+        Err(_) => Err(std::io::Error::new(
+            std::io::ErrorKind::TimedOut,
+            "the client did not read what it was sent",
+        )),
+    }
+}
+
+/// The reply to one request line from `origin`.
+async fn answer(line: &[u8], shared: &Shared, origin: &str) -> Reply {
+    let (parsed, id) = Request::parse_with_id(line);
+    let mut reply = match parsed {
+        Ok(r) => dispatch(r, shared, origin).await,
+        Err(e) => Reply::error(e),
+    };
+    reply.request_id = id;
+    reply
+}
+
+/// The reply to `request` from `origin` (`unix uid 1000`, `tcp 127.0.0.1:50312`, `http ...`):
+/// `status` from the shared snapshot, the others from the engine. Every request but `status`
+/// is logged and published with its origin and outcome.
+pub(super) async fn dispatch(request: Request, shared: &Shared, origin: &str) -> Reply {
     if request == Request::Status {
         return Reply::status(shared.status());
     }
     let (tx, rx) = oneshot::channel();
-    if !shared.send(Envelope {
-        request,
+    let reply = if !shared.send(Envelope {
+        request: request.clone(),
         reply: Some(tx),
     }) {
-        return Reply::error("the service is shutting down");
-    }
-    match tokio::time::timeout(ENGINE_TIMEOUT, rx).await {
-        Ok(Ok(reply)) => reply,
-        Ok(Err(_)) => Reply::error("the service is shutting down"),
-        Err(_) => Reply::error(format!(
-            "the service did not answer within {} s; see compend status",
-            ENGINE_TIMEOUT.as_secs()
-        )),
-    }
+        Reply::error("the service is shutting down")
+    } else {
+        match tokio::time::timeout(ENGINE_TIMEOUT, rx).await {
+            Ok(Ok(reply)) => reply,
+            Ok(Err(_)) => Reply::error("the service is shutting down"),
+            Err(_) => Reply::error(format!(
+                "the service did not answer within {} s; see compend status",
+                ENGINE_TIMEOUT.as_secs()
+            )),
+        }
+    };
+    shared.requested(origin, &request, &reply);
+    reply
 }
 
 /// Connects to the service's socket, sends one request and returns its reply (the clients:
@@ -969,15 +1069,19 @@ mod tests {
     fn a_token_file_must_hold_a_long_token() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("token");
-        let e = Token::read(&path).unwrap_err().to_string();
+        let e = Token::read(&path, "[socket] tcp_token_file")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("does not exist") && e.contains("token"), "{e}");
         std::fs::write(&path, "short\n").unwrap();
-        let e = Token::read(&path).unwrap_err().to_string();
+        let e = Token::read(&path, "[socket] tcp_token_file")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("at least 16") && e.contains("holds 5"), "{e}");
         std::fs::write(&path, "two words that are long enough\n").unwrap();
-        assert!(Token::read(&path).is_err());
+        assert!(Token::read(&path, "[socket] tcp_token_file").is_err());
         std::fs::write(&path, "  0123456789abcdef0123\n").unwrap();
-        let t = Token::read(&path).unwrap();
+        let t = Token::read(&path, "[socket] tcp_token_file").unwrap();
         assert!(t.matches(b"0123456789abcdef0123"));
         assert!(!t.matches(b""));
     }

@@ -37,8 +37,8 @@ use crate::raster::ImageSize;
 /// Where the sound goes.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AudioOut {
-    /// A GStreamer audio sink description (`autoaudiosink`, `alsasink device=hw:1`,
-    /// `pulsesink device=...`); None: no sound.
+    /// A GStreamer audio sink description (`alsasink device=hw:1`, `pulsesink device=...`)
+    /// or `auto` ([`media::audio`]); None: no sound.
     pub sink: Option<String>,
     /// A trim added to the measured picture latency, ms (negative: the sound earlier).
     pub delay_ms: f64,
@@ -47,7 +47,7 @@ pub struct AudioOut {
 impl Default for AudioOut {
     fn default() -> Self {
         Self {
-            sink: Some("autoaudiosink".into()),
+            sink: Some(media::audio::AUTO.into()),
             delay_ms: 0.0,
         }
     }
@@ -476,20 +476,33 @@ fn build_playbin(
     playbin.set_property("uri", uri);
     playbin.set_property("video-sink", &video);
     let mut audio_sinks = Vec::new();
-    match (&audio.sink, live) {
-        (Some(desc), true) => {
+    // `auto` is resolved on each start: a sound card plugged in later is found by the next item.
+    let sound = match (&audio.sink, live) {
+        (Some(device), true) => media::audio::resolve(device),
+        _ => None,
+    };
+    match sound {
+        Some(desc) => {
             let abin = gst::parse::bin_from_description(
                 &format!("audioconvert ! audioresample ! {desc}"),
                 true,
             )
-            .map_err(|e| media::fault::parse_error(desc, e))?;
+            .map_err(|e| media::fault::parse_error(&desc, e))?;
             // Its sinks' ts-offset delays the sound; an auto sink makes its sink when it starts,
             // so the control looks inside the bin each time it sets the delay.
             audio_sinks.push(abin.clone().upcast());
             playbin.set_property("audio-sink", &abin);
             playbin.set_property_from_str("flags", "video+audio+soft-volume");
         }
-        _ => playbin.set_property_from_str("flags", "video"),
+        None => {
+            // playbin makes an `autoaudiosink` even for video alone unless it is given a sink,
+            // and that one can block in a sound library: a sink that opens nothing.
+            let quiet = media::make("fakesink")?;
+            quiet.set_property("sync", false);
+            quiet.set_property("async", false);
+            playbin.set_property("audio-sink", &quiet);
+            playbin.set_property_from_str("flags", "video");
+        }
     }
     let pipeline = playbin
         .downcast::<gst::Pipeline>()

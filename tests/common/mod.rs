@@ -2,15 +2,67 @@
 
 #![allow(dead_code)]
 
+use std::io::Read;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// How long one command of a test may run before it is killed and the test fails: 600 s, or
+/// `COMPEND_TEST_TIMEOUT_S`. A hang then names its command instead of eating CI's whole budget.
+fn command_deadline() -> Duration {
+    let s = std::env::var("COMPEND_TEST_TIMEOUT_S")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(600);
+    Duration::from_secs(s)
+}
+
+/// Runs `cmd` to its end like `Command::output`, but kills it past the deadline and panics
+/// with the command and what it printed so far.
+pub fn output_within(cmd: &mut Command) -> Output {
+    let deadline = command_deadline();
+    let mut child = cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("{cmd:?} does not start: {e}"));
+    let drain = |mut r: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut buf = Vec::new();
+            let _ = r.read_to_end(&mut buf);
+            buf
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().expect("piped stdout")));
+    let err = drain(Box::new(child.stderr.take().expect("piped stderr")));
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("the child can be waited for") {
+            break status;
+        }
+        if start.elapsed() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            let err = err.join().unwrap_or_default();
+            panic!(
+                "{cmd:?} still ran after {} s and was killed; its stderr:\n{}",
+                deadline.as_secs(),
+                String::from_utf8_lossy(&err)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    Output {
+        status,
+        stdout: out.join().unwrap_or_default(),
+        stderr: err.join().unwrap_or_default(),
+    }
+}
 
 /// Runs the `compend` binary with `args` and returns its output.
 pub fn compend(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_compend"))
-        .args(args)
-        .output()
-        .expect("the compend binary runs")
+    output_within(Command::new(env!("CARGO_BIN_EXE_compend")).args(args))
 }
 
 /// `compend train --method linear` with its defaults on `setup` into `out`.
@@ -28,11 +80,11 @@ pub fn train_linear(setup: &Path, out: &Path) -> Output {
 
 /// Runs `compend` in `dir`.
 pub fn compend_in(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_compend"))
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .expect("the compend binary runs")
+    output_within(
+        Command::new(env!("CARGO_BIN_EXE_compend"))
+            .current_dir(dir)
+            .args(args),
+    )
 }
 
 pub fn stdout(o: &Output) -> String {

@@ -29,6 +29,7 @@ use crate::calibrate::{self, Options, PatternSet, SyncSettings};
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::model::{Method, MethodChoice, Model};
+use crate::service::views::Tapped;
 
 use super::super::devices::Devices;
 use super::super::devices::Hardware;
@@ -651,6 +652,8 @@ impl Engine {
         ) -> Result<T>,
     ) -> Result<T> {
         let started = self.calibration_started;
+        // The console sees what the camera captures.
+        let shared = self.io.shared.clone();
         let io = &mut self.io;
         let next = &mut self.next;
         let reload = &mut self.reload;
@@ -682,11 +685,13 @@ impl Engine {
                 // The scene's delay and drops (playback sets a camera that watches every frame).
                 v.rig.set_latency(v.scene.latency.clone())?;
                 let (mut display, mut camera) = (v.rig.clone(), v.rig.clone());
-                step(&mut display, &mut camera, &mut progress)
+                let mut seen = Tapped::new(&mut camera, &shared.views);
+                step(&mut display, &mut seen, &mut progress)
             }
             Devices::Hardware(h) => {
                 let Hardware { win, camera, .. } = &mut **h;
-                step(win, camera, &mut progress)
+                let mut seen = Tapped::new(&mut **camera, &shared.views);
+                step(win, &mut seen, &mut progress)
             }
         }
     }
@@ -700,7 +705,7 @@ fn training_progress(
 ) -> impl FnMut(&str, usize, usize) + Send {
     move |phase: &str, done: usize, total: usize| {
         shared.update(|s| {
-            if !matches!(s.state, State::Playing | State::Paused) {
+            if !matches!(s.state, State::Playing | State::Paused | State::Setup) {
                 s.state = State::Training;
             }
             s.calibration = Some(CalibrationProgress {

@@ -24,6 +24,7 @@ use std::time::{Duration, Instant};
 
 use super::climb;
 mod calibration;
+mod setup;
 
 pub use super::devices::rig_name;
 use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure};
@@ -52,6 +53,8 @@ enum Next {
     Calibrate,
     Play,
     Pause,
+    /// The setup view with this pattern.
+    Setup(crate::patterns::SetupPattern),
     Stop,
 }
 
@@ -174,6 +177,7 @@ impl Engine {
                 Next::Wait => self.wait(),
                 Next::Calibrate => self.calibrate(),
                 Next::Play => self.play(),
+                Next::Setup(p) => self.setup(p),
                 Next::Pause => {
                     if let Err(e) = self.devices.black() {
                         self.io.fail("pausing", &e);
@@ -266,6 +270,8 @@ impl Engine {
             ("[rig]", c.rig == self.config.rig),
             ("[paths]", c.paths == self.config.paths),
             ("[socket]", c.socket == self.config.socket),
+            ("[http]", c.http == self.config.http),
+            ("[osc]", c.osc == self.config.osc),
         ] {
             if !same {
                 tracing::warn!("reload: {what} changed; it takes effect when the service restarts");
@@ -346,6 +352,21 @@ impl Engine {
                 }
                 Err(e) => Reply::error(e.to_string()),
             },
+            Request::Setup { pattern } => {
+                let p = match pattern
+                    .as_deref()
+                    .unwrap_or("grid")
+                    .parse::<crate::patterns::SetupPattern>()
+                {
+                    Ok(p) => p,
+                    Err(e) => return Reply::error(e.to_string()),
+                };
+                self.next = Next::Setup(p);
+                Reply::ok(format!(
+                    "setup: the {p} pattern up, the camera watched; play, pause or calibrate \
+                     leaves it"
+                ))
+            }
             Request::Stop => {
                 self.next = Next::Stop;
                 Reply::ok("stopping")
@@ -662,16 +683,16 @@ fn play_virtual(
         source,
         FeedMode::Latest,
     )?;
-    let views: ViewSink = match &monitor {
-        Some(tap) => {
-            let tap = tap.clone();
-            let shared = io.shared.clone();
-            Box::new(move |seq, _, view| {
+    let views: ViewSink = {
+        let tap = monitor.clone();
+        let shared = io.shared.clone();
+        Box::new(move |seq, _, view| {
+            shared.views.offer_camera(view);
+            if let Some(tap) = &tap {
                 tap.offer(seq, view, &shared);
-                Ok(())
-            })
-        }
-        None => Box::new(|_, _, _| Ok(())),
+            }
+            Ok(())
+        })
     };
     let mut sink = WatchedSink::new(&v.ctx, fps, v.rig.clone(), v.rig.clone(), views);
     let sizes = (v.scene.camera.size(), v.scene.projector.size());
