@@ -177,6 +177,16 @@ fn the_console_shows_the_running_service_and_drives_it() {
     assert!(head.contains("content-security-policy"), "{head}");
     assert!(String::from_utf8_lossy(&body).contains("<title>compend console</title>"));
 
+    // Connections that never send a request cannot lock the console: with more of them open
+    // than it serves at once, a page still gets its answer once they are closed for silence.
+    let silent: Vec<TcpStream> = (0..70)
+        .map(|_| TcpStream::connect(&addr).unwrap())
+        .collect();
+    let t = Instant::now();
+    let (code, _, _) = http(&addr, "GET", "/api/status", &[], b"");
+    assert_eq!(code, 200);
+    assert!(t.elapsed() < Duration::from_secs(30), "{:?}", t.elapsed());
+    drop(silent);
     // Calibration at start, pushed as it goes: the phases, its end, the state changes.
     until(&events, &mut seen, 300, |e| e["kind"] == "phase");
     until(&events, &mut seen, 300, |e| {

@@ -980,6 +980,10 @@ fn bench_serve_measures_the_targets_on_a_tiny_rig() {
         "0.5",
         "--period",
         "0.5",
+        "--browsers",
+        "2",
+        "--console-rounds",
+        "1",
     ]);
     assert_code(&o, 0);
     let r: Value =
@@ -996,6 +1000,15 @@ fn bench_serve_measures_the_targets_on_a_tiny_rig() {
         "{r}"
     );
     assert!(r["drift"]["detected_after_s"].is_number(), "{r}");
+    // The console's load really loaded it: images fetched, events read, OSC answered.
+    let c = &r["console"][0];
+    assert!(c["camera_images"].as_u64().unwrap() > 0, "{r}");
+    assert!(c["osc_replies"].as_u64().unwrap() > 0, "{r}");
+    assert!(c["with_load"]["shown"].as_u64().unwrap() > 0, "{r}");
+    assert!(
+        r["status"]["http_playing"]["n"].as_u64().unwrap() > 0,
+        "{r}"
+    );
     for stop in r["stops"].as_array().unwrap() {
         assert_eq!(stop["exit_code"], 0, "{r}");
     }

@@ -8,6 +8,10 @@
 //! - frames dropped while a model is swapped in, against an equal span of playback without one;
 //! - how long monitoring takes to report drift after the projector is bumped, in monitoring
 //!   periods;
+//! - the console under load (`--browsers` pages: each an event stream, the status once a second
+//!   and the camera image four times a second; and an OSC controller sending ten messages a
+//!   second) against equal spans without it, in alternating rounds; and the console's status
+//!   round trips over HTTP while training, against the same while playing;
 //! - how long SIGTERM takes to stop it, and its exit code.
 //!
 //! Writes bench-serve.json and bench-serve.md in `--out`, with the services' logs.
@@ -16,6 +20,8 @@ use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -58,6 +64,12 @@ pub struct Args {
     /// Seconds of playback watched per swap (and per baseline span).
     #[arg(long, default_value_t = 3.0)]
     pub window: f64,
+    /// Pages open on the console in its load rounds.
+    #[arg(long, default_value_t = 5)]
+    pub browsers: usize,
+    /// Rounds of playback with the console's load, each next to an equal span without.
+    #[arg(long, default_value_t = 3)]
+    pub console_rounds: usize,
     /// Monitoring period of the drift run, s.
     #[arg(long, default_value_t = 2.0)]
     pub period: f64,
@@ -105,6 +117,21 @@ struct StatusLatency {
     training: Spread,
     /// While playing: the baseline.
     playing: Spread,
+    /// `GET /api/status` on the console while training, and while playing.
+    http_training: Spread,
+    http_playing: Spread,
+}
+
+#[derive(Serialize, Debug)]
+struct ConsoleRound {
+    with_load: Span,
+    without: Span,
+    /// Requests the pages made (status and camera images), and OSC replies heard.
+    page_requests: u64,
+    camera_images: u64,
+    events_read: u64,
+    osc_sent: u64,
+    osc_replies: u64,
 }
 
 #[derive(Serialize, Debug)]
@@ -173,6 +200,7 @@ struct Report {
     status: StatusLatency,
     flood: Flood,
     swaps: Vec<Swap>,
+    console: Vec<ConsoleRound>,
     drift: Drift,
     stops: Vec<Stop>,
 }
@@ -301,7 +329,7 @@ fn write_config(args: &Args, dir: &Path, scene: &str, extra: (&str, &str)) -> Re
         "[rig]\nkind = \"virtual\"\nscene = {scene:?}\nseed = {seed}\ncamera_size = \"{cam}\"\n\
          projector = \"{prj}\"\nfps = {fps}\n{rig}\n\n[paths]\nstate = {state:?}\n\n\
          [calibration]\nntrain = {ntrain}\n\n[playback]\nsource = \"pattern:moving?size={prj}&fps={fps}\"\n\n\
-         [monitoring]\n{monitoring}\n\n[socket]\npath = {socket:?}\n\n[http]\nlisten = \"127.0.0.1:0\"\n\n[log]\nstats_period_s = 10.0\n",
+         [monitoring]\n{monitoring}\n\n[socket]\npath = {socket:?}\n\n[http]\nlisten = \"127.0.0.1:0\"\n\n[osc]\nlisten = \"127.0.0.1:0\"\n\n[log]\nstats_period_s = 10.0\n",
         seed = args.seed,
         cam = args.camera,
         prj = args.projector,
@@ -348,6 +376,14 @@ pub fn run(args: Args) -> Result<()> {
     for _ in 0..args.swaps {
         swaps.push(swap(&mut svc, &model, args.window)?);
     }
+    eprintln!(
+        "bench-serve: the console with {} pages and an OSC controller",
+        args.browsers
+    );
+    let mut console = Vec::new();
+    for _ in 0..args.console_rounds {
+        console.push(console_round(&mut svc, args.browsers, args.window)?);
+    }
     let mut stops = vec![svc.stop("SIGTERM")?];
 
     let second = args.out.join("drift");
@@ -373,6 +409,7 @@ pub fn run(args: Args) -> Result<()> {
         status,
         flood,
         swaps,
+        console,
         drift,
         stops,
     };
@@ -391,12 +428,29 @@ pub fn run(args: Args) -> Result<()> {
 fn status_until_playing(svc: &mut Service) -> Result<(StatusLatency, f64)> {
     let start = Instant::now();
     let (mut busy, mut training, mut playing) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut http_training, mut http_playing) = (Vec::new(), Vec::new());
     let mut played_at = None;
     while start.elapsed() < Duration::from_secs(1800) {
         std::thread::sleep(Duration::from_millis(10));
         let Some((ms, s)) = svc.status()? else {
             continue;
         };
+        // The console's status, timed the same way right after.
+        let web = match &s.http {
+            Some(addr) => {
+                let t = Instant::now();
+                http_get(addr, "/api/status")
+                    .ok()
+                    .filter(|(code, _)| *code == 200)
+                    .map(|_| t.elapsed().as_secs_f64() * 1e3)
+            }
+            None => None,
+        };
+        match (s.state, web) {
+            (State::Training, Some(w)) => http_training.push(w),
+            (State::Playing, Some(w)) => http_playing.push(w),
+            _ => {}
+        }
         match s.state {
             State::Training => {
                 training.push(ms);
@@ -414,6 +468,8 @@ fn status_until_playing(svc: &mut Service) -> Result<(StatusLatency, f64)> {
                 busy: Spread::of(&busy),
                 training: Spread::of(&training),
                 playing: Spread::of(&playing),
+                http_training: Spread::of(&http_training),
+                http_playing: Spread::of(&http_playing),
             };
             return Ok((status, played_at.unwrap_or(0.0)));
         }
@@ -541,6 +597,153 @@ fn swap(svc: &mut Service, model: &Path, window: f64) -> Result<Swap> {
     })
 }
 
+/// One `GET path` on the console at `addr` (`Connection: close`): its status code and body.
+fn http_get(addr: &str, path: &str) -> Result<(u16, Vec<u8>)> {
+    use std::io::Read;
+    let mut s = std::net::TcpStream::connect(addr)?;
+    s.set_read_timeout(Some(Duration::from_secs(30)))?;
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )?;
+    let mut all = Vec::new();
+    s.read_to_end(&mut all)?;
+    let head_end = all
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .context("no HTTP head in the console's reply")?;
+    let code = String::from_utf8_lossy(&all[..head_end])
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .context("no status code in the console's reply")?;
+    Ok((code, all[head_end + 4..].to_vec()))
+}
+
+/// What the console's load did: counts kept by its threads.
+#[derive(Default)]
+struct LoadCounts {
+    page_requests: AtomicU64,
+    camera_images: AtomicU64,
+    events_read: AtomicU64,
+    osc_sent: AtomicU64,
+    osc_replies: AtomicU64,
+}
+
+/// Runs the console's load until `stop`: `browsers` pages (an event stream each, the status
+/// once a second, the camera image four times a second) and an OSC controller asking for the
+/// state ten times a second.
+fn console_load(
+    http: String,
+    osc: String,
+    browsers: usize,
+    stop: Arc<AtomicBool>,
+    counts: Arc<LoadCounts>,
+) -> Vec<std::thread::JoinHandle<()>> {
+    let mut threads = Vec::new();
+    for _ in 0..browsers {
+        // The page's event stream, read as it comes.
+        let (addr, stop2, c) = (http.clone(), stop.clone(), counts.clone());
+        threads.push(std::thread::spawn(move || {
+            let Ok(mut s) = std::net::TcpStream::connect(&addr) else {
+                return;
+            };
+            let _ = s.set_read_timeout(Some(Duration::from_millis(200)));
+            let _ = write!(s, "GET /api/events HTTP/1.1\r\nHost: {addr}\r\n\r\n");
+            let mut r = BufReader::new(s);
+            let mut line = String::new();
+            while !stop2.load(Ordering::Relaxed) {
+                line.clear();
+                if r.read_line(&mut line).is_ok() && line.starts_with("data:") {
+                    c.events_read.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }));
+        // Its polling.
+        let (addr, stop2, c) = (http.clone(), stop.clone(), counts.clone());
+        threads.push(std::thread::spawn(move || {
+            let mut tick = 0u64;
+            while !stop2.load(Ordering::Relaxed) {
+                if http_get(&addr, "/api/camera.jpg").is_ok_and(|(code, _)| code == 200) {
+                    c.camera_images.fetch_add(1, Ordering::Relaxed);
+                }
+                if tick.is_multiple_of(4) && http_get(&addr, "/api/status").is_ok() {
+                    c.page_requests.fetch_add(1, Ordering::Relaxed);
+                }
+                tick += 1;
+                std::thread::sleep(Duration::from_millis(250));
+            }
+        }));
+    }
+    threads.push(std::thread::spawn(move || {
+        let Ok(sock) = std::net::UdpSocket::bind("127.0.0.1:0") else {
+            return;
+        };
+        let packet = rosc::encoder::encode(&rosc::OscPacket::Message(rosc::OscMessage {
+            addr: "/compend/status".into(),
+            args: Vec::new(),
+        }))
+        .unwrap_or_default();
+        let mut buf = [0u8; 2048];
+        let start = Instant::now();
+        let mut sent = 0u32;
+        while !stop.load(Ordering::Relaxed) {
+            if sock.send_to(&packet, &osc).is_ok() {
+                counts.osc_sent.fetch_add(1, Ordering::Relaxed);
+            }
+            sent += 1;
+            // Ten a second: the replies are read until the next one is due.
+            let due = start + Duration::from_millis(100) * sent;
+            while let Some(left) = due.checked_duration_since(Instant::now()) {
+                let _ = sock.set_read_timeout(Some(left.max(Duration::from_millis(1))));
+                if sock.recv_from(&mut buf).is_ok() {
+                    counts.osc_replies.fetch_add(1, Ordering::Relaxed);
+                } else {
+                    break;
+                }
+            }
+            if let Some(left) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(left);
+            }
+        }
+    }));
+    threads
+}
+
+/// One span of playback without the console's load, then one with it.
+fn console_round(svc: &mut Service, browsers: usize, window: f64) -> Result<ConsoleRound> {
+    let Some((_, s)) = svc.status()? else {
+        bail!("the service's socket is gone");
+    };
+    let (Some(http), Some(osc)) = (s.http, s.osc) else {
+        bail!("the service serves no console or no OSC port; the bench's configuration sets both");
+    };
+    let w = Duration::from_secs_f64(window);
+    let before = svc.frames()?;
+    let without = span(svc, &before, Instant::now() + w)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let counts = Arc::new(LoadCounts::default());
+    let threads = console_load(http, osc, browsers, stop.clone(), counts.clone());
+    // The pages open before the span counts.
+    std::thread::sleep(Duration::from_millis(500));
+    let before = svc.frames()?;
+    let with_load = span(svc, &before, Instant::now() + w)?;
+    stop.store(true, Ordering::Relaxed);
+    for t in threads {
+        let _ = t.join();
+    }
+    let n = |a: &AtomicU64| a.load(Ordering::Relaxed);
+    Ok(ConsoleRound {
+        with_load,
+        without,
+        page_requests: n(&counts.page_requests),
+        camera_images: n(&counts.camera_images),
+        events_read: n(&counts.events_read),
+        osc_sent: n(&counts.osc_sent),
+        osc_replies: n(&counts.osc_replies),
+    })
+}
+
 /// The built-in drift scene with the bump of `--bump`, as a scene file in `dir`.
 fn bumped_scene(args: &Args, dir: &Path) -> Result<String> {
     let mut scene = compend::rig::scene::load("drift")?;
@@ -638,6 +841,8 @@ fn markdown(r: &Report) -> String {
         ("training", &s.training),
         ("calibrating/training/verifying", &s.busy),
         ("playing (baseline)", &s.playing),
+        ("training, the console's GET /api/status", &s.http_training),
+        ("playing, the console's GET /api/status", &s.http_playing),
     ] {
         md += &format!(
             "| {name} | {} | {:.2} | {:.2} | {:.2} |\n",
@@ -667,6 +872,26 @@ fn markdown(r: &Report) -> String {
             w.without.shown,
             w.without.dropped_source,
             w.without.dropped_pipeline
+        );
+    }
+    md += "\n## The console under load\n\nEach round: a span without it, then one with the pages \
+           and the OSC controller.\n\n| shown / dropped (source, pipeline) with the load | \
+           without | status requests | camera images | events read | OSC sent / answered |\n\
+           |---|---|---|---|---|---|\n";
+    for c in &r.console {
+        md += &format!(
+            "| {} / {}, {} | {} / {}, {} | {} | {} | {} | {} / {} |\n",
+            c.with_load.shown,
+            c.with_load.dropped_source,
+            c.with_load.dropped_pipeline,
+            c.without.shown,
+            c.without.dropped_source,
+            c.without.dropped_pipeline,
+            c.page_requests,
+            c.camera_images,
+            c.events_read,
+            c.osc_sent,
+            c.osc_replies
         );
     }
     let d = &r.drift;

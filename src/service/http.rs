@@ -11,13 +11,15 @@
 //! `Authorization: Bearer` header, or the cookie the login page sets). Requests that change
 //! anything are POSTs that must carry the header `X-Compend: 1` (a page of another site cannot
 //! send it without a CORS preflight compend never answers) and, when the browser sends an
-//! `Origin`, come from this very host. At most [`MAX_CONNECTIONS`] connections and
+//! `Origin`, come from this very host. A connection that sends nothing for
+//! [`FIRST_BYTE_TIMEOUT`] is closed. At most [`MAX_CONNECTIONS`] connections and
 //! [`MAX_SUBSCRIBERS`] event streams (over every surface) are served at once; request bodies are capped at
 //! [`crate::service::protocol::MAX_REQUEST_BYTES`]. Everything here runs on the runtime's
 //! threads: nothing a client does waits on the render loop, except a request's answer, which
 //! the engine gives between two refreshes.
 
 use std::convert::Infallible;
+use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::{Arc, Mutex};
@@ -171,10 +173,26 @@ enum Stream {
     Tls(Box<tokio_rustls::server::TlsStream<TcpStream>>),
 }
 
+/// How long a new connection may stay silent before its first byte: one that sends nothing
+/// (a client that leaked it, or a slow attack) gives its slot back.
+const FIRST_BYTE_TIMEOUT: Duration = Duration::from_secs(5);
+
 /// A connection holding its slot until it closes.
 struct CappedIo {
     io: Stream,
     _slot: OwnedSemaphorePermit,
+    /// Until the first byte has come: when the connection is closed if none has.
+    first_byte_by: Option<Pin<Box<tokio::time::Sleep>>>,
+}
+
+impl CappedIo {
+    fn new(io: Stream, slot: OwnedSemaphorePermit) -> Self {
+        Self {
+            io,
+            _slot: slot,
+            first_byte_by: Some(Box::pin(tokio::time::sleep(FIRST_BYTE_TIMEOUT))),
+        }
+    }
 }
 
 impl AsyncRead for CappedIo {
@@ -183,10 +201,26 @@ impl AsyncRead for CappedIo {
         cx: &mut Context<'_>,
         buf: &mut ReadBuf<'_>,
     ) -> Poll<std::io::Result<()>> {
-        match &mut self.io {
+        let before = buf.filled().len();
+        let polled = match &mut self.io {
             Stream::Plain(s) => Pin::new(s).poll_read(cx, buf),
             Stream::Tls(s) => Pin::new(s.as_mut()).poll_read(cx, buf),
+        };
+        match &polled {
+            Poll::Ready(_) if buf.filled().len() > before => self.first_byte_by = None,
+            Poll::Pending => {
+                if let Some(deadline) = self.first_byte_by.as_mut()
+                    && deadline.as_mut().poll(cx).is_ready()
+                {
+                    return Poll::Ready(Err(std::io::Error::new(
+                        std::io::ErrorKind::TimedOut,
+                        "no request within the first seconds",
+                    )));
+                }
+            }
+            Poll::Ready(_) => {}
         }
+        polled
     }
 }
 
@@ -250,10 +284,7 @@ impl Capped {
                 let tx = tx.clone();
                 match &acceptor {
                     None => {
-                        let conn = CappedIo {
-                            io: Stream::Plain(io),
-                            _slot: slot,
-                        };
+                        let conn = CappedIo::new(Stream::Plain(io), slot);
                         if tx.send((conn, addr)).await.is_err() {
                             return;
                         }
@@ -264,10 +295,7 @@ impl Capped {
                             match tokio::time::timeout(HANDSHAKE_TIMEOUT, acceptor.accept(io)).await
                             {
                                 Ok(Ok(tls)) => {
-                                    let conn = CappedIo {
-                                        io: Stream::Tls(Box::new(tls)),
-                                        _slot: slot,
-                                    };
+                                    let conn = CappedIo::new(Stream::Tls(Box::new(tls)), slot);
                                     let _ = tx.send((conn, addr)).await;
                                 }
                                 Ok(Err(e)) => {
