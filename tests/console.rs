@@ -346,6 +346,9 @@ fn the_console_shows_the_running_service_and_drives_it() {
                 .is_some_and(|o| o.starts_with("unix uid "))
     });
     assert!(e["text"].as_str().unwrap().contains("play"), "{e}");
+    // The play is answered before the playback is back: wait for it, so that the pause below
+    // changes the state.
+    svc.wait_for("playback again", 60, playing);
     // OSC: a button's press pauses (its release does nothing), the sender hears the reply, the
     // peers the new state, and the stream names the origin.
     let osc_addr = svc.status()["osc"].as_str().unwrap().to_string();
