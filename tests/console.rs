@@ -4,6 +4,7 @@
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
+use std::os::unix::process::CommandExt;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -475,7 +476,9 @@ impl Browser {
             .local_addr()
             .unwrap()
             .port();
+        // Its own process group, so that chromium goes with it however the test ends.
         let driver = std::process::Command::new("chromedriver")
+            .process_group(0)
             .arg(format!("--port={port}"))
             .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::null())
@@ -595,7 +598,9 @@ impl Drop for Browser {
                 b"",
             );
         }
-        let _ = self.driver.kill();
+        // SAFETY: killpg with the group chromedriver leads and a valid signal number has no
+        // memory effects.
+        unsafe { libc::killpg(self.driver.id() as i32, libc::SIGKILL) };
         let _ = self.driver.wait();
     }
 }
