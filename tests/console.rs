@@ -134,6 +134,13 @@ fn until(
     }
 }
 
+/// A request of the control socket's as the page sends it (`POST /api/request` with
+/// `X-Compend: 1`): the HTTP status and the reply.
+fn request(addr: &str, body: &[u8]) -> (u16, Value) {
+    let (code, _, reply) = http(addr, "POST", "/api/request", &[("X-Compend", "1")], body);
+    (code, json(&reply))
+}
+
 fn json(body: &[u8]) -> Value {
     serde_json::from_slice(body)
         .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(body)))
@@ -283,14 +290,9 @@ fn the_console_shows_the_running_service_and_drives_it() {
     assert_eq!(code, 403);
     assert_eq!(svc.status()["state"], "playing");
     // With it: paused, and said with its origin in the stream and the log.
-    let (code, _, body) = http(&addr, "POST", "/api/request", &[("X-Compend", "1")], pause);
+    let (code, reply) = request(&addr, pause);
     assert_eq!(code, 200);
-    assert_eq!(
-        json(&body)["ok"],
-        true,
-        "{}",
-        String::from_utf8_lossy(&body)
-    );
+    assert_eq!(reply["ok"], true, "{reply}");
     let e = until(&events, &mut seen, 30, |e| {
         e["kind"] == "request" && e["ok"] == true
     });
@@ -314,24 +316,12 @@ fn the_console_shows_the_running_service_and_drives_it() {
     drop(sock_lines);
     drop(sock);
     // A request id is echoed over HTTP too, and a bad request still names its id.
-    let (code, _, body) = http(
-        &addr,
-        "POST",
-        "/api/request",
-        &[("X-Compend", "1")],
-        br#"{"cmd":"status","request_id":"q1"}"#,
-    );
+    let (code, reply) = request(&addr, br#"{"cmd":"status","request_id":"q1"}"#);
     assert_eq!(code, 200);
-    assert_eq!(json(&body)["request_id"], "q1");
-    let (code, _, body) = http(
-        &addr,
-        "POST",
-        "/api/request",
-        &[("X-Compend", "1")],
-        br#"{"cmd":"fly","request_id":9}"#,
-    );
+    assert_eq!(reply["request_id"], "q1");
+    let (code, reply) = request(&addr, br#"{"cmd":"fly","request_id":9}"#);
     assert_eq!(code, 400);
-    assert_eq!(json(&body)["request_id"], 9);
+    assert_eq!(reply["request_id"], 9);
     // The same from the socket names the user.
     let o = client(&["play"], &svc.socket);
     assert_eq!(
@@ -393,31 +383,17 @@ fn the_console_shows_the_running_service_and_drives_it() {
     heard(&|m| m.addr == "/compend/state" && m.args == [rosc::OscType::String("playing".into())]);
     // The setup view: a pattern up as it is, the camera's figures in the status; a bad
     // pattern is refused with the ones there are; play leaves it.
-    let (code, _, body) = http(
-        &addr,
-        "POST",
-        "/api/request",
-        &[("X-Compend", "1")],
-        br#"{"cmd":"setup","pattern":"moire"}"#,
-    );
+    let (code, reply) = request(&addr, br#"{"cmd":"setup","pattern":"moire"}"#);
     assert_eq!(code, 400);
-    assert!(String::from_utf8_lossy(&body).contains("grid, crosshair, white, black"));
+    assert!(
+        reply.to_string().contains("grid, crosshair, white, black"),
+        "{reply}"
+    );
     let mut figures = |pattern: &str| {
         let body = format!(r#"{{"cmd":"setup","pattern":"{pattern}"}}"#);
-        let (code, _, reply) = http(
-            &addr,
-            "POST",
-            "/api/request",
-            &[("X-Compend", "1")],
-            body.as_bytes(),
-        );
+        let (code, reply) = request(&addr, body.as_bytes());
         assert_eq!(code, 200);
-        assert_eq!(
-            json(&reply)["ok"],
-            true,
-            "{}",
-            String::from_utf8_lossy(&reply)
-        );
+        assert_eq!(reply["ok"], true, "{reply}");
         let s = svc.wait_for("the setup figures", 60, |s| {
             s["state"] == "setup"
                 && s["setup"]["pattern"] == pattern

@@ -60,23 +60,12 @@ const COOKIE: &str = "compend_token";
 const PAGE: &str = include_str!("console.html");
 
 /// Binds `[http] listen`; None when it is off. An address in use is an input error naming the
-/// key (another service, or another program, has it).
+/// key ([`super::socket::bind_tcp`]).
 pub fn bind(cfg: &HttpConfig) -> Result<Option<TcpListener>> {
     let Some(addr) = cfg.listen else {
         return Ok(None);
     };
-    let std = std::net::TcpListener::bind(addr).map_err(|e| match e.kind() {
-        std::io::ErrorKind::AddrInUse => Error::Input(format!(
-            "[http] listen = \"{addr}\": the address is in use (another compend service, or \
-             another program); give another port, or \"off\""
-        )),
-        _ => Error::Failed(format!("[http] listen = \"{addr}\": cannot listen: {e}")),
-    })?;
-    std.set_nonblocking(true)
-        .map_err(|e| Error::Failed(format!("[http] listen = \"{addr}\": {e}")))?;
-    TcpListener::from_std(std)
-        .map(Some)
-        .map_err(|e| Error::Failed(format!("[http] listen = \"{addr}\": {e}")))
+    super::socket::bind_tcp(addr, "[http] listen").map(Some)
 }
 
 /// What the handlers share.

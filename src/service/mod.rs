@@ -353,7 +353,7 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
         (Some(addr), Some(file)) => {
             let token = socket::Token::read(file, "[socket] tcp_token_file")?;
             let _guard = runtime.enter();
-            Some((socket::bind_tcp(addr)?, token, addr))
+            Some((socket::bind_tcp(addr, "[socket] tcp")?, token, addr))
         }
         _ => None,
     };

@@ -120,35 +120,38 @@ impl Request {
     /// number, or a string of at most 64 bytes), which the reply echoes whether the request
     /// was good or not; None when absent or unreadable.
     pub fn parse_with_id(line: &[u8]) -> (Result<Self, String>, Option<serde_json::Value>) {
-        let id = std::str::from_utf8(line)
-            .ok()
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(t.trim()).ok())
-            .and_then(|v| v.get("request_id").cloned());
-        let result = match &id {
-            Some(serde_json::Value::Number(_)) | None => Self::parse_line(line),
-            Some(serde_json::Value::String(s)) if s.len() <= 64 => Self::parse_line(line),
-            Some(_) => Err(
-                "bad request: `request_id` must be a number or a string of at most 64 bytes".into(),
-            ),
-        };
-        let id = id.filter(|v| v.is_number() || v.as_str().is_some_and(|s| s.len() <= 64));
-        (result, id)
-    }
-
-    fn parse_line(line: &[u8]) -> Result<Self, String> {
-        let text = std::str::from_utf8(line)
-            .map_err(|e| format!("the request is not UTF-8 text (byte {})", e.valid_up_to()))?;
-        let text = text.trim();
-        if text.is_empty() {
-            return Err(
-                "empty request; expected a JSON object such as {\"cmd\":\"status\"}".into(),
-            );
-        }
         const EXPECTED: &str = "expected a JSON object with \"cmd\": one of status, \
                                 calibrate, recalibrate, play, pause, seek, next, previous, \
                                 model, setup, stop";
-        let value: serde_json::Value =
-            serde_json::from_str(text).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
+        let text = match std::str::from_utf8(line) {
+            Ok(t) => t.trim(),
+            Err(e) => {
+                let e = format!("the request is not UTF-8 text (byte {})", e.valid_up_to());
+                return (Err(e), None);
+            }
+        };
+        if text.is_empty() {
+            let e = "empty request; expected a JSON object such as {\"cmd\":\"status\"}";
+            return (Err(e.into()), None);
+        }
+        let value: serde_json::Value = match serde_json::from_str(text) {
+            Ok(v) => v,
+            Err(e) => return (Err(format!("bad request: {e}; {EXPECTED}")), None),
+        };
+        let id = value.get("request_id").cloned();
+        let id_ok =
+            |v: &serde_json::Value| v.is_number() || v.as_str().is_some_and(|s| s.len() <= 64);
+        let result = match &id {
+            Some(v) if !id_ok(v) => Err(
+                "bad request: `request_id` must be a number or a string of at most 64 bytes".into(),
+            ),
+            _ => Self::from_value(text, value, EXPECTED),
+        };
+        (result, id.filter(id_ok))
+    }
+
+    /// The request in `value`, parsed from `text` (a JSON value already).
+    fn from_value(text: &str, value: serde_json::Value, expected: &str) -> Result<Self, String> {
         // A JSON value keeps the last of a key given twice, so `{"cmd":"status","cmd":"stop"}`
         // would stop the service: a key given twice is refused.
         if value.is_object() {
@@ -184,7 +187,7 @@ impl Request {
             o.remove("request_id");
         }
         let request: Self =
-            serde_json::from_value(value).map_err(|e| format!("bad request: {e}; {EXPECTED}"))?;
+            serde_json::from_value(value).map_err(|e| format!("bad request: {e}; {expected}"))?;
         if let Request::Setup { pattern: Some(p) } = &request
             && let Err(e) = p.parse::<crate::patterns::SetupPattern>()
         {

@@ -237,19 +237,19 @@ impl Token {
 
 /// Binds the loopback TCP address `addr` of `[socket] tcp`. An address in use is an input
 /// error naming it.
-pub fn bind_tcp(addr: std::net::SocketAddr) -> Result<TcpListener> {
+pub fn bind_tcp(addr: std::net::SocketAddr, key: &str) -> Result<TcpListener> {
     let std_listener = std::net::TcpListener::bind(addr).map_err(|e| match e.kind() {
         std::io::ErrorKind::AddrInUse => Error::Input(format!(
-            "[socket] tcp = \"{addr}\": the address is in use (another compend service, or \
-             another program); pick another port"
+            "{key} = \"{addr}\": the address is in use (another compend service, or another \
+             program); pick another port"
         )),
-        _ => Error::Failed(format!("[socket] tcp = \"{addr}\": cannot listen: {e}")),
+        _ => Error::Failed(format!("{key} = \"{addr}\": cannot listen: {e}")),
     })?;
     std_listener
         .set_nonblocking(true)
-        .map_err(|e| Error::Failed(format!("[socket] tcp = \"{addr}\": {e}")))?;
+        .map_err(|e| Error::Failed(format!("{key} = \"{addr}\": {e}")))?;
     TcpListener::from_std(std_listener)
-        .map_err(|e| Error::Failed(format!("[socket] tcp = \"{addr}\": {e}")))
+        .map_err(|e| Error::Failed(format!("{key} = \"{addr}\": {e}")))
 }
 
 /// A listener whose connections are served as clients.
@@ -634,6 +634,10 @@ async fn read_line<R: tokio::io::AsyncBufRead + Unpin>(
 
 /// Whether `line` is `{"cmd":"subscribe"}` (with a `request_id`, or not): Some(its id).
 fn subscription(line: &[u8]) -> Option<Option<serde_json::Value>> {
+    // Most lines are other requests: parsed here only when they may be this one.
+    if !line.windows(9).any(|w| w == b"subscribe") {
+        return None;
+    }
     let v: serde_json::Value = serde_json::from_slice(line).ok()?;
     let o = v.as_object()?;
     if o.get("cmd")?.as_str()? != "subscribe" || o.keys().any(|k| k != "cmd" && k != "request_id") {
