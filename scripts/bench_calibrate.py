@@ -47,7 +47,8 @@ def main():
     ap.add_argument("--method", default="linear")
     ap.add_argument("--verify", type=int, default=5, help="verification images (also scored by sim score)")
     ap.add_argument("--average", type=int, default=3, help="frames averaged per capture (calibrate and sim score)")
-    ap.add_argument("--loop-images", type=int, default=0, help="closed-loop pairs (calibrate --loop-images)")
+    ap.add_argument("--loop-images", type=int, default=None,
+                    help="closed-loop pairs (calibrate --loop-images; default: calibrate's, as many as sampling pairs)")
     a = ap.parse_args()
     if not os.access(a.bin, os.X_OK):
         sys.exit(f"bench_calibrate: {a.bin} is not an executable (cargo build --release first)")
@@ -72,8 +73,8 @@ def main():
         rec = json.loads(run([a.bin, "calibrate", "--rig", f"virtual:{scene}", "--seed", seed,
                               "--data", data, "--out", model, "--method", a.method,
                               "--verify", str(a.verify), "--rig-latency-ms", latency,
-                              "--rig-fps", a.fps, "--average", str(a.average),
-                              "--loop-images", str(a.loop_images), "--json"]))
+                              "--rig-fps", a.fps, "--average", str(a.average), "--json"]
+                             + ([] if a.loop_images is None else ["--loop-images", str(a.loop_images)])))
         wall = time.monotonic() - t
         c = rec
         root = os.path.join(work, "score")
@@ -91,19 +92,23 @@ def main():
             "seconds": c["seconds"], "wall": wall, "verification": v["psnr"], "ssim": v["ssim"],
             "uncompensated": v["uncompensated_psnr"], "sim_score": by["calibrated"]["psnr"],
             "oracle": by["oracle"]["psnr"], "installed": v["passed"],
+            "floor": c.get("capture_floor") or {},
         })
         r = rows[-1]
         print(f"{r['run']}: latency {latency} ms, total {r['seconds']['total']:.1f} s, verification "
               f"{r['verification']:.2f} dB, sim score {r['sim_score']:.2f} dB", file=sys.stderr)
     print("| run | latency ms (frames) | latency s | exposure s | patterns s | captures s | training s "
-          "| verification s | total s | verification dB / SSIM | uncompensated dB | sim score dB | "
-          "difference dB | oracle dB |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| verification s | total s | capture floor s | total / floor | verification dB / SSIM | "
+          "uncompensated dB | sim score dB | difference dB | oracle dB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         s = r["seconds"]
+        f = r["floor"]
+        floor = f["frames"] / f["fps"] if f.get("fps") else float("nan")
         print(f"| {r['run']} | {r['latency_ms']} ({r['measured_frames']}) | {s['latency']:.1f} | "
               f"{s.get('exposure', 0):.1f} | {s['patterns']:.1f} | {s['captures']:.1f} | "
               f"{s['training']:.1f} | {s['verification']:.1f} | {s['total']:.1f} | "
+              f"{floor:.1f} | {s['total'] / floor:.2f} | "
               f"{r['verification']:.2f} / {r['ssim']:.3f} | {r['uncompensated']:.2f} | "
               f"{r['sim_score']:.2f} | {r['verification'] - r['sim_score']:+.2f} | {r['oracle']:.2f} |")
 

@@ -71,14 +71,34 @@ fn calibrate_installs_a_verified_model_and_records_it() {
         compend::pngio::png_size(&picture).unwrap(),
         compend::raster::ImageSize::new(160, 120)
     );
-    // The scene's camera delay is 2 frames: the measurement finds it, and waits a margin more.
+    // The scene's camera delay is 2 frames: the measurement finds it (a frame more when a
+    // show comes late on the wall clock), and captures wait that long and no more unless
+    // retakes ask for it.
+    let trials: Vec<u64> = r["latency"]["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_u64().unwrap())
+        .collect();
+    assert!(trials.iter().all(|&t| (2..=3).contains(&t)), "{r}");
+    let worst = *trials.iter().max().unwrap();
+    let settle = r["latency"]["settle_frames"].as_u64().unwrap();
+    let retakes = r["retakes"].as_u64().unwrap();
+    assert!(settle >= worst && settle <= worst + retakes, "{r}");
+    // The captures against their floor: on the wall clock the virtual camera gives 30 frames
+    // a second and no more, so the captures cannot beat (latency + averaged frames) / rate.
+    let f = &r["capture_floor"];
+    let fps = f["fps"].as_f64().unwrap();
+    assert!((fps - 30.0).abs() < 0.5, "{f}");
+    let floor = f["frames"].as_f64().unwrap() / fps;
+    assert!(f["seconds"].as_f64().unwrap() >= 0.95 * floor, "{f}");
+    // Every capture (white flashes between closed-loop pairs included) waits the worst measured
+    // latency and averages 3 frames.
+    let captures = f["captures"].as_u64().unwrap();
+    assert!(captures >= 3 + 12 + 4 + 12, "{f}");
     assert!(
-        r["latency"]["trials"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .all(|t| t.as_u64().unwrap() <= 3),
-        "{r}"
+        f["frames"].as_u64().unwrap() <= captures * (worst + 3),
+        "{f}"
     );
     // Black, white, gray, the sampling and test images, and as many closed-loop pairs as
     // sampling pairs (the default for a linear rung).
@@ -92,9 +112,18 @@ fn calibrate_installs_a_verified_model_and_records_it() {
     assert!(
         err.contains("installed linear")
             && err.contains("verification")
-            && err.contains("of the displayable area cannot be compensated"),
+            && err.contains("of the displayable area cannot be compensated")
+            && err.contains("against a floor of"),
         "{err}"
     );
+    // Without a terminal, progress comes as lines: one as each phase starts, with n of N.
+    for phase in [
+        "calibrate: latency 0/1",
+        "calibrate: captures 0/19",
+        "calibrate: closed-loop pairs 0/12",
+    ] {
+        assert!(err.contains(phase), "no {phase:?} in {err}");
+    }
     // The installed model carries the record, loads and evaluates on the captured test pairs.
     let model = data.join("model");
     let meta: serde_json::Value =

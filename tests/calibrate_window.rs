@@ -103,8 +103,9 @@ fn calibrate_through_the_projector_window_under_xvfb() {
         .collect();
     let worst = trials.iter().copied().max().unwrap();
     assert!(worst >= u64::from(delay.delay_frames), "{trials:?}\n{err}");
+    // Captures wait the worst measured latency, and more only after frequent retakes.
     assert!(
-        r["latency"]["settle_frames"].as_u64().unwrap() > u64::from(delay.delay_frames),
+        r["latency"]["settle_frames"].as_u64().unwrap() >= worst,
         "{r}"
     );
 

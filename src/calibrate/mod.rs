@@ -31,6 +31,8 @@
 pub mod clock;
 pub mod exposure;
 pub mod manifest;
+mod pipeline;
+pub mod progress;
 pub mod runs;
 pub mod sync;
 
@@ -288,27 +290,62 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         psize.height,
         vec![1.0; 3 * psize.width * psize.height],
     )?;
-    for i in 1..=n {
-        progress("closed-loop pairs", i - 1, n);
-        opts.check_cancelled()?;
-        let (desired, shown) = loop_image(
-            root,
-            (ntrain, i),
-            (captured.desired.range, captured.desired.area),
-            &model,
-        )?;
-        manifest.record_loop(setup.path(), i)?;
-        root.write(ProjectorSet::Train, ntrain + i, &shown)?;
-        setup.write_loop_desired(ntrain + i, &desired)?;
-        let frame = place_on_canvas(&shown, canvas, psize)?;
-        capturer.capture(&white, true)?;
-        let cap = capturer.capture(&frame, true)?;
-        setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
-    }
+    let mut previous: Option<CamImage> = None;
+    let mut flashes = 0;
+    let placement = (captured.desired.range, captured.desired.area);
+    // Compensated ahead on a helper thread, stored behind on another ([`pipeline`]): the
+    // manifest claims each training image before it is written, so a later run knows it
+    // for this calibration's.
+    pipeline::run(
+        n,
+        |k| {
+            let (desired, shown) = loop_image(root, (ntrain, k + 1), placement, &model)?;
+            let frame = place_on_canvas(&shown, canvas, psize)?;
+            Ok((desired, shown, frame))
+        },
+        |k, (desired, shown, frame)| {
+            progress("closed-loop pairs", k, n);
+            opts.check_cancelled()?;
+            // White between two views the camera could not tell apart (one frame, not
+            // averaged).
+            if !previous
+                .as_ref()
+                .is_some_and(|p| capturer.tells_apart(p, &desired))
+            {
+                capturer.capture_averaging(&white, true, 1)?;
+                flashes += 1;
+            }
+            let cap = match capturer.capture(&frame, true) {
+                Ok(cap) => cap,
+                // The camera did not see it change after all (the compensation could not
+                // give the difference the two views have): white, then once more.
+                Err(Error::Input(why)) if previous.is_some() => {
+                    tracing::info!("closed-loop pair {}: {why}; white first, once more", k + 1);
+                    capturer.capture_averaging(&white, true, 1)?;
+                    flashes += 1;
+                    capturer.capture(&frame, true)?
+                }
+                Err(e) => return Err(e),
+            };
+            previous = Some(desired.clone());
+            Ok((desired, shown, cap))
+        },
+        |k, (desired, shown, cap)| {
+            let i = k + 1;
+            manifest.record_loop(setup.path(), i)?;
+            root.write(ProjectorSet::Train, ntrain + i, &shown)?;
+            setup.write_loop_desired(ntrain + i, &desired)?;
+            setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
+            Ok(())
+        },
+    )?;
     progress("closed-loop pairs", n, n);
     captured.retakes += capturer.retakes;
     captured.reconnects += capturer.reconnects;
-    // The white frames between them are not counted: nothing keeps them.
+    captured.floor.add(&capturer.floor);
+    captured.latency.settle_frames = capturer.settle();
+    // The white frames between them are not counted as captures: nothing keeps them.
+    tracing::debug!("closed-loop pairs: white shown before {flashes} of {n}");
     captured.captured += n;
     captured.loop_pairs = n;
     let capturing = t.elapsed().as_secs_f64();
@@ -352,6 +389,7 @@ pub fn refit(
         MethodChoice::Rung(_) => request(opts, &captured.geometry),
     };
     opts.check_cancelled()?;
+    progress("fit on every pair", 0, 1);
     let t = Instant::now();
     let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
     let req = Request {
@@ -432,9 +470,14 @@ pub struct Captured {
     lower_rung: Option<Model>,
     /// Closed-loop pairs taken by [`refine`].
     loop_pairs: usize,
+    /// Every capture's time against its floor, over the phases so far.
+    floor: sync::CaptureFloor,
     /// The `linear` geometry the fits of [`train`] and [`refit`] share (they see the same
     /// sampling pairs first).
     geometry: Arc<crate::linear::GeometryMemo>,
+    /// The thread fitting that geometry ahead, from the first sampling pairs, while the rest
+    /// were captured ([`start_prefit`]); [`train`] waits for it.
+    prefit: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Captured {
@@ -466,42 +509,64 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     // Before anything is written: captures of another pattern set are never mixed in.
     let mut manifest = Manifest::open(&setup_dir, &opts.patterns)?;
 
-    let t = Instant::now();
-    progress("exposure", 0, 1);
-    let exposure = exposure::range_exposure(display, camera)?;
-    if let Some(e) = &exposure {
-        tracing::info!(
-            "exposure: {} → {} (camera units) in {} steps; brightest lit pixels at {:.3}",
-            e.initial,
-            e.chosen,
-            e.steps,
-            e.bright_level
-        );
-    }
-    seconds.exposure = t.elapsed().as_secs_f64();
-
-    opts.check_cancelled()?;
-    let t = Instant::now();
-    progress("latency", 0, 1);
-    let latency = sync::measure_latency(display, camera, &opts.sync)?;
-    seconds.latency = t.elapsed().as_secs_f64();
-    tracing::info!(
-        "latency: {:?} camera exposures over {} switches; skipping {} per capture",
-        latency.trials,
-        latency.trials.len(),
-        latency.settle_frames
-    );
-
-    let t = Instant::now();
-    let root = DataRoot::create(data)?;
-    write_patterns(&root, &opts.patterns)?;
+    // The patterns are written while the exposure and the latency are measured: those show
+    // only black and white.
+    let (exposure, latency, root) = std::thread::scope(|s| -> Result<_> {
+        let writing = s.spawn(|| -> Result<(DataRoot, f64)> {
+            let t = Instant::now();
+            let root = DataRoot::create(data)?;
+            write_patterns(&root, &opts.patterns)?;
+            Ok((root, t.elapsed().as_secs_f64()))
+        });
+        let measured = (|| -> Result<_> {
+            let t = Instant::now();
+            progress("exposure", 0, 1);
+            let exposure = exposure::range_exposure(display, camera)?;
+            if let Some(e) = &exposure {
+                tracing::info!(
+                    "exposure: {} → {} (camera units) in {} steps; brightest lit pixels at {:.3}",
+                    e.initial,
+                    e.chosen,
+                    e.steps,
+                    e.bright_level
+                );
+            }
+            seconds.exposure = t.elapsed().as_secs_f64();
+            opts.check_cancelled()?;
+            let t = Instant::now();
+            progress("latency", 0, 1);
+            let latency = sync::measure_latency(display, camera, &opts.sync)?;
+            seconds.latency = t.elapsed().as_secs_f64();
+            tracing::info!(
+                "latency: {:?} camera exposures over {} switches; skipping {} per capture",
+                latency.trials,
+                latency.trials.len(),
+                latency.settle_frames
+            );
+            Ok((exposure, latency))
+        })();
+        let written = writing
+            .join()
+            .unwrap_or_else(|_| Err(Error::Failed("the pattern writer panicked".into())));
+        let (exposure, latency) = measured?;
+        let (root, patterns_s) = written?;
+        seconds.patterns = patterns_s;
+        Ok((exposure, latency, root))
+    })?;
     let setup = Setup::create(&root, Path::new(SETUP_NAME))?;
-    seconds.patterns = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
+    let geometry: Arc<crate::linear::GeometryMemo> = Default::default();
+    let (ready, prefit) = start_prefit(&root, &setup, opts, &geometry);
     let mut capturer = Capturer::new(display, camera, &latency, opts.sync);
-    let (captured, resumed) =
-        capture_all(&mut capturer, &root, &setup, &mut manifest, opts, progress)?;
+    let (captured, resumed) = capture_all(
+        &mut capturer,
+        (&root, &setup),
+        &mut manifest,
+        ready,
+        opts,
+        progress,
+    )?;
     seconds.captures = t.elapsed().as_secs_f64();
     tracing::info!(
         "captures: {captured} taken, {resumed} found on disk, {} retaken, camera reopened {} \
@@ -511,6 +576,9 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         seconds.captures
     );
     let (retakes, reconnects) = (capturer.retakes, capturer.reconnects);
+    let floor = capturer.floor;
+    let mut latency = latency;
+    latency.settle_frames = capturer.settle();
     let desired = write_desired(&root, &setup, opts)?;
     Ok(Captured {
         setup: setup.path().to_path_buf(),
@@ -526,7 +594,9 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         started,
         lower_rung: None,
         loop_pairs: 0,
-        geometry: Default::default(),
+        floor,
+        geometry,
+        prefit,
     })
 }
 
@@ -537,6 +607,12 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Result<Model> {
     opts.check_cancelled()?;
     let t = Instant::now();
+    if let Some(prefit) = captured.prefit.take() {
+        progress("geometry", 0, 1);
+        if prefit.join().is_err() {
+            tracing::warn!("the geometry fitted ahead panicked; the fit makes its own");
+        }
+    }
     let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
     let req = request(opts, &captured.geometry);
     // The residual rung's closed-loop pairs are `linear`'s compensations: `linear` first, and
@@ -621,7 +697,9 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         started,
         lower_rung,
         loop_pairs,
+        mut floor,
         geometry: _,
+        prefit: _,
     } = captured;
     opts.check_cancelled()?;
     let t = Instant::now();
@@ -648,6 +726,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         }
     };
     seconds.verification = t.elapsed().as_secs_f64();
+    floor.add(&capturer.floor);
     opts.check_cancelled()?;
     seconds.total = started.elapsed().as_secs_f64();
     let record = CalibrationRecord {
@@ -664,6 +743,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         verification,
         climb: None,
         loop_pairs,
+        capture_floor: Some(floor),
     };
     Ok(Calibrated {
         model,
@@ -777,6 +857,60 @@ fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
     ours(root.write_new_gray_input(&patterns::gray_image(p.gray_level, w, h)))
 }
 
+/// How many sampling pairs the geometry fitted ahead needs, and the sender that tells its
+/// thread they are on disk ([`start_prefit`]).
+type PrefitReady = (usize, std::sync::mpsc::Sender<()>);
+
+/// Starts a thread that fits the `linear` geometry into `memo` ([`fit::prefit_geometry`]) once
+/// told that the references and the first sampling pairs it needs are on disk, so that the fit
+/// after the captures finds it done. Returns the sender to tell it with (and how many sampling
+/// pairs it needs) and the thread; neither for a method whose first fit is not `linear`. The
+/// thread ends without fitting when the sender is dropped untold (the captures failed); a
+/// failed fit is logged, and the fit then makes its own.
+fn start_prefit(
+    root: &DataRoot,
+    setup: &Setup,
+    opts: &Options,
+    memo: &Arc<crate::linear::GeometryMemo>,
+) -> (Option<PrefitReady>, Option<std::thread::JoinHandle<()>>) {
+    let linear_first = match opts.method {
+        MethodChoice::Rung(m) => m == crate::model::Method::Linear || m.is_residual(),
+        MethodChoice::Auto => true,
+    };
+    if !linear_first {
+        return (None, None);
+    }
+    let pairs = crate::linear::FitSettings::default()
+        .geometry_images
+        .min(opts.patterns.ntrain);
+    let (tx, rx) = std::sync::mpsc::channel::<()>();
+    let (root, setup) = (root.path().to_path_buf(), setup.path().to_path_buf());
+    let req = Request {
+        projector: Some(opts.patterns.projector),
+        geometry_memo: Some(memo.clone()),
+        ..Request::new(MethodChoice::Rung(crate::model::Method::Linear))
+    };
+    let thread = std::thread::Builder::new()
+        .name("geometry".into())
+        .spawn(move || {
+            if rx.recv().is_err() {
+                return;
+            }
+            let fitted = Setup::open(&setup, Some(&root))
+                .and_then(|setup| fit::prefit_geometry(&setup, &req, pairs));
+            if let Err(e) = fitted {
+                tracing::warn!("fitting the geometry ahead: {e}; the fit makes its own");
+            }
+        });
+    match thread {
+        Ok(t) => (Some((pairs, tx)), Some(t)),
+        Err(e) => {
+            tracing::warn!("could not start the thread that fits the geometry ahead: {e}");
+            (None, None)
+        }
+    }
+}
+
 /// One capture to take: where it goes (relative to the setup) and what is shown.
 struct Shot {
     rel: PathBuf,
@@ -786,11 +920,13 @@ struct Shot {
 }
 
 /// Captures every pattern not yet on disk. Returns (captured now, found on disk).
+/// `ready`: (k, a sender) to tell once the references and the first k sampling pairs are on
+/// disk ([`start_prefit`]).
 fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
-    root: &DataRoot,
-    setup: &Setup,
+    (root, setup): (&DataRoot, &Setup),
     manifest: &mut Manifest,
+    ready: Option<PrefitReady>,
     opts: &Options,
     progress: Progress,
 ) -> Result<(usize, usize)> {
@@ -824,23 +960,51 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             }
         })
         .collect();
-    let canvas = Rect::covering(capturer.projector_size());
-    let (mut captured, mut resumed) = (0, 0);
-    for (k, shot) in shots.iter().enumerate() {
-        progress("captures", k, shots.len());
-        opts.check_cancelled()?;
-        if manifest.has(setup.path(), &shot.rel) {
-            resumed += 1;
-            continue;
-        }
-        let img: PrjImage = crate::pngio::read_rgb(&shot.source)?;
-        let frame = place_on_canvas(&img, canvas, capturer.projector_size())?;
-        let cap = capturer.capture(&frame, true)?;
-        setup.write_capture(shot.set, shot.index, &cap)?;
-        manifest.record(setup.path(), shot.rel.clone())?;
-        captured += 1;
-    }
-    progress("captures", shots.len(), shots.len());
+    let psize = capturer.projector_size();
+    let canvas = Rect::covering(psize);
+    let total = shots.len();
+    let (todo, done): (Vec<Shot>, Vec<Shot>) = shots
+        .into_iter()
+        .partition(|shot| !manifest.has(setup.path(), &shot.rel));
+    let resumed = done.len();
+    let captured = todo.len();
+    // The references come first, then the sampling pairs in order: once sampling capture k is
+    // stored, every capture the geometry needs is.
+    let mut ready = ready.filter(|(k, tx)| {
+        let pending = todo
+            .iter()
+            .any(|s| s.set == CaptureSet::Train && s.index == *k);
+        // Already on disk: tell now.
+        pending || tx.send(()).is_err()
+    });
+    // Shown, captured and stored in a pipeline: the patterns are read and placed ahead, the
+    // captures written (and recorded in the manifest, after their file) behind.
+    pipeline::run(
+        todo.len(),
+        |k| {
+            let img: PrjImage = crate::pngio::read_rgb(&todo[k].source)?;
+            place_on_canvas(&img, canvas, psize)
+        },
+        |k, frame| {
+            progress("captures", resumed + k, total);
+            opts.check_cancelled()?;
+            capturer.capture(&frame, true)
+        },
+        |k, cap| {
+            let shot = &todo[k];
+            setup.write_capture(shot.set, shot.index, &cap)?;
+            manifest.record(setup.path(), shot.rel.clone())?;
+            if ready
+                .as_ref()
+                .is_some_and(|(n, _)| shot.set == CaptureSet::Train && shot.index == *n)
+                && let Some((_, tx)) = ready.take()
+            {
+                let _ = tx.send(());
+            }
+            Ok(())
+        },
+    )?;
+    progress("captures", total, total);
     Ok((captured, resumed))
 }
 

@@ -31,7 +31,10 @@ const MAX_STALE_FRAMES: u64 = 16;
 pub struct SyncSettings {
     /// Black/white alternations for the latency measurement.
     pub latency_trials: usize,
-    /// Exposures added to the worst measured latency.
+    /// Exposures added to the worst measured latency before the first capture. 0 by default:
+    /// a capture waits the measured latency and no more; when retakes (the frames disagreed,
+    /// or the capture did not change with the pattern) become frequent, every later capture
+    /// waits a frame more ([`Capturer::settle`]).
     pub margin_frames: u64,
     /// Frames averaged per capture.
     pub average: usize,
@@ -45,7 +48,7 @@ impl Default for SyncSettings {
     fn default() -> Self {
         Self {
             latency_trials: 4,
-            margin_frames: 2,
+            margin_frames: 0,
             average: 3,
             retakes: 3,
             max_wait_frames: 120,
@@ -238,6 +241,12 @@ pub struct Capturer<'a, D: ?Sized, C: ?Sized> {
     settle: u64,
     clock: Option<CameraClock>,
     previous: Option<CamImage>,
+    /// Block-mean noise of the last capture's averaged frames (encoded units).
+    noise: f64,
+    /// The worst measured latency, exposures: the floor's wait.
+    latency_frames: u64,
+    /// What the captures took against their floor.
+    pub floor: CaptureFloor,
     /// Captures retaken because a check failed.
     pub retakes: usize,
     /// Times the camera went away during a capture and was opened again (the capture was
@@ -263,6 +272,9 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
             settle: latency.settle_frames,
             clock: latency.clock,
             previous: None,
+            noise: 0.0,
+            latency_frames: latency.trials.iter().copied().max().unwrap_or(0),
+            floor: CaptureFloor::default(),
             retakes: 0,
             reconnects: 0,
         }
@@ -273,12 +285,32 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
         self.display.size()
     }
 
+    /// Exposures each capture now skips after its show: the measured latency plus the
+    /// margin, plus one each time retakes passed one capture in twenty. Write it back into the
+    /// [`Latency`] a later capturer starts from.
+    pub fn settle(&self) -> u64 {
+        self.settle
+    }
+
+    /// Whether the camera can tell a capture of `b` from one of `a` (two views it is to see,
+    /// camera pixels, encoded units) by their block means, with room to spare over the check
+    /// each capture passes: when not, show something plainly different between them.
+    pub fn tells_apart(&self, a: &CamImage, b: &CamImage) -> bool {
+        a.size() == b.size() && block_diff(a, b) > 3.0 * self.change_threshold()
+    }
+
+    /// The least block-mean change from the previous capture that counts as a new picture.
+    fn change_threshold(&self) -> f64 {
+        (3.0 * self.noise).max(0.004)
+    }
+
     /// The camera's next frame, its arrival refining the camera's clock.
     fn grab(&mut self) -> Result<crate::device::Frame> {
         let f = self.camera.grab()?;
         if let Some(c) = &mut self.clock {
             c.observe(&f, Instant::now());
         }
+        self.floor.observe(&f);
         Ok(f)
     }
 
@@ -288,8 +320,34 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
     /// (unplugged, a USB reset) is opened again and the capture taken again from the start, up
     /// to [`MAX_RECONNECTS`] times in all; then the error is reported.
     pub fn capture(&mut self, frame: &PrjImage, differs: bool) -> Result<CamImage> {
+        self.capture_averaging(frame, differs, self.settings.average)
+    }
+
+    /// [`Capturer::capture`] averaging `average` frames instead of the settings' (1: a frame
+    /// shown only to change the picture, e.g. white between two that look alike).
+    pub fn capture_averaging(
+        &mut self,
+        frame: &PrjImage,
+        differs: bool,
+        average: usize,
+    ) -> Result<CamImage> {
+        let average = average.max(1);
+        self.floor.captures += 1;
+        self.floor.frames += self.latency_frames + average as u64;
+        let started = Instant::now();
+        let taken = self.capture_retrying(frame, differs, average);
+        self.floor.seconds += started.elapsed().as_secs_f64();
+        taken
+    }
+
+    fn capture_retrying(
+        &mut self,
+        frame: &PrjImage,
+        differs: bool,
+        average: usize,
+    ) -> Result<CamImage> {
         loop {
-            let error = match self.capture_once(frame, differs) {
+            let error = match self.capture_once(frame, differs, average) {
                 Ok(image) => return Ok(image),
                 Err(e) => e,
             };
@@ -313,7 +371,7 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
         }
     }
 
-    fn capture_once(&mut self, frame: &PrjImage, differs: bool) -> Result<CamImage> {
+    fn capture_once(&mut self, frame: &PrjImage, differs: bool, count: usize) -> Result<CamImage> {
         let mut settle = self.settle;
         for attempt in 0..=self.settings.retakes {
             let shown_at = Instant::now();
@@ -334,7 +392,7 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
                 f = self.grab()?;
             }
             let mut frames = vec![f.image];
-            while frames.len() < self.settings.average.max(1) {
+            while frames.len() < count {
                 frames.push(self.grab()?.image);
             }
             // Block-mean disagreement between the first and last averaged frames: noise, or a
@@ -347,18 +405,36 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
                  {noise:.4}, change from the previous capture {:?}, settle {settle}",
                 self.previous.as_ref().map(|p| block_diff(p, &avg))
             );
+            let threshold = (3.0 * noise).max(0.004);
             let new = !differs
                 || self
                     .previous
                     .as_ref()
-                    .is_none_or(|p| block_diff(p, &avg) > (3.0 * noise).max(0.004));
+                    .is_none_or(|p| block_diff(p, &avg) > threshold);
             if stable && new {
+                if frames.len() >= 2 {
+                    self.noise = noise;
+                }
                 self.previous = Some(avg.clone());
                 return Ok(avg);
             }
             if attempt < self.settings.retakes {
                 self.retakes += 1;
                 settle += 1 + settle / 2;
+                // The measured latency is not enough often enough (a second retake, and more
+                // than one capture in 20 retaken): every later capture waits a frame more, at
+                // most MAX_STALE_FRAMES more than measured. A lone retake costs one capture; a
+                // frame more on every capture costs a fifth of a capture each.
+                if self.retakes >= 2
+                    && self.retakes * 20 > self.floor.captures
+                    && self.settle < self.latency_frames + MAX_STALE_FRAMES
+                {
+                    self.settle += 1;
+                    tracing::info!(
+                        "a capture was retaken; waiting {} exposures after each show from now on",
+                        self.settle
+                    );
+                }
             }
         }
         Err(Error::Input(format!(
@@ -367,6 +443,54 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
              balance, and check that the projector shows every pattern",
             self.settings.retakes
         )))
+    }
+}
+
+/// What captures took against their physical floor: each capture needs the measured latency
+/// plus the frames it averages, at the camera's rate, and nothing else.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CaptureFloor {
+    /// Captures taken (white frames shown between look-alike pictures included).
+    pub captures: usize,
+    /// Σ (worst measured latency + frames averaged) over them, exposures.
+    pub frames: u64,
+    /// Wall time the captures took, seconds (showing, waiting, grabbing, checking).
+    pub seconds: f64,
+    /// The camera's frame rate measured from its frames' timestamps, Hz (0: not measured).
+    pub fps: f64,
+    /// First and last frame seen: (sequence number, timestamp in seconds).
+    #[serde(skip)]
+    span: Option<((u64, f64), (u64, f64))>,
+}
+
+impl CaptureFloor {
+    fn observe(&mut self, f: &crate::device::Frame) {
+        let now = (f.seq, f.timestamp.as_secs_f64());
+        let (first, _) = self.span.unwrap_or((now, now));
+        self.span = Some((first, now));
+        let (frames, secs) = (now.0.saturating_sub(first.0), now.1 - first.1);
+        if frames >= 2 && secs > 0.0 {
+            self.fps = frames as f64 / secs;
+        }
+    }
+
+    /// The floor in seconds: [`Self::frames`] at the measured rate (0 when not measured).
+    pub fn floor_seconds(&self) -> f64 {
+        if self.fps > 0.0 {
+            self.frames as f64 / self.fps
+        } else {
+            0.0
+        }
+    }
+
+    /// This and `other` together (the rate from whichever measured one).
+    pub fn add(&mut self, other: &CaptureFloor) {
+        self.captures += other.captures;
+        self.frames += other.frames;
+        self.seconds += other.seconds;
+        if self.fps <= 0.0 {
+            self.fps = other.fps;
+        }
     }
 }
 

@@ -126,6 +126,11 @@ pub struct Args {
     /// Virtual camera only: camera frame rate, Hz (default: the scene's).
     #[arg(long, value_name = "HZ")]
     pub rig_fps: Option<f64>,
+    /// `--rig virtual` only: `wall` delivers the camera's frames no faster than its frame rate,
+    /// as a real camera does, so the phase times are those of a rig; `simulated` as fast as
+    /// they are computed (for tests and benches of the fit).
+    #[arg(long, value_enum, default_value_t = RigClock::Wall)]
+    pub rig_clock: RigClock,
     /// Seed of the sampling images (and of the virtual rig's texture and noise) [default: 0].
     #[arg(long)]
     pub seed: Option<u64>,
@@ -150,6 +155,7 @@ pub struct Args {
 /// (the configuration's, so `calibrate` and `serve` agree).
 #[derive(Debug)]
 struct Settings {
+    rig_clock: RigClock,
     rig: Option<String>,
     camera: Option<PathBuf>,
     camera_size: Option<ImageSize>,
@@ -292,6 +298,7 @@ impl Settings {
                 .rig_latency_ms
                 .or(r.latency_ms.filter(|_| from(&simulated))),
             rig_fps: a.rig_fps.or(r.camera_fps.filter(|_| from(&simulated))),
+            rig_clock: a.rig_clock,
             rig_camera: a.rig_camera.or(r.camera_size.filter(|_| from(&simulated))),
             projector: a
                 .projector
@@ -528,6 +535,10 @@ fn run_virtual(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
     let scene = scene_for(args, scene_name, None)?;
     let rig = VirtualRig::new(&scene, args.seed)
         .with_context(|| format!("preparing the virtual rig (scene {scene_name:?})"))?;
+    let rig = match args.rig_clock {
+        RigClock::Wall => rig.on_wall_clock(),
+        RigClock::Simulated => rig,
+    };
     let (mut display, mut camera) = (rig.clone(), rig);
     eprintln!(
         "calibrate: virtual rig {scene_name:?} (projector {}, {}) into {}",
@@ -709,15 +720,11 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         rig,
         cancel: None,
     };
-    let bar = super::progress_bar(args.json);
-    let mut progress = |stage: &str, done: usize, total: usize| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-        bar.set_message(stage.to_string());
-    };
+    let report = super::progress::Progress::new("calibrate", args.json);
+    let mut progress = |stage: &str, done: usize, total: usize| report.update(stage, done, total);
     let done = calibrate::calibrate(display, camera, &args.data, &opts, &mut progress)
         .with_context(|| format!("calibrating into {}", args.data.display()))?;
-    bar.finish_and_clear();
+    report.finish();
     print_record(&done, args.json)?;
     Ok(done)
 }
@@ -745,6 +752,20 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
          training {:.1}, verification {:.1}, total {:.1}",
         s.exposure, s.latency, s.patterns, s.captures, s.training, s.verification, s.total
     );
+    if let Some(f) = r.capture_floor.filter(|f| f.fps > 0.0) {
+        eprintln!(
+            "calibrate: {} captures took {:.1} s against a floor of {:.1} s ({} exposures of \
+             latency and averaging at {:.1} fps): {:.2}× the floor; the whole calibration \
+             {:.2}× it",
+            f.captures,
+            f.seconds,
+            f.floor_seconds(),
+            f.frames,
+            f.fps,
+            f.seconds / f.floor_seconds().max(1e-9),
+            s.total / f.floor_seconds().max(1e-9)
+        );
+    }
     if let Some(u) = &r.unreachable {
         eprintln!("calibrate: {}", u.line());
     }
@@ -766,6 +787,15 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
         println!("{}", serde_json::to_string(r)?);
     }
     Ok(())
+}
+
+/// How the virtual rig's camera keeps time (`--rig-clock`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RigClock {
+    /// Frames no faster than the camera's frame rate, as a real camera.
+    Wall,
+    /// Frames as fast as they are simulated.
+    Simulated,
 }
 
 /// Installs the model into `out` if it verified; otherwise says why not, `out` unchanged.

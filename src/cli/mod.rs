@@ -15,6 +15,7 @@ pub mod metrics;
 pub mod patterns;
 pub mod play;
 pub mod pretrain;
+pub mod progress;
 pub mod serve;
 pub mod show;
 pub mod sim;

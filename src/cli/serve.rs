@@ -330,6 +330,8 @@ pub fn recalibrate(a: RecalibrateArgs) -> Result<()> {
         return Ok(());
     }
     let deadline = Instant::now() + Duration::from_secs_f64(a.timeout);
+    // The service's progress as it goes: a bar on a terminal, lines otherwise.
+    let report = super::progress::Progress::new("recalibrate", false);
     loop {
         std::thread::sleep(Duration::from_millis(250));
         let s = send(&a.client, &Request::Status)?
@@ -339,7 +341,14 @@ pub fn recalibrate(a: RecalibrateArgs) -> Result<()> {
             s.state,
             State::Calibrating | State::Training | State::Verifying
         );
+        if busy {
+            match &s.calibration {
+                Some(p) => report.update(&p.phase, p.done, p.total),
+                None => report.update(s.state.name(), 0, 1),
+            }
+        }
         if s.calibrations > before && !busy {
+            report.finish();
             match &s.last_calibration {
                 Some(o) if o.installed => {}
                 Some(o) => {

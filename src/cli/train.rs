@@ -67,6 +67,12 @@ pub struct Args {
     /// `compensate` writes images of this size.
     #[arg(long, value_name = "N|WxH|native", value_parser = parse_lattice)]
     pub lattice: Option<Lattice>,
+    /// The projector's resolution, WxH, for the default lattice and for `auto`'s live pass,
+    /// when the data does not give it (a dataset in the CompenNet++ layout has no
+    /// structured-light patterns and no calibration record). The output says which lattice
+    /// was used and why.
+    #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size)]
+    pub projector: Option<compend::raster::ImageSize>,
     /// CompenNet++ variants: how CompenNet's weights start: `shipped` (the photometric
     /// pre-initialisation compiled into compend, see `compend pretrain`), `none` (Kaiming noise
     /// from --seed, as the paper without pre-training) or a `.safetensors` file written by
@@ -110,6 +116,7 @@ pub fn run(args: Args) -> Result<()> {
                 )
             })?),
         },
+        projector: args.projector,
         photometric: args.photometric_init.clone(),
         climb_gain_db: args.climb_gain,
         live: super::refresh_timer(
@@ -125,14 +132,23 @@ pub fn run(args: Args) -> Result<()> {
     {
         eprintln!("warning: {w}");
     }
-    let bar = super::progress_bar(args.json);
+    // Which lattice the linear rungs' output takes, and why (the data may not say the
+    // projector's size).
+    let lattice_rung = match args.method {
+        compend::model::MethodChoice::Auto => true,
+        compend::model::MethodChoice::Rung(m) => m.is_linear() || m.is_residual(),
+    };
+    if lattice_rung && !args.json {
+        let (lattice, why) = fit::lattice_choice(&setup, &req)
+            .with_context(|| format!("the output lattice for {}", setup.path().display()))?;
+        eprintln!("train: output lattice {lattice}: {why}");
+    }
+    let report = super::progress::Progress::new("train", args.json);
     let (model, summary) = fit::fit(&setup, &req, |stage, done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-        bar.set_message(stage.to_string());
+        report.update(stage, done, total)
     })
     .with_context(|| format!("training {} on {}", args.method, setup.path().display()))?;
-    bar.finish_and_clear();
+    report.finish();
     model
         .save(&out)
         .with_context(|| format!("saving the model to {}", out.display()))?;

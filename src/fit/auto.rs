@@ -394,7 +394,7 @@ fn pass_shape(
     data: &TrainingData<'_>,
 ) -> Result<super::PassShape> {
     let network = setup.root().network_size()?;
-    let projector = super::projector_size(setup, req)?.ok_or_else(|| {
+    let projector = super::projector_size(setup, req)?.0.ok_or_else(|| {
         crate::Error::Input(format!(
             "{}: the projector's resolution is not known (no structured-light patterns in its \
              data root, no calibration manifest), so the climb's live pass cannot be sized for \

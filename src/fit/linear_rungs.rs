@@ -86,7 +86,7 @@ pub(super) fn fit_linear(
 
 /// The linear rungs' fit settings: the request's output lattice ([`super::fit`] has set it to
 /// [`super::default_lattice`] when none was asked for).
-fn settings(req: &Request, network_size: crate::raster::ImageSize) -> FitSettings {
+pub(super) fn settings(req: &Request, network_size: crate::raster::ImageSize) -> FitSettings {
     FitSettings {
         network_size,
         lattice: req.lattice,

@@ -196,10 +196,28 @@ pub fn fit(
     }
 }
 
+/// The `linear` geometry that a fit of `req` on `setup` starts with, fitted now on the setup's
+/// first `pairs` pairs (the fit's geometry images, [`crate::linear::FitSettings`], or all its
+/// pairs when it has fewer) and left in `req.geometry_memo` for that fit to take ([`linear::GeometryMemo`]).
+/// A calibration starts it as soon as those pairs are on disk, while it still captures the
+/// rest. Nothing to do without a memo.
+pub fn prefit_geometry(setup: &Setup, req: &Request, pairs: usize) -> Result<()> {
+    let Some(memo) = req.geometry_memo.as_deref() else {
+        return Ok(());
+    };
+    let data = load_training(setup, true, pairs)?;
+    let settings = linear_rungs::settings(req, data.network_size);
+    crate::linear::prefit_geometry(
+        &data.captures,
+        &data.targets,
+        crate::warp::Warp::from_affine(data.theta),
+        &settings,
+        memo,
+    )
+}
+
 /// `req` with the output lattice of the linear rungs (also under the residual rung and
-/// `auto`) resolved: as asked, else the default for this setup's projector ([`default_lattice`]):
-/// the caller's, else the structured-light patterns' size, else what a calibration recorded for
-/// this setup.
+/// `auto`) resolved ([`lattice_choice`]), which is logged with its reason.
 fn with_lattice(
     setup: &Setup,
     req: &Request,
@@ -208,9 +226,37 @@ fn with_lattice(
     if req.lattice.is_some() || variant.is_some_and(|v| !v.residual()) {
         return Ok(req.clone());
     }
-    let projector = projector_size(setup, req)?;
+    let (lattice, why) = lattice_choice(setup, req)?;
+    tracing::info!("the linear rungs' output lattice is {lattice}: {why}");
+    Ok(Request {
+        lattice: Some(lattice),
+        ..req.clone()
+    })
+}
+
+/// The output lattice of the linear rungs for `req` on `setup`, and why, in words: as asked
+/// (`req.lattice`), else the default for the projector's resolution ([`default_lattice`]):
+/// the caller's (`--projector`, a calibration's display), else the structured-light patterns'
+/// size, else what a calibration recorded for this setup; 1.5× the network size when none
+/// says.
+pub fn lattice_choice(setup: &Setup, req: &Request) -> Result<(ImageSize, String)> {
+    if let Some(l) = req.lattice {
+        return Ok((l, "as asked (--lattice)".into()));
+    }
     let network = setup.root().network_size()?;
+    let (projector, source) = projector_size(setup, req)?;
     let lattice = default_lattice(network, projector);
+    let why = match projector {
+        None => format!(
+            "1.5× the {network} network, as the data gives no projector size (no \
+             structured-light patterns, no calibration record); give --projector WxH, or \
+             --lattice"
+        ),
+        Some(p) if p != lattice => {
+            format!("the projector's {p} ({source}), scaled to at most 1920×1080 pixels")
+        }
+        Some(p) => format!("the projector's resolution, {p} ({source})"),
+    };
     if lattice.width < network.width || lattice.height < network.height {
         tracing::warn!(
             "the linear rungs' output will be {lattice}, coarser than the {network} network: \
@@ -218,20 +264,20 @@ fn with_lattice(
             projector.map_or_else(|| "unknown".to_string(), |p| p.to_string())
         );
     }
-    Ok(Request {
-        lattice: Some(lattice),
-        ..req.clone()
-    })
+    Ok((lattice, why))
 }
 
 /// The projector's resolution: the caller's, else the structured-light patterns' size, else
-/// what a calibration recorded for this setup; `None` when none says.
-fn projector_size(setup: &Setup, req: &Request) -> Result<Option<ImageSize>> {
+/// what a calibration recorded for this setup; `None` when none says. With where it came from,
+/// in words.
+fn projector_size(setup: &Setup, req: &Request) -> Result<(Option<ImageSize>, &'static str)> {
     Ok(match (req.projector, setup.root().projector_size()) {
-        (Some(size), _) | (None, Ok(size)) => Some(size),
-        (None, Err(Error::Missing { .. })) => {
-            crate::calibrate::manifest::recorded_projector(setup.path())?
-        }
+        (Some(size), _) => (Some(size), "given: --projector, or the calibrated display"),
+        (None, Ok(size)) => (Some(size), "the structured-light patterns' size"),
+        (None, Err(Error::Missing { .. })) => (
+            crate::calibrate::manifest::recorded_projector(setup.path())?,
+            "recorded by the calibration",
+        ),
         (None, Err(e)) => return Err(e),
     })
 }

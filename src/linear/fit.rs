@@ -122,6 +122,31 @@ pub fn fit_with_memo(
     ))
 }
 
+/// Fits the geometry that [`fit_with_memo`] on pairs starting with these would fit, and leaves
+/// it in `memo` for that fit to take (nothing to do when the memo already holds it). Inputs as
+/// for [`fit`]; only the first `settings.geometry_images` pairs are used.
+pub fn prefit_geometry(
+    captures: &[CamImage],
+    targets: &[NetImage],
+    init: Warp,
+    settings: &FitSettings,
+    memo: &GeometryMemo,
+) -> Result<()> {
+    check_pairs(captures, targets)?;
+    let key = geometry_key(captures, targets, &init, settings);
+    if key.is_some_and(|k| memo.get(k).is_some()) {
+        return Ok(());
+    }
+    let g = fit_learned_geometry(captures, targets, init, settings, key, &mut |_, _, _| {});
+    tracing::info!(
+        "linear geometry fitted ahead on the first {} pairs in {:.1} s",
+        g.images,
+        g.seconds
+    );
+    memo.put(g);
+    Ok(())
+}
+
 /// The geometry stage of a [`fit`]: the affine + TPS warp, its dense refinement and the coarse
 /// response curves the colour solve starts from. It depends only on the first
 /// `settings.geometry_images` pairs, the initial warp and the settings other than the lattice.
@@ -154,8 +179,8 @@ impl FittedGeometry {
 /// The last geometry a [`fit_with_memo`] fitted, for the fits of one training or calibration to
 /// share. Those fits see the same first pairs (the sampling pairs; held-out and closed-loop
 /// pairs come after them) and the geometry uses only the first `geometry_images` of them, so
-/// it comes out the same each time: at the virtual rig's sizes 8–11 s of every fit on 2 cores
-/// (release build), done once. A fit takes the memo's geometry only when a fingerprint of what the
+/// it comes out the same each time: at the virtual rig's sizes about 4 s of every fit on 2
+/// cores (release build), done once. A fit takes the memo's geometry only when a fingerprint of what the
 /// geometry depends on matches ([`geometry_key`]); otherwise it fits its own and leaves it
 /// there.
 #[derive(Debug, Default)]

@@ -71,12 +71,15 @@ pub(super) fn fit_warp(
                 &lut,
                 &IDENTITY,
                 settings.ridge,
+                Subset::ALL,
             );
             let mut prior = global_solution(&global, values);
+            let stride = settings.geometry_stride(lw * lh);
             for it in 0..iters {
                 let grid = basis.grid(&warp);
+                let subset = Subset::rotating(stride, it);
                 let (loss, dl_dg, global) =
-                    geometry_step(&stack, &ylin, &grid, &lut, &prior, settings.ridge);
+                    geometry_step(&stack, &ylin, &grid, &lut, &prior, settings.ridge, subset);
                 prior = global_solution(&global, values);
                 history.push(loss);
                 let grad = basis.backward(&warp, &dl_dg);
@@ -119,13 +122,23 @@ pub(super) fn refine_geometry(
     let spacing = spacing.max(1);
     let mut field = OffsetField::zeros((nw - 1) / spacing + 2, (nh - 1) / spacing + 2);
     let mut adam = Adam::new(2 * field.offsets.len());
-    let (_, _, global) = geometry_step(&caps, &ylin, base, &lut, &IDENTITY, settings.ridge);
+    let (_, _, global) = geometry_step(
+        &caps,
+        &ylin,
+        base,
+        &lut,
+        &IDENTITY,
+        settings.ridge,
+        Subset::ALL,
+    );
     let mut prior = global_solution(&global, values);
+    let stride = settings.geometry_stride(nw * nh);
     for it in 0..iters {
         let mut grid = base.clone();
         field.apply(&mut grid);
+        let subset = Subset::rotating(stride, it);
         let (loss, dl_dg, global) =
-            geometry_step(&caps, &ylin, &grid, &lut, &prior, settings.ridge);
+            geometry_step(&caps, &ylin, &grid, &lut, &prior, settings.ridge, subset);
         prior = global_solution(&global, values);
         history.push(loss);
         let grad = field.backward(&dl_dg, nw, nh);
@@ -238,6 +251,7 @@ fn geometry_step(
     lut: &PowLut,
     prior: &[f32; 12],
     ridge: f32,
+    subset: Subset,
 ) -> (f64, Vec<[f32; 2]>, Normal) {
     let n = caps.images();
     let ImageSize {
@@ -246,14 +260,14 @@ fn geometry_step(
     } = caps.size();
     let (sx, sy) = (0.5 * (cw.max(2) - 1) as f32, 0.5 * (ch.max(2) - 1) as f32);
     let lambda = ridge as f64;
-    let count = (n * grid.data().len() * 3) as f32;
-    let results: Vec<(f64, [f32; 2], Normal)> = grid
-        .data()
+    let pixels = subset.pixels(grid.size());
+    let count = (n * pixels.len() * 3).max(1) as f32;
+    let results: Vec<(f64, [f32; 2], Normal)> = pixels
         .par_iter()
-        .enumerate()
         .map_init(
             || vec![Sample::default(); n],
-            |buf, (p, &[gx, gy])| {
+            |buf, &p| {
+                let [gx, gy] = grid.data()[p];
                 let mut ne = Normal::default();
                 let at = caps.locate(gx, gy);
                 for (i, s) in buf.iter_mut().enumerate() {
@@ -296,13 +310,51 @@ fn geometry_step(
         .collect();
     let mut global = Normal::default();
     let mut loss = 0f64;
-    let mut grad = Vec::with_capacity(results.len());
-    for (l, g, ne) in &results {
+    let mut grad = vec![[0f32; 2]; grid.data().len()];
+    for (&p, (l, g, ne)) in pixels.iter().zip(&results) {
         loss += l;
-        grad.push(*g);
+        grad[p] = *g;
         global.merge(ne);
     }
     (loss / count as f64, grad, global)
+}
+
+/// The network pixels a [`geometry_step`] evaluates: every `stride`-th pixel in each direction,
+/// starting at (`phase % stride`, `phase / stride % stride`). Successive steps move the phase, so
+/// every pixel counts over `stride²` steps while each step costs `1 / stride²` of a full one.
+#[derive(Clone, Copy, Debug)]
+struct Subset {
+    stride: usize,
+    phase: usize,
+}
+
+impl Subset {
+    /// Every pixel.
+    const ALL: Subset = Subset {
+        stride: 1,
+        phase: 0,
+    };
+
+    /// Step `step`'s subset at `stride` (1: every pixel).
+    fn rotating(stride: usize, step: usize) -> Self {
+        Self {
+            stride: stride.max(1),
+            phase: step,
+        }
+    }
+
+    /// Row-major indices of the subset's pixels on a lattice of `size`.
+    fn pixels(&self, size: ImageSize) -> Vec<usize> {
+        let s = self.stride.max(1);
+        // A fixed, well-mixed order of the s² offsets, so consecutive steps sit far apart.
+        let k = (self.phase * 7) % (s * s);
+        let (ox, oy) = (k % s, k / s);
+        let mut out = Vec::with_capacity(size.width.div_ceil(s) * size.height.div_ceil(s));
+        for y in (oy..size.height).step_by(s) {
+            out.extend((ox..size.width).step_by(s).map(|x| y * size.width + x));
+        }
+        out
+    }
 }
 
 /// Adam (Kingma & Ba) over a flat parameter vector.

@@ -44,7 +44,9 @@ mod settings;
 mod stack;
 mod tensors;
 
-pub use fit::{FitReport, GeometryMemo, fit, fit_geometry, fit_on_grid, fit_with_memo};
+pub use fit::{
+    FitReport, GeometryMemo, fit, fit_geometry, fit_on_grid, fit_with_memo, prefit_geometry,
+};
 pub use model::{Coefficients, Curves, Geometry, LinearModel, SimplifiedLinear, apply_colour};
 pub use settings::FitSettings;
 

@@ -3,6 +3,13 @@
 use crate::raster::ImageSize;
 use serde::{Deserialize, Serialize};
 
+/// The most network pixels a geometry step evaluates by default ([`FitSettings::geometry_pixels`]):
+/// 128², so the 256² level and the dense refinement run on every other pixel in each
+/// direction. Measured on the demo's calibration data (curved, seed 1, 48 pairs, closed loop
+/// with `sim score`): the geometry took 3.8 s instead of 7.1 s at 31.032 dB against 31.031;
+/// 64² (every third and fourth pixel) took 2.4 s and lost 0.02 dB.
+pub const GEOMETRY_PIXELS: usize = 128 * 128;
+
 /// Training settings.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FitSettings {
@@ -40,6 +47,29 @@ pub struct FitSettings {
     /// gains 0.46 dB and 512² nothing more, for about 1 s more training.
     #[serde(with = "crate::raster::as_pair_opt")]
     pub lattice: Option<ImageSize>,
+    /// The most network pixels one geometry step evaluates (`None`: every pixel, as models
+    /// written before this setting were fitted). A finer level is evaluated on every k-th pixel
+    /// in each direction, k the smallest that fits, at an offset that moves each step, so every
+    /// pixel counts over k² steps ([`Self::geometry_stride`]).
+    #[serde(default)]
+    pub geometry_pixels: Option<usize>,
+}
+
+impl FitSettings {
+    /// The pixel stride of a geometry step on a lattice of `pixels` network pixels: the smallest
+    /// k ≥ 1 with `pixels / k² ≤ geometry_pixels`.
+    pub fn geometry_stride(&self, pixels: usize) -> usize {
+        match self.geometry_pixels {
+            Some(most) if most > 0 => {
+                let mut k = 1;
+                while pixels.div_ceil(k * k) > most {
+                    k += 1;
+                }
+                k
+            }
+            _ => 1,
+        }
+    }
 }
 
 impl Default for FitSettings {
@@ -53,6 +83,7 @@ impl Default for FitSettings {
             geometry_images: 24,
             refine: Some((4, 60)),
             lattice: None,
+            geometry_pixels: Some(GEOMETRY_PIXELS),
         }
     }
 }

@@ -97,6 +97,10 @@ pub struct CalibrationRecord {
     /// `captured` and in the training's `ntrain`).
     #[serde(default)]
     pub loop_pairs: usize,
+    /// The captures' wall time against their physical floor (the measured latency plus the
+    /// averaged frames per capture, at the camera's rate); absent in records before it.
+    #[serde(default)]
+    pub capture_floor: Option<crate::calibrate::sync::CaptureFloor>,
 }
 
 /// Progressive calibration's evidence: the climbed rung and the model it replaced, scored on the

@@ -9,10 +9,17 @@
 //! - [`DisplaySink::show`] takes effect for exposures after the moment of the call, which is the
 //!   delivery time of the last grabbed frame: with a delay of d frames, the next d exposures
 //!   were already taken and still show the previous image.
+//!
+//! On a wall clock ([`VirtualRig::on_wall_clock`], what `calibrate --rig virtual` uses by
+//! default) exposure k is delivered no earlier than (k + delay) / fps seconds after the rig
+//! started, as a real camera's would be; a reader that falls behind finds only the last
+//! [`CAMERA_BUFFERS`] exposures waiting (older ones were overwritten, their sequence numbers
+//! skipped), and a show takes effect from the first exposure that starts after it. Without
+//! it (tests, the fit's benches) frames come as fast as they are simulated.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use super::physics::{Phase, Simulator, mix64};
 use super::scene::{Latency, Scene};
@@ -23,6 +30,10 @@ use crate::raster::{ImageSize, PrjImage};
 /// Range of the virtual camera's manual exposure, factors of the scene's exposure.
 const MIN_EXPOSURE: f64 = 1.0 / 16.0;
 const MAX_EXPOSURE: f64 = 4.0;
+
+/// Exposures a camera on the wall clock keeps for a reader that falls behind (a V4L2 camera's
+/// buffers; compend's V4L2 camera asks for 4).
+pub const CAMERA_BUFFERS: u64 = 4;
 
 /// A simulated projector-camera pair. Clones share one rig: give one clone to the code that
 /// projects and another to the code that captures.
@@ -53,6 +64,8 @@ struct State {
     next: u64,
     /// Manual exposure: a factor of the scene's camera exposure (1 = as the scene says).
     exposure: f64,
+    /// When exposure 0 started, on a wall clock ([`VirtualRig::on_wall_clock`]).
+    epoch: Option<Instant>,
 }
 
 impl VirtualRig {
@@ -94,8 +107,16 @@ impl VirtualRig {
                 shows,
                 next: 0,
                 exposure: 1.0,
+                epoch: None,
             })),
         }
+    }
+
+    /// The same rig with its camera on the wall clock: frames no faster than the scene's frame
+    /// rate, counted from now (see the module documentation).
+    pub fn on_wall_clock(self) -> Self {
+        self.state().epoch = Some(Instant::now());
+        self
     }
 
     fn state(&self) -> MutexGuard<'_, State> {
@@ -148,6 +169,12 @@ impl State {
         }
     }
 
+    /// On the wall clock: exposures (fractional) since exposure 0 started.
+    fn exposures_now(&self) -> Option<f64> {
+        self.epoch
+            .map(|e| e.elapsed().as_secs_f64() * self.latency.fps)
+    }
+
     fn dropped(&self, k: u64) -> bool {
         let r = self.latency.drop_rate;
         if r <= 0.0 {
@@ -174,7 +201,11 @@ impl DisplaySink for VirtualRig {
                 frame.height()
             )));
         }
-        let from = st.next + st.latency.delay_frames as u64;
+        let mut from = st.next + st.latency.delay_frames as u64;
+        if let Some(now) = st.exposures_now() {
+            // The first exposure that starts after now.
+            from = from.max(now.ceil() as u64);
+        }
         while st.shows.len() > 1 && st.shows.back().is_some_and(|s| s.from >= from) {
             st.shows.pop_back();
         }
@@ -219,10 +250,25 @@ impl FrameSource for VirtualRig {
     fn grab(&mut self) -> Result<Frame> {
         let mut st = self.state();
         let mut k = st.next;
+        let delay = st.latency.delay_frames as u64;
+        if let Some(now) = st.exposures_now() {
+            // Delivered by now: exposures up to now − delay; the buffers hold the last few.
+            let delivered = (now.floor() as u64).saturating_sub(delay);
+            k = k.max(delivered.saturating_sub(CAMERA_BUFFERS - 1));
+        }
         while st.dropped(k) {
             k += 1;
         }
         st.next = k + 1;
+        if let (Some(now), Some(epoch)) = (st.exposures_now(), st.epoch) {
+            let due = (k + delay) as f64;
+            if due > now {
+                let at = epoch + Duration::from_secs_f64(due / st.latency.fps);
+                drop(st);
+                std::thread::sleep(at.saturating_duration_since(Instant::now()));
+                st = self.state();
+            }
+        }
         // Forget images no exposure from k on can see.
         while st.shows.len() > 1 && st.shows[1].from <= k {
             st.shows.pop_front();

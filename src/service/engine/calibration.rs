@@ -657,7 +657,9 @@ impl Engine {
         let io = &mut self.io;
         let next = &mut self.next;
         let reload = &mut self.reload;
+        let mut lines = None;
         let mut progress = |phase: &str, done: usize, total: usize| {
+            log_progress(&mut lines, phase, done, total);
             let state = match phase {
                 "verification" => State::Verifying,
                 "exposure" | "latency" | "captures" | "closed-loop pairs" => State::Calibrating,
@@ -703,7 +705,9 @@ fn training_progress(
     shared: Arc<Shared>,
     started: Instant,
 ) -> impl FnMut(&str, usize, usize) + Send {
+    let mut lines = None;
     move |phase: &str, done: usize, total: usize| {
+        log_progress(&mut lines, phase, done, total);
         shared.update(|s| {
             if !matches!(s.state, State::Playing | State::Paused | State::Setup) {
                 s.state = State::Training;
@@ -715,6 +719,28 @@ fn training_progress(
                 seconds: started.elapsed().as_secs_f64(),
             });
         });
+    }
+}
+
+/// A calibration's progress in the log (the journal): a line when a phase starts and ends,
+/// and one at least every [`calibrate::progress::LINE_PERIOD`] while it reports.
+fn log_progress(
+    lines: &mut Option<calibrate::progress::ProgressLines>,
+    phase: &str,
+    done: usize,
+    total: usize,
+) {
+    let line = match lines {
+        Some(p) => p.update(phase, done, total),
+        None => {
+            let p = calibrate::progress::ProgressLines::new(phase, done, total);
+            let line = p.line();
+            *lines = Some(p);
+            Some(line)
+        }
+    };
+    if let Some(line) = line {
+        tracing::info!("calibration: {line}");
     }
 }
 
