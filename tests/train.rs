@@ -98,6 +98,15 @@ fn train_eval_compensate_linear_and_linear_sl() {
         }
         let out = compend(&args);
         assert_code(&out, 0);
+        // Which lattice, and why, is said.
+        let said = match &lattice {
+            None => format!(
+                "output lattice {NET}x{NET}: the projector's resolution, {NET}x{NET} (the \
+                 structured-light patterns' size)"
+            ),
+            Some(l) => format!("output lattice {l}x{l}: as asked (--lattice)"),
+        };
+        assert!(stderr(&out).contains(&said), "{}", stderr(&out));
         let summary: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
         assert_eq!(summary["method"], method);
         assert_eq!(summary["ntrain"], 16);

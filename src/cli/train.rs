@@ -138,7 +138,7 @@ pub fn run(args: Args) -> Result<()> {
         compend::model::MethodChoice::Auto => true,
         compend::model::MethodChoice::Rung(m) => m.is_linear() || m.is_residual(),
     };
-    if lattice_rung && !args.json {
+    if lattice_rung {
         let (lattice, why) = fit::lattice_choice(&setup, &req)
             .with_context(|| format!("the output lattice for {}", setup.path().display()))?;
         eprintln!("train: output lattice {lattice}: {why}");
