@@ -1074,34 +1074,54 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let mut outputs: Vec<Vec<crate::raster::NetImage>> =
         models.iter().map(|_| Vec::with_capacity(n)).collect();
     let mut unc = Accumulator::default();
-    for (i, z) in views.iter().take(n).enumerate() {
-        progress("verification", i, n);
-        let want = z.crop(area)?;
-        // The first model, the image as it is, then the other models: each capture follows a
-        // frame that differs from it (two rungs' compensations of one image may look alike,
-        // and the capturer checks that the camera saw the change).
-        let order = std::iter::once(Some(0))
-            .chain(std::iter::once(None))
-            .chain((1..models.len()).map(Some));
-        for shot in order {
-            opts.check_cancelled()?;
-            match shot {
+    // Per test image: the first model, the image as it is, then the other models. Each capture
+    // follows a frame that differs from it (two rungs' compensations of one image may look
+    // alike, and the capturer checks that the camera saw the change). Compensated ahead and
+    // scored behind ([`pipeline`]).
+    let shots: Vec<(usize, Option<usize>)> = (0..n)
+        .flat_map(|i| {
+            std::iter::once(Some(0))
+                .chain(std::iter::once(None))
+                .chain((1..models.len()).map(Some))
+                .map(move |shot| (i, shot))
+        })
+        .collect();
+    let per_image = models.len() + 1;
+    pipeline::run(
+        shots.len(),
+        |j| {
+            let (i, shot) = shots[j];
+            let (shown, compensated) = match shot {
                 Some(k) => {
-                    let compensated = models[k].infer(z)?;
-                    let seen =
-                        capturer.capture(&place_on_canvas(&compensated, canvas, psize)?, true)?;
-                    outputs[k].push(compensated);
-                    comp[k].add(&seen.crop(area)?, &want)?;
+                    let compensated = models[k].infer(&views[i])?;
+                    let frame = place_on_canvas(&compensated, canvas, psize)?;
+                    (frame, Some(compensated))
                 }
                 None => {
                     let plain: PrjImage =
                         crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i + 1))?;
-                    let seen = capturer.capture(&place_on_canvas(&plain, canvas, psize)?, true)?;
-                    unc.add(&seen.crop(area)?, &want)?;
+                    (place_on_canvas(&plain, canvas, psize)?, None)
                 }
+            };
+            Ok((shown, compensated))
+        },
+        |j, (shown, compensated)| {
+            progress("verification", j / per_image, n);
+            opts.check_cancelled()?;
+            Ok((capturer.capture(&shown, true)?, compensated))
+        },
+        |j, (seen, compensated)| {
+            let (i, shot) = shots[j];
+            let want = views[i].crop(area)?;
+            match (shot, compensated) {
+                (Some(k), Some(out)) => {
+                    outputs[k].push(out);
+                    comp[k].add(&seen.crop(area)?, &want)
+                }
+                _ => unc.add(&seen.crop(area)?, &want),
             }
-        }
-    }
+        },
+    )?;
     progress("verification", n, n);
     let u = unc.finish()?;
     let inputs: Vec<&CamImage> = views.iter().take(n).collect();

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::curve::{CURVE_SAMPLES, CURVE_SWEEPS, fit_curves};
 use super::model::{Coefficients, Curves};
-use super::normal::{Normal, features, global_solution, targets_linear};
+use super::normal::{Normal, PowTable, global_solution};
 use super::stack::{Frames, Stack};
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
 use crate::sample::Grid;
@@ -64,6 +64,10 @@ fn solve_colour(
     } = grid.size();
     let n = caps.images();
     let resize = shown.resize_to(grid.size());
+    let (camera, projector) = (
+        PowTable::new(curves.camera_gamma),
+        PowTable::new(curves.projector_gamma),
+    );
     let normals: Vec<Normal> = grid
         .data()
         .par_iter()
@@ -72,8 +76,8 @@ fn solve_colour(
             let taps = caps.taps(gx, gy);
             let mut ne = Normal::default();
             for i in 0..n {
-                let a = features(curves, &caps.sample(&taps, i));
-                let y = targets_linear(curves, &shown.resampled(&resize, p, i));
+                let a = camera.features(&caps.sample(&taps, i));
+                let y = projector.linear(&shown.resampled(&resize, p, i));
                 ne.add(&a, &y);
             }
             ne

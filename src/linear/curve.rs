@@ -8,7 +8,7 @@
 use rayon::prelude::*;
 
 use super::model::Curves;
-use super::normal::IDENTITY;
+use super::normal::{IDENTITY, PowTable};
 use super::stack::{Captures, Stack};
 use crate::raster::{Camera, ImageSize, Network};
 use crate::sample::Grid;
@@ -315,7 +315,8 @@ fn forward_residual(samples: &ForwardSamples, curves: &Curves, ridge: f32) -> f6
     let mean_w = total_w / (n * pixels) as f64;
     let global_fwd = global.solve(1e-6 * total_w, &IDENTITY).unwrap_or(IDENTITY);
     let lambda = ridge as f64 * mean_w;
-    let encode = EncodeLut::new(curves.camera_gamma);
+    // The camera's encoding l^(1/γc), by table: evaluated for every sample at every probe.
+    let encode = PowTable::new(curves.camera_gamma.map(|g| 1.0 / g));
     // Per pixel in parallel, then summed in pixel order: the same cost every run (a parallel
     // sum's order follows the threads' timing, and the search compares costs).
     let per_pixel: Vec<f64> = (0..pixels)
@@ -331,7 +332,7 @@ fn forward_residual(samples: &ForwardSamples, curves: &Curves, ridge: f32) -> f6
                         continue;
                     }
                     let l = k[c * 3] * y[0] + k[c * 3 + 1] * y[1] + k[c * 3 + 2] * y[2] + k[9 + c];
-                    let e = encode.eval(c, l) - x[c];
+                    let e = encode.eval(c, l.clamp(0.0, 1.0)) - x[c];
                     s += (e * e) as f64;
                 }
             }
@@ -341,57 +342,10 @@ fn forward_residual(samples: &ForwardSamples, curves: &Curves, ridge: f32) -> f6
     per_pixel.iter().sum()
 }
 
-/// The camera's encoding `l^(1/γc)` of linear light `l` (clamped to \[0, 1\]) per channel, by
-/// table: the curve search evaluates it for every sample at every probe, and `powf` was a
-/// fifth of a fit's time. Tabulated on `t = √l` (`l^(1/γ) = t^(2/γ)`), which keeps the steep
-/// start of the curve smooth; linear interpolation between 4096 entries is within 3e-4 of
-/// `powf` for exponents γc from 0.3 to 4 (the search's range), far below a camera's 8-bit step.
-struct EncodeLut {
-    table: [Vec<f32>; 3],
-}
-
-const ENCODE_LUT_SIZE: usize = 4096;
-
-impl EncodeLut {
-    fn new(camera_gamma: [f32; 3]) -> Self {
-        Self {
-            table: camera_gamma.map(|g| {
-                let e = 2.0 / g;
-                (0..ENCODE_LUT_SIZE)
-                    .map(|i| (i as f32 / (ENCODE_LUT_SIZE - 1) as f32).powf(e))
-                    .collect()
-            }),
-        }
-    }
-
-    #[inline]
-    fn eval(&self, c: usize, l: f32) -> f32 {
-        let x = l.clamp(0.0, 1.0).sqrt() * (ENCODE_LUT_SIZE - 1) as f32;
-        let i = (x as usize).min(ENCODE_LUT_SIZE - 2);
-        let f = x - i as f32;
-        let t = &self.table[c];
-        t[i] + f * (t[i + 1] - t[i])
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::raster::NetImage;
-
-    /// The table's encoding against `powf` over the search's range of exponents.
-    #[test]
-    fn the_encoding_table_is_within_its_stated_error_of_powf() {
-        for g in [0.3f32, 1.0, 1.8, 2.2, 2.6, 4.0] {
-            let lut = EncodeLut::new([g; 3]);
-            let worst = (0..=20_000)
-                .map(|i| i as f32 / 20_000.0)
-                .chain([1e-7, 1e-5, 3e-4])
-                .map(|l| (lut.eval(1, l) - l.powf(1.0 / g)).abs())
-                .fold(0f32, f32::max);
-            assert!(worst < 3e-4, "γ {g}: worst error {worst}");
-        }
-    }
     use rand::{RngExt, SeedableRng};
 
     impl ForwardSamples {
