@@ -205,14 +205,18 @@ impl<S: Space> Rgb<S> {
 
     /// Sets every pixel outside `mask` to black.
     pub fn masked(&self, mask: &Mask<S>) -> Result<Self> {
+        self.clone().into_masked(mask)
+    }
+
+    /// [`Self::masked`], in place: no second copy of the image.
+    pub fn into_masked(mut self, mask: &Mask<S>) -> Result<Self> {
         check_same_size(self.size(), mask.size(), "masking")?;
-        let mut out = self.clone();
-        for (px, &m) in out.data.chunks_exact_mut(3).zip(&mask.data) {
+        for (px, &m) in self.data.chunks_exact_mut(3).zip(&mask.data) {
             if !m {
                 px.fill(0.0);
             }
         }
-        Ok(out)
+        Ok(self)
     }
 
     /// Copies the rectangle `r` out of the image.
