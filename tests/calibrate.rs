@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::{assert_code, compend, stderr, stdout};
+use crate::common::{assert_code, compend, latency_trials, stderr, stdout};
 
 /// Tiny sizes: a run takes seconds in the test profile.
 const TINY: [&str; 6] = [
@@ -74,12 +74,7 @@ fn calibrate_installs_a_verified_model_and_records_it() {
     // The scene's camera delay is 2 frames: the measurement finds it (a frame more when a
     // show comes late on the wall clock), and captures wait that long and no more unless
     // retakes ask for it.
-    let trials: Vec<u64> = r["latency"]["trials"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|t| t.as_u64().unwrap())
-        .collect();
+    let trials = latency_trials(&r);
     assert!(trials.iter().all(|&t| (2..=3).contains(&t)), "{r}");
     let worst = *trials.iter().max().unwrap();
     let settle = r["latency"]["settle_frames"].as_u64().unwrap();

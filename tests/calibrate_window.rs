@@ -20,7 +20,7 @@ use compend::raster::{CamImage, ImageSize, PrjImage};
 use compend::rig::scene::{Latency, Scene};
 use compend::rig::window_camera::{BUFFERS, Shown, WindowCamera};
 
-use crate::common::{assert_code, compend, gpu, stderr, stdout};
+use crate::common::{assert_code, compend, gpu, latency_trials, stderr, stdout};
 use crate::window::Xvfb;
 
 /// The scene the CI run calibrates.
@@ -95,12 +95,7 @@ fn calibrate_through_the_projector_window_under_xvfb() {
 
     // The latency measured through the window is at least the scene's delay, in exposures.
     let delay = compend::rig::builtin(SCENE).unwrap().latency;
-    let trials: Vec<u64> = r["latency"]["trials"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|t| t.as_u64().unwrap())
-        .collect();
+    let trials = latency_trials(&r);
     let worst = trials.iter().copied().max().unwrap();
     assert!(worst >= u64::from(delay.delay_frames), "{trials:?}\n{err}");
     // Captures wait the worst measured latency, and more only after frequent retakes.

@@ -970,13 +970,16 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let captured = todo.len();
     // The references come first, then the sampling pairs in order: once sampling capture k is
     // stored, every capture the geometry needs is.
-    let mut ready = ready.filter(|(k, tx)| {
-        let pending = todo
+    let mut ready = ready;
+    if let Some((k, tx)) = &ready
+        && !todo
             .iter()
-            .any(|s| s.set == CaptureSet::Train && s.index == *k);
-        // Already on disk: tell now.
-        pending || tx.send(()).is_err()
-    });
+            .any(|s| s.set == CaptureSet::Train && s.index == *k)
+    {
+        // Already on disk (a resumed run): tell now.
+        let _ = tx.send(());
+        ready = None;
+    }
     // Shown, captured and stored in a pipeline: the patterns are read and placed ahead, the
     // captures written (and recorded in the manifest, after their file) behind.
     pipeline::run(

@@ -228,6 +228,13 @@ fn with_lattice(
     }
     let (lattice, why) = lattice_choice(setup, req)?;
     tracing::info!("the linear rungs' output lattice is {lattice}: {why}");
+    let network = setup.root().network_size()?;
+    if lattice.width < network.width || lattice.height < network.height {
+        tracing::warn!(
+            "the linear rungs' output will be {lattice}, coarser than the {network} network \
+             ({why}); --lattice sets another"
+        );
+    }
     Ok(Request {
         lattice: Some(lattice),
         ..req.clone()
@@ -257,13 +264,6 @@ pub fn lattice_choice(setup: &Setup, req: &Request) -> Result<(ImageSize, String
         }
         Some(p) => format!("the projector's resolution, {p} ({source})"),
     };
-    if lattice.width < network.width || lattice.height < network.height {
-        tracing::warn!(
-            "the linear rungs' output will be {lattice}, coarser than the {network} network: \
-             the projector is {} as this setup records it; --lattice sets another",
-            projector.map_or_else(|| "unknown".to_string(), |p| p.to_string())
-        );
-    }
     Ok((lattice, why))
 }
 

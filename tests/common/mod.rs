@@ -87,6 +87,16 @@ pub fn compend_in(dir: &Path, args: &[&str]) -> Output {
     )
 }
 
+/// The latency trials a calibration record lists (`latency.trials`), in camera exposures.
+pub fn latency_trials(record: &serde_json::Value) -> Vec<u64> {
+    record["latency"]["trials"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no latency.trials in {record}"))
+        .iter()
+        .map(|t| t.as_u64().unwrap())
+        .collect()
+}
+
 pub fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
