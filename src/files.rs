@@ -28,8 +28,19 @@ const OLD_MARK: &str = ".old-";
 /// it, with no wait for a writer. A missing file is [`Error::Missing`]; a file larger than
 /// `max_bytes` (`/dev/zero` would be endless) is an input error before it is read.
 pub fn read_regular(path: &Path, what: &str, max_bytes: u64) -> Result<Vec<u8>> {
-    use std::io::Read;
     let (file, len) = open_regular(path, what)?;
+    read_opened(file, len, (path, what), max_bytes)
+}
+
+/// The rest of `file`, opened from `path` by [`open_regular`] with its length `len`, as
+/// [`read_regular`] reads it: at most `max_bytes`, an input error past them.
+pub fn read_opened(
+    file: fs::File,
+    len: u64,
+    (path, what): (&Path, &str),
+    max_bytes: u64,
+) -> Result<Vec<u8>> {
+    use std::io::Read;
     let too_big = |len: u64| {
         Error::Input(format!(
             "{}: {len} bytes or more; {what} may hold at most {max_bytes} bytes",

@@ -844,7 +844,7 @@ fn an_interrupted_calibration_resumes_without_recapturing() {
         resumed + r["captured"].as_u64().unwrap() as usize,
         3 + 40 + 4 + 40
     );
-    // The closed-loop pairs depend on the model: taken anew, never resumed.
+    // The kill came before the closed-loop pairs: all 40 taken now.
     assert!(r["captured"].as_u64().unwrap() >= 40, "{r}");
     // What was on disk was not captured again.
     assert_eq!(std::fs::read(&first).unwrap(), black);
@@ -858,6 +858,13 @@ fn an_interrupted_calibration_resumes_without_recapturing() {
     let o = compend(&args);
     assert_code(&o, 0);
     assert!(last.is_file(), "the pair was taken again");
+    // The other closed-loop pairs are of the images the same model compensates again: kept.
+    let r = record(&o);
+    assert_eq!(
+        (r["resumed"].as_u64(), r["captured"].as_u64()),
+        (Some(3 + 40 + 4 + 39), Some(1)),
+        "{r}"
+    );
 }
 
 #[test]

@@ -185,7 +185,8 @@ pub fn loop_images(method: MethodChoice, ntrain: usize, asked: Option<usize>) ->
 /// closed-loop pairs ([`take_loop_pairs`]), then the fit on every pair ([`refit`]). A sampling
 /// image spends most of its range where no desired image goes; these pairs sit where the
 /// desired images are, and on dark surfaces they are worth more than as many sampling images
-/// (docs/bench/ladder.md). They depend on the model, so an interrupted run takes them again.
+/// (docs/bench/ladder.md). They depend on the model: an interrupted run keeps those taken of
+/// the images its model compensates again, and takes the rest.
 pub fn refine<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
@@ -290,21 +291,35 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         psize.height,
         vec![1.0; 3 * psize.width * psize.height],
     )?;
-    let mut previous: Option<CamImage> = None;
-    let mut flashes = 0;
     let placement = (captured.desired.range, captured.desired.area);
+    // A run killed while it took them left pairs on disk: those of the very images this model
+    // compensates now are kept.
+    let (resumed, mut previous) = resumable_loop_pairs(
+        (root, &setup, manifest.loop_written),
+        (ntrain, n),
+        placement,
+        &model,
+    )?;
+    if resumed > 0 {
+        tracing::info!(
+            "closed-loop pairs: {resumed} of {n} resumed from {} (their images are the ones \
+             this model compensates)",
+            setup.path().display()
+        );
+    }
+    let mut flashes = 0;
     // Compensated ahead on a helper thread, stored behind on another ([`pipeline`]): the
     // manifest claims each training image before it is written, so a later run knows it
     // for this calibration's.
     pipeline::run(
-        n,
+        n - resumed,
         |k| {
-            let (desired, shown) = loop_image(root, (ntrain, k + 1), placement, &model)?;
+            let (desired, shown) = loop_image(root, (ntrain, resumed + k + 1), placement, &model)?;
             let frame = place_on_canvas(&shown, canvas, psize)?;
             Ok((desired, shown, frame))
         },
         |k, (desired, shown, frame)| {
-            progress("closed-loop pairs", k, n);
+            progress("closed-loop pairs", resumed + k, n);
             opts.check_cancelled()?;
             // White between two views the camera could not tell apart (one frame, not
             // averaged).
@@ -331,7 +346,7 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             Ok((desired, shown, cap))
         },
         |k, (desired, shown, cap)| {
-            let i = k + 1;
+            let i = resumed + k + 1;
             manifest.record_loop(setup.path(), i)?;
             root.write(ProjectorSet::Train, ntrain + i, &shown)?;
             setup.write_loop_desired(ntrain + i, &desired)?;
@@ -346,12 +361,53 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     captured.latency.settle_frames = capturer.settle();
     // The white frames between them are not counted as captures: nothing keeps them.
     tracing::debug!("closed-loop pairs: white shown before {flashes} of {n}");
-    captured.captured += n;
+    captured.captured += n - resumed;
+    captured.resumed += resumed;
     captured.loop_pairs = n;
     let capturing = t.elapsed().as_secs_f64();
     captured.seconds.captures += capturing;
-    tracing::info!("closed-loop pairs: {n} captured in {capturing:.1} s");
+    tracing::info!(
+        "closed-loop pairs: {} captured in {capturing:.1} s",
+        n - resumed
+    );
     Ok(LoopPairs { model, climbed, n })
+}
+
+/// How many closed-loop pairs, from the first, an interrupted run of this calibration left
+/// complete on disk (of the `written` its manifest claims) for the images `model` compensates
+/// now: the training image as written is the one compensated now (both 8-bit), and the
+/// capture, written last, is there. With the desired view of the last one kept, for the
+/// white flash before the next ([`Capturer::tells_apart`]).
+fn resumable_loop_pairs(
+    (root, setup, written): (&DataRoot, &Setup, usize),
+    (ntrain, n): (usize, usize),
+    placement: (fov::DisplayRange, Rect),
+    model: &Model,
+) -> Result<(usize, Option<CamImage>)> {
+    let mut done = (0, None);
+    for i in 1..=n.min(written) {
+        let index = ntrain + i;
+        if !setup.capture_path(CaptureSet::Train, index).is_file() {
+            break;
+        }
+        let Ok(stored) = crate::pngio::read_rgb::<crate::raster::Projector>(
+            &root.image_path(ProjectorSet::Train, index),
+        ) else {
+            break;
+        };
+        let (desired, shown) = loop_image(root, (ntrain, i), placement, model)?;
+        let same = stored.size() == shown.size()
+            && stored
+                .data()
+                .iter()
+                .zip(shown.data())
+                .all(|(a, b)| (a - b).abs() < 0.5 / 255.0);
+        if !same {
+            break;
+        }
+        done = (i, Some(desired));
+    }
+    Ok(done)
 }
 
 /// The second step of [`refine`], which needs no device: the requested rung fitted on all

@@ -380,9 +380,22 @@ pub fn run(args: Args) -> Result<()> {
         }
         _ => None,
     };
-    // And a model path in a service's state directory, named by --out.
-    let held = args.state.as_deref().filter(|_| _lock.is_some());
-    let _model_lock = super::lock_model_state(&out, held, "calibrate")?;
+    // One calibration at a time in a data folder given by --data: a second would mix its
+    // captures with this one's and both would install.
+    let _data_lock = match args.runs {
+        None => Some(compend::service::lock_data(&args.data)?),
+        Some(_) => None,
+    };
+    // And a model path in a service's state directory (or a locked data folder), named by
+    // --out.
+    let held: Vec<&Path> = [
+        args.state.as_deref().filter(|_| _lock.is_some()),
+        _data_lock.as_ref().map(|_| args.data.as_path()),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    let _model_lock = super::lock_model_state(&out, &held, "calibrate")?;
     let Some((runs, keep)) = args.runs.take() else {
         return dispatch(&args, &out);
     };

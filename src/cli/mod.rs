@@ -141,14 +141,14 @@ pub fn resolved(path: &std::path::Path) -> std::io::Result<std::path::PathBuf> {
 /// there is an input error naming it; `None` when there is no such lock file.
 pub fn lock_model_state(
     out: &std::path::Path,
-    held: Option<&std::path::Path>,
+    held: &[&std::path::Path],
     holder: &str,
 ) -> compend::Result<Option<std::fs::File>> {
     let Some(state) = out.parent().filter(|p| p.join("compend.lock").is_file()) else {
         return Ok(None);
     };
-    let same = |a: &std::path::Path| a.canonicalize().ok() == state.canonicalize().ok();
-    if held.is_some_and(same) {
+    let same = |a: &&std::path::Path| a.canonicalize().ok() == state.canonicalize().ok();
+    if held.iter().any(same) {
         return Ok(None);
     }
     compend::service::lock_state_if_held(state, holder)

@@ -140,12 +140,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     let model = Model::load(model_dir)?;
     let rig = args.rig.as_deref().map(parse_rig).transpose()?;
-    // Open the source before the GPU so a bad source fails fast. A raw file or FIFO is opened
-    // by its first frame, so it is checked here; the others fail in `open` itself (checking a
-    // still image would decode it twice).
-    if matches!(spec, SourceSpec::Raw { .. }) {
-        source::check(&spec)?;
-    }
+    // The source is opened before the GPU (below) so a bad source fails fast.
     // Media is probed (its first frame decoded): a bad file fails here, and an output
     // rendered offline takes the film's frame rate.
     let probed = match &spec {

@@ -98,7 +98,7 @@ pub fn run(args: Args) -> Result<()> {
     // Before any work: only a model directory is ever replaced, and the place must be writable.
     compend::model::store::check_output(&out)?;
     // Not into a running service's model path.
-    let _lock = super::lock_model_state(&out, None, "train")?;
+    let _lock = super::lock_model_state(&out, &[], "train")?;
     let req = Request {
         ntrain: args.ntrain,
         seed: args.seed,

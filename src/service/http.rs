@@ -44,6 +44,7 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast};
 use super::Shared;
 use super::events::{Event, MAX_SUBSCRIBERS};
 use super::protocol::{MAX_REQUEST_BYTES, Reply, Request, State as ServiceState, Status};
+use super::refusals::Refusals;
 use super::socket::Token;
 use super::views::{self, Rgb8};
 use crate::config::HttpConfig;
@@ -77,6 +78,8 @@ pub struct Console {
     tls: bool,
     /// The last camera JPEG made, by the frame's number: many pages, one encoding.
     jpeg: Mutex<Option<(u64, Bytes)>>,
+    /// Peers refused (outside `[http] allow`, a wrong token): backed off, their log summarised.
+    refusals: Refusals,
 }
 
 impl Console {
@@ -93,6 +96,7 @@ impl Console {
             allow: cfg.allow.clone(),
             tls: cfg.tls.is_some(),
             jpeg: Mutex::new(None),
+            refusals: Refusals::new("console"),
         })
     }
 }
@@ -385,8 +389,12 @@ async fn guard(
 ) -> Response {
     let ip = peer.ip().to_canonical();
     let local = ip.is_loopback();
+    let who = ip.to_string();
+    if !local && let Err(why) = c.refusals.admit(&who) {
+        return refuse(StatusCode::TOO_MANY_REQUESTS, why);
+    }
     if !local && !c.allow.iter().any(|n| n.contains(&ip)) {
-        tracing::warn!("console: refused {peer}: not in [http] allow");
+        c.refusals.refused(&who, "not in [http] allow");
         return refuse(
             StatusCode::FORBIDDEN,
             format!("{ip} may not use this console: it is not in [http] allow"),
@@ -404,13 +412,15 @@ async fn guard(
             if req.method() == axum::http::Method::GET && path == "/" {
                 return Redirect::to("/login").into_response();
             }
-            tracing::warn!("console: refused {peer} {path}: no token, or the wrong one");
+            c.refusals
+                .refused(&who, &format!("{path}: no token, or the wrong one"));
             return refuse(
                 StatusCode::UNAUTHORIZED,
                 "this console needs its token: an Authorization: Bearer header, or log in at \
                  /login",
             );
         }
+        c.refusals.accepted(&who);
     }
     if req.method() == axum::http::Method::POST {
         if let Err(why) = same_origin(req.headers()) {
@@ -514,6 +524,7 @@ async fn login(
 ) -> Response {
     match &c.token {
         Some(t) if t.matches(form.token.as_bytes()) => {
+            c.refusals.accepted(&peer.ip().to_canonical().to_string());
             tracing::info!("console: {peer} logged in");
             let mut r = Redirect::to("/").into_response();
             let secure = if c.tls { "; Secure" } else { "" };
@@ -526,7 +537,8 @@ async fn login(
             r
         }
         Some(_) => {
-            tracing::warn!("console: {peer}: a login with the wrong token");
+            let who = peer.ip().to_canonical().to_string();
+            c.refusals.refused(&who, "a login with the wrong token");
             refuse(StatusCode::UNAUTHORIZED, "wrong token")
         }
         None => Redirect::to("/").into_response(),

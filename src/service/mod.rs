@@ -25,13 +25,15 @@ pub mod events;
 pub mod http;
 mod monitor;
 pub mod notify;
+mod opening;
 pub mod osc;
 pub mod protocol;
+pub mod refusals;
 mod screen;
 pub mod socket;
 pub mod views;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::Receiver;
 use std::sync::{Arc, Mutex, MutexGuard, mpsc};
@@ -48,6 +50,8 @@ use protocol::{Reply, Request, State, Status};
 pub struct Envelope {
     pub request: Request,
     pub reply: Option<oneshot::Sender<Reply>>,
+    /// A `play` request's source, opened while the playback before went on.
+    pub opened: Option<opening::Opened>,
 }
 
 impl Envelope {
@@ -286,7 +290,11 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
     ]);
     for (key, file) in tokens {
         let Some(file) = file else { continue };
-        if for_service && !key.contains("tls_") {
+        // A token file is read as the service reads it; `config check` run by a user who may
+        // not read it (the service's own, mode 600) leaves it to the service.
+        let readable = for_service
+            || std::fs::File::open(file).is_ok_and(|f| f.metadata().is_ok_and(|m| m.is_file()));
+        if readable && !key.contains("tls_") {
             socket::Token::read(file, key)?;
             continue;
         }
@@ -306,6 +314,9 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
             _ => {}
         }
     }
+    if config.http.listen.is_some() {
+        http::tls_config(&config.http)?;
+    }
     for (key, dir) in [
         ("[paths] state", &config.paths.state),
         ("[paths] data", &config.paths.data),
@@ -317,11 +328,107 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
             )));
         }
     }
+    check_folders(&config.paths)?;
+    socket::check_path(&config.socket.path)?;
     if for_service {
         crate::model::store::check_output(&config.paths.model)
     } else {
         crate::model::store::check_model_path(&config.paths.model)
     }
+}
+
+/// Folders of the system itself, which none of compend's folders may be (compend writes,
+/// replaces and prunes in its own); anything under /proc, /sys and /dev neither.
+const SYSTEM_FOLDERS: &[&str] = &[
+    "/",
+    "/bin",
+    "/boot",
+    "/dev",
+    "/etc",
+    "/home",
+    "/lib",
+    "/lib32",
+    "/lib64",
+    "/media",
+    "/mnt",
+    "/opt",
+    "/proc",
+    "/root",
+    "/run",
+    "/sbin",
+    "/srv",
+    "/sys",
+    "/tmp",
+    "/usr",
+    "/usr/bin",
+    "/usr/lib",
+    "/usr/local",
+    "/usr/sbin",
+    "/usr/share",
+    "/var",
+    "/var/cache",
+    "/var/lib",
+    "/var/log",
+    "/var/tmp",
+];
+
+/// `path` without `.` and with `..` taken back, as the kernel would walk it if no component
+/// were a link; the folder's real path where it exists (links followed).
+fn plain(path: &Path) -> PathBuf {
+    if let Ok(real) = path.canonicalize() {
+        return real;
+    }
+    let mut out = PathBuf::new();
+    for c in path.components() {
+        match c {
+            std::path::Component::CurDir => {}
+            std::path::Component::ParentDir => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// The state, data and model folders are none of the system's, and do not overlap where it
+/// breaks the service: the model folder is replaced whole at each install, so nothing else
+/// may be inside it (a data folder there loses its runs, and the next start finds a model
+/// folder that is not a model).
+fn check_folders(paths: &crate::config::PathsConfig) -> Result<()> {
+    let folders = [
+        ("[paths] state", plain(&paths.state)),
+        ("[paths] data", plain(&paths.data)),
+        ("[paths] model", plain(&paths.model)),
+    ];
+    for (key, dir) in &folders {
+        let system = SYSTEM_FOLDERS.iter().any(|f| dir == Path::new(f))
+            || ["/proc", "/sys", "/dev"].iter().any(|f| dir.starts_with(f));
+        if system {
+            return Err(Error::Input(format!(
+                "{key} = \"{}\": a folder of the system itself; give compend a folder of its \
+                 own (e.g. /var/lib/compend)",
+                dir.display()
+            )));
+        }
+    }
+    let [(_, state), (_, data), (_, model)] = &folders;
+    for (key, dir) in [("[paths] state", state), ("[paths] data", data)] {
+        if dir.starts_with(model) {
+            return Err(Error::Input(format!(
+                "{key} = \"{}\" is {} [paths] model = \"{}\", which is replaced whole at each \
+                 install; put them side by side (e.g. STATE/calibration and STATE/model)",
+                dir.display(),
+                if dir == model {
+                    "the same folder as"
+                } else {
+                    "inside"
+                },
+                model.display()
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// How the service reads its configuration again on SIGHUP: the file with the command line's
@@ -426,12 +533,12 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
 /// and install into one model directory. A lock file this user cannot write (one root made) is
 /// locked read-only ([`lock_state_if_held`]).
 pub fn lock_state(state: &Path, holder: &str) -> Result<std::fs::File> {
-    lock_state_if_held(state, holder)?.ok_or_else(|| {
-        Error::Input(format!(
-            "{}: this user can neither make nor read the lock file compend.lock in the state \
-             directory; run as the directory's owner, or give another --state",
-            state.display()
-        ))
+    // A permission error is the operation's (exit 1), as the README says, not the input's.
+    lock_state_if_held(state, holder)?.ok_or_else(|| Error::Io {
+        path: state.join("compend.lock"),
+        op: "make or read the lock file (run as the state directory's owner, or give another \
+             --state)",
+        source: std::io::Error::from(std::io::ErrorKind::PermissionDenied),
     })
 }
 
@@ -469,7 +576,23 @@ pub fn lock_state_if_held(state: &Path, holder: &str) -> Result<Option<std::fs::
         },
         Err(e) => return Err(Error::io(&path, "open the state directory's lock file", e)),
     };
-    take_lock(file, writable, state, holder).map(Some)
+    take_lock(file, writable, (state, "state directory"), holder).map(Some)
+}
+
+/// The lock of a calibration's data folder `data` (`compend calibrate --data`), made if
+/// missing: two calibrations capturing into one folder would mix their captures and both
+/// install. The lock file is `DATA/compend.lock`, held as [`lock_state`] holds its own.
+pub fn lock_data(data: &Path) -> Result<std::fs::File> {
+    std::fs::create_dir_all(data).map_err(|e| Error::io(data, "create the data folder", e))?;
+    let path = data.join("compend.lock");
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| Error::io(&path, "open the data folder's lock file", e))?;
+    take_lock(file, true, (data, "data folder"), "calibrate")
 }
 
 /// Locks `file`, the lock file of `state`, for `holder`, and writes the pid and holder into it
@@ -477,7 +600,7 @@ pub fn lock_state_if_held(state: &Path, holder: &str) -> Result<Option<std::fs::
 fn take_lock(
     mut file: std::fs::File,
     writable: bool,
-    state: &Path,
+    (state, what): (&Path, &str),
     holder: &str,
 ) -> Result<std::fs::File> {
     use std::io::Write;
@@ -497,7 +620,7 @@ fn take_lock(
                 .is_ok_and(|p| Path::new(&format!("/proc/{p}")).exists());
             if !alive {
                 return Err(Error::Input(format!(
-                    "{}: another compend process holds this state directory (its lock file \
+                    "{}: another compend process holds this {what} (its lock file \
                      names pid {pid}, which no longer runs: the holder could not write it); \
                      wait for it to end",
                     state.display(),
@@ -516,12 +639,12 @@ fn take_lock(
                 _ => "wait for that calibration to end",
             };
             return Err(Error::Input(format!(
-                "{}: `compend {other}` (pid {pid}) holds this state directory; {hint}",
+                "{}: `compend {other}` (pid {pid}) holds this {what}; {hint}",
                 state.display(),
             )));
         }
         Err(std::fs::TryLockError::Error(e)) => {
-            return Err(Error::io(&path, "lock the state directory", e));
+            return Err(Error::io(&path, "lock the folder", e));
         }
     }
     if writable {
@@ -551,9 +674,15 @@ async fn signals(shared: Arc<Shared>, reload: Option<Reload>) {
                 None => tracing::warn!("SIGHUP: no --config file to reload; nothing changed"),
                 Some(reload) => match reload() {
                     Ok(c) => shared.signal(Event::Reload(Box::new(c))),
-                    Err(e) => tracing::error!(
-                        "SIGHUP: the configuration was not reloaded, the running one stays: {e}"
-                    ),
+                    Err(e) => {
+                        // In `status` too: the operator who sent the signal looks there.
+                        let msg = format!(
+                            "SIGHUP: the configuration was not reloaded, the running one \
+                             stays: {e}"
+                        );
+                        tracing::error!("{msg}");
+                        shared.update(|s| s.last_error = Some(msg));
+                    }
                 },
             },
         }

@@ -171,6 +171,7 @@ pub async fn serve(sock: UdpSocket, cfg: OscConfig, shared: Arc<Shared>) {
         ));
     }
     let in_flight = Arc::new(Semaphore::new(IN_FLIGHT));
+    let refusals = super::refusals::Refusals::new("osc");
     // An OSC packet fits one UDP datagram.
     let mut buf = vec![0u8; 65_536];
     loop {
@@ -183,7 +184,8 @@ pub async fn serve(sock: UdpSocket, cfg: OscConfig, shared: Arc<Shared>) {
         };
         let ip = peer.ip().to_canonical();
         if !ip.is_loopback() && !cfg.allow.iter().any(|net| net.contains(&ip)) {
-            tracing::warn!("osc: dropped a message from {peer}: not in [osc] allow");
+            // Logged once a minute at most per sender; nothing is answered.
+            refusals.refused(&ip.to_string(), "a message dropped: not in [osc] allow");
             continue;
         }
         let mut found = Vec::new();

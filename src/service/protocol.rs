@@ -81,6 +81,15 @@ pub enum Request {
 /// A JSON object whose keys are each given once (its values are not looked at).
 struct UniqueKeys;
 
+/// Whether `line`, a JSON object, gives each of its keys once: the error names the first key
+/// given twice. Checked on the raw line before anything reads a key from it (the TCP port's
+/// token, a request's fields), since a parsed JSON value keeps only the last of a key given twice.
+pub fn unique_keys(line: &[u8]) -> Result<(), String> {
+    serde_json::from_slice::<UniqueKeys>(line)
+        .map(|_| ())
+        .map_err(|e| format!("bad request: {e}"))
+}
+
 impl<'de> serde::Deserialize<'de> for UniqueKeys {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         struct Keys;
@@ -155,7 +164,7 @@ impl Request {
         // A JSON value keeps the last of a key given twice, so `{"cmd":"status","cmd":"stop"}`
         // would stop the service: a key given twice is refused.
         if value.is_object() {
-            serde_json::from_str::<UniqueKeys>(text).map_err(|e| format!("bad request: {e}"))?;
+            unique_keys(text.as_bytes())?;
         }
         // serde ignores `deny_unknown_fields` on the unit variants of an internally tagged
         // enum, so the fields each request may carry are checked here.

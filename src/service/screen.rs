@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 use super::climb::{Candidate, Climb};
 use super::devices::{load_model, match_exposure};
 use super::monitor::Tap;
+use super::opening::Opening;
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::{Envelope, Event, Io};
 use crate::error::{Error, Result};
@@ -19,7 +20,7 @@ use crate::model::Model;
 use crate::playback::player::{PlayStats, Refresh, Screen, Show};
 use crate::raster::{CamImage, ImageSize};
 use crate::rig::{Phase, VirtualRig};
-use crate::source::SourceSpec;
+use crate::source::AudioOut;
 
 /// A job for the loading thread.
 type Job = Box<dyn FnOnce() + Send>;
@@ -142,9 +143,11 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     /// The media source playing (a film, a stream, a playlist): pause, resume, seek, next and
     /// previous act on it without ending the playback.
     pub(super) media: Option<crate::media::Control>,
-    /// A `play` request whose source is being checked on a thread of its own (a film is
+    /// A `play` request whose source is being opened on a thread of its own (a film is
     /// prerolled, a stream connected: seconds the picture must not wait for).
-    checking: Option<(Envelope, mpsc::Receiver<Result<()>>)>,
+    checking: Option<(Envelope, Opening)>,
+    /// Where a source asked for plays its sound.
+    pub(super) audio: AudioOut,
 }
 
 impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
@@ -182,59 +185,40 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             checked: None,
             media: None,
             checking: None,
+            audio: AudioOut::default(),
         }
     }
 
-    /// Starts checking the source of a `play` request on a thread of its own; the answer comes
+    /// Starts opening the source of a `play` request on a thread of its own; the answer comes
     /// from [`ServiceScreen::checked_source`].
     fn check_source(&mut self, envelope: Envelope, text: String) {
         if self.checking.is_some() {
             envelope.answer(Reply::error(
-                "busy: still checking the source asked for before; ask again in a moment",
+                "busy: still opening the source asked for before; ask again in a moment",
             ));
             return;
         }
-        let (tx, rx) = mpsc::channel();
-        let spawned = std::thread::Builder::new()
-            .name("compend-check".into())
-            .spawn(move || {
-                let _ =
-                    tx.send(SourceSpec::parse(&text).and_then(|spec| crate::source::check(&spec)));
-            });
-        match spawned {
-            Ok(_) => self.checking = Some((envelope, rx)),
-            Err(e) => envelope.answer(Reply::error(format!(
-                "cannot start a thread to check the source: {e}"
-            ))),
+        match Opening::start(text, self.audio.clone()) {
+            Ok(o) => self.checking = Some((envelope, o)),
+            Err(e) => envelope.answer(Reply::error(e.to_string())),
         }
     }
 
-    /// A source check that has finished: a source that plays ends this playback (the engine
-    /// plays it); one that does not is refused and this playback goes on. `wait`: wait for
-    /// it (the playback is ending). Returns whether the playback goes on.
-    fn checked_source(&mut self, wait: bool) -> bool {
-        let Some((_, rx)) = &self.checking else {
+    /// A source being opened that is ready: one that plays ends this playback (the engine
+    /// plays it); one that does not (or does not within its time) is refused and this
+    /// playback goes on. Returns whether the playback goes on.
+    fn checked_source(&mut self) -> bool {
+        let Some(result) = self.checking.as_ref().and_then(|(_, o)| o.poll()) else {
             return true;
         };
-        let got = if wait {
-            rx.recv().map_err(|_| TryRecvError::Disconnected)
-        } else {
-            rx.try_recv()
-        };
-        let result = match got {
-            Err(TryRecvError::Empty) => return true,
-            Ok(r) => r,
-            Err(TryRecvError::Disconnected) => Err(crate::Error::Failed(
-                "the source check ended without an answer".into(),
-            )),
-        };
-        let (envelope, _) = self.checking.take().expect("checked above");
+        let (mut envelope, _) = self.checking.take().expect("looked at above");
         match result {
-            Ok(()) if self.pending.is_none() => {
+            Ok(opened) if self.pending.is_none() => {
+                envelope.opened = Some(opened);
                 self.pending = Some(Event::Request(envelope));
                 false
             }
-            Ok(()) => {
+            Ok(_) => {
                 envelope.answer(Reply::error(
                     "another request ended the playback first; ask again",
                 ));
@@ -459,7 +443,13 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
     /// answered and, loaded, it is served from the next playback on.
     pub(super) fn settle(&mut self) {
         let _ = self.loaded(true);
-        self.checked_source(true);
+        // A source still opening is not waited for: the playback ends for another reason.
+        if let Some((envelope, opening)) = self.checking.take() {
+            envelope.answer(Reply::error(format!(
+                "{}: the playback ended for another request before it opened; ask again",
+                super::clipped(&opening.text)
+            )));
+        }
     }
 }
 
@@ -485,7 +475,7 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
         if self.pending.is_some() || self.candidate.is_some() {
             return false;
         }
-        if !self.checked_source(false) {
+        if !self.checked_source() {
             return false;
         }
         match self.io.rx.try_recv() {

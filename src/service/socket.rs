@@ -31,6 +31,7 @@ use tokio::net::{TcpListener, TcpStream, UnixListener, UnixStream};
 use tokio::sync::{Notify, Semaphore, oneshot};
 
 use super::protocol::{MAX_REQUEST_BYTES, Reply, Request};
+use super::refusals::Refusals;
 use super::{Envelope, Shared};
 use crate::config::SocketConfig;
 use crate::error::{Error, Result};
@@ -67,6 +68,27 @@ impl Access {
     }
 }
 
+/// Whether the socket path `path` can be the service's: free, or a socket (an old service's,
+/// replaced at the start, or a live one's, refused then); a file, a link, a device or a folder
+/// is an input error, and nothing is removed. `config check` asks it as `serve` does.
+pub fn check_path(path: &Path) -> Result<()> {
+    let refuse = |is: &str| {
+        Error::Input(format!(
+            "[socket] path = \"{}\": {is}; it must name a free path or an old compend socket",
+            path.display()
+        ))
+    };
+    match std::fs::symlink_metadata(path) {
+        Ok(meta) if meta.file_type().is_socket() => Ok(()),
+        Ok(meta) if meta.file_type().is_symlink() => Err(refuse("a symbolic link")),
+        Ok(meta) if meta.is_dir() => Err(refuse("a folder")),
+        Ok(meta) if meta.is_file() => Err(refuse("a file that is not a socket")),
+        Ok(_) => Err(refuse("a device or a FIFO, not a socket")),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(Error::io(path, "inspect", e)),
+    }
+}
+
 /// Binds the socket at `cfg.path` with its mode and group. A socket file left by a service
 /// that is gone is replaced; a live one (another service answering) or a path that holds
 /// something other than a socket is an input error, and nothing is removed.
@@ -86,15 +108,7 @@ pub fn bind(cfg: &SocketConfig) -> Result<(UnixListener, Access)> {
             }
             std::fs::remove_file(path).map_err(|e| Error::io(path, "remove stale socket", e))?;
         }
-        Ok(_) => {
-            return Err(Error::Input(format!(
-                "{}: exists and is not a socket; [socket] path must name a free path or an old \
-                 compend socket",
-                path.display()
-            )));
-        }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-        Err(e) => return Err(Error::io(path, "inspect", e)),
+        _ => check_path(path)?,
     }
     let listener = UnixListener::bind(path).map_err(|e| Error::io(path, "bind socket", e))?;
     std::fs::set_permissions(path, std::fs::Permissions::from_mode(cfg.mode))
@@ -225,6 +239,15 @@ impl Token {
                  [socket] tcp_token_file; this one has none or another",
             )
         };
+        // `{"token":"wrong","token":"right"}` would pass a check of the parsed value, and
+        // `{"cmd":"status","cmd":"stop"}` would be read as `stop` once the token is taken out:
+        // a key given twice is refused on the raw line, before the token is looked at.
+        super::protocol::unique_keys(line).map_err(|e| {
+            Reply::error(format!(
+                "{e}; a request on the TCP port gives each field once, and the token of \
+                 [socket] tcp_token_file in \"token\""
+            ))
+        })?;
         let mut value: serde_json::Value = serde_json::from_slice(line).map_err(|_| refuse())?;
         let obj = value.as_object_mut().ok_or_else(refuse)?;
         match obj.remove("token") {
@@ -439,48 +462,70 @@ where
 
 /// Accepts clients on the Unix socket until the runtime shuts down.
 pub async fn serve(listener: UnixListener, access: Access, shared: Arc<Shared>) {
+    let refusals = Arc::new(Refusals::new("control socket"));
     accept(listener, "control socket", move |stream, lease| {
-        let (access, shared) = (access.clone(), shared.clone());
-        async move { client(stream, &access, &shared, lease).await }
+        let (access, shared, refusals) = (access.clone(), shared.clone(), refusals.clone());
+        async move { client(stream, (&access, &refusals), &shared, lease).await }
     })
     .await
 }
 
 /// Accepts TCP clients until the runtime shuts down; each request must carry `token`.
 pub async fn serve_tcp(listener: TcpListener, token: Token, shared: Arc<Shared>) {
+    let refusals = Arc::new(Refusals::new("control port"));
     accept(listener, "control port", move |(stream, peer), lease| {
-        let (token, shared) = (token.clone(), shared.clone());
+        let (token, shared, refusals) = (token.clone(), shared.clone(), refusals.clone());
         async move {
             let (read, write) = stream.into_split();
             let origin = format!("tcp {peer}");
-            requests(read, write, (&shared, &origin), Some((&token, peer)), lease).await
+            let tcp = Tcp {
+                token: &token,
+                peer,
+                refusals: &refusals,
+            };
+            requests(read, write, (&shared, &origin), Some(tcp), lease).await
         }
     })
     .await
 }
 
+/// What the TCP port checks a request against: the token, and the peer's refusals so far.
+struct Tcp<'a> {
+    token: &'a Token,
+    peer: std::net::SocketAddr,
+    refusals: &'a Refusals,
+}
+
 /// One client of the Unix socket, once its credentials allow it: its requests in order.
 async fn client(
     stream: UnixStream,
-    access: &Access,
+    (access, refusals): (&Access, &Refusals),
     shared: &Shared,
     lease: Lease,
 ) -> std::io::Result<()> {
     let cred = stream.peer_cred()?;
     let (read, mut write) = stream.into_split();
+    let who = format!("uid {}", cred.uid());
+    if let Err(why) = refusals.admit(&who) {
+        let reply = Reply::error(why);
+        let _ = send_line(&mut write, reply.to_line()).await;
+        return Ok(());
+    }
     if !access.allows(cred.uid(), cred.gid()) {
-        tracing::warn!(
-            "control socket: refused a client with uid {} gid {} (pid {:?})",
-            cred.uid(),
-            cred.gid(),
-            cred.pid()
+        refusals.refused(
+            &who,
+            &format!(
+                "a client with gid {} (pid {:?}) not allowed",
+                cred.gid(),
+                cred.pid()
+            ),
         );
         let reply = Reply::error(format!(
             "uid {} may not control this service: add it to the socket's group or to [socket] \
              allow_uids",
             cred.uid()
         ));
-        write.write_all(reply.to_line().as_bytes()).await?;
+        let _ = send_line(&mut write, reply.to_line()).await;
         return Ok(());
     }
     let origin = format!("unix uid {}", cred.uid());
@@ -495,7 +540,7 @@ async fn requests<R, W>(
     read: R,
     mut write: W,
     (shared, origin): (&Shared, &str),
-    token: Option<(&Token, std::net::SocketAddr)>,
+    tcp: Option<Tcp<'_>>,
     lease: Lease,
 ) -> std::io::Result<()>
 where
@@ -517,24 +562,34 @@ where
         };
         lease.busy();
         // On the TCP port a line refused before its token was read does not count as asking.
-        let counts = !(token.is_some() && matches!(next, Line::TooLong));
+        let counts = !(tcp.is_some() && matches!(next, Line::TooLong));
         let reply = match next {
             Line::End => return Ok(()),
             Line::TooLong => Reply::error(format!(
                 "request longer than {MAX_REQUEST_BYTES} bytes; it was skipped"
             )),
             Line::Complete => {
-                let request = match token {
+                let request = match &tcp {
                     None => std::mem::take(&mut line),
-                    Some((token, peer)) => match token.strip(&line) {
-                        Ok(request) => request,
-                        Err(reply) => {
-                            tracing::warn!(
-                                "control port: refused {peer}: no token, or the wrong one"
-                            );
-                            return reply_and_close(&mut read, &mut write, &reply, lease).await;
+                    Some(tcp) => {
+                        let ip = tcp.peer.ip().to_canonical().to_string();
+                        let checked = match tcp.refusals.admit(&ip) {
+                            // Backed off: the token is not looked at.
+                            Err(why) => Err(Reply::error(why)),
+                            Ok(()) => tcp.token.strip(&line).inspect_err(|_| {
+                                tcp.refusals.refused(&ip, "no token, or the wrong one");
+                            }),
+                        };
+                        match checked {
+                            Ok(request) => {
+                                tcp.refusals.accepted(&ip);
+                                request
+                            }
+                            Err(reply) => {
+                                return reply_and_close(&mut read, &mut write, &reply, lease).await;
+                            }
                         }
-                    },
+                    }
                 };
                 if let Some(id) = subscription(&request) {
                     return subscribe(&mut read, &mut write, (shared, origin), id, lease).await;
@@ -735,6 +790,7 @@ pub(super) async fn dispatch(request: Request, shared: &Shared, origin: &str) ->
     let reply = if !shared.send(Envelope {
         request: request.clone(),
         reply: Some(tx),
+        opened: None,
     }) {
         Reply::error("the service is shutting down")
     } else {
@@ -1056,6 +1112,12 @@ mod tests {
             br#"{"cmd":"status","token":"0123456789abcdef01234"}"#,
             br#"{"cmd":"status","token":"1123456789abcdef0123"}"#,
             br#"{"cmd":"status","token":12}"#,
+            // The right token after a wrong one: a key given twice is refused whatever its values.
+            br#"{"cmd":"status","token":"1123456789abcdef0123","token":"0123456789abcdef0123"}"#,
+            br#"{"cmd":"status","token":"0123456789abcdef0123","token":"0123456789abcdef0123"}"#,
+            // Read as `status` once the token is out, it would be `stop` to a map that keeps the
+            // last key: refused before.
+            br#"{"cmd":"stop","cmd":"status","token":"0123456789abcdef0123"}"#,
             br#"["0123456789abcdef0123"]"#,
             b"status 0123456789abcdef0123",
         ] {

@@ -56,6 +56,8 @@ struct Slot {
     ended: bool,
     error: Option<Error>,
     stop: bool,
+    /// The source's thread has returned.
+    finished: bool,
 }
 
 struct Shared {
@@ -92,7 +94,13 @@ impl Feed {
         let theirs = shared.clone();
         std::thread::Builder::new()
             .name("compend-source".into())
-            .spawn(move || run(source.as_mut(), &theirs, mode))
+            .spawn(move || {
+                run(source.as_mut(), &theirs, mode);
+                // The source is dropped (a file, a device closed) before the feed hears of it.
+                drop(source);
+                theirs.lock().finished = true;
+                theirs.changed.notify_all();
+            })
             .map_err(|e| Error::Failed(format!("cannot start the source thread: {e}")))?;
         Ok(Self {
             shared,
@@ -171,12 +179,34 @@ fn take(slot: &mut Slot, changed: &Condvar) -> Result<Poll> {
     })
 }
 
+/// How long a feed being dropped waits for its thread to end.
+const STOP_WAIT: Duration = Duration::from_secs(1);
+
 impl Drop for Feed {
     fn drop(&mut self) {
-        // The thread may be blocked in a read (a pipe); it notices the stop at its next frame and
-        // is not joined.
-        self.shared.lock().stop = true;
+        // The thread notices the stop at its next frame, or within a raw source's poll: it is
+        // waited for (a little), so the next source on the same FIFO or device has it to
+        // itself and no thread is left behind. A source stuck elsewhere is left to end alone.
+        let deadline = Instant::now() + STOP_WAIT;
+        let mut slot = self.shared.lock();
+        slot.stop = true;
         self.shared.changed.notify_all();
+        while !slot.finished {
+            let now = Instant::now();
+            if now >= deadline {
+                tracing::debug!(
+                    "{}: its thread did not stop within {STOP_WAIT:?}",
+                    self.describe
+                );
+                return;
+            }
+            slot = self
+                .shared
+                .changed
+                .wait_timeout(slot, deadline - now)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
     }
 }
 

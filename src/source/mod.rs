@@ -86,19 +86,20 @@ pub fn open_with(spec: &SourceSpec, audio: &AudioOut) -> Result<Box<dyn VideoSou
         SourceSpec::Raw { path, size, format } => {
             let (reader, name): (RawInput, String) = match path {
                 None => (
-                    RawInput::Open(Box::new(std::io::stdin())),
+                    RawInput::Stream(Box::new(std::io::stdin())),
                     "standard input".into(),
                 ),
-                // Opened by the first frame, on the source's own thread: a FIFO's open waits for
-                // its writer.
-                Some(p) => (RawInput::Closed(p.clone()), p.display().to_string()),
+                Some(p) => (RawInput::Polled(open_raw(p)?), p.display().to_string()),
             };
+            let len = size.width * size.height * format.bytes_per_pixel();
             Ok(Box::new(Raw {
                 reader,
                 name,
                 size: *size,
                 format: *format,
                 frames: 0,
+                buf: vec![0; len],
+                got: 0,
             }))
         }
         #[cfg(target_os = "linux")]
@@ -118,61 +119,85 @@ pub fn open_with(spec: &SourceSpec, audio: &AudioOut) -> Result<Box<dyn VideoSou
     }
 }
 
-/// Whether `spec` names a source that can be played, without starting it: a still image is
-/// decoded, and so is the first image of a folder that decodes; a raw source's file, FIFO or device and a
-/// camera's device must exist (neither is opened: a FIFO's open waits for its writer, and a
-/// frame read here would be lost to the playback). The service checks a `play` request with
-/// it before the picture that is on stops. Media is brought to its first frame and stopped,
-/// within [`MEDIA_CHECK_TIMEOUT`].
-pub fn check(spec: &SourceSpec) -> Result<()> {
-    let exists = |p: &Path, what: &str| match std::fs::metadata(p) {
-        Ok(m) if m.is_dir() => Err(Error::Input(format!(
-            "{}: a folder, not {what}",
-            p.display()
-        ))),
-        Ok(_) => Ok(()),
-        Err(e) => Err(Error::io(p, "look up", e)),
-    };
+/// The source `spec` names, opened and shown to play, without a frame lost to the playback:
+/// what the service does with a `play` request, on a thread of its own, before the picture
+/// that is on stops. A still image is decoded, a folder's first image that decodes is read
+/// (and shown first), a raw source's file or FIFO and a camera's device are opened (a FIFO
+/// without a writer yet opens at once; its frames come when one writes), media is brought to
+/// its first frame within [`MEDIA_CHECK_TIMEOUT`]. An image file is looked at by its header
+/// before it is read whole, so a folder of large files that are not images is refused fast.
+pub fn open_checked(spec: &SourceSpec, audio: &AudioOut) -> Result<Box<dyn VideoSource>> {
     match spec {
-        SourceSpec::Media(m) => media::check(m, MEDIA_CHECK_TIMEOUT),
-        SourceSpec::Image(path) => read_image(path).map(|_| ()),
-        // As the show plays it: past images that do not decode, to the first that does.
-        SourceSpec::Folder { dir, period } => Slideshow::new(dir, *period)?.next().map(|_| ()),
-        SourceSpec::Raw { path: Some(p), .. } => {
-            exists(p, "a raw source")?;
-            // Readable by this process, asked without opening it (a FIFO's open would wait).
-            let c = std::ffi::CString::new(p.as_os_str().as_encoded_bytes())
-                .map_err(|_| Error::Input(format!("{}: a path with a NUL byte", p.display())))?;
-            // SAFETY: `c` is a valid NUL-terminated path; faccessat only reads it.
-            let rc = unsafe {
-                libc::faccessat(libc::AT_FDCWD, c.as_ptr(), libc::R_OK, libc::AT_EACCESS)
-            };
-            if rc != 0 {
-                return Err(Error::Input(format!(
-                    "{}: this user cannot read it ({}); a raw source must be readable",
-                    p.display(),
-                    std::io::Error::last_os_error()
-                )));
-            }
-            Ok(())
+        SourceSpec::Media(m) => {
+            media::check(m, MEDIA_CHECK_TIMEOUT)?;
+            open_with(spec, audio)
         }
-        SourceSpec::Raw { path: None, .. } | SourceSpec::Pattern { .. } => Ok(()),
-        #[cfg(target_os = "linux")]
-        SourceSpec::V4l2 { device, .. } => exists(device, "a V4L2 device"),
-        #[cfg(not(target_os = "linux"))]
-        SourceSpec::V4l2 { .. } => Err(Error::Input("V4L2 sources exist only on Linux".into())),
+        SourceSpec::Folder { dir, period } => {
+            let mut show = Slideshow::new(dir, *period)?;
+            let first = show.next()?;
+            Ok(Box::new(Primed {
+                first: Some(first),
+                inner: Box::new(show),
+            }))
+        }
+        _ => open_with(spec, audio),
     }
 }
 
-/// Decodes a PNG or JPEG file to an RGBA frame.
+/// A source whose first answer was taken to show that it plays: given back first.
+struct Primed {
+    first: Option<Next>,
+    inner: Box<dyn VideoSource>,
+}
+
+impl VideoSource for Primed {
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+    fn prepare(&mut self) -> Result<()> {
+        self.inner.prepare()
+    }
+    fn next(&mut self) -> Result<Next> {
+        match self.first.take() {
+            Some(first) => Ok(first),
+            None => self.inner.next(),
+        }
+    }
+    fn ends_playback(&self) -> bool {
+        self.inner.ends_playback()
+    }
+    fn set_live(&mut self, live: bool) {
+        self.inner.set_live(live);
+    }
+    fn control(&self) -> Option<crate::media::Control> {
+        self.inner.control()
+    }
+}
+
+/// Decodes a PNG or JPEG file to an RGBA frame. Its header is read first: a file that is not
+/// an image, or one larger than [`ImageSize::MAX_PIXELS`], is refused before the rest is read.
 pub fn read_image(path: &Path) -> Result<ContentFrame> {
-    let bytes = crate::files::read_regular(
-        path,
-        "an image (PNG or JPEG)",
-        crate::files::MAX_IMAGE_BYTES,
-    )?;
-    let img = image::load_from_memory(&bytes)
-        .map_err(|e| Error::Input(format!("{}: not a readable image ({e})", path.display())))?;
+    use std::io::Seek;
+    const WHAT: &str = "an image (PNG or JPEG)";
+    let (mut file, len) = crate::files::open_regular(path, WHAT)?;
+    let unreadable = |e: &dyn std::fmt::Display| {
+        Error::Input(format!("{}: not a readable image ({e})", path.display()))
+    };
+    let (w, h) = image::ImageReader::new(std::io::BufReader::new(&mut file))
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, "read", e))?
+        .into_dimensions()
+        .map_err(|e| unreadable(&e))?;
+    if (w as usize).saturating_mul(h as usize) > ImageSize::MAX_PIXELS {
+        return Err(Error::Input(format!(
+            "{}: {w}x{h} pixels; an image may have at most {} million",
+            path.display(),
+            ImageSize::MAX_PIXELS / 1_000_000
+        )));
+    }
+    file.rewind().map_err(|e| Error::io(path, "read", e))?;
+    let bytes = crate::files::read_opened(file, len, (path, WHAT), crate::files::MAX_IMAGE_BYTES)?;
+    let img = image::load_from_memory(&bytes).map_err(|e| unreadable(&e))?;
     let rgba = img.to_rgba8();
     let (w, h) = rgba.dimensions();
     ContentFrame::from_rgba(w as usize, h as usize, rgba.into_raw())
@@ -280,11 +305,66 @@ impl VideoSource for Slideshow {
     }
 }
 
+/// Opens a raw source's file, FIFO or device for reading without waiting: a FIFO's open
+/// would wait for its writer, and a thread waiting there could not be told to stop.
+fn open_raw(p: &Path) -> Result<std::fs::File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
+        .open(p)
+        .map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => Error::Missing {
+                path: p.to_path_buf(),
+                expected: "a raw source (a file, FIFO or device of raw frames)".into(),
+            },
+            _ => Error::io(p, "open raw source", e),
+        })?;
+    let meta = file.metadata().map_err(|e| Error::io(p, "inspect", e))?;
+    if meta.is_dir() {
+        return Err(Error::Input(format!(
+            "{}: a folder, not a raw source (folder:PATH shows a folder's images)",
+            p.display()
+        )));
+    }
+    Ok(file)
+}
+
+/// How long a raw source waits for bytes before it lets its thread look up (to be stopped).
+const RAW_POLL: Duration = Duration::from_millis(100);
+
+/// Whether `file` has bytes to read (or its writer left) within `timeout`.
+fn readable(file: &std::fs::File, timeout: Duration) -> std::io::Result<bool> {
+    use std::os::fd::AsRawFd;
+    let mut fd = libc::pollfd {
+        fd: file.as_raw_fd(),
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    let ms = timeout.as_millis().min(i32::MAX as u128) as i32;
+    // SAFETY: one valid pollfd for the duration of the call; the fd stays open (borrowed).
+    match unsafe { libc::poll(&mut fd, 1, ms) } {
+        -1 => {
+            let e = std::io::Error::last_os_error();
+            if e.kind() == std::io::ErrorKind::Interrupted {
+                Ok(false)
+            } else {
+                Err(e)
+            }
+        }
+        0 => Ok(false),
+        _ => Ok(true),
+    }
+}
+
 /// Where a [`Raw`] source reads from.
 enum RawInput {
-    /// A file, FIFO or device, not opened yet.
-    Closed(PathBuf),
-    Open(Box<dyn Read + Send>),
+    /// A file, FIFO or device opened without blocking: each read waits at most [`RAW_POLL`].
+    /// (On Linux a FIFO that never had a writer since it was opened is neither readable nor
+    /// hung up, so the wait goes on until one writes.)
+    Polled(std::fs::File),
+    /// Standard input, read as it blocks.
+    Stream(Box<dyn Read + Send>),
 }
 
 /// Raw 8-bit frames back to back on a pipe, a FIFO or in a file.
@@ -294,6 +374,9 @@ struct Raw {
     size: ImageSize,
     format: RawFormat,
     frames: u64,
+    /// The frame being read, and how many of its bytes came.
+    buf: Vec<u8>,
+    got: usize,
 }
 
 impl VideoSource for Raw {
@@ -304,40 +387,40 @@ impl VideoSource for Raw {
         )
     }
 
-    fn prepare(&mut self) -> Result<()> {
-        if let RawInput::Closed(p) = &self.reader {
-            let file = std::fs::File::open(p).map_err(|e| Error::io(p, "open raw source", e))?;
-            self.reader = RawInput::Open(Box::new(file));
-        }
-        Ok(())
-    }
-
     fn next(&mut self) -> Result<Next> {
         let ImageSize {
             width: w,
             height: h,
         } = self.size;
-        let len = w * h * self.format.bytes_per_pixel();
-        self.prepare()?;
-        let RawInput::Open(reader) = &mut self.reader else {
-            return Ok(Next::End);
+        let len = self.buf.len();
+        let io_error = |name: &str, e| Error::Io {
+            path: PathBuf::from(name),
+            op: "read raw frames",
+            source: e,
         };
-        let mut buf = vec![0u8; len];
-        let mut got = 0;
-        while got < len {
-            match reader.read(&mut buf[got..]) {
-                Ok(0) => break,
-                Ok(n) => got += n,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => {
-                    return Err(Error::Io {
-                        path: PathBuf::from(&self.name),
-                        op: "read raw frames",
-                        source: e,
-                    });
+        while self.got < len {
+            let read = match &mut self.reader {
+                RawInput::Polled(file) => {
+                    if !readable(file, RAW_POLL).map_err(|e| io_error(&self.name, e))? {
+                        // Nothing yet: the feed's thread looks whether it was stopped.
+                        return Ok(Next::Idle);
+                    }
+                    file.read(&mut self.buf[self.got..])
                 }
+                RawInput::Stream(r) => r.read(&mut self.buf[self.got..]),
+            };
+            match read {
+                Ok(0) => break,
+                Ok(n) => self.got += n,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::Interrupted | std::io::ErrorKind::WouldBlock
+                    ) => {}
+                Err(e) => return Err(io_error(&self.name, e)),
             }
         }
+        let got = std::mem::take(&mut self.got);
         if got == 0 {
             return Ok(Next::End);
         }
@@ -352,8 +435,8 @@ impl VideoSource for Raw {
         }
         self.frames += 1;
         let frame = match self.format {
-            RawFormat::Rgb24 => ContentFrame::from_rgb(w, h, &buf)?,
-            RawFormat::Rgba => ContentFrame::from_rgba(w, h, buf)?,
+            RawFormat::Rgb24 => ContentFrame::from_rgb(w, h, &self.buf)?,
+            RawFormat::Rgba => ContentFrame::from_rgba(w, h, self.buf.clone())?,
         };
         Ok(Next::Frame { frame, wait: None })
     }
@@ -377,7 +460,7 @@ mod tests {
     }
 
     #[test]
-    fn a_slideshow_skips_a_damaged_image_and_check_reads_what_play_would() {
+    fn a_slideshow_skips_a_damaged_image_and_open_checked_shows_what_play_would() {
         let dir = tempfile::tempdir().unwrap();
         let (a, b) = (dir.path().join("a.png"), dir.path().join("b.png"));
         std::fs::write(&a, &png(10)[..20]).unwrap();
@@ -386,32 +469,107 @@ mod tests {
             dir: dir.path().to_path_buf(),
             period: Duration::from_secs(1),
         };
-        // The first image is the damaged one: `check`, as the show, goes on past it to the good
-        // one, and the show shows that one again and again.
-        check(&spec).unwrap();
+        // The first image is the damaged one: the check, as the show, goes on past it to the
+        // good one, which it shows first (nothing read is lost), and again and again.
+        let audio = AudioOut::default();
+        let mut checked = open_checked(&spec, &audio).unwrap();
         let mut show = open(&spec).unwrap();
         for _ in 0..3 {
-            match show.next().unwrap() {
-                Next::Frame { frame, .. } => assert_eq!(frame.rgba[0], 200),
-                Next::End | Next::Idle => panic!("a slideshow has an image every time"),
+            for s in [&mut checked, &mut show] {
+                match s.next().unwrap() {
+                    Next::Frame { frame, .. } => assert_eq!(frame.rgba[0], 200),
+                    Next::End | Next::Idle => panic!("a slideshow has an image every time"),
+                }
             }
         }
         // With none readable, both say so.
         std::fs::write(&b, b"not a png").unwrap();
         let e = show.next().err().unwrap().to_string();
         assert!(e.contains("not a readable image"), "{e}");
-        let e = check(&spec).unwrap_err().to_string();
+        let e = open_checked(&spec, &audio).err().unwrap().to_string();
         assert!(e.contains("not a readable image"), "{e}");
-        // A still image and a raw file are checked without playing them; a pattern always
-        // plays.
-        assert!(check(&SourceSpec::Image(b.clone())).is_err());
+        assert!(open_checked(&SourceSpec::Image(b.clone()), &audio).is_err());
+        // A raw source's file is opened; a missing one or a folder is refused.
         let raw = |p: &Path| SourceSpec::Raw {
             path: Some(p.to_path_buf()),
             size: ImageSize::new(2, 1),
             format: RawFormat::Rgb24,
         };
-        assert!(check(&raw(&b)).is_ok());
-        assert!(check(&raw(&dir.path().join("missing"))).is_err());
-        assert!(check(&raw(dir.path())).is_err());
+        assert!(open_checked(&raw(&b), &audio).is_ok());
+        assert!(open_checked(&raw(&dir.path().join("missing")), &audio).is_err());
+        let e = open_checked(&raw(dir.path()), &audio)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("a folder"), "{e}");
+    }
+
+    /// A large file that is not an image is refused from its header, without being read
+    /// whole; an image claiming more pixels than compend takes, from its header too.
+    #[test]
+    fn an_image_is_refused_by_its_header_before_it_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let big = dir.path().join("big.png");
+        let f = std::fs::File::create(&big).unwrap();
+        // Sparse: 900 MB that take no disk and would take seconds to read.
+        f.set_len(900 << 20).unwrap();
+        let t = std::time::Instant::now();
+        let e = read_image(&big).unwrap_err().to_string();
+        assert!(e.contains("not a readable image"), "{e}");
+        assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
+        // A PNG header of 100000x100000 pixels and nothing after it.
+        let mut header = png(1);
+        header[16..20].copy_from_slice(&100_000u32.to_be_bytes());
+        header[20..24].copy_from_slice(&100_000u32.to_be_bytes());
+        // The IHDR chunk's CRC-32 (type and data, bytes 12..29), bit by bit.
+        let mut crc = !0u32;
+        for &byte in &header[12..29] {
+            crc ^= u32::from(byte);
+            for _ in 0..8 {
+                crc = if crc & 1 == 1 {
+                    (crc >> 1) ^ 0xEDB8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        header[29..33].copy_from_slice(&(!crc).to_be_bytes());
+        let huge = dir.path().join("huge.png");
+        std::fs::write(&huge, &header).unwrap();
+        let e = read_image(&huge).unwrap_err().to_string();
+        assert!(e.contains("100000x100000"), "{e}");
+    }
+
+    /// A FIFO with no writer opens at once and its reads give way (the feed's thread can be
+    /// stopped); a writer's frames then come through.
+    #[test]
+    fn a_fifo_without_a_writer_does_not_hold_its_thread() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("fifo");
+        let c = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let spec = SourceSpec::Raw {
+            path: Some(fifo.clone()),
+            size: ImageSize::new(2, 1),
+            format: RawFormat::Rgb24,
+        };
+        let t = std::time::Instant::now();
+        let mut src = open_checked(&spec, &AudioOut::default()).unwrap();
+        assert!(matches!(src.next().unwrap(), Next::Idle));
+        assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
+        let mut w = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+        // Half a frame, then the rest: the frame comes whole.
+        std::io::Write::write_all(&mut w, &[1, 2, 3]).unwrap();
+        assert!(matches!(src.next().unwrap(), Next::Idle));
+        std::io::Write::write_all(&mut w, &[4, 5, 6]).unwrap();
+        match src.next().unwrap() {
+            Next::Frame { frame, .. } => {
+                assert_eq!(&frame.rgba[..8], &[1, 2, 3, 255, 4, 5, 6, 255])
+            }
+            _ => panic!("a frame was written"),
+        }
+        drop(w);
+        assert!(matches!(src.next().unwrap(), Next::End));
     }
 }

@@ -198,7 +198,11 @@ impl Engine {
         let run = match runs.begin_with(&rig_name(&self.config), SystemTime::now(), refit) {
             Ok(r) => r,
             Err(e) => {
-                self.io.fail("calibration", &e);
+                // It ends before its first capture (the data folder unwritable, a full disk):
+                // counted and reported as any calibration that failed, so that a client
+                // waiting for it (`recalibrate --wait`) and `status` see the failure.
+                self.io.fail("calibration failed", &e);
+                self.calibration_ended(false, format!("failed before its first capture: {e}"));
                 self.next = self.after_calibration();
                 return;
             }
@@ -447,14 +451,7 @@ impl Engine {
             }
             Err(e) => {
                 self.io.fail("the new model was not installed", &e);
-                self.io.shared.update(|s| {
-                    s.calibration = None;
-                    s.calibrations += 1;
-                    s.last_calibration = Some(CalibrationOutcome {
-                        installed: false,
-                        message: format!("the new model was not installed: {e}"),
-                    });
-                });
+                self.calibration_ended(false, format!("the new model was not installed: {e}"));
             }
         }
         let runs = Runs::new(&self.config.paths.data);
@@ -591,15 +588,7 @@ impl Engine {
             Error::Cancelled(_) => format!("cancelled; its captures stay in {}", data.display()),
             e => format!("failed: {e}"),
         };
-        // One update: a client never sees the count without its outcome.
-        self.io.shared.update(|s| {
-            s.calibration = None;
-            s.calibrations += 1;
-            s.last_calibration = Some(CalibrationOutcome {
-                installed: false,
-                message,
-            });
-        });
+        self.calibration_ended(false, message);
         match e {
             Error::Cancelled(_) => tracing::info!(
                 "calibration cancelled; its captures stay in {} for the next run",
@@ -617,6 +606,16 @@ impl Engine {
         if self.next != Next::Stop {
             self.next = self.after_calibration();
         }
+    }
+
+    /// A calibration has ended, installed or not: counted with its outcome in one update, so
+    /// that a client never sees the count without it.
+    fn calibration_ended(&mut self, installed: bool, message: String) {
+        self.io.shared.update(|s| {
+            s.calibration = None;
+            s.calibrations += 1;
+            s.last_calibration = Some(CalibrationOutcome { installed, message });
+        });
     }
 
     /// After a calibration: play if there is a model and the configuration says so, unless the

@@ -30,6 +30,7 @@ pub use super::devices::rig_name;
 use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure};
 use super::monitor::{self, Tap};
 use super::notify::Notifier;
+use super::opening::{Opened, Opening};
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::screen::{ServiceScreen, set_frames};
 use super::{Event, Io, Shared, clipped};
@@ -44,7 +45,7 @@ use crate::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
 use crate::raster::ImageSize;
 use crate::rig::VirtualRig;
 use crate::rig::scene::Latency;
-use crate::source::{self, FeedMode, Playlist, SourceSpec};
+use crate::source::{self, FeedMode, Playlist};
 
 /// What the engine does next.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -67,6 +68,8 @@ pub struct Engine {
     model_path: PathBuf,
     /// What `play` plays: the configured source or playlist, or the source a request named.
     source: Playlist,
+    /// `source`, opened already for the next playback (a `play` request's).
+    opened: Option<Opened>,
     next: Next,
     /// The first monitoring score of the current model and the source it was measured on: what
     /// drift is measured against, dB.
@@ -99,6 +102,7 @@ impl Engine {
         let mut engine = Engine {
             model_path: config.paths.model.clone(),
             source: config.playback.source.clone(),
+            opened: None,
             config,
             devices,
             io: Io {
@@ -256,8 +260,9 @@ impl Engine {
                     self.next = Next::Play;
                 }
             }
-            Event::Request(env) => {
-                let reply = self.request(&env.request);
+            Event::Request(mut env) => {
+                let opened = env.opened.take();
+                let reply = self.request(&env.request, opened);
                 env.answer(reply);
             }
         }
@@ -294,7 +299,9 @@ impl Engine {
         tracing::info!("reload: configuration applied");
     }
 
-    fn request(&mut self, r: &Request) -> Reply {
+    /// The reply to `r`; `opened`: a `play` request's source, opened and shown to play while
+    /// the playback before went on ([`super::opening`]).
+    fn request(&mut self, r: &Request, opened: Option<Opened>) -> Reply {
         match r {
             Request::Status => Reply::status(self.io.shared.status()),
             Request::Calibrate | Request::Recalibrate => {
@@ -305,23 +312,30 @@ impl Engine {
                 ))
             }
             Request::Play { source } => {
-                // A source that cannot be played changes nothing: the one in place stays.
-                if let Some(s) = source
-                    && let Err(e) = super::protocol::check_requested_source(s)
-                {
-                    return Reply::error(e);
-                }
-                if let Some(s) = source
-                    && let Err(e) = SourceSpec::parse(s).and_then(|spec| source::check(&spec))
-                {
-                    return Reply::error(e.to_string());
-                }
                 if self.model.is_none() {
                     return Reply::error(
                         "no model to play with: calibrate first (compend recalibrate)",
                     );
                 }
+                // A source that cannot be played changes nothing: the one in place stays.
                 if let Some(s) = source {
+                    if let Err(e) = super::protocol::check_requested_source(s) {
+                        return Reply::error(e);
+                    }
+                    // Opened here unless the playback before did (while it went on): on a
+                    // thread, the watchdog kept alive, within its time limit.
+                    let opened = match opened {
+                        Some(o) => Ok(o),
+                        None => {
+                            let notify = &mut self.io.notify;
+                            Opening::start(s.clone(), self.config.audio.out())
+                                .and_then(|o| o.wait(|| notify.ping()))
+                        }
+                    };
+                    match opened {
+                        Ok(o) => self.opened = Some(o),
+                        Err(e) => return Reply::error(e.to_string()),
+                    }
                     self.source = Playlist::single(s.clone());
                 }
                 self.next = Next::Play;
@@ -403,7 +417,10 @@ impl Engine {
             self.next = Next::Wait;
             return;
         };
-        let opened = self.source.open(&self.config.audio.out());
+        let opened = match self.opened.take() {
+            Some(o) => Ok(o),
+            None => self.source.open(&self.config.audio.out()),
+        };
         let source = match opened {
             Ok(s) => s,
             Err(e) => {
@@ -508,6 +525,7 @@ impl Engine {
         // A calibration's model training beside this playback ends it when it is trained.
         let end_when = self.training.as_ref().map(|t| t.done.clone());
         let output = self.config.output.to.clone();
+        let audio = self.config.audio.out();
         let result = match &mut self.devices {
             Devices::Virtual(v) => {
                 let bump = v.bump.as_mut().and_then(|b| b.arm(drift_after));
@@ -522,6 +540,7 @@ impl Engine {
                         end_when,
                         bump,
                         output: output.clone(),
+                        audio: audio.clone(),
                     },
                 )
             }
@@ -538,6 +557,7 @@ impl Engine {
                         end_when,
                         bump,
                         output: output.clone(),
+                        audio: audio.clone(),
                     },
                 )
             }
@@ -704,6 +724,7 @@ fn play_virtual(
     screen.climb = climb.take();
     screen.end_when = around.end_when;
     screen.drift = around.bump;
+    screen.audio = around.audio;
     screen.media = player.feed.control().cloned();
     let stats = player.run(&mut screen, None);
     screen.settle();
@@ -788,6 +809,7 @@ fn play_hardware(
         screen.climb = climb.take();
         screen.end_when = around.end_when;
         screen.drift = around.bump;
+        screen.audio = around.audio;
         if watcher.is_some() {
             screen.changes = Some(tx);
         }
@@ -824,6 +846,8 @@ struct Around<'a> {
     bump: Option<(VirtualRig, Instant)>,
     /// `[output] to`: the compensated frames to a file or a pipeline as well.
     output: Option<OutputSpec>,
+    /// Where a source asked for while playing plays its sound.
+    audio: source::AudioOut,
 }
 
 /// Starts `[output] to` for a playback on a display of `size` at `fps`: a file goes to the
