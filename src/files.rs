@@ -418,8 +418,7 @@ pub fn check_contents_removable(dir: &Path) -> Result<()> {
 
 /// Checks, before any work, that results can be written into the folder `dir` (a benchmark's
 /// `--out`): it is a folder, or can be made one, and a file can be created in it or in the
-/// nearest of its folders that exists ([`check_writable`]). An input error (exit 2) naming it
-/// otherwise.
+/// nearest of its folders that exists ([`check_writable`]). Errors as that one's.
 pub fn check_out_folder(dir: &Path) -> Result<()> {
     match fs::metadata(dir) {
         Ok(m) if m.is_dir() => check_writable(&dir.join("results")),
@@ -445,7 +444,9 @@ pub fn check_out_folder(dir: &Path) -> Result<()> {
 
 /// Checks, before any work, that `path` can be written: a file can be created in the nearest
 /// of its folders that exists (the missing ones are created when `path` is written, not now,
-/// so a run that fails leaves none behind). An input error (exit 2) naming the path otherwise.
+/// so a run that fails leaves none behind). An input error (exit 2) naming the path when it
+/// cannot be (a file on the way); an I/O error (exit 1) when this user may not write there or
+/// the disk is full.
 pub fn check_writable(path: &Path) -> Result<()> {
     // `child`: the entry of `folder` on the way to `path` (`path` itself when its folder
     // exists), whose temporary sibling is the probe.
@@ -491,11 +492,13 @@ pub fn check_writable(path: &Path) -> Result<()> {
             Ok(())
         }
         Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
-        Err(e) => Err(Error::Input(format!(
-            "{}: cannot write in {} ({e})",
-            path.display(),
-            folder.display()
-        ))),
+        // Not this user's to write, or no room: the operation's failure (exit 1, which a
+        // service manager retries once the rights or the room are there), not a wrong path.
+        Err(e) => Err(Error::Io {
+            path: folder.to_path_buf(),
+            op: "write a file (to check that the output can go there)",
+            source: e,
+        }),
     }
 }
 

@@ -14,7 +14,7 @@ use crate::service::{Service, client, gpu_or_skip, playing, write_config};
 
 /// One HTTP/1.1 exchange (`Connection: close`): the status code, the headers (lower-case
 /// names) and the body.
-fn http(
+pub(crate) fn http(
     addr: &str,
     method: &str,
     path: &str,
@@ -136,12 +136,12 @@ fn until(
 
 /// A request of the control socket's as the page sends it (`POST /api/request` with
 /// `X-Compend: 1`): the HTTP status and the reply.
-fn request(addr: &str, body: &[u8]) -> (u16, Value) {
+pub(crate) fn request(addr: &str, body: &[u8]) -> (u16, Value) {
     let (code, _, reply) = http(addr, "POST", "/api/request", &[("X-Compend", "1")], body);
     (code, json(&reply))
 }
 
-fn json(body: &[u8]) -> Value {
+pub(crate) fn json(body: &[u8]) -> Value {
     serde_json::from_slice(body)
         .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(body)))
 }

@@ -19,6 +19,7 @@ mod metrics;
 mod nn;
 mod patterns;
 mod play;
+mod probe;
 mod rig;
 mod service;
 mod train;

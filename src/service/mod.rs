@@ -486,6 +486,8 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
     let socket_path = config.socket.path.clone();
     runtime.spawn(socket::serve(listener, access, shared.clone()));
     if let Some((listener, token, addr)) = tcp {
+        // The port bound (the configuration may ask for port 0: any free one).
+        let addr = listener.local_addr().unwrap_or(addr);
         tracing::info!("control port: listening on {addr} (requests carry the token)");
         runtime.spawn(socket::serve_tcp(listener, token, shared.clone()));
     }

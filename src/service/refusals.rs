@@ -190,7 +190,8 @@ fn summary(what: &str, peer: &str, p: &Peer, now: u64) -> String {
         format!("{what}: refused {peer}: {}{backoff}", p.why)
     } else {
         format!(
-            "{what}: refused {peer} {more} times since the last line about it (the last: {}){backoff}",
+            "{what}: {more} refusal(s) of {peer} since the last line about it (the last: \
+             {}){backoff}",
             p.why
         )
     }
