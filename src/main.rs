@@ -151,6 +151,10 @@ fn init_logging(service: bool) {
         .with_target(false)
         .without_time()
         .with_ansi(false)
+        // A line that cannot be written (the log's disk full, the reader gone) is lost, and
+        // nothing else: by default the subscriber reports it with `eprintln!` to the same
+        // stderr, which panics when that write fails too, and the service died with it.
+        .log_internal_errors(false)
         .try_init();
 }
 

@@ -263,11 +263,18 @@ fn hostile_requests_and_sources_get_clean_refusals_and_the_picture_plays_on() {
         let r = tcp_line(port, line.as_bytes());
         t.check(name, refused(&r), format!("{r:?}"));
     }
+    let alive = unix_line(&svc.socket, br#"{"cmd":"status"}"#);
+    let on = alive
+        .as_deref()
+        .is_some_and(|r| r.contains(r#""state":"playing""#));
     t.check(
         "tcp: still running after the duplicate stop",
-        svc.status()["state"] == "playing",
-        svc.status(),
+        on,
+        format!("{alive:?}"),
     );
+    if !on {
+        return t.finish(&svc.log());
+    }
 
     // A flood of wrong tokens: backed off (the token no longer looked at), a few log lines
     // only, and the right token taken once the backoff is over.
@@ -468,9 +475,31 @@ fn hostile_requests_and_sources_get_clean_refusals_and_the_picture_plays_on() {
             ),
         );
     }
+    // A stream that never answers: while it is being opened the picture plays on (no source
+    // is opened on the render thread), and it is refused within the opening's time.
+    let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("uri:http://{}/film.mp4", silent.local_addr().unwrap());
+    let socket = svc.socket.clone();
+    let started = Instant::now();
+    let asked = std::thread::spawn(move || client(&["play", "--source", &url], &socket));
+    std::thread::sleep(Duration::from_secs(2));
+    let during = still_playing(&svc, &source);
+    let o = asked.join().unwrap();
+    t.check(
+        "source: a stream that never answers",
+        o.status.code() != Some(0) && during.is_ok() && started.elapsed() < Duration::from_secs(30),
+        format!(
+            "exit {:?} after {:?}; while it opened: {during:?}; {}",
+            o.status.code(),
+            started.elapsed(),
+            stderr(&o)
+        ),
+    );
+    drop(silent);
     // A FIFO without a writer plays (it waits for one); ten such requests leave no thread
     // behind.
     let before = threads(pid);
+    let mut taken = 0;
     for _ in 0..10 {
         let o = client(
             &[
@@ -480,8 +509,13 @@ fn hostile_requests_and_sources_get_clean_refusals_and_the_picture_plays_on() {
             ],
             &svc.socket,
         );
-        assert_code(&o, 0);
+        taken += usize::from(o.status.success());
     }
+    t.check(
+        "source: a FIFO without a writer is taken at once",
+        taken == 10,
+        format!("{taken} of 10 plays taken"),
+    );
     std::thread::sleep(Duration::from_secs(2));
     let after = threads(pid);
     t.check(
@@ -490,8 +524,7 @@ fn hostile_requests_and_sources_get_clean_refusals_and_the_picture_plays_on() {
         format!("{before} → {after} threads"),
     );
     let o = client(&["play", "--source", &source], &svc.socket);
-    assert_code(&o, 0);
-    svc.wait_for("the pattern again", 30, playing);
+    t.check("the first source again", o.status.success(), stderr(&o));
 
     t.check(
         "the installed model is untouched",
@@ -667,7 +700,13 @@ fn a_full_disk_fails_a_recalibration_that_the_waiter_sees_and_loses_nothing() {
         return;
     }
     let _unmount = Unmount(disk.clone());
-    let config = write_config(&disk, "curved", 8, "", "");
+    // The state on the small disk; the configuration, the socket and the log beside it.
+    let config = write_config(dir.path(), "curved", 8, "", "");
+    let text = std::fs::read_to_string(&config).unwrap().replace(
+        &format!("state = \"{}\"", dir.path().join("state").display()),
+        &format!("state = \"{}\"", disk.join("state").display()),
+    );
+    std::fs::write(&config, text).unwrap();
     let mut svc = Service::start(&config);
     svc.wait_for("playback after the first calibration", 300, playing);
     let model = disk.join("state/model");
@@ -706,6 +745,13 @@ fn a_full_disk_fails_a_recalibration_that_the_waiter_sees_and_loses_nothing() {
         svc.wait_for("playback after the failure", 60, playing)["state"] == "playing",
         "",
     );
+    // And goes on with the disk full (monitoring, the log, the console's figures).
+    std::thread::sleep(Duration::from_secs(10));
+    t.check(
+        "ten seconds more with the disk full",
+        still_playing(&svc, svc.status()["source"].as_str().unwrap_or("")).is_ok(),
+        svc.log(),
+    );
     let log = svc.log();
     let r = svc.ask(r#"{"cmd":"stop"}"#);
     assert_eq!(r["ok"], true, "{r}");
@@ -714,7 +760,8 @@ fn a_full_disk_fails_a_recalibration_that_the_waiter_sees_and_loses_nothing() {
 }
 
 #[test]
-fn an_unwritable_state_folder_exits_1_and_a_failed_reload_shows_in_status() {
+fn an_unwritable_state_folder_exits_1_a_failed_reload_shows_in_status_and_an_unwritable_log_is_survived()
+ {
     if !gpu_or_skip() {
         return;
     }
@@ -757,11 +804,17 @@ fn an_unwritable_state_folder_exits_1_and_a_failed_reload_shows_in_status() {
         );
     }
     // A SIGHUP with a configuration that does not parse: the running one stays, and `status`
-    // says so.
+    // says so. This service's log cannot be written at all (stderr is /dev/full): it calibrates
+    // and plays all the same.
     let config = write_config(dir.path(), "curved", 9, "", "");
     let good = std::fs::read_to_string(&config).unwrap();
-    let mut svc = Service::start(&config);
-    svc.wait_for("playback after the first calibration", 300, playing);
+    let mut svc = Service::start_unlogged(&config);
+    let s = svc.wait_for("playback after the first calibration", 300, playing);
+    t.check(
+        "a service whose log cannot be written calibrates and plays",
+        s["calibrations"] == 1,
+        &s,
+    );
     std::fs::write(&config, format!("{good}\n[rig]\nkind = \"virtual\"\n")).unwrap();
     let pid = svc.status()["pid"].as_i64().unwrap() as i32;
     // SAFETY: kill(2) on the service's own pid.
@@ -894,10 +947,11 @@ fn config_check_refuses_what_serve_would_and_two_calibrations_do_not_share_a_fol
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let lock = data.join("compend.lock");
+    // Once it captures.
+    let manifest = data.join("capture/calibration.json");
     let start = Instant::now();
-    while !std::fs::read_to_string(&lock).is_ok_and(|s| s.contains("calibrate")) {
-        assert!(start.elapsed() < Duration::from_secs(60), "no lock taken");
+    while !manifest.is_file() {
+        assert!(start.elapsed() < Duration::from_secs(60), "no captures");
         std::thread::sleep(Duration::from_millis(20));
     }
     let second = compend(&args);

@@ -81,6 +81,28 @@ impl Service {
         Self::start_on(config, None)
     }
 
+    /// `compend serve` whose stderr is `/dev/full`: every log line fails to be written (a full
+    /// disk under the log, a reader gone). `log()` is empty.
+    pub(crate) fn start_unlogged(config: &Path) -> Self {
+        let dir = config.parent().unwrap();
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap();
+        let child = Command::new(env!("CARGO_BIN_EXE_compend"))
+            .args(["serve", "--config", config.to_str().unwrap()])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(full)
+            .spawn()
+            .unwrap();
+        Service {
+            child: Some(child),
+            socket: dir.join("compend.sock"),
+            log: dir.join("no-log"),
+        }
+    }
+
     /// `compend serve` with the X display `display` (None: no display).
     fn start_on(config: &Path, display: Option<&str>) -> Self {
         let dir = config.parent().unwrap();
