@@ -375,8 +375,8 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 
 /// How many closed-loop pairs, from the first, an interrupted run of this calibration left
 /// complete on disk (of the `written` its manifest claims) for the images `model` compensates
-/// now: the training image as written is the one compensated now (both 8-bit), and the
-/// capture, written last, is there. With the desired view of the last one kept, for the
+/// now: the training image as written is the one compensated now (both 8-bit), the desired
+/// view reads back as the one placed now, and the capture, written last, reads whole. With the desired view of the last one kept, for the
 /// white flash before the next ([`Capturer::tells_apart`]).
 fn resumable_loop_pairs(
     (root, setup, written): (&DataRoot, &Setup, usize),
@@ -396,13 +396,26 @@ fn resumable_loop_pairs(
             break;
         };
         let (desired, shown) = loop_image(root, (ntrain, i), placement, model)?;
-        let same = stored.size() == shown.size()
-            && stored
-                .data()
-                .iter()
-                .zip(shown.data())
-                .all(|(a, b)| (a - b).abs() < 0.5 / 255.0);
-        if !same {
+        // Both 8-bit as written: equal to within rounding.
+        let same = |a: &[f32], b: &[f32]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(a, b)| (a - b).abs() < 0.5 / 255.0)
+        };
+        if stored.size() != shown.size() || !same(stored.data(), shown.data()) {
+            break;
+        }
+        // The desired view as the fit will read it (one damaged since is taken again), and
+        // the capture whole, of the camera's size.
+        let view = setup
+            .loop_desired_dir()
+            .join(crate::pngio::indexed_name(index));
+        let kept = crate::pngio::read_rgb::<crate::raster::Camera>(&view).is_ok_and(|v| {
+            v.size() == desired.size() && same(v.data(), crate::pngio::quantize(&desired).data())
+        });
+        let captured = crate::pngio::read_rgb::<crate::raster::Camera>(
+            &setup.capture_path(CaptureSet::Train, index),
+        )
+        .is_ok_and(|c| c.size() == desired.size());
+        if !(kept && captured) {
             break;
         }
         done = (i, Some(desired));
