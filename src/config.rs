@@ -77,6 +77,8 @@ pub struct PathsConfig {
     pub data: PathBuf,
     /// The installed model directory [default: STATE/model].
     pub model: PathBuf,
+    /// The folders whose model directories a `model` request may name [default: STATE].
+    pub models: Vec<PathBuf>,
 }
 
 /// When the service calibrates by itself.
@@ -144,6 +146,9 @@ pub struct PlaybackConfig {
     /// Play the source as soon as a verified model is installed (at start and after each
     /// calibration).
     pub autoplay: bool,
+    /// The folders whose files a `play` request may name (images, folders, films, raw files
+    /// and FIFOs) [default: STATE/media]. The configured `source` is not limited to them.
+    pub media: Vec<PathBuf>,
 }
 
 /// `[audio]`: where media sources' sound goes.
@@ -482,7 +487,15 @@ impl<'t> Walker<'t> {
         let model = self
             .get(&mut t, "model")
             .unwrap_or_else(|| state.join("model"));
-        let paths = PathsConfig { state, data, model };
+        let models = self
+            .get(&mut t, "models")
+            .unwrap_or_else(|| vec![state.clone()]);
+        let paths = PathsConfig {
+            state,
+            data,
+            model,
+            models,
+        };
         self.finish(t);
 
         let mut t = self.table(root, "calibration");
@@ -504,6 +517,9 @@ impl<'t> Walker<'t> {
                 None => crate::source::Playlist::single("pattern:bars"),
             },
             autoplay: self.get(&mut t, "autoplay").unwrap_or(true),
+            media: self
+                .get(&mut t, "media")
+                .unwrap_or_else(|| vec![paths.state.join("media")]),
         };
         self.finish(t);
 

@@ -475,6 +475,52 @@ fn hostile_requests_and_sources_get_clean_refusals_and_the_picture_plays_on() {
             ),
         );
     }
+    // Files outside the media folders (`[playback] media`, here the test's folder), directly,
+    // through a link that leads out, or as a file:// URI; a model outside `[paths] models`.
+    let outside = tempfile::tempdir().unwrap();
+    let png = outside.path().join("elsewhere.png");
+    image::RgbImage::from_pixel(4, 4, image::Rgb([9, 9, 9]))
+        .save(&png)
+        .unwrap();
+    let link = dir.path().join("link.png");
+    std::os::unix::fs::symlink(&png, &link).unwrap();
+    for (name, s) in [
+        (
+            "source: an image outside the media folders",
+            format!("image:{}", png.display()),
+        ),
+        (
+            "source: a link out of the media folders",
+            format!("image:{}", link.display()),
+        ),
+        (
+            "source: a file:// URI outside them",
+            format!("uri:file://{}", png.display()),
+        ),
+        (
+            "source: a film by file: outside them",
+            format!("file:{}", png.display()),
+        ),
+    ] {
+        let o = client(&["play", "--source", &s], &svc.socket);
+        let on = still_playing(&svc, &source);
+        t.check(
+            name,
+            o.status.code() == Some(1)
+                && stderr(&o).contains("not in [playback] media")
+                && on.is_ok(),
+            format!("exit {:?}: {} {on:?}", o.status.code(), stderr(&o)),
+        );
+    }
+    let r = unix_line(
+        &svc.socket,
+        format!(r#"{{"cmd":"model","path":"{}"}}"#, outside.path().display()).as_bytes(),
+    );
+    t.check(
+        "model: a folder outside [paths] models",
+        refused(&r) && r.as_deref().is_some_and(|r| r.contains("[paths] models")),
+        format!("{r:?}"),
+    );
     // A stream that never answers: while it is being opened the picture plays on (no source
     // is opened on the render thread), and it is refused within the opening's time.
     let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();

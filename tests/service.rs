@@ -38,6 +38,7 @@ fps = 30.0
 
 [paths]
 state = "{state}"
+models = ["{dir}"]
 
 [calibration]
 ntrain = 12
@@ -47,6 +48,7 @@ network = "64"
 
 [playback]
 source = "pattern:bars?size=200x150&fps=30"
+media = ["{dir}"]
 
 [monitoring]
 period_s = 0.5
@@ -62,7 +64,8 @@ listen = "127.0.0.1:0"
 stats_period_s = 2.0
 "#,
         state = state.display(),
-        socket = socket.display()
+        socket = socket.display(),
+        dir = dir.display()
     );
     let path = dir.join("compend.toml");
     std::fs::write(&path, text).unwrap();

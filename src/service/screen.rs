@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use super::climb::{Candidate, Climb};
 use super::devices::{load_model, match_exposure};
 use super::monitor::Tap;
-use super::opening::Opening;
+use super::opening::{Allowed, Opening};
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::{Envelope, Event, Io};
 use crate::error::{Error, Result};
@@ -148,6 +148,8 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     checking: Option<(Envelope, Opening)>,
     /// Where a source asked for plays its sound.
     pub(super) audio: AudioOut,
+    /// The folders requests may name files in.
+    pub(super) allowed: Allowed,
 }
 
 impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
@@ -186,6 +188,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             media: None,
             checking: None,
             audio: AudioOut::default(),
+            allowed: Allowed::default(),
         }
     }
 
@@ -198,7 +201,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             ));
             return;
         }
-        match Opening::start(text, self.audio.clone()) {
+        match Opening::start(text, self.audio.clone(), self.allowed.clone()) {
             Ok(o) => self.checking = Some((envelope, o)),
             Err(e) => envelope.answer(Reply::error(e.to_string())),
         }
@@ -307,6 +310,10 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             self.pending = Some(Event::Request(envelope));
             return false;
         };
+        if let Err(e) = self.allowed.model(path) {
+            envelope.answer(Reply::error(e.to_string()));
+            return true;
+        }
         if let Some(l) = &self.loading {
             let busy = format!(
                 "busy: still loading {}; ask again when it is swapped in",

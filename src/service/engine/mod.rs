@@ -30,7 +30,7 @@ pub use super::devices::rig_name;
 use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure};
 use super::monitor::{self, Tap};
 use super::notify::Notifier;
-use super::opening::{Opened, Opening};
+use super::opening::{Allowed, Opened, Opening};
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::screen::{ServiceScreen, set_frames};
 use super::{Event, Io, Shared, clipped};
@@ -328,8 +328,12 @@ impl Engine {
                         Some(o) => Ok(o),
                         None => {
                             let notify = &mut self.io.notify;
-                            Opening::start(s.clone(), self.config.audio.out())
-                                .and_then(|o| o.wait(|| notify.ping()))
+                            Opening::start(
+                                s.clone(),
+                                self.config.audio.out(),
+                                Allowed::of(&self.config),
+                            )
+                            .and_then(|o| o.wait(|| notify.ping()))
                         }
                     };
                     match opened {
@@ -349,7 +353,10 @@ impl Engine {
                 "nothing is playing: seek, next and previous act on a film or playlist while it \
                  plays (compend play starts it)",
             ),
-            Request::Model { path } => match self.use_model(path) {
+            Request::Model { path } => match Allowed::of(&self.config)
+                .model(path)
+                .and_then(|()| self.use_model(path))
+            {
                 // Paused stays paused: the projector stays dark until the operator plays.
                 Ok(()) if self.io.shared.status().state == State::Paused => Reply::ok(format!(
                     "paused; {} is the model now, and compend play shows {} with it",
@@ -541,6 +548,7 @@ impl Engine {
                         bump,
                         output: output.clone(),
                         audio: audio.clone(),
+                        allowed: Allowed::of(&self.config),
                     },
                 )
             }
@@ -558,6 +566,7 @@ impl Engine {
                         bump,
                         output: output.clone(),
                         audio: audio.clone(),
+                        allowed: Allowed::of(&self.config),
                     },
                 )
             }
@@ -725,6 +734,7 @@ fn play_virtual(
     screen.end_when = around.end_when;
     screen.drift = around.bump;
     screen.audio = around.audio;
+    screen.allowed = around.allowed;
     screen.media = player.feed.control().cloned();
     let stats = player.run(&mut screen, None);
     screen.settle();
@@ -810,6 +820,7 @@ fn play_hardware(
         screen.end_when = around.end_when;
         screen.drift = around.bump;
         screen.audio = around.audio;
+        screen.allowed = around.allowed;
         if watcher.is_some() {
             screen.changes = Some(tx);
         }
@@ -848,6 +859,8 @@ struct Around<'a> {
     output: Option<OutputSpec>,
     /// Where a source asked for while playing plays its sound.
     audio: source::AudioOut,
+    /// The folders requests may name files in.
+    allowed: Allowed,
 }
 
 /// Starts `[output] to` for a playback on a display of `size` at `fps`: a file goes to the
