@@ -323,9 +323,9 @@ fn the_service_plays_a_playlist_from_its_configuration() {
     make_film(&b, 45, 48, 64, false);
     let config = write_config(dir.path(), "textured-plane", 5, "", "enabled = false");
     let text = std::fs::read_to_string(&config).unwrap().replace(
-        "[playback]\nsource = \"pattern:bars?size=200x150&fps=30\"\n",
+        "source = \"pattern:bars?size=200x150&fps=30\"\n",
         &format!(
-            "[playback]\nsource = [{{ src = \"{}\" }}, {{ src = \"file:{}\", loop = 2 }}]\n\
+            "source = [{{ src = \"{}\" }}, {{ src = \"file:{}\", loop = 2 }}]\n\
              repeat = true\n\n[audio]\ndevice = \"fakesink sync=true\"\n",
             a.display(),
             b.display()

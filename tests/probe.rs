@@ -353,6 +353,61 @@ fn hostile_requests_and_sources_get_clean_refusals_and_the_picture_plays_on() {
         code,
     );
 
+    // 64 browsers that keep their connections alive and idle take every slot of the console:
+    // a 65th is served once the idle ones are closed (not never).
+    let keep_alive = |addr: &str| -> Option<TcpStream> {
+        let mut c = TcpStream::connect(addr).ok()?;
+        c.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+        c.write_all(format!("GET /api/status HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
+            .ok()?;
+        // The head, then the body by its length; the connection stays open.
+        let mut got = Vec::new();
+        let mut buf = [0u8; 4096];
+        loop {
+            let n = c.read(&mut buf).ok()?;
+            if n == 0 {
+                return None;
+            }
+            got.extend_from_slice(&buf[..n]);
+            if let Some(i) = got.windows(4).position(|w| w == b"\r\n\r\n") {
+                let head = String::from_utf8_lossy(&got[..i]).to_lowercase();
+                let len: usize = head
+                    .lines()
+                    .find_map(|l| l.strip_prefix("content-length:"))?
+                    .trim()
+                    .parse()
+                    .ok()?;
+                if got.len() >= i + 4 + len {
+                    return Some(c);
+                }
+            }
+        }
+    };
+    let held: Vec<TcpStream> = (0..64).filter_map(|_| keep_alive(&http_addr)).collect();
+    let started = Instant::now();
+    let late = TcpStream::connect(&http_addr).and_then(|mut c| {
+        c.set_read_timeout(Some(Duration::from_secs(60)))?;
+        c.write_all(
+            format!("GET /api/status HTTP/1.1\r\nHost: {http_addr}\r\nConnection: close\r\n\r\n")
+                .as_bytes(),
+        )?;
+        let mut head = [0u8; 12];
+        c.read_exact(&mut head)?;
+        Ok(String::from_utf8_lossy(&head).into_owned())
+    });
+    t.check(
+        "http: a 65th client past 64 idle keep-alive connections is served",
+        held.len() == 64
+            && late.as_deref().is_ok_and(|h| h.contains("200"))
+            && started.elapsed() < Duration::from_secs(45),
+        format!(
+            "{} held; {late:?} after {:?}",
+            held.len(),
+            started.elapsed()
+        ),
+    );
+    drop(held);
+
     // OSC: garbage, an address that is not compend's, an oversized string.
     let udp = UdpSocket::bind("127.0.0.1:0").unwrap();
     udp.set_read_timeout(Some(Duration::from_secs(10))).unwrap();

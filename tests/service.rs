@@ -47,8 +47,8 @@ verify = 3
 network = "64"
 
 [playback]
-source = "pattern:bars?size=200x150&fps=30"
 media = ["{dir}"]
+source = "pattern:bars?size=200x150&fps=30"
 
 [monitoring]
 period_s = 0.5
@@ -513,7 +513,8 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
         (&damaged, "not a readable image"),
         (&empty, "no PNG or JPEG images"),
         (&fifo, "a FIFO (named pipe), not an image"),
-        (&zero, "a device, not an image"),
+        // A device, and outside the media folders besides: refused for that first.
+        (&zero, "not in [playback] media"),
     ] {
         let a = svc.status()["frames"]["shown"].as_u64().unwrap();
         let spelt = format!("image:{}", bad.display());

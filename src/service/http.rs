@@ -12,7 +12,8 @@
 //! anything are POSTs that must carry the header `X-Compend: 1` (a page of another site cannot
 //! send it without a CORS preflight compend never answers) and, when the browser sends an
 //! `Origin`, come from this very host. A connection that sends nothing for
-//! [`FIRST_BYTE_TIMEOUT`] is closed. At most [`MAX_CONNECTIONS`] connections and
+//! [`FIRST_BYTE_TIMEOUT`] is closed, and so is one with no byte either way for [`IDLE_TIMEOUT`]
+//! (an idle keep-alive connection would otherwise hold its slot for good). At most [`MAX_CONNECTIONS`] connections and
 //! [`MAX_SUBSCRIBERS`] event streams (over every surface) are served at once; request bodies are capped at
 //! [`crate::service::protocol::MAX_REQUEST_BYTES`]. Everything here runs on the runtime's
 //! threads: nothing a client does waits on the render loop, except a request's answer, which
@@ -170,12 +171,19 @@ enum Stream {
 /// (a client that leaked it, or a slow attack) gives its slot back.
 const FIRST_BYTE_TIMEOUT: Duration = Duration::from_secs(5);
 
+/// How long a connection may stay without a byte either way (an idle keep-alive connection)
+/// before it is closed and its slot given back. An event stream is never that quiet: it sends
+/// a keep-alive comment every 15 s.
+const IDLE_TIMEOUT: Duration = Duration::from_secs(20);
+
 /// A connection holding its slot until it closes.
 struct CappedIo {
     io: Stream,
     _slot: OwnedSemaphorePermit,
     /// Until the first byte has come: when the connection is closed if none has.
     first_byte_by: Option<Pin<Box<tokio::time::Sleep>>>,
+    /// When the connection is closed if no byte comes or goes before.
+    idle_by: Pin<Box<tokio::time::Sleep>>,
 }
 
 impl CappedIo {
@@ -184,7 +192,15 @@ impl CappedIo {
             io,
             _slot: slot,
             first_byte_by: Some(Box::pin(tokio::time::sleep(FIRST_BYTE_TIMEOUT))),
+            idle_by: Box::pin(tokio::time::sleep(IDLE_TIMEOUT)),
         }
+    }
+
+    /// A byte came or went: the idle deadline moves on.
+    fn active(&mut self) {
+        self.idle_by
+            .as_mut()
+            .reset(tokio::time::Instant::now() + IDLE_TIMEOUT);
     }
 }
 
@@ -200,7 +216,10 @@ impl AsyncRead for CappedIo {
             Stream::Tls(s) => Pin::new(s.as_mut()).poll_read(cx, buf),
         };
         match &polled {
-            Poll::Ready(_) if buf.filled().len() > before => self.first_byte_by = None,
+            Poll::Ready(_) if buf.filled().len() > before => {
+                self.first_byte_by = None;
+                self.active();
+            }
             Poll::Pending => {
                 if let Some(deadline) = self.first_byte_by.as_mut()
                     && deadline.as_mut().poll(cx).is_ready()
@@ -208,6 +227,12 @@ impl AsyncRead for CappedIo {
                     return Poll::Ready(Err(std::io::Error::new(
                         std::io::ErrorKind::TimedOut,
                         "no request within the first seconds",
+                    )));
+                }
+                if self.idle_by.as_mut().poll(cx).is_ready() {
+                    return Poll::Ready(Err(std::io::Error::new(
+                        std::io::ErrorKind::TimedOut,
+                        "idle: no byte either way for a while",
                     )));
                 }
             }
@@ -223,10 +248,14 @@ impl AsyncWrite for CappedIo {
         cx: &mut Context<'_>,
         buf: &[u8],
     ) -> Poll<std::io::Result<usize>> {
-        match &mut self.io {
+        let polled = match &mut self.io {
             Stream::Plain(s) => Pin::new(s).poll_write(cx, buf),
             Stream::Tls(s) => Pin::new(s.as_mut()).poll_write(cx, buf),
+        };
+        if matches!(polled, Poll::Ready(Ok(n)) if n > 0) {
+            self.active();
         }
+        polled
     }
 
     fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
