@@ -68,8 +68,9 @@ pub struct Engine {
     model_path: PathBuf,
     /// What `play` plays: the configured source or playlist, or the source a request named.
     source: Playlist,
-    /// `source`, opened already for the next playback (a `play` request's).
-    opened: Option<Opened>,
+    /// A `play` request's source, opened already for the next playback; used only while it
+    /// is still `source`.
+    opened: Option<(Playlist, Opened)>,
     next: Next,
     /// The first monitoring score of the current model and the source it was measured on: what
     /// drift is measured against, dB.
@@ -336,11 +337,12 @@ impl Engine {
                             .and_then(|o| o.wait(|| notify.ping()))
                         }
                     };
+                    let list = Playlist::single(s.clone());
                     match opened {
-                        Ok(o) => self.opened = Some(o),
+                        Ok(o) => self.opened = Some((list.clone(), o)),
                         Err(e) => return Reply::error(e.to_string()),
                     }
-                    self.source = Playlist::single(s.clone());
+                    self.source = list;
                 }
                 self.next = Next::Play;
                 Reply::ok(format!("playing {}", self.source.describe()))
@@ -425,8 +427,8 @@ impl Engine {
             return;
         };
         let opened = match self.opened.take() {
-            Some(o) => Ok(o),
-            None => self.source.open(&self.config.audio.out()),
+            Some((list, o)) if list == self.source => Ok(o),
+            _ => self.source.open(&self.config.audio.out()),
         };
         let source = match opened {
             Ok(s) => s,
