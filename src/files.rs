@@ -445,8 +445,8 @@ pub fn check_out_folder(dir: &Path) -> Result<()> {
 /// Checks, before any work, that `path` can be written: a file can be created in the nearest
 /// of its folders that exists (the missing ones are created when `path` is written, not now,
 /// so a run that fails leaves none behind). An input error (exit 2) naming the path when it
-/// cannot be (a file on the way); an I/O error (exit 1) when this user may not write there or
-/// the disk is full.
+/// cannot be (a file on the way, a name too long); an I/O error (exit 1) when this user may
+/// not write there, the file system is read-only or the disk or quota is full.
 pub fn check_writable(path: &Path) -> Result<()> {
     // `child`: the entry of `folder` on the way to `path` (`path` itself when its folder
     // exists), whose temporary sibling is the probe.
@@ -494,11 +494,26 @@ pub fn check_writable(path: &Path) -> Result<()> {
         Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
         // Not this user's to write, or no room: the operation's failure (exit 1, which a
         // service manager retries once the rights or the room are there), not a wrong path.
-        Err(e) => Err(Error::Io {
-            path: folder.to_path_buf(),
-            op: "write a file (to check that the output can go there)",
-            source: e,
-        }),
+        Err(e)
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::PermissionDenied
+                    | std::io::ErrorKind::ReadOnlyFilesystem
+                    | std::io::ErrorKind::StorageFull
+                    | std::io::ErrorKind::QuotaExceeded
+            ) =>
+        {
+            Err(Error::Io {
+                path: folder.to_path_buf(),
+                op: "write a file (to check that the output can go there)",
+                source: e,
+            })
+        }
+        Err(e) => Err(Error::Input(format!(
+            "{}: cannot write in {} ({e})",
+            path.display(),
+            folder.display()
+        ))),
     }
 }
 
