@@ -986,6 +986,23 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
         assert_code(&o, 2);
         assert!(stderr(&o).contains(says), "{}", stderr(&o));
     }
+    // Refused before any capture, in a folder of its own: the default data folder it made (and
+    // locked) goes again, and nothing is left behind.
+    let cwd = tempfile::tempdir().unwrap();
+    let o = crate::common::compend_in(
+        cwd.path(),
+        &[
+            "calibrate",
+            "--camera",
+            "/dev/null",
+            "--out",
+            "elsewhere/model",
+        ],
+    );
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("/dev/null"), "{}", stderr(&o));
+    let left: Vec<_> = std::fs::read_dir(cwd.path()).unwrap().collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
     let o = compend(&["calibrate", "--camera", "/dev/video0", "--rig", "virtual"]);
     assert_code(&o, 2);
     let o = compend(&["calibrate", "--data", d]);

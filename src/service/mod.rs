@@ -581,10 +581,38 @@ pub fn lock_state_if_held(state: &Path, holder: &str) -> Result<Option<std::fs::
     take_lock(file, writable, (state, "state directory"), holder).map(Some)
 }
 
+/// The lock of a calibration's data folder, held until dropped ([`lock_data`]).
+#[derive(Debug)]
+pub struct DataLock {
+    _file: std::fs::File,
+    dir: PathBuf,
+    /// The folder was made for this lock: when nothing else went into it (the command failed
+    /// before its first capture), the lock file and the folder go again, leaving nothing.
+    made: bool,
+}
+
+impl Drop for DataLock {
+    fn drop(&mut self) {
+        if !self.made {
+            return;
+        }
+        let only_lock = std::fs::read_dir(&self.dir).is_ok_and(|entries| {
+            entries
+                .filter_map(|e| e.ok())
+                .all(|e| e.file_name() == "compend.lock")
+        });
+        if only_lock {
+            let _ = std::fs::remove_file(self.dir.join("compend.lock"));
+            let _ = std::fs::remove_dir(&self.dir);
+        }
+    }
+}
+
 /// The lock of a calibration's data folder `data` (`compend calibrate --data`), made if
 /// missing: two calibrations capturing into one folder would mix their captures and both
 /// install. The lock file is `DATA/compend.lock`, held as [`lock_state`] holds its own.
-pub fn lock_data(data: &Path) -> Result<std::fs::File> {
+pub fn lock_data(data: &Path) -> Result<DataLock> {
+    let made = !data.exists();
     std::fs::create_dir_all(data).map_err(|e| Error::io(data, "create the data folder", e))?;
     let path = data.join("compend.lock");
     let file = std::fs::OpenOptions::new()
@@ -594,7 +622,12 @@ pub fn lock_data(data: &Path) -> Result<std::fs::File> {
         .truncate(false)
         .open(&path)
         .map_err(|e| Error::io(&path, "open the data folder's lock file", e))?;
-    take_lock(file, true, (data, "data folder"), "calibrate")
+    let file = take_lock(file, true, (data, "data folder"), "calibrate")?;
+    Ok(DataLock {
+        _file: file,
+        dir: data.to_path_buf(),
+        made,
+    })
 }
 
 /// Locks `file`, the lock file of `state`, for `holder`, and writes the pid and holder into it
