@@ -20,7 +20,7 @@ const TINY: [&str; 6] = [
     "64",
 ];
 
-fn calibrate_args<'a>(data: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+pub(crate) fn calibrate_args<'a>(data: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
     let ntrain = if extra.contains(&"--ntrain") {
         &[][..]
     } else {

@@ -664,35 +664,13 @@ fn kill_9_at_seeded_moments_never_damages_the_installed_model() {
     // a run (which resumes each time), the model is the old one or a new complete one.
     let data = dir.path().join("cal");
     let model = dir.path().join("model");
-    let args = |seed: &str| -> Vec<String> {
-        [
-            "calibrate",
-            "--rig",
-            "virtual:dark-texture",
-            "--seed",
-            seed,
-            "--data",
-            data.to_str().unwrap(),
-            "--out",
-            model.to_str().unwrap(),
-            "--ntrain",
-            "12",
-            "--ntest",
-            "4",
-            "--verify",
-            "3",
-            "--rig-camera",
-            "160x120",
-            "--projector",
-            "200x150",
-            "--network",
-            "64",
-        ]
-        .map(String::from)
-        .to_vec()
+    let (d, m) = (data.to_str().unwrap(), model.to_str().unwrap());
+    let args = |seed: &'static str| -> Vec<&str> {
+        let rig = ["--rig", "virtual:dark-texture", "--seed", seed, "--out", m];
+        crate::calibrate::calibrate_args(d, &rig)
     };
     let first = Instant::now();
-    let o = compend(&args("5").iter().map(String::as_str).collect::<Vec<_>>());
+    let o = compend(&args("5"));
     assert_code(&o, 0);
     let run_ms = first.elapsed().as_millis() as u64;
     let mut digests = vec![model_digest(&model).unwrap()];
@@ -726,7 +704,7 @@ fn kill_9_at_seeded_moments_never_damages_the_installed_model() {
         );
     }
     // The last run resumes what the kills left and installs.
-    let o = compend(&args("6").iter().map(String::as_str).collect::<Vec<_>>());
+    let o = compend(&args("6"));
     t.check(
         "calibrate after the kills resumes and installs",
         o.status.code() == Some(0) && loads(&model),
@@ -1024,27 +1002,10 @@ fn config_check_refuses_what_serve_would_and_two_calibrations_do_not_share_a_fol
     // Two calibrations into one data folder: the second is refused while the first runs, and
     // the first installs.
     let data = dir.path().join("cal");
-    let args = [
-        "calibrate",
-        "--rig",
-        "virtual:curved",
-        "--data",
-        data.to_str().unwrap(),
-        "--ntrain",
-        "12",
-        "--ntest",
-        "4",
-        "--verify",
-        "3",
-        "--rig-camera",
-        "160x120",
-        "--projector",
-        "200x150",
-        "--network",
-        "64",
-    ];
+    let args =
+        crate::calibrate::calibrate_args(data.to_str().unwrap(), &["--rig", "virtual:curved"]);
     let mut first = Command::new(env!("CARGO_BIN_EXE_compend"))
-        .args(args)
+        .args(&args)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
