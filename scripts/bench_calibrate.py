@@ -11,7 +11,7 @@ phase times, the verification figures and the `sim score` figures, one row per r
 
     python3 scripts/bench_calibrate.py [--bin target/release/compend] [--out DIR]
         [--latency-ms 100,250] [--fps 30] [--method linear] [--verify 5] [--average 3]
-        [--loop-images N] SCENE:SEED ...
+        [--loop-images N] [--ntrain N|auto] SCENE:SEED ...
 """
 
 import argparse
@@ -49,6 +49,8 @@ def main():
     ap.add_argument("--average", type=int, default=3, help="frames averaged per capture (calibrate and sim score)")
     ap.add_argument("--loop-images", type=int, default=None,
                     help="closed-loop pairs (calibrate --loop-images; default: calibrate's, as many as sampling pairs)")
+    ap.add_argument("--ntrain", default=None,
+                    help="sampling images, or auto (calibrate --ntrain; default: calibrate's, 48)")
     a = ap.parse_args()
     if not os.access(a.bin, os.X_OK):
         sys.exit(f"bench_calibrate: {a.bin} is not an executable (cargo build --release first)")
@@ -74,7 +76,8 @@ def main():
                               "--data", data, "--out", model, "--method", a.method,
                               "--verify", str(a.verify), "--rig-latency-ms", latency,
                               "--rig-fps", a.fps, "--average", str(a.average), "--json"]
-                             + ([] if a.loop_images is None else ["--loop-images", str(a.loop_images)])))
+                             + ([] if a.loop_images is None else ["--loop-images", str(a.loop_images)])
+                             + ([] if a.ntrain is None else ["--ntrain", a.ntrain])))
         wall = time.monotonic() - t
         c = rec
         root = os.path.join(work, "score")
@@ -93,19 +96,21 @@ def main():
             "uncompensated": v["uncompensated_psnr"], "sim_score": by["calibrated"]["psnr"],
             "oracle": by["oracle"]["psnr"], "installed": v["passed"],
             "floor": c.get("capture_floor") or {},
+            "pairs": (c.get("sampling") or {}).get("chosen") or (a.ntrain or 48),
+            "loops": c.get("loop_pairs", 0),
         })
         r = rows[-1]
         print(f"{r['run']}: latency {latency} ms, total {r['seconds']['total']:.1f} s, verification "
               f"{r['verification']:.2f} dB, sim score {r['sim_score']:.2f} dB", file=sys.stderr)
-    print("| run | latency ms (frames) | latency s | exposure s | patterns s | captures s | training s "
+    print("| run | sampling + closed-loop pairs | latency ms (frames) | latency s | exposure s | patterns s | captures s | training s "
           "| verification s | total s | capture floor s | total / floor | verification dB / SSIM | "
           "uncompensated dB | sim score dB | difference dB | oracle dB |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         s = r["seconds"]
         f = r["floor"]
         floor = f["frames"] / f["fps"] if f.get("fps") else float("nan")
-        print(f"| {r['run']} | {r['latency_ms']} ({r['measured_frames']}) | {s['latency']:.1f} | "
+        print(f"| {r['run']} | {r['pairs']} + {r['loops']} | {r['latency_ms']} ({r['measured_frames']}) | {s['latency']:.1f} | "
               f"{s.get('exposure', 0):.1f} | {s['patterns']:.1f} | {s['captures']:.1f} | "
               f"{s['training']:.1f} | {s['verification']:.1f} | {s['total']:.1f} | "
               f"{floor:.1f} | {s['total'] / floor:.2f} | "

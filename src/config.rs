@@ -96,7 +96,8 @@ pub enum OnStart {
 pub struct CalibrationConfig {
     #[serde(serialize_with = "display")]
     pub method: MethodChoice,
-    pub ntrain: usize,
+    /// Sampling images, or `auto` (rounds, [`crate::calibrate::rounds`]).
+    pub ntrain: crate::calibrate::SamplingCount,
     pub ntest: usize,
     pub verify: usize,
     /// PSNR gain over the uncompensated projection a model needs to be installed, dB.
@@ -764,16 +765,30 @@ impl<'t> Walker<'t> {
                 Ok(d)
             })
             .unwrap_or_default();
-        let ntrain = self.checked(t, "ntrain", 48usize, |&n| {
-            if n >= crate::fit::MIN_TRAIN {
-                Ok(())
-            } else {
-                Err(format!(
-                    "at least {} training images are needed",
-                    crate::fit::MIN_TRAIN
-                ))
-            }
-        });
+        let ntrain_at = span_of(t, "ntrain");
+        let ntrain = self.checked(
+            t,
+            "ntrain",
+            crate::calibrate::SamplingCount::Count(crate::fit::DEFAULT_TRAIN),
+            |&n| {
+                if n.most() >= crate::fit::MIN_TRAIN {
+                    Ok(())
+                } else {
+                    Err(format!(
+                        "at least {} training images are needed",
+                        crate::fit::MIN_TRAIN
+                    ))
+                }
+            },
+        );
+        if ntrain == crate::calibrate::SamplingCount::Auto
+            && let Some(p) = crate::calibrate::rounds::rounds_problem(method)
+        {
+            self.error(
+                ntrain_at,
+                format!("[calibration] ntrain = \"auto\": {p}"),
+            );
+        }
         // Compared only when both were read without error (a wrong one stands at its
         // default), at the line of whichever of them the file gives (verify's first).
         let errors = self.errors.len();
@@ -1288,6 +1303,7 @@ fn finite(v: f64) -> std::result::Result<(), String> {
 /// What a Rust type is called in a TOML file.
 fn expected_name(type_name: &str) -> &'static str {
     match type_name {
+        t if t.contains("SamplingCount") => "a whole number or \"auto\"",
         t if t.contains("PathBuf") => "a path string",
         t if t.contains("String") => "a string",
         "bool" => "true or false",
@@ -1357,7 +1373,10 @@ mod tests {
     fn an_empty_file_is_the_defaults() {
         let c = parse("").unwrap();
         assert_eq!(c.rig.kind, RigKind::Virtual);
-        assert_eq!(c.calibration.ntrain, 48);
+        assert_eq!(
+            c.calibration.ntrain,
+            crate::calibrate::SamplingCount::Count(48)
+        );
         assert_eq!(c.paths.model, c.paths.state.join("model"));
         assert_eq!(c.socket.mode, 0o660);
     }
@@ -1377,6 +1396,34 @@ mod tests {
             "6 errors",
         ] {
             assert!(e.contains(want), "missing {want:?} in:\n{e}");
+        }
+    }
+
+    #[test]
+    fn ntrain_takes_a_count_or_auto_for_a_method_that_starts_from_linear() {
+        use crate::calibrate::SamplingCount;
+        let c = parse("[calibration]\nntrain = \"auto\"\n").unwrap();
+        assert_eq!(c.calibration.ntrain, SamplingCount::Auto);
+        let c = parse("[calibration]\nntrain = 24\n").unwrap();
+        assert_eq!(c.calibration.ntrain, SamplingCount::Count(24));
+        for (text, says) in [
+            (
+                "[calibration]\nmethod = \"compennet++-cpu\"\nntrain = \"auto\"\n",
+                "t.toml:3: [calibration] ntrain = \"auto\": the sampling rounds are scored \
+                 with the linear rung, which compennet++-cpu does not start from",
+            ),
+            (
+                "[calibration]\nntrain = \"lots\"\n",
+                "t.toml:2: [calibration] ntrain: \"lots\": expected a number of sampling \
+                 images, or \"auto\"",
+            ),
+            (
+                "[calibration]\nntrain = 2\n",
+                "t.toml:2: [calibration] ntrain: at least 4",
+            ),
+        ] {
+            let e = parse(text).unwrap_err().to_string();
+            assert!(e.contains(says), "{e}");
         }
     }
 

@@ -1013,3 +1013,87 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
         installed
     );
 }
+
+/// `--ntrain auto` on the tiny rig: the sampling pairs are taken in rounds (16, then 8 more)
+/// until one no longer gains, the closed-loop pairs follow the count chosen, and the curve is
+/// recorded; a white plane needs no more pairs than a dark texture. A rerun resumes every
+/// capture. A method the rounds cannot score, or a count that is not one, exits 2.
+#[test]
+fn ntrain_auto_takes_sampling_pairs_in_rounds_until_one_no_longer_gains() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut chosen = Vec::new();
+    for (scene, seed) in [("white-plane", "8"), ("dark-texture", "9")] {
+        let data = dir.path().join(scene);
+        let d = data.to_str().unwrap();
+        let rig = format!("virtual:{scene}");
+        let args = calibrate_args(d, &["--rig", &rig, "--seed", seed, "--ntrain", "auto"]);
+        let o = compend(&args);
+        assert_code(&o, 0);
+        let r = record(&o);
+        let s = &r["sampling"];
+        let rounds: Vec<u64> = s["rounds"]
+            .as_array()
+            .unwrap_or_else(|| panic!("no rounds: {r}"))
+            .iter()
+            .map(|x| x["pairs"].as_u64().unwrap())
+            .collect();
+        let n = s["chosen"].as_u64().unwrap();
+        // 16 first, 8 more each round, the last round's count kept.
+        assert_eq!(rounds[0], 16, "{s}");
+        assert!(rounds.windows(2).all(|w| w[1] == w[0] + 8), "{s}");
+        assert_eq!(rounds.last(), Some(&n), "{s}");
+        assert!(n <= 48, "{s}");
+        let why = s["why"].as_str().unwrap();
+        assert!(
+            why.contains("less than the") || (n == 48 && why.contains("the most")),
+            "{s}"
+        );
+        assert!(stderr(&o).contains("calibrate: sampling rounds"), "{}", stderr(&o));
+        // The closed-loop pairs follow; everything is on disk and in the manifest.
+        assert_eq!(r["loop_pairs"].as_u64(), Some(n), "{r}");
+        assert_eq!(r["captured"].as_u64(), Some(3 + 4 + 2 * n), "{r}");
+        let manifest: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(data.join("capture/calibration.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(manifest["patterns"]["ntrain"].as_u64(), Some(n));
+        let listed = |p: &Path| std::fs::read_dir(p).unwrap().count() as u64;
+        assert_eq!(listed(&data.join("train")), 2 * n);
+        assert_eq!(listed(&data.join("capture/cam/raw/train")), 2 * n);
+        assert_eq!(r["verification"]["passed"], true, "{r}");
+        let model: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap())
+                .unwrap();
+        assert_eq!(model["calibration"]["sampling"], *s);
+        assert_eq!(model["training"]["ntrain"].as_u64(), Some(2 * n));
+        chosen.push(n);
+        // A rerun finds every capture on disk: the counts were settled by the closed-loop
+        // pairs.
+        if scene == "white-plane" {
+            let o = compend(&args);
+            assert_code(&o, 0);
+            let again = record(&o);
+            assert_eq!(again["captured"].as_u64(), Some(0), "{again}");
+            assert_eq!(again["resumed"].as_u64(), Some(3 + 4 + 2 * n), "{again}");
+            assert_eq!(again["loop_pairs"].as_u64(), Some(n), "{again}");
+        }
+    }
+    assert!(chosen[0] < chosen[1], "white plane, dark texture: {chosen:?}");
+
+    let d = dir.path().join("refused");
+    let d = d.to_str().unwrap();
+    for (extra, says) in [
+        (
+            &["--ntrain", "auto", "--method", "compennet++-cpu"][..],
+            "--ntrain auto: the sampling rounds are scored with the linear rung",
+        ),
+        (&["--ntrain", "many"][..], "expected a number of sampling images, or \"auto\""),
+    ] {
+        let mut given = vec!["--rig", "virtual:white-plane"];
+        given.extend_from_slice(extra);
+        let o = compend(&calibrate_args(d, &given));
+        assert_code(&o, 2);
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+    }
+    assert!(!Path::new(d).exists());
+}

@@ -218,6 +218,58 @@ impl Manifest {
         }
     }
 
+    /// [`Manifest::open`] for sampling rounds (`ntrain = auto`, [`super::rounds`]): `patterns`
+    /// with its `ntrain` the most the rounds take. The manifest on disk is taken when its
+    /// pattern set is this one but for a count of sampling pairs up to that; a new one starts
+    /// with `first` of them.
+    pub fn open_rounds(setup: &Path, patterns: &PatternSet, first: usize) -> Result<Self> {
+        let start = PatternSet {
+            ntrain: first.min(patterns.ntrain),
+            ..patterns.clone()
+        };
+        match recorded::<Manifest>(setup, "move the folder away to calibrate anew")? {
+            Some(m)
+                if m.patterns.ntrain <= patterns.ntrain
+                    && m.patterns
+                        == PatternSet {
+                            ntrain: m.patterns.ntrain,
+                            ..patterns.clone()
+                        } =>
+            {
+                Self::open(setup, &m.patterns)
+            }
+            Some(m) => Err(Error::Input(format!(
+                "{}: these captures belong to another pattern set ({}; this calibration \
+                 projects {} in rounds of up to {} training images); choose another data folder \
+                 (--data, or [paths] data for the service) or move this one away",
+                setup.display(),
+                m.patterns,
+                PatternSet {
+                    ntrain: m.patterns.ntrain,
+                    ..patterns.clone()
+                },
+                patterns.ntrain
+            ))),
+            None => Self::open(setup, &start),
+        }
+    }
+
+    /// Grows the pattern set to `ntrain` sampling images (a later round of
+    /// [`super::rounds`]) and writes the manifest atomically. Never shrinks it, nor grows it
+    /// past closed-loop images already written after the sampling ones.
+    pub fn grow(&mut self, setup: &Path, ntrain: usize) -> Result<()> {
+        if self.loop_written > 0 {
+            return Err(Error::Failed(format!(
+                "{}: closed-loop pairs follow the {} sampling pairs; no more sampling pairs \
+                 can be taken",
+                setup.join(MANIFEST_FILE).display(),
+                self.patterns.ntrain
+            )));
+        }
+        self.patterns.ntrain = self.patterns.ntrain.max(ntrain);
+        self.save(setup)
+    }
+
     /// Whether `rel` (relative to `setup`) was captured and is still there.
     pub fn has(&self, setup: &Path, rel: &Path) -> bool {
         self.captured.contains(rel) && setup.join(rel).is_file()

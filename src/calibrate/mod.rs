@@ -33,6 +33,7 @@ pub mod exposure;
 pub mod manifest;
 mod pipeline;
 pub mod progress;
+pub mod rounds;
 pub mod runs;
 pub mod sync;
 
@@ -54,6 +55,7 @@ use crate::playback::place_on_canvas;
 use crate::raster::{CamImage, PrjImage, Rect};
 
 pub use manifest::{Manifest, PatternSet};
+pub use rounds::{Rounds, SamplingCount, SamplingCurve};
 pub use sync::{Capturer, Latency, SyncSettings};
 
 /// The setup folder's name under the data root.
@@ -94,8 +96,12 @@ pub struct Options {
     /// `auto` only: times the climb rung's live pass on the GPU that is to play the model, at
     /// its display's refresh ([`crate::fit::LivePass`]); `None`: not weighed.
     pub live: Option<Arc<dyn crate::fit::LivePass>>,
-    /// Closed-loop pairs taken with the linear rung ([`refine`]); 0: none.
+    /// Closed-loop pairs taken with the linear rung ([`refine`]); 0: none. With `rounds` whose
+    /// closed-loop pairs follow the sampling pairs, as many as the rounds chose instead.
     pub loop_images: usize,
+    /// `ntrain = auto`: the sampling images captured in rounds, up to `patterns.ntrain`, until
+    /// one no longer gains ([`rounds`]); `None`: all `patterns.ntrain` of them.
+    pub rounds: Option<Rounds>,
     /// What is calibrated, for the record (`virtual:curved`, a device path).
     pub rig: String,
     /// Set by another thread to stop the calibration: checked before each capture, between the
@@ -218,7 +224,9 @@ impl LoopPairs {
         self.n > 0
             && match opts.method {
                 MethodChoice::Rung(m) => !m.is_linear(),
-                MethodChoice::Auto => self.climbed.is_none() && climbs_on_loop_pairs(opts),
+                MethodChoice::Auto => {
+                    self.climbed.is_none() && climbs_on_loop_pairs(opts, self.n)
+                }
             }
     }
 }
@@ -237,7 +245,7 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     opts: &Options,
     progress: Progress,
 ) -> Result<LoopPairs> {
-    let n = opts.loop_images;
+    let n = captured.loop_images;
     let untouched = |model| LoopPairs {
         model,
         climbed: None,
@@ -266,10 +274,10 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let t = Instant::now();
     let root = &captured.root;
     let setup = Setup::open(&captured.setup, Some(root.path()))?;
-    let ntrain = opts.patterns.ntrain;
+    let ntrain = captured.patterns.ntrain;
     // The data root may be a folder the user gave: a training image after the sampling ones
     // that this calibration did not write is never replaced.
-    let mut manifest = Manifest::open(setup.path(), &opts.patterns)?;
+    let mut manifest = Manifest::open(setup.path(), &captured.patterns)?;
     if let Some(theirs) = (manifest.loop_written + 1..=n)
         .map(|i| root.image_path(ProjectorSet::Train, ntrain + i))
         .find(|p| p.exists())
@@ -440,12 +448,12 @@ pub fn refit(
         return Ok(climbed.unwrap_or(model));
     }
     let judges =
-        opts.method == MethodChoice::Auto && climbed.is_none() && climbs_on_loop_pairs(opts);
+        opts.method == MethodChoice::Auto && climbed.is_none() && climbs_on_loop_pairs(opts, n);
     let refit = match opts.method {
         // The climb that waited for these pairs: `auto` again, on every pair.
         MethodChoice::Auto if judges => Request {
             climb_later: false,
-            ..request(opts, &captured.geometry)
+            ..request(opts, captured)
         },
         MethodChoice::Auto => Request {
             method: MethodChoice::Rung(model.meta.method),
@@ -453,16 +461,16 @@ pub fn refit(
             batch: None,
             climb_gain_db: None,
             climb_later: false,
-            ..request(opts, &captured.geometry)
+            ..request(opts, captured)
         },
-        MethodChoice::Rung(_) => request(opts, &captured.geometry),
+        MethodChoice::Rung(_) => request(opts, captured),
     };
     opts.check_cancelled()?;
     progress("fit on every pair", 0, 1);
     let t = Instant::now();
     let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
     let req = Request {
-        ntrain: Some(opts.patterns.ntrain + n),
+        ntrain: Some(captured.patterns.ntrain + n),
         ..refit
     };
     let evidence = model.meta.training.auto.clone().filter(|_| !judges);
@@ -485,7 +493,7 @@ pub fn refit(
         "closed-loop pairs: {} fitted on {} of the {} pairs in {:.1} s",
         model.meta.method,
         model.meta.training.ntrain,
-        opts.patterns.ntrain + n,
+        captured.patterns.ntrain + n,
         t.elapsed().as_secs_f64()
     );
     Ok(match climbed {
@@ -539,6 +547,17 @@ pub struct Captured {
     lower_rung: Option<Model>,
     /// Closed-loop pairs taken by [`refine`].
     loop_pairs: usize,
+    /// The pattern set the captures are of: [`Options::patterns`], with the sampling pairs
+    /// the rounds chose under `ntrain = auto`.
+    patterns: PatternSet,
+    /// Closed-loop pairs [`refine`] takes: [`Options::loop_images`], or as many as the
+    /// sampling pairs the rounds chose ([`Rounds::loops_follow`]).
+    loop_images: usize,
+    /// `ntrain = auto`: how the sampling pairs were chosen.
+    sampling: Option<SamplingCurve>,
+    /// `ntrain = auto`: the `linear` rung of the last round, on every sampling pair; [`train`]
+    /// takes it when its first fit is that very fit.
+    round_model: Option<Model>,
     /// Every capture's time against its floor, over the phases so far.
     floor: sync::CaptureFloor,
     /// The `linear` geometry the fits of [`train`] and [`refit`] share (they see the same
@@ -575,8 +594,18 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         )));
     }
     let setup_dir = data.join(SETUP_NAME);
-    // Before anything is written: captures of another pattern set are never mixed in.
-    let mut manifest = Manifest::open(&setup_dir, &opts.patterns)?;
+    // Before anything is written: captures of another pattern set are never mixed in. Under
+    // `ntrain = auto` the set grows round by round, and a run that had taken closed-loop pairs
+    // (they follow the sampling pairs) has settled its count.
+    let (mut manifest, rounds) = match opts.rounds {
+        None => (Manifest::open(&setup_dir, &opts.patterns)?, None),
+        Some(r) => {
+            let m = Manifest::open_rounds(&setup_dir, &opts.patterns, r.first)?;
+            let open = m.loop_written == 0;
+            (m, Some(r).filter(|_| open))
+        }
+    };
+    let patterns = manifest.patterns.clone();
 
     // The patterns are written while the exposure and the latency are measured: those show
     // only black and white.
@@ -584,7 +613,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         let writing = s.spawn(|| -> Result<(DataRoot, f64)> {
             let t = Instant::now();
             let root = DataRoot::create(data)?;
-            write_patterns(&root, &opts.patterns)?;
+            write_patterns(&root, &patterns)?;
             Ok((root, t.elapsed().as_secs_f64()))
         });
         let measured = (|| -> Result<_> {
@@ -626,9 +655,13 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 
     let t = Instant::now();
     let geometry: Arc<crate::linear::GeometryMemo> = Default::default();
-    let (ready, prefit) = start_prefit(&root, &setup, opts, &geometry);
+    // Rounds fit as they go, and share the geometry among their fits.
+    let (ready, prefit) = match rounds {
+        None => start_prefit(&root, &setup, opts, &geometry),
+        Some(_) => (None, None),
+    };
     let mut capturer = Capturer::new(display, camera, &latency, opts.sync);
-    let (captured, resumed) = capture_all(
+    let (mut captured, mut resumed) = capture_all(
         &mut capturer,
         (&root, &setup),
         &mut manifest,
@@ -636,7 +669,30 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         opts,
         progress,
     )?;
-    seconds.captures = t.elapsed().as_secs_f64();
+    let (mut sampling, mut round_model, mut round_seconds) = (None, None, 0.0);
+    if let Some(r) = rounds {
+        let done = sampling_rounds(
+            &mut capturer,
+            (&root, &setup),
+            &mut manifest,
+            (r, &geometry),
+            opts,
+            progress,
+        )?;
+        captured += done.captured;
+        resumed += done.resumed;
+        round_seconds = done.curve.rounds.iter().map(|r| r.seconds).sum();
+        tracing::info!(
+            "sampling rounds: {} pairs ({}), fits {:.1} s",
+            done.curve.chosen,
+            done.curve.why,
+            round_seconds
+        );
+        sampling = Some(done.curve);
+        round_model = Some(done.model);
+    }
+    seconds.captures = t.elapsed().as_secs_f64() - round_seconds;
+    seconds.training += round_seconds;
     tracing::info!(
         "captures: {captured} taken, {resumed} found on disk, {} retaken, camera reopened {} \
          times, in {:.1} s",
@@ -649,7 +705,16 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let mut latency = latency;
     latency.settle_frames = capturer.settle();
     let desired = write_desired(&root, &setup, opts)?;
+    let patterns = manifest.patterns.clone();
+    let loop_images = match opts.rounds {
+        Some(r) if r.loops_follow => loop_images(opts.method, patterns.ntrain, None),
+        _ => opts.loop_images,
+    };
     Ok(Captured {
+        patterns,
+        loop_images,
+        sampling,
+        round_model,
         setup: setup.path().to_path_buf(),
         root,
         desired,
@@ -683,11 +748,11 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
         }
     }
     let setup = Setup::open(&captured.setup, Some(captured.root.path()))?;
-    let req = request(opts, &captured.geometry);
+    let req = request(opts, captured);
     // The residual rung's closed-loop pairs are `linear`'s compensations: `linear` first, and
     // the rung itself once [`refine`] has them.
     let first = match opts.method {
-        MethodChoice::Rung(m) if opts.loop_images > 0 && !m.is_linear() => Request {
+        MethodChoice::Rung(m) if captured.loop_images > 0 && !m.is_linear() => Request {
             method: MethodChoice::Rung(crate::model::Method::Linear),
             iters: None,
             batch: None,
@@ -695,24 +760,46 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
         },
         _ => req.clone(),
     };
-    let (model, _) = fit::fit(&setup, &first, |stage, done, n| progress(stage, done, n))?;
+    // The last sampling round fitted `linear` on these very pairs with this very request.
+    let model = match captured.round_model.take() {
+        Some(model) if first.method == MethodChoice::Rung(crate::model::Method::Linear) => {
+            tracing::info!("training: the last sampling round's linear fit is the first fit");
+            model
+        }
+        _ => fit::fit(&setup, &first, |stage, done, n| progress(stage, done, n))?.0,
+    };
     opts.check_cancelled()?;
     captured.lower_rung = fit::lower_rung(&setup, &req, &model, |stage, done, n| {
         progress(stage, done, n)
     })?;
-    captured.seconds.training = t.elapsed().as_secs_f64();
+    captured.seconds.training += t.elapsed().as_secs_f64();
     tracing::info!(
         "training: {} in {:.1} s",
         model.meta.method,
-        captured.seconds.training
+        t.elapsed().as_secs_f64()
     );
     Ok(model)
 }
 
-/// The fit the calibration asks for, on its `ntrain` sampling pairs, sharing `geometry`.
-fn request(opts: &Options, geometry: &Arc<crate::linear::GeometryMemo>) -> Request {
+/// The fit the calibration asks for, on the sampling pairs `captured` holds, sharing its
+/// geometry.
+fn request(opts: &Options, captured: &Captured) -> Request {
+    sampling_request(
+        opts,
+        (captured.patterns.ntrain, captured.loop_images),
+        &captured.geometry,
+    )
+}
+
+/// The fit the calibration asks for on `ntrain` sampling pairs, with `loops` closed-loop pairs
+/// to come, sharing `geometry`.
+fn sampling_request(
+    opts: &Options,
+    (ntrain, loops): (usize, usize),
+    geometry: &Arc<crate::linear::GeometryMemo>,
+) -> Request {
     Request {
-        ntrain: Some(opts.patterns.ntrain),
+        ntrain: Some(ntrain),
         seed: opts.fit_seed,
         iters: opts
             .iters
@@ -721,7 +808,7 @@ fn request(opts: &Options, geometry: &Arc<crate::linear::GeometryMemo>) -> Reque
         projector: Some(opts.patterns.projector),
         cancel: opts.cancel.clone(),
         climb_gain_db: (opts.method == MethodChoice::Auto).then_some(opts.climb_gain_db),
-        climb_later: climbs_on_loop_pairs(opts),
+        climb_later: climbs_on_loop_pairs(opts, loops),
         // The verification projects a climbed rung beside the best linear rung: the rig judges.
         rig_judges: opts.method == MethodChoice::Auto,
         geometry_memo: Some(geometry.clone()),
@@ -734,8 +821,8 @@ fn request(opts: &Options, geometry: &Arc<crate::linear::GeometryMemo>) -> Reque
 /// residual rung's correction to train on ([`fit::judges_on_loop_pairs`], the count offline
 /// `auto` needs to judge it on some held out). [`train`] then chooses among the
 /// linear rungs alone, and [`refit`] fits `auto` again once the chosen rung has taken them.
-fn climbs_on_loop_pairs(opts: &Options) -> bool {
-    opts.method == MethodChoice::Auto && fit::judges_on_loop_pairs(opts.loop_images)
+fn climbs_on_loop_pairs(opts: &Options, loops: usize) -> bool {
+    opts.method == MethodChoice::Auto && fit::judges_on_loop_pairs(loops)
 }
 
 /// Phase 5: projects held-out test images compensated by `model` and as they are, scores them
@@ -769,6 +856,10 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         mut floor,
         geometry: _,
         prefit: _,
+        patterns: _,
+        loop_images: _,
+        sampling,
+        round_model: _,
     } = captured;
     opts.check_cancelled()?;
     let t = Instant::now();
@@ -813,6 +904,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         climb: None,
         loop_pairs,
         capture_floor: Some(floor),
+        sampling,
     };
     Ok(Calibrated {
         model,
@@ -899,31 +991,134 @@ pub fn install(done: Calibrated, out: &Path) -> Result<Model> {
 /// record does not describe.
 fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
     let (w, h) = (p.network.width, p.network.height);
-    let ours = |r: Result<()>| {
-        r.map_err(|e| match e {
-            Error::Input(m) => Error::Input(format!(
-                "{m}; this calibration projects sampling seed {}, network {}, gray level {}: \
-                 choose another data folder (--data, or [paths] data for the service)",
-                p.seed, p.network, p.gray_level
-            )),
-            e => e,
-        })
-    };
-    for (set, pset, n) in [
-        (Set::Train, ProjectorSet::Train, p.ntrain),
-        (Set::Test, ProjectorSet::Test, p.ntest),
-    ] {
-        for i in 1..=n {
-            let img = patterns::sampling_image(p.seed, set, i - 1, w, h);
-            ours(root.write_new(pset, i, &img))?;
-        }
-    }
+    let ours = |r: Result<()>| r.map_err(|e| not_ours(e, p));
+    ours(write_sampling(root, p, (Set::Train, 1..=p.ntrain)))?;
+    ours(write_sampling(root, p, (Set::Test, 1..=p.ntest)))?;
     // The whole colour cube, so the root is a complete one (`inspect` checks that `ref/` is
     // numbered without gaps); only black (1) and white (125) are projected.
     for i in 1..=patterns::CUBE_COUNT {
         ours(root.write_new(ProjectorSet::Ref, i, &patterns::color_cube(i, w, h)?))?;
     }
     ours(root.write_new_gray_input(&patterns::gray_image(p.gray_level, w, h)))
+}
+
+/// An image of the data root that is not the one pattern set `p` would write there
+/// ([`DataRoot::write_new`]'s input error), with what this calibration projects.
+fn not_ours(e: Error, p: &PatternSet) -> Error {
+    match e {
+        Error::Input(m) => Error::Input(format!(
+            "{m}; this calibration projects sampling seed {}, network {}, gray level {}: \
+             choose another data folder (--data, or [paths] data for the service)",
+            p.seed, p.network, p.gray_level
+        )),
+        e => e,
+    }
+}
+
+/// Writes sampling images `indices` (1-based) of `set` (training or test) of the pattern set
+/// `p` into the data root, where not already there ([`DataRoot::write_new`]).
+fn write_sampling(
+    root: &DataRoot,
+    p: &PatternSet,
+    (set, indices): (Set, std::ops::RangeInclusive<usize>),
+) -> Result<()> {
+    let pset = match set {
+        Set::Train => ProjectorSet::Train,
+        Set::Test => ProjectorSet::Test,
+    };
+    for i in indices {
+        let img = patterns::sampling_image(p.seed, set, i - 1, p.network.width, p.network.height);
+        root.write_new(pset, i, &img)?;
+    }
+    Ok(())
+}
+
+/// What [`sampling_rounds`] leaves.
+struct RoundsDone {
+    curve: SamplingCurve,
+    /// The `linear` rung of the last round, on every sampling pair.
+    model: Model,
+    /// Captures taken, and found on disk, by the rounds after the first.
+    captured: usize,
+    resumed: usize,
+}
+
+/// `ntrain = auto` ([`rounds`]): with the references, the test pairs and the first round's
+/// sampling pairs on disk, fits the `linear` rung on the sampling pairs of each round in turn,
+/// scores it on the test pairs in camera space, and captures the next round's while
+/// [`Rounds::next`] asks for one, growing the manifest's pattern set first (a killed run
+/// resumes from it, and scores its rounds again from the first). The projector holds the last
+/// pattern while a round is fitted.
+fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+    capturer: &mut Capturer<'_, D, C>,
+    (root, setup): (&DataRoot, &Setup),
+    manifest: &mut Manifest,
+    (rounds, geometry): (Rounds, &Arc<crate::linear::GeometryMemo>),
+    opts: &Options,
+    progress: Progress,
+) -> Result<RoundsDone> {
+    let tests = setup.load_test(Some(manifest.patterns.ntest))?;
+    let mut curve: Vec<rounds::RoundScore> = Vec::new();
+    let (mut captured, mut resumed) = (0, 0);
+    let mut pairs = rounds.first;
+    loop {
+        if pairs > manifest.patterns.ntrain {
+            let from = manifest.patterns.ntrain + 1;
+            manifest.grow(setup.path(), pairs)?;
+            write_sampling(root, &manifest.patterns, (Set::Train, from..=pairs))
+                .map_err(|e| not_ours(e, &manifest.patterns))?;
+            let (c, r) = capture_all(capturer, (root, setup), manifest, None, opts, progress)?;
+            captured += c;
+            resumed += r;
+        }
+        opts.check_cancelled()?;
+        progress("sampling round", pairs, rounds.most);
+        let t = Instant::now();
+        let loops = match rounds.loops_follow {
+            true => loop_images(opts.method, pairs, None),
+            false => opts.loop_images,
+        };
+        let req = Request {
+            method: MethodChoice::Rung(crate::model::Method::Linear),
+            iters: None,
+            batch: None,
+            ..sampling_request(opts, (pairs, loops), geometry)
+        };
+        let (model, _) = fit::fit(setup, &req, |stage, done, n| progress(stage, done, n))?;
+        let mse = crate::model::forward_mse(&model, &tests)?.ok_or_else(|| {
+            Error::Failed("the sampling round's linear fit has no forward model".into())
+        })?;
+        let score = rounds::RoundScore {
+            pairs,
+            mse,
+            psnr: crate::metrics::psnr_from_mse(mse),
+            seconds: t.elapsed().as_secs_f64(),
+        };
+        tracing::info!(
+            "sampling round: {pairs} pairs, held-out camera-space error {:.2e} ({:.2} dB), \
+             fitted and scored in {:.1} s",
+            score.mse,
+            score.psnr,
+            score.seconds
+        );
+        curve.push(score);
+        match rounds.next(&curve) {
+            Ok(next) => pairs = next,
+            Err(why) => {
+                return Ok(RoundsDone {
+                    curve: SamplingCurve {
+                        rule: rounds.describe(),
+                        rounds: curve,
+                        chosen: pairs,
+                        why,
+                    },
+                    model,
+                    captured,
+                    resumed,
+                });
+            }
+        }
+    }
 }
 
 /// How many sampling pairs the geometry fitted ahead needs, and the sender that tells its
@@ -1007,10 +1202,16 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         };
         shots.push((CaptureSet::Ref, r.index(), source));
     }
-    for (set, pset, n) in [
-        (CaptureSet::Train, ProjectorSet::Train, opts.patterns.ntrain),
-        (CaptureSet::Test, ProjectorSet::Test, opts.patterns.ntest),
-    ] {
+    let (ntrain, ntest) = (manifest.patterns.ntrain, manifest.patterns.ntest);
+    let mut sets = [
+        (CaptureSet::Train, ProjectorSet::Train, ntrain),
+        (CaptureSet::Test, ProjectorSet::Test, ntest),
+    ];
+    // Sampling rounds score each round on the test pairs: those first.
+    if opts.rounds.is_some() {
+        sets.reverse();
+    }
+    for (set, pset, n) in sets {
         shots.extend((1..=n).map(|i| (set, i, root.image_path(pset, i))));
     }
     let shots: Vec<Shot> = shots

@@ -68,9 +68,12 @@ pub struct Args {
     /// The rung to fit [default: linear].
     #[arg(long, value_enum)]
     pub method: Option<MethodChoice>,
-    /// Sampling images to project for training [default: 48].
-    #[arg(long)]
-    pub ntrain: Option<usize>,
+    /// Sampling images to project for training, or `auto`: in rounds (16, then 8 more at a
+    /// time, up to 48), the linear rung fitted after each and scored on the held-out test
+    /// pairs, until a round no longer gains; the closed-loop pairs then follow the count
+    /// chosen, and model.json records the curve [default: the configuration's `ntrain`, 48].
+    #[arg(long, value_name = "N|auto")]
+    pub ntrain: Option<compend::calibrate::SamplingCount>,
     /// Test images to project: captured for `eval`, and the first few for the verification
     /// [default: 10].
     #[arg(long)]
@@ -163,7 +166,7 @@ struct Settings {
     data: PathBuf,
     out: PathBuf,
     method: MethodChoice,
-    ntrain: usize,
+    ntrain: compend::calibrate::SamplingCount,
     ntest: usize,
     verify: usize,
     min_gain: f64,
@@ -176,6 +179,9 @@ struct Settings {
     device: compend::fit::TrainDevice,
     /// Closed-loop pairs (`--loop-images`, the config's `loop_images`).
     loop_images: usize,
+    /// The closed-loop pairs asked for by flag or configuration (`None`: as many as the
+    /// sampling pairs).
+    loops_asked: Option<usize>,
     /// `auto`: the refresh rate its climb's live pass is weighed at (`--refresh-hz`, the
     /// config's `refresh_hz`); `None`: the window's; 0: not weighed.
     refresh_hz: Option<f64>,
@@ -244,11 +250,17 @@ impl Settings {
             }
         }
         let asked = a.loop_images.or(c.calibration.loop_images);
-        let loop_images = compend::calibrate::loop_images(
-            method,
-            a.ntrain.unwrap_or(c.calibration.ntrain),
-            asked,
-        );
+        let ntrain = a.ntrain.unwrap_or(c.calibration.ntrain);
+        if ntrain == compend::calibrate::SamplingCount::Auto
+            && let Some(p) = compend::calibrate::rounds::rounds_problem(method)
+        {
+            let from = match a.ntrain {
+                Some(_) => "--ntrain auto".to_string(),
+                None => "the configuration's ntrain = \"auto\"".to_string(),
+            };
+            return Err(compend::Error::Input(format!("{from}: {p}")).into());
+        }
+        let loop_images = compend::calibrate::loop_images(method, ntrain.most(), asked);
         if let Some(p) = compend::calibrate::loop_images_problem(method, loop_images) {
             let from = match a.loop_images {
                 Some(n) => format!("--loop-images {n}"),
@@ -308,7 +320,7 @@ impl Settings {
             data,
             out,
             method,
-            ntrain: a.ntrain.unwrap_or(k.ntrain),
+            ntrain,
             ntest: a.ntest.unwrap_or(k.ntest),
             verify: a.verify.unwrap_or(k.verify),
             min_gain: a.min_gain.unwrap_or(k.min_gain_db),
@@ -319,6 +331,7 @@ impl Settings {
             },
             device,
             loop_images,
+            loops_asked: asked,
             refresh_hz: a.refresh_hz.or(k.refresh_hz),
             average: a.average.unwrap_or(k.average),
             seed: a.seed.unwrap_or(r.seed),
@@ -711,7 +724,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let opts = Options {
         patterns: PatternSet {
             seed: args.seed,
-            ntrain: args.ntrain,
+            ntrain: args.ntrain.most(),
             ntest: args.ntest,
             network: args.network,
             projector,
@@ -729,6 +742,7 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         iters: args.iters,
         device: args.device,
         loop_images: args.loop_images,
+        rounds: compend::calibrate::rounds::rounds_for(args.ntrain, args.loops_asked),
         live,
         rig,
         cancel: None,
@@ -782,6 +796,9 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
     if let Some(u) = &r.unreachable {
         eprintln!("calibrate: {}", u.line());
     }
+    if let Some(curve) = &r.sampling {
+        eprintln!("calibrate: {}", curve.line());
+    }
     for line in done.model.meta.training.auto.iter().flat_map(|a| a.lines()) {
         eprintln!("calibrate: {line}");
     }
@@ -826,7 +843,7 @@ fn install(done: Calibrated, out: &Path) -> Result<()> {
 /// The counts must allow a fit and a verification.
 fn check_counts(a: &Settings) -> compend::Result<()> {
     let bad = |what: String| Err(compend::Error::Input(what));
-    if a.ntrain < compend::fit::MIN_TRAIN {
+    if a.ntrain.most() < compend::fit::MIN_TRAIN {
         return bad(format!(
             "--ntrain {}: at least {} training images are needed",
             a.ntrain,

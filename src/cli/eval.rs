@@ -44,12 +44,16 @@ pub fn run(args: Args) -> Result<()> {
     }
     let (comp, uncomp) = compend::model::paper_protocol(&model, &pairs)
         .with_context(|| format!("scoring the test pairs of {}", setup.path().display()))?;
+    let forward = compend::model::forward_mse(&model, &pairs)
+        .with_context(|| format!("scoring the test pairs of {}", setup.path().display()))?
+        .map(compend::metrics::psnr_from_mse);
     let method = model.meta.method.name();
     if args.json {
         println!(
             "{}",
             json!({ "method": method, "model": args.model, "setup": setup.path(),
-                    "n": comp.n, "compensated": comp, "uncompensated": uncomp })
+                    "n": comp.n, "compensated": comp, "uncompensated": uncomp,
+                    "camera_space_psnr": forward })
         );
     } else {
         println!("{:<16} {:>9} {:>9} {:>9}", "row", "PSNR", "RMSE", "SSIM");
@@ -58,6 +62,12 @@ pub fn run(args: Args) -> Result<()> {
         };
         row("uncompensated", &uncomp);
         row(method, &comp);
+        if let Some(db) = forward {
+            println!(
+                "{:<16} {db:>9.4}   (camera space: the model's prediction of each capture)",
+                "forward"
+            );
+        }
         let out = model.network_size();
         let net = pairs.inputs.first().map_or(out, |i| i.size());
         if out == net {

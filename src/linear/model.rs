@@ -163,6 +163,40 @@ impl SimplifiedLinear {
         let warped = crate::sample::grid_sample(input, &self.grid);
         apply_colour(&warped, &self.curves, &self.coeffs)
     }
+
+    /// The forward model the colour coefficients invert: for projector input values `shown` on
+    /// the model's lattice (network pixels), the camera values (encoded, as captured) it
+    /// predicts at each lattice pixel, `v = clamp(M⁻¹(f_p(x) − b), 0, 1)^(1/γc)`. A pixel whose
+    /// `M` cannot be inverted reads NaN. An error when `shown` is not of the lattice's size.
+    pub fn predict_capture(&self, shown: &NetImage) -> crate::error::Result<NetImage> {
+        use rayon::prelude::*;
+        let lattice = ImageSize::new(self.coeffs.width, self.coeffs.height);
+        if shown.size() != lattice {
+            return Err(crate::error::Error::Shape(format!(
+                "a {} projector image for a model on a {lattice} lattice",
+                shown.size()
+            )));
+        }
+        let mut out = shown.clone();
+        let curves = self.curves;
+        out.data_mut()
+            .par_chunks_exact_mut(3)
+            .zip(self.coeffs.data.par_iter())
+            .for_each(|(px, k)| {
+                let m = [[k[0], k[1], k[2]], [k[3], k[4], k[5]], [k[6], k[7], k[8]]];
+                let Some(inv) = super::gamut::inverse(&m) else {
+                    px.fill(f32::NAN);
+                    return;
+                };
+                let l: [f32; 3] =
+                    std::array::from_fn(|c| curves.projector_linear(c, px[c]) - k[9 + c]);
+                for c in 0..3 {
+                    let a = inv[c][0] * l[0] + inv[c][1] * l[1] + inv[c][2] * l[2];
+                    px[c] = a.clamp(0.0, 1.0).powf(1.0 / curves.camera_gamma[c]);
+                }
+            });
+        Ok(out)
+    }
 }
 
 /// Applies curves and per-pixel coefficients to an already warped image (camera values in,
@@ -197,4 +231,50 @@ pub fn apply_colour(warped: &NetImage, curves: &Curves, coeffs: &Coefficients) -
             }
         });
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The forward model inverts the compensation: a capture compensated and predicted back
+    /// is the capture again, where the colour it asks for is reachable.
+    #[test]
+    fn the_forward_prediction_inverts_the_colour_model() {
+        let (w, h) = (3, 2);
+        // A surface that mixes the channels a little and has some ambient light.
+        let k: [f32; 12] = [
+            1.4, -0.2, 0.1, //
+            -0.1, 1.2, -0.05, //
+            0.05, -0.1, 1.6, //
+            -0.02, 0.01, -0.03,
+        ];
+        let model = SimplifiedLinear {
+            grid: Grid::identity(w, h),
+            curves: Curves {
+                camera_gamma: [2.0, 2.2, 2.4],
+                projector_gamma: [2.2, 1.8, 2.0],
+            },
+            coeffs: Coefficients {
+                width: w,
+                height: h,
+                data: vec![k; w * h],
+            },
+        };
+        let seen: Vec<f32> = (0..w * h * 3).map(|i| 0.3 + 0.05 * i as f32 / 3.0).collect();
+        let capture = CamImage::from_vec(w, h, seen.clone()).unwrap();
+        let shown = model.apply(&capture);
+        let back = model.predict_capture(&shown).unwrap();
+        for (a, b) in back.data().iter().zip(&seen) {
+            assert!((a - b).abs() < 1e-4, "{a} against {b}");
+        }
+        // Another lattice's image is refused; a singular pixel reads NaN.
+        let wrong = NetImage::from_vec(2, 2, vec![0.5; 12]).unwrap();
+        assert!(model.predict_capture(&wrong).is_err());
+        let mut singular = model.clone();
+        singular.coeffs.data[0] = [0.0; 12];
+        let p = singular.predict_capture(&shown).unwrap();
+        assert!(p.data()[..3].iter().all(|v| v.is_nan()));
+        assert!(p.data()[3..].iter().all(|v| v.is_finite()));
+    }
 }

@@ -341,6 +341,60 @@ pub fn paper_protocol(
     Ok((comp.finish()?, uncomp.finish()?))
 }
 
+/// The camera-space score of a linear rung on held-out pairs: how well its forward model
+/// ([`crate::linear::SimplifiedLinear::predict_capture`]) predicts each capture from its
+/// projector image, the mean squared error over the lattice pixels whose camera position lies inside the
+/// projector FOV (camera values, encoded as captured, sampled through the model's grid). Where
+/// the paper protocol compares projector values, and so weighs most the pixels on a dark
+/// surface, where a small error of the camera's is a large one of the projector's, this
+/// compares what the camera sees, as a closed-loop score does. `None` for a CompenNet++ model,
+/// which has no forward model.
+pub fn forward_mse(model: &Model, pairs: &crate::dataset::Pairs) -> Result<Option<f64>> {
+    let Kind::Linear { simplified, .. } = &model.kind else {
+        return Ok(None);
+    };
+    let lattice = simplified.grid.size();
+    let fov = CamImage::from_vec(
+        model.fov.width(),
+        model.fov.height(),
+        model
+            .fov
+            .data()
+            .iter()
+            .flat_map(|&v| [f32::from(u8::from(v)); 3])
+            .collect(),
+    )?;
+    let inside = crate::sample::grid_sample(&fov, &simplified.grid);
+    let (mut sq, mut values) = (0f64, 0usize);
+    for (cap, input) in pairs.captures.iter().zip(&pairs.inputs) {
+        let seen = crate::sample::grid_sample(&cap.masked(&model.fov)?, &simplified.grid);
+        let shown: NetImage = input.clone().into_space();
+        let shown = crate::resize::resize_bilinear(&shown, lattice.width, lattice.height);
+        let predicted = simplified.predict_capture(&shown)?;
+        for ((p, s), w) in predicted
+            .data()
+            .chunks_exact(3)
+            .zip(seen.data().chunks_exact(3))
+            .zip(inside.data().chunks_exact(3))
+        {
+            if w[0] < 0.999 || p.iter().any(|v| !v.is_finite()) {
+                continue;
+            }
+            for c in 0..3 {
+                sq += f64::from(p[c] - s[c]).powi(2);
+            }
+            values += 3;
+        }
+    }
+    if values == 0 {
+        return Err(Error::Input(
+            "no lattice pixel of the model falls inside its projector FOV: nothing to score"
+                .into(),
+        ));
+    }
+    Ok(Some(sq / values as f64))
+}
+
 /// The residual rung's output: `linear`'s image (network pixels on its lattice) plus the
 /// correction `r` (network pixels, a coarser network over the same canvas) stretched over the
 /// lattice bilinearly (half-pixel centres, as the canvas stretches), clamped to [0, 1]. The CPU

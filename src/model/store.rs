@@ -101,6 +101,10 @@ pub struct CalibrationRecord {
     /// averaged frames per capture, at the camera's rate); absent in records before it.
     #[serde(default)]
     pub capture_floor: Option<crate::calibrate::sync::CaptureFloor>,
+    /// `ntrain = auto`: how many sampling pairs were taken and why (each round's held-out
+    /// score); absent for a count asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sampling: Option<crate::calibrate::SamplingCurve>,
 }
 
 /// Progressive calibration's evidence: the climbed rung and the model it replaced, scored on the

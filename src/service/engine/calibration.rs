@@ -128,15 +128,16 @@ fn calibration_options(
     cancel: Arc<AtomicBool>,
 ) -> Options {
     let c = &config.calibration;
-    let (ntrain, ntest, method) = if refitting {
+    let (count, ntest, method) = if refitting {
         (
-            config.monitoring.refit_ntrain,
+            calibrate::SamplingCount::Count(config.monitoring.refit_ntrain),
             c.verify,
             MethodChoice::Rung(Method::Linear),
         )
     } else {
         (c.ntrain, c.ntest, c.method)
     };
+    let ntrain = count.most();
     Options {
         patterns: PatternSet {
             seed: config.rig.seed,
@@ -158,6 +159,7 @@ fn calibration_options(
         iters: c.climb_iters.filter(|_| method == MethodChoice::Auto),
         device: c.device,
         loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
+        rounds: calibrate::rounds::rounds_for(count, c.loop_images),
         live: live.filter(|_| method == MethodChoice::Auto),
         rig: rig_name(config),
         cancel: Some(cancel),
@@ -857,7 +859,7 @@ mod tests {
         assert_eq!(o.device, TrainDevice::Cuda(1));
         assert_eq!(o.iters, Some(300));
         assert_eq!(o.patterns.projector, projector);
-        assert_eq!(o.patterns.ntrain, config.calibration.ntrain);
+        assert_eq!(o.patterns.ntrain, config.calibration.ntrain.most());
         // A drift refit fits `linear` on a handful of images, whatever the method.
         let o = calibration_options(&config, true, projector, Some(live), Arc::default());
         assert_eq!(o.method, MethodChoice::Rung(Method::Linear));
