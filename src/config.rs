@@ -782,12 +782,9 @@ impl<'t> Walker<'t> {
             },
         );
         if ntrain == crate::calibrate::SamplingCount::Auto
-            && let Some(p) = crate::calibrate::rounds::rounds_problem(method)
+            && let Some(p) = crate::calibrate::rounds_problem(method)
         {
-            self.error(
-                ntrain_at,
-                format!("[calibration] ntrain = \"auto\": {p}"),
-            );
+            self.error(ntrain_at, format!("[calibration] ntrain = \"auto\": {p}"));
         }
         // Compared only when both were read without error (a wrong one stands at its
         // default), at the line of whichever of them the file gives (verify's first).

@@ -1048,22 +1048,25 @@ fn ntrain_auto_takes_sampling_pairs_in_rounds_until_one_no_longer_gains() {
             why.contains("less than the") || (n == 48 && why.contains("the most")),
             "{s}"
         );
-        assert!(stderr(&o).contains("calibrate: sampling rounds"), "{}", stderr(&o));
+        assert!(
+            stderr(&o).contains("calibrate: sampling rounds"),
+            "{}",
+            stderr(&o)
+        );
         // The closed-loop pairs follow; everything is on disk and in the manifest.
         assert_eq!(r["loop_pairs"].as_u64(), Some(n), "{r}");
         assert_eq!(r["captured"].as_u64(), Some(3 + 4 + 2 * n), "{r}");
-        let manifest: serde_json::Value = serde_json::from_slice(
-            &std::fs::read(data.join("capture/calibration.json")).unwrap(),
-        )
-        .unwrap();
+        assert_eq!(r["resumed"].as_u64(), Some(0), "{r}");
+        let manifest: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(data.join("capture/calibration.json")).unwrap())
+                .unwrap();
         assert_eq!(manifest["patterns"]["ntrain"].as_u64(), Some(n));
         let listed = |p: &Path| std::fs::read_dir(p).unwrap().count() as u64;
         assert_eq!(listed(&data.join("train")), 2 * n);
         assert_eq!(listed(&data.join("capture/cam/raw/train")), 2 * n);
         assert_eq!(r["verification"]["passed"], true, "{r}");
         let model: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap())
-                .unwrap();
+            serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap()).unwrap();
         assert_eq!(model["calibration"]["sampling"], *s);
         assert_eq!(model["training"]["ntrain"].as_u64(), Some(2 * n));
         chosen.push(n);
@@ -1078,7 +1081,10 @@ fn ntrain_auto_takes_sampling_pairs_in_rounds_until_one_no_longer_gains() {
             assert_eq!(again["loop_pairs"].as_u64(), Some(n), "{again}");
         }
     }
-    assert!(chosen[0] < chosen[1], "white plane, dark texture: {chosen:?}");
+    assert!(
+        chosen[0] < chosen[1],
+        "white plane, dark texture: {chosen:?}"
+    );
 
     let d = dir.path().join("refused");
     let d = d.to_str().unwrap();
@@ -1087,7 +1093,10 @@ fn ntrain_auto_takes_sampling_pairs_in_rounds_until_one_no_longer_gains() {
             &["--ntrain", "auto", "--method", "compennet++-cpu"][..],
             "--ntrain auto: the sampling rounds are scored with the linear rung",
         ),
-        (&["--ntrain", "many"][..], "expected a number of sampling images, or \"auto\""),
+        (
+            &["--ntrain", "many"][..],
+            "expected a number of sampling images, or \"auto\"",
+        ),
     ] {
         let mut given = vec!["--rig", "virtual:white-plane"];
         given.extend_from_slice(extra);

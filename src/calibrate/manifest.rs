@@ -238,6 +238,23 @@ impl Manifest {
             {
                 Self::open(setup, &m.patterns)
             }
+            Some(m)
+                if m.patterns
+                    == PatternSet {
+                        ntrain: m.patterns.ntrain,
+                        ..patterns.clone()
+                    } =>
+            {
+                Err(Error::Input(format!(
+                    "{}: these captures are of {} sampling images, more than the {} sampling \
+                     rounds take; calibrate there with --ntrain {} (or [calibration] ntrain), or \
+                     choose another data folder",
+                    setup.display(),
+                    m.patterns.ntrain,
+                    patterns.ntrain,
+                    m.patterns.ntrain
+                )))
+            }
             Some(m) => Err(Error::Input(format!(
                 "{}: these captures belong to another pattern set ({}; this calibration \
                  projects {} in rounds of up to {} training images); choose another data folder \
@@ -300,6 +317,54 @@ impl Manifest {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sampling_rounds_grow_the_pattern_set_and_take_only_a_smaller_one_of_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let setup = dir.path();
+        let most = PatternSet {
+            seed: 3,
+            ntrain: 48,
+            ntest: 4,
+            network: ImageSize::new(64, 64),
+            projector: ImageSize::new(200, 150),
+            gray_level: 128,
+        };
+        // A new one starts at the first round, and grows (never shrinks).
+        let mut m = Manifest::open_rounds(setup, &most, 16).unwrap();
+        assert_eq!(m.patterns.ntrain, 16);
+        m.grow(setup, 24).unwrap();
+        m.grow(setup, 20).unwrap();
+        assert_eq!(m.patterns.ntrain, 24);
+        // A later run takes it, and a fixed count of another size does not.
+        let again = Manifest::open_rounds(setup, &most, 16).unwrap();
+        assert_eq!(again.patterns.ntrain, 24);
+        assert!(Manifest::open(setup, &most).is_err());
+        // Another seed, or more sampling images than the rounds take, is another set.
+        for other in [
+            PatternSet {
+                seed: 4,
+                ..most.clone()
+            },
+            PatternSet {
+                ntrain: 20,
+                ..most.clone()
+            },
+        ] {
+            let e = Manifest::open_rounds(setup, &other, 16).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{e}");
+            assert!(
+                e.to_string().contains("another pattern set")
+                    || e.to_string()
+                        .contains("more than the 20 sampling rounds take"),
+                "{e}"
+            );
+        }
+        // Closed-loop pairs settle the count.
+        m.record_loop(setup, 2).unwrap();
+        let e = m.grow(setup, 32).unwrap_err();
+        assert!(e.to_string().contains("closed-loop pairs follow"), "{e}");
+    }
 
     #[test]
     fn a_recorded_projector_size_is_read_or_its_manifest_named() {

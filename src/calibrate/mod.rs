@@ -163,6 +163,21 @@ pub fn refines(method: MethodChoice) -> bool {
     }
 }
 
+/// What is wrong with sampling rounds (`ntrain = auto`) for `method`, if anything: the rounds
+/// are scored with the `linear` rung, so only a method that starts from it ([`refines`]) takes
+/// them. Callers put the flag or key in front.
+pub fn rounds_problem(method: MethodChoice) -> Option<String> {
+    (!refines(method)).then(|| {
+        format!(
+            "the sampling rounds are scored with the linear rung, which {method} does not \
+             start from; give a number of sampling images"
+        )
+    })
+}
+
+// `ntrain = auto` takes at most as many sampling pairs as the fixed default.
+const _: () = assert!(rounds::MOST_PAIRS == fit::DEFAULT_TRAIN);
+
 /// What is wrong with asking `method` for `n` closed-loop pairs, if anything: more than
 /// [`MAX_LOOP_IMAGES`], or any for a method [`refine`] does not apply to. Callers put the flag
 /// or key in front.
@@ -224,9 +239,7 @@ impl LoopPairs {
         self.n > 0
             && match opts.method {
                 MethodChoice::Rung(m) => !m.is_linear(),
-                MethodChoice::Auto => {
-                    self.climbed.is_none() && climbs_on_loop_pairs(opts, self.n)
-                }
+                MethodChoice::Auto => self.climbed.is_none() && climbs_on_loop_pairs(opts, self.n),
             }
     }
 }
@@ -674,7 +687,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         let done = sampling_rounds(
             &mut capturer,
             (&root, &setup),
-            &mut manifest,
+            (&mut manifest, captured + resumed),
             (r, &geometry),
             opts,
             progress,
@@ -1044,7 +1057,7 @@ struct RoundsDone {
 }
 
 /// `ntrain = auto` ([`rounds`]): with the references, the test pairs and the first round's
-/// sampling pairs on disk, fits the `linear` rung on the sampling pairs of each round in turn,
+/// sampling pairs on disk (`on_disk` captures), fits the `linear` rung on the sampling pairs of each round in turn,
 /// scores it on the test pairs in camera space, and captures the next round's while
 /// [`Rounds::next`] asks for one, growing the manifest's pattern set first (a killed run
 /// resumes from it, and scores its rounds again from the first). The projector holds the last
@@ -1052,7 +1065,7 @@ struct RoundsDone {
 fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
     (root, setup): (&DataRoot, &Setup),
-    manifest: &mut Manifest,
+    (manifest, mut on_disk): (&mut Manifest, usize),
     (rounds, geometry): (Rounds, &Arc<crate::linear::GeometryMemo>),
     opts: &Options,
     progress: Progress,
@@ -1067,9 +1080,11 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             manifest.grow(setup.path(), pairs)?;
             write_sampling(root, &manifest.patterns, (Set::Train, from..=pairs))
                 .map_err(|e| not_ours(e, &manifest.patterns))?;
+            // Every capture of the earlier rounds is counted again as found on disk.
             let (c, r) = capture_all(capturer, (root, setup), manifest, None, opts, progress)?;
             captured += c;
-            resumed += r;
+            resumed += r.saturating_sub(on_disk);
+            on_disk = c + r;
         }
         opts.check_cancelled()?;
         progress("sampling round", pairs, rounds.most);

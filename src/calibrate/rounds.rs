@@ -1,6 +1,6 @@
 //! `ntrain = auto`: no more sampling pairs than the scene needs. The sampling images are captured
 //! in rounds; after each round the `linear` rung is fitted on every sampling pair so far and
-//! scored on the held-out test pairs in camera space ([`crate::model::forward_protocol`]: how
+//! scored on the held-out test pairs in camera space (`model::forward_mse`: how
 //! well its forward model predicts each capture). Another round is taken while the last one
 //! lowered that held-out error enough ([`Rounds::next`]); the curve goes into the calibration
 //! record (`model.json`, `calibration.sampling`).
@@ -21,8 +21,10 @@ use serde::{Deserialize, Serialize};
 pub const FIRST_ROUND: usize = 16;
 /// Sampling pairs each later round adds.
 pub const ROUND_STEP: usize = 8;
-/// The most sampling pairs `auto` takes (as many as the fixed default).
-pub const MOST_PAIRS: usize = crate::fit::DEFAULT_TRAIN;
+/// The most sampling pairs `auto` takes: as many as the fixed default (`fit::DEFAULT_TRAIN`,
+/// checked where both are in reach). This file is a record type's home, which the model store
+/// reads, so it imports nothing of the fit or the model.
+pub const MOST_PAIRS: usize = 48;
 /// The held-out camera-space mean squared error (encoded values in \[0, 1\], squared) a round of
 /// [`ROUND_STEP`] pairs must remove for another to be taken: 10⁻⁴, the whole error of a 40 dB
 /// image. Closed loop gained a quarter to a tenth of what the held-out error lost on the rig's
@@ -167,18 +169,6 @@ impl Rounds {
             self.first, self.step, self.margin_mse, self.step, self.most
         )
     }
-}
-
-/// What is wrong with sampling rounds for `method`, if anything: the rounds are scored with
-/// the `linear` rung, so only a method that starts from it ([`super::refines`]) takes them.
-/// Callers put the flag or key in front.
-pub fn rounds_problem(method: crate::model::MethodChoice) -> Option<String> {
-    (!super::refines(method)).then(|| {
-        format!(
-            "the sampling rounds are scored with the linear rung, which {method} does not \
-             start from; give a number of sampling images"
-        )
-    })
 }
 
 /// The rounds a calibration with `count` sampling images takes: `None` for a count; for

@@ -252,7 +252,7 @@ impl Settings {
         let asked = a.loop_images.or(c.calibration.loop_images);
         let ntrain = a.ntrain.unwrap_or(c.calibration.ntrain);
         if ntrain == compend::calibrate::SamplingCount::Auto
-            && let Some(p) = compend::calibrate::rounds::rounds_problem(method)
+            && let Some(p) = compend::calibrate::rounds_problem(method)
         {
             let from = match a.ntrain {
                 Some(_) => "--ntrain auto".to_string(),

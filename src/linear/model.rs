@@ -261,7 +261,9 @@ mod tests {
                 data: vec![k; w * h],
             },
         };
-        let seen: Vec<f32> = (0..w * h * 3).map(|i| 0.3 + 0.05 * i as f32 / 3.0).collect();
+        let seen: Vec<f32> = (0..w * h * 3)
+            .map(|i| 0.3 + 0.05 * i as f32 / 3.0)
+            .collect();
         let capture = CamImage::from_vec(w, h, seen.clone()).unwrap();
         let shown = model.apply(&capture);
         let back = model.predict_capture(&shown).unwrap();

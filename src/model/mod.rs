@@ -388,8 +388,7 @@ pub fn forward_mse(model: &Model, pairs: &crate::dataset::Pairs) -> Result<Optio
     }
     if values == 0 {
         return Err(Error::Input(
-            "no lattice pixel of the model falls inside its projector FOV: nothing to score"
-                .into(),
+            "no lattice pixel of the model falls inside its projector FOV: nothing to score".into(),
         ));
     }
     Ok(Some(sq / values as f64))
