@@ -123,6 +123,45 @@ fn no_candle_side_pool() {
     }
 }
 
+/// Mesa's Vulkan device-select layer (an implicit layer of `mesa-vulkan-drivers`) asks the
+/// Wayland compositor for the default GPU each time a Vulkan instance lists its devices; with no
+/// `$XDG_RUNTIME_DIR` (a system service, a test, ssh) libwayland then prints "error:
+/// XDG_RUNTIME_DIR is invalid or not set in the environment." twice per command that opens the
+/// GPU, though nothing is wrong and no compositor could be reached. There it is switched off
+/// (`NODEVICE_SELECT=1`, its own switch): compend chooses its adapter itself, by wgpu's power
+/// preference. Unless the user set `NODEVICE_SELECT`. Must run before any thread is started.
+fn no_wayland_device_probe() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none()
+        && std::env::var_os("NODEVICE_SELECT").is_none()
+    {
+        // SAFETY: called at the start of `main`, before any other thread exists.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
+}
+
+/// `println!` (and `eprintln!`) panics when stdout (stderr) is a pipe whose reader has gone
+/// (`compend sim list | head -1`, `play --json | true`): the panic is turned into a quiet exit
+/// with status 0, as the output has nowhere to go; every other panic is reported as before. Rust ignores `SIGPIPE`, and
+/// compend keeps it so: its clients write to sockets, where a closed peer must be an error
+/// rather than a silent death.
+fn quiet_on_broken_stdout() {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let text = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        let printing = text.starts_with("failed printing to stdout")
+            || text.starts_with("failed printing to stderr");
+        if printing && text.contains("Broken pipe") {
+            std::process::exit(0);
+        }
+        report(info)
+    }));
+}
+
 /// Log lines (warnings about accepted-but-suspect input, progress of long operations) go to
 /// stderr as plain text. The level comes from `COMPEND_LOG` (tracing's filter syntax, e.g.
 /// `info` or `compend=debug`), `warn` by default.
@@ -190,6 +229,8 @@ fn error_chain(err: &anyhow::Error) -> String {
 }
 
 fn main() -> ExitCode {
+    no_wayland_device_probe();
+    quiet_on_broken_stdout();
     let args = Cli::parse();
     init_logging(matches!(args.command, Command::Serve(_)));
     let compute = matches!(
