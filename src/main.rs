@@ -24,15 +24,91 @@ fn keep_freed_memory() {
 
 mod cli;
 
+/// `compend --version`: the package version, the commit it was built from (`build.rs`) and
+/// whether this build trains on CUDA.
+const VERSION: &str = if cfg!(feature = "cuda") {
+    concat!(
+        env!("CARGO_PKG_VERSION"),
+        " (commit ",
+        env!("COMPEND_COMMIT"),
+        "; features: cuda)"
+    )
+} else {
+    concat!(
+        env!("CARGO_PKG_VERSION"),
+        " (commit ",
+        env!("COMPEND_COMMIT"),
+        "; features: none, CPU training only)"
+    )
+};
+
 #[derive(Parser, Debug)]
-#[command(name = "compend", version, about = "Projector-camera compensation: make a projector look right on any surface", long_about = None)]
+#[command(name = "compend", version = VERSION, about = "Projector-camera compensation: make a projector look right on any surface", long_about = None)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
 }
 
+/// In `--help`, the commands a user needs first (calibrate and the service's), then the rig's
+/// and the data's tools, the benchmarks last.
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Calibrate a rig: measure its latency, project and capture the patterns, train, verify
+    /// on held-out images and install the model only if it verified.
+    Calibrate(cli::calibrate::Args),
+    /// The service: calibrate when needed, play compensated video, answer the control socket.
+    Serve(cli::serve::ServeArgs),
+    /// The running service's state, model, source, frame counts and monitoring.
+    Status(cli::serve::StatusArgs),
+    /// Live compensation of a video source on the projector window or the virtual rig; without
+    /// --model, asks the running service to play the source.
+    Play(cli::play::Args),
+    /// Pause the service's playback: a film or stream holds its frame (`play` resumes it),
+    /// anything else stops (the projector shows black).
+    Pause(cli::serve::ClientArgs),
+    /// The service's playlist: the next item.
+    Next(cli::serve::ClientArgs),
+    /// The service's playlist: the previous item.
+    Previous(cli::serve::ClientArgs),
+    /// The service's film: go to a time from its start.
+    Seek(cli::serve::SeekArgs),
+    /// Ask the running service to calibrate again (install only if the new model verifies).
+    Recalibrate(cli::serve::RecalibrateArgs),
+    /// Stop the running service.
+    Stop(cli::serve::ClientArgs),
+    /// Send one raw request line to the service and print its JSON reply.
+    Ctl(cli::serve::CtlArgs),
+    /// The configuration file: `compend config check FILE`.
+    Config(cli::serve::ConfigArgs),
+    /// List the cameras (V4L2 devices): formats, sizes, frame rates and controls.
+    Cameras(cli::cameras::Args),
+    /// Show a projector-space PNG on the projector window.
+    Show(cli::show::Args),
+    /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
+    /// gray image (ref/), Gray-code structured light (sl/).
+    Patterns(cli::patterns::Args),
+    /// Fit a compensation model on a setup's training pairs and write the model directory.
+    Train(cli::train::Args),
+    /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row and,
+    /// for a linear rung, its prediction of each capture in camera space.
+    Eval(cli::eval::Args),
+    /// Compensation images for desired camera-view images, with a trained model.
+    Compensate(cli::compensate::Args),
+    /// Check a dataset setup (every image of every set) and print its summary.
+    Inspect(cli::inspect::Args),
+    /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
+    Metrics(cli::metrics::Args),
+    /// The virtual rig: simulated projector-camera scenes (list, show, export, sheet, score).
+    Sim(cli::sim::Args),
+    /// Shell completions: `compend completions bash > /etc/bash_completion.d/compend` (also
+    /// zsh, fish, elvish, powershell).
+    Completions(cli::docs::CompletionsArgs),
+    /// The manual page of compend, or of one of its commands, in roff on stdout: `compend man
+    /// > compend.1`, `compend man calibrate > compend-calibrate.1`.
+    Man(cli::docs::ManArgs),
+    /// Pre-train CompenNet's photometric weights on synthetic pairs (no setup, no projection):
+    /// how the shipped `weights/compennet-pretrain-w*.safetensors` were made.
+    Pretrain(cli::pretrain::Args),
     /// Benchmark methods × scenes × training-set sizes × seeds on the virtual rig.
     Bench(cli::bench::Args),
     /// Per-frame GPU time of the compensation pass against a plain texture copy, and frames
@@ -48,55 +124,6 @@ enum Command {
     /// Training and inference cost of the CompenNet++ rungs and `linear` on this CPU, against
     /// the machine's arithmetic rate measured in the same run.
     BenchTrain(cli::bench_train::Args),
-    /// List the cameras (V4L2 devices): formats, sizes, frame rates and controls.
-    Cameras(cli::cameras::Args),
-    /// Calibrate a rig: measure its latency, project and capture the patterns, train, verify
-    /// on held-out images and install the model only if it verified.
-    Calibrate(cli::calibrate::Args),
-    /// Compensation images for desired camera-view images, with a trained model.
-    Compensate(cli::compensate::Args),
-    /// The configuration file: `compend config check FILE`.
-    Config(cli::serve::ConfigArgs),
-    /// Send one raw request line to the service and print its JSON reply.
-    Ctl(cli::serve::CtlArgs),
-    /// Score a model on a setup's test pairs (paper protocol), with the uncompensated row.
-    Eval(cli::eval::Args),
-    /// Check a dataset setup (every image of every set) and print its summary.
-    Inspect(cli::inspect::Args),
-    /// PSNR, RMSE and SSIM (paper conventions) of two PNGs or two folders of same-named PNGs.
-    Metrics(cli::metrics::Args),
-    /// Pause the service's playback: a film or stream holds its frame (`play` resumes it),
-    /// anything else stops (the projector shows black).
-    Pause(cli::serve::ClientArgs),
-    /// The service's playlist: the next item.
-    Next(cli::serve::ClientArgs),
-    /// The service's playlist: the previous item.
-    Previous(cli::serve::ClientArgs),
-    /// The service's film: go to a time from its start.
-    Seek(cli::serve::SeekArgs),
-    /// Live compensation of a video source on the projector window or the virtual rig; without
-    /// --model, asks the running service to play the source.
-    Play(cli::play::Args),
-    /// Write the projector-side dataset images: sampling images (train/, test/), colour cube and
-    /// gray image (ref/), Gray-code structured light (sl/).
-    Patterns(cli::patterns::Args),
-    /// Pre-train CompenNet's photometric weights on synthetic pairs (no setup, no projection):
-    /// how the shipped `weights/compennet-pretrain-w*.safetensors` were made.
-    Pretrain(cli::pretrain::Args),
-    /// Ask the running service to calibrate again (install only if the new model verifies).
-    Recalibrate(cli::serve::RecalibrateArgs),
-    /// The service: calibrate when needed, play compensated video, answer the control socket.
-    Serve(cli::serve::ServeArgs),
-    /// The running service's state, model, source, frame counts and monitoring.
-    Status(cli::serve::StatusArgs),
-    /// Stop the running service.
-    Stop(cli::serve::ClientArgs),
-    /// Fit a compensation model on a setup's training pairs and write the model directory.
-    Train(cli::train::Args),
-    /// Show a projector-space PNG on the projector window.
-    Show(cli::show::Args),
-    /// The virtual rig: simulated projector-camera scenes (list, show, export, sheet, score).
-    Sim(cli::sim::Args),
 }
 
 /// Runs `f` on a worker thread of rayon's global pool (the pool candle's matrix products and
@@ -258,6 +285,14 @@ fn main() -> ExitCode {
         Command::Cameras(a) => cli::cameras::run(a),
         Command::Calibrate(a) => cli::calibrate::run(a),
         Command::Compensate(a) => cli::compensate::run(a),
+        Command::Completions(a) => {
+            use clap::CommandFactory;
+            cli::docs::completions(Cli::command(), a)
+        }
+        Command::Man(a) => {
+            use clap::CommandFactory;
+            cli::docs::man(Cli::command(), a)
+        }
         Command::Config(a) => cli::serve::config(a),
         Command::Ctl(a) => cli::serve::ctl(a),
         Command::Eval(a) => cli::eval::run(a),

@@ -869,6 +869,12 @@ fn an_interrupted_calibration_resumes_without_recapturing() {
 
 #[test]
 fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
+    // No rig at all: every way to name one is offered.
+    let o = compend(&["calibrate"]);
+    assert_code(&o, 2);
+    for way in ["--rig", "--camera", "--config"] {
+        assert!(stderr(&o).contains(way), "{}", stderr(&o));
+    }
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("cal");
     let d = data.to_str().unwrap();

@@ -5,6 +5,7 @@ mod bench;
 mod calibrate;
 mod calibrate_window;
 mod camera;
+mod cli;
 mod common;
 mod console;
 mod dataset;

@@ -24,6 +24,12 @@ use compend::window::ProjectorWindow;
 use super::sim::SceneArgs;
 
 #[derive(clap::Args, Debug)]
+#[command(group(
+    clap::ArgGroup::new("what")
+        .required(true)
+        .multiple(true)
+        .args(["rig", "camera", "config"])
+))]
 pub struct Args {
     /// Take the rig, the paths and the calibration settings from this configuration file (the
     /// service's; config/compend.toml documents every key). Flags given here win over the file.
@@ -36,11 +42,7 @@ pub struct Args {
     /// window watched by a virtual camera that sees what the window presented through the
     /// scene's surface and camera. SCENE: a built-in scene or scene JSON file (see `compend sim
     /// list`) [default: curved].
-    #[arg(
-        long,
-        value_name = "virtual|window[:SCENE]",
-        required_unless_present_any = ["camera", "config"]
-    )]
+    #[arg(long, value_name = "virtual|window[:SCENE]")]
     pub rig: Option<String>,
     /// Calibrate real hardware: this V4L2 camera (a path such as /dev/video0 or a
     /// /dev/v4l/by-id/ link, or a camera's index or part of its name) looking at the projector window on `--monitor`. Its exposure, gain, white balance, focus,

@@ -9,6 +9,7 @@ pub mod bench_train;
 pub mod calibrate;
 pub mod cameras;
 pub mod compensate;
+pub mod docs;
 pub mod eval;
 pub mod inspect;
 pub mod metrics;
