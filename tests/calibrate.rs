@@ -130,8 +130,10 @@ fn calibrate_installs_a_verified_model_and_records_it() {
         range["low"].as_f64().unwrap() < range["high"].as_f64().unwrap(),
         "{range}"
     );
-    // The calibration folder is a complete setup in the dataset layout; inspect, given the
-    // projector's aspect, reports the same share of the area out of reach and draws where.
+    // The calibration folder is a complete setup in the dataset layout; inspect takes the
+    // projector's aspect from the calibration's record, finds the displayable area the
+    // calibration placed the desired views in, reports the same share of it out of reach and
+    // draws where.
     let shown = dir.path().join("inspect");
     let o = compend(&[
         "inspect",
@@ -139,13 +141,54 @@ fn calibrate_installs_a_verified_model_and_records_it() {
         data.join("capture").to_str().unwrap(),
         "--out",
         shown.to_str().unwrap(),
-        "--aspect",
-        &(200.0f64 / 150.0).to_string(),
         "--json",
     ]);
     assert_code(&o, 0);
     let report: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert_eq!(
+        report["projector"],
+        serde_json::json!({"width": 200, "height": 150}),
+        "{report}"
+    );
+    assert_eq!(report["projector_from"], "recorded by the calibration");
     assert_eq!(report["fov"]["unreachable"], *u, "{report}");
+    let view = compend::pngio::read_rgb::<compend::raster::Camera>(
+        &data.join("capture/cam/desire/test/img_0001.png"),
+    )
+    .unwrap();
+    let lit: Vec<(usize, usize)> = (0..view.height())
+        .flat_map(|y| (0..view.width()).map(move |x| (x, y)))
+        .filter(|&(x, y)| view.get(x, y).iter().any(|&v| v > 0.0))
+        .collect();
+    // The views continue the content's edge EDGE_MARGIN_PX camera pixels past the area.
+    let area = &report["fov"]["displayable_area"];
+    let at = |k: &str| area[k].as_u64().unwrap() as usize;
+    let m = compend::fov::EDGE_MARGIN_PX;
+    let span = |f: fn(&(usize, usize)) -> usize| {
+        (
+            lit.iter().map(f).min().unwrap(),
+            lit.iter().map(f).max().unwrap(),
+        )
+    };
+    assert_eq!(
+        span(|p| p.0),
+        (at("x") - m, at("x") + at("width") - 1 + m),
+        "{area}"
+    );
+    assert_eq!(
+        span(|p| p.1),
+        (at("y") - m, at("y") + at("height") - 1 + m),
+        "{area}"
+    );
+    let text = stdout(&compend(&[
+        "inspect",
+        "--setup",
+        data.join("capture").to_str().unwrap(),
+    ]));
+    assert!(
+        text.contains("projector     200x150 (recorded by the calibration)"),
+        "{text}"
+    );
     assert!(shown.join("unreachable.png").is_file());
     assert_code(
         &compend(&[

@@ -26,8 +26,9 @@ pub struct Args {
     /// bright) into this folder.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Canvas aspect ratio (width/height) for the displayable area [default: the network
-    /// image's aspect].
+    /// Canvas aspect ratio (width/height) for the displayable area [default: the projector's,
+    /// from its structured-light patterns or the calibration's record, as `calibrate` and `play`
+    /// use; else the network image's].
     #[arg(long, value_parser = parse_aspect)]
     pub aspect: Option<f64>,
 }
@@ -71,8 +72,28 @@ pub struct Report {
     pub problems: Vec<String>,
     /// Number of problems found, including those not listed.
     pub total_problems: usize,
+    /// The projector's size, and where it was read: the structured-light patterns, or the
+    /// record of the calibration that made the setup; `None` when neither says.
+    pub projector: Option<ImageSize>,
+    pub projector_from: Option<&'static str>,
     /// The FOV analysis, when the black and white references are readable.
     pub fov: Option<FovReport>,
+}
+
+/// The projector's size and where it was read: its structured-light patterns (`sl_size`, the
+/// data root's), else what the calibration that made the setup recorded (a manifest that
+/// cannot be read is reported with the closed-loop pairs' check).
+fn projector(
+    setup: &Setup,
+    sl_size: Option<ImageSize>,
+) -> (Option<ImageSize>, Option<&'static str>) {
+    match sl_size {
+        Some(p) => (Some(p), Some("structured-light patterns")),
+        None => match compend::calibrate::manifest::recorded_projector(setup.path()) {
+            Ok(Some(p)) => (Some(p), Some("recorded by the calibration")),
+            _ => (None, None),
+        },
+    }
 }
 
 /// Opens the setup and checks it fully.
@@ -94,7 +115,8 @@ pub fn report(args: &Args) -> Result<Report> {
             problems.push(e);
         }
     }
-    let fov = match fov_report(&setup, args) {
+    let (projector, projector_from) = projector(&setup, v.info.projector_size);
+    let fov = match fov_report(&setup, args, projector) {
         Ok(f) => f,
         Err(e) => {
             // A setup whose projector light cannot be found is not usable: report it as a problem.
@@ -110,12 +132,18 @@ pub fn report(args: &Args) -> Result<Report> {
         images_checked: v.images_checked,
         problems,
         total_problems,
+        projector,
+        projector_from,
         fov,
     })
 }
 
 /// FOV mask and displayable area; `None` when a reference is unreadable (already a problem).
-fn fov_report(setup: &Setup, args: &Args) -> Result<Option<FovReport>> {
+fn fov_report(
+    setup: &Setup,
+    args: &Args,
+    projector: Option<ImageSize>,
+) -> Result<Option<FovReport>> {
     let (Ok(black), Ok(white)) = (
         setup.load_reference(Reference::Black),
         setup.load_reference(Reference::White),
@@ -128,9 +156,10 @@ fn fov_report(setup: &Setup, args: &Args) -> Result<Option<FovReport>> {
         setup.reference_path(Reference::White).display()
     );
     let fov = compend::fov::fov_mask(&black, &white, &label)?;
-    let aspect = match args.aspect {
-        Some(a) => a,
-        None => setup
+    let aspect = match (args.aspect, projector) {
+        (Some(a), _) => a,
+        (None, Some(p)) => p.aspect(),
+        (None, None) => setup
             .root()
             .network_size()
             .map(ImageSize::aspect)
@@ -235,10 +264,12 @@ fn print_human(r: &Report) {
     println!("setup         {}", s.setup.display());
     println!("camera size   {}", size(s.camera_size));
     println!("network size  {}", size(s.network_size));
-    println!(
-        "projector     {} (structured-light patterns)",
-        size(s.projector_size)
-    );
+    match r.projector_from {
+        Some(from) => println!("projector     {} ({from})", size(r.projector)),
+        None => {
+            println!("projector     unknown (no structured-light patterns, no calibration record)")
+        }
+    }
     println!(
         "references    black {}, white {}, gray surface {}",
         yes(s.references.black),
