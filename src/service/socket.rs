@@ -810,20 +810,19 @@ pub(super) async fn dispatch(request: Request, shared: &Shared, origin: &str) ->
 /// Connects to the service's socket, sends one request and returns its reply (the clients:
 /// `compend status`, `recalibrate`, `play`, `pause`, `stop`).
 pub fn request(socket: &Path, req: &Request) -> Result<Reply> {
+    // No service there is a failed operation (exit 1), not a mistake in what was asked
+    // (exit 2, a typo in a flag); a socket this user may not use is the user's to fix.
     let stream = std::os::unix::net::UnixStream::connect(socket).map_err(|e| {
-        let hint = match e.kind() {
-            std::io::ErrorKind::NotFound | std::io::ErrorKind::ConnectionRefused => {
-                "is `compend serve` running? (systemctl status compend)"
-            }
+        let text = |hint: &str| format!("{}: cannot connect ({e}); {hint}", socket.display());
+        match e.kind() {
+            std::io::ErrorKind::NotFound | std::io::ErrorKind::ConnectionRefused => Error::Failed(
+                text("is `compend serve` running? (systemctl status compend)"),
+            ),
             std::io::ErrorKind::PermissionDenied => {
-                "this user may not use it: join the socket's group"
+                Error::Input(text("this user may not use it: join the socket's group"))
             }
-            _ => "",
-        };
-        Error::Input(format!(
-            "{}: cannot connect ({e}); {hint}",
-            socket.display()
-        ))
+            _ => Error::Failed(format!("{}: cannot connect ({e})", socket.display())),
+        }
     })?;
     exchange(socket, stream, req)
 }
