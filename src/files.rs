@@ -297,22 +297,8 @@ fn remove_previous(old: &Path, dir: &Path) {
 
 #[cfg(target_os = "linux")]
 fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
-    let (ca, cb) = (c_path(a)?, c_path(b)?);
-    // SAFETY: both pointers are valid NUL-terminated strings for the duration of the call.
-    let rc = unsafe {
-        libc::renameat2(
-            libc::AT_FDCWD,
-            ca.as_ptr(),
-            libc::AT_FDCWD,
-            cb.as_ptr(),
-            libc::RENAME_EXCHANGE,
-        )
-    };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
+    use nix::fcntl::{AT_FDCWD, RenameFlags, renameat2};
+    renameat2(AT_FDCWD, a, AT_FDCWD, b, RenameFlags::RENAME_EXCHANGE).map_err(std::io::Error::from)
 }
 
 #[cfg(not(target_os = "linux"))]
@@ -323,7 +309,10 @@ fn exchange(_: &Path, _: &Path) -> std::io::Result<()> {
 /// The file system or kernel cannot exchange two paths atomically.
 fn exchange_unsupported(e: &std::io::Error) -> bool {
     e.kind() == std::io::ErrorKind::Unsupported
-        || matches!(e.raw_os_error(), Some(code) if code == libc::EINVAL || code == libc::ENOSYS)
+        || matches!(
+            e.raw_os_error().map(nix::errno::Errno::from_raw),
+            Some(nix::errno::Errno::EINVAL | nix::errno::Errno::ENOSYS)
+        )
 }
 
 /// Removes the temporary siblings of `path` (`.NAME.tmp-PID`, `.NAME.old-PID`) left by
@@ -360,12 +349,14 @@ pub fn clean_stale_siblings(path: &Path) {
 
 /// Whether a process with this PID runs (signal 0 reaches it, or it exists but is not ours).
 fn process_alive(pid: u32) -> bool {
-    let Ok(pid) = libc::pid_t::try_from(pid) else {
+    let Ok(pid) = i32::try_from(pid) else {
         return false;
     };
-    // SAFETY: kill with signal 0 only checks whether the process exists.
-    let rc = unsafe { libc::kill(pid, 0) };
-    rc == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
+    // Signal 0 only checks whether the process exists.
+    match nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid), None) {
+        Ok(()) | Err(nix::errno::Errno::EPERM) => true,
+        Err(_) => false,
+    }
 }
 
 /// fsyncs a folder so a rename inside it survives a power cut. Best effort: a folder that
@@ -376,31 +367,17 @@ pub fn sync_dir(dir: &Path) {
     }
 }
 
-/// `path` as a C string for a system call (a path holding a NUL byte is invalid input).
-fn c_path(path: &Path) -> std::io::Result<std::ffi::CString> {
-    use std::os::unix::ffi::OsStrExt;
-    std::ffi::CString::new(path.as_os_str().as_bytes())
-        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))
-}
-
 /// Whether this process may create and remove entries in the folder `dir` (write and search
 /// permission, a file system mounted writable), as `access(2)` answers for the effective IDs.
 fn may_write_in(dir: &Path) -> std::io::Result<()> {
-    let c = c_path(dir)?;
-    // SAFETY: `c` is a valid NUL-terminated string for the duration of the call.
-    let rc = unsafe {
-        libc::faccessat(
-            libc::AT_FDCWD,
-            c.as_ptr(),
-            libc::W_OK | libc::X_OK,
-            libc::AT_EACCESS,
-        )
-    };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(std::io::Error::last_os_error())
-    }
+    use nix::unistd::AccessFlags;
+    nix::unistd::faccessat(
+        nix::fcntl::AT_FDCWD,
+        dir,
+        AccessFlags::W_OK | AccessFlags::X_OK,
+        nix::fcntl::AtFlags::AT_EACCESS,
+    )
+    .map_err(std::io::Error::from)
 }
 
 /// Checks, before any work, that what the existing folder `dir` holds can be removed (the
@@ -531,9 +508,7 @@ mod tests {
         fs::write(&file, b"12345").unwrap();
         assert_eq!(read_regular(&file, "an image", 5).unwrap(), b"12345");
         let fifo = dir.path().join("f.png");
-        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
-        // SAFETY: a valid NUL-terminated path.
-        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::from_bits_truncate(0o600)).unwrap();
         for (path, says, code) in [
             (
                 file.clone(),

@@ -561,8 +561,7 @@ pub fn lock_state_if_held(state: &Path, holder: &str) -> Result<Option<std::fs::
         .open(&path);
     let (file, writable) = match opened {
         Ok(file) => {
-            // SAFETY: geteuid has no preconditions and cannot fail.
-            if unsafe { libc::geteuid() } == 0
+            if nix::unistd::geteuid().is_root()
                 && let (Ok(dir), Ok(meta)) = (state.metadata(), file.metadata())
                 && meta.uid() != dir.uid()
             {

@@ -127,14 +127,12 @@ pub fn bind(cfg: &SocketConfig) -> Result<(UnixListener, Access)> {
         // folder's set-group-ID bit gave it the folder's: its members may open the 0660 file,
         // and so may talk to the service.
         None => {
-            // SAFETY: getegid has no preconditions and cannot fail.
-            let gid = unsafe { libc::getegid() };
+            let gid = nix::unistd::getegid().as_raw();
             chown_group(path, gid)?;
             gid
         }
     };
-    // SAFETY: geteuid has no preconditions and cannot fail.
-    let own_uid = unsafe { libc::geteuid() };
+    let own_uid = nix::unistd::geteuid().as_raw();
     Ok((
         listener,
         Access {
@@ -203,8 +201,7 @@ impl Token {
                 }
             )));
         }
-        // SAFETY: getegid has no preconditions and cannot fail.
-        let own_gid = unsafe { libc::getegid() };
+        let own_gid = nix::unistd::getegid().as_raw();
         if let Ok(meta) = std::fs::metadata(path)
             && others_may_read(meta.permissions().mode(), meta.gid(), own_gid)
         {
@@ -876,50 +873,32 @@ fn exchange(
     })
 }
 
+/// A group's id: `name` as a number, or the group of that name (`None` when there is none, or
+/// the group database cannot be read).
 fn group_id(name: &str) -> Option<u32> {
     if let Ok(gid) = name.parse::<u32>() {
         return Some(gid);
     }
-    let c = CString::new(name).ok()?;
-    let mut buf = vec![0 as libc::c_char; 16 * 1024];
-    let mut grp: libc::group = unsafe { std::mem::zeroed() };
-    let mut out: *mut libc::group = std::ptr::null_mut();
-    // SAFETY: every pointer is valid for the call; buf outlives it and its length is passed.
-    let rc =
-        unsafe { libc::getgrnam_r(c.as_ptr(), &mut grp, buf.as_mut_ptr(), buf.len(), &mut out) };
-    (rc == 0 && !out.is_null()).then_some(grp.gr_gid)
+    let group = nix::unistd::Group::from_name(name).ok()??;
+    Some(group.gid.as_raw())
 }
 
 fn chown_group(path: &Path, gid: u32) -> Result<()> {
-    let c = CString::new(path.as_os_str().as_encoded_bytes())
-        .map_err(|_| Error::Input(format!("{}: path holds a NUL byte", path.display())))?;
-    // SAFETY: c is a valid NUL-terminated path; uid -1 leaves the owner unchanged.
-    let rc = unsafe { libc::chown(c.as_ptr(), u32::MAX, gid) };
-    if rc != 0 {
-        return Err(Error::io(
-            path,
-            "set socket group",
-            std::io::Error::last_os_error(),
-        ));
-    }
-    Ok(())
+    // No owner: it stays as it is.
+    nix::unistd::chown(path, None, Some(nix::unistd::Gid::from_raw(gid)))
+        .map_err(|e| Error::io(path, "set socket group", std::io::Error::from(e)))
 }
 
-/// Whether user `uid` is a member of group `gid` (its supplementary groups).
+/// Whether user `uid` is a member of group `gid` (its primary group or a supplementary one).
 fn user_in_group(uid: u32, gid: u32) -> bool {
-    let mut buf = vec![0 as libc::c_char; 16 * 1024];
-    let mut pw: libc::passwd = unsafe { std::mem::zeroed() };
-    let mut out: *mut libc::passwd = std::ptr::null_mut();
-    // SAFETY: as in group_id.
-    let rc = unsafe { libc::getpwuid_r(uid, &mut pw, buf.as_mut_ptr(), buf.len(), &mut out) };
-    if rc != 0 || out.is_null() {
+    let Ok(Some(user)) = nix::unistd::User::from_uid(nix::unistd::Uid::from_raw(uid)) else {
         return false;
-    }
-    let mut groups = vec![0 as libc::gid_t; 256];
-    let mut n = groups.len() as libc::c_int;
-    // SAFETY: pw_name points into buf (alive); groups has room for n entries.
-    let rc = unsafe { libc::getgrouplist(pw.pw_name, pw.pw_gid, groups.as_mut_ptr(), &mut n) };
-    rc >= 0 && groups[..n.max(0) as usize].contains(&gid)
+    };
+    let Ok(name) = CString::new(user.name) else {
+        return false;
+    };
+    nix::unistd::getgrouplist(&name, user.gid)
+        .is_ok_and(|groups| groups.contains(&nix::unistd::Gid::from_raw(gid)))
 }
 
 /// The socket to talk to: `--socket`, else the one `--config` names, else the default.
@@ -1147,5 +1126,25 @@ mod tests {
         let t = Token::read(&path, "[socket] tcp_token_file").unwrap();
         assert!(t.matches(b"0123456789abcdef0123"));
         assert!(!t.matches(b""));
+        assert!(!t.matches(b"0123456789abcdef012"));
+        assert!(!t.matches(b"0123456789abcdef01234"));
+        assert!(!t.matches(b"1123456789abcdef0123"));
+    }
+
+    /// Groups by number or name, and a user's membership (its primary group counts), read
+    /// from the system's databases: root is in group 0 on every system.
+    #[test]
+    fn groups_and_membership_come_from_the_system() {
+        assert_eq!(group_id("0"), Some(0));
+        assert_eq!(group_id("4242"), Some(4242));
+        let root = nix::unistd::Group::from_gid(nix::unistd::Gid::from_raw(0))
+            .unwrap()
+            .unwrap();
+        assert_eq!(group_id(&root.name), Some(0));
+        assert_eq!(group_id("no-such-group-compend"), None);
+        assert_eq!(group_id("a\0b"), None);
+        assert!(user_in_group(0, 0));
+        // A uid no user has is in no group.
+        assert!(!user_in_group(3_999_999_999, 0));
     }
 }
