@@ -5,7 +5,7 @@
 #   libclang-dev: bindgen, used by the V4L2 camera crates at build time
 #   imagemagick: screenshots of the virtual display in tests
 #   systemd, procps: systemd-analyze and /bin/kill (ExecReload=), to verify the units in systemd/
-#   GStreamer, for films, streams, screens and sound (README, "Media"):
+#   GStreamer, for films, streams, screens and sound (docs/usage.md, "Media"):
 #     libgstreamer1.0-dev, libgstreamer-plugins-base1.0-dev: the headers gstreamer-rs builds on
 #     gstreamer1.0-plugins-base: playbin, videoconvert, appsink/appsrc, Ogg/Theora/Vorbis/Opus
 #     gstreamer1.0-plugins-good: MP4/MOV and Matroska/WebM, VP8/VP9 (libvpx), ximagesrc,
