@@ -1613,7 +1613,7 @@ mod tests {
         .unwrap_err()
         .to_string();
         for want in [
-            "t.toml:3: [playback] source item 1: --source \"pattern:nope\": unknown pattern",
+            "t.toml:3: [playback] source item 1: source \"pattern:nope\": unknown pattern",
             "item 2: unknown key `loops`",
             "item 3: needs `src`",
             "item 4: expected a source's spelling",

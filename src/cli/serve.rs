@@ -260,7 +260,9 @@ fn describe(s: &Status) -> String {
             out += &format!("model: {} ({})\n", m.path.display(), m.method);
             if let Some(v) = &m.verification {
                 out += &format!(
-                    "  verified: {:.2} dB / SSIM {:.3} ({:+.2} dB over uncompensated)\n",
+                    "  verified: {:.2} dB / SSIM {:.3} ({:+.2} dB over uncompensated): when it was \
+                     installed, the camera's view of held-out images it compensated against the \
+                     views they should give\n",
                     v.psnr, v.ssim, v.gain_db
                 );
             }
@@ -287,7 +289,9 @@ fn describe(s: &Status) -> String {
     let m = &s.monitoring;
     if let Some(p) = m.psnr {
         out += &format!(
-            "monitoring: {p:.2} dB (baseline {:.2} dB) {:.0} s ago, {} checks{}\n",
+            "monitoring: {p:.2} dB (baseline {:.2} dB) {:.0} s ago, {} checks{}: now, the \
+             camera's view of what plays against what should show; a fall past the threshold \
+             below the baseline is drift\n",
             m.baseline_psnr.unwrap_or(f64::NAN),
             m.age_s.unwrap_or(0.0),
             m.checks,

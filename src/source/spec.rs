@@ -129,9 +129,11 @@ pub const VIDEO_EXTENSIONS: &[&str] = &[
     "flv", "wmv",
 ];
 
+/// A source that cannot be parsed. The message names the source, not a flag: it reaches the
+/// command line (`--source`), the configuration (`[playback] source`) and socket clients alike.
 fn bad(spec: &str, why: impl std::fmt::Display) -> Error {
     Error::Input(format!(
-        "--source {spec:?}: {why} (see `compend play --help` for the spellings)"
+        "source {spec:?}: {why} (the spellings: `compend play --help`)"
     ))
 }
 
