@@ -1060,8 +1060,8 @@ struct RoundsDone {
 /// sampling pairs on disk (`on_disk` captures), fits the `linear` rung on the sampling pairs of each round in turn,
 /// scores it on the test pairs in camera space, and captures the next round's while
 /// [`Rounds::next`] asks for one, growing the manifest's pattern set first (a killed run
-/// resumes from it, and scores its rounds again from the first). The projector holds the last
-/// pattern while a round is fitted.
+/// resumes from it, and scores its rounds again from the first; the pairs it had taken are all
+/// used). The projector holds the last pattern while a round is fitted.
 fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
     (root, setup): (&DataRoot, &Setup),
@@ -1119,6 +1119,9 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         curve.push(score);
         match rounds.next(&curve) {
             Ok(next) => pairs = next,
+            // An interrupted run had taken more rounds (the rule, scored afresh, may land
+            // elsewhere by a rounding): the pairs on disk are all used, their round scored.
+            Err(_) if pairs < manifest.patterns.ntrain => pairs = manifest.patterns.ntrain,
             Err(why) => {
                 return Ok(RoundsDone {
                     curve: SamplingCurve {
