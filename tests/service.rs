@@ -779,6 +779,14 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
     // `config check` says so too, as it does of a scene that does not exist and of a data path
     // that is a file.
     let config = write_config(dir.path(), "curved", 0, "", "");
+    // A good file on the virtual rig: OK, and a word that the rig is simulated.
+    let o = compend(&["config", "check", config.to_str().unwrap()]);
+    assert_code(&o, 0);
+    assert!(
+        stdout(&o).contains("note: [rig] kind = \"virtual\" is a simulated projector"),
+        "{}",
+        stdout(&o)
+    );
     let model = dir.path().join("state/model");
     std::fs::create_dir_all(&model).unwrap();
     std::fs::write(model.join("notes.txt"), "mine").unwrap();

@@ -422,6 +422,24 @@ fn check(file: &Path, json: bool) -> Result<()> {
             c.paths.state.display(),
             c.socket.path.display()
         );
+        // The shipped file tries compend on the virtual rig; a projection PC changes it.
+        let simulated = match c.rig.kind {
+            compend::config::RigKind::Virtual => {
+                Some(("virtual", "a simulated projector and camera"))
+            }
+            compend::config::RigKind::Window => Some((
+                "window",
+                "the projector window watched by a simulated camera",
+            )),
+            compend::config::RigKind::Camera => None,
+        };
+        if let Some((kind, what)) = simulated {
+            println!(
+                "note: [rig] kind = \"{kind}\" is {what}, for trying compend; for the \
+                 projector and a camera set kind = \"camera\", camera and monitor (`compend \
+                 cameras` lists the cameras)"
+            );
+        }
     }
     Ok(())
 }
