@@ -389,6 +389,37 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
         "{shown} then {s}"
     );
     assert!(svc.log().contains("swapped in"), "{}", svc.log());
+    assert!(
+        !r["message"].as_str().unwrap().contains("calibrated on"),
+        "its own model: {r}"
+    );
+    // A model calibrated on another rig (another surface) is swapped in as asked, with a word.
+    let other = dir.path().join("other-model");
+    std::fs::create_dir(&other).unwrap();
+    for name in ["model.safetensors", "model.json"] {
+        std::fs::copy(model.join(name), other.join(name)).unwrap();
+    }
+    let mut meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(other.join("model.json")).unwrap()).unwrap();
+    meta["calibration"]["rig"] = serde_json::json!("virtual:white-plane");
+    std::fs::write(other.join("model.json"), meta.to_string()).unwrap();
+    let r = svc.ask(&format!(
+        r#"{{"cmd":"model","path":"{}"}}"#,
+        other.display()
+    ));
+    assert_eq!(r["ok"], true, "{r}");
+    assert!(
+        r["message"].as_str().unwrap().contains(
+            "warning: it was calibrated on virtual:white-plane, not on this rig \
+                       (virtual:textured-plane)"
+        ),
+        "{r}"
+    );
+    let r = svc.ask(&format!(
+        r#"{{"cmd":"model","path":"{}"}}"#,
+        model.display()
+    ));
+    assert_eq!(r["ok"], true, "{r}");
 
     // Half a request, then a hang-up: nothing breaks.
     {

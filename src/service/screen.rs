@@ -150,6 +150,8 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     pub(super) audio: AudioOut,
     /// The folders requests may name files in.
     pub(super) allowed: Allowed,
+    /// This service's rig (`rig_name`): a model swapped in from another is named.
+    pub(super) rig_name: String,
 }
 
 impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
@@ -189,6 +191,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             checking: None,
             audio: AudioOut::default(),
             allowed: Allowed::default(),
+            rig_name: String::new(),
         }
     }
 
@@ -387,8 +390,12 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             tap.reset();
             self.next_check = Instant::now() + Duration::from_millis(500).min(self.period);
         }
+        let warning = super::engine::other_rig(&model, &self.rig_name).map_or(String::new(), |w| {
+            tracing::warn!("{}: {w}", super::clipped(&l.path.display().to_string()));
+            format!("; {w}")
+        });
         l.envelope.answer(Reply::ok(format!(
-            "swapped in {} while playing (loaded in {seconds:.2} s)",
+            "swapped in {} while playing (loaded in {seconds:.2} s){warning}",
             l.path.display()
         )));
         self.swapped = Some((l.path, model));

@@ -359,19 +359,31 @@ impl Engine {
                 .model(path)
                 .and_then(|()| self.use_model(path))
             {
-                // Paused stays paused: the projector stays dark until the operator plays.
-                Ok(()) if self.io.shared.status().state == State::Paused => Reply::ok(format!(
-                    "paused; {} is the model now, and compend play shows {} with it",
-                    path.display(),
-                    self.source.describe()
-                )),
                 Ok(()) => {
-                    self.next = Next::Play;
-                    Reply::ok(format!(
-                        "playing {} with {}",
-                        self.source.describe(),
-                        path.display()
-                    ))
+                    let warning = self
+                        .model
+                        .as_ref()
+                        .and_then(|m| other_rig(m, &rig_name(&self.config)))
+                        .map_or(String::new(), |w| {
+                            tracing::warn!("{}: {w}", clipped(&path.display().to_string()));
+                            format!("; {w}")
+                        });
+                    // Paused stays paused: the projector stays dark until the operator plays.
+                    if self.io.shared.status().state == State::Paused {
+                        Reply::ok(format!(
+                            "paused; {} is the model now, and compend play shows {} with \
+                             it{warning}",
+                            path.display(),
+                            self.source.describe()
+                        ))
+                    } else {
+                        self.next = Next::Play;
+                        Reply::ok(format!(
+                            "playing {} with {}{warning}",
+                            self.source.describe(),
+                            path.display()
+                        ))
+                    }
                 }
                 Err(e) => Reply::error(e.to_string()),
             },
@@ -551,6 +563,7 @@ impl Engine {
                         output: output.clone(),
                         audio: audio.clone(),
                         allowed: Allowed::of(&self.config),
+                        rig: rig_name(&self.config),
                     },
                 )
             }
@@ -569,6 +582,7 @@ impl Engine {
                         output: output.clone(),
                         audio: audio.clone(),
                         allowed: Allowed::of(&self.config),
+                        rig: rig_name(&self.config),
                     },
                 )
             }
@@ -737,6 +751,7 @@ fn play_virtual(
     screen.drift = around.bump;
     screen.audio = around.audio;
     screen.allowed = around.allowed;
+    screen.rig_name = around.rig;
     screen.media = player.feed.control().cloned();
     let stats = player.run(&mut screen, None);
     screen.settle();
@@ -823,6 +838,7 @@ fn play_hardware(
         screen.drift = around.bump;
         screen.audio = around.audio;
         screen.allowed = around.allowed;
+        screen.rig_name = around.rig;
         if watcher.is_some() {
             screen.changes = Some(tx);
         }
@@ -863,6 +879,24 @@ struct Around<'a> {
     audio: source::AudioOut,
     /// The folders requests may name files in.
     allowed: Allowed,
+    /// This service's rig ([`rig_name`]): a model swapped in from another is named.
+    rig: String,
+}
+
+/// A word for the operator when `model` was calibrated on another rig than `rig` (this
+/// service's, [`rig_name`]: `virtual:SCENE`, `window:SCENE`, `camera:DEVICE`): its geometry and
+/// colours are another surface's. `None` for a model of this rig, or one trained offline (no
+/// calibration record). The virtual rig's seed is not in the name, so a model of the same scene
+/// with another seed is not told apart.
+pub(super) fn other_rig(model: &Model, rig: &str) -> Option<String> {
+    let c = model.meta.calibration.as_ref()?;
+    (c.rig != rig).then(|| {
+        format!(
+            "warning: it was calibrated on {}, not on this rig ({rig}): its geometry and colours \
+             are that surface's; recalibrate, or swap a model of this rig back",
+            c.rig
+        )
+    })
 }
 
 /// Starts `[output] to` for a playback on a display of `size` at `fps`: a file goes to the
