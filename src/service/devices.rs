@@ -28,7 +28,22 @@ pub fn rig_name(config: &Config) -> String {
     }
 }
 
-/// The virtual rig: its projector and camera, the scene, and a GPU for the pass.
+/// A word for the operator when `model` was calibrated on another rig than `rig` (this
+/// service's, [`rig_name`]: `virtual:SCENE`, `window:SCENE`, `camera:DEVICE`): its geometry and
+/// colours are another surface's. `None` for a model of this rig, or one trained offline (no
+/// calibration record). The virtual rig's seed is not in the name, so a model of the same scene
+/// with another seed is not told apart.
+pub(super) fn other_rig(model: &crate::model::Model, rig: &str) -> Option<String> {
+    let c = model.meta.calibration.as_ref()?;
+    (c.rig != rig).then(|| {
+        format!(
+            "warning: it was calibrated on {}, not on this rig ({rig}): its geometry and colours \
+             are that surface's; recalibrate, or swap a model of this rig back",
+            c.rig
+        )
+    })
+}
+
 pub(super) struct VirtualDevices {
     pub(super) rig: VirtualRig,
     pub(super) scene: Scene,

@@ -390,10 +390,11 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             tap.reset();
             self.next_check = Instant::now() + Duration::from_millis(500).min(self.period);
         }
-        let warning = super::engine::other_rig(&model, &self.rig_name).map_or(String::new(), |w| {
-            tracing::warn!("{}: {w}", super::clipped(&l.path.display().to_string()));
-            format!("; {w}")
-        });
+        let warning =
+            super::devices::other_rig(&model, &self.rig_name).map_or(String::new(), |w| {
+                tracing::warn!("{}: {w}", super::clipped(&l.path.display().to_string()));
+                format!("; {w}")
+            });
         l.envelope.answer(Reply::ok(format!(
             "swapped in {} while playing (loaded in {seconds:.2} s){warning}",
             l.path.display()

@@ -27,7 +27,7 @@ mod calibration;
 mod setup;
 
 pub use super::devices::rig_name;
-use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure};
+use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure, other_rig};
 use super::monitor::{self, Tap};
 use super::notify::Notifier;
 use super::opening::{Allowed, Opened, Opening};
@@ -881,22 +881,6 @@ struct Around<'a> {
     allowed: Allowed,
     /// This service's rig ([`rig_name`]): a model swapped in from another is named.
     rig: String,
-}
-
-/// A word for the operator when `model` was calibrated on another rig than `rig` (this
-/// service's, [`rig_name`]: `virtual:SCENE`, `window:SCENE`, `camera:DEVICE`): its geometry and
-/// colours are another surface's. `None` for a model of this rig, or one trained offline (no
-/// calibration record). The virtual rig's seed is not in the name, so a model of the same scene
-/// with another seed is not told apart.
-pub(super) fn other_rig(model: &Model, rig: &str) -> Option<String> {
-    let c = model.meta.calibration.as_ref()?;
-    (c.rig != rig).then(|| {
-        format!(
-            "warning: it was calibrated on {}, not on this rig ({rig}): its geometry and colours \
-             are that surface's; recalibrate, or swap a model of this rig back",
-            c.rig
-        )
-    })
 }
 
 /// Starts `[output] to` for a playback on a display of `size` at `fps`: a file goes to the
