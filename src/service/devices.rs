@@ -44,6 +44,7 @@ pub(super) fn other_rig(model: &crate::model::Model, rig: &str) -> Option<String
     })
 }
 
+/// The virtual rig: its projector and camera, the scene, and a GPU for the pass.
 pub(super) struct VirtualDevices {
     pub(super) rig: VirtualRig,
     pub(super) scene: Scene,
