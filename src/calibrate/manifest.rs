@@ -227,34 +227,25 @@ impl Manifest {
             ntrain: first.min(patterns.ntrain),
             ..patterns.clone()
         };
-        match recorded::<Manifest>(setup, "move the folder away to calibrate anew")? {
-            Some(m)
-                if m.patterns.ntrain <= patterns.ntrain
-                    && m.patterns
-                        == PatternSet {
-                            ntrain: m.patterns.ntrain,
-                            ..patterns.clone()
-                        } =>
-            {
-                Self::open(setup, &m.patterns)
-            }
-            Some(m)
-                if m.patterns
-                    == PatternSet {
-                        ntrain: m.patterns.ntrain,
-                        ..patterns.clone()
-                    } =>
-            {
-                Err(Error::Input(format!(
-                    "{}: these captures are of {} sampling images, more than the {} sampling \
-                     rounds take; calibrate there with --ntrain {} (or [calibration] ntrain), or \
-                     choose another data folder",
-                    setup.display(),
-                    m.patterns.ntrain,
-                    patterns.ntrain,
-                    m.patterns.ntrain
-                )))
-            }
+        // The same pattern set but for its count of sampling images.
+        let same_set = |m: &Manifest| {
+            m.patterns
+                == PatternSet {
+                    ntrain: m.patterns.ntrain,
+                    ..patterns.clone()
+                }
+        };
+        match recorded::<Manifest>(setup, "the sampling rounds resume from it")? {
+            Some(m) if same_set(&m) && m.patterns.ntrain <= patterns.ntrain => Ok(m),
+            Some(m) if same_set(&m) => Err(Error::Input(format!(
+                "{}: these captures are of {} sampling images, more than the {} sampling \
+                 rounds take; calibrate there with --ntrain {} (or [calibration] ntrain), or \
+                 choose another data folder",
+                setup.display(),
+                m.patterns.ntrain,
+                patterns.ntrain,
+                m.patterns.ntrain
+            ))),
             Some(m) => Err(Error::Input(format!(
                 "{}: these captures belong to another pattern set ({}; this calibration \
                  projects {} in rounds of up to {} training images); choose another data folder \
