@@ -180,11 +180,11 @@ impl AudioConfig {
 pub struct OutputConfig {
     /// `file:PATH` (each playback to `NAME-NNNN.EXT` beside it) or `gst:PIPELINE`; None: off.
     #[serde(serialize_with = "output_or_none")]
-    pub to: Option<crate::media::output::OutputSpec>,
+    pub to: Option<crate::output::OutputSpec>,
 }
 
 fn output_or_none<S: serde::Serializer>(
-    v: &Option<crate::media::output::OutputSpec>,
+    v: &Option<crate::output::OutputSpec>,
     s: S,
 ) -> std::result::Result<S::Ok, S::Error> {
     match v {
@@ -552,7 +552,7 @@ impl<'t> Walker<'t> {
         let mut t = self.table(root, "output");
         let output = OutputConfig {
             to: self.parsed_with(&mut t, "to", |s| {
-                crate::media::output::OutputSpec::parse(s).map_err(|e| e.to_string())
+                crate::output::OutputSpec::parse(s).map_err(|e| e.to_string())
             }),
         };
         self.finish(t);
@@ -1637,9 +1637,7 @@ mod tests {
         let c = parse("[output]\nto = \"gst:fakesink\"\n").unwrap();
         assert_eq!(
             c.output.to,
-            Some(crate::media::output::OutputSpec::Pipeline(
-                "fakesink".into()
-            ))
+            Some(crate::output::OutputSpec::Pipeline("fakesink".into()))
         );
     }
 

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::raster::ImageSize;
+use crate::size::ImageSize;
 
 /// Result alias used throughout the library.
 pub type Result<T, E = Error> = std::result::Result<T, E>;

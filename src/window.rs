@@ -7,7 +7,7 @@
 //! non-sRGB surface format, so the bytes on screen are the frame's bytes). The window is also a
 //! [`DisplaySink`] (for the capture protocol): `show` uploads a CPU image and presents it.
 //!
-//! The window is a [`Screen`] of the playback loop ([`crate::playback::player`]): the loop pumps
+//! The window is a [`Screen`] of the playback loop ([`crate::player`]): the loop pumps
 //! its events ([`ProjectorWindow::pump`]) before each refresh and presents the pass's output at
 //! the monitor's vsync. Under Xvfb (no window manager) a fullscreen request keeps the default
 //! size, so the window is also placed at the monitor's origin and sized to the monitor
@@ -35,7 +35,7 @@ use winit::window::{Fullscreen, Window, WindowId};
 use crate::device::DisplaySink;
 use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, FRAME_FORMAT, GpuContext};
-use crate::playback::player::{Refresh, Screen, Show};
+use crate::player::{Refresh, Screen, Show};
 use crate::raster::{ImageSize, PrjImage};
 use blit::Blit;
 use record::{Pacer, Pending, Recorder};
@@ -125,7 +125,8 @@ impl ApplicationHandler for App {
             }
             Err(e) => {
                 self.error = Some(Error::Failed(format!(
-                    "cannot open the projector window: {e}"
+                    "cannot open the projector window: {}",
+                    winit_words(&e)
                 )))
             }
         }
@@ -189,9 +190,12 @@ fn open_window(monitor: Option<&str>) -> Result<(EventLoop<()>, App, Arc<Window>
         use winit::platform::x11::EventLoopBuilderExtX11;
         builder.with_any_thread(true);
     }
-    let mut event_loop = builder
-        .build()
-        .map_err(|e| Error::Failed(format!("no display for the projector window: {e}")))?;
+    let mut event_loop = builder.build().map_err(|e| {
+        Error::Failed(format!(
+            "no display for the projector window: {}",
+            winit_words(&e)
+        ))
+    })?;
     let mut app = App {
         monitor: monitor.map(str::to_string),
         ..App::default()
@@ -511,5 +515,34 @@ impl Screen for ProjectorWindow {
             eprintln!("play: first frame presented");
         }
         Ok(())
+    }
+}
+
+/// A winit error in words for the operator: winit's OS errors say where in winit's own source
+/// they were raised (`os error at /…/winit-0.30.13/src/….rs:765: …`), which helps no one
+/// setting up a projector; that place is left out.
+fn winit_words(e: &dyn std::fmt::Display) -> String {
+    let text = e.to_string();
+    if let Some(rest) = text.strip_prefix("os error at ")
+        && let Some(i) = rest.find(".rs:")
+        && let Some(j) = rest[i + 4..].find(": ")
+    {
+        return rest[i + 4 + j + 2..].to_string();
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_winit_error_leaves_out_where_in_winit_it_was_raised() {
+        let e = "os error at /root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/\
+                 winit-0.30.13/src/platform_impl/linux/mod.rs:765: neither WAYLAND_DISPLAY nor \
+                 WAYLAND_SOCKET nor DISPLAY is set.";
+        assert_eq!(
+            super::winit_words(&e),
+            "neither WAYLAND_DISPLAY nor WAYLAND_SOCKET nor DISPLAY is set."
+        );
+        assert_eq!(super::winit_words(&"a plain error"), "a plain error");
     }
 }

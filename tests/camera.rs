@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use compend::calibrate::sync::{Capturer, Latency, MAX_RECONNECTS, SyncSettings};
+use compend::calibrate::sync::{Capturer, MAX_RECONNECTS, SyncSettings};
 use compend::camera::controls::{Outcome, Role, cid};
 use compend::camera::format::v4l2_codes::QUANTIZATION_FULL_RANGE;
 use compend::camera::{
@@ -18,6 +18,7 @@ use compend::camera::{
 };
 use compend::device::{DisplaySink, FrameSource};
 use compend::raster::{ImageSize, PrjImage};
+use compend::record::Latency;
 
 use crate::common::{assert_code, compend, stderr, stdout};
 use fake::{Event, FakeOpener, Shared, offer, script};
@@ -252,7 +253,6 @@ fn capturer_settings() -> (Latency, SyncSettings) {
         settle_frames: 0,
         black_level: 0.0,
         white_level: 1.0,
-        clock: None,
     };
     let sync = SyncSettings {
         average: 2,

@@ -6,7 +6,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use compend::playback::player::{PlayStats, Player, Refresh, Screen, Show};
+use compend::player::{PlayStats, Player, Refresh, Screen, Show};
 use compend::raster::ImageSize;
 
 use crate::common::{assert_code, compend, gpu, stderr};

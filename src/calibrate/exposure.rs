@@ -7,11 +7,10 @@
 //! follow the sensor signal through the camera's response (`v ≈ s^(1/γ)`, γ ≈ 2.2), so the
 //! exposure is scaled by `(target / level)^γ` and measured again, a few times at most.
 
-use serde::{Deserialize, Serialize};
-
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::Result;
 use crate::raster::{CamImage, PrjImage};
+use crate::record::ExposureReport;
 
 /// Where the brightest lit pixels should sit (encoded units), and how close is close enough.
 const TARGET: f64 = 0.93;
@@ -20,16 +19,6 @@ const TOLERANCE: f64 = 0.03;
 const STEPS: usize = 6;
 /// Exposures waited after each change (the new exposure and the shown frame reach the camera).
 const WAIT_FRAMES: u64 = 12;
-
-/// What ranging chose, in the camera's exposure units.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ExposureReport {
-    pub initial: f64,
-    pub chosen: f64,
-    /// The 99.5th percentile of the lit pixels' brightest channel under white, at `chosen`.
-    pub bright_level: f64,
-    pub steps: usize,
-}
 
 /// Ranges the exposure when the camera has a manual one; `None` when it has not (its exposure
 /// is fixed or automatic: the saturation check of the latency phase still applies).

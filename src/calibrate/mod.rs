@@ -30,7 +30,6 @@
 
 pub mod clock;
 pub mod exposure;
-pub mod manifest;
 mod pipeline;
 pub mod progress;
 pub mod rounds;
@@ -48,15 +47,18 @@ use crate::error::{Error, Result};
 use crate::fit::{self, Request};
 use crate::fov;
 use crate::metrics::Accumulator;
-use crate::model::store::{CalibrationRecord, ClosedLoopScore, PhaseSeconds, Verification};
 use crate::model::{MethodChoice, Model};
 use crate::patterns::{self, Set};
 use crate::playback::place_on_canvas;
 use crate::raster::{CamImage, PrjImage, Rect};
+use crate::record::{
+    CalibrationRecord, CaptureFloor, ClosedLoopScore, ExposureReport, Latency, PhaseSeconds,
+    RoundScore, SamplingCurve, Verification,
+};
 
-pub use manifest::{Manifest, PatternSet};
-pub use rounds::{Rounds, SamplingCount, SamplingCurve};
-pub use sync::{Capturer, Latency, SyncSettings};
+pub use crate::dataset::manifest::{Manifest, PatternSet};
+pub use rounds::{Rounds, SamplingCount};
+pub use sync::{Capturer, SyncSettings};
 
 /// The setup folder's name under the data root.
 pub const SETUP_NAME: &str = "capture";
@@ -301,7 +303,8 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             theirs.display()
         )));
     }
-    let mut capturer = Capturer::new(display, camera, &captured.latency, opts.sync);
+    let mut capturer =
+        Capturer::new(display, camera, &captured.latency, opts.sync).with_clock(captured.clock);
     let psize = capturer.projector_size();
     let canvas = Rect::covering(psize);
     // Closed-loop images all sit in the display range, so two in a row can look alike to the
@@ -547,8 +550,10 @@ pub struct Captured {
     root: DataRoot,
     setup: PathBuf,
     desired: Desired,
-    exposure: Option<exposure::ExposureReport>,
+    exposure: Option<ExposureReport>,
     latency: Latency,
+    /// The camera's clock as the latency measurement mapped it ([`Capturer::with_clock`]).
+    clock: Option<clock::CameraClock>,
     captured: usize,
     resumed: usize,
     retakes: usize,
@@ -572,7 +577,7 @@ pub struct Captured {
     /// takes it when its first fit is that very fit.
     round_model: Option<Model>,
     /// Every capture's time against its floor, over the phases so far.
-    floor: sync::CaptureFloor,
+    floor: CaptureFloor,
     /// The `linear` geometry the fits of [`train`] and [`refit`] share (they see the same
     /// sampling pairs first).
     geometry: Arc<crate::linear::GeometryMemo>,
@@ -622,7 +627,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 
     // The patterns are written while the exposure and the latency are measured: those show
     // only black and white.
-    let (exposure, latency, root) = std::thread::scope(|s| -> Result<_> {
+    let (exposure, (latency, clock), root) = std::thread::scope(|s| -> Result<_> {
         let writing = s.spawn(|| -> Result<(DataRoot, f64)> {
             let t = Instant::now();
             let root = DataRoot::create(data)?;
@@ -646,7 +651,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             opts.check_cancelled()?;
             let t = Instant::now();
             progress("latency", 0, 1);
-            let latency = sync::measure_latency(display, camera, &opts.sync)?;
+            let (latency, clock) = sync::measure_latency(display, camera, &opts.sync)?;
             seconds.latency = t.elapsed().as_secs_f64();
             tracing::info!(
                 "latency: {:?} camera exposures over {} switches; skipping {} per capture",
@@ -654,15 +659,15 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
                 latency.trials.len(),
                 latency.settle_frames
             );
-            Ok((exposure, latency))
+            Ok((exposure, latency, clock))
         })();
         let written = writing
             .join()
             .unwrap_or_else(|_| Err(Error::Failed("the pattern writer panicked".into())));
-        let (exposure, latency) = measured?;
+        let (exposure, latency, clock) = measured?;
         let (root, patterns_s) = written?;
         seconds.patterns = patterns_s;
-        Ok((exposure, latency, root))
+        Ok((exposure, (latency, clock), root))
     })?;
     let setup = Setup::create(&root, Path::new(SETUP_NAME))?;
 
@@ -673,7 +678,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         None => start_prefit(&root, &setup, opts, &geometry),
         Some(_) => (None, None),
     };
-    let mut capturer = Capturer::new(display, camera, &latency, opts.sync);
+    let mut capturer = Capturer::new(display, camera, &latency, opts.sync).with_clock(clock);
     let (mut captured, mut resumed) = capture_all(
         &mut capturer,
         (&root, &setup),
@@ -733,6 +738,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         desired,
         exposure,
         latency,
+        clock,
         captured,
         resumed,
         retakes,
@@ -858,6 +864,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         desired,
         exposure,
         latency,
+        clock,
         captured,
         resumed,
         retakes,
@@ -876,7 +883,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     } = captured;
     opts.check_cancelled()?;
     let t = Instant::now();
-    let mut capturer = Capturer::new(display, camera, &latency, opts.sync);
+    let mut capturer = Capturer::new(display, camera, &latency, opts.sync).with_clock(clock);
     let models: Vec<&Model> = std::iter::once(&model).chain(lower_rung.as_ref()).collect();
     let views = &desired.views;
     let mut verifications = verify(
@@ -1071,7 +1078,7 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     progress: Progress,
 ) -> Result<RoundsDone> {
     let tests = setup.load_test(Some(manifest.patterns.ntest))?;
-    let mut curve: Vec<rounds::RoundScore> = Vec::new();
+    let mut curve: Vec<RoundScore> = Vec::new();
     let (mut captured, mut resumed) = (0, 0);
     let mut pairs = rounds.first;
     loop {
@@ -1103,7 +1110,7 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         let mse = crate::model::forward_mse(&model, &tests)?.ok_or_else(|| {
             Error::Failed("the sampling round's linear fit has no forward model".into())
         })?;
-        let score = rounds::RoundScore {
+        let score = RoundScore {
             pairs,
             mse,
             psnr: crate::metrics::psnr_from_mse(mse),

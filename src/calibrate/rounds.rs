@@ -17,6 +17,8 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+use crate::record::RoundScore;
+
 /// Sampling pairs of the first round.
 pub const FIRST_ROUND: usize = 16;
 /// Sampling pairs each later round adds.
@@ -178,49 +180,6 @@ pub fn rounds_for(count: SamplingCount, loops_asked: Option<usize>) -> Option<Ro
     match count {
         SamplingCount::Count(_) => None,
         SamplingCount::Auto => Some(Rounds::new(MOST_PAIRS, loops_asked.is_none())),
-    }
-}
-
-/// One round of `ntrain = auto`: the `linear` rung on its sampling pairs, scored on the
-/// held-out test pairs in camera space.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RoundScore {
-    /// Sampling pairs fitted on.
-    pub pairs: usize,
-    /// Held-out mean squared error, camera values (encoded) in \[0, 1\].
-    pub mse: f64,
-    /// The same as a PSNR, dB.
-    pub psnr: f64,
-    /// The fit and its score, seconds.
-    pub seconds: f64,
-}
-
-/// How `ntrain = auto` chose the sampling pairs (`model.json`, `calibration.sampling`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SamplingCurve {
-    pub rule: String,
-    pub rounds: Vec<RoundScore>,
-    /// Sampling pairs taken.
-    pub chosen: usize,
-    /// Why no other round was taken.
-    pub why: String,
-}
-
-impl SamplingCurve {
-    /// One line for people: the rounds' pairs and scores, the count kept and why.
-    pub fn line(&self) -> String {
-        let rounds: Vec<String> = self
-            .rounds
-            .iter()
-            .map(|r| format!("{} pairs {:.2} dB", r.pairs, r.psnr))
-            .collect();
-        format!(
-            "sampling rounds (held-out camera-space PSNR of the linear rung): {}; {} sampling \
-             pairs kept: {}",
-            rounds.join(", "),
-            self.chosen,
-            self.why
-        )
     }
 }
 

@@ -161,7 +161,7 @@ impl Runs {
             .map(|e| e.path())
             .filter(|p| {
                 p.join(super::SETUP_NAME)
-                    .join(super::manifest::MANIFEST_FILE)
+                    .join(crate::dataset::manifest::MANIFEST_FILE)
                     .is_file()
             })
             .filter(|p| holds_only_calibration(p))
@@ -321,7 +321,7 @@ mod tests {
         for d in &made {
             let setup = d.join(crate::calibrate::SETUP_NAME);
             std::fs::create_dir_all(&setup).unwrap();
-            std::fs::write(setup.join(crate::calibrate::manifest::MANIFEST_FILE), "{}").unwrap();
+            std::fs::write(setup.join(crate::dataset::manifest::MANIFEST_FILE), "{}").unwrap();
         }
         let lookalike = dir.path().join("run-19990101-000000");
         std::fs::create_dir_all(&lookalike).unwrap();

@@ -21,6 +21,7 @@ use super::clock::{CameraClock, Timed};
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
 use crate::raster::{CamImage, ImageSize, PrjImage};
+use crate::record::{CaptureFloor, Latency};
 
 /// Most frames skipped as exposed before a show: more than a camera's capture buffers (4 for
 /// compend's V4L2 camera).
@@ -54,21 +55,6 @@ impl Default for SyncSettings {
             max_wait_frames: 120,
         }
     }
-}
-
-/// What the latency measurement found, in camera exposures.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Latency {
-    /// Exposures from the first frame after each switch to the first frame showing it.
-    pub trials: Vec<u64>,
-    /// The worst trial plus the margin: exposures skipped after every show.
-    pub settle_frames: u64,
-    /// Mean camera level (encoded, \[0,1\]) under black and under white.
-    pub black_level: f64,
-    pub white_level: f64,
-    /// The camera's clock, when it runs in real time (not recorded).
-    #[serde(skip)]
-    pub clock: Option<CameraClock>,
 }
 
 /// Mean of all values of a camera image (encoded units).
@@ -105,7 +91,7 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
     settings: &SyncSettings,
-) -> Result<Latency> {
+) -> Result<(Latency, Option<CameraClock>)> {
     let camera = &mut Timed::new(camera);
     let size = display.size();
     let black = PrjImage::new(size.width, size.height);
@@ -145,13 +131,13 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         trials.push(f.seq - first.seq);
     }
     let worst = trials.iter().copied().max().unwrap_or(0);
-    Ok(Latency {
+    let latency = Latency {
         trials,
         settle_frames: worst + settings.margin_frames,
         black_level,
         white_level,
-        clock: camera.clock(),
-    })
+    };
+    Ok((latency, camera.clock()))
 }
 
 /// Whether the camera sees the projector well enough to calibrate, from its mean levels and a
@@ -247,6 +233,9 @@ pub struct Capturer<'a, D: ?Sized, C: ?Sized> {
     latency_frames: u64,
     /// What the captures took against their floor.
     pub floor: CaptureFloor,
+    /// First and last frame seen: (sequence number, timestamp in seconds), for the camera's
+    /// measured rate ([`CaptureFloor::fps`]).
+    span: Option<((u64, f64), (u64, f64))>,
     /// Captures retaken because a check failed.
     pub retakes: usize,
     /// Times the camera went away during a capture and was opened again (the capture was
@@ -270,14 +259,24 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
             camera,
             settings,
             settle: latency.settle_frames,
-            clock: latency.clock,
+            clock: None,
             previous: None,
             noise: 0.0,
             latency_frames: latency.trials.iter().copied().max().unwrap_or(0),
             floor: CaptureFloor::default(),
+            span: None,
             retakes: 0,
             reconnects: 0,
         }
+    }
+
+    /// Captures that first skip the frames the camera exposed before each show, by its clock
+    /// as the latency measurement mapped it onto this machine's ([`measure_latency`]); `None`
+    /// (a latency taken from a record, a camera without a real-time clock): by sequence
+    /// numbers alone.
+    pub fn with_clock(mut self, clock: Option<CameraClock>) -> Self {
+        self.clock = clock;
+        self
     }
 
     /// The projector size frames must have.
@@ -310,8 +309,19 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
         if let Some(c) = &mut self.clock {
             c.observe(&f, Instant::now());
         }
-        self.floor.observe(&f);
+        self.observe(&f);
         Ok(f)
+    }
+
+    /// The camera's rate from the frames seen so far, into [`Self::floor`].
+    fn observe(&mut self, f: &crate::device::Frame) {
+        let now = (f.seq, f.timestamp.as_secs_f64());
+        let (first, _) = self.span.unwrap_or((now, now));
+        self.span = Some((first, now));
+        let (frames, secs) = (now.0.saturating_sub(first.0), now.1 - first.1);
+        if frames >= 2 && secs > 0.0 {
+            self.floor.fps = frames as f64 / secs;
+        }
     }
 
     /// Shows `frame` and returns the average of `average` camera frames exposed after it was
@@ -446,54 +456,6 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
     }
 }
 
-/// What captures took against their physical floor: each capture needs the measured latency
-/// plus the frames it averages, at the camera's rate, and nothing else.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct CaptureFloor {
-    /// Captures taken (white frames shown between look-alike pictures included).
-    pub captures: usize,
-    /// Σ (worst measured latency + frames averaged) over them, exposures.
-    pub frames: u64,
-    /// Wall time the captures took, seconds (showing, waiting, grabbing, checking).
-    pub seconds: f64,
-    /// The camera's frame rate measured from its frames' timestamps, Hz (0: not measured).
-    pub fps: f64,
-    /// First and last frame seen: (sequence number, timestamp in seconds).
-    #[serde(skip)]
-    span: Option<((u64, f64), (u64, f64))>,
-}
-
-impl CaptureFloor {
-    fn observe(&mut self, f: &crate::device::Frame) {
-        let now = (f.seq, f.timestamp.as_secs_f64());
-        let (first, _) = self.span.unwrap_or((now, now));
-        self.span = Some((first, now));
-        let (frames, secs) = (now.0.saturating_sub(first.0), now.1 - first.1);
-        if frames >= 2 && secs > 0.0 {
-            self.fps = frames as f64 / secs;
-        }
-    }
-
-    /// The floor in seconds: [`Self::frames`] at the measured rate (0 when not measured).
-    pub fn floor_seconds(&self) -> f64 {
-        if self.fps > 0.0 {
-            self.frames as f64 / self.fps
-        } else {
-            0.0
-        }
-    }
-
-    /// This and `other` together (the rate from whichever measured one).
-    pub fn add(&mut self, other: &CaptureFloor) {
-        self.captures += other.captures;
-        self.frames += other.frames;
-        self.seconds += other.seconds;
-        if self.fps <= 0.0 {
-            self.fps = other.fps;
-        }
-    }
-}
-
 /// The per-pixel mean of same-sized camera images.
 fn average(frames: &[CamImage]) -> Result<CamImage> {
     let first = frames
@@ -582,7 +544,6 @@ mod tests {
             settle_frames: 2,
             black_level: 0.0,
             white_level: 1.0,
-            clock: None,
         };
         let settings = SyncSettings {
             average: 8,

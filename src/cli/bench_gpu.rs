@@ -19,7 +19,7 @@ use compend::gpu::bench::{
 use compend::gpu::{CompensationPass, GpuContext};
 use compend::model::Model;
 use compend::playback::ContentFrame;
-use compend::playback::player::{Headless, PlayStats, Player, WatchedSink};
+use compend::player::{Headless, PlayStats, Player, WatchedSink};
 use compend::raster::ImageSize;
 use compend::rig::{Phase, Simulator, VirtualRig, scene};
 use compend::source::{FeedMode, Pattern, SourceSpec};

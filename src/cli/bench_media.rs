@@ -23,9 +23,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use compend::gpu::GpuContext;
-use compend::media::output::{MediaOutput, OutputSpec, Teed};
 use compend::model::Model;
-use compend::playback::player::{Headless, PlayStats, Player, ViewSink, WatchedSink};
+use compend::output::{MediaOutput, OutputSpec, Teed};
+use compend::player::{Headless, PlayStats, Player, ViewSink, WatchedSink};
 use compend::raster::ImageSize;
 use compend::source::{AudioOut, FeedMode, MediaSpec, Playlist, PlaylistItem, SourceSpec};
 use gstreamer as gst;

@@ -11,17 +11,15 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use compend::calibrate::runs::Runs;
-use compend::calibrate::{self, Calibrated, Options, PatternSet, SyncSettings};
-use compend::config::{Config, RigKind};
+use compend::calibrate::{self, Calibrated};
+use compend::config::{CalibrationConfig, Config, RigConfig, RigKind};
 use compend::device::{DisplaySink, FrameSource};
 use compend::model::MethodChoice;
 use compend::raster::ImageSize;
-use compend::rig::VirtualRig;
 use compend::rig::scene::{self, Scene};
 use compend::rig::window_camera::WindowCamera;
+use compend::rigs::{self, Given, Opened, RigClock};
 use compend::window::ProjectorWindow;
-
-use super::sim::SceneArgs;
 
 #[derive(clap::Args, Debug)]
 #[command(group(
@@ -167,31 +165,20 @@ struct Settings {
     monitor: Option<String>,
     data: PathBuf,
     out: PathBuf,
-    method: MethodChoice,
-    ntrain: compend::calibrate::SamplingCount,
-    ntest: usize,
-    verify: usize,
-    min_gain: f64,
-    /// `auto`: the margin of the climb to a CompenNet++ rung (the config's `climb_gain_db`).
-    climb_gain: f64,
+    /// What is calibrated and how: the configuration's `[calibration]` (or its defaults) with
+    /// the flags written over it, as the service would take it
+    /// ([`compend::rigs::calibration_options`]).
+    calibration: CalibrationConfig,
+    /// The `[rig]` the flags are written over: the configuration's, or the defaults.
+    base_rig: RigConfig,
+    /// The rig is the configuration's `[rig]` (no --rig or --camera): errors name its keys.
+    rig_from_file: bool,
     /// Iterations of the CompenNet++ rung: `--iters` for one asked for, `--climb-iters` (the
     /// config's `climb_iters`) for the one `auto` climbs to.
     iters: Option<usize>,
-    /// Where a CompenNet++ rung trains (`--device`, the config's `device`).
-    device: compend::fit::TrainDevice,
-    /// Closed-loop pairs (`--loop-images`, the config's `loop_images`).
-    loop_images: usize,
-    /// The closed-loop pairs asked for by flag or configuration (`None`: as many as the
-    /// sampling pairs).
-    loops_asked: Option<usize>,
-    /// `auto`: the refresh rate its climb's live pass is weighed at (`--refresh-hz`, the
-    /// config's `refresh_hz`); `None`: the window's; 0: not weighed.
-    refresh_hz: Option<f64>,
-    average: usize,
     rig_latency_ms: Option<f64>,
     rig_fps: Option<f64>,
     seed: u64,
-    network: ImageSize,
     rig_camera: Option<ImageSize>,
     projector: Option<ImageSize>,
     json: bool,
@@ -299,6 +286,21 @@ impl Settings {
             .or_else(|| file.as_ref().map(|f| f.paths.model.clone()))
             .unwrap_or_else(|| data.join("model"));
         let k = &c.calibration;
+        let calibration = CalibrationConfig {
+            method,
+            ntrain,
+            ntest: a.ntest.unwrap_or(k.ntest),
+            verify: a.verify.unwrap_or(k.verify),
+            min_gain_db: a.min_gain.unwrap_or(k.min_gain_db),
+            average: a.average.unwrap_or(k.average),
+            network: a.network.unwrap_or(k.network),
+            climb_gain_db: a.climb_gain.unwrap_or(k.climb_gain_db),
+            climb_iters: a.climb_iters.or(k.climb_iters),
+            device,
+            loop_images: asked,
+            refresh_hz: a.refresh_hz.or(k.refresh_hz),
+            ..k.clone()
+        };
         Ok(Settings {
             camera_size: a
                 .camera_size
@@ -314,30 +316,19 @@ impl Settings {
             rig_fps: a.rig_fps.or(r.camera_fps.filter(|_| from(&simulated))),
             rig_clock: a.rig_clock,
             rig_camera: a.rig_camera.or(r.camera_size.filter(|_| from(&simulated))),
-            projector: a
-                .projector
-                .or(r.projector.filter(|_| from(&[RigKind::Virtual]))),
+            projector: a.projector.or(r.projector.filter(|_| from(&simulated))),
             rig,
             camera,
             data,
             out,
-            method,
-            ntrain,
-            ntest: a.ntest.unwrap_or(k.ntest),
-            verify: a.verify.unwrap_or(k.verify),
-            min_gain: a.min_gain.unwrap_or(k.min_gain_db),
-            climb_gain: a.climb_gain.unwrap_or(k.climb_gain_db),
             iters: match method {
-                MethodChoice::Auto => a.climb_iters.or(k.climb_iters),
+                MethodChoice::Auto => calibration.climb_iters,
                 MethodChoice::Rung(_) => a.iters,
             },
-            device,
-            loop_images,
-            loops_asked: asked,
-            refresh_hz: a.refresh_hz.or(k.refresh_hz),
-            average: a.average.unwrap_or(k.average),
+            calibration,
+            base_rig: r.clone(),
+            rig_from_file,
             seed: a.seed.unwrap_or(r.seed),
-            network: a.network.unwrap_or(k.network),
             json: a.json,
             runs,
             state: file.map(|f| f.paths.state),
@@ -345,25 +336,16 @@ impl Settings {
     }
 }
 
-/// Which display the patterns go to.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Shows {
-    /// The virtual rig's projector.
-    Virtual,
-    /// The projector window.
-    Window,
-}
-
 /// `virtual[:SCENE]` or `window[:SCENE]`: the kind and the scene name.
-fn parse_rig(rig: &str) -> compend::Result<(Shows, String)> {
+fn parse_rig(rig: &str) -> compend::Result<(RigKind, String)> {
     let (kind, scene) = match rig.split_once(':') {
         None => (rig, "curved"),
         Some((k, s)) if !s.is_empty() => (k, s),
         Some((k, _)) => (k, ""),
     };
     match (kind, scene.is_empty()) {
-        ("virtual", false) => Ok((Shows::Virtual, scene.to_string())),
-        ("window", false) => Ok((Shows::Window, scene.to_string())),
+        ("virtual", false) => Ok((RigKind::Virtual, scene.to_string())),
+        ("window", false) => Ok((RigKind::Window, scene.to_string())),
         _ => Err(compend::Error::Input(format!(
             "--rig {rig:?}: expected `virtual`, `virtual:SCENE`, `window` or `window:SCENE` \
              (scenes: {}); real cameras are not supported by calibrate yet",
@@ -458,7 +440,13 @@ fn dispatch(args: &Settings, out: &Path) -> Result<()> {
             )
             .into());
         }
-        return run_hardware(args, out, &device);
+        let rig = RigConfig {
+            kind: RigKind::Camera,
+            camera: Some(device),
+            camera_size: args.camera_size,
+            ..rig_config(args)
+        };
+        return calibrate_rig(args, out, &rig);
     };
     if args.camera_size.is_some() {
         return Err(compend::Error::Input(
@@ -468,38 +456,33 @@ fn dispatch(args: &Settings, out: &Path) -> Result<()> {
         )
         .into());
     }
-    let (kind, scene_name) = parse_rig(rig)?;
-    match kind {
-        Shows::Virtual => {
-            if args.monitor.is_some() {
-                return Err(compend::Error::Input(
-                    "--monitor: only `--rig window` shows the patterns on a monitor".into(),
-                )
-                .into());
-            }
-            run_virtual(args, out, &scene_name)
-        }
-        Shows::Window => run_window(args, out, &scene_name),
+    let (kind, scene) = parse_rig(rig)?;
+    if kind == RigKind::Virtual && args.monitor.is_some() {
+        return Err(compend::Error::Input(
+            "--monitor: only `--rig window` shows the patterns on a monitor".into(),
+        )
+        .into());
     }
+    let rig = RigConfig {
+        kind,
+        scene,
+        ..rig_config(args)
+    };
+    calibrate_rig(args, out, &rig)
 }
 
-/// The scene with the camera timing of `--rig-fps` and `--rig-latency-ms`, and the projector
-/// size `projector` when given (the window's).
-fn scene_for(args: &Settings, name: &str, projector: Option<ImageSize>) -> Result<Scene> {
-    let scene_args = SceneArgs {
+/// The `[rig]` of this calibration (a virtual one): the configuration's, with the flags written
+/// over it.
+fn rig_config(args: &Settings) -> RigConfig {
+    RigConfig {
         seed: args.seed,
-        camera: args.rig_camera,
+        camera_size: args.rig_camera,
         projector: args.projector,
-        network: args.network,
-    };
-    let mut scene = super::sim::resolve(name, &scene_args)?;
-    if let Some(p) = projector {
-        let camera = scene.camera.size();
-        scene = scene.with_resolution(camera, p);
+        monitor: args.monitor.clone(),
+        camera_fps: args.rig_fps,
+        latency_ms: args.rig_latency_ms,
+        ..args.base_rig.clone()
     }
-    scene = scene.with_timing(args.rig_fps, args.rig_latency_ms);
-    scene.validate()?;
-    Ok(scene)
 }
 
 /// The camera's timing for the log: fps, delay and drops.
@@ -515,143 +498,107 @@ fn describe_camera(scene: &Scene) -> String {
     )
 }
 
-/// Calibrates real hardware: a V4L2 camera looking at the projector window.
-#[cfg(target_os = "linux")]
-fn run_hardware(args: &Settings, out: &Path, device: &Path) -> Result<()> {
-    // The camera first: a missing or wrong device fails before a window opens.
-    let mut camera = compend::camera::V4l2Camera::open(device, args.camera_size)?;
-    let report = camera
-        .lock_for_calibration(&compend::camera::LockSettings::default())
-        .with_context(|| format!("locking the controls of {}", device.display()))?;
-    for line in report.lines() {
-        eprintln!("calibrate: {}: {line}", device.display());
-    }
-    let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
-    let size = DisplaySink::size(&win);
-    eprintln!(
-        "calibrate: projector window {size} at {} Hz on {} ({}), camera {} ({}) into {}",
-        win.refresh_hz(),
-        args.monitor.as_deref().unwrap_or("the primary monitor"),
-        win.context().describe(),
-        device.display(),
-        FrameSource::size(&camera),
-        args.data.display()
-    );
-    let live = window_live_pass(args, &win)?;
-    let done = calibrate_on(
-        &mut win,
-        &mut camera,
-        args,
-        size,
-        format!("camera:{}", device.display()),
-        live,
-    );
-    install(done?, out)
-}
-
-#[cfg(not(target_os = "linux"))]
-fn run_hardware(_: &Settings, _: &Path, device: &Path) -> Result<()> {
-    Err(compend::Error::Input(format!(
-        "--camera {}: V4L2 cameras exist on Linux only",
-        device.display()
-    ))
-    .into())
-}
-
-/// Calibrates on the virtual rig.
-fn run_virtual(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
-    let scene = scene_for(args, scene_name, None)?;
-    let rig = VirtualRig::new(&scene, args.seed)
-        .with_context(|| format!("preparing the virtual rig (scene {scene_name:?})"))?;
-    let rig = match args.rig_clock {
-        RigClock::Wall => rig.on_wall_clock(),
-        RigClock::Simulated => rig,
+/// Opens the rig `rig` ([`compend::rigs::open`], as the service opens its own), calibrates it
+/// and installs the model into `out`.
+fn calibrate_rig(args: &Settings, out: &Path, rig: &RigConfig) -> Result<()> {
+    let given = if args.rig_from_file {
+        Given::File
+    } else {
+        Given::Flags
     };
-    let (mut display, mut camera) = (rig.clone(), rig);
-    eprintln!(
-        "calibrate: virtual rig {scene_name:?} (projector {}, {}) into {}",
-        scene.projector.size(),
-        describe_camera(&scene),
-        args.data.display()
-    );
-    let rig = format!("virtual:{scene_name}");
-    // Its projector plays through no GPU: the climb's live pass is weighed only when asked,
-    // on this machine's GPU.
-    let live = match args.refresh_hz {
-        Some(hz) if hz > 0.0 && args.method == MethodChoice::Auto => {
-            let ctx = compend::gpu::GpuContext::new().with_context(|| {
-                format!(
-                    "opening this machine's GPU to time the climb's live pass at {hz} Hz \
-                     (--refresh-hz, or the configuration's refresh_hz)"
-                )
-            })?;
-            Some(live_pass(ctx, hz)?)
+    let monitor = args.monitor.as_deref().unwrap_or("the primary monitor");
+    match rigs::open(rig, args.rig_clock, given)? {
+        Opened::Virtual { rig: sim, scene } => {
+            eprintln!(
+                "calibrate: virtual rig {:?} (projector {}, {}) into {}",
+                rig.scene,
+                scene.projector.size(),
+                describe_camera(&scene),
+                args.data.display()
+            );
+            // Its projector plays through no GPU: the climb's live pass is weighed only when
+            // asked, on this machine's GPU.
+            let live = match args.calibration.refresh_hz {
+                Some(hz) if hz > 0.0 && args.calibration.method == MethodChoice::Auto => {
+                    let ctx = compend::gpu::GpuContext::new().with_context(|| {
+                        format!(
+                            "opening this machine's GPU to time the climb's live pass at {hz} Hz \
+                             (--refresh-hz, or the configuration's refresh_hz)"
+                        )
+                    })?;
+                    Some(live_pass(ctx, hz)?)
+                }
+                _ => None,
+            };
+            let (mut display, mut camera) = (sim.clone(), sim);
+            let done = calibrate_on(
+                &mut display,
+                &mut camera,
+                args,
+                scene.projector.size(),
+                rig,
+                live,
+            )?;
+            install(done, out)
         }
-        _ => None,
-    };
-    let done = calibrate_on(
-        &mut display,
-        &mut camera,
-        args,
-        scene.projector.size(),
-        rig,
-        live,
-    )?;
-    install(done, out)
-}
-
-/// Calibrates through the projector window, watched by a virtual camera.
-fn run_window(args: &Settings, out: &Path, scene_name: &str) -> Result<()> {
-    let mut win = ProjectorWindow::open(args.monitor.as_deref())?;
-    let size = DisplaySink::size(&win);
-    if let Some(p) = args.projector
-        && p != size
-    {
-        return Err(compend::Error::Input(format!(
-            "--projector {p}: the projector window on {} is {size}; leave --projector out or \
-             pick the monitor of that size",
-            args.monitor.as_deref().unwrap_or("the primary monitor")
-        ))
-        .into());
+        Opened::Window {
+            mut win,
+            mut camera,
+            scene,
+        } => {
+            let size = DisplaySink::size(&win);
+            eprintln!(
+                "calibrate: projector window {size} at {} Hz on {monitor} ({}), virtual camera \
+                 on scene {:?} ({}) into {}",
+                win.refresh_hz(),
+                win.context().describe(),
+                rig.scene,
+                describe_camera(&scene),
+                args.data.display()
+            );
+            let live = window_live_pass(args, &win)?;
+            let done = calibrate_on(&mut win, &mut camera, args, size, rig, live);
+            report_window_timing(&win, &camera, &scene);
+            if let Ok(d) = &done {
+                let l = &scene.latency;
+                let trials = &d.record.latency.trials;
+                let worst = trials.iter().copied().max().unwrap_or(0);
+                eprintln!(
+                    "calibrate: measured latency {worst} exposures = {:.0} ms at {} fps (scene \
+                     delay {:.0} ms)",
+                    worst as f64 / l.fps * 1e3,
+                    l.fps,
+                    l.delay_frames as f64 / l.fps * 1e3
+                );
+            }
+            drop(camera);
+            install(done?, out)
+        }
+        #[cfg(target_os = "linux")]
+        Opened::Camera {
+            mut win,
+            mut camera,
+            device,
+            controls,
+        } => {
+            for line in controls {
+                eprintln!("calibrate: {}: {line}", device.display());
+            }
+            let size = DisplaySink::size(&win);
+            eprintln!(
+                "calibrate: projector window {size} at {} Hz on {monitor} ({}), camera {} ({}) \
+                 into {}",
+                win.refresh_hz(),
+                win.context().describe(),
+                device.display(),
+                FrameSource::size(&camera),
+                args.data.display()
+            );
+            let live = window_live_pass(args, &win)?;
+            let done = calibrate_on(&mut win, &mut camera, args, size, rig, live);
+            install(done?, out)
+        }
     }
-    let scene = scene_for(args, scene_name, Some(size))?;
-    let l = &scene.latency;
-    let mut camera = win
-        .watched_by(&scene, args.seed)
-        .with_context(|| format!("preparing the virtual camera (scene {scene_name:?})"))?;
-    eprintln!(
-        "calibrate: projector window {size} at {} Hz on {} ({}), virtual camera on scene \
-         {scene_name:?} ({}) into {}",
-        win.refresh_hz(),
-        args.monitor.as_deref().unwrap_or("the primary monitor"),
-        win.context().describe(),
-        describe_camera(&scene),
-        args.data.display()
-    );
-    let rig = format!("window:{scene_name}");
-    let live = window_live_pass(args, &win)?;
-    let done = calibrate_on(
-        &mut win,
-        &mut camera,
-        args,
-        scene.projector.size(),
-        rig,
-        live,
-    );
-    report_window_timing(&win, &camera, &scene);
-    if let Ok(d) = &done {
-        let trials = &d.record.latency.trials;
-        let worst = trials.iter().copied().max().unwrap_or(0);
-        eprintln!(
-            "calibrate: measured latency {worst} exposures = {:.0} ms at {} fps (scene delay \
-             {:.0} ms)",
-            worst as f64 / l.fps * 1e3,
-            l.fps,
-            l.delay_frames as f64 / l.fps * 1e3
-        );
-    }
-    drop(camera);
-    install(done?, out)
 }
 
 /// Prints how presenting and the camera went, as `key=value` pairs.
@@ -693,8 +640,8 @@ fn window_live_pass(
     args: &Settings,
     win: &ProjectorWindow,
 ) -> Result<Option<Arc<dyn compend::fit::LivePass>>> {
-    match args.refresh_hz.unwrap_or(win.refresh_hz()) {
-        hz if hz > 0.0 && args.method == MethodChoice::Auto => {
+    match args.calibration.refresh_hz.unwrap_or(win.refresh_hz()) {
+        hz if hz > 0.0 && args.calibration.method == MethodChoice::Auto => {
             Ok(Some(live_pass(win.context().clone(), hz)?))
         }
         _ => Ok(None),
@@ -707,9 +654,9 @@ fn live_pass(ctx: compend::gpu::GpuContext, hz: f64) -> Result<Arc<dyn compend::
         "calibrate: auto climbs only to a rung whose live pass on {} takes at most {} ms ({} \
          of one refresh period at {} Hz)",
         ctx.describe(),
-        compend::model::store::readable(compend::fit::LIVE_SHARE * 1e3 / hz),
+        compend::record::readable(compend::fit::LIVE_SHARE * 1e3 / hz),
         compend::fit::LIVE_SHARE,
-        compend::model::store::readable(hz)
+        compend::record::readable(hz)
     );
     Ok(Arc::new(compend::gpu::live::GpuLivePass::new(ctx, hz)?))
 }
@@ -720,35 +667,15 @@ fn calibrate_on<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     camera: &mut C,
     args: &Settings,
     projector: ImageSize,
-    rig: String,
+    rig: &RigConfig,
     live: Option<Arc<dyn compend::fit::LivePass>>,
 ) -> Result<Calibrated> {
-    let opts = Options {
-        patterns: PatternSet {
-            seed: args.seed,
-            ntrain: args.ntrain.most(),
-            ntest: args.ntest,
-            network: args.network,
-            projector,
-            gray_level: compend::patterns::DEFAULT_GRAY_LEVEL,
-        },
-        method: args.method,
-        fit_seed: 0,
-        sync: SyncSettings {
-            average: args.average,
-            ..SyncSettings::default()
-        },
-        verify_images: args.verify,
-        required_gain_db: args.min_gain,
-        climb_gain_db: args.climb_gain,
-        iters: args.iters,
-        device: args.device,
-        loop_images: args.loop_images,
-        rounds: compend::calibrate::rounds::rounds_for(args.ntrain, args.loops_asked),
-        live,
-        rig,
-        cancel: None,
-    };
+    let mut opts = rigs::calibration_options(rig, &args.calibration, None, projector, live, None);
+    // `--iters`: the iterations of a CompenNet++ rung asked for by name (the configuration
+    // has only the climb's).
+    if let MethodChoice::Rung(_) = opts.method {
+        opts.iters = args.iters;
+    }
     let report = super::progress::Progress::new("calibrate", args.json);
     let mut progress = |stage: &str, done: usize, total: usize| report.update(stage, done, total);
     let done = calibrate::calibrate(display, camera, &args.data, &opts, &mut progress)
@@ -801,7 +728,14 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
     if let Some(curve) = &r.sampling {
         eprintln!("calibrate: {}", curve.line());
     }
-    for line in done.model.meta.training.auto.iter().flat_map(|a| a.lines()) {
+    for line in done
+        .model
+        .meta
+        .training
+        .auto
+        .iter()
+        .flat_map(compend::fit::evidence_lines)
+    {
         eprintln!("calibrate: {line}");
     }
     eprintln!(
@@ -821,15 +755,6 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
     Ok(())
 }
 
-/// How the virtual rig's camera keeps time (`--rig-clock`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum RigClock {
-    /// Frames no faster than the camera's frame rate, as a real camera.
-    Wall,
-    /// Frames as fast as they are simulated.
-    Simulated,
-}
-
 /// Installs the model into `out` if it verified; otherwise says why not, `out` unchanged.
 fn install(done: Calibrated, out: &Path) -> Result<()> {
     let model = calibrate::install(done, out)
@@ -844,37 +769,38 @@ fn install(done: Calibrated, out: &Path) -> Result<()> {
 
 /// The counts must allow a fit and a verification.
 fn check_counts(a: &Settings) -> compend::Result<()> {
+    let c = &a.calibration;
     let bad = |what: String| Err(compend::Error::Input(what));
-    if a.ntrain.most() < compend::fit::MIN_TRAIN {
+    if c.ntrain.most() < compend::fit::MIN_TRAIN {
         return bad(format!(
             "--ntrain {}: at least {} training images are needed",
-            a.ntrain,
+            c.ntrain,
             compend::fit::MIN_TRAIN
         ));
     }
-    if a.ntest == 0 || a.verify == 0 || a.verify > a.ntest {
+    if c.ntest == 0 || c.verify == 0 || c.verify > c.ntest {
         return bad(format!(
             "--ntest {} / --verify {}: the verification projects 1 to NTEST test images",
-            a.ntest, a.verify
+            c.ntest, c.verify
         ));
     }
-    if a.average == 0 {
+    if c.average == 0 {
         return bad("--average 0: at least one frame per capture".into());
     }
-    if !(a.min_gain.is_finite()) {
+    if !(c.min_gain_db.is_finite()) {
         return bad(format!(
             "--min-gain {}: expected a number of dB",
-            a.min_gain
+            c.min_gain_db
         ));
     }
-    if !a.climb_gain.is_finite() {
+    if !c.climb_gain_db.is_finite() {
         return bad(format!(
             "--climb-gain {}: expected a number of dB",
-            a.climb_gain
+            c.climb_gain_db
         ));
     }
     if a.iters == Some(0) {
-        let flag = match a.method {
+        let flag = match c.method {
             MethodChoice::Auto => "--climb-iters",
             MethodChoice::Rung(_) => "--iters",
         };

@@ -158,8 +158,8 @@ fn film_input(input: &Path) -> Option<compend::source::MediaSpec> {
 /// A film through the model, frame by frame, offline (every frame, as fast as it goes), to an
 /// encoded file at the film's frame rate; the same pass and placement as `play`.
 fn compensate_film(args: &Args, film: compend::source::MediaSpec) -> Result<()> {
-    use compend::media::output::{MediaOutput, OutputSpec, Teed};
-    use compend::playback::player::{Headless, Player};
+    use compend::output::{MediaOutput, OutputSpec, Teed};
+    use compend::player::{Headless, Player};
     use compend::source::{self, AudioOut, FeedMode, SourceSpec};
     let out = OutputSpec::parse(&format!("file:{}", args.out.display()))?;
     let projector = args

@@ -89,7 +89,7 @@ fn projector(
 ) -> (Option<ImageSize>, Option<&'static str>) {
     match sl_size {
         Some(p) => (Some(p), Some("structured-light patterns")),
-        None => match compend::calibrate::manifest::recorded_projector(setup.path()) {
+        None => match compend::dataset::manifest::recorded_projector(setup.path()) {
             Ok(Some(p)) => (Some(p), Some("recorded by the calibration")),
             _ => (None, None),
         },
@@ -108,7 +108,7 @@ pub fn report(args: &Args) -> Result<Report> {
     // reported (an unreadable folder, a gap) is not counted twice.
     let checked = setup
         .count(compend::dataset::CaptureSet::Train)
-        .and_then(|n| compend::calibrate::manifest::checked_loop_pairs(&setup, n, None));
+        .and_then(|n| compend::dataset::manifest::checked_loop_pairs(&setup, n, None));
     if let Err(e) = checked {
         let e = e.to_string();
         if !problems.contains(&e) {

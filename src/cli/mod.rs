@@ -258,7 +258,7 @@ pub fn model_projector(
         ));
     }
     if let Some(setup) = model.meta.training.setup.as_deref()
-        && let Ok(Some(p)) = compend::calibrate::manifest::recorded_projector(setup)
+        && let Ok(Some(p)) = compend::dataset::manifest::recorded_projector(setup)
     {
         return Ok(p);
     }

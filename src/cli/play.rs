@@ -8,11 +8,9 @@ use anyhow::{Context, Result};
 use compend::device::DisplaySink;
 use compend::fov::DisplayRange;
 use compend::gpu::GpuContext;
-use compend::media::output::{MediaOutput, OutputSpec, Teed};
 use compend::model::Model;
-use compend::playback::player::{
-    Headless, PlayStats, Player, Refresh, Screen, ViewSink, WatchedSink,
-};
+use compend::output::{MediaOutput, OutputSpec, Teed};
+use compend::player::{Headless, PlayStats, Player, Refresh, Screen, ViewSink, WatchedSink};
 use compend::rig::{self, Phase, Simulator, VirtualRig, scene};
 use compend::source::{self, AudioOut, FeedMode, SourceSpec, VideoSource};
 use compend::window::ProjectorWindow;
@@ -92,11 +90,7 @@ pub struct Args {
 
 /// The source and output spellings under `compend play --help`.
 fn sources_and_outputs_help() -> String {
-    format!(
-        "{}\n\n{}",
-        compend::source::HELP,
-        compend::media::output::HELP
-    )
+    format!("{}\n\n{}", compend::source::HELP, compend::output::HELP)
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]

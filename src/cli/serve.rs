@@ -418,7 +418,7 @@ fn check(file: &Path, json: bool) -> Result<()> {
         println!(
             "{}: OK (rig {}, state {}, socket {})",
             file.display(),
-            compend::service::engine::rig_name(&c),
+            compend::rigs::rig_name(&c.rig),
             c.paths.state.display(),
             c.socket.path.display()
         );

@@ -506,22 +506,24 @@ fn score(a: ScoreArgs) -> Result<()> {
         "sim: scoring {n} test image(s) of scene {:?} on the rig (area {area}{pose})",
         record.scene.name
     );
-    let (refs, oracle_images) = rig::score::reference_scores_with_oracle(
+    let net = setup.root().network_size()?;
+    let r = rig::score::references(
         &sim,
         &tests,
         &desired,
         area,
+        (record.canvas, net),
         rig::OracleOptions {
             iterations: a.oracle_iterations,
         },
         frames,
     )?;
+    let (refs, oracle_images, net_oracle) = (r.scores, r.oracle_images, r.oracle_at_network);
     let ceiling = refs.oracle.psnr;
     let mut rows = vec![
         Row::new("uncompensated", &refs.uncompensated, ceiling),
         Row::new("geometry-only", &refs.geometry_only, ceiling),
     ];
-    let net = setup.root().network_size()?;
     for m in &models {
         let shown = on_canvas(read_compensation(&setup, m, n)?, record.canvas, psize)?;
         let s = rig::closed_loop(&sim, &shown, &desired, area, frames)
@@ -541,15 +543,6 @@ fn score(a: ScoreArgs) -> Result<()> {
         write_views(&sim, &oracle_images, area, frames, &out.join("oracle"))?;
         eprintln!("sim: wrote the camera views to {}", out.display());
     }
-    let net_oracle = rig::score::oracle_at_network(
-        &sim,
-        &oracle_images,
-        &desired,
-        area,
-        record.canvas,
-        net,
-        frames,
-    )?;
     rows.push(Row::new(&format!("oracle @ {net}"), &net_oracle, ceiling));
     rows.push(Row::new("oracle", &refs.oracle, ceiling));
     print_scores(a.json, &record, phase, (n, frames.average), &rows);

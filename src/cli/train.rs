@@ -160,7 +160,13 @@ pub fn run(args: Args) -> Result<()> {
                    "auto": model.meta.training.auto})
         );
     } else {
-        for line in model.meta.training.auto.iter().flat_map(|a| a.lines()) {
+        for line in model
+            .meta
+            .training
+            .auto
+            .iter()
+            .flat_map(compend::fit::evidence_lines)
+        {
             eprintln!("{line}");
         }
         eprintln!(

@@ -31,6 +31,7 @@
 
 mod info;
 mod load;
+pub mod manifest;
 mod names;
 mod root;
 mod setup;

@@ -49,8 +49,8 @@ use super::rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB, DEFAULT_RIG_GAIN_DB};
 use super::{MIN_TRAIN, Request, Summary, TrainDevice, TrainingData, compennet, linear_rungs};
 use crate::dataset::{Reference, Setup};
 use crate::error::Result;
-use crate::model::store::{AutoCandidate, AutoEvidence, ClosedLoopScore, LoopHeldOut, Retrained};
 use crate::model::{Method, MethodChoice, Model};
+use crate::record::{AutoCandidate, AutoEvidence, ClosedLoopScore, LoopHeldOut, Retrained};
 
 /// The CompenNet++ rung a training device can afford: the residual rung, `linear` plus a
 /// CompenNet correction that starts at zero, so that it starts where `linear` ends. On the CPU
@@ -582,6 +582,129 @@ pub fn settle_climb(
         evidence.rule = rule.describe_on_rig(&evidence.rule);
     }
     (model, kept)
+}
+
+/// `auto`'s evidence for a person: each candidate's held-out figures and time, the choice and
+/// the rule, one line each.
+pub fn evidence_lines(evidence: &AutoEvidence) -> Vec<String> {
+    let mut out = Vec::new();
+    if let (Some(held), Some(fitted)) = (evidence.held_out, evidence.fitted_on) {
+        let figures: Vec<String> = evidence
+            .candidates
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} {:.2} dB / SSIM {:.3} ({:.1} s)",
+                    c.method, c.held_out_psnr, c.held_out_ssim, c.fit_seconds
+                )
+            })
+            .collect();
+        out.push(format!(
+            "auto: on {held} held-out {}pairs (fitted on {fitted}): {}",
+            if evidence.loop_held_out.is_some() {
+                "sampling "
+            } else {
+                ""
+            },
+            figures.join(", ")
+        ));
+    }
+    if let Some(j) = &evidence.judged {
+        let curve: Vec<String> = j.curve.iter().map(|c| format!("{:.2}", c.psnr)).collect();
+        out.push(format!(
+            "auto: the climb rung on the held-out pairs as it trained: {} dB{}",
+            curve.join(", "),
+            j.stop()
+        ));
+    }
+    if let Some(why) = &evidence.why {
+        out.push(format!("auto: {why}"));
+    }
+    // A pass over its budget is in `why`.
+    if let Some(live) = evidence.live.as_ref().filter(|l| l.fits()) {
+        out.push(format!("auto: {}", live.describe()));
+    }
+    if let Some(l) = &evidence.loop_held_out {
+        let figures: Vec<String> = l
+            .scores
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} {:.2} dB / SSIM {:.3}{}",
+                    c.method,
+                    c.held_out_psnr,
+                    c.held_out_ssim,
+                    if c.fit_seconds > 0.0 {
+                        format!(" ({:.1} s)", c.fit_seconds)
+                    } else {
+                        String::new()
+                    }
+                )
+            })
+            .collect();
+        out.push(format!(
+            "auto: on {} held-out closed-loop pairs (the correction trained on {}), against \
+                 the projector images that move their captures towards the desired views: {}{}",
+            l.pairs,
+            l.trained_on,
+            figures.join(", "),
+            l.training.stop()
+        ));
+    }
+    if !evidence.closed_loop.is_empty() {
+        let figures: Vec<String> = evidence
+            .closed_loop
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} {:.2} dB / SSIM {:.3}{}",
+                    c.method,
+                    c.psnr,
+                    c.ssim,
+                    if c.passed { "" } else { " (not installable)" }
+                )
+            })
+            .collect();
+        out.push(format!(
+            "auto: closed loop on the rig: {}",
+            figures.join(", ")
+        ));
+    }
+    out.push(format!(
+        "auto: chose {} by the rule: {}",
+        evidence.chosen, evidence.rule
+    ));
+    if let Some(r) = &evidence.retrained {
+        let kept = if evidence.chosen == r.method {
+            String::new()
+        } else {
+            format!("; the rig then kept {}", evidence.chosen)
+        };
+        out.push(if r.after_judgement {
+            format!(
+                "auto: having climbed, {} trained again from its start on {} pairs, the \
+                     held-out ones included ({:.1} s){kept}",
+                r.method, r.pairs, r.seconds
+            )
+        } else {
+            format!(
+                "auto: {} trained on all {} pairs for the rig to judge ({:.1} s){kept}",
+                r.method, r.pairs, r.seconds
+            )
+        });
+    }
+    if !evidence.chosen.is_linear()
+        && evidence.closed_loop.is_empty()
+        && evidence.loop_held_out.is_none()
+    {
+        out.push(
+            "auto: this climb rests on held-out captures alone, where capture noise favours \
+                 a network; `compend calibrate --method auto` also checks it on the rig, in \
+                 closed loop"
+                .into(),
+        );
+    }
+    out
 }
 
 #[cfg(test)]

@@ -12,12 +12,12 @@ use crate::error::{Error, Result};
 use crate::fov;
 use crate::linear::FitSettings;
 use crate::metrics::Scores;
-use crate::model::store::{
-    AutoCandidate, FORMAT_VERSION, JudgedTraining, LoopCheckpoint, LoopHeldOut, ModelMeta, Timings,
-    TrainingRecord,
-};
+use crate::model::store::{FORMAT_VERSION, ModelMeta};
 use crate::model::{Method, Model};
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
+use crate::record::{
+    AutoCandidate, JudgedTraining, LoopCheckpoint, LoopHeldOut, Timings, TrainingRecord,
+};
 use crate::sample::Grid;
 
 /// The residual rung's learning rate (Adam's step size before the lr step): a fifth of the

@@ -8,11 +8,10 @@ use super::{Request, Summary, TrainingData, common_record, sl_grid};
 use crate::dataset::{CaptureSet, Setup};
 use crate::error::{Error, Result};
 use crate::linear::{self, FitSettings};
-use crate::model::store::{
-    AutoCandidate, AutoEvidence, FORMAT_VERSION, ModelMeta, Timings, TrainingRecord,
-};
+use crate::model::store::{FORMAT_VERSION, ModelMeta};
 use crate::model::{Method, Model};
 use crate::raster::{CamImage, NetImage};
+use crate::record::{AutoCandidate, AutoEvidence, Timings, TrainingRecord};
 
 /// A linear rung: the fit on the output lattice and its record. `evidence`: how `auto` chose
 /// it, recorded with the model.

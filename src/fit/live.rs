@@ -9,8 +9,31 @@ use std::fmt::Debug;
 
 use crate::error::Result;
 use crate::model::Method;
-pub use crate::model::store::{LIVE_SHARE, LiveCost};
 use crate::raster::ImageSize;
+pub use crate::record::LiveCost;
+
+/// The share of one refresh period the compensation pass may take: the rest is left to the
+/// content's upload, the copy into the window's surface and the compositor.
+pub const LIVE_SHARE: f64 = 0.5;
+
+/// A pass measured at `pass_ms` per frame, weighed against the budget of a display refreshing
+/// at `refresh_hz`: [`LIVE_SHARE`] of one refresh period.
+pub fn budgeted(
+    method: Method,
+    adapter: String,
+    projector: ImageSize,
+    pass_ms: f64,
+    refresh_hz: f64,
+) -> LiveCost {
+    LiveCost {
+        method,
+        adapter,
+        projector,
+        pass_ms,
+        refresh_hz,
+        budget_ms: LIVE_SHARE * 1e3 / refresh_hz,
+    }
+}
 
 /// The shapes of the pass a rung would play with, as training would make it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -80,7 +103,7 @@ mod tests {
     #[test]
     fn a_pass_fits_half_of_one_refresh_period() {
         let at = |ms: f64, hz: f64| {
-            LiveCost::new(
+            budgeted(
                 Method::CompenNetPpRes,
                 "test".into(),
                 ImageSize::new(1920, 1080),

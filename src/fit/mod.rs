@@ -6,20 +6,18 @@
 //! and dispatches; `linear_rungs.rs` fits the linear rungs (and `auto`'s choice among them);
 //! `compennet.rs` prepares the data of a CompenNet++ rung, starts its geometry, trains it and
 //! brings its weights to the CPU. Each writes the model's record (docs/architecture.md, "Model
-//! directory"). `rule.rs` holds the climbing rule `auto` and the service share. `device.rs`
-//! names the training device; the model record stores it, so it lives
-//! apart from the code that uses the record.
+//! directory"). `rule.rs` holds the climbing rule `auto` and the service share; `live.rs` the
+//! frame budget a climb's live pass must fit. The training device is [`crate::nn::device`]'s.
 
 mod auto;
 mod compennet;
-mod device;
 mod linear_rungs;
 mod live;
 mod rule;
 
-pub use auto::{climb_rung, judges_on_loop_pairs, lower_rung, settle_climb};
-pub use device::TrainDevice;
-pub use live::{LIVE_SHARE, LiveCost, LivePass, PassShape, refresh_rate_problem};
+pub use crate::nn::device::TrainDevice;
+pub use auto::{climb_rung, evidence_lines, judges_on_loop_pairs, lower_rung, settle_climb};
+pub use live::{LIVE_SHARE, LiveCost, LivePass, PassShape, budgeted, refresh_rate_problem};
 pub use rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB, DEFAULT_RIG_GAIN_DB};
 
 use std::borrow::Cow;
@@ -30,9 +28,9 @@ use serde::Serialize;
 use crate::dataset::{CaptureSet, Reference, Setup};
 use crate::error::{Error, Result};
 use crate::fov;
-use crate::model::store::TrainingRecord;
 use crate::model::{Method, MethodChoice, Model};
 use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rect};
+use crate::record::TrainingRecord;
 use crate::sample::Grid;
 
 /// Fewest training pairs the linear rungs accept.
@@ -275,7 +273,7 @@ fn projector_size(setup: &Setup, req: &Request) -> Result<(Option<ImageSize>, &'
         (Some(size), _) => (Some(size), "given: --projector, or the calibrated display"),
         (None, Ok(size)) => (Some(size), "the structured-light patterns' size"),
         (None, Err(Error::Missing { .. })) => (
-            crate::calibrate::manifest::recorded_projector(setup.path())?,
+            crate::dataset::manifest::recorded_projector(setup.path())?,
             "recorded by the calibration",
         ),
         (None, Err(e)) => return Err(e),
@@ -365,7 +363,7 @@ fn train_count(
     };
     // The closed-loop views are checked whatever --ntrain says.
     let last_loop = if takes_loops {
-        let loops = crate::calibrate::manifest::checked_loop_pairs(setup, available, req.ntrain)?;
+        let loops = crate::dataset::manifest::checked_loop_pairs(setup, available, req.ntrain)?;
         match req.ntrain {
             None => loops.last().copied().unwrap_or(0),
             Some(_) => 0,

@@ -79,7 +79,7 @@ impl ClimbRule {
     }
 
     /// The rule in words when the climb is judged on held-out closed-loop pairs
-    /// ([`crate::model::store::LoopHeldOut`]).
+    /// ([`crate::record::LoopHeldOut`]).
     pub fn describe_on_loop_pairs(&self, rung: Method) -> String {
         format!(
             "the best linear rung on held-out sampling pairs (paper protocol; `linear` itself \

@@ -12,8 +12,8 @@ use crate::error::{Error, Result};
 use crate::fit::{LiveCost, LivePass, PassShape};
 use crate::fov::DisplayRange;
 use crate::nn::compennetpp::Variant;
+use crate::playback::ContentFrame;
 use crate::raster::ImageSize;
-use crate::source::Pattern;
 
 /// Untimed frames before the timed ones: the first compiles the shaders (on software drivers)
 /// and a GPU idling at low clocks needs a few to wake.
@@ -58,14 +58,30 @@ impl LivePass for GpuLivePass {
         let mut pass =
             CompensationPass::for_display(ctx, &model, shape.projector, DisplayRange::FULL)?;
         // Content at the projector's resolution: the upload is not part of the pass's time.
-        let content = crate::source::pattern::render(Pattern::Bars, shape.projector, 0)?;
+        let content = ramp(shape.projector);
         let t = time_pass(ctx, &mut pass, &content, WARMUP, FRAMES)?;
-        Ok(LiveCost::new(
+        Ok(crate::fit::budgeted(
             shape.method,
             ctx.describe(),
             shape.projector,
             t.best_ms(),
             self.refresh_hz,
         ))
+    }
+}
+
+/// A horizontal gray ramp at `size` (8-bit RGBA): what is timed does not depend on the content.
+fn ramp(size: ImageSize) -> ContentFrame {
+    let mut rgba = Vec::with_capacity(size.area() * 4);
+    for _ in 0..size.height {
+        for x in 0..size.width {
+            let v = (x * 255 / size.width.max(1)) as u8;
+            rgba.extend_from_slice(&[v, v, v, 255]);
+        }
+    }
+    ContentFrame {
+        width: size.width,
+        height: size.height,
+        rgba,
     }
 }

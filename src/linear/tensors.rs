@@ -10,12 +10,12 @@ use crate::warp::{OffsetField, Warp};
 impl LinearModel {
     /// Numeric state for the model directory: the learnable geometry, the baked grid (what playback
     /// reads), the curves and the per-pixel coefficients.
-    pub fn to_tensors(&self) -> Result<crate::model::store::Tensors> {
+    pub fn to_tensors(&self) -> Result<crate::tensors::Tensors> {
         let ImageSize {
             width: w,
             height: h,
         } = self.network_size();
-        let mut t = crate::model::store::Tensors::default();
+        let mut t = crate::tensors::Tensors::default();
         if let Geometry::Learned(warp, refine) = &self.geometry {
             let theta = warp.theta.iter().flatten().copied().collect();
             t.insert("warp.theta", vec![2, 3], theta)?;
@@ -60,7 +60,7 @@ impl LinearModel {
     /// `network_size` is the coefficients' lattice (network pixels), `camera_size` the camera
     /// image size (camera pixels) the geometry refers to.
     pub fn from_tensors(
-        t: &crate::model::store::Tensors,
+        t: &crate::tensors::Tensors,
         network_size: ImageSize,
         camera_size: ImageSize,
         file: &std::path::Path,
@@ -128,7 +128,7 @@ fn bad(file: &std::path::Path, name: &str) -> Error {
 /// present, else the lattice size `(w, h)`. A learned geometry fitted on a coarser network than
 /// the lattice says so; earlier models (and every fixed geometry) have one size for both.
 fn read_geometry_size(
-    t: &crate::model::store::Tensors,
+    t: &crate::tensors::Tensors,
     network_size: ImageSize,
     file: &std::path::Path,
 ) -> Result<ImageSize> {
@@ -148,7 +148,7 @@ fn read_geometry_size(
 
 /// A learned geometry: the affine + TPS parameters (normalised coordinates) and the optional
 /// dense refinement field.
-fn read_learned(t: &crate::model::store::Tensors, file: &std::path::Path) -> Result<Geometry> {
+fn read_learned(t: &crate::tensors::Tensors, file: &std::path::Path) -> Result<Geometry> {
     let th = t.get("warp.theta", &[2, 3], file)?;
     let tps = t.get("warp.tps", &[2, crate::warp::TPS_PARAMS], file)?;
     if th.iter().chain(tps).any(|v| !v.is_finite()) {
@@ -169,10 +169,7 @@ fn read_learned(t: &crate::model::store::Tensors, file: &std::path::Path) -> Res
 
 /// The dense refinement field `warp.refine` ([rows, columns, 2] offsets in normalised camera
 /// coordinates), when present.
-fn read_refine(
-    t: &crate::model::store::Tensors,
-    file: &std::path::Path,
-) -> Result<Option<OffsetField>> {
+fn read_refine(t: &crate::tensors::Tensors, file: &std::path::Path) -> Result<Option<OffsetField>> {
     Ok(match t.shape("warp.refine") {
         None => None,
         Some(&[fh, fw, 2]) if fw >= 2 && fh >= 2 => {

@@ -1,7 +1,8 @@
 //! GStreamer, the media stack compend plays and writes media through (shell): starting it once
 //! per process, turning its errors into messages a person can act on ([`fault`]), watching a
-//! pipeline's bus ([`Watch`]), choosing a sound output ([`audio`]), and the outputs that send compensated frames to other software
-//! ([`output`]). The video sources built on it live in [`crate::source::media`].
+//! pipeline's bus ([`Watch`]), choosing a sound output ([`audio`]), and a handle on a playing
+//! source ([`Control`]). The video sources built on it live in [`crate::source::media`], the
+//! outputs that send compensated frames to other software in [`crate::output`].
 //!
 //! Frames cross into and out of GStreamer as 8-bit RGBA, sRGB-encoded as stored (content pixels
 //! on the way in, projector pixels on the way out); timestamps are GStreamer clock times in
@@ -9,7 +10,6 @@
 
 pub mod audio;
 pub mod fault;
-pub mod output;
 
 use std::sync::OnceLock;
 use std::time::Duration;

@@ -5,14 +5,14 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::linear::LinearModel;
-use store::{ModelMeta, Tensors};
+use crate::tensors::Tensors;
+use store::ModelMeta;
 
-pub mod method;
 pub mod store;
 
+pub use crate::method::{Method, MethodChoice};
 use crate::raster::{CamImage, Camera, ImageSize, Mask, NetImage, Network};
 use crate::sample::Grid;
-pub use method::{Method, MethodChoice};
 
 /// A loaded model with its metadata and the projector FOV mask its inputs are masked with.
 #[derive(Debug)]

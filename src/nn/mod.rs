@@ -3,7 +3,8 @@
 //!
 //! Tensors are NCHW, f32 (f64 works too, for gradient checks); images in [0,1] as in the core.
 //!
-//! Files, each importing only those listed before it: `layers` (convolution constructors and the
+//! Files, each importing only those listed before it: `device` (where training runs: the CPU
+//! or a CUDA GPU), `layers` (convolution constructors and the
 //! seeded variable store), `conv` (the CPU convolution and ReLU ops), `grid_sample`, `loss`,
 //! `optim` (Adam, the L2 term, the divergence check), `warpingnet`, `compennet`, `compennetpp`
 //! (the model, its variants and one step's gradients), `pretrain` (CompenNet's photometric
@@ -12,6 +13,7 @@
 pub mod compennet;
 pub mod compennetpp;
 pub mod conv;
+pub mod device;
 pub mod grid_sample;
 pub mod layers;
 pub mod loss;

@@ -26,8 +26,8 @@ use super::layers::SeededInit;
 use super::loss;
 use super::optim::{adam, check_loss, l2_penalty};
 use crate::error::{Error, Result};
-use crate::model::store::Tensors;
 use crate::patterns::sampling::{Set, sampling_image};
+use crate::tensors::Tensors;
 
 /// Variable prefix of CompenNet inside a CompenNet++ model (and in the pre-trained file).
 pub const PREFIX: &str = "compen";

@@ -10,8 +10,7 @@ use std::marker::PhantomData;
 
 use crate::error::{Error, Result};
 
-mod size;
-pub use size::{ImageSize, as_pair, as_pair_opt};
+pub use crate::size::{ImageSize, as_pair, as_pair_opt};
 
 /// A pixel space marker. Images of different spaces cannot be mixed by accident; conversions
 /// between spaces are explicit (a warp, a placement on the canvas, or [`Rgb::into_space`]).

@@ -91,6 +91,41 @@ pub fn reference_scores(
         .map(|(scores, _)| scores)
 }
 
+/// The reference rows of a scored rig, as `compend sim score` and `compend bench` print them:
+/// the uncompensated projection, geometry alone, the oracle at the network's resolution and the
+/// oracle, with the oracle's projector images (for its camera views).
+pub struct References {
+    pub scores: ReferenceScores,
+    /// The oracle's projector images brought down to the network's resolution over the canvas
+    /// and back ([`oracle_at_network`]).
+    pub oracle_at_network: Scores,
+    pub oracle_images: Vec<PrjImage>,
+}
+
+/// [`References`] of the test images `uncompensated` (on the canvas `canvas`, projector space)
+/// and their desired views `desired` in the displayable area `area`, for a model of `network`
+/// pixels. Every row uses the same `frames` (captures are numbered, so the order rows are
+/// scored in changes nothing).
+pub fn references(
+    sim: &Simulator,
+    uncompensated: &[PrjImage],
+    desired: &[CamImage],
+    area: Rect,
+    (canvas, network): (Rect, ImageSize),
+    opts: OracleOptions,
+    frames: Frames,
+) -> Result<References> {
+    let (scores, oracle_images) =
+        reference_scores_with_oracle(sim, uncompensated, desired, area, opts, frames)?;
+    let oracle_at_network =
+        oracle_at_network(sim, &oracle_images, desired, area, canvas, network, frames)?;
+    Ok(References {
+        scores,
+        oracle_at_network,
+        oracle_images,
+    })
+}
+
 /// [`reference_scores`], also returning the oracle's projector images (for further rows).
 pub fn reference_scores_with_oracle(
     sim: &Simulator,

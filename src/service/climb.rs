@@ -19,8 +19,8 @@ use std::time::Instant;
 use crate::dataset::Setup;
 use crate::error::{Error, Result};
 use crate::fit;
-use crate::model::store::{ClimbClosedLoop, ClimbRecord, Verification};
 use crate::model::{Method, MethodChoice, Model};
+use crate::record::{ClimbClosedLoop, ClimbRecord, Verification};
 
 /// Held while a model directory is replaced, by a calibration's install and by a climb's
 /// ([`settle`]). Both run on the engine's thread, which drops a climb when a recalibration
@@ -73,7 +73,7 @@ impl Plan {
         &self,
         probe: Option<&dyn fit::LivePass>,
         projector: crate::raster::ImageSize,
-    ) -> Result<Option<crate::model::store::LiveCost>> {
+    ) -> Result<Option<crate::record::LiveCost>> {
         let Some(probe) = probe.filter(|_| !self.method.is_linear()) else {
             return Ok(None);
         };

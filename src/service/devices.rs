@@ -1,35 +1,24 @@
-//! The devices the service drives, opened from `[rig]`: the virtual rig (its projector and
-//! camera, a GPU for the pass), real hardware (the projector window and a V4L2 camera), or the
-//! window rig (the projector window watched by a virtual camera on its own clock, as a V4L2
-//! camera is: the hardware path without hardware).
+//! The devices the service drives, opened from `[rig]` by [`crate::rigs::open`] as `compend
+//! calibrate` opens its own: the virtual rig (its projector and camera, a GPU for the pass),
+//! real hardware (the projector window and a V4L2 camera), or the window rig (the projector
+//! window watched by a virtual camera on its own clock, as a V4L2 camera is: the hardware path
+//! without hardware).
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use crate::config::{Config, RigKind};
+use crate::config::Config;
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::model::Model;
 use crate::raster::{ImageSize, PrjImage};
 use crate::rig::VirtualRig;
-use crate::rig::scene::{self, Scene};
-
-/// `virtual:SCENE` or `camera:DEVICE`: what the service drives, for the status and the log.
-pub fn rig_name(config: &Config) -> String {
-    let r = &config.rig;
-    match r.kind {
-        RigKind::Virtual => format!("virtual:{}", r.scene),
-        RigKind::Window => format!("window:{}", r.scene),
-        RigKind::Camera => format!(
-            "camera:{}",
-            r.camera.as_deref().unwrap_or(Path::new("?")).display()
-        ),
-    }
-}
+use crate::rig::scene::Scene;
+use crate::rigs::{self, Given, Opened, RigClock};
 
 /// A word for the operator when `model` was calibrated on another rig than `rig` (this
-/// service's, [`rig_name`]: `virtual:SCENE`, `window:SCENE`, `camera:DEVICE`): its geometry and
+/// service's, [`crate::rigs::rig_name`]: `virtual:SCENE`, `window:SCENE`, `camera:DEVICE`): its geometry and
 /// colours are another surface's. `None` for a model of this rig, or one trained offline (no
 /// calibration record). The virtual rig's seed is not in the name, so a model of the same scene
 /// with another seed is not told apart.
@@ -123,28 +112,48 @@ pub(super) enum Devices {
 impl Devices {
     pub(super) fn open(config: &Config) -> Result<Self> {
         let r = &config.rig;
-        match r.kind {
-            RigKind::Virtual => {
-                let mut scene = scene::load(&r.scene)?;
-                let cam = r.camera_size.unwrap_or(scene.camera.size());
-                let prj = r.projector.unwrap_or(scene.projector.size());
-                scene = scene
-                    .with_resolution(cam, prj)
-                    .with_timing(r.camera_fps, r.latency_ms);
-                scene.validate()?;
-                let rig = VirtualRig::new(&scene, r.seed)?;
+        Ok(match rigs::open(r, RigClock::Simulated, Given::File)? {
+            Opened::Virtual { rig, scene } => {
                 let bump = Bump::of(rig.clone(), &scene, r.drift_after_s);
                 let ctx = GpuContext::new()?;
-                Ok(Devices::Virtual(Box::new(VirtualDevices {
+                Devices::Virtual(Box::new(VirtualDevices {
                     rig,
                     scene,
                     ctx,
                     bump,
-                })))
+                }))
             }
-            RigKind::Window => open_window(config),
-            RigKind::Camera => open_hardware(config),
-        }
+            Opened::Window { win, camera, scene } => {
+                let bump = Bump::of(camera.rig(), &scene, r.drift_after_s);
+                let l = &scene.latency;
+                Devices::Hardware(Box::new(Hardware {
+                    win,
+                    camera: Box::new(camera),
+                    camera_name: format!(
+                        "virtual, scene {:?} at {} fps, {} frames of delay",
+                        scene.name, l.fps, l.delay_frames
+                    ),
+                    bump,
+                }))
+            }
+            #[cfg(target_os = "linux")]
+            Opened::Camera {
+                win,
+                camera,
+                device,
+                controls,
+            } => {
+                for line in controls {
+                    tracing::info!("camera {}: {line}", device.display());
+                }
+                Devices::Hardware(Box::new(Hardware {
+                    win,
+                    camera: Box::new(camera),
+                    camera_name: device.display().to_string(),
+                    bump: None,
+                }))
+            }
+        })
     }
 
     pub(super) fn display_size(&self) -> ImageSize {
@@ -206,68 +215,6 @@ impl Devices {
             Devices::Hardware(h) => h.win.show(&black),
         }
     }
-}
-
-#[cfg(target_os = "linux")]
-fn open_hardware(config: &Config) -> Result<Devices> {
-    let r = &config.rig;
-    let device = r.camera.clone().unwrap_or_default();
-    let mut camera = crate::camera::V4l2Camera::open(&device, r.camera_size)?;
-    let report = camera.lock_for_calibration(&crate::camera::LockSettings::default())?;
-    for line in report.lines() {
-        tracing::info!("camera {}: {line}", device.display());
-    }
-    let win = crate::window::ProjectorWindow::open(r.monitor.as_deref())?;
-    Ok(Devices::Hardware(Box::new(Hardware {
-        win,
-        camera: Box::new(camera),
-        camera_name: device.display().to_string(),
-        bump: None,
-    })))
-}
-
-#[cfg(not(target_os = "linux"))]
-fn open_hardware(config: &Config) -> Result<Devices> {
-    Err(Error::Input(format!(
-        "[rig] camera = {:?}: V4L2 cameras exist on Linux only",
-        config.rig.camera
-    )))
-}
-
-/// The window rig: the projector window, watched by a virtual camera that sees what the window
-/// really presented through the scene's surface and camera, with its latency (testing the
-/// hardware path without hardware).
-fn open_window(config: &Config) -> Result<Devices> {
-    let r = &config.rig;
-    let mut win = crate::window::ProjectorWindow::open(r.monitor.as_deref())?;
-    let size = DisplaySink::size(&win);
-    if let Some(p) = r.projector
-        && p != size
-    {
-        return Err(Error::Input(format!(
-            "[rig] projector = \"{p}\": the projector window on {} is {size}; leave it out \
-             or pick the monitor of that size",
-            r.monitor.as_deref().unwrap_or("the primary monitor")
-        )));
-    }
-    let mut scene = scene::load(&r.scene)?;
-    let cam = r.camera_size.unwrap_or(scene.camera.size());
-    scene = scene
-        .with_resolution(cam, size)
-        .with_timing(r.camera_fps, r.latency_ms);
-    scene.validate()?;
-    let camera = win.watched_by(&scene, r.seed)?;
-    let bump = Bump::of(camera.rig(), &scene, r.drift_after_s);
-    let l = &scene.latency;
-    Ok(Devices::Hardware(Box::new(Hardware {
-        win,
-        camera: Box::new(camera),
-        camera_name: format!(
-            "virtual, scene {:?} at {} fps, {} frames of delay",
-            scene.name, l.fps, l.delay_frames
-        ),
-        bump,
-    })))
 }
 
 /// Loads the model directory `path` for a rig whose camera gives `camera`-sized images; a model

@@ -4,7 +4,7 @@
 //! - the **main thread** runs the [`engine`]: it owns the devices (the projector window or the
 //!   virtual rig's projector, the camera), the GPU pass and the model, and moves between the
 //!   states idle, calibrating, training, verifying, playing and paused. Playback is the one
-//!   playback loop ([`crate::playback::player`]); between two refreshes (and between two
+//!   playback loop ([`crate::player`]); between two refreshes (and between two
 //!   captures while calibrating) the engine looks at its event channel, so a request is answered
 //!   within a frame or a capture. Training runs on this thread too, off the async runtime;
 //!   a calibration is cancelled at the next capture or phase ([`crate::calibrate::Options`]).
@@ -441,7 +441,7 @@ pub type Reload = Box<dyn Fn() -> Result<Config> + Send + Sync>;
 pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
     preflight(&config, true)?;
     let (tx, rx) = mpsc::channel();
-    let rig_name = engine::rig_name(&config);
+    let rig_name = engine::rig_name(&config.rig);
     let shared = Arc::new(Shared::new(rig_name, tx));
     std::fs::create_dir_all(&config.paths.state)
         .map_err(|e| Error::io(&config.paths.state, "create state directory", e))?;

@@ -25,7 +25,7 @@ use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 
 use crate::model::Model;
-use crate::model::store::{ClimbRecord, Verification};
+use crate::record::{ClimbRecord, Verification};
 
 /// The longest request line taken, bytes; a longer one gets an error reply and is skipped.
 pub const MAX_REQUEST_BYTES: usize = 64 * 1024;

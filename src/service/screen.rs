@@ -17,7 +17,7 @@ use super::{Envelope, Event, Io};
 use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, GpuContext};
 use crate::model::Model;
-use crate::playback::player::{PlayStats, Refresh, Screen, Show};
+use crate::player::{PlayStats, Refresh, Screen, Show};
 use crate::raster::{CamImage, ImageSize};
 use crate::rig::{Phase, VirtualRig};
 use crate::source::AudioOut;

@@ -293,13 +293,15 @@ fn no_import_circle_between_files() {
 }
 
 /// The shell of the library (docs/architecture.md, "Layers"): the modules that talk to devices.
-const SHELL: [&[&str]; 8] = [
+const SHELL: [&[&str]; 10] = [
     &["gpu"],
     &["window"],
     &["media"],
     &["source"],
     &["camera"],
-    &["playback", "player"],
+    &["player"],
+    &["output"],
+    &["rigs"],
     &["config"],
     &["service"],
 ];
@@ -419,4 +421,134 @@ fn layout_checker_reads_paths_as_rust_does() {
         "pub mod a;\nmod b;\n#[cfg(test)]\nmod tests {\n}\npub(crate) mod c;\n#[cfg(unix)] pub mod d;\n",
     );
     assert_eq!(decl.into_iter().collect::<Vec<_>>(), ["a", "b", "c", "d"]);
+}
+
+/// The library's layers, lowest first (docs/architecture.md, "Layers"). A module may use the
+/// modules of its own layer and of the layers below it, never one above, and no two modules use
+/// each other in a circle, directly or through others.
+const LAYERS: &[(&str, &[&str])] = &[
+    (
+        "foundations",
+        &[
+            "size", "error", "files", "raster", "pngio", "resize", "sample", "filter", "metrics",
+            "morph", "device", "tensors",
+        ],
+    ),
+    (
+        "geometry and data",
+        &["fov", "warp", "patterns", "slgrid", "dataset"],
+    ),
+    (
+        "models",
+        &[
+            "linear", "failure", "nn", "method", "record", "model", "fit",
+        ],
+    ),
+    ("the per-frame path", &["playback"]),
+    ("calibration", &["calibrate"]),
+    ("the virtual rig", &["rig"]),
+    ("shell: devices", &["gpu", "camera", "media"]),
+    ("shell: sources", &["source"]),
+    ("shell: the playback loop", &["player"]),
+    ("shell: screens", &["window", "output"]),
+    ("shell: the service", &["config", "rigs", "service"]),
+];
+
+/// Edges between the library's top-level modules (a file of module `a` uses a path into module
+/// `b`, as written: a re-export does not hide whom a file names), each with its first use.
+fn module_edges(tree: &Tree) -> BTreeMap<String, BTreeMap<String, (String, usize, String)>> {
+    let mut edges: BTreeMap<String, BTreeMap<String, (String, usize, String)>> = BTreeMap::new();
+    for (key, file) in &tree.files {
+        let (Krate::Lib, path) = key else { continue };
+        let Some(from) = path.first() else { continue };
+        let (used, _) = used_paths(tree, key, &read(file));
+        for u in used {
+            let Some(to) = u.segments.first() else {
+                continue;
+            };
+            if u.krate != Krate::Lib || to == from || !top_module_exists(to) {
+                continue;
+            }
+            edges
+                .entry(from.clone())
+                .or_default()
+                .entry(to.clone())
+                .or_insert((file.clone(), u.line, u.text.clone()));
+        }
+    }
+    edges
+}
+
+/// (b'') The layer order between modules, not only between files: every module of the library
+/// is in one layer of [`LAYERS`], uses no module of a higher layer, and no modules use each
+/// other in a circle.
+#[test]
+fn modules_keep_their_layer_order() {
+    let tree = Tree::load();
+    let declared = declared_modules(&read("src/lib.rs"));
+    let mut problems = Vec::new();
+    let layer_of = |m: &str| LAYERS.iter().position(|(_, ms)| ms.contains(&m));
+    for m in &declared {
+        if layer_of(m).is_none() {
+            problems.push(format!(
+                "module `{m}` is in no layer of tests/layout LAYERS"
+            ));
+        }
+    }
+    let edges = module_edges(&tree);
+    for (from, tos) in &edges {
+        for (to, (file, line, how)) in tos {
+            if let (Some(a), Some(b)) = (layer_of(from), layer_of(to))
+                && b > a
+            {
+                problems.push(format!(
+                    "`{from}` ({}) uses `{to}` ({}), a higher layer: {file}:{line}: {how}",
+                    LAYERS[a].0, LAYERS[b].0
+                ));
+            }
+        }
+    }
+    // Circles between modules: strongly connected components of the module graph.
+    let keys: BTreeMap<String, ModKey> = declared
+        .iter()
+        .map(|m| (m.clone(), (Krate::Lib, vec![m.clone()])))
+        .collect();
+    let mut as_files: Edges = BTreeMap::new();
+    for (from, tos) in &edges {
+        for (to, (_, line, how)) in tos {
+            if let (Some(a), Some(b)) = (keys.get(from), keys.get(to)) {
+                as_files
+                    .entry(a.clone())
+                    .or_default()
+                    .insert(b.clone(), (*line, how.clone()));
+            }
+        }
+    }
+    let modules = Tree {
+        files: keys.values().map(|k| (k.clone(), k.1[0].clone())).collect(),
+    };
+    for scc in strongly_connected(&modules, &as_files) {
+        let walk: Vec<String> = shortest_cycle(&scc, &as_files)
+            .iter()
+            .map(|k| k.1[0].clone())
+            .collect();
+        let steps: Vec<String> = walk
+            .windows(2)
+            .map(|w| {
+                let (file, line, how) = &edges[&w[0]][&w[1]];
+                format!("{} → {} ({file}:{line}: {how})", w[0], w[1])
+            })
+            .collect();
+        problems.push(format!(
+            "modules in a circle: {}\n      {}",
+            walk.join(" → "),
+            steps.join("\n      ")
+        ));
+    }
+    assert!(
+        problems.is_empty(),
+        "the modules break their layer order (docs/architecture.md, \"Layers\"), {} problem(s):\n  {}",
+        problems.len(),
+        problems.join("\n  ")
+    );
 }

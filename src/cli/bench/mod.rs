@@ -19,8 +19,8 @@ use anyhow::{Context, Result};
 use compend::dataset::{DataRoot, ProjectorSet, Setup};
 use compend::fit::{self, Request};
 use compend::model::paper_protocol;
-use compend::model::store::ClosedLoopScore;
 use compend::raster::{CamImage, PrjImage};
+use compend::record::ClosedLoopScore;
 use compend::rig::{self, ExportOptions, OracleOptions, Phase, Simulator};
 
 use crate::cli::sim::SceneArgs;
@@ -384,24 +384,17 @@ impl SceneBench<'_> {
                 .root()
                 .load(ProjectorSet::Test, Some(args.ntest))?,
         )?;
-        let (refs, oracle_imgs) = rig::score::reference_scores_with_oracle(
+        let net = self.setup.root().network_size()?;
+        let r = rig::score::references(
             sim,
             &tests,
             &self.desired,
             area,
+            (self.record.canvas, net),
             OracleOptions::default(),
             rig::score::Frames::single(FRAMES_BENCH),
         )?;
-        let net = self.setup.root().network_size()?;
-        let net_oracle = rig::score::oracle_at_network(
-            sim,
-            &oracle_imgs,
-            &self.desired,
-            area,
-            self.record.canvas,
-            net,
-            rig::score::Frames::single(FRAMES_BENCH),
-        )?;
+        let (refs, net_oracle) = (r.scores, r.oracle_at_network);
         let ceiling = refs.oracle.psnr;
         let rows = vec![
             Row::reference(scene, seed, "uncompensated", refs.uncompensated, ceiling),

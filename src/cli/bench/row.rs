@@ -38,13 +38,13 @@ pub struct Row {
     /// `auto` after a climb on the held-out pairs: the climbed rung and the best linear rung in
     /// closed loop on the rig's verification images, which decided between them.
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub rig_check: Vec<compend::model::store::ClosedLoopScore>,
+    pub rig_check: Vec<compend::record::ClosedLoopScore>,
     /// `auto` with closed-loop pairs: its judgement of the residual rung on those held out.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub loop_held_out: Option<compend::model::store::LoopHeldOut>,
+    pub loop_held_out: Option<compend::record::LoopHeldOut>,
     /// `auto` with `--refresh-hz`: its climb's live pass against the display's frame budget.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub live: Option<compend::model::store::LiveCost>,
+    pub live: Option<compend::record::LiveCost>,
 }
 
 impl Row {

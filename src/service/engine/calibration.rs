@@ -25,10 +25,10 @@ use super::super::protocol::{
 use super::super::{Event, Shared};
 use super::{Engine, Next, rig_name};
 use crate::calibrate::runs::Runs;
-use crate::calibrate::{self, Options, PatternSet, SyncSettings};
+use crate::calibrate::{self, Options};
 use crate::config::Config;
 use crate::error::{Error, Result};
-use crate::model::{Method, MethodChoice, Model};
+use crate::model::Model;
 use crate::service::views::Tapped;
 
 use super::super::devices::Devices;
@@ -116,65 +116,18 @@ pub(super) fn device_problem(c: &crate::config::CalibrationConfig) -> Option<Str
     })
 }
 
-/// A calibration's options from the configuration's `[calibration]`, for a projector of
-/// `projector` pixels, stopped by `cancel`; `auto` weighs its climb's live pass with `live`.
-/// For a drift refit (`refitting`, `on_drift = "refit"`): `[monitoring] refit_ntrain` sampling
-/// images, only the test images the verification projects, and the `linear` rung.
-fn calibration_options(
-    config: &Config,
-    refitting: bool,
-    projector: crate::raster::ImageSize,
-    live: Option<Arc<dyn crate::fit::LivePass>>,
-    cancel: Arc<AtomicBool>,
-) -> Options {
-    let c = &config.calibration;
-    let (count, ntest, method) = if refitting {
-        (
-            calibrate::SamplingCount::Count(config.monitoring.refit_ntrain),
-            c.verify,
-            MethodChoice::Rung(Method::Linear),
-        )
-    } else {
-        (c.ntrain, c.ntest, c.method)
-    };
-    let ntrain = count.most();
-    Options {
-        patterns: PatternSet {
-            seed: config.rig.seed,
-            ntrain,
-            ntest,
-            network: c.network,
-            projector,
-            gray_level: crate::patterns::DEFAULT_GRAY_LEVEL,
-        },
-        method,
-        fit_seed: 0,
-        sync: SyncSettings {
-            average: c.average,
-            ..SyncSettings::default()
-        },
-        verify_images: c.verify,
-        required_gain_db: c.min_gain_db,
-        climb_gain_db: c.climb_gain_db,
-        iters: c.climb_iters.filter(|_| method == MethodChoice::Auto),
-        device: c.device,
-        loop_images: calibrate::loop_images(method, ntrain, c.loop_images),
-        rounds: calibrate::rounds::rounds_for(count, c.loop_images),
-        live: live.filter(|_| method == MethodChoice::Auto),
-        rig: rig_name(config),
-        cancel: Some(cancel),
-    }
-}
-
 impl Engine {
-    /// The calibration's options ([`calibration_options`]) for this engine's projector.
+    /// The calibration's options ([`crate::rigs::calibration_options`]) for this engine's
+    /// projector.
     fn calibration_options(&self, cancel: Arc<AtomicBool>) -> Options {
-        calibration_options(
-            &self.config,
-            self.refitting,
+        crate::rigs::calibration_options(
+            &self.config.rig,
+            &self.config.calibration,
+            self.refitting
+                .then_some(self.config.monitoring.refit_ntrain),
             self.devices.display_size(),
             self.devices.live_pass(self.config.calibration.refresh_hz),
-            cancel,
+            Some(cancel),
         )
     }
 
@@ -197,7 +150,7 @@ impl Engine {
             runs.end();
         }
         self.calibration_started = Instant::now();
-        let run = match runs.begin_with(&rig_name(&self.config), SystemTime::now(), refit) {
+        let run = match runs.begin_with(&rig_name(&self.config.rig), SystemTime::now(), refit) {
             Ok(r) => r,
             Err(e) => {
                 // It ends before its first capture (the data folder unwritable, a full disk):
@@ -805,17 +758,7 @@ fn busy(
 mod tests {
     use super::*;
     use crate::fit::TrainDevice;
-    use crate::raster::ImageSize;
-
-    /// A timer that times nothing.
-    #[derive(Debug)]
-    struct NoPass;
-
-    impl crate::fit::LivePass for NoPass {
-        fn cost(&self, _: &crate::fit::PassShape) -> Result<crate::fit::LiveCost> {
-            Err(Error::Failed("not timed".into()))
-        }
-    }
+    use crate::model::Method;
 
     #[test]
     fn a_training_device_that_cannot_open_is_said_at_once() {
@@ -836,35 +779,5 @@ mod tests {
         if !cfg!(feature = "cuda") {
             assert!(w.contains("built without CUDA"), "{w}");
         }
-    }
-
-    #[test]
-    fn a_calibration_takes_the_configured_method_and_device() {
-        let mut config = Config::defaults();
-        config.calibration.method = MethodChoice::Auto;
-        config.calibration.device = TrainDevice::Cuda(1);
-        config.calibration.climb_iters = Some(300);
-        let projector = ImageSize::new(800, 600);
-        let live: Arc<dyn crate::fit::LivePass> = Arc::new(NoPass);
-        let o = calibration_options(
-            &config,
-            false,
-            projector,
-            Some(live.clone()),
-            Arc::default(),
-        );
-        assert_eq!(o.method, MethodChoice::Auto);
-        // `auto` weighs its climb with the playback GPU's timer.
-        assert!(o.live.is_some());
-        assert_eq!(o.device, TrainDevice::Cuda(1));
-        assert_eq!(o.iters, Some(300));
-        assert_eq!(o.patterns.projector, projector);
-        assert_eq!(o.patterns.ntrain, config.calibration.ntrain.most());
-        // A drift refit fits `linear` on a handful of images, whatever the method.
-        let o = calibration_options(&config, true, projector, Some(live), Arc::default());
-        assert_eq!(o.method, MethodChoice::Rung(Method::Linear));
-        assert!(o.live.is_none());
-        assert_eq!(o.patterns.ntrain, config.monitoring.refit_ntrain);
-        assert_eq!(o.iters, None);
     }
 }

@@ -26,7 +26,6 @@ use super::climb;
 mod calibration;
 mod setup;
 
-pub use super::devices::rig_name;
 use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure, other_rig};
 use super::monitor::{self, Tap};
 use super::notify::Notifier;
@@ -39,12 +38,13 @@ use crate::config::{Config, DriftPolicy};
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::Result;
 use crate::fov::DisplayRange;
-use crate::media::output::{MediaOutput, OutputSpec, Teed};
 use crate::model::Model;
-use crate::playback::player::{PlayStats, Player, ViewSink, WatchedSink};
+use crate::output::{MediaOutput, OutputSpec, Teed};
+use crate::player::{PlayStats, Player, ViewSink, WatchedSink};
 use crate::raster::ImageSize;
 use crate::rig::VirtualRig;
 use crate::rig::scene::Latency;
+pub use crate::rigs::rig_name;
 use crate::source::{self, FeedMode, Playlist};
 
 /// What the engine does next.
@@ -363,7 +363,7 @@ impl Engine {
                     let warning = self
                         .model
                         .as_ref()
-                        .and_then(|m| other_rig(m, &rig_name(&self.config)))
+                        .and_then(|m| other_rig(m, &rig_name(&self.config.rig)))
                         .map_or(String::new(), |w| {
                             tracing::warn!("{}: {w}", clipped(&path.display().to_string()));
                             format!("; {w}")
@@ -518,7 +518,7 @@ impl Engine {
         // A camera on its own clock needs the latency measured at calibration on this rig.
         let settle = match &self.devices {
             Devices::Virtual(_) => None,
-            Devices::Hardware(_) => settle_frames(model, &rig_name(&self.config)),
+            Devices::Hardware(_) => settle_frames(model, &rig_name(&self.config.rig)),
         };
         let watchable = matches!(self.devices, Devices::Virtual(_)) || settle.is_some();
         if m.enabled && !watchable {
@@ -526,7 +526,7 @@ impl Engine {
                 "monitoring is off for this playback: the model was not calibrated on this rig \
                  ({}), so the projector-to-camera latency is unknown; `compend recalibrate` \
                  measures it",
-                rig_name(&self.config)
+                rig_name(&self.config.rig)
             );
         }
         let monitor = (m.enabled && watchable).then(|| {
@@ -563,7 +563,7 @@ impl Engine {
                         output: output.clone(),
                         audio: audio.clone(),
                         allowed: Allowed::of(&self.config),
-                        rig: rig_name(&self.config),
+                        rig: rig_name(&self.config.rig),
                     },
                 )
             }
@@ -582,7 +582,7 @@ impl Engine {
                         output: output.clone(),
                         audio: audio.clone(),
                         allowed: Allowed::of(&self.config),
-                        rig: rig_name(&self.config),
+                        rig: rig_name(&self.config.rig),
                     },
                 )
             }

@@ -1,4 +1,5 @@
-//! Compensated frames to other software (`play --to`, `compensate` of a film): the projector
+//! Compensated frames to other software (shell, above the playback loop: an output is one of its
+//! [`Screen`]s) (`play --to`, `compensate` of a film): the projector
 //! canvas (projector pixels, 8-bit RGBA as presented) pushed into a GStreamer pipeline through
 //! an `appsrc`, as well as or instead of the window.
 //!
@@ -23,10 +24,10 @@ use gstreamer::prelude::*;
 use gstreamer_app as gst_app;
 use gstreamer_video as gst_video;
 
-use super::{Watch, fault};
 use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, GpuContext};
-use crate::playback::player::{PlayStats, Refresh, Screen, Show};
+use crate::media::{self, Watch, fault};
+use crate::player::{PlayStats, Refresh, Screen, Show};
 use crate::raster::ImageSize;
 
 /// The spellings of `--to`, as `compend play --help` shows them.
@@ -108,9 +109,9 @@ fn encoder_for(path: &Path) -> Result<String> {
         .unwrap_or_default();
     let h264 = || -> Result<&'static str> {
         // The best H.264 encoder installed: x264 (plugins-ugly), else OpenH264 (plugins-bad).
-        if super::has_element("x264enc") {
+        if media::has_element("x264enc") {
             Ok("x264enc speed-preset=veryfast bitrate=20000 key-int-max=60")
-        } else if super::has_element("openh264enc") {
+        } else if media::has_element("openh264enc") {
             Ok("openh264enc bitrate=20000000 complexity=low")
         } else {
             Err(Error::Input(format!(
@@ -165,7 +166,7 @@ impl MediaOutput {
     /// for room. A file already at the path, an unknown element or a pipeline that cannot
     /// start is an input error, before any frame.
     pub fn start(spec: &OutputSpec, size: ImageSize, fps: f64, live: bool) -> Result<Self> {
-        super::init()?;
+        media::init()?;
         if !(fps.is_finite() && fps > 0.0) {
             return Err(Error::Input(format!(
                 "output frame rate must be positive, got {fps}"
@@ -242,7 +243,7 @@ impl MediaOutput {
         let mut watch = Watch::new(&pipeline, &what);
         if pipeline.set_state(gst::State::Playing).is_err() {
             let f = watch.poll();
-            super::stop(&pipeline);
+            media::stop(&pipeline);
             if let Some((tmp, _)) = &file {
                 let _ = std::fs::remove_file(tmp);
             }
@@ -280,8 +281,8 @@ impl MediaOutput {
         let mut buffer = gst::Buffer::from_mut_slice(rgba);
         {
             let b = buffer.get_mut().expect("a new buffer is writable");
-            b.set_pts(super::clock_time(pts));
-            b.set_duration(super::clock_time(Duration::from_secs_f64(1.0 / self.fps)));
+            b.set_pts(media::clock_time(pts));
+            b.set_duration(media::clock_time(Duration::from_secs_f64(1.0 / self.fps)));
         }
         match self.src.push_buffer(buffer) {
             Ok(_) => {
@@ -314,7 +315,7 @@ impl MediaOutput {
             Ok(_) => self.watch.wait_eos(timeout),
             Err(_) => Ok(false),
         };
-        super::stop(&self.pipeline);
+        media::stop(&self.pipeline);
         let ended = match ended {
             Ok(true) => Ok(()),
             Ok(false) => Err(Error::Failed(format!(
@@ -351,7 +352,7 @@ impl Drop for MediaOutput {
 }
 
 /// A screen whose every new frame also goes to a [`MediaOutput`] (read back from the GPU as
-/// presented), when there is one. With [`crate::playback::player::Headless`] as the inner
+/// presented), when there is one. With [`crate::player::Headless`] as the inner
 /// screen, the output replaces the window.
 pub struct Teed<'a, S: Screen + ?Sized> {
     inner: &'a mut S,

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::Setup;
+use super::Setup;
 use crate::error::{Error, Result};
 use crate::raster::ImageSize;
 
@@ -48,7 +48,7 @@ pub struct Manifest {
     pub patterns: PatternSet,
     pub captured: BTreeSet<PathBuf>,
     /// Closed-loop training images this calibration has written into the data root
-    /// (`train/` after the sampling images, [`super::refine`]): only these may be replaced.
+    /// (`train/` after the sampling images, [`crate::calibrate::refine`]): only these may be replaced.
     #[serde(default)]
     pub loop_written: usize,
 }
@@ -218,7 +218,7 @@ impl Manifest {
         }
     }
 
-    /// [`Manifest::open`] for sampling rounds (`ntrain = auto`, [`super::rounds`]): `patterns`
+    /// [`Manifest::open`] for sampling rounds (`ntrain = auto`, [`crate::calibrate::rounds`]): `patterns`
     /// with its `ntrain` the most the rounds take. The manifest on disk is taken when its
     /// pattern set is this one but for a count of sampling pairs up to that; a new one starts
     /// with `first` of them.
@@ -263,7 +263,7 @@ impl Manifest {
     }
 
     /// Grows the pattern set to `ntrain` sampling images (a later round of
-    /// [`super::rounds`]) and writes the manifest atomically. Never shrinks it, nor grows it
+    /// [`crate::calibrate::rounds`]) and writes the manifest atomically. Never shrinks it, nor grows it
     /// past closed-loop images already written after the sampling ones.
     pub fn grow(&mut self, setup: &Path, ntrain: usize) -> Result<()> {
         if self.loop_written > 0 {

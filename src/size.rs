@@ -1,6 +1,6 @@
-//! [`ImageSize`], the one size type of the crate, and its `[width, height]` serde form. It
-//! depends on nothing else in the crate, so that [`crate::error`] can name sizes without an
-//! import circle with the image types.
+//! [`ImageSize`], the one size type of the crate, and its `[width, height]` serde form: a
+//! foundation of its own, below [`crate::error`] (which names sizes) and [`crate::raster`] (whose
+//! images have them; it re-exports this module's items).
 
 use std::fmt;
 

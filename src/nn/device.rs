@@ -1,6 +1,5 @@
 //! The device CompenNet++ training runs on (`train --device`): the CPU or a CUDA GPU through
-//! candle. A file of its own because the model record (`model::store`) names it: the record
-//! depends on this type, not on the training code that writes the record.
+//! candle. The training record ([`crate::record::TrainingRecord`]) names it.
 
 use serde::{Deserialize, Serialize};
 
