@@ -246,6 +246,74 @@ pub(crate) fn gpu_or_skip() -> bool {
     crate::common::gpu().is_some()
 }
 
+/// `compend::service::serve` inside this process, as mini-redis's tests run its server: given
+/// its configuration and a shutdown signal of the test's own, its socket answers; when the
+/// signal fires the engine stops, the service itself ends a subscriber's connection (the
+/// process does not exit to cut it), `serve` returns Ok and the socket file is gone.
+#[test]
+fn serve_runs_inside_a_test_process_and_stops_on_the_signal_it_is_given() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_config(dir.path(), "white-plane", 5, "", "");
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("[calibration]\n", "[calibration]\non_start = \"never\"\n");
+    std::fs::write(&path, text).unwrap();
+    let config = compend::config::Config::load(&path).unwrap();
+    let socket = config.socket.path.clone();
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let serving = std::thread::spawn(move || {
+        compend::service::serve(config, None, async move {
+            let _ = stopped.await;
+            "the test's shutdown signal"
+        })
+    });
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Ok(r) =
+            compend::service::socket::request(&socket, &compend::service::protocol::Request::Status)
+        {
+            break r;
+        }
+        assert!(Instant::now() < deadline, "the socket never answered");
+        assert!(!serving.is_finished(), "serve returned before it answered");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.ok, "{status:?}");
+    let state = serde_json::to_value(&status).unwrap();
+    assert_eq!(state["status"]["state"], "idle", "{state}");
+    // A subscriber, which would otherwise stay connected for as long as the service runs.
+    let mut sub = UnixStream::connect(&socket).unwrap();
+    sub.write_all(b"{\"cmd\":\"subscribe\"}\n").unwrap();
+    let mut reader = BufReader::new(sub.try_clone().unwrap());
+    let mut first = String::new();
+    reader.read_line(&mut first).unwrap();
+    assert!(first.contains("subscribed"), "{first}");
+    // A client between two requests.
+    let mut idle = UnixStream::connect(&socket).unwrap();
+    idle.write_all(b"{\"cmd\":\"status\"}\n").unwrap();
+    let mut idle_reader = BufReader::new(idle.try_clone().unwrap());
+    let mut answered = String::new();
+    idle_reader.read_line(&mut answered).unwrap();
+    assert!(answered.contains("\"ok\":true"), "{answered}");
+    stop.send(()).unwrap();
+    let result = serving.join().unwrap();
+    assert!(result.is_ok(), "{result:?}");
+    // The service ended the subscriber's connection: what is left to read ends in EOF, not a
+    // timeout.
+    sub.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut reader, &mut rest).expect("the connection was ended");
+    // The client between requests was told why its connection ends.
+    idle.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let mut told = String::new();
+    idle_reader.read_line(&mut told).unwrap();
+    assert!(told.contains("the service stopped"), "{told:?}");
+    assert!(!socket.exists(), "{} was left behind", socket.display());
+}
+
 #[test]
 fn the_service_calibrates_plays_and_answers_its_socket() {
     if !gpu_or_skip() {

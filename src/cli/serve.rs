@@ -205,7 +205,7 @@ pub fn serve(a: ServeArgs) -> Result<()> {
             Ok(c)
         }) as compend::service::Reload
     });
-    compend::service::serve(config, reload).context("compend serve")
+    compend::service::serve(config, reload, compend::service::terminated()).context("compend serve")
 }
 
 fn socket_of(c: &ClientArgs) -> Result<PathBuf> {

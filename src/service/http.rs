@@ -369,6 +369,7 @@ pub async fn serve(
     tls: Option<Arc<rustls::ServerConfig>>,
     console: Arc<Console>,
 ) {
+    let shared = console.shared.clone();
     let app = router(console);
     let capped = match Capped::start(listener, tls) {
         Ok(c) => c,
@@ -377,7 +378,11 @@ pub async fn serve(
             return;
         }
     };
-    if let Err(e) = axum::serve(capped, app.into_make_service_with_connect_info::<Peer>()).await {
+    // Once the service stops: no new connections, and the open ones are waited for (an event
+    // stream is cut when the runtime ends).
+    let served = axum::serve(capped, app.into_make_service_with_connect_info::<Peer>())
+        .with_graceful_shutdown(async move { shared.stopped().await });
+    if let Err(e) = served.await {
         tracing::error!("console: the HTTP server stopped: {e}");
     }
 }
@@ -598,15 +603,24 @@ async fn events(State(c): State<Arc<Console>>) -> Response {
         );
     };
     let rx = c.shared.hub.subscribe();
-    let stream = futures_util::stream::unfold((rx, slot), |(mut rx, slot)| async move {
-        let item = match rx.recv().await {
-            Ok(e) => sse(&e),
-            Err(broadcast::error::RecvError::Lagged(n)) => Ok(SseEvent::default()
-                .event("lagged")
-                .data(format!("{{\"kind\":\"lagged\",\"missed\":{n}}}"))),
-            Err(broadcast::error::RecvError::Closed) => return None,
-        };
-        Some((item, (rx, slot)))
+    let shared = c.shared.clone();
+    // Ends when the service stops, so that the server's graceful shutdown is not held up.
+    let stream = futures_util::stream::unfold((rx, slot), move |(mut rx, slot)| {
+        let shared = shared.clone();
+        async move {
+            let got = tokio::select! {
+                got = rx.recv() => got,
+                () = shared.stopped() => return None,
+            };
+            let item = match got {
+                Ok(e) => sse(&e),
+                Err(broadcast::error::RecvError::Lagged(n)) => Ok(SseEvent::default()
+                    .event("lagged")
+                    .data(format!("{{\"kind\":\"lagged\",\"missed\":{n}}}"))),
+                Err(broadcast::error::RecvError::Closed) => return None,
+            };
+            Some((item, (rx, slot)))
+        }
     });
     no_store(
         Sse::new(stream)

@@ -68,7 +68,8 @@ pub enum Event {
     Request(Envelope),
     /// SIGHUP: the configuration file, parsed again.
     Reload(Box<Config>),
-    /// SIGTERM or SIGINT.
+    /// The shutdown signal [`serve`] was given resolved (SIGTERM, SIGINT, a test's): what
+    /// stopped it.
     Terminate(&'static str),
 }
 
@@ -81,6 +82,8 @@ pub struct Shared {
     pub cancel: Arc<AtomicBool>,
     /// Set once the service is shutting down.
     closing: AtomicBool,
+    /// Set once the engine has stopped: the listeners and their clients stop ([`Shared::stopped`]).
+    stop: tokio::sync::watch::Sender<bool>,
     /// What happened, for subscribers ([`events`]).
     pub hub: events::Hub,
     /// What the camera saw, for the console ([`views`]).
@@ -114,6 +117,7 @@ impl Shared {
             started: Instant::now(),
             cancel: Arc::new(AtomicBool::new(false)),
             closing: AtomicBool::new(false),
+            stop: tokio::sync::watch::Sender::new(false),
             hub: events::Hub::default(),
             views: views::Views::default(),
         }
@@ -179,6 +183,18 @@ impl Shared {
             self.cancel.store(true, Ordering::Relaxed);
         }
         self.events.send(Event::Request(envelope)).is_ok()
+    }
+
+    /// Whether the engine has stopped ([`Shared::stopped`]).
+    pub fn is_stopped(&self) -> bool {
+        *self.stop.borrow()
+    }
+
+    /// Resolves once the engine has stopped: every listener stops accepting and every client
+    /// task ends its connection (between requests), as mini-redis's shutdown does.
+    pub async fn stopped(&self) {
+        let mut rx = self.stop.subscribe();
+        let _ = rx.wait_for(|stopped| *stopped).await;
     }
 
     fn signal(&self, event: Event) {
@@ -436,9 +452,17 @@ fn check_folders(paths: &crate::config::PathsConfig) -> Result<()> {
 /// changed. `None`: no file to read again.
 pub type Reload = Box<dyn Fn() -> Result<Config> + Send + Sync>;
 
-/// Runs the service until it is stopped (a `stop` request, SIGTERM, SIGINT). `reload` reads the
-/// configuration again on SIGHUP.
-pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
+/// Runs the service until it is stopped: a `stop` request, or `shutdown` resolving (the binary
+/// passes [`terminated`]: SIGTERM or SIGINT; a test passes its own), which says what stopped it.
+/// `reload` reads the configuration again on SIGHUP. When the engine has stopped, the socket,
+/// the control port, the console and OSC stop accepting, their clients are told to go (each
+/// ends its connection between requests), and they are waited for ([`STOP_GRACE`]) before this
+/// returns; the socket file is removed.
+pub fn serve(
+    config: Config,
+    reload: Option<Reload>,
+    shutdown: impl std::future::Future<Output = &'static str> + Send + 'static,
+) -> Result<()> {
     preflight(&config, true)?;
     let (tx, rx) = mpsc::channel();
     let rig_name = engine::rig_name(&config.rig);
@@ -484,12 +508,12 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
         socket::bind(&config.socket)?
     };
     let socket_path = config.socket.path.clone();
-    runtime.spawn(socket::serve(listener, access, shared.clone()));
+    let mut tasks = vec![runtime.spawn(socket::serve(listener, access, shared.clone()))];
     if let Some((listener, token, addr)) = tcp {
         // The port bound (the configuration may ask for port 0: any free one).
         let addr = listener.local_addr().unwrap_or(addr);
         tracing::info!("control port: listening on {addr} (requests carry the token)");
-        runtime.spawn(socket::serve_tcp(listener, token, shared.clone()));
+        tasks.push(runtime.spawn(socket::serve_tcp(listener, token, shared.clone())));
     }
     if let Some((listener, tls, console)) = console {
         let addr = listener
@@ -504,7 +528,7 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
             );
         }
         shared.update(|s| s.http = Some(addr));
-        runtime.spawn(http::serve(listener, tls, console));
+        tasks.push(runtime.spawn(http::serve(listener, tls, console)));
     }
     if let Some(sock) = osc {
         let addr = sock
@@ -515,11 +539,28 @@ pub fn serve(config: Config, reload: Option<Reload>) -> Result<()> {
             config.osc.peers.len()
         );
         shared.update(|s| s.osc = Some(addr));
-        runtime.spawn(osc::serve(sock, config.osc.clone(), shared.clone()));
+        tasks.push(runtime.spawn(osc::serve(sock, config.osc.clone(), shared.clone())));
     }
-    runtime.spawn(signals(shared.clone(), reload));
+    runtime.spawn(reloads(shared.clone(), reload));
+    {
+        let shared = shared.clone();
+        runtime.spawn(async move {
+            let why = shutdown.await;
+            shared.signal(Event::Terminate(why));
+        });
+    }
     let result = engine::Engine::start(config, shared.clone(), rx).and_then(|engine| engine.run());
     shared.closing.store(true, Ordering::Relaxed);
+    shared.stop.send_replace(true);
+    runtime.block_on(async {
+        let all = futures_util::future::join_all(tasks);
+        if tokio::time::timeout(STOP_GRACE, all).await.is_err() {
+            tracing::warn!(
+                "stopping: a listener or a client was still busy after {} s; it is dropped",
+                STOP_GRACE.as_secs_f64()
+            );
+        }
+    });
     runtime.shutdown_timeout(std::time::Duration::from_secs(1));
     // The socket is ours (bind replaced only a dead one): remove it so clients see the service
     // is gone.
@@ -689,35 +730,48 @@ fn take_lock(
     Ok(file)
 }
 
-/// SIGTERM and SIGINT stop the service; SIGHUP reloads the configuration.
-async fn signals(shared: Arc<Shared>, reload: Option<Reload>) {
+/// How long [`serve`] waits, once the engine has stopped, for the listeners and their clients
+/// to end.
+pub const STOP_GRACE: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// The binary's shutdown signal for [`serve`]: resolves at SIGTERM or SIGINT, naming it. Where
+/// the handlers cannot be installed it never resolves (the service then stops on a `stop`
+/// request), and says so.
+pub async fn terminated() -> &'static str {
     use tokio::signal::unix::{SignalKind, signal};
-    let (Ok(mut term), Ok(mut int), Ok(mut hup)) = (
+    let (Ok(mut term), Ok(mut int)) = (
         signal(SignalKind::terminate()),
         signal(SignalKind::interrupt()),
-        signal(SignalKind::hangup()),
     ) else {
         tracing::error!("cannot install the signal handlers; stop the service with compend stop");
+        return std::future::pending().await;
+    };
+    tokio::select! {
+        _ = term.recv() => "SIGTERM",
+        _ = int.recv() => "SIGINT",
+    }
+}
+
+/// SIGHUP reloads the configuration (with `reload`; without, it says there is nothing to read).
+async fn reloads(shared: Arc<Shared>, reload: Option<Reload>) {
+    use tokio::signal::unix::{SignalKind, signal};
+    let Ok(mut hup) = signal(SignalKind::hangup()) else {
+        tracing::error!("cannot install the SIGHUP handler; restart the service to reload");
         return;
     };
-    loop {
-        tokio::select! {
-            _ = term.recv() => shared.signal(Event::Terminate("SIGTERM")),
-            _ = int.recv() => shared.signal(Event::Terminate("SIGINT")),
-            _ = hup.recv() => match &reload {
-                None => tracing::warn!("SIGHUP: no --config file to reload; nothing changed"),
-                Some(reload) => match reload() {
-                    Ok(c) => shared.signal(Event::Reload(Box::new(c))),
-                    Err(e) => {
-                        // In `status` too: the operator who sent the signal looks there.
-                        let msg = format!(
-                            "SIGHUP: the configuration was not reloaded, the running one \
-                             stays: {e}"
-                        );
-                        tracing::error!("{msg}");
-                        shared.update(|s| s.last_error = Some(msg));
-                    }
-                },
+    while hup.recv().await.is_some() {
+        match &reload {
+            None => tracing::warn!("SIGHUP: no --config file to reload; nothing changed"),
+            Some(reload) => match reload() {
+                Ok(c) => shared.signal(Event::Reload(Box::new(c))),
+                Err(e) => {
+                    // In `status` too: the operator who sent the signal looks there.
+                    let msg = format!(
+                        "SIGHUP: the configuration was not reloaded, the running one stays: {e}"
+                    );
+                    tracing::error!("{msg}");
+                    shared.update(|s| s.last_error = Some(msg));
+                }
             },
         }
     }

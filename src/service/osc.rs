@@ -175,7 +175,11 @@ pub async fn serve(sock: UdpSocket, cfg: OscConfig, shared: Arc<Shared>) {
     // An OSC packet fits one UDP datagram.
     let mut buf = vec![0u8; 65_536];
     loop {
-        let (n, peer) = match sock.recv_from(&mut buf).await {
+        let received = tokio::select! {
+            got = sock.recv_from(&mut buf) => got,
+            () = shared.stopped() => return,
+        };
+        let (n, peer) = match received {
             Ok(got) => got,
             Err(e) => {
                 tracing::debug!("osc: receive: {e}");
