@@ -24,23 +24,42 @@ fn keep_freed_memory() {
 
 mod cli;
 
+/// The build's features in words, for `VERSION`.
+#[cfg(all(feature = "cuda", feature = "benches"))]
+macro_rules! features {
+    () => {
+        "cuda, benches"
+    };
+}
+#[cfg(all(feature = "cuda", not(feature = "benches")))]
+macro_rules! features {
+    () => {
+        "cuda"
+    };
+}
+#[cfg(all(not(feature = "cuda"), feature = "benches"))]
+macro_rules! features {
+    () => {
+        "benches; CPU training only"
+    };
+}
+#[cfg(all(not(feature = "cuda"), not(feature = "benches")))]
+macro_rules! features {
+    () => {
+        "none, CPU training only"
+    };
+}
+
 /// `compend --version`: the package version, the commit it was built from (`build.rs`) and
-/// whether this build trains on CUDA.
-const VERSION: &str = if cfg!(feature = "cuda") {
-    concat!(
-        env!("CARGO_PKG_VERSION"),
-        " (commit ",
-        env!("COMPEND_COMMIT"),
-        "; features: cuda)"
-    )
-} else {
-    concat!(
-        env!("CARGO_PKG_VERSION"),
-        " (commit ",
-        env!("COMPEND_COMMIT"),
-        "; features: none, CPU training only)"
-    )
-};
+/// the build's features (CUDA training, the benchmarks).
+const VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (commit ",
+    env!("COMPEND_COMMIT"),
+    "; features: ",
+    features!(),
+    ")"
+);
 
 #[derive(Parser, Debug)]
 #[command(name = "compend", version = VERSION, about = "Projector-camera compensation: make a projector look right on any surface", long_about = None)]
@@ -50,7 +69,7 @@ struct Cli {
 }
 
 /// In `--help`, the commands a user needs first (calibrate and the service's), then the rig's
-/// and the data's tools, the benchmarks last.
+/// and the data's tools; the benchmarks last, in a build with the `benches` feature only.
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Calibrate a rig: measure its latency, project and capture the patterns, train, verify
@@ -110,19 +129,24 @@ enum Command {
     /// how the shipped `weights/compennet-pretrain-w*.safetensors` were made.
     Pretrain(cli::pretrain::Args),
     /// Benchmark methods × scenes × training-set sizes × seeds on the virtual rig.
+    #[cfg(feature = "benches")]
     Bench(cli::bench::Args),
     /// Per-frame GPU time of the compensation pass against a plain texture copy, and frames
     /// dropped at 60 Hz on the virtual rig and by the pipeline alone.
+    #[cfg(feature = "benches")]
     BenchGpu(cli::bench_gpu::Args),
     /// Films through compend on this machine: decode cost, live playback of a film through the
     /// pass (frames dropped, latency, CPU), offline compensation's speed, and the sound's
     /// offset from the picture on the virtual rig.
+    #[cfg(feature = "benches")]
     BenchMedia(cli::bench_media::Args),
     /// The service's targets on the virtual rig, driven through its socket: status while
     /// training, a flood of malformed requests, drops during model swaps, drift detection.
+    #[cfg(feature = "benches")]
     BenchServe(cli::bench_serve::Args),
     /// Training and inference cost of the CompenNet++ rungs and `linear` on this CPU, against
     /// the machine's arithmetic rate measured in the same run.
+    #[cfg(feature = "benches")]
     BenchTrain(cli::bench_train::Args),
 }
 
@@ -260,14 +284,12 @@ fn main() -> ExitCode {
     quiet_on_broken_stdout();
     let args = Cli::parse();
     init_logging(matches!(args.command, Command::Serve(_)));
-    let compute = matches!(
-        args.command,
-        Command::Bench(_)
-            | Command::BenchTrain(_)
-            | Command::Calibrate(_)
-            | Command::Pretrain(_)
-            | Command::Train(_)
-    );
+    let compute = match args.command {
+        Command::Calibrate(_) | Command::Pretrain(_) | Command::Train(_) => true,
+        #[cfg(feature = "benches")]
+        Command::Bench(_) | Command::BenchTrain(_) => true,
+        _ => false,
+    };
     if compute {
         no_candle_side_pool();
         keep_freed_memory();
@@ -277,10 +299,15 @@ fn main() -> ExitCode {
         no_candle_side_pool();
     }
     let dispatch = move || match args.command {
+        #[cfg(feature = "benches")]
         Command::Bench(a) => cli::bench::run(a),
+        #[cfg(feature = "benches")]
         Command::BenchGpu(a) => cli::bench_gpu::run(a),
+        #[cfg(feature = "benches")]
         Command::BenchMedia(a) => cli::bench_media::run(a),
+        #[cfg(feature = "benches")]
         Command::BenchServe(a) => cli::bench_serve::run(a),
+        #[cfg(feature = "benches")]
         Command::BenchTrain(a) => cli::bench_train::run(a),
         Command::Cameras(a) => cli::cameras::run(a),
         Command::Calibrate(a) => cli::calibrate::run(a),

@@ -5,7 +5,8 @@ use crate::common::{assert_code, compend, stderr, stdout};
 
 #[test]
 fn help_completions_and_manual_pages_come_from_the_command_line() {
-    // The user's commands before the tools, the benchmarks last.
+    // The user's commands before the tools, the benchmarks last, and only in a build with the
+    // `benches` feature.
     let help = stdout(&compend(&["--help"]));
     let at = |name: &str| {
         help.find(&format!("\n  {name} "))
@@ -15,9 +16,19 @@ fn help_completions_and_manual_pages_come_from_the_command_line() {
         at("calibrate") < at("serve") && at("serve") < at("train"),
         "{help}"
     );
-    assert!(
-        at("train") < at("bench") && at("sim") < at("bench-gpu"),
-        "{help}"
+    if cfg!(feature = "benches") {
+        assert!(
+            at("train") < at("bench") && at("sim") < at("bench-gpu"),
+            "{help}"
+        );
+    } else {
+        assert!(!help.contains("\n  bench"), "{help}");
+    }
+    let v = stdout(&compend(&["--version"]));
+    assert_eq!(
+        v.contains("benches"),
+        cfg!(feature = "benches"),
+        "the version names the benches feature when built with it: {v}"
     );
 
     // The version says which commit and which features.

@@ -225,6 +225,7 @@ fn pass_is_reused_across_frames() {
 /// ratio and the virtual-rig counts, in JSON and markdown, with the convolution kernels asked
 /// for.
 #[test]
+#[cfg(feature = "benches")]
 fn bench_gpu_writes_ratios() {
     if gpu().is_none() {
         return;
@@ -311,6 +312,7 @@ fn bench_gpu_writes_ratios() {
 /// `compend bench-gpu --model`: a trained `linear` model is timed on its own lattice; a
 /// CompenNet++ model or a folder that holds no model is refused with exit 2, naming it.
 #[test]
+#[cfg(feature = "benches")]
 fn bench_gpu_times_a_trained_linear_or_residual_model() {
     if gpu().is_none() {
         return;

@@ -1,6 +1,7 @@
 //! The one integration-test binary: each module tests one area, through the library API or by
 //! running the real `compend` binary.
 
+#[cfg(feature = "benches")]
 mod bench;
 mod calibrate;
 mod calibrate_window;

@@ -1081,6 +1081,7 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
 }
 
 #[test]
+#[cfg(feature = "benches")]
 fn bench_serve_measures_the_targets_on_a_tiny_rig() {
     let dir = tempfile::tempdir().unwrap();
     // A folder that holds something is refused before any work.

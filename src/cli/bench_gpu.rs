@@ -12,10 +12,8 @@ use std::time::Duration;
 use anyhow::Result;
 use compend::fov::DisplayRange;
 use compend::gpu::ConvKernels;
-use compend::gpu::bench::{
-    Timing, synthetic_compennet_model, synthetic_linear_model, time_compennet_layers, time_copy,
-    time_pass, time_stages,
-};
+use compend::gpu::bench::{Timing, time_compennet_layers, time_copy, time_pass, time_stages};
+use compend::gpu::synthetic::{synthetic_compennet_model, synthetic_linear_model};
 use compend::gpu::{CompensationPass, GpuContext};
 use compend::model::Model;
 use compend::playback::ContentFrame;

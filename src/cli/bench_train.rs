@@ -365,7 +365,7 @@ fn compennet_row(
     let train_ms = per_sample(&candle_steps);
     let torch_ms = per_sample(&torch_steps);
     let error = (!errors.is_empty()).then(|| errors.join("; "));
-    let model = compend::gpu::bench::synthetic_compennet_model(
+    let model = compend::gpu::synthetic::synthetic_compennet_model(
         camera,
         ImageSize::new(side, side),
         variant,
@@ -437,7 +437,7 @@ fn linear_row(a: &Args, camera: ImageSize) -> Result<Row> {
     } else {
         None
     };
-    let model = compend::gpu::bench::synthetic_linear_model(camera, lattice, 0);
+    let model = compend::gpu::synthetic::synthetic_linear_model(camera, lattice, 0);
     Ok(Row {
         method: compend::linear::METHOD.into(),
         network: lattice.width,

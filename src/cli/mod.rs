@@ -1,10 +1,15 @@
 //! Subcommand implementations: argument structs (clap) and `run` functions.
 //! Errors carry context with anyhow; library errors inside decide the exit code.
 
+#[cfg(feature = "benches")]
 pub mod bench;
+#[cfg(feature = "benches")]
 pub mod bench_gpu;
+#[cfg(feature = "benches")]
 pub mod bench_media;
+#[cfg(feature = "benches")]
 pub mod bench_serve;
+#[cfg(feature = "benches")]
 pub mod bench_train;
 pub mod calibrate;
 pub mod cameras;

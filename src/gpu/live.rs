@@ -4,10 +4,11 @@
 //! would give it and timed on the playback GPU, against the display's refresh.
 
 use super::GpuContext;
-use super::bench::{
-    synthetic_compennet_model, synthetic_linear_model, synthetic_residual_model, time_pass,
-};
 use super::pass::CompensationPass;
+use super::synthetic::{
+    synthetic_compennet_model, synthetic_linear_model, synthetic_residual_model,
+};
+use super::timing::{Timing, time_work};
 use crate::error::{Error, Result};
 use crate::fit::{LiveCost, LivePass, PassShape};
 use crate::fov::DisplayRange;
@@ -68,6 +69,19 @@ impl LivePass for GpuLivePass {
             self.refresh_hz,
         ))
     }
+}
+
+/// The compensation pass on `content` (uploaded once).
+pub fn time_pass(
+    ctx: &GpuContext,
+    pass: &mut CompensationPass,
+    content: &ContentFrame,
+    warmup: usize,
+    iters: usize,
+) -> Result<Timing> {
+    pass.upload(ctx, content)?;
+    let pass = &*pass;
+    time_work(ctx, warmup, iters, |enc| pass.encode(enc, None))
 }
 
 /// A horizontal gray ramp at `size` (8-bit RGBA): what is timed does not depend on the content.

@@ -6,12 +6,15 @@
 //!   with its stages in `shaders/*.wgsl`; the model's photometric stage is a [`pass::Photometric`]
 //!   variant ([`linear`] for the `linear` rung, [`compennet`] for the CompenNet++ family,
 //!   [`residual`] for the residual rungs, which run both and add).
-//! - [`bench`]: per-frame GPU time of the pass against a plain texture copy of the same size.
+//! - `bench` (a build with the `benches` feature): per-frame GPU time of the pass against a plain
+//!   texture copy of the same size, each stage and each CompenNet layer alone.
 //! - [`live`]: a climb rung's pass timed where the model is to play, for `auto`'s frame budget.
-//! - [`timing`]: the timer of GPU work both use (GPU timestamps where the adapter has them).
+//! - [`timing`]: the timer of GPU work (GPU timestamps where the adapter has them), and
+//!   [`synthetic`]: models of a rung's shapes to time.
 //!
 //! Every stage has a CPU reference in the core ([`crate::playback`]), and tests compare them.
 
+#[cfg(feature = "benches")]
 pub mod bench;
 pub mod compennet;
 pub mod context;
@@ -20,6 +23,7 @@ pub mod linear;
 pub mod live;
 pub mod pass;
 pub mod residual;
+pub mod synthetic;
 pub mod timing;
 
 pub use context::{ConvKernels, GpuContext, NoAdapter, is_no_adapter};

@@ -1,7 +1,7 @@
 //! Timing GPU work: each run encodes the work, submits it and waits for the GPU; medians of the
 //! wall clock (submit to idle) and, where the adapter has timestamp queries inside encoders, of
-//! the GPU's own timestamps around the work. Used by the benchmarks ([`super::bench`]) and by
-//! the CompenNet stage choosing its convolution kernels ([`super::ConvKernels`]).
+//! the GPU's own timestamps around the work. Used by a climb's live pass ([`super::live`]), the
+//! benchmarks, and the CompenNet stage choosing its convolution kernels ([`super::ConvKernels`]).
 
 use std::time::Instant;
 
