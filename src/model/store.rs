@@ -14,7 +14,7 @@ use crate::error::{Error, Result};
 use crate::method::Method;
 use crate::raster::ImageSize;
 use crate::record::{CalibrationRecord, Timings, TrainingRecord};
-pub use crate::tensors::Tensors;
+use crate::tensors::Tensors;
 
 /// Version of the model directory format this build reads and writes.
 pub const FORMAT_VERSION: u32 = 1;
