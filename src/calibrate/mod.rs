@@ -10,7 +10,7 @@
 //!    white, the gray image) written to the data root, unless already there;
 //! 3. **captures**: each pattern stretched over the canvas (the whole projector frame), shown,
 //!    captured synchronised and averaged ([`sync::Capturer`]), written atomically in the
-//!    dataset layout as it arrives and recorded in the manifest ([`manifest`]); captures already
+//!    dataset layout as it arrives and recorded in the manifest ([`crate::dataset::manifest`]); captures already
 //!    on disk for the same pattern set are not taken again (an interrupted run resumes);
 //! 4. **training**: the requested rung on the setup ([`crate::fit`]); `auto` trains the
 //!    CompenNet++ rung the machine can afford on every pair, with no held-out judgement, and
