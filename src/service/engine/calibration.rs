@@ -23,10 +23,10 @@ use super::super::protocol::{
     CalibrationOutcome, CalibrationProgress, ModelStatus, Monitoring, Reply, Request, State,
 };
 use super::super::{Event, Shared};
-use super::{Engine, Next, rig_name};
+use super::{Background, Engine, Next, rig_name};
 use crate::calibrate::runs::Runs;
 use crate::calibrate::{self, Options};
-use crate::config::Config;
+use crate::config::{Config, DriftPolicy};
 use crate::error::{Error, Result};
 use crate::model::Model;
 use crate::service::views::Tapped;
@@ -140,12 +140,11 @@ impl Engine {
         cancel.store(false, Ordering::Relaxed);
         // A climb or a training from the previous calibration is moot (and must not install
         // over this one).
-        self.climb = None;
-        self.climb_plan = None;
-        self.training = None;
+        self.background = Background::None;
         let runs = Runs::new(&self.config.paths.data);
-        let refit = std::mem::take(&mut self.refit);
-        if std::mem::take(&mut self.fresh_run) {
+        let after_drift = self.after_drift.take();
+        let refit = after_drift == Some(DriftPolicy::Refit);
+        if after_drift.is_some() {
             // After drift the surface is not what an interrupted run captured: start afresh.
             runs.end();
         }
@@ -201,7 +200,8 @@ impl Engine {
             Job::Fit => opts.method.to_string(),
             Job::Refit(_) => format!("{} on the closed-loop pairs", opts.method),
         };
-        self.training = Some(self.start_training(data, captured, opts, job));
+        let training = self.start_training(data, captured, opts, job);
+        self.background = Background::Training(training);
         if self.model.is_some() && self.config.playback.autoplay && !self.stay_paused {
             tracing::info!("training {what} beside playback of the current model");
             self.next = Next::Play;
@@ -265,7 +265,7 @@ impl Engine {
     /// verification and install; after a refit on the closed-loop pairs, verification and
     /// install.
     pub(super) fn trained(&mut self, captured: calibrate::Captured, model: Result<Model>) {
-        let Some(t) = self.training.take() else {
+        let Some(t) = self.background.take_training() else {
             return;
         };
         let data = t.data.clone();
@@ -277,7 +277,7 @@ impl Engine {
 
     /// A training whose thread ended without an answer.
     pub(super) fn training_lost(&mut self) {
-        if let Some(t) = self.training.take() {
+        if let Some(t) = self.background.take_training() {
             let e = Error::Failed("the training thread ended without an answer".into());
             self.calibration_failed(&t.data, e);
         }
@@ -380,8 +380,9 @@ impl Engine {
             Ok(model) => {
                 tracing::info!("installed {} into {}", model.meta.method, out.display());
                 let c = &self.config.calibration;
-                self.climb_plan =
-                    climb::Plan::after_install(c, model.meta.method, &data, setup, &out);
+                self.background =
+                    climb::Plan::after_install(c, model.meta.method, &data, setup, &out)
+                        .map_or(Background::None, Background::ClimbPlanned);
                 let message = format!(
                     "installed {} into {} (verified {:.2} dB, {:+.2} dB over uncompensated)",
                     model.meta.method,

@@ -59,6 +59,59 @@ enum Next {
     Stop,
 }
 
+/// What runs beside the engine's own work, one at a time: a calibration's model training
+/// (beside playback of the model it will replace), then the progressive climb its install
+/// planned, then that climb under way (it trains beside playback, which checks it between
+/// refreshes). A calibration, or a model the operator chose, drops whichever it is.
+enum Background {
+    None,
+    Training(calibration::Training),
+    ClimbPlanned(climb::Plan),
+    Climbing(climb::Climb),
+}
+
+impl Background {
+    fn training(&self) -> Option<&calibration::Training> {
+        match self {
+            Background::Training(t) => Some(t),
+            _ => None,
+        }
+    }
+
+    /// The training, leaving nothing in its place; anything else stays.
+    fn take_training(&mut self) -> Option<calibration::Training> {
+        match std::mem::replace(self, Background::None) {
+            Background::Training(t) => Some(t),
+            other => {
+                *self = other;
+                None
+            }
+        }
+    }
+
+    /// The planned climb, leaving nothing in its place; anything else stays.
+    fn take_plan(&mut self) -> Option<climb::Plan> {
+        match std::mem::replace(self, Background::None) {
+            Background::ClimbPlanned(p) => Some(p),
+            other => {
+                *self = other;
+                None
+            }
+        }
+    }
+
+    /// The climb under way, leaving nothing in its place; anything else stays.
+    fn take_climbing(&mut self) -> Option<climb::Climb> {
+        match std::mem::replace(self, Background::None) {
+            Background::Climbing(c) => Some(c),
+            other => {
+                *self = other;
+                None
+            }
+        }
+    }
+}
+
 pub struct Engine {
     config: Config,
     devices: Devices,
@@ -77,20 +130,15 @@ pub struct Engine {
     baseline: Option<(Playlist, f64)>,
     /// A configuration that came while calibrating, applied after it.
     reload: Option<Box<Config>>,
-    /// Progressive calibration: the climb to start with the next playback, or the one under way.
-    climb_plan: Option<climb::Plan>,
-    climb: Option<climb::Climb>,
-    /// A calibration's model training beside playback.
-    training: Option<calibration::Training>,
+    /// What runs beside the engine's own work: a calibration's training, or a climb.
+    background: Background,
     /// When the calibration under way began.
     calibration_started: Instant,
     /// The projector was paused when the calibration began: it stays dark after it.
     stay_paused: bool,
-    /// The next calibration starts a new run (after drift), never resuming an interrupted one.
-    fresh_run: bool,
-    /// The next calibration is a drift refit (`on_drift = "refit"`): few sampling images,
-    /// the `linear` rung.
-    refit: bool,
+    /// Drift asked for the next calibration (`on_drift`): it starts a new run, never resuming
+    /// an interrupted one; `Refit`: from few sampling images, the `linear` rung.
+    after_drift: Option<DriftPolicy>,
     /// The calibration in progress is a refit (asked for, or the interrupted run resumed was
     /// one).
     refitting: bool,
@@ -115,13 +163,10 @@ impl Engine {
             next: Next::Wait,
             baseline: None,
             reload: None,
-            climb_plan: None,
-            climb: None,
-            training: None,
+            background: Background::None,
             calibration_started: Instant::now(),
             stay_paused: false,
-            fresh_run: false,
-            refit: false,
+            after_drift: None,
             refitting: false,
         };
         let path = engine.model_path.clone();
@@ -221,7 +266,7 @@ impl Engine {
     /// Drops a calibration's training (the operator chose another model): its run ends, so it
     /// is not resumed at the next start either.
     fn abandon_training(&mut self, why: &str) {
-        if self.training.take().is_some() {
+        if self.background.take_training().is_some() {
             crate::calibrate::runs::Runs::new(&self.config.paths.data).end();
             self.io.shared.update(|s| s.calibration = None);
             tracing::info!("calibration abandoned: {why}");
@@ -230,7 +275,7 @@ impl Engine {
 
     /// A training beside playback that has ended goes on to its verification.
     fn training_ended(&mut self) -> bool {
-        let Some(t) = &self.training else {
+        let Some(t) = self.background.training() else {
             return false;
         };
         match t.poll() {
@@ -415,9 +460,8 @@ impl Engine {
         let model = load_model(path, self.devices.camera_size())?;
         // A climb from the model it replaces, or a calibration training beside playback, would
         // install over the operator's choice.
-        self.climb = None;
-        self.climb_plan = None;
         self.abandon_training("another model was chosen");
+        self.background = Background::None;
         if let Devices::Virtual(v) = &mut self.devices {
             match_exposure(&mut v.rig, &model)?;
         }
@@ -466,7 +510,7 @@ impl Engine {
                     c.verification.psnr
                 ))
         );
-        if let Some(plan) = self.climb_plan.take() {
+        if let Some(plan) = self.background.take_plan() {
             // A rung the display cannot keep up with is not trained: its pass is timed first,
             // alone on the GPU, before this playback starts.
             let method = plan.method;
@@ -495,7 +539,7 @@ impl Engine {
             };
             if affordable {
                 match climb::Climb::start(plan) {
-                    Ok(c) => self.climb = Some(c),
+                    Ok(c) => self.background = Background::Climbing(c),
                     Err(e) => self.io.fail("progressive calibration", &e),
                 }
             }
@@ -532,7 +576,8 @@ impl Engine {
         let monitor = (m.enabled && watchable).then(|| {
             // A calibration already under way (training beside this playback) is not started
             // again: drift is reported only.
-            let recalibrate = m.on_drift != DriftPolicy::Report && self.training.is_none();
+            let recalibrate =
+                m.on_drift != DriftPolicy::Report && self.background.training().is_none();
             Tap::new(
                 self.baseline_for_source(),
                 m.drift_threshold_db,
@@ -544,7 +589,9 @@ impl Engine {
         let fps = self.config.rig.fps;
         let drift_after = self.config.rig.drift_after_s;
         // A calibration's model training beside this playback ends it when it is trained.
-        let end_when = self.training.as_ref().map(|t| t.done.clone());
+        let end_when = self.background.training().map(|t| t.done.clone());
+        // A climb under way goes along with the playback, which checks it between refreshes.
+        let mut climb = self.background.take_climbing();
         let output = self.config.output.to.clone();
         let audio = self.config.audio.out();
         let result = match &mut self.devices {
@@ -554,7 +601,7 @@ impl Engine {
                     v,
                     model,
                     (range, source, fps),
-                    (&mut self.io, &mut self.climb),
+                    (&mut self.io, &mut climb),
                     (monitor.clone(), (period, stats_every)),
                     Around {
                         before: &before,
@@ -573,7 +620,7 @@ impl Engine {
                     h,
                     model,
                     (range, source),
-                    (&mut self.io, &mut self.climb),
+                    (&mut self.io, &mut climb),
                     (monitor.clone(), settle, (period, stats_every)),
                     Around {
                         before: &before,
@@ -587,6 +634,9 @@ impl Engine {
                 )
             }
         };
+        if let Some(c) = climb {
+            self.background = Background::Climbing(c);
+        }
         // A model swapped in while playing is the one served from now on (also when the
         // playback then failed).
         let swapped = match &result {
@@ -688,8 +738,8 @@ impl Engine {
     /// plays on).
     fn on_drift(&mut self) {
         let m = &self.config.monitoring;
-        self.refit = m.on_drift == DriftPolicy::Refit;
-        if self.refit {
+        self.after_drift = Some(m.on_drift);
+        if m.on_drift == DriftPolicy::Refit {
             tracing::warn!(
                 "drift: refitting the linear rung from {} sampling images",
                 m.refit_ntrain
@@ -697,7 +747,6 @@ impl Engine {
         } else {
             tracing::warn!("drift: recalibrating");
         }
-        self.fresh_run = true;
         self.next = Next::Calibrate;
     }
 }
