@@ -216,6 +216,22 @@ mod tests {
     use crate::config::Config;
     use crate::fit::TrainDevice;
 
+    #[test]
+    fn an_error_names_the_rig_setting_as_it_was_written() {
+        assert_eq!(
+            Given::Flags.name("projector", "640x480"),
+            "--projector 640x480"
+        );
+        assert_eq!(
+            Given::Flags.name("camera_size", "320x240"),
+            "--camera-size 320x240"
+        );
+        assert_eq!(
+            Given::File.name("projector", "640x480"),
+            "[rig] projector = \"640x480\""
+        );
+    }
+
     /// A timer that times nothing.
     #[derive(Debug)]
     struct NoPass;
