@@ -13,7 +13,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, mpsc};
+use std::sync::{Arc, mpsc};
 use std::time::Instant;
 
 use crate::dataset::Setup;
@@ -22,10 +22,26 @@ use crate::fit;
 use crate::model::{Method, MethodChoice, Model};
 use crate::record::{ClimbClosedLoop, ClimbRecord, Verification};
 
-/// Held while a model directory is replaced, by a calibration's install and by a climb's
-/// ([`settle`]). Both run on the engine's thread, which drops a climb when a recalibration
-/// begins; the lock keeps any later installer from another thread in line.
-pub(super) static INSTALL: Mutex<()> = Mutex::new(());
+/// The right to replace the installed model directory: the engine holds the only one, and a
+/// calibration's install ([`Installer::install`]) and a climb's ([`settle`]) each take it by
+/// `&mut`, so two installs never overlap, with no lock and no global.
+pub(super) struct Installer(());
+
+impl Installer {
+    /// The engine's, made once when it starts.
+    pub(super) fn new() -> Self {
+        Installer(())
+    }
+
+    /// Installs a verified calibration's model into `out` ([`crate::calibrate::install`]).
+    pub(super) fn install(
+        &mut self,
+        done: crate::calibrate::Calibrated,
+        out: &Path,
+    ) -> Result<Model> {
+        crate::calibrate::install(done, out)
+    }
+}
 
 /// What to climb to, after which calibration.
 #[derive(Clone, Debug)]
@@ -224,6 +240,7 @@ fn climb(p: Plan, cancel: &Arc<AtomicBool>) -> Result<Box<Candidate>> {
 /// `calibration.climb`, is installed at the plan's model path and returned; otherwise nothing
 /// changes and the record says why.
 pub(super) fn settle(
+    _installer: &mut Installer,
     c: Candidate,
     verifications: &[Verification],
 ) -> Result<std::result::Result<Model, ClimbRecord>> {
@@ -261,7 +278,6 @@ pub(super) fn settle(
     }
     calibration.climb = Some(record);
     model.meta.calibration = Some(calibration);
-    let _guard = INSTALL.lock().unwrap_or_else(|e| e.into_inner());
     model.save(&plan.model)?;
     Ok(Ok(model))
 }

@@ -205,11 +205,12 @@ impl Shared {
     }
 }
 
-/// The engine's channel, shared state and systemd notifier.
+/// The engine's channel, shared state, systemd notifier and model-loading thread.
 struct Io {
     shared: Arc<Shared>,
     rx: Receiver<Event>,
     notify: Notifier,
+    loader: screen::Loader,
 }
 
 impl Io {

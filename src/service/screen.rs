@@ -25,34 +25,41 @@ use crate::source::AudioOut;
 /// A job for the loading thread.
 type Job = Box<dyn FnOnce() + Send>;
 
-/// Runs `job` on the thread that loads every model swapped in while playing, started on first
-/// use (and again if it has gone). One thread for all swaps, not one per swap: with a thread
-/// per swap the service's memory grew with the swaps, most likely as glibc's allocator gave the
-/// threads arenas of their own and kept what was freed in them (docs/service.md, "Memory"). A
-/// job that panics ends without an answer (its sender dropped); the thread goes on.
-fn on_loader(job: Job) -> std::io::Result<()> {
-    static LOADER: std::sync::Mutex<Option<mpsc::Sender<Job>>> = std::sync::Mutex::new(None);
-    let mut loader = LOADER.lock().unwrap_or_else(|e| e.into_inner());
-    let job = match loader.as_ref() {
-        Some(jobs) => match jobs.send(job) {
-            Ok(()) => return Ok(()),
-            // The thread has gone: start another.
-            Err(mpsc::SendError(job)) => job,
-        },
-        None => job,
-    };
-    let (jobs, next) = mpsc::channel::<Job>();
-    std::thread::Builder::new()
-        .name("compend-load".into())
-        .spawn(move || {
-            for job in next {
-                let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
-            }
-        })?;
-    jobs.send(job)
-        .map_err(|_| std::io::Error::other("the loading thread ended before its first job"))?;
-    *loader = Some(jobs);
-    Ok(())
+/// The thread that loads every model swapped in while playing, owned by the engine (its
+/// [`Io`]) and started on first use (and again if it has gone); it ends when the engine drops
+/// it. One thread for all swaps, not one per swap: with a thread per swap the service's memory
+/// grew with the swaps, most likely as glibc's allocator gave the threads arenas of their own
+/// and kept what was freed in them (docs/service.md, "Memory").
+#[derive(Default)]
+pub(super) struct Loader {
+    jobs: Option<mpsc::Sender<Job>>,
+}
+
+impl Loader {
+    /// Runs `job` on the loading thread. A job that panics ends without an answer (its sender
+    /// dropped); the thread goes on.
+    fn run(&mut self, job: Job) -> std::io::Result<()> {
+        let job = match self.jobs.as_ref() {
+            Some(jobs) => match jobs.send(job) {
+                Ok(()) => return Ok(()),
+                // The thread has gone: start another.
+                Err(mpsc::SendError(job)) => job,
+            },
+            None => job,
+        };
+        let (jobs, next) = mpsc::channel::<Job>();
+        std::thread::Builder::new()
+            .name("compend-load".into())
+            .spawn(move || {
+                for job in next {
+                    let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
+                }
+            })?;
+        jobs.send(job)
+            .map_err(|_| std::io::Error::other("the loading thread ended before its first job"))?;
+        self.jobs = Some(jobs);
+        Ok(())
+    }
 }
 
 /// A model being loaded, and its pass built, on the loading thread while playback goes on.
@@ -67,6 +74,7 @@ impl Loading {
     /// Starts loading the model directory `path` for a rig with this camera and display: the
     /// model, checked against the camera, and its pass on (a clone of) `ctx`.
     fn start(
+        loader: &mut Loader,
         path: PathBuf,
         envelope: Envelope,
         ctx: GpuContext,
@@ -75,7 +83,7 @@ impl Loading {
     ) -> Self {
         let (tx, result) = mpsc::channel();
         let from = path.clone();
-        let spawned = on_loader(Box::new(move || {
+        let spawned = loader.run(Box::new(move || {
             let built = load_model(&from, camera).and_then(|model| {
                 let range = model.display_range();
                 let pass = CompensationPass::for_display(&ctx, &model, display, range)?;
@@ -331,6 +339,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
         );
         let ctx = self.inner.context().clone();
         self.loading = Some(Loading::start(
+            &mut self.io.loader,
             path.clone(),
             envelope,
             ctx,
@@ -625,26 +634,29 @@ mod tests {
     /// next jobs run, on that same thread.
     #[test]
     fn the_loading_thread_outlives_a_job_that_panics() {
-        let thread_of = || {
+        let mut loader = Loader::default();
+        let thread_of = |loader: &mut Loader| {
             let (tx, rx) = mpsc::channel();
-            on_loader(Box::new(move || {
-                let _ = tx.send(std::thread::current().id());
-            }))
-            .unwrap();
+            loader
+                .run(Box::new(move || {
+                    let _ = tx.send(std::thread::current().id());
+                }))
+                .unwrap();
             rx.recv_timeout(Duration::from_secs(10)).unwrap()
         };
-        let before = thread_of();
+        let before = thread_of(&mut loader);
         let (tx, rx) = mpsc::channel::<()>();
-        on_loader(Box::new(move || {
-            let _keep = tx;
-            panic!("a load that panics (expected in this test)");
-        }))
-        .unwrap();
+        loader
+            .run(Box::new(move || {
+                let _keep = tx;
+                panic!("a load that panics (expected in this test)");
+            }))
+            .unwrap();
         assert_eq!(
             rx.recv_timeout(Duration::from_secs(10)),
             Err(mpsc::RecvTimeoutError::Disconnected)
         );
-        assert_eq!(thread_of(), before);
-        assert_eq!(thread_of(), before);
+        assert_eq!(thread_of(&mut loader), before);
+        assert_eq!(thread_of(&mut loader), before);
     }
 }

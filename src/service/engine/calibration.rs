@@ -23,7 +23,7 @@ use super::super::protocol::{
     CalibrationOutcome, CalibrationProgress, ModelStatus, Monitoring, Reply, Request, State,
 };
 use super::super::{Event, Shared};
-use super::{Background, Engine, Next, rig_name};
+use super::{Background, Engine, Mode, rig_name};
 use crate::calibrate::runs::Runs;
 use crate::calibrate::{self, Options};
 use crate::config::{Config, DriftPolicy};
@@ -40,6 +40,31 @@ enum Job {
     Fit,
     /// The fit on every pair once the closed-loop pairs are taken ([`calibrate::refit`]).
     Refit(Box<calibrate::LoopPairs>),
+}
+
+/// A calibration under way, from its first step to its end (installed, failed or dropped):
+/// what the engine keeps about it between its steps.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Calibrating {
+    /// When it began: the status's seconds count from here.
+    started: Instant,
+    /// It refits the `linear` rung from `[monitoring] refit_ntrain` sampling images (drift's
+    /// `on_drift = "refit"`, or the interrupted run it resumes was a refit).
+    refit: bool,
+    /// The projector was paused when it began: it stays dark after it.
+    stay_paused: bool,
+}
+
+impl Calibrating {
+    /// Progressive calibration's check of a climbed model: no calibration of its own, but
+    /// the same steps on the devices.
+    fn climb_check() -> Self {
+        Calibrating {
+            started: Instant::now(),
+            refit: false,
+            stay_paused: false,
+        }
+    }
 }
 
 /// Which [`Job`] a [`Training`] runs: what follows it.
@@ -63,6 +88,8 @@ pub(super) struct Training {
     /// The run's data root.
     data: PathBuf,
     stage: Stage,
+    /// The calibration it is a step of.
+    calibrating: Calibrating,
     cancel: Arc<AtomicBool>,
     /// Set once the result is sent: the playback beside it ends.
     pub(super) done: Arc<AtomicBool>,
@@ -117,14 +144,13 @@ pub(super) fn device_problem(c: &crate::config::CalibrationConfig) -> Option<Str
 }
 
 impl Engine {
-    /// The calibration's options ([`crate::rigs::calibration_options`]) for this engine's
-    /// projector.
-    fn calibration_options(&self, cancel: Arc<AtomicBool>) -> Options {
+    /// The options ([`crate::rigs::calibration_options`]) of calibration `cal` on this
+    /// engine's projector.
+    fn calibration_options(&self, cal: Calibrating, cancel: Arc<AtomicBool>) -> Options {
         crate::rigs::calibration_options(
             &self.config.rig,
             &self.config.calibration,
-            self.refitting
-                .then_some(self.config.monitoring.refit_ntrain),
+            cal.refit.then_some(self.config.monitoring.refit_ntrain),
             self.devices.display_size(),
             self.devices.live_pass(self.config.calibration.refresh_hz),
             Some(cancel),
@@ -133,22 +159,21 @@ impl Engine {
 
     /// A calibration: captures, then training (beside playback of the current model when there
     /// is one to play), then verification and install ([`Engine::finish_calibration`]).
-    pub(super) fn calibrate(&mut self) {
-        let paused = self.io.shared.status().state == State::Paused;
-        self.stay_paused = paused;
+    /// `after_drift`: the policy of the drift that asked for it, if one did.
+    pub(super) fn calibrate(&mut self, after_drift: Option<DriftPolicy>) {
+        let stay_paused = self.io.shared.status().state == State::Paused;
         let cancel = self.io.shared.cancel.clone();
         cancel.store(false, Ordering::Relaxed);
         // A climb or a training from the previous calibration is moot (and must not install
         // over this one).
         self.background = Background::None;
         let runs = Runs::new(&self.config.paths.data);
-        let after_drift = self.after_drift.take();
         let refit = after_drift == Some(DriftPolicy::Refit);
         if after_drift.is_some() {
             // After drift the surface is not what an interrupted run captured: start afresh.
             runs.end();
         }
-        self.calibration_started = Instant::now();
+        let started = Instant::now();
         let run = match runs.begin_with(&rig_name(&self.config.rig), SystemTime::now(), refit) {
             Ok(r) => r,
             Err(e) => {
@@ -157,12 +182,16 @@ impl Engine {
                 // waiting for it (`recalibrate --wait`) and `status` see the failure.
                 self.io.fail("calibration failed", &e);
                 self.calibration_ended(false, format!("failed before its first capture: {e}"));
-                self.next = self.after_calibration();
+                self.mode = self.after_calibration(stay_paused);
                 return;
             }
         };
         let data = run.data;
-        self.refitting = run.refit;
+        let cal = Calibrating {
+            started,
+            refit: run.refit,
+            stay_paused,
+        };
         let what = if run.refit {
             "refitting"
         } else {
@@ -170,19 +199,20 @@ impl Engine {
         };
         self.io.state(State::Calibrating, what);
         tracing::info!("{what} into {}", data.display());
-        let opts = self.calibration_options(cancel);
+        let opts = self.calibration_options(cal, cancel);
         let captured = self.with_devices(
+            cal,
             ("captures", Work::Calibration),
             |display, camera, progress| calibrate::capture(display, camera, &data, &opts, progress),
         );
         let captured = match captured {
             Ok(c) => c,
-            Err(e) => return self.calibration_failed(&data, e),
+            Err(e) => return self.calibration_failed(cal, &data, e),
         };
-        if self.next == Next::Stop {
+        if self.mode == Mode::Stop {
             return;
         }
-        self.train_beside_playback(data, captured, &opts, Job::Fit);
+        self.train_beside_playback(cal, data, captured, &opts, Job::Fit);
     }
 
     /// Training runs on a thread of its own, so the engine goes on feeding the watchdog and
@@ -191,6 +221,7 @@ impl Engine {
     /// follows ([`Engine::trained`]).
     fn train_beside_playback(
         &mut self,
+        cal: Calibrating,
         data: PathBuf,
         captured: calibrate::Captured,
         opts: &Options,
@@ -200,21 +231,22 @@ impl Engine {
             Job::Fit => opts.method.to_string(),
             Job::Refit(_) => format!("{} on the closed-loop pairs", opts.method),
         };
-        let training = self.start_training(data, captured, opts, job);
+        let training = self.start_training(cal, data, captured, opts, job);
         self.background = Background::Training(training);
-        if self.model.is_some() && self.config.playback.autoplay && !self.stay_paused {
+        if self.model.is_some() && self.config.playback.autoplay && !cal.stay_paused {
             tracing::info!("training {what} beside playback of the current model");
-            self.next = Next::Play;
+            self.mode = Mode::Play;
         } else {
             tracing::info!("training {what}");
             self.io.state(State::Training, "training");
-            self.next = Next::Wait;
+            self.mode = Mode::Wait;
         }
     }
 
     /// Starts `job` on its own thread.
     fn start_training(
         &mut self,
+        calibrating: Calibrating,
         data: PathBuf,
         mut captured: calibrate::Captured,
         opts: &Options,
@@ -231,7 +263,7 @@ impl Engine {
         let done = Arc::new(AtomicBool::new(false));
         let finished = done.clone();
         let shared = self.io.shared.clone();
-        let started = self.calibration_started;
+        let started = calibrating.started;
         let spawned = std::thread::Builder::new()
             .name("compend-train".into())
             .spawn(move || {
@@ -255,6 +287,7 @@ impl Engine {
         Training {
             data,
             stage,
+            calibrating,
             cancel,
             done,
             result,
@@ -268,10 +301,10 @@ impl Engine {
         let Some(t) = self.background.take_training() else {
             return;
         };
-        let data = t.data.clone();
+        let (cal, data) = (t.calibrating, t.data.clone());
         match t.stage {
-            Stage::Fit => self.finish_calibration(data, captured, model),
-            Stage::Refit => self.verify_refitted(data, captured, model),
+            Stage::Fit => self.finish_calibration(cal, data, captured, model),
+            Stage::Refit => self.verify_refitted(cal, data, captured, model),
         }
     }
 
@@ -279,7 +312,7 @@ impl Engine {
     pub(super) fn training_lost(&mut self) {
         if let Some(t) = self.background.take_training() {
             let e = Error::Failed("the training thread ended without an answer".into());
-            self.calibration_failed(&t.data, e);
+            self.calibration_failed(t.calibrating, &t.data, e);
         }
     }
 
@@ -289,19 +322,21 @@ impl Engine {
     /// instead, beside playback as the first training did ([`Engine::verify_refitted`] next).
     fn finish_calibration(
         &mut self,
+        cal: Calibrating,
         data: PathBuf,
         captured: calibrate::Captured,
         model: Result<Model>,
     ) {
         let model = match model {
             Ok(m) => m,
-            Err(e) => return self.calibration_failed(&data, e),
+            Err(e) => return self.calibration_failed(cal, &data, e),
         };
         let setup = captured.setup().to_path_buf();
-        let opts = self.calibration_options(self.io.shared.cancel.clone());
+        let opts = self.calibration_options(cal, self.io.shared.cancel.clone());
         let mut captured = Some(captured);
         let mut model = Some(model);
         let step = self.with_devices(
+            cal,
             ("verification", Work::Calibration),
             |display, camera, progress| match (captured.take(), model.take()) {
                 (Some(mut c), Some(m)) => {
@@ -318,14 +353,14 @@ impl Engine {
             },
         );
         match step {
-            Ok(AfterLoops::Verified(done)) => self.install_verified(data, setup, *done),
+            Ok(AfterLoops::Verified(done)) => self.install_verified(cal, data, setup, *done),
             Ok(AfterLoops::Refit(b)) => {
-                if self.next != Next::Stop {
+                if self.mode != Mode::Stop {
                     let (c, taken) = *b;
-                    self.train_beside_playback(data, c, &opts, Job::Refit(Box::new(taken)));
+                    self.train_beside_playback(cal, data, c, &opts, Job::Refit(Box::new(taken)));
                 }
             }
-            Err(e) => self.calibration_failed(&data, e),
+            Err(e) => self.calibration_failed(cal, &data, e),
         }
     }
 
@@ -333,18 +368,20 @@ impl Engine {
     /// it passed.
     fn verify_refitted(
         &mut self,
+        cal: Calibrating,
         data: PathBuf,
         captured: calibrate::Captured,
         model: Result<Model>,
     ) {
         let model = match model {
             Ok(m) => m,
-            Err(e) => return self.calibration_failed(&data, e),
+            Err(e) => return self.calibration_failed(cal, &data, e),
         };
         let setup = captured.setup().to_path_buf();
-        let opts = self.calibration_options(self.io.shared.cancel.clone());
+        let opts = self.calibration_options(cal, self.io.shared.cancel.clone());
         let mut both = Some((captured, model));
         let verified = self.with_devices(
+            cal,
             ("verification", Work::Calibration),
             |display, camera, progress| match both.take() {
                 Some((c, m)) => calibrate::verify_model(display, camera, c, m, &opts, progress),
@@ -352,13 +389,19 @@ impl Engine {
             },
         );
         match verified {
-            Ok(done) => self.install_verified(data, setup, done),
-            Err(e) => self.calibration_failed(&data, e),
+            Ok(done) => self.install_verified(cal, data, setup, done),
+            Err(e) => self.calibration_failed(cal, &data, e),
         }
     }
 
     /// Installs a verified calibration's model if it passed, and ends the run.
-    fn install_verified(&mut self, data: PathBuf, setup: PathBuf, done: calibrate::Calibrated) {
+    fn install_verified(
+        &mut self,
+        cal: Calibrating,
+        data: PathBuf,
+        setup: PathBuf,
+        done: calibrate::Calibrated,
+    ) {
         let v = done.record.verification.clone();
         tracing::info!(
             "calibration: {} captures taken, {} found on disk; verification {:.2} dB / SSIM {:.3} \
@@ -372,10 +415,7 @@ impl Engine {
             done.record.seconds.total
         );
         let out = self.config.paths.model.clone();
-        let installed = {
-            let _guard = climb::INSTALL.lock().unwrap_or_else(|e| e.into_inner());
-            calibrate::install(done, &out)
-        };
+        let installed = self.installer.install(done, &out);
         match installed {
             Ok(model) => {
                 tracing::info!("installed {} into {}", model.meta.method, out.display());
@@ -413,8 +453,8 @@ impl Engine {
         let runs = Runs::new(&self.config.paths.data);
         runs.end();
         runs.prune(self.config.calibration.keep_runs);
-        if self.next != Next::Stop {
-            self.next = self.after_calibration();
+        if self.mode != Mode::Stop {
+            self.mode = self.after_calibration(cal.stay_paused);
         }
     }
 
@@ -426,8 +466,8 @@ impl Engine {
     pub(super) fn confirm_climb(&mut self, c: climb::Candidate) {
         self.check_climb(c);
         // Playback resumes, unless a stop or a calibration was asked for meanwhile.
-        if self.next == Next::Wait {
-            self.next = Next::Play;
+        if self.mode == Mode::Wait {
+            self.mode = Mode::Play;
         }
     }
 
@@ -446,12 +486,13 @@ impl Engine {
         };
         let cancel = self.io.shared.cancel.clone();
         cancel.store(false, Ordering::Relaxed);
-        let opts = self.calibration_options(cancel);
-        self.calibration_started = Instant::now();
+        let check = Calibrating::climb_check();
+        let opts = self.calibration_options(check, cancel);
         self.io
             .state(State::Verifying, "verifying the climbed model");
         let (root, setup) = (c.plan.root.clone(), c.plan.setup.clone());
         let verified = self.with_devices(
+            check,
             ("the climb's check", Work::ClimbCheck),
             |display, camera, progress| {
                 calibrate::verify_after(
@@ -468,7 +509,7 @@ impl Engine {
         self.io.shared.update(|s| s.calibration = None);
         let path = c.plan.model.clone();
         let seconds = c.seconds;
-        let settled = verified.and_then(|v| climb::settle(c, &v));
+        let settled = verified.and_then(|v| climb::settle(&mut self.installer, c, &v));
         match settled {
             Ok(Ok(model)) => {
                 let figures = model
@@ -539,7 +580,7 @@ impl Engine {
 
     /// A calibration that stopped: cancelled (its captures stay for the next run), refused (the
     /// run ends) or failed (the marker stays, so the next calibration resumes it).
-    fn calibration_failed(&mut self, data: &std::path::Path, e: Error) {
+    fn calibration_failed(&mut self, cal: Calibrating, data: &std::path::Path, e: Error) {
         let message = match &e {
             Error::Cancelled(_) => format!("cancelled; its captures stay in {}", data.display()),
             e => format!("failed: {e}"),
@@ -559,8 +600,8 @@ impl Engine {
                 }
             }
         }
-        if self.next != Next::Stop {
-            self.next = self.after_calibration();
+        if self.mode != Mode::Stop {
+            self.mode = self.after_calibration(cal.stay_paused);
         }
     }
 
@@ -575,14 +616,13 @@ impl Engine {
     }
 
     /// After a calibration: play if there is a model and the configuration says so, unless the
-    /// projector was paused before or during the calibration.
-    pub(super) fn after_calibration(&mut self) -> Next {
-        let paused =
-            std::mem::take(&mut self.stay_paused) || self.io.shared.status().state == State::Paused;
+    /// projector was paused before (`stay_paused`) or during the calibration.
+    fn after_calibration(&mut self, stay_paused: bool) -> Mode {
+        let paused = stay_paused || self.io.shared.status().state == State::Paused;
         if paused && self.model.is_some() {
-            Next::Pause
+            Mode::Pause
         } else if self.model.is_some() && self.config.playback.autoplay {
-            Next::Play
+            Mode::Play
         } else {
             let line = if self.model.is_some() {
                 "idle"
@@ -591,7 +631,7 @@ impl Engine {
             };
             self.io.state(State::Idle, line);
             self.io.notify.ready(line);
-            Next::Wait
+            Mode::Wait
         }
     }
 
@@ -599,6 +639,7 @@ impl Engine {
     /// keeps the status, systemd and the event channel served between two captures.
     fn with_devices<T>(
         &mut self,
+        cal: Calibrating,
         (what, work): (&str, Work),
         step: impl FnOnce(
             &mut dyn crate::device::DisplaySink,
@@ -606,11 +647,11 @@ impl Engine {
             calibrate::Progress,
         ) -> Result<T>,
     ) -> Result<T> {
-        let started = self.calibration_started;
+        let started = cal.started;
         // The console sees what the camera captures.
         let shared = self.io.shared.clone();
         let io = &mut self.io;
-        let next = &mut self.next;
+        let mode = &mut self.mode;
         let reload = &mut self.reload;
         let mut lines = None;
         let mut progress = |phase: &str, done: usize, total: usize| {
@@ -633,7 +674,7 @@ impl Engine {
                 .status(&format!("{}: {phase} {done}/{total}", state.name()));
             io.notify.ping();
             while let Ok(ev) = io.rx.try_recv() {
-                busy(ev, (phase, work), next, reload, &io.shared.cancel);
+                busy(ev, (phase, work), mode, reload, &io.shared.cancel);
             }
         };
         tracing::debug!("calibration: {what}");
@@ -716,7 +757,7 @@ enum Work {
 fn busy(
     ev: Event,
     (phase, work): (&str, Work),
-    next: &mut Next,
+    mode: &mut Mode,
     reload: &mut Option<Box<Config>>,
     cancel: &AtomicBool,
 ) {
@@ -724,21 +765,21 @@ fn busy(
         Event::Terminate(signal) => {
             tracing::info!("{signal}: stopping the calibration at its next capture");
             cancel.store(true, Ordering::Relaxed);
-            *next = Next::Stop;
+            *mode = Mode::Stop;
         }
         Event::Reload(c) => *reload = Some(c),
         Event::Request(env) => {
             let reply = match env.request {
                 Request::Stop => {
                     cancel.store(true, Ordering::Relaxed);
-                    *next = Next::Stop;
+                    *mode = Mode::Stop;
                     Reply::ok("stopping the calibration at its next capture")
                 }
                 Request::Status => Reply::error("status is answered by the socket"),
                 Request::Calibrate | Request::Recalibrate if work == Work::ClimbCheck => {
-                    if *next != Next::Stop {
+                    if *mode != Mode::Stop {
                         cancel.store(true, Ordering::Relaxed);
-                        *next = Next::Calibrate;
+                        *mode = Mode::Calibrate(None);
                     }
                     Reply::ok("stopping the climb's check; calibrating next")
                 }

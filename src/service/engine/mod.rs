@@ -47,12 +47,20 @@ use crate::rig::scene::Latency;
 pub use crate::rigs::rig_name;
 use crate::source::{self, FeedMode, Playlist};
 
-/// What the engine does next.
+/// What the engine does: the step its loop runs next. Each step sets the one after it (a
+/// request or an event met during a step may set it too); what runs beside the steps is the
+/// engine's [`Background`], and what a calibration keeps between its steps travels with it
+/// ([`calibration::Calibrating`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Next {
+enum Mode {
+    /// Idle or paused: wait for an event.
     Wait,
-    Calibrate,
+    /// A calibration. After drift, with the policy that asked for it: a new run, never
+    /// resuming an interrupted one, and with `Refit` the `linear` rung from few sampling
+    /// images.
+    Calibrate(Option<DriftPolicy>),
     Play,
+    /// Black on the projector, then wait.
     Pause,
     /// The setup view with this pattern.
     Setup(crate::patterns::SetupPattern),
@@ -124,7 +132,7 @@ pub struct Engine {
     /// A `play` request's source, opened already for the next playback; used only while it
     /// is still `source`.
     opened: Option<(Playlist, Opened)>,
-    next: Next,
+    mode: Mode,
     /// The first monitoring score of the current model and the source it was measured on: what
     /// drift is measured against, dB.
     baseline: Option<(Playlist, f64)>,
@@ -132,16 +140,8 @@ pub struct Engine {
     reload: Option<Box<Config>>,
     /// What runs beside the engine's own work: a calibration's training, or a climb.
     background: Background,
-    /// When the calibration under way began.
-    calibration_started: Instant,
-    /// The projector was paused when the calibration began: it stays dark after it.
-    stay_paused: bool,
-    /// Drift asked for the next calibration (`on_drift`): it starts a new run, never resuming
-    /// an interrupted one; `Refit`: from few sampling images, the `linear` rung.
-    after_drift: Option<DriftPolicy>,
-    /// The calibration in progress is a refit (asked for, or the interrupted run resumed was
-    /// one).
-    refitting: bool,
+    /// The one right to replace the model directory.
+    installer: climb::Installer,
 }
 
 impl Engine {
@@ -158,16 +158,14 @@ impl Engine {
                 shared,
                 rx,
                 notify: Notifier::new(),
+                loader: Default::default(),
             },
             model: None,
-            next: Next::Wait,
+            mode: Mode::Wait,
             baseline: None,
             reload: None,
             background: Background::None,
-            calibration_started: Instant::now(),
-            stay_paused: false,
-            after_drift: None,
-            refitting: false,
+            installer: climb::Installer::new(),
         };
         let path = engine.model_path.clone();
         if path.join(crate::model::store::META_FILE).is_file()
@@ -193,23 +191,23 @@ impl Engine {
                 )),
             engine.source.describe()
         );
-        engine.next = match (&engine.model, runs.interrupted()) {
+        engine.mode = match (&engine.model, runs.interrupted()) {
             (_, Some(run)) => {
                 tracing::info!(
                     "an interrupted calibration is on disk ({}); resuming it",
                     run.display()
                 );
-                Next::Calibrate
+                Mode::Calibrate(None)
             }
             (None, None)
                 if engine.config.calibration.on_start == crate::config::OnStart::IfNoModel =>
             {
-                Next::Calibrate
+                Mode::Calibrate(None)
             }
-            (Some(_), None) if engine.config.playback.autoplay => Next::Play,
-            _ => Next::Wait,
+            (Some(_), None) if engine.config.playback.autoplay => Mode::Play,
+            _ => Mode::Wait,
         };
-        if engine.next == Next::Wait {
+        if engine.mode == Mode::Wait {
             let line = match &engine.model {
                 None => "idle: no model installed; run compend recalibrate".to_string(),
                 Some(m) => format!("idle with model {}; run compend play", m.meta.method),
@@ -222,13 +220,13 @@ impl Engine {
     /// Runs until stopped.
     pub fn run(mut self) -> Result<()> {
         loop {
-            match std::mem::replace(&mut self.next, Next::Wait) {
-                Next::Stop => break,
-                Next::Wait => self.wait(),
-                Next::Calibrate => self.calibrate(),
-                Next::Play => self.play(),
-                Next::Setup(p) => self.setup(p),
-                Next::Pause => {
+            match std::mem::replace(&mut self.mode, Mode::Wait) {
+                Mode::Stop => break,
+                Mode::Wait => self.wait(),
+                Mode::Calibrate(after_drift) => self.calibrate(after_drift),
+                Mode::Play => self.play(),
+                Mode::Setup(p) => self.setup(p),
+                Mode::Pause => {
                     if let Err(e) = self.devices.black() {
                         self.io.fail("pausing", &e);
                     }
@@ -236,7 +234,7 @@ impl Engine {
                 }
             }
             if let Some(c) = self.reload.take()
-                && !matches!(self.next, Next::Stop)
+                && !matches!(self.mode, Mode::Stop)
             {
                 self.apply(*c);
             }
@@ -256,9 +254,9 @@ impl Engine {
         match self.io.rx.recv_timeout(Duration::from_millis(500)) {
             Ok(ev) => self.handle(ev),
             Err(RecvTimeoutError::Timeout) => {}
-            Err(RecvTimeoutError::Disconnected) => self.next = Next::Stop,
+            Err(RecvTimeoutError::Disconnected) => self.mode = Mode::Stop,
         }
-        if self.next == Next::Wait {
+        if self.mode == Mode::Wait {
             self.training_ended();
         }
     }
@@ -295,7 +293,7 @@ impl Engine {
         match ev {
             Event::Terminate(signal) => {
                 tracing::info!("{signal}: stopping");
-                self.next = Next::Stop;
+                self.mode = Mode::Stop;
             }
             Event::Reload(c) => {
                 self.io.notify.reloading();
@@ -303,7 +301,7 @@ impl Engine {
                 self.io.notify.reloaded();
                 // Playback picks up the new settings when it starts again.
                 if self.io.shared.status().state == State::Playing {
-                    self.next = Next::Play;
+                    self.mode = Mode::Play;
                 }
             }
             Event::Request(mut env) => {
@@ -351,7 +349,7 @@ impl Engine {
         match r {
             Request::Status => Reply::status(self.io.shared.status()),
             Request::Calibrate | Request::Recalibrate => {
-                self.next = Next::Calibrate;
+                self.mode = Mode::Calibrate(None);
                 Reply::ok(format!(
                     "calibrating into {}; compend status shows the progress",
                     self.config.paths.data.display()
@@ -389,11 +387,11 @@ impl Engine {
                     }
                     self.source = list;
                 }
-                self.next = Next::Play;
+                self.mode = Mode::Play;
                 Reply::ok(format!("playing {}", self.source.describe()))
             }
             Request::Pause => {
-                self.next = Next::Pause;
+                self.mode = Mode::Pause;
                 Reply::ok("paused")
             }
             Request::Seek { .. } | Request::Next | Request::Previous => Reply::error(
@@ -422,7 +420,7 @@ impl Engine {
                             self.source.describe()
                         ))
                     } else {
-                        self.next = Next::Play;
+                        self.mode = Mode::Play;
                         Reply::ok(format!(
                             "playing {} with {}{warning}",
                             self.source.describe(),
@@ -441,14 +439,14 @@ impl Engine {
                     Ok(p) => p,
                     Err(e) => return Reply::error(e.to_string()),
                 };
-                self.next = Next::Setup(p);
+                self.mode = Mode::Setup(p);
                 Reply::ok(format!(
                     "setup: the {p} pattern up, the camera watched; play, pause or calibrate \
                      leaves it"
                 ))
             }
             Request::Stop => {
-                self.next = Next::Stop;
+                self.mode = Mode::Stop;
                 Reply::ok("stopping")
             }
         }
@@ -479,7 +477,7 @@ impl Engine {
     /// source ends.
     fn play(&mut self) {
         let Some(model) = &self.model else {
-            self.next = Next::Wait;
+            self.mode = Mode::Wait;
             return;
         };
         let opened = match self.opened.take() {
@@ -689,8 +687,8 @@ impl Engine {
                         );
                         if monitor.as_ref().is_some_and(|t| t.ends_playback()) {
                             self.on_drift();
-                        } else if self.next == Next::Wait {
-                            self.next = Next::Play;
+                        } else if self.mode == Mode::Wait {
+                            self.mode = Mode::Play;
                         }
                     }
                     (Some(ev), candidate) => {
@@ -703,8 +701,8 @@ impl Engine {
                         }
                         self.handle(ev);
                         // A request that was refused changed nothing: play on.
-                        if self.next == Next::Wait {
-                            self.next = Next::Play;
+                        if self.mode == Mode::Wait {
+                            self.mode = Mode::Play;
                         }
                     }
                     (None, None) if monitor.as_ref().is_some_and(|t| t.ends_playback()) => {
@@ -738,7 +736,6 @@ impl Engine {
     /// plays on).
     fn on_drift(&mut self) {
         let m = &self.config.monitoring;
-        self.after_drift = Some(m.on_drift);
         if m.on_drift == DriftPolicy::Refit {
             tracing::warn!(
                 "drift: refitting the linear rung from {} sampling images",
@@ -747,7 +744,7 @@ impl Engine {
         } else {
             tracing::warn!("drift: recalibrating");
         }
-        self.next = Next::Calibrate;
+        self.mode = Mode::Calibrate(Some(m.on_drift));
     }
 }
 

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use super::super::devices::Devices;
 use super::super::protocol::{SetupStatus, State};
-use super::{Engine, Next};
+use super::{Engine, Mode};
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::Result;
 use crate::patterns::SetupPattern;
@@ -20,7 +20,7 @@ impl Engine {
     pub(super) fn setup(&mut self, pattern: SetupPattern) {
         if let Err(e) = self.run_setup(pattern) {
             self.io.fail("setup view", &e);
-            if self.next == Next::Wait {
+            if self.mode == Mode::Wait {
                 self.io.state(State::Idle, "idle: the setup view failed");
             }
         }
@@ -79,7 +79,7 @@ impl Engine {
             while let Ok(ev) = self.io.rx.try_recv() {
                 self.handle(ev);
             }
-            if self.next != Next::Wait {
+            if self.mode != Mode::Wait {
                 return Ok(());
             }
         }
