@@ -76,6 +76,20 @@ fn help_completions_and_manual_pages_come_from_the_command_line() {
         "{}",
         stderr(&o)
     );
+    // Every page into a folder, as the package's build writes them; not into a file.
+    let dir = tempfile::tempdir().unwrap();
+    let pages = dir.path().to_str().unwrap();
+    assert_code(&compend(&["man", "--dir", pages]), 0);
+    for page in ["compend.1", "compend-calibrate.1", "compend-config-check.1"] {
+        let text = std::fs::read_to_string(dir.path().join(page))
+            .unwrap_or_else(|e| panic!("{page} in {pages}: {e}"));
+        assert!(text.contains(env!("CARGO_PKG_VERSION")), "{page}: {text}");
+    }
+    let file = dir.path().join("compend.1");
+    let o = compend(&["man", "--dir", file.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(stderr(&o).contains("not a folder"), "{}", stderr(&o));
+
     // The page is one groff reads without a warning, where groff is installed.
     let groff = std::process::Command::new("groff")
         .args(["-man", "-Tutf8", "-ww", "-z"])
