@@ -1,0 +1,102 @@
+//! `[rig]`: the devices compend drives.
+
+use std::path::PathBuf;
+
+use serde::Serialize;
+
+use super::read::{Table, Walker};
+use crate::raster::ImageSize;
+
+/// Where the projector and the camera come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RigKind {
+    /// The built-in virtual rig (simulated projector, surface and camera).
+    Virtual,
+    /// The projector window watched by a virtual camera (testing the display path).
+    Window,
+    /// The projector window and a V4L2 camera: real hardware.
+    Camera,
+}
+
+/// `[rig]`: the devices.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RigConfig {
+    pub kind: RigKind,
+    /// `virtual`/`window`: a built-in scene or a scene JSON file.
+    pub scene: String,
+    /// Seed of the sampling images (and of the virtual rig's texture and noise).
+    pub seed: u64,
+    /// `camera`: the V4L2 device (a /dev/v4l/by-id/ path survives re-plugging).
+    pub camera: Option<PathBuf>,
+    /// `camera`: the capture size; `virtual`/`window`: the virtual camera's resolution.
+    pub camera_size: Option<ImageSize>,
+    /// `virtual`: the projector resolution (the window's is its monitor's).
+    pub projector: Option<ImageSize>,
+    /// `window`/`camera`: the projector's monitor, by name or index.
+    pub monitor: Option<String>,
+    /// `virtual`: the display refresh rate playback is paced at, Hz.
+    pub fps: f64,
+    /// `virtual`/`window`: the virtual camera's frame rate, Hz (default: the scene's).
+    pub camera_fps: Option<f64>,
+    /// `virtual`/`window`: projector-to-camera delay, ms (default: the scene's).
+    pub latency_ms: Option<f64>,
+    /// `virtual`/`window`, scenes with drift: seconds after playback first starts at which the
+    /// simulated projector is moved to the scene's drifted pose (a bump, for testing monitoring
+    /// and recalibration).
+    pub drift_after_s: Option<f64>,
+}
+
+impl Default for RigConfig {
+    /// The virtual rig on the `curved` scene, seed 0, paced at 60 Hz; the rest from the scene.
+    fn default() -> Self {
+        RigConfig {
+            kind: RigKind::Virtual,
+            scene: "curved".to_string(),
+            seed: 0,
+            camera: None,
+            camera_size: None,
+            projector: None,
+            monitor: None,
+            fps: 60.0,
+            camera_fps: None,
+            latency_ms: None,
+            drift_after_s: None,
+        }
+    }
+}
+
+impl RigConfig {
+    pub(super) fn read<'t>(w: &mut Walker<'t>, t: &mut Table<'t>) -> Self {
+        let kind = w.choice(
+            t,
+            "kind",
+            RigKind::Virtual,
+            &[
+                ("virtual", RigKind::Virtual),
+                ("window", RigKind::Window),
+                ("camera", RigKind::Camera),
+            ],
+        );
+        let rig = RigConfig {
+            kind,
+            scene: w.get(t, "scene").unwrap_or_else(|| "curved".to_string()),
+            seed: w.get(t, "seed").unwrap_or(0),
+            camera: w.get(t, "camera"),
+            camera_size: w.size(t, "camera_size", false),
+            projector: w.size(t, "projector", false),
+            monitor: w.get(t, "monitor"),
+            fps: w.positive(t, "fps", 60.0),
+            camera_fps: w.optional_positive(t, "camera_fps"),
+            latency_ms: w.optional_non_negative(t, "latency_ms"),
+            drift_after_s: w.optional_non_negative(t, "drift_after_s"),
+        };
+        if kind == RigKind::Camera && rig.camera.is_none() {
+            w.errors.push((
+                w.line(0),
+                "[rig] kind = \"camera\" needs `camera`, the V4L2 device (e.g. /dev/video0)".into(),
+            ));
+        }
+        rig
+    }
+}
