@@ -288,14 +288,15 @@ impl Service {
         let Some(mut child) = self.child.take() else {
             bail!("the service is not running");
         };
+        use nix::sys::signal::Signal;
         let sig = if signal == "SIGTERM" {
-            libc::SIGTERM
+            Signal::SIGTERM
         } else {
-            libc::SIGINT
+            Signal::SIGINT
         };
         let t = Instant::now();
-        // SAFETY: kill with a child's pid and a valid signal number has no memory effects.
-        unsafe { libc::kill(child.id() as i32, sig) };
+        // A child that has already exited is found by the wait below.
+        let _ = nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), sig);
         let status = loop {
             if let Some(s) = child.try_wait()? {
                 break s;

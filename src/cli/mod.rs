@@ -227,6 +227,26 @@ pub fn progress_bar(quiet: bool) -> indicatif::ProgressBar {
     bar
 }
 
+/// How a CompenNet++ rung trains, as `train` and `bench` take it: `--iters`, `--batch`,
+/// `--device`. (`calibrate` takes its own: its defaults come from the configuration's
+/// `[calibration]`, which has no batch size, and `auto`'s climb has `--climb-iters`.)
+#[derive(clap::Args, Debug, Clone)]
+pub struct NetworkFlags {
+    /// CompenNet++ rungs (and the one `auto` climbs to): iterations instead of the rung's (the
+    /// lr step scales with it).
+    #[arg(long)]
+    pub iters: Option<usize>,
+    /// CompenNet++ rungs (and the one `auto` climbs to): batch size instead of the rung's.
+    #[arg(long)]
+    pub batch: Option<usize>,
+    /// CompenNet++ rungs: where to train, `cpu`, `cuda` or `cuda:N` (an NVIDIA GPU; needs a
+    /// build with `--features cuda`); with `--method auto` it also chooses the rung climbed to
+    /// (compennet++-res on the CPU, compennet++-res-full on a GPU). The `linear` rungs always
+    /// fit on the CPU.
+    #[arg(long, default_value = "cpu")]
+    pub device: compend::fit::TrainDevice,
+}
+
 /// The setup a command works on: `--setup PATH [--data ROOT]`.
 #[derive(clap::Args, Debug)]
 pub struct SetupArgs {

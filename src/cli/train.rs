@@ -41,23 +41,12 @@ pub struct Args {
     /// Print one JSON summary on stdout.
     #[arg(long)]
     pub json: bool,
-    /// CompenNet++ variants (and the one `auto` climbs to): iterations instead of the
-    /// variant's (the lr step scales with it).
-    #[arg(long)]
-    pub iters: Option<usize>,
-    /// CompenNet++ variants (and the one `auto` climbs to): batch size instead of the variant's.
-    #[arg(long)]
-    pub batch: Option<usize>,
+    #[command(flatten)]
+    pub network: super::NetworkFlags,
     /// `auto` only: the PSNR gain in dB on held-out pairs the CompenNet++ rung needs over the
     /// best linear rung to be chosen [default: 0.5].
     #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
-    /// CompenNet++ variants: where to train, `cpu`, `cuda` or `cuda:N` (an NVIDIA GPU; needs a
-    /// build with `--features cuda`); with `--method auto` it also chooses the rung climbed to
-    /// (compennet++-res on the CPU, compennet++-res-full on a GPU). The `linear` rungs always fit
-    /// on the CPU.
-    #[arg(long, default_value = "cpu")]
-    pub device: compend::fit::TrainDevice,
     /// The linear rungs (and the residual rungs' linear part): the lattice of the per-pixel
     /// colour model and of the compensation images, `N` or `WxH`, or `native`: the projector's
     /// resolution (the size of the data root's structured-light patterns). Default: the
@@ -102,9 +91,9 @@ pub fn run(args: Args) -> Result<()> {
     let req = Request {
         ntrain: args.ntrain,
         seed: args.seed,
-        iters: args.iters,
-        batch: args.batch,
-        device: args.device,
+        iters: args.network.iters,
+        batch: args.network.batch,
+        device: args.network.device,
         lattice: match args.lattice {
             None => None,
             Some(Lattice::Size(s)) => Some(s),

@@ -52,21 +52,13 @@ pub struct Args {
     /// Test images per scene.
     #[arg(long, default_value_t = 10)]
     pub ntest: usize,
-    /// CompenNet++ methods: iterations instead of the variant's (the lr step scales with it).
-    #[arg(long)]
-    pub iters: Option<usize>,
-    /// CompenNet++ methods: batch size instead of the variant's.
-    #[arg(long)]
-    pub batch: Option<usize>,
+    #[command(flatten)]
+    pub network: crate::cli::NetworkFlags,
     /// `auto`: the PSNR gain in dB the CompenNet++ rung, trained on every pair, needs over the
     /// best linear rung in closed loop on the rig as calibrated (5 verification images after
     /// the scored ones), as `calibrate` judges it [default: 0.2].
     #[arg(long, value_name = "DB", allow_hyphen_values = true)]
     pub climb_gain: Option<f64>,
-    /// CompenNet++ methods (and the rung `auto` climbs to): where to train, `cpu`, `cuda` or
-    /// `cuda:N` (needs a build with `--features cuda`); the linear rungs fit on the CPU.
-    #[arg(long, default_value = "cpu")]
-    pub device: compend::fit::TrainDevice,
     /// Closed-loop pairs, as `compend calibrate` takes them (one --ntrain size only): after the
     /// export, `linear` fitted on the sampling pairs compensates N sampling images placed as
     /// desired views and the rig captures them; linear, linear-sl and the residual rungs then
@@ -157,8 +149,8 @@ pub fn run(args: Args) -> Result<()> {
     // A device this build or machine cannot train on fails before any scene is exported, when
     // a method trains on it.
     let trains = args.methods.iter().any(|m| m.may_train_a_network());
-    if trains && args.device != fit::TrainDevice::Cpu {
-        args.device.candle()?;
+    if trains && args.network.device != fit::TrainDevice::Cpu {
+        args.network.device.candle()?;
     }
     if let Some(g) = args.climb_gain {
         if !g.is_finite() {
@@ -260,7 +252,7 @@ pub fn run(args: Args) -> Result<()> {
         "compend": env!("CARGO_PKG_VERSION"),
         "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
         // Where the CompenNet++ rungs (and `auto`'s climb) trained.
-        "device": args.device.to_string(),
+        "device": args.network.device.to_string(),
         "seconds": start.elapsed().as_secs_f64(),
         "ntest": args.ntest,
         "rows": rows,
@@ -269,7 +261,10 @@ pub fn run(args: Args) -> Result<()> {
     let jpath = args.out.join("bench.json");
     compend::files::write_atomically(&jpath, &serde_json::to_vec_pretty(&json)?)?;
     let mpath = args.out.join("bench.md");
-    compend::files::write_atomically(&mpath, markdown(&rows, &reach, args.device).as_bytes())?;
+    compend::files::write_atomically(
+        &mpath,
+        markdown(&rows, &reach, args.network.device).as_bytes(),
+    )?;
     let charts = chart::write_charts(&rows, &args.out)?;
     eprintln!(
         "bench: {} rows in {:.0} s; wrote {}, {} and {} chart(s)",
@@ -427,9 +422,9 @@ impl SceneBench<'_> {
             ntrain: Some(n + loops.unwrap_or(0)),
             seed,
             // The closed-form linear rungs train in no iterations.
-            iters: args.iters.filter(|_| trains),
-            batch: args.batch.filter(|_| trains),
-            device: args.device,
+            iters: args.network.iters.filter(|_| trains),
+            batch: args.network.batch.filter(|_| trains),
+            device: args.network.device,
             climb_gain_db: args
                 .climb_gain
                 .filter(|_| method == compend::model::MethodChoice::Auto),

@@ -297,8 +297,7 @@ mod tests {
         cfg.allow_uids = vec![4321];
         let (_listener, access) = bind(&cfg).unwrap();
         let file_gid = std::fs::metadata(&cfg.path).unwrap().gid();
-        // SAFETY: getegid has no preconditions.
-        assert_eq!(file_gid, unsafe { libc::getegid() });
+        assert_eq!(file_gid, nix::unistd::getegid().as_raw());
         assert_eq!(access.group, file_gid);
         // A uid with no passwd entry is in no group but its primary one.
         let stranger = 987_654;

@@ -1,5 +1,10 @@
 //! The framing: one request per line, capped at [`super::protocol::MAX_REQUEST_BYTES`]; a
 //! subscription request; replies written within [`WRITE_TIMEOUT`].
+//!
+//! Why not `tokio_util::codec::LinesCodec` with a maximum length: a `FramedRead` ends its stream
+//! at the decoder's first error (tokio-rs/tokio#4166), so a line too long would close the
+//! connection, and the codec refuses bytes that are not UTF-8 before the JSON parser can name
+//! them; [`read_line`] answers such a line as malformed and reads on.
 
 use std::time::Duration;
 
