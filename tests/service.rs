@@ -483,6 +483,26 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
         ),
         "{r}"
     );
+    // The same scene with another seed is another simulated surface: named too.
+    assert_eq!(
+        meta["calibration"]["seed"], 3,
+        "the record keeps the rig's seed"
+    );
+    meta["calibration"]["rig"] = serde_json::json!("virtual:textured-plane");
+    meta["calibration"]["seed"] = serde_json::json!(4);
+    std::fs::write(other.join("model.json"), meta.to_string()).unwrap();
+    let r = svc.ask(&format!(
+        r#"{{"cmd":"model","path":"{}"}}"#,
+        other.display()
+    ));
+    assert_eq!(r["ok"], true, "{r}");
+    assert!(
+        r["message"]
+            .as_str()
+            .unwrap()
+            .contains("calibrated on virtual:textured-plane with seed 4, not this rig's seed 3"),
+        "{r}"
+    );
     let r = svc.ask(&format!(
         r#"{{"cmd":"model","path":"{}"}}"#,
         model.display()

@@ -911,6 +911,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     seconds.total = started.elapsed().as_secs_f64();
     let record = CalibrationRecord {
         rig: opts.rig.clone(),
+        seed: Some(opts.patterns.seed),
         exposure,
         display_range: Some(desired.range),
         unreachable: Some(desired.unreachable.clone()),

@@ -12,6 +12,10 @@ use super::training::LoopHeldOut;
 pub struct CalibrationRecord {
     /// What was calibrated: `virtual:SCENE` or a device.
     pub rig: String,
+    /// The seed of the sampling images, and on a virtual or window rig of the simulated
+    /// surface's texture and noise (`[rig] seed`); absent in records before it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
     /// The manual exposure chosen, when the camera has one.
     #[serde(default)]
     pub exposure: Option<ExposureReport>,

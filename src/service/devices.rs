@@ -22,15 +22,25 @@ use crate::rigs::{self, Given, Opened, RigClock};
 /// colours are another surface's. `None` for a model of this rig, or one trained offline (no
 /// calibration record). The virtual rig's seed is not in the name, so a model of the same scene
 /// with another seed is not told apart.
-pub(super) fn other_rig(model: &crate::model::Model, rig: &str) -> Option<String> {
+pub(super) fn other_rig(model: &crate::model::Model, rig: &str, seed: u64) -> Option<String> {
     let c = model.meta.calibration.as_ref()?;
-    (c.rig != rig).then(|| {
-        format!(
+    let advice = "recalibrate, or swap a model of this rig back";
+    if c.rig != rig {
+        return Some(format!(
             "warning: it was calibrated on {}, not on this rig ({rig}): its geometry and colours \
-             are that surface's; recalibrate, or swap a model of this rig back",
+             are that surface's; {advice}",
             c.rig
-        )
-    })
+        ));
+    }
+    // A simulated surface's texture follows the seed: another seed is another surface.
+    let simulated = rig.starts_with("virtual:") || rig.starts_with("window:");
+    match c.seed {
+        Some(s) if simulated && s != seed => Some(format!(
+            "warning: it was calibrated on {rig} with seed {s}, not this rig's seed {seed}: the \
+             simulated surface's texture is another; {advice}"
+        )),
+        _ => None,
+    }
 }
 
 /// The virtual rig: its projector and camera, the scene, and a GPU for the pass.

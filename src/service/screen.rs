@@ -160,6 +160,8 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     pub(super) allowed: Allowed,
     /// This service's rig (`rig_name`): a model swapped in from another is named.
     pub(super) rig_name: String,
+    /// This service's `[rig] seed`: a simulated surface's texture.
+    pub(super) rig_seed: u64,
 }
 
 impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
@@ -200,6 +202,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             audio: AudioOut::default(),
             allowed: Allowed::default(),
             rig_name: String::new(),
+            rig_seed: 0,
         }
     }
 
@@ -399,11 +402,13 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             tap.reset();
             self.next_check = Instant::now() + Duration::from_millis(500).min(self.period);
         }
-        let warning =
-            super::devices::other_rig(&model, &self.rig_name).map_or(String::new(), |w| {
+        let warning = super::devices::other_rig(&model, &self.rig_name, self.rig_seed).map_or(
+            String::new(),
+            |w| {
                 tracing::warn!("{}: {w}", super::clipped(&l.path.display().to_string()));
                 format!("; {w}")
-            });
+            },
+        );
         l.envelope.answer(Reply::ok(format!(
             "swapped in {} while playing (loaded in {seconds:.2} s){warning}",
             l.path.display()

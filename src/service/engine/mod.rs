@@ -406,7 +406,9 @@ impl Engine {
                     let warning = self
                         .model
                         .as_ref()
-                        .and_then(|m| other_rig(m, &rig_name(&self.config.rig)))
+                        .and_then(|m| {
+                            other_rig(m, &rig_name(&self.config.rig), self.config.rig.seed)
+                        })
                         .map_or(String::new(), |w| {
                             tracing::warn!("{}: {w}", clipped(&path.display().to_string()));
                             format!("; {w}")
@@ -609,6 +611,7 @@ impl Engine {
                         audio: audio.clone(),
                         allowed: Allowed::of(&self.config),
                         rig: rig_name(&self.config.rig),
+                        seed: self.config.rig.seed,
                     },
                 )
             }
@@ -628,6 +631,7 @@ impl Engine {
                         audio: audio.clone(),
                         allowed: Allowed::of(&self.config),
                         rig: rig_name(&self.config.rig),
+                        seed: self.config.rig.seed,
                     },
                 )
             }
@@ -798,6 +802,7 @@ fn play_virtual(
     screen.audio = around.audio;
     screen.allowed = around.allowed;
     screen.rig_name = around.rig;
+    screen.rig_seed = around.seed;
     screen.media = player.feed.control().cloned();
     let stats = player.run(&mut screen, None);
     screen.settle();
@@ -885,6 +890,7 @@ fn play_hardware(
         screen.audio = around.audio;
         screen.allowed = around.allowed;
         screen.rig_name = around.rig;
+        screen.rig_seed = around.seed;
         if watcher.is_some() {
             screen.changes = Some(tx);
         }
@@ -925,8 +931,10 @@ struct Around<'a> {
     audio: source::AudioOut,
     /// The folders requests may name files in.
     allowed: Allowed,
-    /// This service's rig ([`rig_name`]): a model swapped in from another is named.
+    /// This service's rig ([`rig_name`]) and its seed: a model swapped in from another is
+    /// named.
     rig: String,
+    seed: u64,
 }
 
 /// Starts `[output] to` for a playback on a display of `size` at `fps`: a file goes to the
