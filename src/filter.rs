@@ -1,4 +1,8 @@
 //! Separable linear filters on single-channel planes with replicate (clamp-to-edge) padding.
+//!
+//! Kept rather than imageproc's `gaussian_blur_f32`: the metrics (SSIM) accumulate in f64 so
+//! that their values do not depend on summation order, and the kernel's radius (3σ) is the
+//! one the reference figures were measured with.
 
 use crate::raster::{ImageSize, Plane, Space};
 

@@ -1,5 +1,9 @@
 //! The convex hull of a mask's pixel centres and the rasterisation of convex polygons (integer
 //! pixel coordinates, exact arithmetic).
+//!
+//! Kept rather than imageproc's `convex_hull` and `draw_polygon`: the fill here sets exactly the
+//! pixels whose centres the hull covers, boundary included, which the FOV masks (and so every
+//! model's displayable area) are defined by; imageproc's polygon drawing has its own edge rule.
 
 use crate::raster::{Mask, Space};
 
