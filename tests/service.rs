@@ -590,6 +590,26 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     assert_eq!(s["state"], "paused", "{s}");
     assert_eq!(s["calibrations"], 2, "{s}");
     assert_eq!(s["last_calibration"]["installed"], true, "{s}");
+    // A refit asked for (as drift's `on_drift = "refit"` runs it): `[monitoring] refit_ntrain`
+    // (8) sampling images and as many closed-loop pairs, in a new run, dark while paused.
+    let o = client(
+        &["recalibrate", "--refit", "--wait", "--timeout", "120"],
+        &svc.socket,
+    );
+    assert_code(&o, 0);
+    assert!(
+        stdout(&o).contains("refitting the linear rung from 8"),
+        "{}",
+        stdout(&o)
+    );
+    let s = svc.status();
+    assert_eq!(s["state"], "paused", "{s}");
+    assert_eq!(s["calibrations"], 3, "{s}");
+    let refitted: Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("state/model/model.json")).unwrap())
+            .unwrap();
+    assert_eq!(refitted["training"]["ntrain"], 16, "{refitted}");
+    assert_eq!(refitted["calibration"]["loop_pairs"], 8, "{refitted}");
     // A model swapped in while paused keeps the projector dark: no frame until `play`.
     let shown = s["frames"]["shown"].clone();
     let r = svc.ask(&format!(

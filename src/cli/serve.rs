@@ -69,6 +69,11 @@ pub struct RecalibrateArgs {
     /// With --wait: give up after this many seconds.
     #[arg(long, default_value_t = 1800.0, value_name = "S")]
     pub timeout: f64,
+    /// A fast refit instead: the `linear` rung from `[monitoring] refit_ntrain` sampling
+    /// images, in a new run (what drift's `on_drift = "refit"` runs); installed only if it
+    /// verifies.
+    #[arg(long)]
+    pub refit: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -328,7 +333,12 @@ pub fn recalibrate(a: RecalibrateArgs) -> Result<()> {
     let before = send(&a.client, &Request::Status)?
         .status
         .map_or(0, |s| s.calibrations);
-    let reply = send(&a.client, &Request::Recalibrate)?;
+    let asked = if a.refit {
+        Request::Refit
+    } else {
+        Request::Recalibrate
+    };
+    let reply = send(&a.client, &asked)?;
     print_message(&reply);
     if !a.wait {
         return Ok(());

@@ -14,6 +14,7 @@
 //! | `/compend/seek` (number: seconds) | `seek` |
 //! | `/compend/model` (string: a model folder) | `model` |
 //! | `/compend/calibrate`, `/compend/recalibrate` | `calibrate`, `recalibrate` |
+//! | `/compend/refit` | `refit` |
 //! | `/compend/status` | answered with `/compend/state` |
 //!
 //! `stop` has no address: OSC carries no credentials, and stopping the service is left to the
@@ -106,6 +107,7 @@ fn asked(m: &OscMessage) -> std::result::Result<Asked, String> {
         "/compend/previous" => serde_json::json!({"cmd": "previous"}),
         "/compend/calibrate" => serde_json::json!({"cmd": "calibrate"}),
         "/compend/recalibrate" => serde_json::json!({"cmd": "recalibrate"}),
+        "/compend/refit" => serde_json::json!({"cmd": "refit"}),
         "/compend/seek" => {
             let s = m.args.first().and_then(number).ok_or_else(|| {
                 "/compend/seek: expected one number, the position in seconds".to_string()
@@ -120,7 +122,7 @@ fn asked(m: &OscMessage) -> std::result::Result<Asked, String> {
         other => {
             return Err(format!(
                 "{other}: not an address of compend; it answers /compend/play, /resume, \
-                 /pause, /next, /previous, /seek, /model, /calibrate, /recalibrate, /status"
+                 /pause, /next, /previous, /seek, /model, /calibrate, /recalibrate, /refit, /status"
             ));
         }
     };

@@ -6,6 +6,8 @@
 //! ```text
 //! {"cmd":"status"}                          the state, model, source, frame counts, monitoring
 //! {"cmd":"calibrate"}  {"cmd":"recalibrate"} calibrate now (resuming captures on disk)
+//! {"cmd":"refit"}                           a fast calibration in a new run: the linear rung
+//!                                           from [monitoring] refit_ntrain sampling images
 //! {"cmd":"play"}  {"cmd":"play","source":"pattern:bars"}
 //!                                           play the configured source, or this one
 //! {"cmd":"pause"}                           a film or stream: pause it (its frame stays);
@@ -57,6 +59,9 @@ pub enum Request {
     Status,
     Calibrate,
     Recalibrate,
+    /// A fast calibration in a new run: the `linear` rung from `[monitoring] refit_ntrain`
+    /// sampling images, as drift's `on_drift = "refit"` runs it.
+    Refit,
     Play {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         source: Option<String>,
@@ -130,7 +135,7 @@ impl Request {
     /// was good or not; None when absent or unreadable.
     pub fn parse_with_id(line: &[u8]) -> (Result<Self, String>, Option<serde_json::Value>) {
         const EXPECTED: &str = "expected a JSON object with \"cmd\": one of status, \
-                                calibrate, recalibrate, play, pause, seek, next, previous, \
+                                calibrate, recalibrate, refit, play, pause, seek, next, previous, \
                                 model, setup, stop";
         let text = match std::str::from_utf8(line) {
             Ok(t) => t.trim(),

@@ -26,7 +26,7 @@ use super::super::{Event, Shared};
 use super::{Background, Engine, Mode, rig_name};
 use crate::calibrate::runs::Runs;
 use crate::calibrate::{self, Options};
-use crate::config::{Config, DriftPolicy};
+use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::model::Model;
 use crate::service::views::Tapped;
@@ -40,6 +40,19 @@ enum Job {
     Fit,
     /// The fit on every pair once the closed-loop pairs are taken ([`calibrate::refit`]).
     Refit(Box<calibrate::LoopPairs>),
+}
+
+/// Which calibration the engine runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Kind {
+    /// The configured one, resuming an interrupted run's captures when one is on disk.
+    Resume,
+    /// The configured one in a new run, never resuming (after drift the surface is not what
+    /// an interrupted run captured).
+    Fresh,
+    /// The `linear` rung from `[monitoring] refit_ntrain` sampling images, in a new run (drift's
+    /// `on_drift = "refit"`, or a `refit` request).
+    Refit,
 }
 
 /// A calibration under way, from its first step to its end (installed, failed or dropped):
@@ -159,8 +172,7 @@ impl Engine {
 
     /// A calibration: captures, then training (beside playback of the current model when there
     /// is one to play), then verification and install ([`Engine::finish_calibration`]).
-    /// `after_drift`: the policy of the drift that asked for it, if one did.
-    pub(super) fn calibrate(&mut self, after_drift: Option<DriftPolicy>) {
+    pub(super) fn calibrate(&mut self, kind: Kind) {
         let stay_paused = self.io.shared.status().state == State::Paused;
         let cancel = self.io.shared.cancel.clone();
         cancel.store(false, Ordering::Relaxed);
@@ -168,9 +180,8 @@ impl Engine {
         // over this one).
         self.background = Background::None;
         let runs = Runs::new(&self.config.paths.data);
-        let refit = after_drift == Some(DriftPolicy::Refit);
-        if after_drift.is_some() {
-            // After drift the surface is not what an interrupted run captured: start afresh.
+        let refit = kind == Kind::Refit;
+        if kind != Kind::Resume {
             runs.end();
         }
         let started = Instant::now();
@@ -776,14 +787,20 @@ fn busy(
                     Reply::ok("stopping the calibration at its next capture")
                 }
                 Request::Status => Reply::error("status is answered by the socket"),
-                Request::Calibrate | Request::Recalibrate if work == Work::ClimbCheck => {
+                Request::Calibrate | Request::Recalibrate | Request::Refit
+                    if work == Work::ClimbCheck =>
+                {
                     if *mode != Mode::Stop {
                         cancel.store(true, Ordering::Relaxed);
-                        *mode = Mode::Calibrate(None);
+                        *mode = Mode::Calibrate(if env.request == Request::Refit {
+                            Kind::Refit
+                        } else {
+                            Kind::Resume
+                        });
                     }
                     Reply::ok("stopping the climb's check; calibrating next")
                 }
-                Request::Calibrate | Request::Recalibrate => {
+                Request::Calibrate | Request::Recalibrate | Request::Refit => {
                     Reply::ok(format!("already calibrating ({phase})"))
                 }
                 _ => Reply::error(format!(

@@ -55,10 +55,8 @@ use crate::source::{self, FeedMode, Playlist};
 enum Mode {
     /// Idle or paused: wait for an event.
     Wait,
-    /// A calibration. After drift, with the policy that asked for it: a new run, never
-    /// resuming an interrupted one, and with `Refit` the `linear` rung from few sampling
-    /// images.
-    Calibrate(Option<DriftPolicy>),
+    /// A calibration of this kind.
+    Calibrate(calibration::Kind),
     Play,
     /// Black on the projector, then wait.
     Pause,
@@ -197,12 +195,12 @@ impl Engine {
                     "an interrupted calibration is on disk ({}); resuming it",
                     run.display()
                 );
-                Mode::Calibrate(None)
+                Mode::Calibrate(calibration::Kind::Resume)
             }
             (None, None)
                 if engine.config.calibration.on_start == crate::config::OnStart::IfNoModel =>
             {
-                Mode::Calibrate(None)
+                Mode::Calibrate(calibration::Kind::Resume)
             }
             (Some(_), None) if engine.config.playback.autoplay => Mode::Play,
             _ => Mode::Wait,
@@ -223,7 +221,7 @@ impl Engine {
             match std::mem::replace(&mut self.mode, Mode::Wait) {
                 Mode::Stop => break,
                 Mode::Wait => self.wait(),
-                Mode::Calibrate(after_drift) => self.calibrate(after_drift),
+                Mode::Calibrate(kind) => self.calibrate(kind),
                 Mode::Play => self.play(),
                 Mode::Setup(p) => self.setup(p),
                 Mode::Pause => {
@@ -349,9 +347,18 @@ impl Engine {
         match r {
             Request::Status => Reply::status(self.io.shared.status()),
             Request::Calibrate | Request::Recalibrate => {
-                self.mode = Mode::Calibrate(None);
+                self.mode = Mode::Calibrate(calibration::Kind::Resume);
                 Reply::ok(format!(
                     "calibrating into {}; compend status shows the progress",
+                    self.config.paths.data.display()
+                ))
+            }
+            Request::Refit => {
+                self.mode = Mode::Calibrate(calibration::Kind::Refit);
+                Reply::ok(format!(
+                    "refitting the linear rung from {} sampling images into a new run in {}; \
+                     compend status shows the progress",
+                    self.config.monitoring.refit_ntrain,
                     self.config.paths.data.display()
                 ))
             }
@@ -748,7 +755,10 @@ impl Engine {
         } else {
             tracing::warn!("drift: recalibrating");
         }
-        self.mode = Mode::Calibrate(Some(m.on_drift));
+        self.mode = Mode::Calibrate(match m.on_drift {
+            DriftPolicy::Refit => calibration::Kind::Refit,
+            _ => calibration::Kind::Fresh,
+        });
     }
 }
 
