@@ -343,6 +343,15 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
     let s = svc.wait_for("playback after the first calibration", 300, playing);
     assert_eq!(s["calibrations"], 1, "{s}");
     assert_eq!(s["model"]["method"], "linear", "{s}");
+    // When and why it is served.
+    assert!(
+        s["model"]["why"]
+            .as_str()
+            .unwrap()
+            .starts_with("a calibration installed it (verified "),
+        "{s}"
+    );
+    assert!(s["model"]["since_unix_s"].as_f64().unwrap() > 1.7e9, "{s}");
     let v = &s["model"]["verification"];
     assert_eq!(v["passed"], true, "{s}");
     assert!(v["gain_db"].as_f64().unwrap() > 1.0, "{s}");
@@ -610,6 +619,10 @@ fn the_service_calibrates_plays_and_answers_its_socket() {
             .unwrap();
     assert_eq!(refitted["training"]["ntrain"], 16, "{refitted}");
     assert_eq!(refitted["calibration"]["loop_pairs"], 8, "{refitted}");
+    let why = s["model"]["why"].as_str().unwrap();
+    assert!(why.starts_with("a refit installed it"), "{s}");
+    let o = client(&["status"], &svc.socket);
+    assert!(stdout(&o).contains(&format!(": {why}\n")), "{}", stdout(&o));
     // A model swapped in while paused keeps the projector dark: no frame until `play`.
     let shown = s["frames"]["shown"].clone();
     let r = svc.ask(&format!(

@@ -285,11 +285,18 @@ pub struct ModelStatus {
     /// The captures it was trained on (their `cam/unreachable.png` shows where).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub setup: Option<PathBuf>,
+    /// When the service began serving it, seconds since the Unix epoch.
+    #[serde(default)]
+    pub since_unix_s: f64,
+    /// Why it is served: installed when the service started, by a calibration or a refit, by
+    /// progressive calibration's climb, or swapped in by a request.
+    #[serde(default)]
+    pub why: String,
 }
 
 impl ModelStatus {
-    /// The status of `model`, served from `path`.
-    pub fn of(path: &std::path::Path, model: &Model) -> Self {
+    /// The status of `model`, served from `path` from now on; `why`: for people.
+    pub fn of(path: &std::path::Path, model: &Model, why: String) -> Self {
         Self {
             path: path.to_path_buf(),
             method: model.meta.method.name().to_string(),
@@ -309,6 +316,8 @@ impl ModelStatus {
                 .as_ref()
                 .and_then(|c| c.unreachable.clone()),
             setup: model.meta.training.setup.clone(),
+            since_unix_s: super::events::now_unix_s(),
+            why,
         }
     }
 }

@@ -395,7 +395,9 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             model.meta.method
         );
         self.io.shared.update(|s| {
-            s.model = Some(ModelStatus::of(&l.path, &model));
+            let why =
+                "swapped in while playing by a model request (the event log says who sent it)";
+            s.model = Some(ModelStatus::of(&l.path, &model, why.into()));
             s.monitoring = Monitoring::fresh(&s.monitoring);
         });
         if let Some(tap) = &self.monitor {

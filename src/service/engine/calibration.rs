@@ -441,8 +441,18 @@ impl Engine {
                     v.psnr,
                     v.gain_db
                 );
+                let why = format!(
+                    "{} installed it (verified {:.2} dB, {:+.2} dB over uncompensated)",
+                    if cal.refit {
+                        "a refit"
+                    } else {
+                        "a calibration"
+                    },
+                    v.psnr,
+                    v.gain_db
+                );
                 self.io.shared.update(|s| {
-                    s.model = Some(ModelStatus::of(&out, &model));
+                    s.model = Some(ModelStatus::of(&out, &model, why));
                     s.monitoring = Monitoring::fresh(&s.monitoring);
                     s.last_error = None;
                     s.calibration = None;
@@ -545,9 +555,10 @@ impl Engine {
                     None => format!("installed {method} into {}", path.display()),
                 };
                 tracing::info!("progressive calibration: {msg}");
+                let why = format!("progressive calibration climbed to it: {msg}");
                 self.io.climbed(method, true, msg);
                 self.io.shared.update(|s| {
-                    s.model = Some(ModelStatus::of(&path, &model));
+                    s.model = Some(ModelStatus::of(&path, &model, why));
                     s.monitoring = Monitoring::fresh(&s.monitoring);
                 });
                 self.model = Some(model);

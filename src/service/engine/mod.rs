@@ -167,7 +167,7 @@ impl Engine {
         };
         let path = engine.model_path.clone();
         if path.join(crate::model::store::META_FILE).is_file()
-            && let Err(e) = engine.use_model(&path)
+            && let Err(e) = engine.use_model(&path, "the installed model when the service started")
         {
             engine.io.fail("the installed model was not loaded", &e);
         }
@@ -405,10 +405,12 @@ impl Engine {
                 "nothing is playing: seek, next and previous act on a film or playlist while it \
                  plays (compend play starts it)",
             ),
-            Request::Model { path } => match Allowed::of(&self.config)
-                .model(path)
-                .and_then(|()| self.use_model(path))
-            {
+            Request::Model { path } => match Allowed::of(&self.config).model(path).and_then(|()| {
+                self.use_model(
+                    path,
+                    "swapped in by a model request (the event log says who sent it)",
+                )
+            }) {
                 Ok(()) => {
                     let warning = self
                         .model
@@ -461,9 +463,9 @@ impl Engine {
         }
     }
 
-    /// Loads the model directory `path` and serves it from now on; a model for another camera
-    /// size is refused.
-    fn use_model(&mut self, path: &Path) -> Result<()> {
+    /// Loads the model directory `path` and serves it from now on (`why`: for the status); a
+    /// model for another camera size is refused.
+    fn use_model(&mut self, path: &Path, why: &str) -> Result<()> {
         let model = load_model(path, self.devices.camera_size())?;
         // A climb from the model it replaces, or a calibration training beside playback, would
         // install over the operator's choice.
@@ -473,7 +475,7 @@ impl Engine {
             match_exposure(&mut v.rig, &model)?;
         }
         self.io.shared.update(|s| {
-            s.model = Some(ModelStatus::of(path, &model));
+            s.model = Some(ModelStatus::of(path, &model, why.into()));
             s.monitoring = Monitoring::fresh(&s.monitoring);
         });
         self.model = Some(model);
