@@ -269,6 +269,26 @@ fn the_console_shows_the_running_service_and_drives_it() {
     let (_, _, body) = http(&addr, "GET", "/api/check/area.json", &[], b"");
     let area = json(&body);
     assert!(area["width"].as_u64().unwrap() > 10, "{area}");
+    // The served model's field of view to lay over the camera view: clear where the projector
+    // lights the surface (most of the displayable area), dimmed where it does not, an edge.
+    let (code, head, body) = http(&addr, "GET", "/api/model/fov.png", &[], b"");
+    assert_eq!(code, 200, "{}", String::from_utf8_lossy(&body));
+    assert!(head.contains("image/png"), "{head}");
+    let fov = image::load_from_memory(&body).unwrap().to_rgba8();
+    assert_eq!(fov.dimensions(), (160, 120));
+    let alpha = |x: u64, y: u64| fov.get_pixel(x as u32, y as u32).0[3];
+    let (ax, ay) = (area["x"].as_u64().unwrap(), area["y"].as_u64().unwrap());
+    let (aw, ah) = (
+        area["width"].as_u64().unwrap(),
+        area["height"].as_u64().unwrap(),
+    );
+    assert_eq!(
+        alpha(ax + aw / 2, ay + ah / 2),
+        0,
+        "clear in the displayable area"
+    );
+    let kinds: std::collections::HashSet<[u8; 4]> = fov.pixels().map(|p| p.0).collect();
+    assert!(kinds.contains(&[0, 229, 255, 255]), "an edge: {kinds:?}");
 
     // A POST without the header, or from another site's page, is refused and changes nothing.
     let pause = br#"{"cmd":"pause"}"#;

@@ -398,6 +398,7 @@ fn router(console: Arc<Console>) -> Router {
         .route("/api/camera.jpg", get(camera))
         .route("/api/check/{which}", get(check_image))
         .route("/api/model/unreachable.png", get(unreachable))
+        .route("/api/model/fov.png", get(fov))
         .route("/metrics", get(metrics))
         .layer(DefaultBodyLimit::max(MAX_REQUEST_BYTES))
         .layer(middleware::from_fn_with_state(console.clone(), guard))
@@ -751,6 +752,36 @@ async fn unreachable(State(c): State<Arc<Console>>) -> Response {
             StatusCode::NOT_FOUND,
             format!("{}: {e} (a calibration writes it)", path.display()),
         ),
+    }
+}
+
+/// The served model's projector field of view, to lay over the camera view (camera pixels,
+/// RGBA PNG: clear inside, dimmed outside, its edge drawn; [`views::fov_overlay`]).
+async fn fov(State(c): State<Arc<Console>>) -> Response {
+    let Some(mask) = c.shared.views.fov() else {
+        return refuse(
+            StatusCode::NOT_FOUND,
+            "no model is served yet (calibrate to make one)",
+        );
+    };
+    let encoded = tokio::task::spawn_blocking(move || {
+        let rgba = views::fov_overlay(&mask);
+        let mut out = Vec::new();
+        image::ImageEncoder::write_image(
+            image::codecs::png::PngEncoder::new(&mut out),
+            &rgba,
+            mask.width() as u32,
+            mask.height() as u32,
+            image::ExtendedColorType::Rgba8,
+        )
+        .map(|()| out)
+        .map_err(|e| format!("PNG of the field of view: {e}"))
+    })
+    .await
+    .unwrap_or_else(|e| Err(e.to_string()));
+    match encoded {
+        Ok(bytes) => no_store(([(header::CONTENT_TYPE, "image/png")], bytes).into_response()),
+        Err(e) => refuse(StatusCode::INTERNAL_SERVER_ERROR, e),
     }
 }
 

@@ -394,6 +394,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             super::clipped(&l.path.display().to_string()),
             model.meta.method
         );
+        self.io.shared.views.set_fov(&model.fov);
         self.io.shared.update(|s| {
             let why =
                 "swapped in while playing by a model request (the event log says who sent it)";

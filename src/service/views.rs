@@ -1,7 +1,8 @@
 //! What the console shows of the camera: its latest frame (taken at most [`CAMERA_FPS`] times a
-//! second from whichever thread grabs them, so the render loop never waits on the console) and
-//! the last monitoring check's pair, the view the projection should give beside the one the
-//! camera saw, in camera pixels with their displayable area.
+//! second from whichever thread grabs them, so the render loop never waits on the console),
+//! the served model's projector field of view to draw over it ([`fov_overlay`]), and the last
+//! monitoring check's pair, the view the projection should give beside the one the camera saw,
+//! in camera pixels with their displayable area.
 //!
 //! Frames are kept as 8-bit sRGB-encoded RGB (the camera's encoded values, quantised); JPEG
 //! encoding happens on the reader's side, once per frame however many pages ask.
@@ -11,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use crate::device::{ExposureRange, Frame, FrameSource};
 use crate::pngio::to_u8;
-use crate::raster::{CamImage, ImageSize, Rect};
+use crate::raster::{CamImage, Camera, ImageSize, Mask, Rect};
 
 /// Camera frames kept per second at most.
 pub const CAMERA_FPS: f64 = 5.0;
@@ -72,6 +73,8 @@ pub struct Pair {
 pub struct Views {
     camera: Mutex<Option<Kept>>,
     pair: Mutex<Option<Pair>>,
+    /// The served model's projector field of view, camera pixels.
+    fov: Mutex<Option<Arc<Mask<Camera>>>>,
 }
 
 impl Views {
@@ -126,6 +129,49 @@ impl Views {
     pub fn pair(&self) -> Option<Pair> {
         self.pair.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
+
+    /// The field of view of the model served from now on.
+    pub fn set_fov(&self, fov: &Mask<Camera>) {
+        *self.fov.lock().unwrap_or_else(|e| e.into_inner()) = Some(Arc::new(fov.clone()));
+    }
+
+    /// The served model's field of view, camera pixels.
+    pub fn fov(&self) -> Option<Arc<Mask<Camera>>> {
+        self.fov.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+}
+
+/// Dims what lies outside the field of view, in 8-bit RGBA (alpha 0 to 255).
+const OUTSIDE: [u8; 4] = [0, 0, 0, 120];
+/// The field of view's edge: the projector's light ends here.
+const EDGE: [u8; 4] = [0, 229, 255, 255];
+
+/// The picture laid over the camera view for the field of view `fov` (camera pixels), 8-bit
+/// RGBA, rows top to bottom: transparent inside it, [`OUTSIDE`] beyond it, and [`EDGE`] on its
+/// boundary (inside pixels with a 4-neighbour outside it, or on the image's border).
+pub fn fov_overlay(fov: &Mask<Camera>) -> Vec<u8> {
+    let (w, h) = (fov.width(), fov.height());
+    let at = |x: usize, y: usize| fov.data()[y * w + x];
+    let mut out = Vec::with_capacity(w * h * 4);
+    for y in 0..h {
+        for x in 0..w {
+            let px = if !at(x, y) {
+                OUTSIDE
+            } else {
+                let edge = x == 0
+                    || y == 0
+                    || x + 1 == w
+                    || y + 1 == h
+                    || !at(x - 1, y)
+                    || !at(x + 1, y)
+                    || !at(x, y - 1)
+                    || !at(x, y + 1);
+                if edge { EDGE } else { [0, 0, 0, 0] }
+            };
+            out.extend_from_slice(&px);
+        }
+    }
+    out
 }
 
 /// A camera whose frames the console sees as well (at its capped rate): everything else is the
@@ -234,6 +280,31 @@ mod tests {
         assert_eq!(&h.data[3..6], &[255, 255, 255]);
         assert_eq!(&h.data[6..9], &[63, 63, 63]);
         assert!(heat_map(&a, &flat(2, 1, 0), area).is_err());
+    }
+
+    #[test]
+    fn the_field_of_view_is_clear_inside_dimmed_outside_and_edged() {
+        // A 4×3 camera with the projector's light on the 3×3 block at the right.
+        let m = Mask::<Camera>::from_vec(
+            4,
+            3,
+            vec![
+                false, true, true, true, //
+                false, true, true, true, //
+                false, true, true, true,
+            ],
+        )
+        .unwrap();
+        let o = fov_overlay(&m);
+        assert_eq!(o.len(), 4 * 3 * 4);
+        let px = |x: usize, y: usize| &o[(y * 4 + x) * 4..(y * 4 + x) * 4 + 4];
+        assert_eq!(px(0, 1), OUTSIDE);
+        // Next to the dark column, and on the image's border: edge.
+        assert_eq!(px(1, 1), EDGE);
+        assert_eq!(px(3, 1), EDGE);
+        assert_eq!(px(2, 0), EDGE);
+        // The one pixel with all four neighbours lit: clear.
+        assert_eq!(px(2, 1), [0, 0, 0, 0]);
     }
 
     #[test]

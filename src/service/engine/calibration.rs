@@ -451,6 +451,7 @@ impl Engine {
                     v.psnr,
                     v.gain_db
                 );
+                self.io.shared.views.set_fov(&model.fov);
                 self.io.shared.update(|s| {
                     s.model = Some(ModelStatus::of(&out, &model, why));
                     s.monitoring = Monitoring::fresh(&s.monitoring);
@@ -557,6 +558,7 @@ impl Engine {
                 tracing::info!("progressive calibration: {msg}");
                 let why = format!("progressive calibration climbed to it: {msg}");
                 self.io.climbed(method, true, msg);
+                self.io.shared.views.set_fov(&model.fov);
                 self.io.shared.update(|s| {
                     s.model = Some(ModelStatus::of(&path, &model, why));
                     s.monitoring = Monitoring::fresh(&s.monitoring);

@@ -474,6 +474,7 @@ impl Engine {
         if let Devices::Virtual(v) = &mut self.devices {
             match_exposure(&mut v.rig, &model)?;
         }
+        self.io.shared.views.set_fov(&model.fov);
         self.io.shared.update(|s| {
             s.model = Some(ModelStatus::of(path, &model, why.into()));
             s.monitoring = Monitoring::fresh(&s.monitoring);
