@@ -1,6 +1,7 @@
 //! `compend sim ...`: the virtual rig from the command line.
 //!
-//! - `compend sim list`: the built-in scene names, one per line (easy to impossible).
+//! - `compend sim list`: the built-in scene names, one per line (easy to impossible), then the
+//!   built-in sets of projectors (`tiled`, `stacked`).
 //! - `compend sim show NAME`: a scene's full description as JSON (edit it and pass the file as
 //!   `--scene` to simulate a scene of one's own).
 //! - `compend sim export --scene NAME --out ROOT`: a complete setup in the dataset layout:
@@ -178,6 +179,10 @@ pub fn run(args: Args) -> Result<()> {
     match args.command {
         SimCommand::List => {
             for name in scene::BUILTIN {
+                println!("{name}");
+            }
+            // Then the sets of projectors: `sim show` and `sim sheet --scene NAME` take them.
+            for name in scene::SETS {
                 println!("{name}");
             }
             Ok(())
@@ -358,12 +363,34 @@ fn sheet(a: SheetArgs) -> Result<()> {
     let (nw, nh) = (sa.network.width, sa.network.height);
     let sample = patterns::sampling_image(sa.seed, Set::Train, a.image - 1, nw, nh);
     let test = patterns::sampling_image(sa.seed, Set::Test, a.image - 1, nw, nh);
-    println!(
-        "{:<16} {:>22} {:>22} {:>22}",
-        "scene", "uncompensated", "geometry-only", "oracle"
-    );
+    // The reference rows' header, over the single-projector scenes' rows; a set's row says its
+    // own figures.
+    if scenes.iter().any(|s| s.more_projectors.is_empty()) {
+        println!(
+            "{:<16} {:>22} {:>22} {:>22}",
+            "scene", "uncompensated", "geometry-only", "oracle"
+        );
+    }
     for scene in &scenes {
         let name = &scene.name;
+        if !scene.more_projectors.is_empty() {
+            let set = rig::SetSimulator::new(scene, sa.seed, Phase::Calibration)?;
+            let (img, s) = rig::sheet::set_sheet(&set, &test, usize::from(a.panel))
+                .with_context(|| format!("the sheet of the set {name:?}"))?;
+            let path = a.out.join(format!("{}.png", scene.name));
+            compend::pngio::write_rgb(&path, &img)?;
+            let cell = |x: &compend::metrics::Scores| format!("{:.2} dB / {:.3}", x.psnr, x.ssim);
+            println!(
+                "{:<16} projector 1 alone {} (white {:.3}); joint {} (white {:.3})",
+                scene.name,
+                cell(&s.first_alone),
+                s.first_range.high,
+                cell(&s.joint),
+                s.range.high
+            );
+            eprintln!("sim: wrote {}", path.display());
+            continue;
+        }
         let sim = Simulator::new(scene, sa.seed, Phase::Calibration)?;
         let (area, range) = rig::sheet::display_target(&sim)
             .with_context(|| format!("finding the displayable area of scene {name:?}"))?;

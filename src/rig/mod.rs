@@ -33,6 +33,6 @@ pub mod window_camera;
 pub use export::{DesiredScaling, ExportOptions, export_setup};
 pub use live::VirtualRig;
 pub use oracle::OracleOptions;
-pub use physics::{Phase, Simulator};
+pub use physics::{Phase, SetSimulator, Simulator};
 pub use scene::{BUILTIN, Scene, builtin};
 pub use score::{ReferenceScores, closed_loop, reference_scores};

@@ -1,7 +1,7 @@
 //! Reference projector images that know the scene's true model: the geometry-only warp and the
 //! oracle (the physical ceiling of compensation under input clipping).
 
-use super::physics::{Simulator, mat3};
+use super::physics::{SetSimulator, Simulator, mat3};
 use crate::error::{Error, Result};
 use crate::raster::{CamImage, Camera, ImageSize, Mask, PrjImage, check_same_size};
 
@@ -73,7 +73,7 @@ impl Simulator {
         let mut c = self.sensor(&self.drive_to_emission(&zeros, true));
         self.add_constant(&mut c);
         let problem = Objective {
-            sim: self,
+            sims: vec![self],
             z,
             inside,
             c,
@@ -153,9 +153,12 @@ impl Simulator {
 
 /// The oracle's problem for one desired image: ½Σ(enc(s) − z)² over the masked camera values,
 /// with the sensor signal `s = A·d + c` affine in the projector drives `d` (projector pixels,
-/// linear, in \[0,1\]) and `enc` the camera's clip and response curve (camera pixels).
+/// linear, in \[0,1\]) and `enc` the camera's clip and response curve (camera pixels). For a
+/// set of projectors `d` is their drives one after the other and `A·d = Σ_k A_k·d_k`: light
+/// adds.
 struct Objective<'a> {
-    sim: &'a Simulator,
+    /// The projectors, each alone on the surface.
+    sims: Vec<&'a Simulator>,
     /// The desired camera image (encoded values, interleaved RGB).
     z: &'a [f32],
     /// Per camera value: inside the mask.
@@ -170,9 +173,23 @@ struct Objective<'a> {
 const S_FLOOR: f32 = 1e-4;
 
 impl Objective<'_> {
+    /// Projector k's drives within the drives `d` of all of them.
+    fn part<'d>(&self, d: &'d [f32], k: usize) -> &'d [f32] {
+        let len = |s: &Simulator| {
+            let ImageSize { width, height } = s.projector_size();
+            width * height * 3
+        };
+        let start: usize = self.sims[..k].iter().map(|s| len(s)).sum();
+        &d[start..start + len(self.sims[k])]
+    }
+
     /// The sensor signal for drives `d`: A·d + c.
     fn forward(&self, d: &[f32]) -> Vec<f32> {
-        let mut s = self.sim.sensor(&self.sim.drive_to_emission(d, false));
+        let mut s = self.sims[0].sensor(&self.sims[0].drive_to_emission(self.part(d, 0), false));
+        for (k, sim) in self.sims.iter().enumerate().skip(1) {
+            let more = sim.sensor(&sim.drive_to_emission(self.part(d, k), false));
+            s.iter_mut().zip(&more).for_each(|(a, b)| *a += b);
+        }
         for (v, k) in s.iter_mut().zip(&self.c) {
             *v += k;
         }
@@ -180,10 +197,13 @@ impl Objective<'_> {
     }
 
     /// J(d)ᵀ·g: a camera-space signal gradient to a drive gradient, through the Jacobian at
-    /// drives `d` (A itself but for the white segment).
+    /// drives `d` (A itself but for the white segment), projector after projector.
     fn adjoint(&self, d: &[f32], g: &[f32]) -> Vec<f32> {
-        self.sim
-            .emission_to_drive_adjoint(d, &self.sim.sensor_adjoint(g))
+        let mut out = Vec::with_capacity(d.len());
+        for (k, sim) in self.sims.iter().enumerate() {
+            out.extend(sim.emission_to_drive_adjoint(self.part(d, k), &sim.sensor_adjoint(g)));
+        }
+        out
     }
 
     /// The camera's encoded output for signal `s`.
@@ -292,6 +312,89 @@ impl Objective<'_> {
             }
         }
         x
+    }
+}
+
+impl SetSimulator {
+    /// The physical ceiling of the set for `desired`: the projector images (one per
+    /// projector, in the scene's order) that the true, noise-free model of all of them at once
+    /// allows to come closest, as [`Simulator::oracle`] for one: the squared error of the
+    /// camera's encoded output against `desired` over the camera pixels in `mask`, inputs in
+    /// \[0,1\]. Where the projectors overlap the solver shares the light between them and
+    /// uses their sum where one alone cannot reach the desired value.
+    ///
+    /// Start: each projector's per-pixel inversion of the whole target, weighted at each camera
+    /// pixel by its share of the set's light there (its sensor signal at full white over the
+    /// set's), so that overlapping projectors start from their share of the light rather than
+    /// each from all of it; then the joint descent.
+    pub fn oracle(
+        &self,
+        desired: &CamImage,
+        mask: &Mask<Camera>,
+        opts: OracleOptions,
+    ) -> Result<Vec<PrjImage>> {
+        let sims: Vec<&Simulator> = self.projectors().iter().collect();
+        for s in &sims {
+            s.check_cam(desired, "the desired image")?;
+        }
+        check_same_size(desired.size(), mask.size(), "oracle mask")?;
+        let gamma_c = self.scene().camera.gamma as f32;
+        let n = desired.width() * desired.height();
+        let z = desired.data();
+        let inside: Vec<bool> = (0..n * 3).map(|j| mask.data()[j / 3]).collect();
+        let target: Vec<f32> = z.iter().map(|v| v.clamp(0.0, 1.0).powf(gamma_c)).collect();
+
+        // The constant part: every projector's black through the scene, and the room's light
+        // once. A·1 of every projector: the majoriser's sum, and each one's share of the light.
+        let sizes: Vec<usize> = sims
+            .iter()
+            .map(|s| s.projector_size().width * s.projector_size().height * 3)
+            .collect();
+        let mut c = vec![0f32; n * 3];
+        let mut a1 = vec![0f32; n * 3];
+        let mut each_a1 = Vec::with_capacity(sims.len());
+        for (s, &len) in sims.iter().zip(&sizes) {
+            let black = s.sensor(&s.drive_to_emission(&vec![0f32; len], true));
+            c.iter_mut().zip(&black).for_each(|(a, b)| *a += b);
+            let full = s.sensor(&s.drive_to_emission(&vec![1f32; len], false));
+            a1.iter_mut().zip(&full).for_each(|(a, b)| *a += b);
+            each_a1.push(full);
+        }
+        sims[0].add_constant(&mut c);
+        let mut x = Vec::with_capacity(sizes.iter().sum());
+        for (s, own) in sims.iter().zip(&each_a1) {
+            let share: Vec<f32> = target
+                .iter()
+                .zip(own)
+                .zip(&a1)
+                .map(|((&t, &o), &all)| if all > 1e-9 { t * o / all } else { 0.0 })
+                .collect();
+            x.extend(s.per_pixel_start(&share, mask)?);
+        }
+        let problem = Objective {
+            sims: sims.clone(),
+            z,
+            inside,
+            c,
+            gamma_c,
+        };
+        let x = problem.descend(x, &a1, opts.iterations);
+        let mut out = Vec::with_capacity(sims.len());
+        for (k, s) in sims.iter().enumerate() {
+            let ImageSize {
+                width: pw,
+                height: ph,
+            } = s.projector_size();
+            let gp = s.scene().projector.gamma;
+            let mut data = problem.part(&x, k).to_vec();
+            for px in data.chunks_exact_mut(3) {
+                for ch in 0..3 {
+                    px[ch] = px[ch].clamp(0.0, 1.0).powf(1.0 / gp[ch] as f32);
+                }
+            }
+            out.push(PrjImage::from_vec(pw, ph, data)?);
+        }
+        Ok(out)
     }
 }
 

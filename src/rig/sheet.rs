@@ -4,7 +4,7 @@
 
 use super::export::full_canvas;
 use super::oracle::OracleOptions;
-use super::physics::Simulator;
+use super::physics::{SetSimulator, Simulator};
 use super::score::{ReferenceScores, area_mask, closed_loop};
 use crate::error::Result;
 use crate::fov;
@@ -98,6 +98,116 @@ pub fn contact_sheet(
         (unc_cap, "uncompensated".into(), db(&scores.uncompensated)),
         (orc_cap, "oracle".into(), db(&scores.oracle)),
     ];
+    Ok((compose(&panels, cam, panel_width), scores))
+}
+
+/// The closed-loop figures of a set's sheet, on its test image in the set's displayable area.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct SetScores {
+    /// The first projector's own ceiling ([`Simulator::oracle`]), the others black.
+    pub first_alone: crate::metrics::Scores,
+    /// The set's joint ceiling ([`SetSimulator::oracle`]).
+    pub joint: crate::metrics::Scores,
+    /// The range of camera values the set reaches across its displayable area (all
+    /// projectors black, all white), and the first projector's alone there: what stacking
+    /// adds is a higher white.
+    pub range: fov::DisplayRange,
+    pub first_range: fov::DisplayRange,
+}
+
+/// A contact sheet for a set of projectors and one test image `test` (network size): the
+/// surface; each projector's white alone and all of them white (where their pictures fall and
+/// overlap); the desired image in the displayable area of the set (the largest canvas-shaped
+/// rectangle inside the union of their fields of view, found from black and white captures as
+/// a calibration finds it); what the camera sees with the first projector's ceiling alone, and
+/// with the set's joint ceiling, each scored in closed loop.
+pub fn set_sheet(
+    set: &SetSimulator,
+    test: &PrjImage,
+    panel_width: usize,
+) -> Result<(Rgb<Unspecified>, SetScores)> {
+    let first = &set.projectors()[0];
+    let cam = set.camera_size();
+    let label = format!("virtual rig scene {:?}", set.scene().name);
+    let black = set.capture(&set.uniform(0.0), FRAME_BLACK)?;
+    let white = set.capture(&set.uniform(1.0), FRAME_WHITE)?;
+    let mask = fov::fov_mask(&black, &white, &label)?;
+    let canvas = full_canvas(first);
+    let area = fov::displayable_area(&mask.mask, canvas.width as f64 / canvas.height as f64)?;
+    let range = fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?;
+    let desired = fov::place_in_area(&range.apply(test), area, cam)?;
+    let inside = area_mask(first, area);
+    let opts = OracleOptions::default();
+    let dark = set.uniform(0.0);
+    let mut alone = dark.clone();
+    alone[0] = first.oracle(&desired, &inside, opts)?;
+    let joint = set.oracle(&desired, &inside, opts)?;
+    let frame = FRAME_SHEET;
+    let score = |cap: &CamImage| -> Result<crate::metrics::Scores> {
+        crate::metrics::score_pairs([(&cap.crop(area)?, &desired.crop(area)?)])
+    };
+    let alone_cap = set.capture(&alone, frame)?;
+    let joint_cap = set.capture(&joint, frame)?;
+    let mut first_white = dark.clone();
+    first_white[0] = set.uniform(1.0).swap_remove(0);
+    let first_range = fov::display_range(
+        &black,
+        &set.capture(&first_white, FRAME_WHITE)?,
+        area,
+        fov::DESIRED_RANGE_QUANTILE,
+    )?;
+    let scores = SetScores {
+        first_alone: score(&alone_cap)?,
+        joint: score(&joint_cap)?,
+        range,
+        first_range,
+    };
+    let db = |s: &crate::metrics::Scores| format!("{:.1} db ssim {:.2}", s.psnr, s.ssim);
+    // The surface as the room light shows it, darkened where no projector of the set reaches.
+    let mut surface = first.surface_preview().clone();
+    for other in &set.projectors()[1..] {
+        for (a, b) in surface
+            .data_mut()
+            .iter_mut()
+            .zip(other.surface_preview().data())
+        {
+            *a = a.max(*b);
+        }
+    }
+    let mut panels: Vec<(CamImage, String, String)> =
+        vec![(surface, "surface".into(), set.scene().name.clone())];
+    for k in 0..set.projectors().len() {
+        let mut one = dark.clone();
+        one[k] = set.uniform(1.0).swap_remove(k);
+        let note = if k == 0 {
+            format!("others black; up to {:.2}", first_range.high)
+        } else {
+            "the others black".into()
+        };
+        panels.push((
+            set.capture(&one, FRAME_WHITE + 1 + k as u64)?,
+            format!("projector {} white", k + 1),
+            note,
+        ));
+    }
+    panels.extend([
+        (
+            white,
+            "all white".into(),
+            format!("range {:.2} to {:.2}", range.low, range.high),
+        ),
+        (
+            desired.clone(),
+            "desired".into(),
+            format!("area {}x{}", area.width, area.height),
+        ),
+        (
+            alone_cap,
+            "projector 1 alone".into(),
+            db(&scores.first_alone),
+        ),
+        (joint_cap, "joint oracle".into(), db(&scores.joint)),
+    ]);
     Ok((compose(&panels, cam, panel_width), scores))
 }
 

@@ -119,8 +119,7 @@ impl Draft {
     }
 }
 
-/// Now, seconds since the Unix epoch.
-pub(super) fn now_unix_s() -> f64 {
+fn now_unix_s() -> f64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64())

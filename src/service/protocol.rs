@@ -316,7 +316,9 @@ impl ModelStatus {
                 .as_ref()
                 .and_then(|c| c.unreachable.clone()),
             setup: model.meta.training.setup.clone(),
-            since_unix_s: super::events::now_unix_s(),
+            since_unix_s: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64()),
             why,
         }
     }

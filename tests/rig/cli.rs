@@ -10,10 +10,12 @@ fn sim_list_and_show() {
     let o = compend(&["sim", "list"]);
     assert_code(&o, 0);
     let names: Vec<String> = stdout(&o).lines().map(str::to_string).collect();
+    // The scenes, then the sets of projectors.
     assert_eq!(
         names,
         rig::BUILTIN
             .iter()
+            .chain(rig::scene::SETS)
             .map(|s| s.to_string())
             .collect::<Vec<_>>()
     );
@@ -511,4 +513,80 @@ fn contact_sheet_per_scene() {
     let text = stdout(&o);
     assert_eq!(text.lines().count(), 3, "{text}");
     assert!(text.lines().nth(1).expect("row").starts_with("step"));
+}
+
+#[test]
+fn a_set_of_projectors_has_a_sheet_with_its_joint_ceiling() {
+    use common_cli::*;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().to_str().expect("utf-8");
+    let o = compend(&[
+        "sim",
+        "sheet",
+        "--out",
+        out,
+        "--scene",
+        "tiled",
+        "--scene",
+        "stacked",
+        "--camera",
+        "80x60",
+        "--projector",
+        "100x75",
+        "--network",
+        "32",
+        "--seed",
+        "5",
+    ]);
+    assert_code(&o, 0);
+    for name in ["tiled", "stacked"] {
+        let ImageSize {
+            width: w,
+            height: h,
+        } = compend::pngio::png_size(&dir.path().join(format!("{name}.png")))
+            .expect("the set's sheet");
+        // Surface, each projector's white, all white, desired, projector 1 alone, joint.
+        assert!(w > 7 * 80 && h > 60, "seven panels and captions: {w}x{h}");
+    }
+    let text = stdout(&o);
+    let figure = |row: &str, after: &str| -> f64 {
+        let rest = &row[row.find(after).expect(after) + after.len()..];
+        let word = rest.split_whitespace().next().unwrap();
+        word.trim_end_matches([')', ';']).parse().unwrap()
+    };
+    let row = |name: &str| text.lines().find(|l| l.starts_with(name)).expect(name);
+    // Tiled: projector 1 alone lights half the picture, the set all of it.
+    let tiled = row("tiled");
+    let (alone, joint) = (
+        figure(tiled, "projector 1 alone "),
+        figure(tiled, "; joint "),
+    );
+    assert!(joint > alone + 3.0, "{tiled}");
+    // Stacked: the joint ceiling is no worse, and the set's white is brighter than one's.
+    let stacked = row("stacked");
+    let (alone, joint) = (
+        figure(stacked, "projector 1 alone "),
+        figure(stacked, "; joint "),
+    );
+    assert!(joint >= alone, "{stacked}");
+    let whites: Vec<f64> = stacked
+        .match_indices("(white ")
+        .map(|(i, _)| figure(&stacked[i..], "(white "))
+        .collect();
+    assert!(whites[1] > whites[0] * 1.15, "{stacked}");
+    // A set is not something one projector's commands take.
+    let o = compend(&[
+        "sim",
+        "export",
+        "--scene",
+        "tiled",
+        "--out",
+        dir.path().join("export").to_str().unwrap(),
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("a set of 2 projectors"),
+        "{}",
+        stderr(&o)
+    );
 }

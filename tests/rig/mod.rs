@@ -2,7 +2,8 @@
 //! self-occlusion, and the `compend sim` command line.
 //!
 //! Submodules: `sim` (the simulator and the virtual rig through the library), `reference` (the
-//! reference rows and the oracle), `cli` (the `compend sim` commands and exported setups). The
+//! reference rows and the oracle), `sets` (sets of projectors), `cli` (the `compend sim` commands
+//! and exported setups). The
 //! helpers here are shared: tiny scenes (camera 80×60, projector 100×75 pixels), test images on
 //! the projector canvas or in a camera-space area, and scores.
 
@@ -13,6 +14,7 @@ use compend::rig::{self, OracleOptions, Phase, Simulator};
 
 mod cli;
 mod reference;
+mod sets;
 mod sim;
 
 /// Tiny sizes keep every test fast: camera 80×60, projector 100×75.

@@ -48,6 +48,7 @@ mod bounce;
 mod kernels;
 mod operator;
 mod pixel;
+mod set;
 mod subsurface;
 #[cfg(test)]
 mod tests;
@@ -56,6 +57,7 @@ use bounce::Bounce;
 use kernels::{CHUNK, approx_normal, gaussian_kernel, par_rows};
 pub(crate) use kernels::{mat3, mix64};
 use pixel::{PixelMaps, camera_maps};
+pub use set::SetSimulator;
 use subsurface::Subsurface;
 
 /// Which projector pose the simulator uses: the one at calibration, or the moved one of
@@ -124,6 +126,16 @@ impl Simulator {
     /// Prepares `scene` (validated) with texture seed `seed` and the projector pose of `phase`.
     pub fn new(scene: &Scene, seed: u64, phase: Phase) -> Result<Self> {
         scene.validate()?;
+        if !scene.more_projectors.is_empty() {
+            return Err(Error::Input(format!(
+                "scene {:?} is a set of {} projectors: compend calibrates and plays one projector \
+                 at a time so far; `compend sim sheet --scene {}` shows the set and its joint \
+                 physical ceiling",
+                scene.name,
+                scene.projectors().len(),
+                scene.name
+            )));
+        }
         let c = &scene.camera;
         let p = &scene.projector;
         let cam = Pinhole::new(c.width, c.height, c.hfov_deg, &c.pose);
@@ -411,7 +423,7 @@ impl Simulator {
         }
     }
 
-    fn check_prj(&self, prj: &PrjImage) -> Result<()> {
+    pub(super) fn check_prj(&self, prj: &PrjImage) -> Result<()> {
         if prj.size() != self.projector_size() {
             return Err(Error::Shape(format!(
                 "virtual projector of scene {:?} is {}, got a {}x{} projector image",

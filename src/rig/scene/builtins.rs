@@ -24,10 +24,14 @@ pub const BUILTIN: &[&str] = &[
     "drift",
 ];
 
+/// The built-in sets of projectors on one surface ([`Scene::more_projectors`]), simulated
+/// together by [`crate::rig::SetSimulator`].
+pub const SETS: &[&str] = &["tiled", "stacked"];
+
 /// A built-in scene by name, or a scene description from a JSON file (as `compend sim show`
 /// prints it) when `name_or_path` is a path to a file.
 pub fn load(name_or_path: &str) -> Result<Scene> {
-    if BUILTIN.contains(&name_or_path) {
+    if BUILTIN.contains(&name_or_path) || SETS.contains(&name_or_path) {
         return builtin(name_or_path);
     }
     let path = std::path::Path::new(name_or_path);
@@ -64,11 +68,14 @@ pub fn builtin(name: &str) -> Result<Scene> {
         "white-segment" => white_segment(name, base),
         "step" => step(name, base),
         "drift" => drift(name, base),
+        "tiled" => tiled(name, base),
+        "stacked" => stacked(name, base),
         other => {
             return Err(Error::Input(format!(
                 "unknown scene {other:?} (neither a built-in scene nor a scene file); built-in \
-                 scenes: {}",
-                BUILTIN.join(", ")
+                 scenes: {}; sets of projectors: {}",
+                BUILTIN.join(", "),
+                SETS.join(", ")
             )));
         }
     };
@@ -293,6 +300,68 @@ fn white_segment(name: &str, base: Scene) -> Scene {
     s
 }
 
+// The sets, in the order of `SETS`.
+
+/// Two projectors side by side on a concave textured wall, their pictures overlapping by about
+/// a fifth of each one's width; the right one an older unit: dimmer (about 80 %), its white
+/// yellower, its black higher, as two units of different ages are.
+fn tiled(name: &str, base: Scene) -> Scene {
+    // Each projector's picture is 2·2.2·tan(17°) ≈ 1.35 m wide on the wall; centres 1.08 m
+    // apart leave 0.27 m, 20 % of it, lit by both. The camera (62°) sees both pictures whole.
+    let left = ProjectorModel {
+        hfov_deg: 34.0,
+        pose: Pose::looking_at([-0.45, -0.05, 0.0], [-0.54, 0.0, 2.2], 0.3),
+        ..base.projector.clone()
+    };
+    let right = ProjectorModel {
+        hfov_deg: 34.0,
+        pose: Pose::looking_at([0.45, -0.04, 0.0], [0.54, 0.0, 2.2], -0.5),
+        gamma: [2.3, 2.25, 2.2],
+        mixing: [[0.78, 0.05, 0.01], [0.03, 0.76, 0.03], [0.01, 0.03, 0.63]],
+        black: [0.003, 0.003, 0.004],
+        vignetting: 0.16,
+        ..base.projector.clone()
+    };
+    Scene {
+        name: name.into(),
+        summary: "two projectors tiled on a concave textured wall (20 % overlap); the right one \
+                  older: dimmer, yellower, a higher black"
+            .into(),
+        camera: CameraModel {
+            hfov_deg: 62.0,
+            ..base.camera.clone()
+        },
+        projector: left,
+        more_projectors: vec![right],
+        surface: Surface::Cylinder {
+            distance: 2.2,
+            radius: 3.5,
+            convex: false,
+        },
+        albedo: light_texture(),
+        ..base
+    }
+}
+
+/// Two projectors stacked on `dark-texture`'s wall, both filling about the same picture: twice
+/// the light where one alone is too dark.
+fn stacked(name: &str, base: Scene) -> Scene {
+    let dark = dark_texture(name, base.clone());
+    let second = ProjectorModel {
+        pose: Pose::looking_at([-0.10, -0.06, 0.0], [0.0, 0.0, 2.0], -0.3),
+        mixing: [[0.90, 0.06, 0.01], [0.04, 0.92, 0.03], [0.01, 0.05, 0.93]],
+        ..base.projector.clone()
+    };
+    Scene {
+        name: name.into(),
+        summary: "two projectors stacked on a dark, saturated texture: together they reach \
+                  what one cannot"
+            .into(),
+        more_projectors: vec![second],
+        ..dark
+    }
+}
+
 /// The shared defaults: a white wall 2 m away, camera at the origin, projector 12 cm to the
 /// right and 5 cm up, aimed at the wall's centre; mild colour crosstalk on both devices.
 fn base_scene() -> Scene {
@@ -341,6 +410,7 @@ fn base_scene() -> Scene {
         subsurface: None,
         latency: Latency::default(),
         drift: None,
+        more_projectors: Vec::new(),
     }
 }
 

@@ -15,7 +15,7 @@ use crate::raster::ImageSize;
 
 mod builtins;
 
-pub use builtins::{BUILTIN, builtin, load};
+pub use builtins::{BUILTIN, SETS, builtin, load};
 
 /// A complete scene. Resolutions are part of it ([`Scene::with_resolution`] rescales every
 /// pixel-valued parameter so the physical scene stays the same).
@@ -50,6 +50,11 @@ pub struct Scene {
     /// How the projector moves after calibration (the drift scene); `None`: it stays put.
     #[serde(default)]
     pub drift: Option<Drift>,
+    /// More projectors on the same surface, seen by the same camera (a set: tiled side by
+    /// side, or stacked for brightness); `projector` is the first. Each lights the surface on
+    /// its own and the camera sees the sum of their light ([`crate::rig::SetSimulator`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub more_projectors: Vec<ProjectorModel>,
 }
 
 /// Position and orientation of a camera or projector.
@@ -394,7 +399,33 @@ impl Scene {
         if let Some(d) = &mut self.drift {
             d.shift_px = [d.shift_px[0] * k, d.shift_px[1] * k];
         }
+        // A set's other projectors take the same resolution, their defocus scaled alike.
+        for p in &mut self.more_projectors {
+            p.defocus_px *= projector.width as f64 / p.width.max(1) as f64;
+            p.width = projector.width;
+            p.height = projector.height;
+        }
         self
+    }
+
+    /// Every projector of the scene, `projector` first.
+    pub fn projectors(&self) -> Vec<&ProjectorModel> {
+        std::iter::once(&self.projector)
+            .chain(&self.more_projectors)
+            .collect()
+    }
+
+    /// The scene as projector `k` alone lights it (0: `projector`), the others taken away: how
+    /// a set is simulated, one projector at a time. `drift` moves the first projector only.
+    /// `None` past the last projector.
+    pub fn alone(&self, k: usize) -> Option<Scene> {
+        let p = self.projectors().get(k).map(|p| (*p).clone())?;
+        Some(Scene {
+            projector: p,
+            more_projectors: Vec::new(),
+            drift: if k == 0 { self.drift.clone() } else { None },
+            ..self.clone()
+        })
     }
 
     /// Overrides the virtual camera's frame rate (Hz) and the projector-to-camera delay (ms,
@@ -412,6 +443,18 @@ impl Scene {
     /// Checks values the simulator relies on; the error names the field.
     pub fn validate(&self) -> Result<()> {
         self.validate_devices()?;
+        for k in 1..self.projectors().len() {
+            if let Some(one) = self.alone(k) {
+                one.validate_devices().map_err(|e| match e {
+                    Error::Input(why) => Error::Input(format!(
+                        "{why} (projector {} of the set: more_projectors[{}])",
+                        k + 1,
+                        k - 1
+                    )),
+                    other => other,
+                })?;
+            }
+        }
         self.validate_albedo()?;
         self.validate_surface()?;
         self.validate_effects()

@@ -1,0 +1,110 @@
+//! Sets of projectors on the virtual rig: light adds, a tiled set covers more than either of
+//! its projectors, and the set's joint ceiling reaches what one projector cannot.
+
+use compend::raster::{CamImage, Camera, ImageSize, Mask};
+use compend::rig::scene::builtin;
+use compend::rig::{OracleOptions, Phase, SetSimulator, Simulator};
+
+/// A built-in set at 64×48 camera and 80×60 projector pixels.
+fn small(name: &str) -> SetSimulator {
+    let scene = builtin(name)
+        .unwrap()
+        .with_resolution(ImageSize::new(64, 48), ImageSize::new(80, 60));
+    SetSimulator::new(&scene, 3, Phase::Calibration).unwrap()
+}
+
+fn count(m: &Mask<Camera>) -> usize {
+    m.data().iter().filter(|&&v| v).count()
+}
+
+#[test]
+fn light_adds_and_the_room_is_counted_once() {
+    let set = small("stacked");
+    let [black, white] = [0.0, 1.0].map(|v| set.uniform(v));
+    let both_black = set.clean_signal(&black).unwrap();
+    let first_white = set
+        .clean_signal(&[white[0].clone(), black[1].clone()])
+        .unwrap();
+    // Projector 1's own light, from its simulator alone, is what it adds in the set.
+    let one = &set.projectors()[0];
+    let alone_white = one.clean_signal(&white[0]).unwrap();
+    let alone_black = one.clean_signal(&black[0]).unwrap();
+    let mut worst = 0f32;
+    for i in 0..both_black.len() {
+        let in_set = first_white[i] - both_black[i];
+        let alone = alone_white[i] - alone_black[i];
+        worst = worst.max((in_set - alone).abs());
+    }
+    assert!(
+        worst < 1e-5,
+        "projector 1 adds {worst} more or less in the set"
+    );
+    // Both black: each projector's black and the room's light once, more than one's.
+    let one_black: f32 = alone_black.iter().sum();
+    let set_black: f32 = both_black.iter().sum();
+    assert!(set_black > one_black, "{set_black} against {one_black}");
+    // The wrong number of images is refused.
+    assert!(set.clean_signal(&black[..1]).is_err());
+}
+
+#[test]
+fn a_tiled_set_covers_more_than_either_and_overlaps_by_a_fraction() {
+    let set = small("tiled");
+    let each: Vec<usize> = set
+        .projectors()
+        .iter()
+        .map(|s| count(&s.lit_mask()))
+        .collect();
+    let union = count(&set.lit_union());
+    let overlap = count(&set.overlap());
+    assert!(union > each[0].max(each[1]) * 3 / 2, "{union} of {each:?}");
+    // About a fifth of each picture is lit by both (the camera sees it foreshortened).
+    for &e in &each {
+        let share = overlap as f64 / e as f64;
+        assert!((0.08..0.35).contains(&share), "overlap {overlap} of {e}");
+    }
+    // A single-projector simulator refuses the set, saying what shows it.
+    let e = Simulator::new(set.scene(), 0, Phase::Calibration)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("a set of 2 projectors") && e.contains("sim sheet"),
+        "{e}"
+    );
+}
+
+#[test]
+fn the_joint_oracle_reaches_what_one_projector_cannot() {
+    let set = small("stacked");
+    let one = &set.projectors()[0];
+    let mask = one.lit_mask();
+    // A bright grey on the dark texture: beyond one projector in most places.
+    let ImageSize { width, height } = set.camera_size();
+    let desired = CamImage::filled(width, height, [0.55, 0.55, 0.55]);
+    let opts = OracleOptions { iterations: 30 };
+    let error = |seen: &CamImage| -> f64 {
+        let mut sum = 0f64;
+        let mut n = 0usize;
+        for i in 0..width * height {
+            if mask.data()[i] {
+                for c in 0..3 {
+                    let d = (seen.data()[i * 3 + c] - desired.data()[i * 3 + c]) as f64;
+                    sum += d * d;
+                    n += 1;
+                }
+            }
+        }
+        sum / n as f64
+    };
+    // Projector 1 alone, the other black: the single-projector ceiling on its own.
+    let alone = one.oracle(&desired, &mask, opts).unwrap();
+    let black = set.uniform(0.0);
+    let alone_err = error(&set.expected(&[alone, black[1].clone()]).unwrap());
+    let joint = set.oracle(&desired, &mask, opts).unwrap();
+    assert_eq!(joint.len(), 2);
+    let joint_err = error(&set.expected(&joint).unwrap());
+    assert!(
+        joint_err < 0.7 * alone_err,
+        "together {joint_err:.5}, projector 1 alone {alone_err:.5} (mean squared error)"
+    );
+}
