@@ -214,3 +214,95 @@ pub fn clipping<S: Space>(img: &Rgb<S>) -> (f64, f64) {
     }
     (high as f64 / n, low as f64 / n)
 }
+
+/// How visible a seam is where projected pictures meet: the residual (seen − desired) in a band
+/// along the edges against the same away from them, inside one region. A seam shows as more
+/// error in the band, or as a step in the residual there (its gradient energy).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SeamFigure {
+    /// Mean squared residual in the band and away from it (encoded values², per channel).
+    pub band_mse: f64,
+    pub away_mse: f64,
+    /// Mean squared step of the residual between neighbouring pixels (right and down, both
+    /// in the region), in the band and away from it (encoded values², per channel).
+    pub band_gradient: f64,
+    pub away_gradient: f64,
+}
+
+impl SeamFigure {
+    /// The larger of the band's error and its gradient energy over the same away from it: about
+    /// 1 where nothing marks the edges; a floor of 1e-6 (encoded values²) away keeps it finite.
+    pub fn ratio(&self) -> f64 {
+        let r = |band: f64, away: f64| band / away.max(1e-6);
+        r(self.band_mse, self.away_mse).max(r(self.band_gradient, self.away_gradient))
+    }
+}
+
+/// The [`SeamFigure`] of `seen` against `desired` (same size, encoded values), with the band
+/// and the pixels away from it given as masks of the same size (pixel (x, y) at `y·width + x`).
+/// An empty band or an empty away region is an input error.
+pub fn seam_figure<S: Space>(
+    seen: &Rgb<S>,
+    desired: &Rgb<S>,
+    band: &[bool],
+    away: &[bool],
+) -> Result<SeamFigure> {
+    check(seen, desired)?;
+    let (w, h) = (seen.width(), seen.height());
+    if band.len() != w * h || away.len() != w * h {
+        return Err(Error::Shape(format!(
+            "seam masks of {} and {} pixels for {w}x{h} images",
+            band.len(),
+            away.len()
+        )));
+    }
+    let r: Vec<f64> = seen
+        .data()
+        .iter()
+        .zip(desired.data())
+        .map(|(a, b)| f64::from(a - b))
+        .collect();
+    // Per region: squared residual sum and count, squared step sum and count.
+    let mut sums = [[0f64; 4]; 2];
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            for (k, region) in [band, away].iter().enumerate() {
+                if !region[i] {
+                    continue;
+                }
+                let acc = &mut sums[k];
+                for c in 0..3 {
+                    acc[0] += r[i * 3 + c] * r[i * 3 + c];
+                }
+                acc[1] += 3.0;
+                for j in [(x + 1 < w).then_some(i + 1), (y + 1 < h).then_some(i + w)]
+                    .into_iter()
+                    .flatten()
+                {
+                    if region[j] {
+                        for c in 0..3 {
+                            let d = r[j * 3 + c] - r[i * 3 + c];
+                            acc[2] += d * d;
+                        }
+                        acc[3] += 3.0;
+                    }
+                }
+            }
+        }
+    }
+    for (k, what) in ["band", "region away from it"].iter().enumerate() {
+        if sums[k][1] == 0.0 || sums[k][3] == 0.0 {
+            return Err(Error::Input(format!(
+                "the seam's {what} holds no pair of neighbouring pixels"
+            )));
+        }
+    }
+    let mean = |k: usize, v: usize, n: usize| sums[k][v] / sums[k][n];
+    Ok(SeamFigure {
+        band_mse: mean(0, 0, 1),
+        away_mse: mean(1, 0, 1),
+        band_gradient: mean(0, 2, 3),
+        away_gradient: mean(1, 2, 3),
+    })
+}

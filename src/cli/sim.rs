@@ -381,12 +381,17 @@ fn sheet(a: SheetArgs) -> Result<()> {
             compend::pngio::write_rgb(&path, &img)?;
             let cell = |x: &compend::metrics::Scores| format!("{:.2} dB / {:.3}", x.psnr, x.ssim);
             println!(
-                "{:<16} projector 1 alone {} (white {:.3}); joint {} (white {:.3})",
+                "{:<16} projector 1 alone {} (white {:.3}); joint {} (white {:.3}; seam {})",
                 scene.name,
                 cell(&s.first_alone),
                 s.first_range.high,
                 cell(&s.joint),
-                s.range.high
+                s.range.high,
+                s.seam
+                    .map_or("none crosses the area".to_string(), |f| format!(
+                        "{:.2}",
+                        f.ratio()
+                    ))
             );
             eprintln!("sim: wrote {}", path.display());
             continue;

@@ -113,6 +113,16 @@ pub struct SetScores {
     /// adds is a higher white.
     pub range: fov::DisplayRange,
     pub first_range: fov::DisplayRange,
+    /// How visible the seams of the joint ceiling's picture are
+    /// ([`crate::metrics::seam_figure`], a band of [`seam_band_px`] along the overlap edges
+    /// in the displayable area); `None` where no overlap edge crosses the area.
+    pub seam: Option<crate::metrics::SeamFigure>,
+}
+
+/// The width of the band a seam is looked for in: a hundredth of the camera's width, at least
+/// 2 pixels (camera pixels).
+pub fn seam_band_px(camera: ImageSize) -> usize {
+    (camera.width / 100).max(2)
 }
 
 /// A contact sheet for a set of projectors and one test image `test` (network size): the
@@ -156,11 +166,14 @@ pub fn set_sheet(
         area,
         fov::DESIRED_RANGE_QUANTILE,
     )?;
+    let (band, away) = set.seam_regions(&inside, seam_band_px(cam));
+    let seam = crate::metrics::seam_figure(&joint_cap, &desired, band.data(), away.data()).ok();
     let scores = SetScores {
         first_alone: score(&alone_cap)?,
         joint: score(&joint_cap)?,
         range,
         first_range,
+        seam,
     };
     let db = |s: &crate::metrics::Scores| format!("{:.1} db ssim {:.2}", s.psnr, s.ssim);
     // The surface as the room light shows it, darkened where no projector of the set reaches.
@@ -206,7 +219,14 @@ pub fn set_sheet(
             "projector 1 alone".into(),
             db(&scores.first_alone),
         ),
-        (joint_cap, "joint oracle".into(), db(&scores.joint)),
+        (
+            joint_cap,
+            format!(
+                "joint oracle{}",
+                seam.map_or(String::new(), |s| format!("  seam {:.2}", s.ratio()))
+            ),
+            db(&scores.joint),
+        ),
     ]);
     Ok((compose(&panels, cam, panel_width), scores))
 }

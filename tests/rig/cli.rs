@@ -562,6 +562,8 @@ fn a_set_of_projectors_has_a_sheet_with_its_joint_ceiling() {
         figure(tiled, "; joint "),
     );
     assert!(joint > alone + 3.0, "{tiled}");
+    // Its pictures meet without a seam: the residual along the overlap edges is as away.
+    assert!(figure(tiled, "seam ") < 2.0, "{tiled}");
     // Stacked: the joint ceiling is no worse, and the set's white is brighter than one's.
     let stacked = row("stacked");
     let (alone, joint) = (

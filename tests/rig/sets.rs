@@ -108,3 +108,59 @@ fn the_joint_oracle_reaches_what_one_projector_cannot() {
         "together {joint_err:.5}, projector 1 alone {alone_err:.5} (mean squared error)"
     );
 }
+
+#[test]
+fn a_projector_the_camera_does_not_see_is_named() {
+    let mut scene = builtin("tiled")
+        .unwrap()
+        .with_resolution(ImageSize::new(64, 48), ImageSize::new(80, 60));
+    // The second projector turned to face away from the wall.
+    scene.more_projectors[0].pose =
+        compend::rig::scene::Pose::looking_at([0.45, -0.04, 0.0], [0.45, 0.0, -2.0], 0.0);
+    let e = SetSimulator::new(&scene, 0, Phase::Calibration)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("projector 2 lights nothing the camera sees"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_seam_shows_where_two_pictures_add_and_not_with_the_joint_ceiling() {
+    let scene = builtin("tiled")
+        .unwrap()
+        .with_resolution(ImageSize::new(96, 72), ImageSize::new(100, 75));
+    let set = SetSimulator::new(&scene, 2, Phase::Calibration).unwrap();
+    let region = set.lit_union();
+    let (band, away) = set.seam_regions(&region, 2);
+    let count = |m: &Mask<Camera>| m.data().iter().filter(|&&v| v).count();
+    assert!(
+        count(&band) > 20 && count(&away) > 200,
+        "{} {}",
+        count(&band),
+        count(&away)
+    );
+    let ImageSize { width, height } = set.camera_size();
+    let desired = CamImage::filled(width, height, [0.35, 0.35, 0.35]);
+    let opts = OracleOptions { iterations: 40 };
+    let figure = |images: &[compend::raster::PrjImage]| {
+        let seen = set.expected(images).unwrap();
+        compend::metrics::seam_figure(&seen, &desired, band.data(), away.data()).unwrap()
+    };
+    // Jointly compensated: the overlap is shared, nothing marks the edges.
+    let joint = figure(&set.oracle(&desired, &region, opts).unwrap());
+    // Each projector compensated on its own for its own picture, ignoring the other: where
+    // the pictures overlap the light adds, a bright band along the edges.
+    let apart: Vec<_> = set
+        .projectors()
+        .iter()
+        .map(|s| s.oracle(&desired, &s.lit_mask(), opts).unwrap())
+        .collect();
+    let apart = figure(&apart);
+    assert!(joint.ratio() < 3.0, "joint {joint:?}");
+    assert!(
+        apart.ratio() > 4.0 * joint.ratio(),
+        "apart {apart:?}, joint {joint:?}"
+    );
+}

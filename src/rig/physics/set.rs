@@ -24,7 +24,8 @@ pub struct SetSimulator {
 
 impl SetSimulator {
     /// Prepares every projector of `scene` (validated) with texture seed `seed`; `phase` moves
-    /// the first projector only (the scene's drift).
+    /// the first projector only (the scene's drift). A projector whose light falls on no
+    /// surface point the camera sees is refused, named.
     pub fn new(scene: &Scene, seed: u64, phase: Phase) -> Result<Self> {
         scene.validate()?;
         let sims = (0..scene.projectors().len())
@@ -35,6 +36,16 @@ impl SetSimulator {
                 Simulator::new(&one, seed, if k == 0 { phase } else { Phase::Calibration })
             })
             .collect::<Result<Vec<_>>>()?;
+        for (k, sim) in sims.iter().enumerate() {
+            if !sim.lit_mask().data().iter().any(|&v| v) {
+                return Err(Error::Input(format!(
+                    "scene {:?}: projector {} lights nothing the camera sees (aimed away from \
+                     the surface, or outside the camera's view); turn it or the camera",
+                    scene.name,
+                    k + 1
+                )));
+            }
+        }
         Ok(SetSimulator {
             sims,
             scene: scene.clone(),
@@ -119,6 +130,49 @@ impl SetSimulator {
             .map(|i| masks.iter().filter(|m| m.data()[i]).count() >= 2)
             .collect();
         Mask::from_vec(width, height, data).expect("one entry per camera pixel")
+    }
+
+    /// Where a seam would show, inside `region` (camera pixels): the band of pixels within
+    /// `band_px` of an overlap edge (a pixel at the edge of one projector's light that another
+    /// projector lights too: where one picture ends inside another), and the pixels more than
+    /// `2·band_px` from any such edge, for [`crate::metrics::seam_figure`].
+    pub fn seam_regions(
+        &self,
+        region: &Mask<Camera>,
+        band_px: usize,
+    ) -> (Mask<Camera>, Mask<Camera>) {
+        use crate::morph::{Element, dilate};
+        let masks: Vec<Mask<Camera>> = self.sims.iter().map(Simulator::lit_mask).collect();
+        let ImageSize {
+            width: w,
+            height: h,
+        } = self.camera_size();
+        let lit = |k: usize, x: usize, y: usize| masks[k].data()[y * w + x];
+        let edges = Mask::<Camera>::from_fn(w, h, |x, y| {
+            (0..masks.len()).any(|k| {
+                let at_edge = lit(k, x, y)
+                    && [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)]
+                        .iter()
+                        .any(|(dx, dy)| {
+                            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+                            nx >= 0
+                                && ny >= 0
+                                && (nx as usize) < w
+                                && (ny as usize) < h
+                                && !lit(k, nx as usize, ny as usize)
+                        });
+                at_edge && (0..masks.len()).any(|j| j != k && lit(j, x, y))
+            })
+        });
+        let near = dilate(&edges, Element::Disk(band_px));
+        let far = dilate(&edges, Element::Disk(2 * band_px));
+        let band = Mask::from_fn(w, h, |x, y| {
+            near.data()[y * w + x] && region.data()[y * w + x]
+        });
+        let away = Mask::from_fn(w, h, |x, y| {
+            !far.data()[y * w + x] && region.data()[y * w + x]
+        });
+        (band, away)
     }
 
     fn check(&self, images: &[PrjImage]) -> Result<()> {
