@@ -5,6 +5,13 @@
 //! [`crate::raster::CamImage`], v/255). Y'CbCr formats are converted with the matrix and range
 //! of a [`YCbCr`]: which one a device uses comes from the driver's format fields or the frame
 //! size ([`super::format::ActiveFormat::ycbcr`]).
+//!
+//! Kept rather than the `yuv` crate (yuvutils-rs): here a Y'CbCr pixel is one float formula
+//! for whichever of four matrices and two ranges the driver reports, rounded once, with row
+//! strides and odd NV12 heights; the crate's 8-bit paths are fixed-point (a level off here and
+//! there, so recorded captures would convert differently), and its documentation says it
+//! panics on plane sizes it does not expect, where a short or corrupt frame from a driver is an
+//! error here ([`check`]).
 
 use serde::Serialize;
 
