@@ -936,6 +936,11 @@ fn config_check_refuses_what_serve_would_and_two_calibrations_do_not_share_a_fol
     let socket_line = format!("path = \"{}\"", socket.display());
     let cases = [
         (
+            "a set of projectors as the rig's scene",
+            swap("scene = \"curved\"", "scene = \"tiled\""),
+            "is a set of 2 projectors",
+        ),
+        (
             "socket path is a regular file",
             swap(&socket_line, &format!("path = \"{}\"", file.display())),
             "a file that is not a socket",

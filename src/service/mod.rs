@@ -288,7 +288,15 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
         let scene = crate::rig::scene::load(&r.scene)?;
         let cam = r.camera_size.unwrap_or(scene.camera.size());
         let prj = r.projector.unwrap_or(scene.projector.size());
+        let projectors = scene.projectors().len();
         scene.with_resolution(cam, prj).validate()?;
+        if projectors > 1 {
+            return Err(Error::Input(format!(
+                "[rig] scene = {:?} is a set of {} projectors: the service drives one projector \
+                 so far; `compend sim sheet --scene {}` shows the set",
+                r.scene, projectors, r.scene
+            )));
+        }
     }
     let tokens = [
         (
