@@ -164,3 +164,111 @@ fn a_seam_shows_where_two_pictures_add_and_not_with_the_joint_ceiling() {
         "apart {apart:?}, joint {joint:?}"
     );
 }
+
+#[test]
+fn one_projector_of_a_set_is_simulated_alone_with_the_others_black() {
+    let scene = builtin("tiled")
+        .unwrap()
+        .with_resolution(ImageSize::new(64, 48), ImageSize::new(80, 60));
+    let set = SetSimulator::new(&scene, 4, Phase::Calibration).unwrap();
+    let black = set.uniform(0.0);
+    let white = set.uniform(1.0);
+    for k in 0..2 {
+        let one = set.with_others_black(k).unwrap();
+        let mut shown = black.clone();
+        shown[k] = white[k].clone();
+        let in_set = set.clean_signal(&shown).unwrap();
+        let alone = one.clean_signal(&white[k]).unwrap();
+        let worst = in_set
+            .iter()
+            .zip(&alone)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        assert!(worst < 1e-5, "projector {}: {worst}", k + 1);
+        // A capture with the same frame index draws the same noise.
+        let a = set.capture(&shown, 9).unwrap();
+        let b = one.capture(&white[k], 9).unwrap();
+        let off = a
+            .data()
+            .iter()
+            .zip(b.data())
+            .filter(|(x, y)| (*x - *y).abs() > 0.5 / 255.0)
+            .count();
+        assert!(off * 1000 <= a.data().len(), "{off} values differ");
+    }
+    assert!(set.with_others_black(2).is_err());
+}
+
+/// Each projector of a set calibrated as today, one at a time with the others black (the first
+/// half of a set's calibration): the model of each verifies and its field of view is that
+/// projector's picture.
+#[test]
+fn each_projector_of_a_set_calibrates_with_the_others_black() {
+    use compend::calibrate::SamplingCount;
+    use compend::config::Config;
+    use compend::rig::VirtualRig;
+
+    let scene = builtin("tiled")
+        .unwrap()
+        .with_resolution(ImageSize::new(96, 72), ImageSize::new(100, 75));
+    let set = SetSimulator::new(&scene, 6, Phase::Calibration).unwrap();
+    let config = Config::defaults();
+    let mut c = config.calibration.clone();
+    c.ntrain = SamplingCount::Count(10);
+    c.ntest = 4;
+    c.verify = 3;
+    c.network = ImageSize::new(32, 32);
+    let opts = compend::rigs::calibration_options(
+        &config.rig,
+        &c,
+        None,
+        ImageSize::new(100, 75),
+        None,
+        None,
+    );
+    for k in 0..2 {
+        let rig = VirtualRig::from_simulator(set.with_others_black(k).unwrap());
+        let dir = tempfile::tempdir().unwrap();
+        let done = compend::calibrate::calibrate(
+            &mut rig.clone(),
+            &mut rig.clone(),
+            &dir.path().join("data"),
+            &opts,
+            &mut |_, _, _| {},
+        )
+        .unwrap();
+        let v = &done.record.verification;
+        assert!(v.passed, "projector {}: {v:?}", k + 1);
+        // Its field of view is its own picture: it overlaps the truth far more than the other's.
+        let truth = set.projectors()[k].lit_mask();
+        let other = set.projectors()[1 - k].lit_mask();
+        let iou = |a: &Mask<Camera>, b: &Mask<Camera>| {
+            let both = a
+                .data()
+                .iter()
+                .zip(b.data())
+                .filter(|(x, y)| **x && **y)
+                .count();
+            let any = a
+                .data()
+                .iter()
+                .zip(b.data())
+                .filter(|(x, y)| **x || **y)
+                .count();
+            both as f64 / any.max(1) as f64
+        };
+        let fov = &done.model.fov;
+        assert!(
+            iou(fov, &truth) > 0.8,
+            "projector {}: {}",
+            k + 1,
+            iou(fov, &truth)
+        );
+        assert!(
+            iou(fov, &other) < 0.4,
+            "projector {}: {}",
+            k + 1,
+            iou(fov, &other)
+        );
+    }
+}

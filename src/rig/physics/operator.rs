@@ -316,6 +316,16 @@ impl Simulator {
         }
     }
 
+    /// Adds `light` (sensor units, camera pixels, interleaved RGB) to the constant term: light
+    /// that reaches the camera whatever this projector shows (another projector's black).
+    pub(crate) fn add_to_constant(&mut self, light: &[f32]) {
+        for (c, px) in self.constant.iter_mut().zip(light.chunks_exact(3)) {
+            c[0] += px[0];
+            c[1] += px[1];
+            c[2] += px[2];
+        }
+    }
+
     /// Per camera pixel: the sensor signal per unit of gathered projector light in each channel
     /// before camera mixing (ρ·g + spec), the pixel's gain, and the constant term; used by the
     /// oracle's per-pixel inversion.

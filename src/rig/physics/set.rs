@@ -112,6 +112,37 @@ impl SetSimulator {
             .collect()
     }
 
+    /// Projector `k` (0: the scene's first) as a single-projector simulator that sees the set
+    /// with every other projector black: its own light, the others' black levels through the
+    /// scene, and the room's light. What calibrating the projectors one at a time captures;
+    /// anything that takes one [`Simulator`] (the virtual rig's devices, the oracle) takes it.
+    pub fn with_others_black(&self, k: usize) -> Result<Simulator> {
+        let own = self.sims.get(k).ok_or_else(|| {
+            Error::Input(format!(
+                "scene {:?} has {} projectors, not a projector {}",
+                self.scene.name,
+                self.sims.len(),
+                k + 1
+            ))
+        })?;
+        let scene = self.scene.alone(k).ok_or_else(|| {
+            Error::Failed(format!("scene {:?}: no projector {k}", self.scene.name))
+        })?;
+        let mut sim = Simulator::new(&scene, own.seed(), own.phase())?;
+        let ImageSize { width, height } = self.camera_size();
+        let mut others = vec![0f32; width * height * 3];
+        for (_, other) in self.sims.iter().enumerate().filter(|(j, _)| *j != k) {
+            let ImageSize {
+                width: pw,
+                height: ph,
+            } = other.projector_size();
+            let black = other.sensor(&other.emission(&PrjImage::new(pw, ph)));
+            others.iter_mut().zip(&black).for_each(|(a, b)| *a += b);
+        }
+        sim.add_to_constant(&others);
+        Ok(sim)
+    }
+
     /// Camera pixels some projector of the set lights.
     pub fn lit_union(&self) -> Mask<Camera> {
         let masks: Vec<Mask<Camera>> = self.sims.iter().map(Simulator::lit_mask).collect();
