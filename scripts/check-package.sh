@@ -8,8 +8,9 @@
 #   - /etc/compend/compend.toml is a conffile that `compend config check` accepts;
 #   - removal takes the binary and keeps the configuration; a purge takes the configuration;
 #     the user stays (Debian's rule for system users, and /var/lib/compend holds models).
-# Needs root (or sudo). CI runs it on its throwaway machine (.ci/run); on a machine where compend
-# was installed from the package before, it reinstalls and removes it.
+# Needs root (or sudo). CI runs it on its throwaway machine (.ci/run). On a machine where the
+# package is installed, or /etc/compend holds a configuration, it refuses (exit 2): its purge would
+# take a configuration it did not make.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -21,6 +22,15 @@ debs=("$target"/debian/compend_*.deb)
 deb="$(ls -t "${debs[@]}" | head -n 1)"
 
 fail() { echo "check-package: $*" >&2; exit 1; }
+
+if dpkg-query -W -f='${Status}' compend 2>/dev/null | grep -q "installed"; then
+  echo "check-package: the compend package is installed here; its test would remove it and purge its configuration (run it on a throwaway machine)" >&2
+  exit 2
+fi
+if [ -e /etc/compend ]; then
+  echo "check-package: /etc/compend exists; the package's purge would take a configuration this check did not make (run it on a throwaway machine)" >&2
+  exit 2
+fi
 
 $sudo dpkg -i "$deb"
 /usr/bin/compend --version | grep -q "^compend " || fail "/usr/bin/compend --version"

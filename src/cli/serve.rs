@@ -264,12 +264,9 @@ fn describe(s: &Status) -> String {
         Some(m) => {
             out += &format!("model: {} ({})\n", m.path.display(), m.method);
             if !m.why.is_empty() {
-                let now = std::time::SystemTime::now()
-                    .duration_since(std::time::UNIX_EPOCH)
-                    .map_or(0.0, |d| d.as_secs_f64());
                 out += &format!(
                     "  served for {:.0} s: {}\n",
-                    (now - m.since_unix_s).max(0.0),
+                    (compend::service::protocol::now_unix_s() - m.since_unix_s).max(0.0),
                     m.why
                 );
             }

@@ -57,12 +57,8 @@ impl Simulator {
         opts: OracleOptions,
     ) -> Result<PrjImage> {
         self.check_cam(desired, "the desired image")?;
-        check_same_size(desired.size(), mask.size(), "oracle mask")?;
-        let gamma_c = self.scene().camera.gamma as f32;
-        let n = desired.width() * desired.height();
-        let z = desired.data();
-        let inside: Vec<bool> = (0..n * 3).map(|j| mask.data()[j / 3]).collect();
-        let target: Vec<f32> = z.iter().map(|v| v.clamp(0.0, 1.0).powf(gamma_c)).collect();
+        let (z, gamma_c) = (desired.data(), self.scene().camera.gamma as f32);
+        let (inside, target) = masked_target(desired, mask, gamma_c)?;
 
         // Constant part c = A(black) + ambient + glare.
         let ImageSize {
@@ -85,15 +81,23 @@ impl Simulator {
         let x = self.per_pixel_start(&target, mask)?;
         let x = problem.descend(x, &a1, opts.iterations);
 
-        // Drives back to projector input levels.
+        self.input_levels(x)
+    }
+
+    /// Linear drives (projector pixels, interleaved RGB) back to the projector's input levels:
+    /// clipped to \[0,1\], through the inverse of its response per channel.
+    fn input_levels(&self, mut drives: Vec<f32>) -> Result<PrjImage> {
+        let ImageSize {
+            width: pw,
+            height: ph,
+        } = self.projector_size();
         let gp = self.scene().projector.gamma;
-        let mut data = x;
-        for px in data.chunks_exact_mut(3) {
+        for px in drives.chunks_exact_mut(3) {
             for c in 0..3 {
                 px[c] = px[c].clamp(0.0, 1.0).powf(1.0 / gp[c] as f32);
             }
         }
-        PrjImage::from_vec(pw, ph, data)
+        PrjImage::from_vec(pw, ph, drives)
     }
 
     /// Starting drives: invert each camera pixel's local model (direct light only), clip to
@@ -337,12 +341,8 @@ impl SetSimulator {
         for s in &sims {
             s.check_cam(desired, "the desired image")?;
         }
-        check_same_size(desired.size(), mask.size(), "oracle mask")?;
-        let gamma_c = self.scene().camera.gamma as f32;
-        let n = desired.width() * desired.height();
-        let z = desired.data();
-        let inside: Vec<bool> = (0..n * 3).map(|j| mask.data()[j / 3]).collect();
-        let target: Vec<f32> = z.iter().map(|v| v.clamp(0.0, 1.0).powf(gamma_c)).collect();
+        let (z, gamma_c) = (desired.data(), self.scene().camera.gamma as f32);
+        let (inside, target) = masked_target(desired, mask, gamma_c)?;
 
         // The constant part: every projector's black through the scene, and the room's light
         // once. A·1 of every projector: the majoriser's sum, and each one's share of the light.
@@ -350,8 +350,8 @@ impl SetSimulator {
             .iter()
             .map(|s| s.projector_size().width * s.projector_size().height * 3)
             .collect();
-        let mut c = vec![0f32; n * 3];
-        let mut a1 = vec![0f32; n * 3];
+        let mut c = vec![0f32; z.len()];
+        let mut a1 = vec![0f32; z.len()];
         let mut each_a1 = Vec::with_capacity(sims.len());
         for (s, &len) in sims.iter().zip(&sizes) {
             let black = s.sensor(&s.drive_to_emission(&vec![0f32; len], true));
@@ -379,23 +379,30 @@ impl SetSimulator {
             gamma_c,
         };
         let x = problem.descend(x, &a1, opts.iterations);
-        let mut out = Vec::with_capacity(sims.len());
-        for (k, s) in sims.iter().enumerate() {
-            let ImageSize {
-                width: pw,
-                height: ph,
-            } = s.projector_size();
-            let gp = s.scene().projector.gamma;
-            let mut data = problem.part(&x, k).to_vec();
-            for px in data.chunks_exact_mut(3) {
-                for ch in 0..3 {
-                    px[ch] = px[ch].clamp(0.0, 1.0).powf(1.0 / gp[ch] as f32);
-                }
-            }
-            out.push(PrjImage::from_vec(pw, ph, data)?);
-        }
-        Ok(out)
+        sims.iter()
+            .enumerate()
+            .map(|(k, s)| s.input_levels(problem.part(&x, k).to_vec()))
+            .collect()
     }
+}
+
+/// Per camera value (interleaved RGB): whether its pixel is in `mask`, and the sensor signal
+/// the desired encoded value asks for (clipped to \[0,1\], through the camera's response
+/// `gamma_c`).
+fn masked_target(
+    desired: &CamImage,
+    mask: &Mask<Camera>,
+    gamma_c: f32,
+) -> Result<(Vec<bool>, Vec<f32>)> {
+    check_same_size(desired.size(), mask.size(), "oracle mask")?;
+    let n = desired.width() * desired.height();
+    let inside = (0..n * 3).map(|j| mask.data()[j / 3]).collect();
+    let target = desired
+        .data()
+        .iter()
+        .map(|v| v.clamp(0.0, 1.0).powf(gamma_c))
+        .collect();
+    Ok((inside, target))
 }
 
 /// Bilinear sample of an interleaved RGB camera image at pixel coordinate `xy` (centres at

@@ -11,7 +11,6 @@
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use serde::Serialize;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast};
@@ -119,18 +118,12 @@ impl Draft {
     }
 }
 
-fn now_unix_s() -> f64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
 impl Hub {
     /// Numbers, stamps, keeps and sends `draft`.
     pub fn publish(&self, draft: Draft) {
         let event = Event {
             seq: self.seq.fetch_add(1, Ordering::Relaxed) + 1,
-            at_unix_s: now_unix_s(),
+            at_unix_s: super::protocol::now_unix_s(),
             kind: draft.kind,
             text: draft.text,
             origin: draft.origin,

@@ -316,12 +316,18 @@ impl ModelStatus {
                 .as_ref()
                 .and_then(|c| c.unreachable.clone()),
             setup: model.meta.training.setup.clone(),
-            since_unix_s: std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0.0, |d| d.as_secs_f64()),
+            since_unix_s: now_unix_s(),
             why,
         }
     }
+}
+
+/// Now, seconds since the Unix epoch (0 on a clock set before it): the time stamps of the
+/// status and the events.
+pub fn now_unix_s() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// Frame counts of the current (or last) playback.
