@@ -133,3 +133,127 @@ impl<T: FrameSource + ?Sized> FrameSource for Box<T> {
         (**self).reconnect()
     }
 }
+
+/// Several displays shown as one (a set of projectors, each its own display): a frame of
+/// [`SideBySide::size`] holds their frames left to right, top-aligned, in order; showing it
+/// shows each its part. What calibrates and verifies one display (the capture protocol, the
+/// exposure and latency phases) then drives them all at once, and a uniform frame (black,
+/// white) is uniform on every one.
+pub struct SideBySide<D> {
+    displays: Vec<D>,
+}
+
+impl<D: DisplaySink> SideBySide<D> {
+    /// An error where `displays` is empty.
+    pub fn new(displays: Vec<D>) -> Result<Self> {
+        if displays.is_empty() {
+            return Err(crate::Error::Input(
+                "a set of displays needs at least one".into(),
+            ));
+        }
+        Ok(SideBySide { displays })
+    }
+
+    pub fn displays(&mut self) -> &mut [D] {
+        &mut self.displays
+    }
+
+    pub fn into_displays(self) -> Vec<D> {
+        self.displays
+    }
+
+    /// Where display `k`'s frame sits in the whole frame.
+    pub fn part(&self, k: usize) -> Option<crate::raster::Rect> {
+        let size = self.displays.get(k)?.size();
+        let x = self.displays[..k].iter().map(|d| d.size().width).sum();
+        Some(crate::raster::Rect {
+            x,
+            y: 0,
+            width: size.width,
+            height: size.height,
+        })
+    }
+
+    /// The whole frame showing `frames` (one per display, each its display's size); what the
+    /// whole frame holds beyond them is black.
+    pub fn join(&self, frames: &[PrjImage]) -> Result<PrjImage> {
+        if frames.len() != self.displays.len() {
+            return Err(crate::Error::Shape(format!(
+                "{} frames for {} displays",
+                frames.len(),
+                self.displays.len()
+            )));
+        }
+        for (k, (d, f)) in self.displays.iter().zip(frames).enumerate() {
+            if f.size() != d.size() {
+                return Err(crate::Error::Shape(format!(
+                    "display {} is {}, its frame is {}",
+                    k + 1,
+                    d.size(),
+                    f.size()
+                )));
+            }
+        }
+        Ok(side_by_side(frames))
+    }
+}
+
+/// Frames left to right, top-aligned, in one frame as tall as the tallest (black below the
+/// shorter ones): the whole frame of a [`SideBySide`] of displays of the frames' sizes.
+pub fn side_by_side(frames: &[PrjImage]) -> PrjImage {
+    let width = frames.iter().map(|f| f.width()).sum();
+    let height = frames.iter().map(|f| f.height()).max().unwrap_or(0);
+    let mut out = PrjImage::new(width, height);
+    let mut x0 = 0;
+    for f in frames {
+        for y in 0..f.height() {
+            for x in 0..f.width() {
+                out.set(x0 + x, y, f.get(x, y));
+            }
+        }
+        x0 += f.width();
+    }
+    out
+}
+
+impl<D: DisplaySink> DisplaySink for SideBySide<D> {
+    fn size(&self) -> ImageSize {
+        let width = self.displays.iter().map(|d| d.size().width).sum();
+        let height = self.displays.iter().map(|d| d.size().height).max();
+        ImageSize::new(width, height.unwrap_or(0))
+    }
+
+    fn show(&mut self, frame: &PrjImage) -> Result<()> {
+        let whole = self.size();
+        if frame.size() != whole {
+            return Err(crate::Error::Shape(format!(
+                "a set of displays side by side is {whole}, got a {} frame",
+                frame.size()
+            )));
+        }
+        for k in 0..self.displays.len() {
+            let part = self
+                .part(k)
+                .ok_or_else(|| crate::Error::Failed(format!("no display {} in the set", k + 1)))?;
+            let own = frame.crop(part)?;
+            self.displays[k].show(&own)?;
+        }
+        Ok(())
+    }
+}
+
+/// A camera whose exposure stays where it is: it reports no manual exposure, so a calibration
+/// leaves it alone (each projector of a set calibrated at the exposure ranged for the set).
+pub struct HeldExposure<C>(pub C);
+
+impl<C: FrameSource> FrameSource for HeldExposure<C> {
+    fn size(&self) -> ImageSize {
+        self.0.size()
+    }
+    fn grab(&mut self) -> Result<Frame> {
+        self.0.grab()
+    }
+    fn reconnect(&mut self) -> Result<bool> {
+        self.0.reconnect()
+    }
+}

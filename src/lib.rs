@@ -11,7 +11,8 @@
 //!   arrays and their safetensors encoding);
 //! - geometry and data: [`fov`], [`warp`], [`patterns`], [`slgrid`], [`dataset`] (the
 //!   CompenNet++ layout and the capture manifest);
-//! - models: [`linear`], [`failure`] (how a trained model failed: diverged, collapsed, worse
+//! - models: [`linear`], [`joint`] (a set of projectors compensated together, from each
+//!   one's `linear` model), [`failure`] (how a trained model failed: diverged, collapsed, worse
 //!   than uncompensated), [`nn`] (CompenNet++ in candle), [`method`] (the rung names),
 //!   [`record`] (what `model.json` records of a calibration and a training), [`model`] (a loaded
 //!   model; `model::store`, the model directory), [`fit`] (training any rung; `auto`'s climb and
@@ -46,6 +47,7 @@ pub mod filter;
 pub mod fit;
 pub mod fov;
 pub mod gpu;
+pub mod joint;
 pub mod linear;
 pub mod media;
 pub mod method;

@@ -128,6 +128,15 @@ pub fn open(r: &RigConfig, clock: RigClock, given: Given) -> Result<Opened> {
                 )));
             }
             let scene = scene(r, Some(size))?;
+            if !scene.more_projectors.is_empty() {
+                return Err(Error::Input(format!(
+                    "{}: a set of {} projectors; `--rig window` shows one projector's window so \
+                     far: calibrate the set on the virtual rig (`--rig virtual:{}`)",
+                    given.name("scene", &r.scene),
+                    scene.projectors().len(),
+                    r.scene
+                )));
+            }
             let camera = win.watched_by(&scene, r.seed)?;
             Ok(Opened::Window { win, camera, scene })
         }

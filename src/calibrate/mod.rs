@@ -34,6 +34,7 @@ mod pipeline;
 pub mod progress;
 pub mod rounds;
 pub mod runs;
+pub mod set;
 pub mod sync;
 
 use std::path::{Path, PathBuf};

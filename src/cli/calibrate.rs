@@ -508,6 +508,16 @@ fn calibrate_rig(args: &Settings, out: &Path, rig: &RigConfig) -> Result<()> {
     };
     let monitor = args.monitor.as_deref().unwrap_or("the primary monitor");
     match rigs::open(rig, args.rig_clock, given)? {
+        Opened::Virtual { rig: sim, scene } if sim.outputs() > 1 => {
+            eprintln!(
+                "calibrate: virtual rig {:?}, a set of {} projectors ({}) into {}",
+                rig.scene,
+                sim.outputs(),
+                describe_camera(&scene),
+                args.data.display()
+            );
+            calibrate_set_on(sim, args, scene.projector.size(), rig, out)
+        }
         Opened::Virtual { rig: sim, scene } => {
             eprintln!(
                 "calibrate: virtual rig {:?} (projector {}, {}) into {}",
@@ -659,6 +669,100 @@ fn live_pass(ctx: compend::gpu::GpuContext, hz: f64) -> Result<Arc<dyn compend::
         compend::record::readable(hz)
     );
     Ok(Arc::new(compend::gpu::live::GpuLivePass::new(ctx, hz)?))
+}
+
+/// Calibrates the set of projectors of a virtual rig (one output each, one camera), prints
+/// the set's record and installs its model into `out` if the whole set verified.
+fn calibrate_set_on(
+    rig_devices: compend::rig::VirtualRig,
+    args: &Settings,
+    projector: ImageSize,
+    rig: &RigConfig,
+    out: &Path,
+) -> Result<()> {
+    let displays = (0..rig_devices.outputs())
+        .map(|k| rig_devices.output(k))
+        .collect::<compend::Result<Vec<_>>>()?;
+    let mut camera = rig_devices;
+    let opts = rigs::calibration_options(rig, &args.calibration, None, projector, None, None);
+    let report = super::progress::Progress::new("calibrate", args.json);
+    let mut progress = |stage: &str, done: usize, total: usize| report.update(stage, done, total);
+    let done =
+        calibrate::set::calibrate_set(displays, &mut camera, &args.data, &opts, &mut progress)
+            .with_context(|| format!("calibrating the set into {}", args.data.display()))?;
+    report.finish();
+    print_set_record(&done, args.json)?;
+    let n = done.model.models.len();
+    calibrate::set::install_set(done, out)
+        .with_context(|| format!("installing the set's model into {}", out.display()))?;
+    eprintln!(
+        "calibrate: installed the joint model of {n} projectors into {}",
+        out.display()
+    );
+    Ok(())
+}
+
+/// Each projector's calibration and the whole set's verification on stderr; the set's record
+/// on stdout with `--json`.
+fn print_set_record(done: &calibrate::set::CalibratedSet, json: bool) -> Result<()> {
+    let r = &done.record;
+    for (k, m) in done.model.models.iter().enumerate() {
+        if let Some(c) = &m.meta.calibration {
+            let v = &c.verification;
+            eprintln!(
+                "calibrate: projector {}: {} captures, latency {:?} exposures, {:.1} s; alone \
+                 in its own area {:.2} dB compensated, {:.2} dB uncompensated",
+                k + 1,
+                c.captured,
+                c.latency.trials,
+                r.projector_seconds.get(k).copied().unwrap_or(f64::NAN),
+                v.psnr,
+                v.uncompensated_psnr
+            );
+        }
+    }
+    let v = &r.verification;
+    let alone = v
+        .alone_psnr
+        .iter()
+        .enumerate()
+        .map(|(k, p)| format!("projector {} alone {p:.2} dB", k + 1))
+        .collect::<Vec<_>>()
+        .join(", ");
+    eprintln!(
+        "calibrate: the whole set on {} test images in its displayable area {}: {:.2} dB / SSIM \
+         {:.3} jointly; {alone}: {:+.2} dB over the best alone (needs {:+.2})",
+        v.images, r.area, v.psnr, v.ssim, v.gain_db, v.required_gain_db
+    );
+    match &v.seam {
+        Some(s) => eprintln!(
+            "calibrate: seam figure {:.2} (error along the overlap edges {:.2e} against {:.2e} \
+             away, residual steps {:.2e} against {:.2e}; at most {} passes)",
+            s.ratio(),
+            s.band_mse,
+            s.away_mse,
+            s.band_gradient,
+            s.away_gradient,
+            v.seam_limit
+        ),
+        None => eprintln!("calibrate: the projectors do not overlap in the area: no seam figure"),
+    }
+    eprintln!(
+        "calibrate: camera curves of the projectors' models differ by {:.3}; seconds: {} \
+         projectors, set verification {:.1}, total {:.1}",
+        r.camera_gamma_spread,
+        r.projector_seconds
+            .iter()
+            .map(|s| format!("{s:.1}"))
+            .collect::<Vec<_>>()
+            .join(" + "),
+        r.verification_seconds,
+        r.total_seconds
+    );
+    if json {
+        println!("{}", serde_json::to_string(r)?);
+    }
+    Ok(())
 }
 
 /// Runs the calibration flow on a display and a camera and prints its record.

@@ -36,7 +36,7 @@
 mod colour;
 mod curve;
 mod fit;
-mod gamut;
+pub(crate) mod gamut;
 mod geometry;
 mod model;
 mod normal;

@@ -8,6 +8,7 @@ use crate::linear::LinearModel;
 use crate::tensors::Tensors;
 use store::ModelMeta;
 
+pub mod set;
 pub mod store;
 
 pub use crate::method::{Method, MethodChoice};
@@ -137,6 +138,15 @@ impl Model {
     /// Loads a model directory; an unknown method, a version mismatch, a missing or mis-shaped
     /// tensor is an input error naming the file.
     pub fn load(dir: &Path) -> Result<Self> {
+        if set::SetModel::is_set(dir) {
+            return Err(Error::Input(format!(
+                "{}: the model of a set of projectors ({}): play it with `compend play --model \
+                 {}` on a rig of that set; one projector's model is in its `projector-N` folder",
+                dir.display(),
+                store::SET_FILE,
+                dir.display()
+            )));
+        }
         if !dir.exists() {
             return Err(Error::Missing {
                 path: dir.to_path_buf(),

@@ -20,6 +20,14 @@ use crate::tensors::Tensors;
 pub const FORMAT_VERSION: u32 = 1;
 pub const WEIGHTS_FILE: &str = "model.safetensors";
 pub const META_FILE: &str = "model.json";
+/// The metadata file of a set of projectors' model ([`super::set`]), beside one model
+/// directory per projector (`projector-1`, `projector-2`, …).
+pub const SET_FILE: &str = "set.json";
+
+/// The folder of projector `k` (0: the set's first) in a set's model directory.
+pub fn projector_dir(k: usize) -> String {
+    format!("projector-{}", k + 1)
+}
 
 /// Metadata stored in `model.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -157,8 +165,8 @@ pub fn check_model_path(dir: &Path) -> Result<()> {
 fn shape(dir: &Path, strict: bool) -> Result<bool> {
     let refuse = |what: &str| {
         Err(Error::Input(format!(
-            "{}: {what}; only a model directory ({META_FILE} + {WEIGHTS_FILE}) is ever replaced: \
-             choose another place for the model (--out, or [paths] model for the service) or \
+            "{}: {what}; only a model directory ({META_FILE} + {WEIGHTS_FILE}, or a set's: \
+             {SET_FILE} + projector folders) is ever replaced: choose another place for the model (--out, or [paths] model for the service) or \
              move it away",
             dir.display()
         )))
@@ -180,18 +188,25 @@ fn shape(dir: &Path, strict: bool) -> Result<bool> {
                 Err(e) => return Err(Error::io(dir, "list", e)),
             };
             let mut names = Vec::new();
+            let mut folders = Vec::new();
             for entry in entries {
                 let entry = entry.map_err(|e| Error::io(dir, "list", e))?;
                 let name = entry.file_name().to_string_lossy().into_owned();
                 // A model's two files are plain files: a folder or a FIFO of that name is
                 // someone else's.
                 let plain = entry.file_type().is_ok_and(|t| t.is_file());
-                if (name == META_FILE || name == WEIGHTS_FILE) && !plain {
+                if (name == META_FILE || name == WEIGHTS_FILE || name == SET_FILE) && !plain {
                     return refuse(&format!(
                         "holds `{name}` that is not a plain file, so it is not a model directory"
                     ));
                 }
+                if entry.file_type().is_ok_and(|t| t.is_dir()) {
+                    folders.push(name.clone());
+                }
                 names.push(name);
+            }
+            if names.iter().any(|n| n == SET_FILE) {
+                return set_shape(dir, &names, &folders, strict, refuse);
             }
             if let Some(other) = names.iter().find(|n| *n != META_FILE && *n != WEIGHTS_FILE) {
                 return refuse(&format!("holds `{other}`, so it is not a model directory"));
@@ -204,6 +219,40 @@ fn shape(dir: &Path, strict: bool) -> Result<bool> {
             Ok(!names.is_empty())
         }
     }
+}
+
+/// What [`shape`] checks of a set's model directory: `set.json` (JSON with a
+/// `format_version`) and projector folders numbered from 1 without gaps, each a model
+/// directory.
+fn set_shape(
+    dir: &Path,
+    names: &[String],
+    folders: &[String],
+    strict: bool,
+    refuse: impl Fn(&str) -> Result<bool>,
+) -> Result<bool> {
+    let projectors = names.len() - 1;
+    for k in 0..projectors {
+        let name = projector_dir(k);
+        if !folders.contains(&name) {
+            return refuse(&format!(
+                "holds {SET_FILE} and {projectors} other entries, but no folder `{name}`, so it \
+                 is not a set's model directory"
+            ));
+        }
+        if dir.join(&name).join(SET_FILE).exists() {
+            return refuse(&format!("has a set's model inside `{name}`"));
+        }
+        if !shape(&dir.join(&name), strict)? {
+            return refuse(&format!(
+                "has an empty `{name}`, so it is not a set's model"
+            ));
+        }
+    }
+    if !is_model_meta(&dir.join(SET_FILE)) {
+        return refuse(&format!("has no readable {SET_FILE} with a format_version"));
+    }
+    Ok(true)
 }
 
 /// Whether `path` is a compend model's metadata file (JSON with a `format_version`).

@@ -10,6 +10,12 @@
 //!   delivery time of the last grabbed frame: with a delay of d frames, the next d exposures
 //!   were already taken and still show the previous image.
 //!
+//! A scene with several projectors ([`crate::rig::scene::Scene::more_projectors`]) gives a rig
+//! with one output per projector ([`VirtualRig::output`]), all seen by the one camera: each
+//! output's shows follow the rule above on its own, and an exposure sees the sum of what every
+//! output shows at that moment ([`super::SetSimulator`]'s light model: the room's light once,
+//! noise and clipping on the sum). The rig itself is output 0.
+//!
 //! On a wall clock ([`VirtualRig::on_wall_clock`], what `calibrate --rig virtual` uses by
 //! default) exposure k is delivered no earlier than (k + delay) / fps seconds after the rig
 //! started, as a real camera's would be; a reader that falls behind finds only the last
@@ -21,7 +27,7 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use super::physics::{Phase, Simulator, mix64};
+use super::physics::{Phase, SetSimulator, Simulator, mix64};
 use super::scene::{Latency, Scene};
 use crate::device::{DisplaySink, Frame, FrameSource};
 use crate::error::{Error, Result};
@@ -42,12 +48,20 @@ pub struct VirtualRig {
     inner: Arc<Mutex<State>>,
 }
 
+/// One projector of a rig (of a set, [`VirtualRig::output`]) as a display. Clones share the rig.
+#[derive(Clone, Debug)]
+pub struct VirtualOutput {
+    rig: VirtualRig,
+    index: usize,
+}
+
 #[derive(Debug)]
 struct Shown {
     /// First exposure index that sees this image.
     from: u64,
     image: Arc<PrjImage>,
-    /// Noise-free sensor signal, computed on first capture, with the phase it was made for.
+    /// Noise-free sensor signal of this output's light alone (no room light), computed on first
+    /// capture, with the phase it was made for.
     signal: Option<(Phase, Arc<Vec<f32>>)>,
 }
 
@@ -55,11 +69,15 @@ struct Shown {
 struct State {
     scene: Scene,
     seed: u64,
+    /// Output 0's projector, at its calibration pose and after drift.
     calibrated: Arc<Simulator>,
     drifted: Option<Arc<Simulator>>,
+    /// The projectors of outputs 1.. (a set's; they do not drift).
+    others: Vec<Arc<Simulator>>,
     phase: Phase,
     latency: Latency,
-    shows: VecDeque<Shown>,
+    /// What each output shows and will show, output 0 first.
+    shows: Vec<VecDeque<Shown>>,
     /// Next exposure index that may be delivered.
     next: u64,
     /// Manual exposure: a factor of the scene's camera exposure (1 = as the scene says).
@@ -69,33 +87,51 @@ struct State {
 }
 
 impl VirtualRig {
-    /// A rig for `scene` with seed `seed` (texture, noise and frame drops), projector at its
-    /// calibration pose, showing black.
+    /// A rig for `scene` with seed `seed` (texture, noise and frame drops), projectors at their
+    /// calibration pose, showing black: one output per projector of the scene.
     pub fn new(scene: &Scene, seed: u64) -> Result<Self> {
-        let sim = Simulator::new(scene, seed, Phase::Calibration)?;
-        Ok(Self::from_simulator(sim))
+        if scene.more_projectors.is_empty() {
+            let sim = Simulator::new(scene, seed, Phase::Calibration)?;
+            return Ok(Self::from_simulator(sim));
+        }
+        let set = SetSimulator::new(scene, seed, Phase::Calibration)?;
+        Ok(Self::from_set(set))
     }
 
     /// A rig around a prepared simulator (its phase is the rig's starting phase).
     pub fn from_simulator(sim: Simulator) -> Self {
-        let ImageSize {
-            width: pw,
-            height: ph,
-        } = sim.projector_size();
         let scene = sim.scene().clone();
+        Self::from_parts(scene, sim, Vec::new())
+    }
+
+    /// A rig around a prepared set of projectors: one output per projector, the scene's first
+    /// (output 0, the rig's own display) the only one that drifts.
+    pub fn from_set(set: SetSimulator) -> Self {
+        let (scene, mut sims) = set.into_parts();
+        let first = sims.remove(0);
+        Self::from_parts(scene, first, sims)
+    }
+
+    fn from_parts(scene: Scene, sim: Simulator, others: Vec<Simulator>) -> Self {
         let phase = sim.phase();
         let seed = sim.seed();
         let sim = Arc::new(sim);
+        let others: Vec<Arc<Simulator>> = others.into_iter().map(Arc::new).collect();
+        let shows = std::iter::once(&sim)
+            .chain(&others)
+            .map(|s| {
+                let ImageSize { width, height } = s.projector_size();
+                VecDeque::from([Shown {
+                    from: 0,
+                    image: Arc::new(PrjImage::new(width, height)),
+                    signal: None,
+                }])
+            })
+            .collect();
         let (calibrated, drifted) = match phase {
             Phase::Calibration => (sim, None),
             Phase::AfterDrift => (sim.clone(), Some(sim)),
         };
-        let mut shows = VecDeque::new();
-        shows.push_back(Shown {
-            from: 0,
-            image: Arc::new(PrjImage::new(pw, ph)),
-            signal: None,
-        });
         VirtualRig {
             inner: Arc::new(Mutex::new(State {
                 latency: scene.latency.clone(),
@@ -103,6 +139,7 @@ impl VirtualRig {
                 seed,
                 calibrated,
                 drifted,
+                others,
                 phase,
                 shows,
                 next: 0,
@@ -125,10 +162,34 @@ impl VirtualRig {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// The simulator of the current phase (for scoring and oracles).
+    /// The simulator of the current phase (for scoring and oracles): output 0's projector.
     pub fn simulator(&self) -> Arc<Simulator> {
         let st = self.state();
         st.current()
+    }
+
+    /// How many projectors the rig has (1 unless its scene is a set).
+    pub fn outputs(&self) -> usize {
+        self.state().shows.len()
+    }
+
+    /// Projector `k` (0: the scene's first) as a display; an input error naming the scene past
+    /// its last projector.
+    pub fn output(&self, k: usize) -> Result<VirtualOutput> {
+        let st = self.state();
+        if k >= st.shows.len() {
+            return Err(Error::Input(format!(
+                "scene {:?} has {} projector(s), not a projector {}",
+                st.scene.name,
+                st.shows.len(),
+                k + 1
+            )));
+        }
+        drop(st);
+        Ok(VirtualOutput {
+            rig: self.clone(),
+            index: k,
+        })
     }
 
     /// Moves the projector to its drifted pose ([`Phase::AfterDrift`], as after a bump) or back.
@@ -136,7 +197,8 @@ impl VirtualRig {
     pub fn set_phase(&self, phase: Phase) -> Result<()> {
         let mut st = self.state();
         if phase == Phase::AfterDrift && st.drifted.is_none() {
-            let sim = Simulator::new(&st.scene, st.seed, Phase::AfterDrift)?;
+            let first = st.scene.alone(0).unwrap_or_else(|| st.scene.clone());
+            let sim = Simulator::new(&first, st.seed, Phase::AfterDrift)?;
             st.drifted = Some(Arc::new(sim));
         }
         st.phase = phase;
@@ -169,6 +231,85 @@ impl State {
         }
     }
 
+    /// Output `k`'s projector in the current phase.
+    fn projector(&self, k: usize) -> Arc<Simulator> {
+        match k {
+            0 => self.current(),
+            k => self.others[k - 1].clone(),
+        }
+    }
+
+    /// Output `k` shows `frame` from the first exposure it can reach (see the module
+    /// documentation).
+    fn show(&mut self, k: usize, frame: &PrjImage) -> Result<()> {
+        let expected = self.projector(k).projector_size();
+        if frame.size() != expected {
+            let which = if self.shows.len() > 1 {
+                format!("virtual projector {}", k + 1)
+            } else {
+                "virtual projector".into()
+            };
+            return Err(Error::Shape(format!(
+                "{which} is {expected}, got a {}x{} frame",
+                frame.width(),
+                frame.height()
+            )));
+        }
+        let mut from = self.next + self.latency.delay_frames as u64;
+        if let Some(now) = self.exposures_now() {
+            // The first exposure that starts after now.
+            from = from.max(now.ceil() as u64);
+        }
+        let shows = &mut self.shows[k];
+        while shows.len() > 1 && shows.back().is_some_and(|s| s.from >= from) {
+            shows.pop_back();
+        }
+        if shows.back().is_some_and(|s| s.from >= from) {
+            // Only the initial entry is left and it starts no earlier: replace it.
+            shows.clear();
+        }
+        shows.push_back(Shown {
+            from,
+            image: Arc::new(frame.clone()),
+            signal: None,
+        });
+        Ok(())
+    }
+
+    /// The noise-free sensor signal of exposure `k`: every output's light as shown then, plus
+    /// the room's once. Forgets what no exposure from `k` on can see.
+    fn signal_at(&mut self, k: u64) -> Result<Vec<f32>> {
+        let phase = self.phase;
+        let mut sum: Option<Vec<f32>> = None;
+        for o in 0..self.shows.len() {
+            let sim = self.projector(o);
+            let shows = &mut self.shows[o];
+            while shows.len() > 1 && shows[1].from <= k {
+                shows.pop_front();
+            }
+            let shown = shows.front_mut().ok_or_else(|| {
+                Error::Failed(format!("virtual projector {} shows nothing", o + 1))
+            })?;
+            let signal = match &shown.signal {
+                Some((p, s)) if *p == phase || o > 0 => s.clone(),
+                _ => {
+                    sim.check_prj(&shown.image)?;
+                    let s = Arc::new(sim.sensor(&sim.emission(&shown.image)));
+                    shown.signal = Some((phase, s.clone()));
+                    s
+                }
+            };
+            match &mut sum {
+                None => sum = Some(signal.as_ref().clone()),
+                Some(acc) => acc.iter_mut().zip(signal.iter()).for_each(|(a, b)| *a += b),
+            }
+        }
+        let mut s = sum.unwrap_or_default();
+        // The room's light (ambient, glare) once, whatever the projectors show.
+        self.current().add_constant(&mut s);
+        Ok(s)
+    }
+
     /// On the wall clock: exposures (fractional) since exposure 0 started.
     fn exposures_now(&self) -> Option<f64> {
         self.epoch
@@ -191,34 +332,17 @@ impl DisplaySink for VirtualRig {
     }
 
     fn show(&mut self, frame: &PrjImage) -> Result<()> {
-        let mut st = self.state();
-        let expected = st.calibrated.projector_size();
-        if frame.size() != expected {
-            return Err(Error::Shape(format!(
-                "virtual projector is {}, got a {}x{} frame",
-                expected,
-                frame.width(),
-                frame.height()
-            )));
-        }
-        let mut from = st.next + st.latency.delay_frames as u64;
-        if let Some(now) = st.exposures_now() {
-            // The first exposure that starts after now.
-            from = from.max(now.ceil() as u64);
-        }
-        while st.shows.len() > 1 && st.shows.back().is_some_and(|s| s.from >= from) {
-            st.shows.pop_back();
-        }
-        if st.shows.back().is_some_and(|s| s.from >= from) {
-            // Only the initial entry is left and it starts no earlier: replace it.
-            st.shows.clear();
-        }
-        st.shows.push_back(Shown {
-            from,
-            image: Arc::new(frame.clone()),
-            signal: None,
-        });
-        Ok(())
+        self.state().show(0, frame)
+    }
+}
+
+impl DisplaySink for VirtualOutput {
+    fn size(&self) -> ImageSize {
+        self.rig.state().projector(self.index).projector_size()
+    }
+
+    fn show(&mut self, frame: &PrjImage) -> Result<()> {
+        self.rig.state().show(self.index, frame)
     }
 }
 
@@ -269,24 +393,8 @@ impl FrameSource for VirtualRig {
                 st = self.state();
             }
         }
-        // Forget images no exposure from k on can see.
-        while st.shows.len() > 1 && st.shows[1].from <= k {
-            st.shows.pop_front();
-        }
+        let signal = st.signal_at(k)?;
         let sim = st.current();
-        let phase = st.phase;
-        let shown = st
-            .shows
-            .front_mut()
-            .ok_or_else(|| Error::Failed("virtual projector shows nothing".into()))?;
-        let signal = match &shown.signal {
-            Some((p, s)) if *p == phase => s.clone(),
-            _ => {
-                let s = Arc::new(sim.clean_signal(&shown.image)?);
-                shown.signal = Some((phase, s.clone()));
-                s
-            }
-        };
         let image = if st.exposure == 1.0 {
             sim.finish(&signal, Some(k))
         } else {

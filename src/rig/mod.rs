@@ -31,7 +31,7 @@ mod texture;
 pub mod window_camera;
 
 pub use export::{DesiredScaling, ExportOptions, export_setup};
-pub use live::VirtualRig;
+pub use live::{VirtualOutput, VirtualRig};
 pub use oracle::OracleOptions;
 pub use physics::{Phase, SetSimulator, Simulator};
 pub use scene::{BUILTIN, Scene, builtin};

@@ -114,15 +114,9 @@ pub struct SetScores {
     pub range: fov::DisplayRange,
     pub first_range: fov::DisplayRange,
     /// How visible the seams of the joint ceiling's picture are
-    /// ([`crate::metrics::seam_figure`], a band of [`seam_band_px`] along the overlap edges
+    /// ([`crate::metrics::seam_figure`], a band of [`crate::joint::seam::band_px`] along the overlap edges
     /// in the displayable area); `None` where no overlap edge crosses the area.
     pub seam: Option<crate::metrics::SeamFigure>,
-}
-
-/// The width of the band a seam is looked for in: a hundredth of the camera's width, at least
-/// 2 pixels (camera pixels).
-pub fn seam_band_px(camera: ImageSize) -> usize {
-    (camera.width / 100).max(2)
 }
 
 /// A contact sheet for a set of projectors and one test image `test` (network size): the
@@ -166,7 +160,7 @@ pub fn set_sheet(
         area,
         fov::DESIRED_RANGE_QUANTILE,
     )?;
-    let (band, away) = set.seam_regions(&inside, seam_band_px(cam));
+    let (band, away) = set.seam_regions(&inside, crate::joint::seam::band_px(cam));
     let seam = crate::metrics::seam_figure(&joint_cap, &desired, band.data(), away.data()).ok();
     let scores = SetScores {
         first_alone: score(&alone_cap)?,

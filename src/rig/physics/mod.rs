@@ -423,7 +423,7 @@ impl Simulator {
         }
     }
 
-    pub(super) fn check_prj(&self, prj: &PrjImage) -> Result<()> {
+    pub(crate) fn check_prj(&self, prj: &PrjImage) -> Result<()> {
         if prj.size() != self.projector_size() {
             return Err(Error::Shape(format!(
                 "virtual projector of scene {:?} is {}, got a {}x{} projector image",

@@ -52,6 +52,11 @@ impl SetSimulator {
         })
     }
 
+    /// The scene and its projectors' simulators, the first projector's first.
+    pub fn into_parts(self) -> (Scene, Vec<Simulator>) {
+        (self.scene, self.sims)
+    }
+
     /// The scene, with all its projectors.
     pub fn scene(&self) -> &Scene {
         &self.scene
@@ -163,47 +168,15 @@ impl SetSimulator {
         Mask::from_vec(width, height, data).expect("one entry per camera pixel")
     }
 
-    /// Where a seam would show, inside `region` (camera pixels): the band of pixels within
-    /// `band_px` of an overlap edge (a pixel at the edge of one projector's light that another
-    /// projector lights too: where one picture ends inside another), and the pixels more than
-    /// `2·band_px` from any such edge, for [`crate::metrics::seam_figure`].
+    /// Where a seam would show, inside `region` (camera pixels), from where each projector's
+    /// light falls ([`crate::joint::seam_regions`]).
     pub fn seam_regions(
         &self,
         region: &Mask<Camera>,
         band_px: usize,
     ) -> (Mask<Camera>, Mask<Camera>) {
-        use crate::morph::{Element, dilate};
         let masks: Vec<Mask<Camera>> = self.sims.iter().map(Simulator::lit_mask).collect();
-        let ImageSize {
-            width: w,
-            height: h,
-        } = self.camera_size();
-        let lit = |k: usize, x: usize, y: usize| masks[k].data()[y * w + x];
-        let edges = Mask::<Camera>::from_fn(w, h, |x, y| {
-            (0..masks.len()).any(|k| {
-                let at_edge = lit(k, x, y)
-                    && [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)]
-                        .iter()
-                        .any(|(dx, dy)| {
-                            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                            nx >= 0
-                                && ny >= 0
-                                && (nx as usize) < w
-                                && (ny as usize) < h
-                                && !lit(k, nx as usize, ny as usize)
-                        });
-                at_edge && (0..masks.len()).any(|j| j != k && lit(j, x, y))
-            })
-        });
-        let near = dilate(&edges, Element::Disk(band_px));
-        let far = dilate(&edges, Element::Disk(2 * band_px));
-        let band = Mask::from_fn(w, h, |x, y| {
-            near.data()[y * w + x] && region.data()[y * w + x]
-        });
-        let away = Mask::from_fn(w, h, |x, y| {
-            !far.data()[y * w + x] && region.data()[y * w + x]
-        });
-        (band, away)
+        crate::joint::seam_regions(&masks, region, band_px)
     }
 
     fn check(&self, images: &[PrjImage]) -> Result<()> {

@@ -1,0 +1,338 @@
+//! Calibrating a set of projectors seen by one camera (docs/architecture.md, "Sets of
+//! projectors"): the displays shown side by side as one ([`SideBySide`]), so the exposure is
+//! ranged with every projector white; then each projector calibrated as one projector is
+//! ([`super::calibrate`]: its own latency, captures, `linear` fit, closed-loop pairs and
+//! verification) with the others black and the exposure held; then the joint model
+//! ([`crate::joint`]) checked as a whole in closed loop, over the displayable area of the whole
+//! set, against each projector compensating alone, with the seam figure along the overlaps.
+
+use std::path::Path;
+use std::time::Instant;
+
+use super::{Calibrated, Capturer, Options, Progress, exposure};
+use crate::dataset::{DataRoot, ProjectorSet};
+use crate::device::{DisplaySink, FrameSource, HeldExposure, SideBySide, side_by_side};
+use crate::error::{Error, Result};
+use crate::fov;
+use crate::joint::JointModel;
+use crate::metrics::{Accumulator, SeamFigure};
+use crate::model::set::SetModel;
+use crate::model::store::projector_dir;
+use crate::model::{Method, MethodChoice};
+use crate::playback::place_on_canvas;
+use crate::raster::{CamImage, PrjImage, Rect};
+use crate::record::{Latency, SetRecord, SetVerification};
+
+/// The PSNR gain (dB) the joint compensation needs over the best projector compensating
+/// alone: none, but never less: a set that does worse than one of its projectors is not worth
+/// installing.
+pub const REQUIRED_GAIN_DB: f64 = 0.0;
+
+/// The largest seam ratio ([`SeamFigure::ratio`]) that passes. The joint physical ceiling of
+/// the virtual rig's sets has 1.37 (`tiled`) and 1.44 (`stacked`), seed 0, 640×480: the band
+/// along an overlap edge is where both projectors' geometry meets, and even the ceiling errs a
+/// little more there. Twice the error in the band as away from it is a seam one sees.
+pub const SEAM_LIMIT: f64 = 2.0;
+
+/// The folder of the data root the set's verification writes what it showed into: for each
+/// test image, the desired view (`desired-NNN.png`) and the joint projection's capture
+/// (`joint-NNN.png`), camera pixels.
+pub const SET_DIR: &str = "set";
+
+/// A calibrated set: its model (each projector's, with its own calibration record, and the
+/// set's record) and whether it passed.
+pub struct CalibratedSet {
+    pub model: SetModel,
+    pub record: SetRecord,
+}
+
+/// Calibrates the set of `displays` (one per projector, the set's first first) seen by
+/// `camera` into data root `data` (each projector's captures in `data/projector-N`). Only the
+/// `linear` rung is compensated jointly; another method is an input error.
+pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
+    displays: Vec<D>,
+    camera: &mut C,
+    data: &Path,
+    opts: &Options,
+    progress: Progress,
+) -> Result<CalibratedSet> {
+    if opts.method != MethodChoice::Rung(Method::Linear) {
+        return Err(Error::Input(format!(
+            "--method {}: a set of projectors is calibrated with `linear` (each projector's \
+             model, then the joint compensation of their light)",
+            opts.method
+        )));
+    }
+    let started = Instant::now();
+    let n = displays.len();
+    let mut set = SideBySide::new(displays)?;
+    show_black(&mut set)?;
+    progress("exposure", 0, 1);
+    let exposure = exposure::range_exposure(&mut set, camera)?;
+    progress("exposure", 1, 1);
+    let mut done: Vec<Calibrated> = Vec::with_capacity(n);
+    let mut projector_seconds = Vec::with_capacity(n);
+    for k in 0..n {
+        opts.check_cancelled()?;
+        let t = Instant::now();
+        show_black(&mut set)?;
+        let one = Options {
+            rig: format!("{} projector {}", opts.rig, k + 1),
+            ..opts.clone()
+        };
+        let mut step = |phase: &str, i: usize, total: usize| {
+            progress(&format!("projector {}/{n}: {phase}", k + 1), i, total);
+        };
+        let display = &mut set.displays()[k];
+        let calibrated = super::calibrate(
+            display,
+            &mut HeldExposure(&mut *camera),
+            &data.join(projector_dir(k)),
+            &one,
+            &mut step,
+        )?;
+        projector_seconds.push(t.elapsed().as_secs_f64());
+        done.push(calibrated);
+    }
+    show_black(&mut set)?;
+    let latency = worst_latency(&done)?;
+    let models: Vec<_> = done
+        .into_iter()
+        .map(|c| {
+            let mut m = c.model;
+            m.meta.calibration = Some(c.record);
+            m
+        })
+        .collect();
+    let camera_gamma_spread = gamma_spread(&models);
+    let model = SetModel::new(models, None)?;
+    let joint = model.joint()?;
+    let t = Instant::now();
+    let root = DataRoot::open(&data.join(projector_dir(0)))?;
+    let (area, verification) = verify_set(
+        &mut set,
+        camera,
+        (&model, &joint),
+        (data, &root, &latency),
+        opts,
+        progress,
+    )?;
+    let record = SetRecord {
+        rig: opts.rig.clone(),
+        exposure,
+        camera_gamma_spread,
+        area,
+        verification,
+        projector_seconds,
+        verification_seconds: t.elapsed().as_secs_f64(),
+        total_seconds: started.elapsed().as_secs_f64(),
+    };
+    let mut model = model;
+    model.meta.calibration = Some(record.clone());
+    Ok(CalibratedSet { model, record })
+}
+
+/// Installs a calibrated set's model into `out` if it passed; otherwise an error saying why,
+/// `out` unchanged.
+pub fn install_set(done: CalibratedSet, out: &Path) -> Result<SetModel> {
+    let v = &done.record.verification;
+    if !v.passed {
+        return Err(Error::Failed(format!(
+            "the set's joint compensation did not verify ({}); it was not installed and {} is \
+             unchanged",
+            v.why.as_deref().unwrap_or("no reason recorded"),
+            out.display()
+        )));
+    }
+    done.model.save(out)?;
+    Ok(done.model)
+}
+
+fn show_black<D: DisplaySink>(set: &mut SideBySide<D>) -> Result<()> {
+    let size = set.size();
+    set.show(&PrjImage::new(size.width, size.height))
+}
+
+/// The latency record of the projector that took longest to show a change: the set's
+/// captures wait for the slowest.
+fn worst_latency(done: &[Calibrated]) -> Result<Latency> {
+    done.iter()
+        .map(|c| &c.record.latency)
+        .max_by_key(|l| l.settle_frames)
+        .cloned()
+        .ok_or_else(|| Error::Failed("a set of no projectors was calibrated".into()))
+}
+
+/// The spread of the projectors' camera-curve exponents (largest − smallest).
+fn gamma_spread(models: &[crate::model::Model]) -> f64 {
+    let gammas: Vec<f32> = models
+        .iter()
+        .filter_map(|m| match &m.kind {
+            crate::model::Kind::Linear { simplified, .. } => Some(simplified.curves.camera_gamma),
+            _ => None,
+        })
+        .flatten()
+        .collect();
+    let hi = gammas.iter().copied().fold(f32::MIN, f32::max);
+    let lo = gammas.iter().copied().fold(f32::MAX, f32::min);
+    if gammas.is_empty() {
+        0.0
+    } else {
+        f64::from(hi - lo)
+    }
+}
+
+/// The whole set's closed-loop check (module documentation): the displayable area of the set
+/// from its black and white, the first `opts.verify_images` test images of the first
+/// projector's data root placed there, each projected compensated jointly and by each
+/// projector alone, captured and scored inside the area; the seam figure of the joint
+/// projection along the overlap edges.
+fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
+    set: &mut SideBySide<D>,
+    camera: &mut C,
+    (model, joint): (&SetModel, &JointModel),
+    (data, root, latency): (&Path, &DataRoot, &Latency),
+    opts: &Options,
+    progress: Progress,
+) -> Result<(Rect, SetVerification)> {
+    let n = joint.projectors();
+    let sizes: Vec<_> = set.displays().iter().map(|d| d.size()).collect();
+    let black_frames: Vec<PrjImage> = sizes
+        .iter()
+        .map(|s| PrjImage::new(s.width, s.height))
+        .collect();
+    let whole = side_by_side(&black_frames);
+    let white_whole = PrjImage::filled(whole.width(), whole.height(), [1.0; 3]);
+    let one_only = |k: usize, img: PrjImage| -> Vec<PrjImage> {
+        let mut f = black_frames.clone();
+        f[k] = img;
+        f
+    };
+    let frames_for = |k: usize, img: &crate::raster::NetImage| -> Result<PrjImage> {
+        place_on_canvas(img, Rect::covering(sizes[k]), sizes[k])
+    };
+    let verify_n = opts.verify_images.min(opts.patterns.ntest);
+    if verify_n == 0 {
+        return Err(Error::Input(
+            "verification needs at least one test image (--ntest)".into(),
+        ));
+    }
+    // The views: every projector black, then white.
+    let mut capturer = Capturer::new(set, camera, latency, opts.sync);
+    let black = capturer.capture(&whole, true)?;
+    let white = capturer.capture(&white_whole, true)?;
+    let label = format!("the set {}", opts.rig);
+    let fov = fov::fov_mask(&black, &white, &label)?;
+    let aspect = fov
+        .mask
+        .bounding_box()
+        .map_or(4.0 / 3.0, |b| b.width as f64 / b.height.max(1) as f64);
+    let area = fov::displayable_area(&fov.mask, aspect)?;
+    let range = fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?;
+    let views: Vec<CamImage> = (1..=verify_n)
+        .map(|i| {
+            let img: PrjImage = crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i))?;
+            fov::place_in_area(&range.apply(&img), area, black.size())
+        })
+        .collect::<Result<_>>()?;
+    let camera_size = black.size();
+    let inside = crate::raster::Mask::from_fn(camera_size.width, camera_size.height, |x, y| {
+        x >= area.x && x < area.x + area.width && y >= area.y && y < area.y + area.height
+    });
+    let covers: Vec<_> = (0..n)
+        .filter_map(|k| joint.cover(k).map(|c| c.mask()))
+        .collect();
+    let (band, away) =
+        crate::joint::seam_regions(&covers, &inside, crate::joint::seam::band_px(camera_size));
+    let overlapping = band.data().iter().any(|&b| b) && away.data().iter().any(|&b| b);
+    let shown = data.join(SET_DIR);
+    std::fs::create_dir_all(&shown).map_err(|e| Error::io(&shown, "create folder", e))?;
+    let mut joint_acc = Accumulator::default();
+    let mut alone_acc: Vec<Accumulator> = (0..n).map(|_| Accumulator::default()).collect();
+    let mut seams: Vec<SeamFigure> = Vec::new();
+    for (i, view) in views.iter().enumerate() {
+        progress("set verification", i, verify_n);
+        opts.check_cancelled()?;
+        let want = view.crop(area)?;
+        let outputs = joint.apply(view)?;
+        let frames = outputs
+            .iter()
+            .enumerate()
+            .map(|(k, o)| frames_for(k, o))
+            .collect::<Result<Vec<_>>>()?;
+        let seen = capturer.capture(&side_by_side(&frames), true)?;
+        // What the set was to show and what it showed, for a person to look at.
+        crate::pngio::write_rgb(&shown.join(format!("desired-{:03}.png", i + 1)), view)?;
+        crate::pngio::write_rgb(&shown.join(format!("joint-{:03}.png", i + 1)), &seen)?;
+        joint_acc.add(&seen.crop(area)?, &want)?;
+        if overlapping {
+            seams.push(crate::metrics::seam_figure(
+                &seen,
+                view,
+                band.data(),
+                away.data(),
+            )?);
+        }
+        for k in 0..n {
+            let alone = model.models[k].infer(view)?;
+            let frames = one_only(k, frames_for(k, &alone)?);
+            let seen = capturer.capture(&side_by_side(&frames), true)?;
+            alone_acc[k].add(&seen.crop(area)?, &want)?;
+        }
+    }
+    progress("set verification", verify_n, verify_n);
+    let j = joint_acc.finish()?;
+    let alone_psnr = alone_acc
+        .into_iter()
+        .map(|a| a.finish().map(|s| s.psnr))
+        .collect::<Result<Vec<_>>>()?;
+    let best = alone_psnr.iter().copied().fold(f64::MIN, f64::max);
+    let gain_db = j.psnr - best;
+    let seam = mean_seam(&seams);
+    let mut why = Vec::new();
+    if !(gain_db.is_finite() && gain_db >= REQUIRED_GAIN_DB) {
+        why.push(format!(
+            "{:.2} dB jointly against {best:.2} dB for the best projector alone",
+            j.psnr
+        ));
+    }
+    if let Some(s) = seam
+        && s.ratio() > SEAM_LIMIT
+    {
+        why.push(format!(
+            "a seam shows: {:.2}× the error along the overlap edges as away from them, at most \
+             {SEAM_LIMIT} passes",
+            s.ratio()
+        ));
+    }
+    Ok((
+        area,
+        SetVerification {
+            images: verify_n,
+            psnr: j.psnr,
+            ssim: j.ssim,
+            alone_psnr,
+            gain_db,
+            required_gain_db: REQUIRED_GAIN_DB,
+            seam,
+            seam_limit: SEAM_LIMIT,
+            passed: why.is_empty(),
+            why: (!why.is_empty()).then(|| why.join("; ")),
+        },
+    ))
+}
+
+/// The mean of the seam figures' parts over the test images.
+fn mean_seam(seams: &[SeamFigure]) -> Option<SeamFigure> {
+    if seams.is_empty() {
+        return None;
+    }
+    let k = seams.len() as f64;
+    let mean = |f: fn(&SeamFigure) -> f64| seams.iter().map(f).sum::<f64>() / k;
+    Some(SeamFigure {
+        band_mse: mean(|s| s.band_mse),
+        away_mse: mean(|s| s.away_mse),
+        band_gradient: mean(|s| s.band_gradient),
+        away_gradient: mean(|s| s.away_gradient),
+    })
+}
