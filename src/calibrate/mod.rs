@@ -1408,7 +1408,7 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         |j, (shown, compensated)| {
             progress("verification", j / per_image, n);
             opts.check_cancelled()?;
-            Ok((capturer.capture(&shown, true)?, compensated))
+            Ok((capturer.capture_after_change(&shown)?, compensated))
         },
         |j, (seen, compensated)| {
             let (i, shot) = shots[j];

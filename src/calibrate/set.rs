@@ -260,7 +260,7 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
             .enumerate()
             .map(|(k, o)| frames_for(k, o))
             .collect::<Result<Vec<_>>>()?;
-        let seen = capturer.capture(&side_by_side(&frames), true)?;
+        let seen = capturer.capture_after_change(&side_by_side(&frames))?;
         // What the set was to show and what it showed, for a person to look at.
         crate::pngio::write_rgb(&shown.join(format!("desired-{:03}.png", i + 1)), view)?;
         crate::pngio::write_rgb(&shown.join(format!("joint-{:03}.png", i + 1)), &seen)?;
@@ -276,7 +276,7 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
         for k in 0..n {
             let alone = model.models[k].infer(view)?;
             let frames = one_only(k, frames_for(k, &alone)?);
-            let seen = capturer.capture(&side_by_side(&frames), true)?;
+            let seen = capturer.capture_after_change(&side_by_side(&frames))?;
             alone_acc[k].add(&seen.crop(area)?, &want)?;
         }
     }

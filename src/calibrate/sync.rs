@@ -333,6 +333,22 @@ impl<'a, D: DisplaySink + ?Sized, C: FrameSource + ?Sized> Capturer<'a, D, C> {
         self.capture_averaging(frame, differs, self.settings.average)
     }
 
+    /// [`Capturer::capture`] of a frame that differs from the previous one, where the two may
+    /// look alike to the camera (a model's compensation of an image after the image as it is,
+    /// on a projector that lights a small part of the camera's view): when the camera does not
+    /// see the change, white is shown and captured once (one frame), and the frame once more.
+    pub fn capture_after_change(&mut self, frame: &PrjImage) -> Result<CamImage> {
+        match self.capture(frame, true) {
+            Err(Error::Input(why)) if self.previous.is_some() => {
+                tracing::info!("{why}; white first, once more");
+                let ImageSize { width, height } = frame.size();
+                self.capture_averaging(&PrjImage::filled(width, height, [1.0; 3]), true, 1)?;
+                self.capture(frame, true)
+            }
+            other => other,
+        }
+    }
+
     /// [`Capturer::capture`] averaging `average` frames instead of the settings' (1: a frame
     /// shown only to change the picture, e.g. white between two that look alike).
     pub fn capture_averaging(

@@ -592,3 +592,80 @@ fn a_set_of_projectors_has_a_sheet_with_its_joint_ceiling() {
         stderr(&o)
     );
 }
+
+/// `compend calibrate --rig virtual:tiled` installs a set's model whose verification reports
+/// the whole area and the seam figure; a scene whose second projector misses the camera exits
+/// 2 naming it and installs nothing; another method than `linear` is refused.
+#[test]
+fn a_set_calibrates_from_the_command_line() {
+    use common_cli::*;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let arg = |p: &std::path::Path| p.to_str().expect("utf-8").to_string();
+    let small = |scene: &str, out: &std::path::Path, extra: &[&str]| {
+        let mut a: Vec<String> = [
+            "calibrate",
+            "--rig",
+            scene,
+            "--rig-camera",
+            "96x72",
+            "--projector",
+            "100x75",
+            "--network",
+            "32",
+            "--ntrain",
+            "10",
+            "--ntest",
+            "4",
+            "--verify",
+            "3",
+            "--loop-images",
+            "0",
+            "--rig-clock",
+            "simulated",
+            "--seed",
+            "9",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        a.extend(["--out".into(), arg(out)]);
+        a.extend(["--data".into(), arg(&out.with_extension("data"))]);
+        a.extend(extra.iter().map(|s| s.to_string()));
+        let refs: Vec<&str> = a.iter().map(String::as_str).collect();
+        compend(&refs)
+    };
+    let out = dir.path().join("model");
+    let o = small("virtual:tiled", &out, &[]);
+    assert_code(&o, 0);
+    let err = stderr(&o);
+    assert!(err.contains("the whole set on 3 test images"), "{err}");
+    assert!(err.contains("seam figure"), "{err}");
+    assert!(out.join("set.json").is_file(), "{err}");
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("set.json")).unwrap()).unwrap();
+    assert_eq!(meta["projectors"], 2);
+    assert_eq!(meta["calibration"]["verification"]["passed"], true);
+    // The second projector turned away from the wall: named, exit 2, nothing installed.
+    let mut scene = compend::rig::scene::builtin("tiled").unwrap();
+    scene.more_projectors[0].pose =
+        compend::rig::scene::Pose::looking_at([0.45, -0.04, 0.0], [0.45, 0.0, -2.0], 0.0);
+    let file = dir.path().join("away.json");
+    std::fs::write(&file, serde_json::to_vec(&scene).unwrap()).unwrap();
+    let away = dir.path().join("away-model");
+    let o = small(&format!("virtual:{}", arg(&file)), &away, &[]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("projector 2 lights nothing the camera sees"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!away.exists());
+    let o = small("virtual:stacked", &away, &["--method", "auto"]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("calibrated with `linear`"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!away.exists());
+}

@@ -199,13 +199,15 @@ fn one_projector_of_a_set_is_simulated_alone_with_the_others_black() {
     assert!(set.with_others_black(2).is_err());
 }
 
-/// Each projector of a set calibrated as today, one at a time with the others black (the first
-/// half of a set's calibration): the model of each verifies and its field of view is that
-/// projector's picture.
+/// A set calibrated as a whole (`calibrate::set`): each projector as today with the others
+/// black (its field of view is its own picture), then the joint model checked in closed loop
+/// over the set's displayable area: better than either projector alone, no seam; its model
+/// directory saves and loads, and a set's directory is not taken for one projector's model.
 #[test]
-fn each_projector_of_a_set_calibrates_with_the_others_black() {
+fn a_set_calibrates_and_verifies_as_a_whole() {
     use compend::calibrate::SamplingCount;
     use compend::config::Config;
+    use compend::model::set::SetModel;
     use compend::rig::VirtualRig;
 
     let scene = builtin("tiled")
@@ -226,49 +228,71 @@ fn each_projector_of_a_set_calibrates_with_the_others_black() {
         None,
         None,
     );
+    let rig = VirtualRig::new(&scene, 6).unwrap();
+    assert_eq!(rig.outputs(), 2);
+    let displays = vec![rig.output(0).unwrap(), rig.output(1).unwrap()];
+    let dir = tempfile::tempdir().unwrap();
+    let mut phases = Vec::new();
+    let done = compend::calibrate::set::calibrate_set(
+        displays,
+        &mut rig.clone(),
+        &dir.path().join("data"),
+        &opts,
+        &mut |phase, _, _| {
+            if phases.last().is_none_or(|p: &String| p != phase) {
+                phases.push(phase.to_string());
+            }
+        },
+    )
+    .unwrap();
+    assert!(
+        phases
+            .iter()
+            .any(|p| p.starts_with("projector 2/2: captures"))
+    );
+    assert_eq!(phases.last().map(String::as_str), Some("set verification"));
+    let r = &done.record;
+    let v = &r.verification;
+    assert!(v.passed, "{v:?}");
+    assert!(v.gain_db > 3.0, "{v:?}");
+    let seam = v.seam.expect("a tiled set overlaps");
+    assert!(seam.ratio() <= v.seam_limit, "{seam:?}");
+    assert!(r.camera_gamma_spread < 0.2, "{}", r.camera_gamma_spread);
+    // What the set showed is on disk for a person to look at.
+    assert!(dir.path().join("data/set/joint-001.png").is_file());
+    // Each projector's field of view is its own picture.
+    let iou = |a: &Mask<Camera>, b: &Mask<Camera>| {
+        let both = a.data().iter().zip(b.data()).filter(|(x, y)| **x && **y);
+        let any = a.data().iter().zip(b.data()).filter(|(x, y)| **x || **y);
+        both.count() as f64 / any.count().max(1) as f64
+    };
     for k in 0..2 {
-        let rig = VirtualRig::from_simulator(set.with_others_black(k).unwrap());
-        let dir = tempfile::tempdir().unwrap();
-        let done = compend::calibrate::calibrate(
-            &mut rig.clone(),
-            &mut rig.clone(),
-            &dir.path().join("data"),
-            &opts,
-            &mut |_, _, _| {},
-        )
-        .unwrap();
-        let v = &done.record.verification;
-        assert!(v.passed, "projector {}: {v:?}", k + 1);
-        // Its field of view is its own picture: it overlaps the truth far more than the other's.
+        let fov = &done.model.models[k].fov;
         let truth = set.projectors()[k].lit_mask();
         let other = set.projectors()[1 - k].lit_mask();
-        let iou = |a: &Mask<Camera>, b: &Mask<Camera>| {
-            let both = a
-                .data()
-                .iter()
-                .zip(b.data())
-                .filter(|(x, y)| **x && **y)
-                .count();
-            let any = a
-                .data()
-                .iter()
-                .zip(b.data())
-                .filter(|(x, y)| **x || **y)
-                .count();
-            both as f64 / any.max(1) as f64
-        };
-        let fov = &done.model.fov;
-        assert!(
-            iou(fov, &truth) > 0.8,
-            "projector {}: {}",
-            k + 1,
-            iou(fov, &truth)
-        );
-        assert!(
-            iou(fov, &other) < 0.4,
-            "projector {}: {}",
-            k + 1,
-            iou(fov, &other)
-        );
+        assert!(iou(fov, &truth) > 0.8, "projector {}", k + 1);
+        assert!(iou(fov, &other) < 0.4, "projector {}", k + 1);
+        assert!(done.model.models[k].meta.calibration.is_some());
     }
+    // Installed, loaded back, compensated jointly.
+    let out = dir.path().join("model");
+    let installed = compend::calibrate::set::install_set(done, &out).unwrap();
+    assert!(out.join("set.json").is_file() && out.join("projector-2/model.json").is_file());
+    let loaded = SetModel::load(&out).unwrap();
+    assert_eq!(loaded.meta, installed.meta);
+    let joint = loaded.joint().unwrap();
+    let desired = CamImage::filled(96, 72, [0.3, 0.3, 0.3]);
+    let outs = joint.apply(&desired).unwrap();
+    assert_eq!(outs.len(), 2);
+    let e = compend::model::Model::load(&out).unwrap_err().to_string();
+    assert!(e.contains("the model of a set of projectors"), "{e}");
+    // Saving over it again is allowed (a set's model directory); over a folder that holds
+    // something else it is not.
+    loaded.save(&out).unwrap();
+    let other = dir.path().join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::write(other.join("notes.txt"), b"mine").unwrap();
+    let e = loaded.save(&other).unwrap_err().to_string();
+    assert!(e.contains("notes.txt"), "{e}");
+    assert_eq!(std::fs::read(other.join("notes.txt")).unwrap(), b"mine");
 }
