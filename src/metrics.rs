@@ -230,6 +230,21 @@ pub struct SeamFigure {
 }
 
 impl SeamFigure {
+    /// The mean of each part over several figures (several images); `None` for none.
+    pub fn mean(figures: &[SeamFigure]) -> Option<SeamFigure> {
+        if figures.is_empty() {
+            return None;
+        }
+        let k = figures.len() as f64;
+        let mean = |f: fn(&SeamFigure) -> f64| figures.iter().map(f).sum::<f64>() / k;
+        Some(SeamFigure {
+            band_mse: mean(|s| s.band_mse),
+            away_mse: mean(|s| s.away_mse),
+            band_gradient: mean(|s| s.band_gradient),
+            away_gradient: mean(|s| s.away_gradient),
+        })
+    }
+
     /// The larger of the band's error and its gradient energy over the same away from it: about
     /// 1 where nothing marks the edges; a floor of 1e-6 (encoded values²) away keeps it finite.
     pub fn ratio(&self) -> f64 {

@@ -288,7 +288,7 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
         .collect::<Result<Vec<_>>>()?;
     let best = alone_psnr.iter().copied().fold(f64::MIN, f64::max);
     let gain_db = j.psnr - best;
-    let seam = mean_seam(&seams);
+    let seam = SeamFigure::mean(&seams);
     let mut why = Vec::new();
     if !(gain_db.is_finite() && gain_db >= REQUIRED_GAIN_DB) {
         why.push(format!(
@@ -320,19 +320,4 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
             why: (!why.is_empty()).then(|| why.join("; ")),
         },
     ))
-}
-
-/// The mean of the seam figures' parts over the test images.
-fn mean_seam(seams: &[SeamFigure]) -> Option<SeamFigure> {
-    if seams.is_empty() {
-        return None;
-    }
-    let k = seams.len() as f64;
-    let mean = |f: fn(&SeamFigure) -> f64| seams.iter().map(f).sum::<f64>() / k;
-    Some(SeamFigure {
-        band_mse: mean(|s| s.band_mse),
-        away_mse: mean(|s| s.away_mse),
-        band_gradient: mean(|s| s.band_gradient),
-        away_gradient: mean(|s| s.away_gradient),
-    })
 }

@@ -12,6 +12,9 @@
 //! - `compend sim score --setup SETUP`: closed-loop scores on the rig of every model's
 //!   compensation images (`prj/cmp/test/<model>`), next to the uncompensated, geometry-only and
 //!   oracle rows, as gaps to the oracle (the scene's physical ceiling).
+//! - `compend sim set-score --model DIR --data DATA`: a set of projectors' joint model in
+//!   closed loop on the views its calibration verified, against the set's physical ceiling and
+//!   each projector alone, with the seam figures and the unreachable shares.
 
 use std::path::PathBuf;
 
@@ -45,6 +48,30 @@ pub enum SimCommand {
     /// Closed-loop scores of compensation images on the rig of an exported setup, with the
     /// uncompensated, geometry-only and oracle rows.
     Score(ScoreArgs),
+    /// Closed-loop scores of a set of projectors' joint model (from `calibrate --rig
+    /// virtual:SET`) against the set's physical ceiling, each projector alone, the seam figures
+    /// and the unreachable shares.
+    SetScore(SetScoreArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct SetScoreArgs {
+    /// The set's model directory (`set.json`, `projector-N/`).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// The calibration's data folder: its set verification's desired views
+    /// (`set/desired-NNN.png`) are scored.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Score only the first N views (the ceiling costs a few seconds per view at 640x480).
+    #[arg(long)]
+    pub ntest: Option<usize>,
+    /// Oracle solver iterations.
+    #[arg(long, default_value_t = rig::OracleOptions::default().iterations)]
+    pub oracle_iterations: usize,
+    /// Print one JSON object on stdout instead of the lines.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -195,6 +222,7 @@ pub fn run(args: Args) -> Result<()> {
         SimCommand::Export(a) => export(a),
         SimCommand::Sheet(a) => sheet(a),
         SimCommand::Score(a) => score(a),
+        SimCommand::SetScore(a) => set_score(a),
     }
 }
 
@@ -700,4 +728,124 @@ fn write_images<S: compend::raster::Space>(
 pub enum DesiredRange {
     Reachable,
     Full,
+}
+
+/// `compend sim set-score`: rebuilds the set's virtual rig from the model's record (scene,
+/// seed, sizes) and scores the joint model on the views its calibration verified.
+fn set_score(a: SetScoreArgs) -> Result<()> {
+    use compend::model::set::SetModel;
+
+    let model = SetModel::load(&a.model)?;
+    let record = model.meta.calibration.as_ref().ok_or_else(|| {
+        compend::Error::Input(format!(
+            "{}: no calibration record in set.json: only a set calibrated on the virtual rig \
+             can be scored against its ceiling",
+            a.model.display()
+        ))
+    })?;
+    let Some(name) = record.rig.strip_prefix("virtual:") else {
+        return Err(compend::Error::Input(format!(
+            "{}: calibrated on {:?}, not on the virtual rig (`virtual:SCENE`)",
+            a.model.display(),
+            record.rig
+        ))
+        .into());
+    };
+    let first = &model.models[0];
+    let seed = first
+        .meta
+        .calibration
+        .as_ref()
+        .and_then(|c| c.seed)
+        .ok_or_else(|| {
+            compend::Error::Input(format!(
+                "{}: projector 1's record has no seed",
+                a.model.display()
+            ))
+        })?;
+    let projector = first
+        .meta
+        .canvas
+        .map(|c| ImageSize::new(c.width, c.height))
+        .unwrap_or(first.network_size());
+    let mut scene = scene::load(name)?.with_resolution(model.meta.camera_size, projector);
+    // The calibration ranged the camera's exposure (a factor of the scene's): the models see
+    // through it, and so does the score.
+    if let Some(e) = &record.exposure {
+        scene.camera.exposure *= e.chosen;
+    }
+    let set = rig::SetSimulator::new(&scene, seed, Phase::Calibration)?;
+    let dir = a.data.join(compend::calibrate::set::SET_DIR);
+    let mut desired = Vec::new();
+    for i in 1.. {
+        let path = dir.join(format!("desired-{i:03}.png"));
+        if !path.is_file() || a.ntest.is_some_and(|n| desired.len() >= n) {
+            break;
+        }
+        desired.push(compend::pngio::read_rgb_sized(
+            &path,
+            model.meta.camera_size,
+            "a desired view of the set's verification",
+        )?);
+    }
+    if desired.is_empty() {
+        return Err(compend::Error::Missing {
+            path: dir.join("desired-001.png"),
+            expected: "the desired views the set's calibration verified on".into(),
+        }
+        .into());
+    }
+    let joint = model.joint()?;
+    eprintln!(
+        "sim: scoring the joint model of {} projectors on {} view(s) of scene {name:?}, seed \
+         {seed}, area {}",
+        model.models.len(),
+        desired.len(),
+        record.area
+    );
+    let s = rig::set_score::score_set(
+        &set,
+        (&joint, &model.models),
+        &desired,
+        record.area,
+        rig::OracleOptions {
+            iterations: a.oracle_iterations,
+        },
+    )?;
+    if a.json {
+        println!("{}", serde_json::to_string(&s)?);
+        return Ok(());
+    }
+    let gap = s.ceiling.psnr - s.joint.psnr;
+    println!(
+        "joint     {:.2} dB  SSIM {:.3}  ({gap:.2} dB below the ceiling)",
+        s.joint.psnr, s.joint.ssim
+    );
+    println!(
+        "ceiling   {:.2} dB  SSIM {:.3}",
+        s.ceiling.psnr, s.ceiling.ssim
+    );
+    for (k, al) in s.alone.iter().enumerate() {
+        println!(
+            "alone {}   {:.2} dB  SSIM {:.3}  (unreachable {:.1} % of the area in the set's \
+             range, {:.1} % in its own)",
+            k + 1,
+            al.psnr,
+            al.ssim,
+            s.alone_unreachable_at_set_range_percent[k],
+            s.alone_unreachable_percent[k]
+        );
+    }
+    println!("set unreachable {:.1} % of the area", s.unreachable_percent);
+    let seam = |f: &Option<compend::metrics::SeamFigure>| {
+        f.map_or("no overlap edge in the area".to_string(), |f| {
+            format!("{:.2}", f.ratio())
+        })
+    };
+    println!(
+        "seam      joint {}  ceiling {}",
+        seam(&s.joint_seam),
+        seam(&s.ceiling_seam)
+    );
+    Ok(())
 }

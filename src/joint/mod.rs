@@ -176,21 +176,26 @@ impl JointModel {
             .par_chunks_exact_mut(3)
             .zip(part.terms.par_iter())
             .for_each(|(px, slots)| {
-                let mut terms = Vec::with_capacity(MAX_PROJECTORS);
-                let mut own = None;
+                let mut terms = [Term {
+                    coeffs: [0.0; 12],
+                    share: 0.0,
+                }; MAX_PROJECTORS];
+                let (mut n, mut own) = (0, None);
                 for (j, slot) in slots.iter().enumerate() {
                     if let Some(t) = slot {
                         if j == k {
-                            own = Some(terms.len());
+                            own = Some(n);
                         }
-                        terms.push(*t);
+                        terms[n] = *t;
+                        n += 1;
                     }
                 }
                 let Some(own) = own else {
                     px.fill(0.0);
                     return;
                 };
-                let light = solve::solve(&terms, own, [px[0], px[1], px[2]], curves.camera_gamma);
+                let z = [px[0], px[1], px[2]];
+                let light = solve::solve(&terms[..n], own, z, curves.camera_gamma);
                 for c in 0..3 {
                     px[c] = light[own][c].clamp(0.0, 1.0).powf(1.0 / gammas[k][c]);
                 }

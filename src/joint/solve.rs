@@ -38,58 +38,63 @@ pub struct Term {
     pub share: f32,
 }
 
+/// Each projector's linear light at a point, in the order of its terms (unused slots 0).
+pub type Light = [[f32; 3]; MAX_PROJECTORS];
+
 /// The projector linear light (in [0, 1]³, one per term, in order) that gives camera-encoded
 /// value `z` at this point, or as close as the projectors reach: `own` is the term whose model
 /// gives the black level (the room's light and every projector's black, camera linear) and
 /// whose camera curve `camera_gamma` linearises `z`. A term whose `M` cannot be inverted sends
-/// no light (and, if it is `own`, every term its share alone, clamped).
-pub fn solve(terms: &[Term], own: usize, z: [f32; 3], camera_gamma: [f32; 3]) -> Vec<[f32; 3]> {
+/// no light (and, if it is `own`, every term its share alone, clamped). Terms past
+/// [`MAX_PROJECTORS`] are left out.
+pub fn solve(terms: &[Term], own: usize, z: [f32; 3], camera_gamma: [f32; 3]) -> Light {
     let n = terms.len().min(MAX_PROJECTORS);
+    let mut light: Light = [[0.0; 3]; MAX_PROJECTORS];
     let target: [f32; 3] = std::array::from_fn(|c| z[c].max(0.0).powf(camera_gamma[c]));
-    let ms: Vec<[[f32; 3]; 3]> = terms[..n].iter().map(|t| matrix(&t.coeffs)).collect();
-    let inv: Vec<Option<[[f32; 3]; 3]>> = ms.iter().map(inverse).collect();
     // The black level: where every projector shows 0, a = -M⁻¹ b (camera linear).
-    let black = match inv.get(own).copied().flatten() {
+    let black = match terms.get(own).and_then(|t| inverse(&matrix(&t.coeffs))) {
         Some(a) => {
             let b = &terms[own].coeffs[9..12];
             mul(&a, [-b[0], -b[1], -b[2]])
         }
         None => {
-            return (0..n)
-                .map(|j| {
-                    let l = affine(&terms[j].coeffs, target);
-                    l.map(|v| (v * terms[j].share).clamp(0.0, 1.0))
-                })
-                .collect();
+            for j in 0..n {
+                let l = affine(&terms[j].coeffs, target);
+                light[j] = l.map(|v| (v * terms[j].share).clamp(0.0, 1.0));
+            }
+            return light;
         }
     };
     let r: [f32; 3] = std::array::from_fn(|c| target[c] - black[c]);
     // The blended split: projector j alone gives its share of the view above black.
-    let start: Vec<[f32; 3]> = (0..n)
-        .map(|j| match inv[j] {
-            Some(_) => {
-                let s = terms[j].share;
-                mul(&ms[j], [s * r[0], s * r[1], s * r[2]])
-            }
-            None => [0.0; 3],
-        })
-        .collect();
-    if start.iter().flatten().all(|v| (0.0..=1.0).contains(v)) {
-        return start;
+    let mut in_range = true;
+    for j in 0..n {
+        let s = terms[j].share;
+        light[j] = mul(&matrix(&terms[j].coeffs), [s * r[0], s * r[1], s * r[2]]);
+        in_range &= light[j].iter().all(|v| (0.0..=1.0).contains(v));
     }
-    // B = [A_1 … A_n], A_j = M_j⁻¹ (a projector that cannot be inverted adds no column).
-    let cols: Vec<[f32; 3]> = (0..n * 3)
-        .map(|u| {
-            let (j, c) = (u / 3, u % 3);
-            inv[j].map_or([0.0; 3], |a| [a[0][c], a[1][c], a[2][c]])
-        })
-        .collect();
-    let x0: Vec<f32> = start.iter().flatten().copied().collect();
-    let first = minimise(&cols, r, &x0, [1.0; 3], &x0.map_clamped());
+    if in_range {
+        return light;
+    }
+    // B = [A_1 … A_n], A_j = M_j⁻¹ (a projector that cannot be inverted adds no column and
+    // sends no light).
+    let m = 3 * n;
+    let mut cols = [[0f32; 3]; MAX_UNKNOWNS];
+    let mut x0 = [0f32; MAX_UNKNOWNS];
+    for j in 0..n {
+        if let Some(a) = inverse(&matrix(&terms[j].coeffs)) {
+            for c in 0..3 {
+                cols[3 * j + c] = [a[0][c], a[1][c], a[2][c]];
+                x0[3 * j + c] = light[j][c];
+            }
+        }
+    }
+    let clamped = x0.map(|v| v.clamp(0.0, 1.0));
+    let first = minimise(&cols[..m], r, &x0[..m], [1.0; 3], &clamped[..m]);
     // Weight each channel by the camera encoding's secant between the target and the view of
     // the first solution, as `linear::gamut` does for one projector.
     let view: [f32; 3] =
-        std::array::from_fn(|c| black[c] + (0..n * 3).map(|u| cols[u][c] * first[u]).sum::<f32>());
+        std::array::from_fn(|c| black[c] + (0..m).map(|u| cols[u][c] * first[u]).sum::<f32>());
     let w: [f32; 3] = std::array::from_fn(|c| {
         let inv_g = 1.0 / camera_gamma[c];
         let (a0, a1) = (target[c], view[c]);
@@ -101,25 +106,23 @@ pub fn solve(terms: &[Term], own: usize, z: [f32; 3], camera_gamma: [f32; 3]) ->
         };
         slope.max(WEIGHT_MIN)
     });
-    let x = minimise(&cols, r, &x0, w, &first);
-    (0..n)
-        .map(|j| [x[3 * j], x[3 * j + 1], x[3 * j + 2]])
-        .collect()
-}
-
-trait Clamped {
-    fn map_clamped(&self) -> Vec<f32>;
-}
-
-impl Clamped for Vec<f32> {
-    fn map_clamped(&self) -> Vec<f32> {
-        self.iter().map(|v| v.clamp(0.0, 1.0)).collect()
+    let x = minimise(&cols[..m], r, &x0[..m], w, &first[..m]);
+    for j in 0..n {
+        light[j] = [x[3 * j], x[3 * j + 1], x[3 * j + 2]];
     }
+    light
 }
 
 /// `argmin over x in [0, 1]^m of ‖W (B x − r)‖² + λ ‖x − x0‖²` from the feasible point
-/// `from`; `cols` are B's columns.
-fn minimise(cols: &[[f32; 3]], r: [f32; 3], x0: &[f32], w: [f32; 3], from: &[f32]) -> Vec<f32> {
+/// `from`; `cols` are B's columns (m of them, at most [`MAX_UNKNOWNS`]). The minimum is in the
+/// first m entries.
+fn minimise(
+    cols: &[[f32; 3]],
+    r: [f32; 3],
+    x0: &[f32],
+    w: [f32; 3],
+    from: &[f32],
+) -> [f32; MAX_UNKNOWNS] {
     let m = cols.len().min(MAX_UNKNOWNS);
     let w2 = w.map(|v| v * v);
     let mut h = [[0f32; MAX_UNKNOWNS]; MAX_UNKNOWNS];
@@ -137,7 +140,7 @@ fn minimise(cols: &[[f32; 3]], r: [f32; 3], x0: &[f32], w: [f32; 3], from: &[f32
     let mut x = [0f32; MAX_UNKNOWNS];
     x[..m].copy_from_slice(&from[..m]);
     box_minimum(&h, &g, m, &mut x);
-    x[..m].to_vec()
+    x
 }
 
 /// `argmin over x in [0, 1]^m of ½ xᵀ H x − gᵀ x` for a symmetric positive definite `H`, by
@@ -384,6 +387,10 @@ mod tests {
             .collect()
     }
 
+    fn clamped(x: &[f32]) -> Vec<f32> {
+        x.iter().map(|v| v.clamp(0.0, 1.0)).collect()
+    }
+
     /// The regularisation weight [`minimise`] uses with `W = I`.
     fn lambda(cols: &[[f32; 3]]) -> f32 {
         let mut h = [[0f32; MAX_UNKNOWNS]; MAX_UNKNOWNS];
@@ -414,11 +421,12 @@ mod tests {
             ([0.6f32, 0.05, 0.3], [1.4f32, 0.1, 0.8, 0.5, -0.1, 0.3]),
             ([0.01, 0.5, 0.55], [0.0, 1.2, 1.3, -0.3, 0.9, 0.7]),
         ] {
-            let x = minimise(&cols, r, &x0, [1.0; 3], &x0.to_vec().map_clamped());
-            let base = objective(&cols, r, &x0, &x);
+            let x = minimise(&cols, r, &x0, [1.0; 3], &clamped(&x0));
+            let x = &x[..6];
+            let base = objective(&cols, r, &x0, x);
             for u in 0..6 {
                 for step in [-1e-3f32, 1e-3] {
-                    let mut y = x.clone();
+                    let mut y = x.to_vec();
                     y[u] = (y[u] + step).clamp(0.0, 1.0);
                     let o = objective(&cols, r, &x0, &y);
                     assert!(
@@ -470,7 +478,8 @@ mod tests {
                 vec![0.4, 0.5, -0.3, 1.2, 0.2, 0.1, 0.7, 0.9, -0.1],
             ),
         ] {
-            let x = minimise(&cols, r, &x0, [1.0; 3], &x0.map_clamped());
+            let x = minimise(&cols, r, &x0, [1.0; 3], &clamped(&x0));
+            let x = x[..9].to_vec();
             let a = objective(&cols, r, &x0, &x);
             let lam = lambda(&cols);
             // Projected coordinate descent, 20 000 sweeps from the answer.

@@ -26,6 +26,7 @@ mod oracle;
 mod physics;
 pub mod scene;
 pub mod score;
+pub mod set_score;
 pub mod sheet;
 mod texture;
 pub mod window_camera;
