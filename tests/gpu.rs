@@ -875,3 +875,103 @@ fn compennet_model_plays_through_the_virtual_rig() {
     assert_eq!(count(&v, "camera_views"), 3);
     assert!(out.join("cam_000003.png").is_file());
 }
+
+/// Two projectors of a set over a 48×40 camera: the first on its left two thirds, the second
+/// on its right two thirds (a third overlapping), each with a per-pixel colour model of its
+/// own gain, cross-talk and black level, so that bright and saturated desired values take the
+/// bounded least squares.
+fn joint_test_model(seed: u64) -> compend::joint::JointModel {
+    use compend::linear::SimplifiedLinear;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let net = ImageSize::new(30, 36);
+    let models = [(0.0f32, 31.0f32, 0.45f32), (16.0, 47.0, 0.3)]
+        .into_iter()
+        .map(|(x0, x1, gain)| {
+            let grid = Grid::<Network, Camera>::from_fn(net.width, net.height, |x, y| {
+                let u = x0 + (x1 - x0) * x as f32 / (net.width - 1) as f32;
+                let v = 1.0 + 37.0 * y as f32 / (net.height - 1) as f32;
+                [pixel_to_norm(u, CAM.width), pixel_to_norm(v, CAM.height)]
+            });
+            let data = (0..net.width * net.height)
+                .map(|_| {
+                    // A = gain·(I + cross-talk); M = A⁻¹; b = −M·black.
+                    let g = gain * rng.random_range(0.6..1.2f32);
+                    let t = rng.random_range(0.0..0.08f32);
+                    let a = [[g, g * t, 0.0], [g * t, g, g * t], [0.0, g * t, g]];
+                    let m = compend::linear::gamut_inverse(&a).unwrap();
+                    let black = rng.random_range(0.005..0.03f32);
+                    let mut k = [0f32; 12];
+                    for r in 0..3 {
+                        k[r * 3..r * 3 + 3].copy_from_slice(&m[r]);
+                        k[9 + r] = -(m[r][0] + m[r][1] + m[r][2]) * black;
+                    }
+                    k
+                })
+                .collect();
+            SimplifiedLinear {
+                grid,
+                curves: Curves {
+                    camera_gamma: [2.2, 2.1, 2.3],
+                    projector_gamma: [2.0, 2.2, 2.4],
+                },
+                coeffs: Coefficients {
+                    width: net.width,
+                    height: net.height,
+                    data,
+                },
+            }
+        })
+        .collect();
+    compend::joint::JointModel::new(models, CAM).unwrap()
+}
+
+/// The joint pass of a set against its CPU reference (`JointModel::apply`): every projector's
+/// image within 2e-4 (projector input values) at all but a handful of pixels where f32 rounding
+/// tips the bounded least squares to another face (those within 5e-3), on desired views that
+/// send much of the overlap through it.
+#[test]
+fn joint_pass_matches_the_cpu_reference() {
+    let Some(ctx) = gpu() else { return };
+    let joint = joint_test_model(5);
+    let pass = compend::gpu::joint::JointPass::new(ctx, &joint).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    for (i, top) in [0.6f32, 1.0].into_iter().enumerate() {
+        let desired = Rgb::<Camera>::from_fn(CAM.width, CAM.height, |_, _| {
+            [0, 1, 2].map(|_| rng.random_range(0.0..top))
+        });
+        pass.run(ctx, &desired).unwrap();
+        let gpu_out = pass.read(ctx).unwrap();
+        let cpu_out = joint.apply(&desired).unwrap();
+        for (k, (g, c)) in gpu_out.iter().zip(&cpu_out).enumerate() {
+            let diffs: Vec<f32> = g
+                .data()
+                .iter()
+                .zip(c.data())
+                .map(|(a, b)| (a - b).abs())
+                .collect();
+            let worst = diffs.iter().copied().fold(0.0, f32::max);
+            let off = diffs.iter().filter(|&&d| d > 2e-4).count();
+            eprintln!(
+                "view {i} projector {}: max |Δ| {worst:.2e}, {off} of {} values over 2e-4",
+                k + 1,
+                diffs.len()
+            );
+            assert!(worst <= 5e-3, "projector {}: {worst}", k + 1);
+            assert!(
+                off * 200 <= diffs.len(),
+                "projector {}: {off} values",
+                k + 1
+            );
+        }
+        // The bright view sends pixels through the bounded least squares: both projectors light
+        // the overlap, and some of their light is at its bound there.
+        if top == 1.0 {
+            let at_bound = cpu_out
+                .iter()
+                .flat_map(|o| o.data().iter())
+                .filter(|&&v| v >= 1.0 || v <= 0.0)
+                .count();
+            assert!(at_bound > 50, "{at_bound} values at a bound");
+        }
+    }
+}

@@ -10,7 +10,10 @@ use crate::error::{Error, Result};
 use crate::linear::SimplifiedLinear;
 use crate::raster::ImageSize;
 
-const SHADER: &str = include_str!("../../shaders/linear.wgsl");
+const SHADER: &str = concat!(
+    include_str!("../../shaders/common.wgsl"),
+    include_str!("../../shaders/linear.wgsl")
+);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]

@@ -6,6 +6,8 @@
 //!   with its stages in `shaders/*.wgsl`; the model's photometric stage is a [`pass::Photometric`]
 //!   variant ([`linear`] for the `linear` rung, [`compennet`] for the CompenNet++ family,
 //!   [`residual`] for the residual rungs, which run both and add).
+//! - [`joint`]: the joint pass of a set of projectors (each projector's image from one desired
+//!   view, compensated for the surface and the others' light).
 //! - `bench` (a build with the `benches` feature): per-frame GPU time of the pass against a plain
 //!   texture copy of the same size, each stage and each CompenNet layer alone.
 //! - [`live`]: a climb rung's pass timed where the model is to play, for `auto`'s frame budget.
@@ -18,6 +20,7 @@
 pub mod bench;
 pub mod compennet;
 pub mod context;
+pub mod joint;
 mod kernel;
 pub mod linear;
 pub mod live;

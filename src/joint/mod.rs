@@ -53,14 +53,26 @@ pub use cover::Cover;
 pub use seam::seam_regions;
 pub use solve::{MAX_PROJECTORS, Term};
 
+/// What the joint pass reads per lattice pixel and projector slot: lattice x, y and share (x
+/// below 0 where the projector does not reach).
+pub const SLOT_FLOATS: usize = 3;
+
+/// Where a projector of the set is seen from one lattice pixel of another (or its own): its
+/// lattice position at that camera point (network pixels of its lattice) and its share there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Slot {
+    pub at: [f32; 2],
+    pub share: f32,
+}
+
 /// One projector's part of the joint model, on its lattice.
 #[derive(Clone, Debug)]
 struct Part {
     model: SimplifiedLinear,
-    /// Per lattice pixel and projector of the set (in order): that projector's coefficients at
-    /// the camera point this pixel lights, with its share; `None` where it does not reach
-    /// (always `Some` for this part's own projector where the point is in the camera image).
-    terms: Vec<[Option<Term>; MAX_PROJECTORS]>,
+    /// Per lattice pixel and projector of the set (in order): where that projector is seen at
+    /// the camera point this pixel lights; `None` where it does not reach (always `Some` for
+    /// this part's own projector, at the pixel itself, where the point is in the camera image).
+    slots: Vec<[Option<Slot>; MAX_PROJECTORS]>,
 }
 
 /// A set's joint model: each projector's `linear` model and where the others reach it.
@@ -110,7 +122,7 @@ impl JointModel {
         let shares = blend::share_maps(&covers, &bright, camera);
         let parts = (0..models.len())
             .map(|k| Part {
-                terms: part_terms(k, &models, (&covers, &shares), camera),
+                slots: part_slots(k, &models, (&covers, &shares), camera),
                 model: models[k].clone(),
             })
             .collect();
@@ -132,6 +144,11 @@ impl JointModel {
 
     pub fn camera_size(&self) -> ImageSize {
         self.camera
+    }
+
+    /// Projector `k`'s slots (per lattice pixel, per projector of the set): what its pass reads.
+    pub fn slots(&self, k: usize) -> Option<&[[Option<Slot>; MAX_PROJECTORS]]> {
+        self.parts.get(k).map(|p| p.slots.as_slice())
     }
 
     /// The camera pixels projector `k` reaches in its model.
@@ -166,15 +183,11 @@ impl JointModel {
     fn apply_one(&self, k: usize, desired: &CamImage) -> NetImage {
         let part = &self.parts[k];
         let curves = part.model.curves;
-        let gammas: Vec<[f32; 3]> = self
-            .parts
-            .iter()
-            .map(|p| p.model.curves.projector_gamma)
-            .collect();
+        let inv_gamma = part.model.curves.projector_gamma.map(|g| 1.0 / g);
         let mut out = crate::sample::grid_sample(desired, &part.model.grid);
         out.data_mut()
             .par_chunks_exact_mut(3)
-            .zip(part.terms.par_iter())
+            .zip(part.slots.par_iter())
             .for_each(|(px, slots)| {
                 let mut terms = [Term {
                     coeffs: [0.0; 12],
@@ -182,11 +195,15 @@ impl JointModel {
                 }; MAX_PROJECTORS];
                 let (mut n, mut own) = (0, None);
                 for (j, slot) in slots.iter().enumerate() {
-                    if let Some(t) = slot {
+                    if let Some(s) = slot {
                         if j == k {
                             own = Some(n);
                         }
-                        terms[n] = *t;
+                        let [x, y] = s.at;
+                        terms[n] = Term {
+                            coeffs: coefficients_at(&self.parts[j].model.coeffs, x, y),
+                            share: s.share,
+                        };
                         n += 1;
                     }
                 }
@@ -197,23 +214,29 @@ impl JointModel {
                 let z = [px[0], px[1], px[2]];
                 let light = solve::solve(&terms[..n], own, z, curves.camera_gamma);
                 for c in 0..3 {
-                    px[c] = light[own][c].clamp(0.0, 1.0).powf(1.0 / gammas[k][c]);
+                    px[c] = pow0(light[own][c].clamp(0.0, 1.0), inv_gamma[c]);
                 }
             });
         out
     }
 }
 
-/// The terms of projector `k`'s lattice pixels: at the camera point each lights, every
-/// projector that reaches it with its coefficients there and its share (from the camera-space
-/// share maps, renormalised over those that reach it).
-fn part_terms(
+/// `x^g` for `x > 0`, else 0 (as the shaders' `pow0`).
+fn pow0(x: f32, g: f32) -> f32 {
+    if x > 0.0 { x.powf(g) } else { 0.0 }
+}
+
+/// The slots of projector `k`'s lattice pixels: at the camera point each lights, every
+/// projector that reaches it with its lattice position there and its share (from the
+/// camera-space share maps, renormalised over those that reach it).
+fn part_slots(
     k: usize,
     models: &[SimplifiedLinear],
     (covers, shares): (&[Cover], &[Vec<f32>]),
     camera: ImageSize,
-) -> Vec<[Option<Term>; MAX_PROJECTORS]> {
+) -> Vec<[Option<Slot>; MAX_PROJECTORS]> {
     let own = &models[k];
+    let width = own.grid.width();
     own.grid
         .data()
         .par_iter()
@@ -231,24 +254,22 @@ fn part_terms(
             if !inside {
                 return slots;
             }
-            let mut coeffs = [None; MAX_PROJECTORS];
+            let mut at = [None; MAX_PROJECTORS];
             let mut present = [false; MAX_PROJECTORS];
             let mut read = [0f32; MAX_PROJECTORS];
-            for (j, (m, cover)) in models.iter().zip(covers).enumerate() {
-                coeffs[j] = if j == k {
-                    Some(own.coeffs.data[p])
+            for (j, cover) in covers.iter().enumerate() {
+                at[j] = if j == k {
+                    Some([(p % width) as f32, (p / width) as f32])
                 } else {
-                    cover
-                        .lattice_at(u, v)
-                        .map(|[lx, ly]| coefficients_at(&m.coeffs, lx, ly))
+                    cover.lattice_at(u, v)
                 };
-                present[j] = coeffs[j].is_some();
+                present[j] = at[j].is_some();
                 read[j] = cover.bilinear(&shares[j], u, v);
             }
             let share = blend::renormalise(read, present);
             for j in 0..models.len() {
-                slots[j] = coeffs[j].map(|c| Term {
-                    coeffs: c,
+                slots[j] = at[j].map(|at| Slot {
+                    at,
                     share: share[j],
                 });
             }
@@ -258,8 +279,8 @@ fn part_terms(
 }
 
 /// Coefficients at lattice position (x, y), bilinear between the four lattice pixels around it
-/// (clamped to the lattice).
-fn coefficients_at(c: &Coefficients, x: f32, y: f32) -> [f32; 12] {
+/// (clamped to the lattice); at a lattice pixel, its own.
+pub fn coefficients_at(c: &Coefficients, x: f32, y: f32) -> [f32; 12] {
     let (w, h) = (c.width, c.height);
     let x = x.clamp(0.0, (w - 1) as f32);
     let y = y.clamp(0.0, (h - 1) as f32);

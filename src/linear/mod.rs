@@ -47,6 +47,7 @@ mod tensors;
 pub use fit::{
     FitReport, GeometryMemo, fit, fit_geometry, fit_on_grid, fit_with_memo, prefit_geometry,
 };
+pub use gamut::inverse as gamut_inverse;
 pub use model::{Coefficients, Curves, Geometry, LinearModel, SimplifiedLinear, apply_colour};
 pub use settings::FitSettings;
 
