@@ -9,8 +9,8 @@
 // Slots:  per lattice pixel and projector of the set, (lattice x, lattice y, share): where that
 //         projector is seen at this pixel's camera point, in its lattice's pixels; x < 0 where it
 //         does not reach.
-// Coeffs: every projector's per-pixel colour model (M row-major, then b; 12 values), one lattice
-//         after another (`p.lattice[j]`: width, height, offset in pixels).
+// Coeffs: every projector's per-pixel colour model (M row-major, then b; 12 values), one buffer
+//         per projector (`p.lattice[j]`: its lattice's width and height).
 // Output: this projector's input values (network lattice pixels), f32 (rgba32float).
 // Compiled after shaders/common.wgsl (grid_sample, pow0, inverse3).
 
@@ -23,15 +23,19 @@ struct Joint {
     camera_gamma: vec4<f32>,        // γc per channel (xyz), this projector's model
     camera_inv_gamma: vec4<f32>,    // 1/γc, computed in f32 on the CPU
     projector_inv_gamma: vec4<f32>, // 1/γp of this projector, computed in f32 on the CPU
-    lattice: array<vec4<u32>, 4>,   // per projector: lattice width, height, offset (pixels)
+    lattice: array<vec4<u32>, 4>,   // per projector: lattice width, height (x, y)
 }
 
 @group(0) @binding(0) var<uniform> p: Joint;
 @group(0) @binding(1) var desired: texture_2d<f32>;
 @group(0) @binding(2) var<storage, read> grid: array<vec2<f32>>;
 @group(0) @binding(3) var<storage, read> slots: array<f32>;
-@group(0) @binding(4) var<storage, read> coeffs: array<f32>;
-@group(0) @binding(5) var network: texture_storage_2d<rgba32float, write>;
+// One buffer per projector (a storage binding holds at most 128 MiB: one 1920×1080 lattice).
+@group(0) @binding(4) var<storage, read> coeffs0: array<f32>;
+@group(0) @binding(5) var<storage, read> coeffs1: array<f32>;
+@group(0) @binding(6) var<storage, read> coeffs2: array<f32>;
+@group(0) @binding(7) var<storage, read> coeffs3: array<f32>;
+@group(0) @binding(8) var network: texture_storage_2d<rgba32float, write>;
 
 const MAXP: u32 = 4u;
 const MAXU: u32 = 12u;
@@ -55,12 +59,21 @@ var<private> held: array<bool, 12>;
 var<private> target_x: array<f32, 12>;
 var<private> l: array<array<f32, 12>, 12>;
 
+// Value i of projector j's coefficients.
+fn coeff(j: u32, i: u32) -> f32 {
+    switch j {
+        case 0u: { return coeffs0[i]; }
+        case 1u: { return coeffs1[i]; }
+        case 2u: { return coeffs2[i]; }
+        default: { return coeffs3[i]; }
+    }
+}
+
 // Coefficients of projector j at lattice position (ax, ay), bilinear between the four lattice
 // pixels around it, clamped to the lattice (compend::joint::coefficients_at); into tk[n].
 fn load_coeffs(n: u32, j: u32, ax: f32, ay: f32) {
     let w = p.lattice[j].x;
     let hh = p.lattice[j].y;
-    let off = p.lattice[j].z;
     let xc = clamp(ax, 0.0, f32(w - 1u));
     let yc = clamp(ay, 0.0, f32(hh - 1u));
     let x0i = u32(floor(xc));
@@ -77,9 +90,9 @@ fn load_coeffs(n: u32, j: u32, ax: f32, ay: f32) {
     var ys = array<u32, 4>(y0i, y0i, y1i, y1i);
     var ws = array<f32, 4>((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
     for (var t = 0u; t < 4u; t++) {
-        let base = (off + ys[t] * w + xs[t]) * 12u;
+        let base = (ys[t] * w + xs[t]) * 12u;
         for (var c = 0u; c < 12u; c++) {
-            out[c] += ws[t] * coeffs[base + c];
+            out[c] += ws[t] * coeff(j, base + c);
         }
     }
     tk[n] = out;

@@ -82,6 +82,11 @@ pub struct Args {
     /// (direct on a CPU driver, measured on a GPU).
     #[arg(long, value_enum)]
     pub conv_kernels: Option<ConvKernels>,
+    /// Also time the joint pass of a set of two projectors side by side (a third of each
+    /// picture overlapping), each at the projector size on the `linear` lattice, for one
+    /// desired view of saturated bars (much of the overlap through the bounded least squares).
+    #[arg(long)]
+    pub joint: bool,
 }
 
 fn parse_pattern(s: &str) -> std::result::Result<Pattern, String> {
@@ -153,6 +158,10 @@ struct Row {
     virtual_rig: Option<PlayStats>,
     /// The same paced playback with no read-back and no display: upload + pass, waited for.
     headless: Option<PlayStats>,
+    /// The joint pass of two projectors of this size (`--joint`), both outputs in one
+    /// submission, and over the copy of one projector frame.
+    joint: Option<Timing>,
+    joint_over_copy: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -312,6 +321,10 @@ impl Bench<'_> {
             Some(m) => Some(self.compennet(m, prj, &copy)?),
             None => None,
         };
+        let joint = match args.joint {
+            true => Some(self.joint(prj)?),
+            false => None,
+        };
         let (virtual_rig, headless) = if args.seconds > 0.0 {
             let headless = self.headless_run(model, prj)?;
             (Some(self.virtual_run(model, prj)?), Some(headless))
@@ -331,7 +344,41 @@ impl Bench<'_> {
             compennet_over_copy_wall: cnn.map(|t| t.wall_ms / copy.wall_ms),
             virtual_rig,
             headless,
+            joint,
+            joint_over_copy: joint.map(|t| t.best_ms() / copy.best_ms()),
         })
+    }
+
+    /// The joint pass of two projectors of `prj` pixels (each on the `linear` lattice).
+    fn joint(&self, prj: ImageSize) -> Result<Timing> {
+        let (ctx, args) = (self.ctx, self.args);
+        let lattice = args.lattice.at(prj, args.network);
+        let set = compend::gpu::synthetic::synthetic_joint_model(args.camera, lattice, 0)?;
+        let pass = compend::gpu::joint::JointPass::new(ctx, &set)?;
+        let bars = [
+            [1.0, 1.0, 1.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 1.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 1.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.05, 0.05, 0.05],
+        ];
+        let w = args.camera.width;
+        let desired = compend::raster::CamImage::from_fn(w, args.camera.height, |x, _| {
+            bars[(x * bars.len() / w.max(1)).min(bars.len() - 1)]
+        });
+        pass.upload(ctx, &desired)?;
+        let t = compend::gpu::bench::time_work(ctx, args.warmup, args.iters, |enc| {
+            pass.encode(enc, None);
+            Ok(())
+        })?;
+        eprintln!(
+            "bench-gpu: {prj}: joint pass of two projectors ({lattice} lattices) {:.3} ms",
+            t.best_ms()
+        );
+        Ok(t)
     }
 
     /// The CompenNet pass at `prj` (and its layers alone with `--layers`).
@@ -494,6 +541,26 @@ impl Bench<'_> {
                \"Pipeline alone\" plays the same paced source with neither read-back nor display: each \
                refresh uploads the newest frame, runs the pass and waits for the GPU, which is the \
                window's work per frame without the presentation.\n";
+        let joints: Vec<String> = rows
+            .iter()
+            .filter_map(|r| {
+                Some(format!(
+                    "- {}: {} ms for both outputs, {:.2}× one frame's copy; half a refresh at {} Hz \
+                     is {:.2} ms",
+                    r.projector,
+                    both(r.joint.as_ref()?),
+                    r.joint_over_copy?,
+                    args.fps,
+                    500.0 / args.fps
+                ))
+            })
+            .collect();
+        if !joints.is_empty() {
+            md += "\nThe joint pass of a set of two projectors side by side, each at the projector size on \
+                   the `linear` lattice, for a view of saturated bars (`--joint`):\n\n";
+            md += &joints.join("\n");
+            md += "\n";
+        }
         if software {
             md += "\nThis adapter renders in software: its GPU timestamps for the copy are not \
                    meaningful, so read the ratios after the slash (wall clock). They say nothing about \

@@ -28,7 +28,7 @@ struct Params {
     camera_gamma: [f32; 4],
     camera_inv_gamma: [f32; 4],
     projector_inv_gamma: [f32; 4],
-    /// Per projector: lattice width, height, offset (pixels) into the coefficients, 0.
+    /// Per projector: lattice width, height, 0, 0.
     lattice: [[u32; 4]; MAX_PROJECTORS],
 }
 
@@ -64,6 +64,9 @@ impl JointPass {
                 Slot::Storage,
                 Slot::Storage,
                 Slot::Storage,
+                Slot::Storage,
+                Slot::Storage,
+                Slot::Storage,
                 Slot::Output(wgpu::TextureFormat::Rgba32Float),
             ],
         )?;
@@ -75,18 +78,17 @@ impl JointPass {
             })
             .collect::<Result<_>>()?;
         let mut lattice = [[0u32; 4]; MAX_PROJECTORS];
-        let mut all_coeffs = Vec::new();
+        // One buffer per projector (a storage binding holds at most 128 MiB); a set of fewer
+        // than MAX_PROJECTORS binds an empty one in the others' places.
+        let mut coeffs: Vec<wgpu::Buffer> = Vec::with_capacity(MAX_PROJECTORS);
         for (k, m) in models.iter().enumerate() {
-            let offset = all_coeffs.len() / 12;
-            lattice[k] = [
-                m.coeffs.width as u32,
-                m.coeffs.height as u32,
-                offset as u32,
-                0,
-            ];
-            all_coeffs.extend(m.coeffs.data.iter().flatten());
+            lattice[k] = [m.coeffs.width as u32, m.coeffs.height as u32, 0, 0];
+            let data: Vec<f32> = m.coeffs.data.iter().flatten().copied().collect();
+            coeffs.push(storage(ctx, "joint coefficients", &data));
         }
-        let coeffs = storage(ctx, "joint coefficients", &all_coeffs);
+        while coeffs.len() < MAX_PROJECTORS {
+            coeffs.push(storage(ctx, "joint coefficients (none)", &[]));
+        }
         let desired = image_texture(
             ctx,
             "joint desired",
@@ -160,7 +162,10 @@ impl JointPass {
                     wgpu::BindingResource::TextureView(&desired_view),
                     grid.as_entire_binding(),
                     slots.as_entire_binding(),
-                    coeffs.as_entire_binding(),
+                    coeffs[0].as_entire_binding(),
+                    coeffs[1].as_entire_binding(),
+                    coeffs[2].as_entire_binding(),
+                    coeffs[3].as_entire_binding(),
                     wgpu::BindingResource::TextureView(&view(&texture)),
                 ],
             );

@@ -63,6 +63,36 @@ fn synthetic_linear(
     }
 }
 
+/// A set of two projectors side by side with a third of each picture overlapping, each a
+/// `linear` model like [`synthetic_linear_model`]'s on a `lattice` lattice, as the joint
+/// model of a set ([`crate::joint::JointModel`]) over a `camera` camera, for timing the joint
+/// pass.
+pub fn synthetic_joint_model(
+    camera: ImageSize,
+    lattice: ImageSize,
+    seed: u64,
+) -> Result<crate::joint::JointModel> {
+    use crate::sample::{Grid, pixel_to_norm};
+    let ImageSize {
+        width: nw,
+        height: nh,
+    } = lattice;
+    let models = [(-0.9f32, 0.3f32), (-0.3, 0.9)]
+        .into_iter()
+        .enumerate()
+        .map(|(k, (left, right))| {
+            let mut m = synthetic_linear(camera, lattice, seed + k as u64).simplify();
+            m.grid = Grid::from_fn(nw, nh, |x, y| {
+                let (u, v) = (pixel_to_norm(x as f32, nw), pixel_to_norm(y as f32, nh));
+                let t = (u + 1.0) * 0.5;
+                [left + (right - left) * t + 0.03 * v * v, 0.8 * v]
+            });
+            m
+        })
+        .collect();
+    crate::joint::JointModel::new(models, camera)
+}
+
 /// A simplified CompenNet++ model with seeded weights (Kaiming normal, zero biases, as a fresh
 /// model starts), an affine geometry covering the middle 80% of the camera frame, a full FOV and
 /// a smooth gray surface image, for timing: camera `camera`, network `network` (sides divisible
