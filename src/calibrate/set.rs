@@ -274,6 +274,9 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
             )?);
         }
         for k in 0..n {
+            // Each projector alone aims at the view the last capture showed: the camera may
+            // not tell them apart, so white first (one frame), as closed-loop pairs do.
+            capturer.capture_averaging(&white_whole, true, 1)?;
             let alone = model.models[k].infer(view)?;
             let frames = one_only(k, frames_for(k, &alone)?);
             let seen = capturer.capture_after_change(&side_by_side(&frames))?;
