@@ -109,7 +109,7 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
     let joint = model.joint()?;
     let t = Instant::now();
     let root = DataRoot::open(&data.join(projector_dir(0)))?;
-    let (area, verification) = verify_set(
+    let (area, display_range, verification) = verify_set(
         &mut set,
         camera,
         (&model, &joint),
@@ -122,6 +122,7 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
         exposure,
         camera_gamma_spread,
         area,
+        display_range,
         verification,
         projector_seconds,
         verification_seconds: t.elapsed().as_secs_f64(),
@@ -194,7 +195,7 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
     (data, root, latency): (&Path, &DataRoot, &Latency),
     opts: &Options,
     progress: Progress,
-) -> Result<(Rect, SetVerification)> {
+) -> Result<(Rect, fov::DisplayRange, SetVerification)> {
     let n = joint.projectors();
     let sizes: Vec<_> = set.displays().iter().map(|d| d.size()).collect();
     let black_frames: Vec<PrjImage> = sizes
@@ -310,6 +311,7 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
     }
     Ok((
         area,
+        range,
         SetVerification {
             images: verify_n,
             psnr: j.psnr,

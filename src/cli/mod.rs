@@ -20,6 +20,8 @@ pub mod inspect;
 pub mod metrics;
 pub mod patterns;
 pub mod play;
+mod play_flags;
+mod play_set;
 pub mod pretrain;
 pub mod progress;
 pub mod serve;

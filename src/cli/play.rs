@@ -2,7 +2,7 @@
 //! virtual rig (`--rig virtual[:SCENE]`), which replaces the window by the rig's projector and
 //! writes what its camera sees.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use compend::device::DisplaySink;
@@ -14,6 +14,8 @@ use compend::player::{Headless, PlayStats, Player, Refresh, Screen, ViewSink, Wa
 use compend::rig::{self, Phase, Simulator, VirtualRig, scene};
 use compend::source::{self, AudioOut, FeedMode, SourceSpec, VideoSource};
 use compend::window::ProjectorWindow;
+
+use super::play_flags::{check_out, mark_out, parse_rig};
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = sources_and_outputs_help())]
@@ -129,6 +131,17 @@ pub fn run(args: Args) -> Result<()> {
         ))
         .into());
     }
+    if compend::model::set::SetModel::is_set(model_dir) {
+        let set = super::play_set::SetPlay {
+            rig: args.rig.as_deref(),
+            frames: args.frames,
+            out: args.out.as_deref(),
+            seed: args.seed,
+            json: args.json,
+            single_frame_output: args.to.is_some() || args.no_window,
+        };
+        return super::play_set::play_set(&set, model_dir, &spec);
+    }
     if let Some(dir) = &args.out {
         check_out(dir)?;
     }
@@ -176,45 +189,6 @@ pub fn run(args: Args) -> Result<()> {
         println!("{json}");
     }
     Ok(())
-}
-
-/// The list `play --out` keeps in its folder. The camera views' names are not known before the
-/// playback ends, so it names what `play` writes there rather than each file.
-const PLAY_MARKER: &str = ".compend-played";
-
-/// Whether `dir` may take `play`'s files (`play.json`, `cam_NNNNNN.png`): a folder (or nothing
-/// yet) that holds none of them, or one an earlier `play` wrote them into (its marker is
-/// there). Input errors name the path. [`mark_out`] marks it before the first is written.
-fn check_out(dir: &Path) -> compend::Result<()> {
-    super::check_out_folder(dir, "--out")?;
-    let marker = dir.join(PLAY_MARKER);
-    if !marker.exists() {
-        let ours = |name: &str| {
-            name == "play.json" || (name.starts_with("cam_") && name.ends_with(".png"))
-        };
-        if let Ok(entries) = std::fs::read_dir(dir)
-            && let Some(name) = entries
-                .filter_map(|e| e.ok())
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .find(|n| ours(n))
-        {
-            return Err(compend::Error::Input(format!(
-                "{}: already there, and not written by `compend play` (no {PLAY_MARKER} \
-                 beside it), so it is not replaced: choose another --out",
-                dir.join(name).display()
-            )));
-        }
-    }
-    Ok(())
-}
-
-/// Makes `dir` and marks it as `play`'s ([`check_out`]).
-fn mark_out(dir: &Path) -> compend::Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| compend::Error::io(dir, "create folder", e))?;
-    compend::files::write_atomically(
-        &dir.join(PLAY_MARKER),
-        b"# play.json and cam_NNNNNN.png here are written by `compend play`\n",
-    )
 }
 
 /// A media output (`--to`) and the frame rate it is written at offline.
@@ -337,18 +311,6 @@ fn play_virtual(
     let size = placement.projector_size;
     let mut screen = WatchedSink::new(&ctx, args.fps, rig.clone(), rig, views);
     run_teed(&mut player, &mut screen, out, size, args.frames)
-}
-
-/// `virtual` → None, `virtual:SCENE` → Some(SCENE).
-fn parse_rig(s: &str) -> compend::Result<Option<String>> {
-    match s.split_once(':') {
-        None if s == "virtual" => Ok(None),
-        Some(("virtual", scene)) if !scene.is_empty() => Ok(Some(scene.to_string())),
-        _ => Err(compend::Error::Input(format!(
-            "--rig {s:?}: expected `virtual` or `virtual:SCENE` (scenes: {})",
-            rig::BUILTIN.join(", ")
-        ))),
-    }
 }
 
 /// The rig the model was calibrated on (its setup's rig.json), or `scene` at the model's camera

@@ -24,6 +24,9 @@ pub struct SetRecord {
     /// The displayable area of the whole set (camera pixels): the largest rectangle of the
     /// desired aspect inside the union of the projectors' fields of view.
     pub area: Rect,
+    /// The range of camera values (encoded) desired views are scaled into there: what the set
+    /// reaches across its area.
+    pub display_range: crate::fov::DisplayRange,
     pub verification: SetVerification,
     /// Seconds: each projector's calibration, in order, then the whole set's verification,
     /// and the total.

@@ -441,7 +441,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     (
         "models",
         &[
-            "linear", "failure", "nn", "method", "record", "model", "fit",
+            "linear", "joint", "failure", "nn", "method", "record", "model", "fit",
         ],
     ),
     ("the per-frame path", &["playback"]),

@@ -645,6 +645,32 @@ fn a_set_calibrates_from_the_command_line() {
         serde_json::from_slice(&std::fs::read(out.join("set.json")).unwrap()).unwrap();
     assert_eq!(meta["projectors"], 2);
     assert_eq!(meta["calibration"]["verification"]["passed"], true);
+    // The set plays on its virtual rig: the joint pass per frame, the camera's view of both.
+    let views = dir.path().join("views");
+    let play = |extra: &[&str]| {
+        let mut a = vec![
+            "play",
+            "--model",
+            out.to_str().unwrap(),
+            "--source",
+            "pattern:bars?size=64x48&frames=2",
+        ];
+        a.extend(extra);
+        compend(&a)
+    };
+    let o = play(&[]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("plays on the virtual rig only so far"),
+        "{}",
+        stderr(&o)
+    );
+    if crate::common::gpu().is_some() {
+        let o = play(&["--rig", "virtual", "--out", views.to_str().unwrap()]);
+        assert_code(&o, 0);
+        assert!(views.join("cam_000002.png").is_file(), "{}", stderr(&o));
+        assert!(!views.join("cam_000003.png").exists());
+    }
     // The second projector turned away from the wall: named, exit 2, nothing installed.
     let mut scene = compend::rig::scene::builtin("tiled").unwrap();
     scene.more_projectors[0].pose =
