@@ -274,14 +274,14 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
                 away.data(),
             )?);
         }
-        for k in 0..n {
+        for (k, acc) in alone_acc.iter_mut().enumerate() {
             // Each projector alone aims at the view the last capture showed: the camera may
             // not tell them apart, so white first (one frame), as closed-loop pairs do.
             capturer.capture_averaging(&white_whole, true, 1)?;
             let alone = model.models[k].infer(view)?;
             let frames = one_only(k, frames_for(k, &alone)?);
             let seen = capturer.capture_after_change(&side_by_side(&frames))?;
-            alone_acc[k].add(&seen.crop(area)?, &want)?;
+            acc.add(&seen.crop(area)?, &want)?;
         }
     }
     progress("set verification", verify_n, verify_n);

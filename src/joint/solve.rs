@@ -156,8 +156,8 @@ fn box_minimum(
     x: &mut [f32; MAX_UNKNOWNS],
 ) {
     let mut held = [false; MAX_UNKNOWNS];
-    for i in 0..m {
-        held[i] = x[i] <= 0.0 || x[i] >= 1.0;
+    for (h, &v) in held.iter_mut().zip(x.iter()).take(m) {
+        *h = v <= 0.0 || v >= 1.0;
     }
     for _ in 0..MAX_STEPS {
         let Some(target) = free_solution(h, g, m, x, &held) else {
@@ -224,11 +224,9 @@ fn free_solution(
 ) -> Option<[f32; MAX_UNKNOWNS]> {
     let mut idx = [0usize; MAX_UNKNOWNS];
     let mut f = 0;
-    for i in 0..m {
-        if !held[i] {
-            idx[f] = i;
-            f += 1;
-        }
+    for (i, _) in held.iter().enumerate().take(m).filter(|(_, h)| !**h) {
+        idx[f] = i;
+        f += 1;
     }
     let mut out = *x;
     if f == 0 {
@@ -245,8 +243,8 @@ fn free_solution(
                 .sum::<f32>();
         for b in 0..=a {
             let mut v = h[i][idx[b]];
-            for k in 0..b {
-                v -= l[a][k] * l[b][k];
+            for (p, q) in l[a][..b].iter().zip(&l[b][..b]) {
+                v -= p * q;
             }
             if a == b {
                 if v <= 0.0 || !v.is_finite() {
