@@ -92,6 +92,7 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
             &mut step,
         )?;
         projector_seconds.push(t.elapsed().as_secs_f64());
+        check_in_view(k, &calibrated.model.fov)?;
         done.push(calibrated);
     }
     show_black(&mut set)?;
@@ -147,6 +148,40 @@ pub fn install_set(done: CalibratedSet, out: &Path) -> Result<SetModel> {
     }
     done.model.save(out)?;
     Ok(done.model)
+}
+
+/// The share of an image side's length the field of view of one projector may touch before
+/// its picture counts as running off the camera's view.
+pub const OFF_VIEW_SHARE: f64 = 0.02;
+
+/// An input error when projector `k`'s field of view `fov` (camera pixels) reaches an edge of
+/// the camera image along more than [`OFF_VIEW_SHARE`] of it: its picture runs off the camera's
+/// view, so the camera does not see the whole set and the joint model would not know what the
+/// set shows there.
+fn check_in_view(k: usize, fov: &crate::raster::Mask<crate::raster::Camera>) -> Result<()> {
+    let (w, h) = (fov.width(), fov.height());
+    if w == 0 || h == 0 {
+        return Ok(());
+    }
+    let sides = [
+        ("left", (0..h).filter(|&y| fov.get(0, y)).count(), h),
+        ("right", (0..h).filter(|&y| fov.get(w - 1, y)).count(), h),
+        ("top", (0..w).filter(|&x| fov.get(x, 0)).count(), w),
+        ("bottom", (0..w).filter(|&x| fov.get(x, h - 1)).count(), w),
+    ];
+    for (side, lit, length) in sides {
+        let share = lit as f64 / length as f64;
+        if share > OFF_VIEW_SHARE {
+            return Err(Error::Input(format!(
+                "projector {}'s picture runs off the camera's view at its {side} edge (its light \
+                 reaches {:.0} % of that edge): the camera must see every projector's whole \
+                 picture; widen the camera's view or move it back; nothing was installed",
+                k + 1,
+                share * 100.0
+            )));
+        }
+    }
+    Ok(())
 }
 
 fn show_black<D: DisplaySink>(set: &mut SideBySide<D>) -> Result<()> {

@@ -634,8 +634,15 @@ fn a_set_calibrates_from_the_command_line() {
         let refs: Vec<&str> = a.iter().map(String::as_str).collect();
         compend(&refs)
     };
+    // At 96×72 the built-in framing leaves the first picture under two camera pixels from the
+    // image's edge, where the camera's blur reaches it: a slightly wider view (a scene file)
+    // keeps the whole set in sight; the built-in one is refused for it (below).
+    let mut wide = compend::rig::scene::builtin("tiled").unwrap();
+    wide.camera.hfov_deg *= 1.1;
+    let wide_file = dir.path().join("wide.json");
+    std::fs::write(&wide_file, serde_json::to_vec(&wide).unwrap()).unwrap();
     let out = dir.path().join("model");
-    let o = small("virtual:tiled", &out, &[]);
+    let o = small(&format!("virtual:{}", arg(&wide_file)), &out, &[]);
     assert_code(&o, 0);
     let err = stderr(&o);
     assert!(err.contains("the whole set on 3 test images"), "{err}");
@@ -682,6 +689,27 @@ fn a_set_calibrates_from_the_command_line() {
     assert_code(&o, 2);
     assert!(
         stderr(&o).contains("projector 2 lights nothing the camera sees"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!away.exists());
+    // A camera zoomed in so that the set's pictures run off its view: named, exit 2; so is the
+    // built-in framing at this size.
+    let mut scene = compend::rig::scene::builtin("tiled").unwrap();
+    scene.camera.hfov_deg *= 0.6;
+    let file = dir.path().join("zoomed.json");
+    std::fs::write(&file, serde_json::to_vec(&scene).unwrap()).unwrap();
+    let o = small(&format!("virtual:{}", arg(&file)), &away, &[]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("projector 1's picture runs off the camera's view"),
+        "{}",
+        stderr(&o)
+    );
+    let o = small("virtual:tiled", &away, &[]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("picture runs off the camera's view"),
         "{}",
         stderr(&o)
     );
