@@ -39,7 +39,7 @@ struct Joint {
 
 const MAXP: u32 = 4u;
 const MAXU: u32 = 12u;
-// compend::joint::solve::{LAMBDA, MAX_STEPS} and the secant's constants.
+// compend::joint::solve::{LAMBDA, MAX_STEPS}; the secant's constants are compend::linear::gamut's.
 const LAMBDA: f32 = 0.05;
 const MAX_STEPS: u32 = 48u;
 const WEIGHT_MIN: f32 = 0.02;

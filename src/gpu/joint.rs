@@ -120,27 +120,17 @@ impl JointPass {
                     }
                 }
             }
-            let c = &m.curves;
-            let inv = |g: f32| 1.0 / g;
+            let [camera_gamma, camera_inv_gamma, projector_inv_gamma] =
+                super::linear::curve_params(&m.curves);
             let params = Params {
                 camera: [camera.width as u32, camera.height as u32],
                 network: [size.width as u32, size.height as u32],
                 set_size: n as u32,
                 own: k as u32,
                 pad: [0; 2],
-                camera_gamma: [c.camera_gamma[0], c.camera_gamma[1], c.camera_gamma[2], 0.0],
-                camera_inv_gamma: [
-                    inv(c.camera_gamma[0]),
-                    inv(c.camera_gamma[1]),
-                    inv(c.camera_gamma[2]),
-                    0.0,
-                ],
-                projector_inv_gamma: [
-                    inv(c.projector_gamma[0]),
-                    inv(c.projector_gamma[1]),
-                    inv(c.projector_gamma[2]),
-                    0.0,
-                ],
+                camera_gamma,
+                camera_inv_gamma,
+                projector_inv_gamma,
                 lattice,
             };
             let params = uniform(ctx, "joint params", &params);

@@ -25,6 +25,14 @@ struct Params {
     projector_inv_gamma: [f32; 4],
 }
 
+/// A model's curves as the compensation shaders read them (xyz per channel, w unused): γc, 1/γc
+/// and 1/γp, each 1/γ in f32 exactly as `Curves::projector_input` and the gamut map compute it.
+pub(super) fn curve_params(c: &crate::linear::Curves) -> [[f32; 4]; 3] {
+    let inv = |g: [f32; 3]| [1.0 / g[0], 1.0 / g[1], 1.0 / g[2], 0.0];
+    let g = c.camera_gamma;
+    [[g[0], g[1], g[2], 0.0], inv(g), inv(c.projector_gamma)]
+}
+
 /// The model's constants on the GPU and the compiled stage.
 pub struct LinearStage {
     stage: Stage,
@@ -48,25 +56,13 @@ impl LinearStage {
                 model.coeffs.width, model.coeffs.height
             )));
         }
-        let c = &model.curves;
-        // 1/γ in f32, exactly as Curves::projector_input and the gamut map compute it.
-        let inv = |g: f32| 1.0 / g;
+        let [camera_gamma, camera_inv_gamma, projector_inv_gamma] = curve_params(&model.curves);
         let params = Params {
             camera: [camera_size.width as u32, camera_size.height as u32],
             network: [nw as u32, nh as u32],
-            camera_gamma: [c.camera_gamma[0], c.camera_gamma[1], c.camera_gamma[2], 0.0],
-            camera_inv_gamma: [
-                inv(c.camera_gamma[0]),
-                inv(c.camera_gamma[1]),
-                inv(c.camera_gamma[2]),
-                0.0,
-            ],
-            projector_inv_gamma: [
-                inv(c.projector_gamma[0]),
-                inv(c.projector_gamma[1]),
-                inv(c.projector_gamma[2]),
-                0.0,
-            ],
+            camera_gamma,
+            camera_inv_gamma,
+            projector_inv_gamma,
         };
         let grid: Vec<f32> = model.grid.data().iter().flatten().copied().collect();
         let coeffs: Vec<f32> = model.coeffs.data.iter().flatten().copied().collect();

@@ -4,7 +4,7 @@
 //! does, on fixed-size arrays, in a fixed order (a primal active-set method with a bounded
 //! number of steps, each a Cholesky solve on the free unknowns).
 
-use crate::linear::gamut::inverse;
+use crate::linear::gamut::{inverse, secant_weight};
 
 /// The most projectors one camera point can be solved for (unknowns: 3 per projector).
 pub const MAX_PROJECTORS: usize = 4;
@@ -23,11 +23,6 @@ pub const MAX_STEPS: usize = 4 * MAX_UNKNOWNS;
 /// change both projectors can make together (more light where one runs out) is made to about
 /// 95 %, and one that plays one against the other is damped.
 pub const LAMBDA: f32 = 0.05;
-
-/// Least weight of a channel in the view's error (as `linear::gamut`'s).
-const WEIGHT_MIN: f32 = 0.02;
-const SECANT_MIN: f32 = 1e-6;
-const SLOPE_FLOOR: f32 = 1e-4;
 
 /// One projector that reaches the camera point: its colour model there (`M` row-major, then
 /// `b`: projector linear light = M · camera linear light + b, as `linear`'s coefficients) and
@@ -95,17 +90,7 @@ pub fn solve(terms: &[Term], own: usize, z: [f32; 3], camera_gamma: [f32; 3]) ->
     // the first solution, as `linear::gamut` does for one projector.
     let view: [f32; 3] =
         std::array::from_fn(|c| black[c] + (0..m).map(|u| cols[u][c] * first[u]).sum::<f32>());
-    let w: [f32; 3] = std::array::from_fn(|c| {
-        let inv_g = 1.0 / camera_gamma[c];
-        let (a0, a1) = (target[c], view[c]);
-        let enc = |v: f32| v.clamp(0.0, 1.0).powf(inv_g);
-        let slope = if (a1 - a0).abs() > SECANT_MIN {
-            (enc(a1) - enc(a0)) / (a1 - a0)
-        } else {
-            inv_g * a0.max(SLOPE_FLOOR).powf(inv_g - 1.0)
-        };
-        slope.max(WEIGHT_MIN)
-    });
+    let w: [f32; 3] = std::array::from_fn(|c| secant_weight(target[c], view[c], camera_gamma[c]));
     let x = minimise(&cols[..m], r, &x0[..m], w, &first[..m]);
     for j in 0..n {
         light[j] = [x[3 * j], x[3 * j + 1], x[3 * j + 2]];

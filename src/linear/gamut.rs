@@ -49,20 +49,28 @@ pub fn nearest_reachable(
     // The camera's linear-light change from the target to the view of the first solution.
     let d = [first[0] - l[0], first[1] - l[1], first[2] - l[2]];
     let w: [f32; 3] = std::array::from_fn(|c| {
-        let inv_g = 1.0 / camera_gamma[c];
         // As `Curves::camera_linear`.
         let a0 = z[c].max(0.0).powf(camera_gamma[c]);
         let a1 = a0 + inv[c][0] * d[0] + inv[c][1] * d[1] + inv[c][2] * d[2];
-        let enc = |v: f32| v.clamp(0.0, 1.0).powf(inv_g);
-        let slope = if (a1 - a0).abs() > SECANT_MIN {
-            (enc(a1) - enc(a0)) / (a1 - a0)
-        } else {
-            inv_g * a0.max(SLOPE_FLOOR).powf(inv_g - 1.0)
-        };
-        slope.max(WEIGHT_MIN)
+        secant_weight(a0, a1, camera_gamma[c])
     });
     // The weights move the minimum a little: its assignment usually stays.
     box_least_squares_from(&weighted_gram(&inv, w), l, state).map_or(first, |(x, _)| x)
+}
+
+/// The weight of one channel of camera linear light in an error measured in camera-encoded
+/// values: the encoding's (`v^(1/γc)`, `camera_gamma` = γc) secant between the target `a0` and
+/// the view `a1` (camera linear light), the slope at the target where they nearly agree, at
+/// least [`WEIGHT_MIN`]. Shared by the joint solve of a set ([`crate::joint::solve`]).
+pub fn secant_weight(a0: f32, a1: f32, camera_gamma: f32) -> f32 {
+    let inv_g = 1.0 / camera_gamma;
+    let enc = |v: f32| v.clamp(0.0, 1.0).powf(inv_g);
+    let slope = if (a1 - a0).abs() > SECANT_MIN {
+        (enc(a1) - enc(a0)) / (a1 - a0)
+    } else {
+        inv_g * a0.max(SLOPE_FLOOR).powf(inv_g - 1.0)
+    };
+    slope.max(WEIGHT_MIN)
 }
 
 /// Below this change of camera linear light the secant is taken as the slope at the target.
