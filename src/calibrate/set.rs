@@ -63,6 +63,8 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
             opts.method
         )));
     }
+    // Before any capture: where the set's verification writes must take its files.
+    check_set_dir(&data.join(SET_DIR))?;
     let started = Instant::now();
     let n = displays.len();
     let mut set = SideBySide::new(displays)?;
@@ -178,6 +180,31 @@ fn check_in_view(k: usize, fov: &crate::raster::Mask<crate::raster::Camera>) -> 
                  picture; widen the camera's view or move it back; nothing was installed",
                 k + 1,
                 share * 100.0
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// An input error naming what [`SET_DIR`] holds that a set's verification did not write
+/// there (only its `desired-NNN.png` and `joint-NNN.png` are replaced); nothing there is fine.
+fn check_set_dir(dir: &Path) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for entry in entries {
+        let entry = entry.map_err(|e| Error::io(dir, "list", e))?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let ours = ["desired-", "joint-"].iter().any(|p| {
+            name.strip_prefix(p)
+                .and_then(|rest| rest.strip_suffix(".png"))
+                .is_some_and(|n| n.len() == 3 && n.bytes().all(|b| b.is_ascii_digit()))
+        });
+        if !ours || !entry.file_type().is_ok_and(|t| t.is_file()) {
+            return Err(Error::Input(format!(
+                "{}: holds `{name}`, which a set's verification did not write; it writes only \
+                 desired-NNN.png and joint-NNN.png there: choose another data folder (--data)",
+                dir.display()
             )));
         }
     }

@@ -262,8 +262,23 @@ fn a_set_calibrates_and_verifies_as_a_whole() {
     let seam = v.seam.expect("a tiled set overlaps");
     assert!(seam.ratio() <= v.seam_limit, "{seam:?}");
     assert!(r.camera_gamma_spread < 0.2, "{}", r.camera_gamma_spread);
-    // What the set showed is on disk for a person to look at.
+    // What the set showed is on disk for a person to look at; a file of someone else's there
+    // stops the next calibration before it writes, and stays.
     assert!(dir.path().join("data/set/joint-001.png").is_file());
+    std::fs::write(dir.path().join("data/set/notes.txt"), b"mine").unwrap();
+    let again = compend::calibrate::set::calibrate_set(
+        vec![rig.output(0).unwrap(), rig.output(1).unwrap()],
+        &mut rig.clone(),
+        &dir.path().join("data"),
+        &opts,
+        &mut |_, _, _| {},
+    );
+    let e = again.err().expect("refused").to_string();
+    assert!(e.contains("notes.txt"), "{e}");
+    assert_eq!(
+        std::fs::read(dir.path().join("data/set/notes.txt")).unwrap(),
+        b"mine"
+    );
     // Each projector's field of view is its own picture.
     let iou = |a: &Mask<Camera>, b: &Mask<Camera>| {
         let both = a.data().iter().zip(b.data()).filter(|(x, y)| **x && **y);
