@@ -2,6 +2,8 @@
 # Installs the Debian packages compend needs to build and test, only those that are missing.
 #   mesa-vulkan-drivers, libvulkan1: software Vulkan (lavapipe) for the wgpu pass without a GPU
 #   xvfb: a virtual X display for the projector-window tests
+#   xserver-xorg-core, xserver-xorg-video-dummy, x11-xserver-utils: an X server with several
+#     monitors (Xorg's dummy driver, its outputs set by xrandr) for a set's windows
 #   libclang-dev: bindgen, used by the V4L2 camera crates at build time
 #   imagemagick: screenshots of the virtual display in tests
 #   systemd, procps: systemd-analyze and /bin/kill (ExecReload=), to verify the units in systemd/
@@ -17,7 +19,8 @@
 #   chromium, chromium-driver: the console's page tested in a real browser (WebDriver)
 #   openssl: a certificate authority and a certificate for the console's HTTPS test
 set -euo pipefail
-pkgs=(mesa-vulkan-drivers libvulkan1 xvfb libclang-dev imagemagick systemd procps
+pkgs=(mesa-vulkan-drivers libvulkan1 xvfb xserver-xorg-core xserver-xorg-video-dummy
+  x11-xserver-utils libclang-dev imagemagick systemd procps
   libgstreamer1.0-dev libgstreamer-plugins-base1.0-dev gstreamer1.0-plugins-base
   gstreamer1.0-plugins-good gstreamer1.0-plugins-bad gstreamer1.0-libav gstreamer1.0-alsa
   gstreamer1.0-tools chromium chromium-driver openssl)

@@ -20,3 +20,22 @@ fn fs(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
     }
     return textureLoad(frame, xy, 0);
 }
+
+// A set's projector image (its network lattice, projector input values) stretched over the whole
+// surface: bilinear with half-pixel centres, the source coordinate of surface pixel x being
+// (x + 0.5) · frame / surface − 0.5, clamped to the first and last texel centres. CPU reference:
+// `resize::resize_bilinear` (src/resize.rs). Equal sizes copy each texel exactly.
+@group(0) @binding(1) var<uniform> surface: vec4<f32>;
+
+@fragment
+fn fs_stretch(@builtin(position) pos: vec4<f32>) -> @location(0) vec4<f32> {
+    let size = vec2<i32>(textureDimensions(frame));
+    let last = vec2<f32>(size - vec2<i32>(1, 1));
+    let s = clamp(pos.xy * vec2<f32>(size) / surface.xy - 0.5, vec2<f32>(0.0), last);
+    let i0 = vec2<i32>(floor(s));
+    let i1 = min(i0 + vec2<i32>(1, 1), size - vec2<i32>(1, 1));
+    let f = s - floor(s);
+    let a = mix(textureLoad(frame, i0, 0), textureLoad(frame, vec2<i32>(i1.x, i0.y), 0), f.x);
+    let b = mix(textureLoad(frame, vec2<i32>(i0.x, i1.y), 0), textureLoad(frame, i1, 0), f.x);
+    return vec4<f32>(clamp(mix(a, b, f.y).rgb, vec3<f32>(0.0), vec3<f32>(1.0)), 1.0);
+}

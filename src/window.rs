@@ -20,6 +20,7 @@
 
 mod blit;
 mod record;
+mod set;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -37,9 +38,10 @@ use crate::error::{Error, Result};
 use crate::gpu::{CompensationPass, FRAME_FORMAT, GpuContext};
 use crate::player::{Refresh, Screen, Show};
 use crate::raster::{ImageSize, PrjImage};
-use blit::Blit;
+use blit::{Blit, Fit};
 use record::{Pacer, Pending, Recorder};
 pub use record::{PresentLog, Presented, ShowTiming};
+pub use set::{ProjectorWindows, SetPresents};
 
 /// How long the window system may take to open the window.
 const OPEN_TIMEOUT: Duration = Duration::from_secs(10);
@@ -48,11 +50,13 @@ const RESIZE_TIMEOUT: Duration = Duration::from_secs(2);
 /// Refreshes `show` tries before it gives up on a surface that skips them (occluded, resized).
 const SHOW_TRIES: usize = 10;
 
+/// The window system's side: the monitors asked for, one window per monitor once open.
 #[derive(Default)]
 struct App {
-    monitor: Option<String>,
-    window: Option<Arc<Window>>,
-    chosen: Option<MonitorHandle>,
+    /// One entry per window: the monitor's name or index (None = primary).
+    monitors: Vec<Option<String>>,
+    windows: Vec<Arc<Window>>,
+    chosen: Vec<MonitorHandle>,
     error: Option<Error>,
     closed: bool,
 }
@@ -69,7 +73,9 @@ fn describe_monitor(i: usize, m: &MonitorHandle) -> String {
     )
 }
 
-fn pick_monitor(el: &ActiveEventLoop, wanted: Option<&str>) -> Result<MonitorHandle> {
+/// The monitor `wanted` names (name or index; None = primary). `who` says whose monitor it is
+/// in the error ("" for the one projector).
+fn pick_monitor(el: &ActiveEventLoop, wanted: Option<&str>, who: &str) -> Result<MonitorHandle> {
     let all: Vec<MonitorHandle> = el.available_monitors().collect();
     let found = match wanted {
         None => el.primary_monitor().or_else(|| all.first().cloned()),
@@ -88,7 +94,7 @@ fn pick_monitor(el: &ActiveEventLoop, wanted: Option<&str>) -> Result<MonitorHan
             .map(|(i, m)| describe_monitor(i, m))
             .collect();
         Error::Input(format!(
-            "--monitor {}: no such monitor (monitors: {})",
+            "--monitor {}: no such monitor{who} (monitors: {})",
             wanted.unwrap_or("(primary)"),
             if list.is_empty() {
                 "none".into()
@@ -99,35 +105,64 @@ fn pick_monitor(el: &ActiveEventLoop, wanted: Option<&str>) -> Result<MonitorHan
     })
 }
 
+impl App {
+    /// Every window's monitor, checked: each there, none named twice.
+    fn pick_monitors(&self, el: &ActiveEventLoop) -> Result<Vec<MonitorHandle>> {
+        let many = self.monitors.len() > 1;
+        let mut picked: Vec<MonitorHandle> = Vec::with_capacity(self.monitors.len());
+        for (k, wanted) in self.monitors.iter().enumerate() {
+            let who = if many {
+                format!(" for projector {k}")
+            } else {
+                String::new()
+            };
+            let m = pick_monitor(el, wanted.as_deref(), &who)?;
+            if let Some(j) = picked.iter().position(|p| *p == m) {
+                return Err(Error::Input(format!(
+                    "--monitor: projectors {j} and {k} both name monitor {}: each projector of a \
+                     set needs its own monitor",
+                    m.name().unwrap_or_else(|| format!("{:?}", wanted))
+                )));
+            }
+            picked.push(m);
+        }
+        Ok(picked)
+    }
+}
+
 impl ApplicationHandler for App {
     fn resumed(&mut self, el: &ActiveEventLoop) {
-        if self.window.is_some() || self.error.is_some() {
+        if !self.windows.is_empty() || self.error.is_some() {
             return;
         }
-        let monitor = match pick_monitor(el, self.monitor.as_deref()) {
+        let monitors = match self.pick_monitors(el) {
             Ok(m) => m,
             Err(e) => {
                 self.error = Some(e);
                 return;
             }
         };
-        let attrs = Window::default_attributes()
-            .with_title("compend")
-            .with_decorations(false)
-            .with_position(monitor.position())
-            .with_inner_size(monitor.size())
-            .with_fullscreen(Some(Fullscreen::Borderless(Some(monitor.clone()))));
-        match el.create_window(attrs) {
-            Ok(w) => {
-                w.set_cursor_visible(false);
-                self.window = Some(Arc::new(w));
-                self.chosen = Some(monitor);
-            }
-            Err(e) => {
-                self.error = Some(Error::Failed(format!(
-                    "cannot open the projector window: {}",
-                    winit_words(&e)
-                )))
+        for monitor in monitors {
+            let attrs = Window::default_attributes()
+                .with_title("compend")
+                .with_decorations(false)
+                .with_position(monitor.position())
+                .with_inner_size(monitor.size())
+                .with_fullscreen(Some(Fullscreen::Borderless(Some(monitor.clone()))));
+            match el.create_window(attrs) {
+                Ok(w) => {
+                    w.set_cursor_visible(false);
+                    self.windows.push(Arc::new(w));
+                    self.chosen.push(monitor);
+                }
+                Err(e) => {
+                    self.error = Some(Error::Failed(format!(
+                        "cannot open the projector window on monitor {}: {}",
+                        monitor.name().unwrap_or_else(|| "(unnamed)".into()),
+                        winit_words(&e)
+                    )));
+                    return;
+                }
             }
         }
     }
@@ -181,9 +216,11 @@ fn surface_config(
     })
 }
 
-/// An event loop with the window open on `monitor` (name or index; None = primary), sized to
-/// the monitor (waiting briefly for that), with the chosen monitor.
-fn open_window(monitor: Option<&str>) -> Result<(EventLoop<()>, App, Arc<Window>, MonitorHandle)> {
+/// An event loop with one window open on each of `monitors` (name or index; None = primary),
+/// each sized to its monitor (waiting briefly for that), with the chosen monitors.
+type Opened = (EventLoop<()>, App, Vec<(Arc<Window>, MonitorHandle)>);
+
+fn open_windows(monitors: &[Option<&str>]) -> Result<Opened> {
     let mut builder = EventLoop::builder();
     #[cfg(all(unix, not(target_os = "macos"), not(target_os = "android")))]
     {
@@ -197,16 +234,16 @@ fn open_window(monitor: Option<&str>) -> Result<(EventLoop<()>, App, Arc<Window>
         ))
     })?;
     let mut app = App {
-        monitor: monitor.map(str::to_string),
+        monitors: monitors.iter().map(|m| m.map(str::to_string)).collect(),
         ..App::default()
     };
     let start = Instant::now();
-    let (window, chosen) = loop {
+    loop {
         if let Some(e) = app.error.take() {
             return Err(e);
         }
-        if let (Some(w), Some(m)) = (&app.window, &app.chosen) {
-            break (w.clone(), m.clone());
+        if !app.windows.is_empty() && app.windows.len() == monitors.len() {
+            break;
         }
         if let PumpStatus::Exit(code) =
             event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app)
@@ -221,13 +258,57 @@ fn open_window(monitor: Option<&str>) -> Result<(EventLoop<()>, App, Arc<Window>
                 OPEN_TIMEOUT.as_secs()
             )));
         }
-    };
-    let target = chosen.size();
+    }
     let start = Instant::now();
-    while window.inner_size() != target && start.elapsed() < RESIZE_TIMEOUT {
+    while app
+        .windows
+        .iter()
+        .zip(&app.chosen)
+        .any(|(w, m)| w.inner_size() != m.size())
+        && start.elapsed() < RESIZE_TIMEOUT
+    {
         let _ = event_loop.pump_app_events(Some(Duration::from_millis(10)), &mut app);
     }
-    Ok((event_loop, app, window, chosen))
+    let opened = app
+        .windows
+        .iter()
+        .cloned()
+        .zip(app.chosen.iter().cloned())
+        .collect();
+    Ok((event_loop, app, opened))
+}
+
+/// A monitor's refresh rate, Hz (60 when it does not say).
+fn refresh_of(m: &MonitorHandle) -> f64 {
+    m.refresh_rate_millihertz()
+        .filter(|&m| m > 0)
+        .map_or(60.0, |m| m as f64 / 1000.0)
+}
+
+/// The surface texture to draw the next frame into; None when this refresh is skipped (window
+/// occluded, surface timed out, surface reconfigured after a resize).
+fn next_target(
+    surface: &wgpu::Surface<'static>,
+    config: &mut wgpu::SurfaceConfiguration,
+    window: &Window,
+    device: &wgpu::Device,
+) -> Result<Option<wgpu::SurfaceTexture>> {
+    match surface.get_current_texture() {
+        wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => {
+            Ok(Some(t))
+        }
+        wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => Ok(None),
+        wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
+            let size = window.inner_size();
+            config.width = size.width.max(1);
+            config.height = size.height.max(1);
+            surface.configure(device, config);
+            Ok(None)
+        }
+        wgpu::CurrentSurfaceTexture::Validation => Err(Error::Failed(
+            "presenting to the projector window failed validation".into(),
+        )),
+    }
 }
 
 /// The projector window with its GPU context.
@@ -255,7 +336,8 @@ impl ProjectorWindow {
     /// Opens the window on `monitor` (name or index; None = primary) and a GPU device that can
     /// present to it.
     pub fn open(monitor: Option<&str>) -> Result<Self> {
-        let (event_loop, app, window, chosen) = open_window(monitor)?;
+        let (event_loop, app, mut opened) = open_windows(&[monitor])?;
+        let (window, chosen) = opened.remove(0);
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let surface = instance
@@ -265,11 +347,8 @@ impl ProjectorWindow {
         let caps = surface.get_capabilities(&ctx.adapter);
         let config = surface_config(&caps, window.inner_size())?;
         surface.configure(&ctx.device, &config);
-        let blit = Blit::new(&ctx, config.format)?;
-        let refresh_hz = chosen
-            .refresh_rate_millihertz()
-            .filter(|&m| m > 0)
-            .map_or(60.0, |m| m as f64 / 1000.0);
+        let blit = Blit::new(&ctx, config.format, Fit::Exact)?;
+        let refresh_hz = refresh_of(&chosen);
         Ok(Self {
             event_loop,
             app,
@@ -352,26 +431,14 @@ impl ProjectorWindow {
         !self.app.closed
     }
 
-    /// The surface texture to draw the next frame into; None when this refresh is skipped
-    /// (window occluded, surface timed out, surface reconfigured after a resize).
+    /// The surface texture to draw the next frame into; None when this refresh is skipped.
     fn next_target(&mut self) -> Result<Option<wgpu::SurfaceTexture>> {
-        match self.surface.get_current_texture() {
-            wgpu::CurrentSurfaceTexture::Success(t)
-            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => Ok(Some(t)),
-            wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => {
-                Ok(None)
-            }
-            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
-                let size = self.window.inner_size();
-                self.config.width = size.width.max(1);
-                self.config.height = size.height.max(1);
-                self.surface.configure(&self.ctx.device, &self.config);
-                Ok(None)
-            }
-            wgpu::CurrentSurfaceTexture::Validation => Err(Error::Failed(
-                "presenting to the projector window failed validation".into(),
-            )),
-        }
+        next_target(
+            &self.surface,
+            &mut self.config,
+            &self.window,
+            &self.ctx.device,
+        )
     }
 
     /// Presents `frame` (a projector frame texture, e.g. [`CompensationPass::output`]) at the

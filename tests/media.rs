@@ -267,6 +267,8 @@ fn gst_pipelines_play_and_bad_media_is_refused_in_words() {
         "{}",
         stderr(&o)
     );
+    // The demuxer's error is read while the film prerolls: the reason, not a timeout.
+    assert!(!stderr(&o).contains("not ready after"), "{}", stderr(&o));
     // A codec no installed plugin decodes (the H.264 decoders taken out of the registry's
     // choice): named, with the Debian package that decodes it.
     let o = crate::common::output_within(

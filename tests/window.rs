@@ -80,12 +80,150 @@ impl Drop for Xvfb {
     }
 }
 
+/// An X server with several monitors side by side: Xorg with the dummy video driver (two or
+/// more RandR outputs, as on a projection PC with one projector per output), each output set to
+/// `w`×`h` at 60 Hz by xrandr. Killed on drop. None (after saying why) without Xorg's dummy
+/// driver or xrandr.
+pub(crate) struct XDummy {
+    child: Child,
+    _dir: tempfile::TempDir,
+    pub(crate) display: String,
+    pub(crate) head: ImageSize,
+}
+
+impl XDummy {
+    pub(crate) fn start(w: usize, h: usize, heads: usize) -> Option<Self> {
+        let dir = tempfile::tempdir().unwrap();
+        // A 60 Hz mode of w×h: a small blanking, the pixel clock in MHz.
+        let (ht, vt) = (w + 24, h + 6);
+        let clock = (ht * vt * 60) as f64 / 1e6;
+        let conf = dir.path().join("xorg.conf");
+        std::fs::write(
+            &conf,
+            "Section \"Device\"\n  Identifier \"d\"\n  Driver \"dummy\"\n  VideoRam 65536\n\
+             EndSection\nSection \"Monitor\"\n  Identifier \"m\"\n  HorizSync 0.5-1000.0\n  \
+             VertRefresh 5.0-200.0\nEndSection\nSection \"Screen\"\n  Identifier \"s\"\n  \
+             Device \"d\"\n  Monitor \"m\"\n  DefaultDepth 24\n  SubSection \"Display\"\n    \
+             Depth 24\n    Virtual 1024 768\n  EndSubSection\nEndSection\n",
+        )
+        .unwrap();
+        let spawned = Command::new("Xorg")
+            .args(["-displayfd", "1", "-noreset", "-nolisten", "tcp", "-config"])
+            .arg(&conf)
+            .arg("-logfile")
+            .arg(dir.path().join("Xorg.log"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn();
+        let mut child = match spawned {
+            Ok(c) => c,
+            Err(e) => {
+                skip_or_fail(&format!("Xorg is not installed ({e})"));
+                return None;
+            }
+        };
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let Ok(n) = line.trim().parse::<u32>() else {
+            let _ = child.kill();
+            let log = std::fs::read_to_string(dir.path().join("Xorg.log")).unwrap_or_default();
+            skip_or_fail(&format!(
+                "Xorg with the dummy driver did not start (xserver-xorg-video-dummy): {}",
+                log.lines()
+                    .filter(|l| l.contains("(EE)"))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            ));
+            return None;
+        };
+        let x = Self {
+            child,
+            _dir: dir,
+            display: format!(":{n}"),
+            head: ImageSize::new(w, h),
+        };
+        let name = format!("{w}x{h}");
+        let xrandr = |args: &[&str]| {
+            let o = Command::new("xrandr")
+                .arg("-display")
+                .arg(&x.display)
+                .args(args)
+                .output()
+                .expect("xrandr runs (x11-xserver-utils)");
+            assert!(
+                o.status.success(),
+                "xrandr {args:?}: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+        };
+        let timing: Vec<String> = [
+            format!("{clock:.4}"),
+            w.to_string(),
+            (w + 8).to_string(),
+            (w + 16).to_string(),
+            ht.to_string(),
+            h.to_string(),
+            (h + 2).to_string(),
+            (h + 4).to_string(),
+            vt.to_string(),
+        ]
+        .into();
+        let mut newmode = vec!["--newmode", name.as_str()];
+        newmode.extend(timing.iter().map(String::as_str));
+        xrandr(&newmode);
+        let mut set: Vec<String> = Vec::new();
+        for k in 0..heads {
+            xrandr(&["--addmode", &format!("DUMMY{k}"), &name]);
+            set.extend([
+                "--output".into(),
+                format!("DUMMY{k}"),
+                "--mode".into(),
+                name.clone(),
+                "--pos".into(),
+                format!("{}x0", k * w),
+            ]);
+        }
+        let set: Vec<&str> = set.iter().map(String::as_str).collect();
+        xrandr(&set);
+        xrandr(&["--fb", &format!("{}x{h}", w * heads)]);
+        Some(x)
+    }
+
+    /// What monitor `k` shows.
+    pub(crate) fn screenshot(&self, dir: &Path, k: usize) -> PrjImage {
+        let path = dir.join(format!("head{k}.png"));
+        let o = Command::new("import")
+            .args(["-display", &self.display, "-window", "root", "-crop"])
+            .arg(format!(
+                "{}x{}+{}+0",
+                self.head.width,
+                self.head.height,
+                k * self.head.width
+            ))
+            .arg("+repage")
+            .arg(&path)
+            .output()
+            .expect("ImageMagick's import runs");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        compend::pngio::read_rgb(&path).unwrap()
+    }
+}
+
+impl Drop for XDummy {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
 /// Starts `compend ARGS` on the display and waits until its stderr says `ready`; the child is
 /// killed on drop.
-struct Running(Child);
+pub(crate) struct Running(Child);
 
 impl Running {
-    fn start(display: &str, args: &[&str], ready: &str) -> Self {
+    pub(crate) fn start(display: &str, args: &[&str], ready: &str) -> Self {
         let mut child = Command::new(env!("CARGO_BIN_EXE_compend"))
             .args(args)
             .env("DISPLAY", display)

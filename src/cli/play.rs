@@ -53,7 +53,8 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = Pace::Display)]
     pub pace: Pace,
     /// The projector's monitor for the window: its name or index (the error for an unknown one
-    /// lists them) [default: the primary monitor].
+    /// lists them) [default: the primary monitor]. A set of projectors names one per projector,
+    /// in the set's order: `--monitor HDMI-1,HDMI-2`.
     #[arg(long)]
     pub monitor: Option<String>,
     /// Seed of the virtual rig's texture and noise [default: the calibration record's, else 0].
@@ -139,6 +140,7 @@ pub fn run(args: Args) -> Result<()> {
             seed: args.seed,
             json: args.json,
             single_frame_output: args.to.is_some() || args.no_window,
+            monitor: args.monitor.as_deref(),
         };
         return super::play_set::play_set(&set, model_dir, &spec);
     }

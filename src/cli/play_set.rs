@@ -1,8 +1,13 @@
-//! `compend play --model SET --rig virtual[:SCENE]`: a set of projectors' joint model plays a
-//! source on the set's virtual rig, every frame through the joint pass on the GPU
-//! (`gpu::joint::JointPass`), each projector's image shown on its output, the camera's view of
-//! the whole written to `--out` (cam_NNNNNN.png, numbered by source frame). Offline: every
-//! source frame is shown once. Sets play on the virtual rig only so far.
+//! `compend play --model SET`: a set of projectors' joint model plays a source, every frame
+//! through the joint pass on the GPU (`gpu::joint::JointPass`).
+//!
+//! - `--monitor A,B` (one per projector, in the set's order): one fullscreen window per
+//!   projector's monitor on one GPU device (`window::ProjectorWindows`), every output showing
+//!   the same source frame in the same refresh, in real time; `--json` reports what each output
+//!   presented and whether any fell a frame behind.
+//! - `--rig virtual[:SCENE]`: each projector's image shown on its output of the set's virtual
+//!   rig, the camera's view of the whole written to `--out` (cam_NNNNNN.png, numbered by source
+//!   frame). Offline: every source frame is shown once.
 
 use std::path::Path;
 
@@ -10,6 +15,7 @@ use anyhow::{Context, Result};
 use compend::device::{DisplaySink, FrameSource};
 use compend::model::set::SetModel;
 use compend::raster::{CamImage, Rect};
+use compend::record::set::SetRecord;
 use compend::rig::{VirtualRig, scene};
 use compend::source::{self, Next, SourceSpec};
 
@@ -27,20 +33,13 @@ pub struct SetPlay<'a> {
     pub json: bool,
     /// `--to` or `--no-window` was given: a projector frame to send, which a set has not.
     pub single_frame_output: bool,
+    /// `--monitor`: the projectors' monitors, comma-separated, in the set's order.
+    pub monitor: Option<&'a str>,
 }
 
 /// Plays `spec` with the set's model in `model_dir` (see the module documentation).
 pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<()> {
     let model = SetModel::load(model_dir)?;
-    let Some(rig_text) = args.rig else {
-        return Err(compend::Error::Input(format!(
-            "{}: the model of a set of {} projectors plays on the virtual rig only so far: add \
-             --rig virtual (one window per projector's monitor is to come)",
-            model_dir.display(),
-            model.models.len()
-        ))
-        .into());
-    };
     if args.single_frame_output {
         return Err(compend::Error::Input(
             "--to and --no-window: a set of projectors has no single projector frame to send; \
@@ -56,6 +55,9 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
             model_dir.display()
         ))
     })?;
+    let Some(rig_text) = args.rig else {
+        return play_on_windows(args, model_dir, &model, record, spec);
+    };
     let scene_name = match parse_rig(rig_text)? {
         Some(s) => s,
         None => record
@@ -167,5 +169,113 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
         );
     }
     eprintln!("play: {shown} frames shown on {} projectors", outputs.len());
+    Ok(())
+}
+
+/// Plays `spec` on one window per projector's monitor (`--monitor A,B`), in real time, until
+/// the source ends (a film), `--frames` refreshes, or a window is closed (Escape).
+fn play_on_windows(
+    args: &SetPlay,
+    model_dir: &Path,
+    model: &SetModel,
+    record: &SetRecord,
+    spec: &SourceSpec,
+) -> Result<()> {
+    let n = model.models.len();
+    let Some(monitors) = args.monitor else {
+        return Err(compend::Error::Input(format!(
+            "{}: a set of {n} projectors plays on one window per projector's monitor: name them \
+             in the set's order with --monitor A,B (names or indices; or play on the virtual \
+             rig with --rig virtual)",
+            model_dir.display()
+        ))
+        .into());
+    };
+    let names: Vec<&str> = monitors.split(',').map(str::trim).collect();
+    if names.len() != n || names.iter().any(|m| m.is_empty()) {
+        return Err(compend::Error::Input(format!(
+            "--monitor {monitors}: {} monitor(s) for a set of {n} projectors (one per \
+             projector, in the set's order, comma-separated)",
+            names.iter().filter(|m| !m.is_empty()).count()
+        ))
+        .into());
+    }
+    if args.out.is_some() {
+        return Err(compend::Error::Input(
+            "--out holds the virtual camera's views: add --rig virtual, or leave --out out".into(),
+        )
+        .into());
+    }
+    let joint = model.joint()?;
+    let mut windows = compend::window::ProjectorWindows::open(&names)?;
+    let pass = compend::gpu::joint::JointPass::new(windows.context(), &joint)?;
+    let mut src = source::open(spec)?;
+    src.set_live(true);
+    src.prepare()?;
+    eprintln!(
+        "play: {} on {n} windows (monitors {}) at {:.2} Hz, the joint pass on {}",
+        src.describe(),
+        windows.monitors().join(", "),
+        windows.refresh_hz(),
+        windows.context().describe()
+    );
+    let range = record.display_range;
+    let camera_size = model.meta.camera_size;
+    let (mut shown, mut refreshes, mut ended) = (0u64, 0u64, false);
+    loop {
+        if args.frames.is_some_and(|f| refreshes >= f) || !windows.pump() {
+            break;
+        }
+        if !ended {
+            match src.next()? {
+                Next::Frame { frame, .. } => {
+                    let img: compend::raster::Rgb<compend::raster::Unspecified> = frame.to_image();
+                    let desired =
+                        compend::fov::place_in_area(&range.apply(&img), record.area, camera_size)?;
+                    pass.run(windows.context(), &desired)?;
+                    shown += 1;
+                }
+                Next::Idle => {}
+                Next::End => {
+                    ended = true;
+                    if src.ends_playback() {
+                        break;
+                    }
+                }
+            }
+        }
+        if shown == 0 {
+            // Nothing to show yet (a stream still starting).
+            std::thread::sleep(std::time::Duration::from_millis(5));
+            continue;
+        }
+        windows.present(&pass.outputs())?;
+        refreshes += 1;
+        if refreshes == 1 {
+            eprintln!("play: first frame presented on every output");
+        }
+    }
+    let p = windows.presents();
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "shown": shown,
+                "refreshes": refreshes,
+                "projectors": n,
+                "monitors": windows.monitors(),
+                "refresh_hz": windows.refresh_hz(),
+                "presented": p.presented,
+                "together": p.together,
+                "out_of_step": p.out_of_step,
+                "skew_ms_max": p.skew_ms_max,
+            })
+        );
+    }
+    eprintln!(
+        "play: {shown} source frames in {refreshes} refreshes on {n} outputs ({} together, {} \
+         with an output a frame behind)",
+        p.together, p.out_of_step
+    );
     Ok(())
 }

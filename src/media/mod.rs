@@ -64,6 +64,9 @@ pub fn clock_time(d: Duration) -> gst::ClockTime {
     gst::ClockTime::from_nseconds(d.as_nanos().min(u64::MAX as u128) as u64)
 }
 
+/// How often [`set_state`] reads the bus while a pipeline prerolls.
+const PREROLL_POLL: Duration = Duration::from_millis(50);
+
 /// Sets `pipeline` to `state`, and for a target of PAUSED or PLAYING waits up to `timeout` for
 /// it to get there (a file prerolls its first frame), reading its bus for the reason when it
 /// does not. `what` names the media in messages. Returns whether the pipeline is live (its
@@ -76,9 +79,22 @@ pub fn set_state(
 ) -> Result<bool> {
     let changed = pipeline.set_state(state);
     let waited = match changed {
+        // An element that fails while the pipeline prerolls (a demuxer that finds no stream
+        // in a truncated file) posts its error and leaves the change pending: the bus is read
+        // between short waits so that the error, not the timeout, is what is reported.
         Ok(gst::StateChangeSuccess::Async) => {
-            let (r, _, _) = pipeline.state(clock_time(timeout));
-            r
+            let deadline = std::time::Instant::now() + timeout;
+            let mut watch = Watch::new(pipeline, what);
+            loop {
+                let left = deadline.saturating_duration_since(std::time::Instant::now());
+                let (r, _, _) = pipeline.state(clock_time(left.min(PREROLL_POLL)));
+                if !matches!(r, Ok(gst::StateChangeSuccess::Async)) || left.is_zero() {
+                    break r;
+                }
+                if let Some(f) = watch.poll() {
+                    return Err(f.into_error());
+                }
+            }
         }
         other => other,
     };

@@ -1,5 +1,6 @@
 //! The blit: a fullscreen triangle drawing a projector frame texture onto the window's surface
-//! pixel for pixel (`shaders/blit.wgsl`, textureLoad per pixel).
+//! pixel for pixel (`shaders/blit.wgsl`, textureLoad per pixel), or stretched over the surface
+//! bilinearly (a set's projector image on its network lattice, onto its monitor).
 
 use crate::error::Result;
 use crate::gpu::GpuContext;
@@ -13,26 +14,57 @@ pub(super) struct Blit {
     layout: wgpu::BindGroupLayout,
     /// Bind group of the texture presented last (the pass output, reused every frame).
     bound: Option<(wgpu::Texture, wgpu::BindGroup)>,
+    /// [`Fit::Stretch`]: the surface's size in pixels (vec4 of f32: width, height, 0, 0).
+    surface_size: Option<wgpu::Buffer>,
+}
+
+/// How a frame meets the surface.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Fit {
+    /// Pixel for pixel from the top-left corner; what the frame does not cover is black.
+    Exact,
+    /// Stretched over the whole surface, bilinear with half-pixel centres
+    /// (`resize::resize_bilinear` is its CPU reference); equal sizes copy exactly.
+    Stretch,
 }
 
 impl Blit {
     /// The pipeline drawing into surfaces of `format`.
-    pub(super) fn new(ctx: &GpuContext, format: wgpu::TextureFormat) -> Result<Self> {
+    pub(super) fn new(ctx: &GpuContext, format: wgpu::TextureFormat, fit: Fit) -> Result<Self> {
         let module = ctx.shader("blit", BLIT)?;
+        let mut entries = vec![wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        }];
+        let surface_size = (fit == Fit::Stretch).then(|| {
+            entries.push(wgpu::BindGroupLayoutEntry {
+                binding: 1,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            });
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("blit surface size"),
+                size: 16,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        });
         let layout = ctx
             .device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("blit"),
-                entries: &[wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                        multisampled: false,
-                    },
-                    count: None,
-                }],
+                entries: &entries,
             });
         let pipeline_layout = ctx
             .device
@@ -57,7 +89,10 @@ impl Blit {
                 multisample: wgpu::MultisampleState::default(),
                 fragment: Some(wgpu::FragmentState {
                     module: &module,
-                    entry_point: Some("fs"),
+                    entry_point: Some(match fit {
+                        Fit::Exact => "fs",
+                        Fit::Stretch => "fs_stretch",
+                    }),
                     compilation_options: Default::default(),
                     targets: &[Some(wgpu::ColorTargetState {
                         format,
@@ -72,6 +107,7 @@ impl Blit {
             pipeline,
             layout,
             bound: None,
+            surface_size,
         })
     }
 
@@ -81,13 +117,20 @@ impl Blit {
             Some((t, group)) if t == *frame => (t, group),
             _ => {
                 let view = frame.create_view(&wgpu::TextureViewDescriptor::default());
+                let mut entries = vec![wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::TextureView(&view),
+                }];
+                if let Some(b) = &self.surface_size {
+                    entries.push(wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: b.as_entire_binding(),
+                    });
+                }
                 let group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                     label: Some("blit"),
                     layout: &self.layout,
-                    entries: &[wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: wgpu::BindingResource::TextureView(&view),
-                    }],
+                    entries: &entries,
                 });
                 (frame.clone(), group)
             }
@@ -103,6 +146,11 @@ impl Blit {
         frame: &wgpu::Texture,
         target: &wgpu::TextureView,
     ) {
+        if let Some(b) = &self.surface_size {
+            let size = target.texture().size();
+            let v = [size.width as f32, size.height as f32, 0.0, 0.0];
+            ctx.queue.write_buffer(b, 0, bytemuck::cast_slice(&v));
+        }
         let group = self.bind(ctx, frame).clone();
         let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("present"),

@@ -668,7 +668,14 @@ fn a_set_calibrates_from_the_command_line() {
     let o = play(&[]);
     assert_code(&o, 2);
     assert!(
-        stderr(&o).contains("plays on the virtual rig only so far"),
+        stderr(&o).contains("one window per projector's monitor: name them"),
+        "{}",
+        stderr(&o)
+    );
+    let o = play(&["--monitor", "0"]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--monitor 0: 1 monitor(s) for a set of 2 projectors"),
         "{}",
         stderr(&o)
     );
@@ -677,6 +684,7 @@ fn a_set_calibrates_from_the_command_line() {
         assert_code(&o, 0);
         assert!(views.join("cam_000002.png").is_file(), "{}", stderr(&o));
         assert!(!views.join("cam_000003.png").exists());
+        set_plays_on_two_monitors(dir.path(), &out);
     }
     // The second projector turned away from the wall: named, exit 2, nothing installed.
     let mut scene = compend::rig::scene::builtin("tiled").unwrap();
@@ -722,4 +730,94 @@ fn a_set_calibrates_from_the_command_line() {
         stderr(&o)
     );
     assert!(!away.exists());
+}
+
+/// The set of `a_set_calibrates_from_the_command_line` (projectors of 100×75) on two monitors of
+/// an X server: every refresh on both, each monitor showing its projector's image of the joint
+/// pass (the CPU reference `JointModel::apply`, stretched by `resize_bilinear`); a monitor that
+/// is not there, or one named twice, exit 2 naming it.
+fn set_plays_on_two_monitors(dir: &std::path::Path, model: &std::path::Path) {
+    use common_cli::*;
+    use compend::raster::{Rgb, Unspecified};
+    let Some(x) = crate::window::XDummy::start(100, 75, 2) else {
+        return;
+    };
+    let still = dir.join("still.png");
+    let img: Rgb<Unspecified> = Rgb::from_fn(40, 30, |x, y| {
+        [x as f32 / 39.0, y as f32 / 29.0, ((x + y) % 7) as f32 / 6.0]
+    });
+    compend::pngio::write_rgb(&still, &img).unwrap();
+    let m = model.to_str().unwrap();
+    let s = still.to_str().unwrap();
+    let on_display = |monitors: &str, extra: &[&str]| {
+        crate::common::output_within(
+            std::process::Command::new(env!("CARGO_BIN_EXE_compend"))
+                .args(["play", "--model", m, "--source", s, "--monitor", monitors])
+                .args(extra)
+                .env("DISPLAY", &x.display)
+                .env_remove("WAYLAND_DISPLAY"),
+        )
+    };
+    let o = on_display("0,1", &["--frames", "6", "--json"]);
+    assert_code(&o, 0);
+    let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).expect("JSON counts");
+    assert_eq!(v["presented"], serde_json::json!([6, 6]), "{v}");
+    assert_eq!(v["together"], 6, "{v}");
+    assert_eq!(v["out_of_step"], 0, "{v}");
+    assert_eq!(v["shown"], 1, "a still is one source frame: {v}");
+    let o = on_display("0,5", &["--frames", "1"]);
+    assert_code(&o, 2);
+    let e = stderr(&o);
+    assert!(
+        e.contains("--monitor 5: no such monitor for projector 1") && e.contains("DUMMY1"),
+        "{e}"
+    );
+    let o = on_display("DUMMY1,1", &["--frames", "1"]);
+    assert_code(&o, 2);
+    let e = stderr(&o);
+    assert!(
+        e.contains("projectors 0 and 1 both name monitor DUMMY1"),
+        "{e}"
+    );
+
+    let _playing = crate::window::Running::start(
+        &x.display,
+        &[
+            "play",
+            "--model",
+            m,
+            "--source",
+            s,
+            "--monitor",
+            "DUMMY0,DUMMY1",
+        ],
+        "first frame presented on every output",
+    );
+    let set = compend::model::set::SetModel::load(model).unwrap();
+    let record = set.meta.calibration.clone().unwrap();
+    let content: Rgb<Unspecified> = compend::source::read_image(&still).unwrap().to_image();
+    let desired = compend::fov::place_in_area(
+        &record.display_range.apply(&content),
+        record.area,
+        set.meta.camera_size,
+    )
+    .unwrap();
+    let nets = set.joint().unwrap().apply(&desired).unwrap();
+    for (k, net) in nets.iter().enumerate() {
+        let want = compend::resize::resize_bilinear(net, 100, 75).map(|v| v.clamp(0.0, 1.0));
+        let got = x.screenshot(dir, k);
+        let diffs: Vec<f32> = want
+            .data()
+            .iter()
+            .zip(got.data())
+            .map(|(a, b)| (a - b).abs() * 255.0)
+            .collect();
+        let worst = diffs.iter().copied().fold(0.0, f32::max);
+        let mean = diffs.iter().sum::<f32>() / diffs.len() as f32;
+        eprintln!("monitor {k}: {mean:.3} mean, {worst:.2} worst (8-bit levels)");
+        assert!(
+            mean < 0.5 && worst <= 2.0,
+            "monitor {k}: {mean} mean, {worst} worst"
+        );
+    }
 }
