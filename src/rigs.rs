@@ -1,11 +1,15 @@
 //! The rig compend drives, opened from a resolved `[rig]` ([`RigConfig`]): the virtual rig (a
 //! simulated projector and camera), the window rig (the projector window watched by a virtual
-//! camera on its own clock), or a projector window with a V4L2 camera. `compend calibrate` (from
+//! camera on its own clock), or a projector window with a V4L2 camera. A set of projectors (a
+//! set's scene, or several monitors named in `monitor`, comma-separated) gets one window per
+//! projector's monitor ([`ProjectorWindows`]). `compend calibrate` (from
 //! its flags or its `--config`) and `compend serve` open their rig with [`open`] and build their
 //! calibration's [`Options`] with [`calibration_options`], so the two cannot open a rig or
 //! calibrate it differently.
 
+use std::cell::RefCell;
 use std::path::PathBuf;
+use std::rc::Rc;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
@@ -18,7 +22,7 @@ use crate::raster::ImageSize;
 use crate::rig::VirtualRig;
 use crate::rig::scene::{self, Scene};
 use crate::rig::window_camera::WindowCamera;
-use crate::window::ProjectorWindow;
+use crate::window::{ProjectorWindow, ProjectorWindows};
 
 /// Where a rig's settings were written, so that an error names what the person wrote: a flag
 /// (`--projector 640x480`) or a key of the configuration (`[rig] projector = "640x480"`).
@@ -68,6 +72,21 @@ pub enum Opened {
         /// What locking the camera's controls did, a line each, for the log.
         controls: Vec<String>,
     },
+    /// A set's windows (one per projector's monitor), watched by a virtual camera on the set's
+    /// scene.
+    WindowSet {
+        windows: Rc<RefCell<ProjectorWindows>>,
+        camera: WindowCamera,
+        scene: Scene,
+    },
+    /// A set's windows and a V4L2 camera, its controls locked for calibration.
+    #[cfg(target_os = "linux")]
+    CameraSet {
+        windows: Rc<RefCell<ProjectorWindows>>,
+        camera: crate::camera::V4l2Camera,
+        device: PathBuf,
+        controls: Vec<String>,
+    },
 }
 
 /// What the rig is, in the words a calibration record and the service's status use:
@@ -115,6 +134,10 @@ pub fn open(r: &RigConfig, clock: RigClock, given: Given) -> Result<Opened> {
             Ok(Opened::Virtual { rig, scene })
         }
         RigKind::Window => {
+            let named = scene::load(&r.scene)?;
+            if !named.more_projectors.is_empty() {
+                return open_window_set(r, given, named.projectors().len());
+            }
             let mut win = ProjectorWindow::open(r.monitor.as_deref())?;
             let size = DisplaySink::size(&win);
             if let Some(p) = r.projector
@@ -128,15 +151,6 @@ pub fn open(r: &RigConfig, clock: RigClock, given: Given) -> Result<Opened> {
                 )));
             }
             let scene = scene(r, Some(size))?;
-            if !scene.more_projectors.is_empty() {
-                return Err(Error::Input(format!(
-                    "{}: a set of {} projectors; `--rig window` shows one projector's window so \
-                     far: calibrate the set on the virtual rig (`--rig virtual:{}`)",
-                    given.name("scene", &r.scene),
-                    scene.projectors().len(),
-                    r.scene
-                )));
-            }
             let camera = win.watched_by(&scene, r.seed)?;
             Ok(Opened::Window { win, camera, scene })
         }
@@ -144,13 +158,86 @@ pub fn open(r: &RigConfig, clock: RigClock, given: Given) -> Result<Opened> {
     }
 }
 
+/// The monitors `[rig] monitor` names, comma-separated (one per projector of a set).
+fn monitor_list(r: &RigConfig) -> Vec<String> {
+    r.monitor
+        .as_deref()
+        .map(|m| m.split(',').map(|s| s.trim().to_string()).collect())
+        .unwrap_or_default()
+}
+
+/// A set's windows on the monitors `r` names, one per projector of `projectors`, checked: as
+/// many as projectors, all of one size (and that of `[rig] projector` when given).
+fn open_set_windows(
+    r: &RigConfig,
+    given: Given,
+    projectors: usize,
+) -> Result<(Rc<RefCell<ProjectorWindows>>, ImageSize)> {
+    let monitors = monitor_list(r);
+    if monitors.len() != projectors || monitors.iter().any(String::is_empty) {
+        return Err(Error::Input(format!(
+            "{}: a set of {projectors} projectors needs one monitor per projector, in the set's \
+             order, comma-separated ({})",
+            given.name("monitor", r.monitor.as_deref().unwrap_or("")),
+            given.name("monitor", "HDMI-1,HDMI-2")
+        )));
+    }
+    let names: Vec<&str> = monitors.iter().map(String::as_str).collect();
+    let windows = ProjectorWindows::open(&names)?;
+    let sizes = windows.sizes();
+    if sizes.iter().any(|s| *s != sizes[0]) {
+        let list: Vec<String> = names
+            .iter()
+            .zip(&sizes)
+            .map(|(m, s)| format!("{m} is {s}"))
+            .collect();
+        return Err(Error::Input(format!(
+            "{}: a set's monitors must be of one size ({}); set them alike (xrandr --mode)",
+            given.name("monitor", r.monitor.as_deref().unwrap_or("")),
+            list.join(", ")
+        )));
+    }
+    if let Some(p) = r.projector
+        && p != sizes[0]
+    {
+        return Err(Error::Input(format!(
+            "{}: the set's windows are {}; leave it out or pick monitors of that size",
+            given.name("projector", &p.to_string()),
+            sizes[0]
+        )));
+    }
+    Ok((Rc::new(RefCell::new(windows)), sizes[0]))
+}
+
+/// A set's scene on windows, one per projector's monitor, watched by a virtual camera.
+fn open_window_set(r: &RigConfig, given: Given, projectors: usize) -> Result<Opened> {
+    let (windows, size) = open_set_windows(r, given, projectors)?;
+    let scene = scene(r, Some(size))?;
+    let camera = windows.borrow_mut().watched_by(&scene, r.seed)?;
+    Ok(Opened::WindowSet {
+        windows,
+        camera,
+        scene,
+    })
+}
+
 #[cfg(target_os = "linux")]
-fn open_camera(r: &RigConfig, _: Given) -> Result<Opened> {
+fn open_camera(r: &RigConfig, given: Given) -> Result<Opened> {
     let device = r.camera.clone().unwrap_or_default();
     let mut camera = crate::camera::V4l2Camera::open(&device, r.camera_size)?;
     let controls = camera
         .lock_for_calibration(&crate::camera::LockSettings::default())?
         .lines();
+    let monitors = monitor_list(r);
+    if monitors.len() > 1 {
+        let (windows, _) = open_set_windows(r, given, monitors.len())?;
+        return Ok(Opened::CameraSet {
+            windows,
+            camera,
+            device,
+            controls,
+        });
+    }
     let win = ProjectorWindow::open(r.monitor.as_deref())?;
     Ok(Opened::Camera {
         win,

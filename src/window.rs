@@ -41,7 +41,7 @@ use crate::raster::{ImageSize, PrjImage};
 use blit::{Blit, Fit};
 use record::{Pacer, Pending, Recorder};
 pub use record::{PresentLog, Presented, ShowTiming};
-pub use set::{ProjectorWindows, SetPresents};
+pub use set::{ProjectorWindows, SetPresents, WindowOutput};
 
 /// How long the window system may take to open the window.
 const OPEN_TIMEOUT: Duration = Duration::from_secs(10);

@@ -369,3 +369,102 @@ fn calibrate_on_a_real_projector() {
     assert_eq!(r["verification"]["passed"], true, "{r}");
     assert!(data.join("model/model.json").is_file());
 }
+
+/// A set of two projectors calibrated on two monitors of an X server (Xorg's dummy driver),
+/// watched by a virtual camera on the set's scene: every pattern shown on both windows in one
+/// refresh, the model installed, and played on the same monitors.
+#[test]
+fn a_set_calibrates_on_two_monitors() {
+    let Some(_ctx) = gpu() else { return };
+    let Some(x) = crate::window::XDummy::start(100, 75, 2) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // The built-in framing at this camera size leaves a picture too near the image's edge: a
+    // slightly wider view keeps the set in sight (as tests/rig/cli.rs does).
+    let mut wide = compend::rig::scene::builtin("tiled").unwrap();
+    wide.camera.hfov_deg *= 1.1;
+    let scene = dir.path().join("wide.json");
+    std::fs::write(&scene, serde_json::to_vec(&wide).unwrap()).unwrap();
+    let rig = format!("window:{}", scene.display());
+    let (data, model) = (dir.path().join("data"), dir.path().join("model"));
+    let on_x = |args: &[&str]| {
+        crate::common::output_within(
+            Command::new(env!("CARGO_BIN_EXE_compend"))
+                .args(args)
+                .env("DISPLAY", &x.display)
+                .env_remove("WAYLAND_DISPLAY"),
+        )
+    };
+    let calibrate = |monitors: &str| {
+        on_x(&[
+            "calibrate",
+            "--rig",
+            &rig,
+            "--monitor",
+            monitors,
+            "--rig-camera",
+            "96x72",
+            "--network",
+            "32",
+            "--ntrain",
+            "10",
+            "--ntest",
+            "4",
+            "--verify",
+            "3",
+            "--loop-images",
+            "0",
+            "--seed",
+            "9",
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            model.to_str().unwrap(),
+        ])
+    };
+    let o = calibrate("DUMMY0");
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--monitor DUMMY0: a set of 2 projectors needs one monitor per"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!model.exists());
+    let o = calibrate("DUMMY0,DUMMY1");
+    assert_code(&o, 0);
+    let err = stderr(&o);
+    assert!(err.contains("the whole set on 3 test images"), "{err}");
+    // Every show presented both windows in the same refresh, and the camera saw them.
+    assert_eq!(
+        field(&err, "calibrate: windows:", "out_of_step"),
+        "0",
+        "{err}"
+    );
+    let shows: u64 = field(&err, "calibrate: windows:", "shows").parse().unwrap();
+    assert!(shows > 2 * 17, "{err}");
+    let changes: u64 = field(&err, "calibrate: camera:", "changes")
+        .parse()
+        .unwrap();
+    assert!(changes >= shows, "{err}");
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(model.join("set.json")).unwrap()).unwrap();
+    assert_eq!(meta["projectors"], 2);
+    assert_eq!(meta["calibration"]["rig"], rig.as_str());
+    assert_eq!(meta["calibration"]["verification"]["passed"], true);
+    let o = on_x(&[
+        "play",
+        "--model",
+        model.to_str().unwrap(),
+        "--source",
+        "pattern:bars?size=64x48",
+        "--monitor",
+        "DUMMY0,DUMMY1",
+        "--frames",
+        "3",
+        "--json",
+    ]);
+    assert_code(&o, 0);
+    let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert_eq!(v["presented"], serde_json::json!([3, 3]), "{v}");
+}

@@ -969,6 +969,12 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
             &format!("[paths]\ndata = \"{}\"\n", file.display()),
             "[paths] data",
         ),
+        // A set of projectors is calibrated and played from the command line.
+        (
+            "scene = \"curved\"",
+            "scene = \"curved\"\nmonitor = \"DP-1,DP-2\"",
+            "names several monitors: the service drives one projector so far",
+        ),
     ] {
         assert!(text.contains(from), "{text}");
         std::fs::write(&elsewhere, text.replace(from, to)).unwrap();

@@ -52,7 +52,9 @@ pub struct Args {
     #[arg(long, value_name = "WxH", value_parser = super::sim::parse_size)]
     pub camera_size: Option<ImageSize>,
     /// `--rig window` and `--camera`: the projector's monitor, its name or index [default: the
-    /// primary monitor]. The projector size is the monitor's.
+    /// primary monitor]. The projector size is the monitor's. A set of projectors names one
+    /// monitor per projector, in order: `--monitor HDMI-1,HDMI-2` (with `--camera`, several
+    /// monitors make a set).
     #[arg(long)]
     pub monitor: Option<String>,
     /// Folder for the patterns and captures (a data root; the captures go to DATA/capture). An
@@ -516,7 +518,72 @@ fn calibrate_rig(args: &Settings, out: &Path, rig: &RigConfig) -> Result<()> {
                 describe_camera(&scene),
                 args.data.display()
             );
-            calibrate_set_on(sim, args, scene.projector.size(), rig, out)
+            let displays = (0..sim.outputs())
+                .map(|k| sim.output(k))
+                .collect::<compend::Result<Vec<_>>>()?;
+            let mut camera = sim;
+            calibrate_set_on(
+                displays,
+                &mut camera,
+                args,
+                scene.projector.size(),
+                rig,
+                out,
+            )
+        }
+        Opened::WindowSet {
+            windows,
+            mut camera,
+            scene,
+        } => {
+            eprintln!(
+                "calibrate: a set of {} projector windows {} at {} Hz on monitors {} ({}), \
+                 virtual camera on scene {:?} ({}) into {}",
+                windows.borrow().monitors().len(),
+                scene.projector.size(),
+                windows.borrow().refresh_hz(),
+                windows.borrow().monitors().join(", "),
+                windows.borrow().context().describe(),
+                rig.scene,
+                describe_camera(&scene),
+                args.data.display()
+            );
+            let displays = compend::window::ProjectorWindows::outputs(&windows);
+            let done = calibrate_set_on(
+                displays,
+                &mut camera,
+                args,
+                scene.projector.size(),
+                rig,
+                out,
+            );
+            report_set_timing(&windows.borrow(), &camera, &scene);
+            done
+        }
+        #[cfg(target_os = "linux")]
+        Opened::CameraSet {
+            windows,
+            mut camera,
+            device,
+            controls,
+        } => {
+            for line in controls {
+                eprintln!("calibrate: {}: {line}", device.display());
+            }
+            let size = windows.borrow().sizes()[0];
+            eprintln!(
+                "calibrate: a set of {} projector windows {size} at {} Hz on monitors {} ({}), \
+                 camera {} ({}) into {}",
+                windows.borrow().monitors().len(),
+                windows.borrow().refresh_hz(),
+                windows.borrow().monitors().join(", "),
+                windows.borrow().context().describe(),
+                device.display(),
+                FrameSource::size(&camera),
+                args.data.display()
+            );
+            let displays = compend::window::ProjectorWindows::outputs(&windows);
+            calibrate_set_on(displays, &mut camera, args, size, rig, out)
         }
         Opened::Virtual { rig: sim, scene } => {
             eprintln!(
@@ -644,6 +711,42 @@ fn report_window_timing(win: &ProjectorWindow, camera: &WindowCamera, scene: &Sc
     );
 }
 
+/// How presenting on a set's windows and the camera went, as `key=value` pairs.
+fn report_set_timing(
+    windows: &compend::window::ProjectorWindows,
+    camera: &WindowCamera,
+    scene: &Scene,
+) {
+    let w = windows.show_timing();
+    let p = windows.presents();
+    eprintln!(
+        "calibrate: windows: shows={} skipped={} refresh_hz={} presented={:?} together={} \
+         out_of_step={} skew_ms_max={:.2} readback_ms={:.2}/{:.2}",
+        w.shows,
+        w.skipped,
+        windows.refresh_hz(),
+        p.presented,
+        p.together,
+        p.out_of_step,
+        p.skew_ms_max,
+        w.readback_ms_mean,
+        w.readback_ms_max
+    );
+    let c = camera.timing();
+    eprintln!(
+        "calibrate: camera: fps={} exposures={} delivered={} dropped={} changes={} \
+         lag_ms={:.1}..{:.1} render_ms={:.2}",
+        scene.latency.fps,
+        c.exposures,
+        c.delivered,
+        c.dropped,
+        c.changes,
+        c.lag_ms_min,
+        c.lag_ms_max,
+        c.render_ms_mean
+    );
+}
+
 /// `auto`'s climb weighed on the projector window's GPU, at `--refresh-hz` or the window's
 /// refresh rate; `None` for another method or `--refresh-hz 0`.
 fn window_live_pass(
@@ -671,25 +774,22 @@ fn live_pass(ctx: compend::gpu::GpuContext, hz: f64) -> Result<Arc<dyn compend::
     Ok(Arc::new(compend::gpu::live::GpuLivePass::new(ctx, hz)?))
 }
 
-/// Calibrates the set of projectors of a virtual rig (one output each, one camera), prints
-/// the set's record and installs its model into `out` if the whole set verified.
-fn calibrate_set_on(
-    rig_devices: compend::rig::VirtualRig,
+/// Calibrates a set of projectors (`displays`, one per projector in the set's order, seen by
+/// `camera`), prints the set's record and installs its model into `out` if the whole set
+/// verified.
+fn calibrate_set_on<D: DisplaySink, C: FrameSource + ?Sized>(
+    displays: Vec<D>,
+    camera: &mut C,
     args: &Settings,
     projector: ImageSize,
     rig: &RigConfig,
     out: &Path,
 ) -> Result<()> {
-    let displays = (0..rig_devices.outputs())
-        .map(|k| rig_devices.output(k))
-        .collect::<compend::Result<Vec<_>>>()?;
-    let mut camera = rig_devices;
     let opts = rigs::calibration_options(rig, &args.calibration, None, projector, None, None);
     let report = super::progress::Progress::new("calibrate", args.json);
     let mut progress = |stage: &str, done: usize, total: usize| report.update(stage, done, total);
-    let done =
-        calibrate::set::calibrate_set(displays, &mut camera, &args.data, &opts, &mut progress)
-            .with_context(|| format!("calibrating the set into {}", args.data.display()))?;
+    let done = calibrate::set::calibrate_set(displays, camera, &args.data, &opts, &mut progress)
+        .with_context(|| format!("calibrating the set into {}", args.data.display()))?;
     report.finish();
     print_set_record(&done, args.json)?;
     let n = done.model.models.len();

@@ -1,6 +1,7 @@
 //! A virtual camera looking at a real display: the projector window presents the patterns, and
 //! this camera sees what the window actually presented, through the rig's surface and camera
-//! physics, with the scene's latency.
+//! physics, with the scene's latency. For a set of projectors ([`WindowCamera::start_set`]) it
+//! looks at every projector's window, each seen through its own projector of the scene.
 //!
 //! Timing (real clock, from [`WindowCamera::start`]):
 //! - the camera runs on its own thread and exposes frame k at k/fps seconds (the scene's
@@ -83,11 +84,13 @@ pub struct WindowCamera {
 /// The camera thread's state.
 struct Exposer<L> {
     rig: VirtualRig,
-    look: L,
+    /// Per projector of the scene: its display's look-up, and its output of the private rig.
+    looks: Vec<L>,
+    outputs: Vec<super::live::VirtualOutput>,
     latency: Latency,
     seed: u64,
-    /// The present the private rig shows.
-    seen: Option<u64>,
+    /// Per projector: the present its output of the private rig shows.
+    seen: Vec<Option<u64>>,
     timing: Arc<Mutex<CameraTiming>>,
     stop: Arc<AtomicBool>,
 }
@@ -105,6 +108,24 @@ impl WindowCamera {
     where
         L: FnMut(Instant) -> Option<Shown> + Send + 'static,
     {
+        Self::start_set(scene, seed, vec![look])
+    }
+
+    /// [`WindowCamera::start`] for a scene of several projectors: `looks[k]` is projector
+    /// `k`'s display, one per projector of the scene.
+    pub fn start_set<L>(scene: &Scene, seed: u64, looks: Vec<L>) -> Result<Self>
+    where
+        L: FnMut(Instant) -> Option<Shown> + Send + 'static,
+    {
+        let projectors = scene.projectors().len();
+        if looks.len() != projectors {
+            return Err(Error::Input(format!(
+                "scene {:?} has {projectors} projector(s); the camera was given {} display(s) \
+                 to look at",
+                scene.name,
+                looks.len()
+            )));
+        }
         let latency = scene.latency.clone();
         if !(latency.fps.is_finite() && latency.fps > 0.0) {
             return Err(Error::Input(format!(
@@ -127,12 +148,16 @@ impl WindowCamera {
         let (tx, frames) = sync_channel(BUFFERS);
         let stop = Arc::new(AtomicBool::new(false));
         let timing = Arc::new(Mutex::new(CameraTiming::default()));
+        let outputs = (0..projectors)
+            .map(|k| rig.output(k))
+            .collect::<Result<Vec<_>>>()?;
         let exposer = Exposer {
             rig: rig.clone(),
-            look,
+            seen: vec![None; looks.len()],
+            looks,
+            outputs,
             latency,
             seed,
-            seen: None,
             timing: timing.clone(),
             stop: stop.clone(),
         };
@@ -231,25 +256,27 @@ impl<L: FnMut(Instant) -> Option<Shown>> Exposer<L> {
     fn expose(&mut self, t: Instant) -> Result<crate::raster::CamImage> {
         let start = Instant::now();
         let delay = Duration::from_secs_f64(self.latency.delay_frames as f64 / self.latency.fps);
-        let shown = t.checked_sub(delay).and_then(|when| (self.look)(when));
-        if let Some(s) = shown
-            && self.seen != Some(s.index)
-        {
-            self.rig.show(&s.image).map_err(|e| {
-                Error::Failed(format!(
-                    "the virtual camera cannot look at the presented frame: {e}"
-                ))
-            })?;
-            self.seen = Some(s.index);
-            let lag = t.saturating_duration_since(s.at).as_secs_f64() * 1e3;
-            let mut tm = lock(&self.timing);
-            tm.lag_ms_min = if tm.changes == 0 {
-                lag
-            } else {
-                tm.lag_ms_min.min(lag)
-            };
-            tm.lag_ms_max = tm.lag_ms_max.max(lag);
-            tm.changes += 1;
+        for k in 0..self.looks.len() {
+            let shown = t.checked_sub(delay).and_then(|when| (self.looks[k])(when));
+            if let Some(s) = shown
+                && self.seen[k] != Some(s.index)
+            {
+                self.outputs[k].show(&s.image).map_err(|e| {
+                    Error::Failed(format!(
+                        "the virtual camera cannot look at the presented frame: {e}"
+                    ))
+                })?;
+                self.seen[k] = Some(s.index);
+                let lag = t.saturating_duration_since(s.at).as_secs_f64() * 1e3;
+                let mut tm = lock(&self.timing);
+                tm.lag_ms_min = if tm.changes == 0 {
+                    lag
+                } else {
+                    tm.lag_ms_min.min(lag)
+                };
+                tm.lag_ms_max = tm.lag_ms_max.max(lag);
+                tm.changes += 1;
+            }
         }
         let image = self.rig.grab()?.image;
         let ms = start.elapsed().as_secs_f64() * 1e3;

@@ -114,6 +114,16 @@ pub(super) struct Hardware {
     pub(super) bump: Option<Bump>,
 }
 
+/// The service's answer to a set of projectors (several monitors in `[rig] monitor`).
+fn serves_one_projector() -> crate::error::Error {
+    crate::error::Error::Input(
+        "[rig] monitor names several monitors: the service drives one projector so far; a set \
+         of projectors is calibrated and played from the command line (compend calibrate, \
+         compend play --monitor A,B)"
+            .into(),
+    )
+}
+
 pub(super) enum Devices {
     Virtual(Box<VirtualDevices>),
     Hardware(Box<Hardware>),
@@ -146,6 +156,9 @@ impl Devices {
                     bump,
                 }))
             }
+            Opened::WindowSet { .. } => return Err(serves_one_projector()),
+            #[cfg(target_os = "linux")]
+            Opened::CameraSet { .. } => return Err(serves_one_projector()),
             #[cfg(target_os = "linux")]
             Opened::Camera {
                 win,

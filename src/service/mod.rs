@@ -298,6 +298,13 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
             )));
         }
     }
+    if r.monitor.as_deref().is_some_and(|m| m.contains(',')) {
+        return Err(Error::Input(format!(
+            "[rig] monitor = {:?} names several monitors: the service drives one projector so \
+             far; a set of projectors is calibrated and played from the command line",
+            r.monitor.as_deref().unwrap_or("")
+        )));
+    }
     let tokens = [
         (
             "[socket] tcp_token_file",

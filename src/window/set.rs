@@ -5,20 +5,28 @@
 //! another, so that every output shows the same source frame in the same refresh.
 //! [`SetPresents`] counts what each output presented and any refresh where one output
 //! presented and another did not (an output a frame behind): the measurement of that promise.
+//!
+//! For calibration each output is also a [`DisplaySink`] of its own ([`WindowOutput`], a
+//! handle on the shared windows): showing a projector image on one output presents every
+//! output, the others keeping what they showed. With [`ProjectorWindows::record_presented`]
+//! every output's presented frames are read back, for a virtual camera looking at the set.
 
+use std::cell::RefCell;
+use std::rc::Rc;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use winit::event_loop::EventLoop;
 use winit::platform::pump_events::{EventLoopExtPumpEvents, PumpStatus};
 use winit::window::Window;
 
 use super::blit::{Blit, Fit};
-use super::record::Pacer;
-use super::{App, next_target, open_windows, refresh_of, surface_config};
+use super::record::{Pacer, Pending, PresentLog, Recorder, ShowTiming};
+use super::{App, SHOW_TRIES, next_target, open_windows, refresh_of, surface_config};
+use crate::device::DisplaySink;
 use crate::error::{Error, Result};
-use crate::gpu::GpuContext;
-use crate::raster::ImageSize;
+use crate::gpu::{FRAME_FORMAT, GpuContext};
+use crate::raster::{ImageSize, PrjImage};
 
 /// Refresh rates (Hz) that differ by more than this cannot keep outputs in step.
 const REFRESH_TOLERANCE_HZ: f64 = 0.5;
@@ -31,6 +39,12 @@ struct Output {
     surface: wgpu::Surface<'static>,
     config: wgpu::SurfaceConfiguration,
     blit: Blit,
+    /// Usages the surface allows (a read-back needs `COPY_SRC`).
+    surface_usages: wgpu::TextureUsages,
+    /// What [`ProjectorWindows::show`] last put on this output (black at first), its size.
+    shown: wgpu::Texture,
+    /// Reads back every presented frame, once asked to.
+    recorder: Option<Recorder>,
 }
 
 /// What the outputs of a set presented so far.
@@ -58,6 +72,7 @@ pub struct ProjectorWindows {
     refresh_hz: f64,
     pacer: Pacer,
     presents: SetPresents,
+    timing: ShowTiming,
 }
 
 impl ProjectorWindows {
@@ -111,12 +126,16 @@ impl ProjectorWindows {
             let config = surface_config(&caps, window.inner_size())?;
             surface.configure(&ctx.device, &config);
             let blit = Blit::new(&ctx, config.format, Fit::Stretch)?;
+            let shown = black_texture(&ctx, config.width, config.height);
             outputs.push(Output {
                 window,
                 monitor: name.to_string(),
                 surface,
                 config,
                 blit,
+                surface_usages: caps.usages,
+                shown,
+                recorder: None,
             });
         }
         let refresh_hz = rates[0];
@@ -132,7 +151,120 @@ impl ProjectorWindows {
                 presented: vec![0; n],
                 ..SetPresents::default()
             },
+            timing: ShowTiming::default(),
         })
+    }
+
+    /// Reads back every frame each output presents from now on; returns one log per output,
+    /// each keeping what its screen showed over the last `keep`.
+    pub fn record_presented(&mut self, keep: Duration) -> Vec<PresentLog> {
+        let mut logs = Vec::with_capacity(self.outputs.len());
+        for o in &mut self.outputs {
+            if let Some(r) = &o.recorder {
+                logs.push(r.log.clone());
+                continue;
+            }
+            let log = PresentLog::new(keep);
+            let r = Recorder::new(log.clone(), o.config.format, o.surface_usages);
+            if r.surface_usage() != o.config.usage {
+                o.config.usage = r.surface_usage();
+                o.surface.configure(&self.ctx.device, &o.config);
+            }
+            o.recorder = Some(r);
+            logs.push(log);
+        }
+        logs
+    }
+
+    /// A virtual camera looking at the set's windows: it sees what every window really
+    /// presented (read back from now on) through `scene`'s surface and camera, the set's
+    /// projectors in window order, with its latency (the scene's projectors must be the
+    /// windows' size); texture and noise seed `seed`.
+    pub fn watched_by(
+        &mut self,
+        scene: &crate::rig::scene::Scene,
+        seed: u64,
+    ) -> Result<crate::rig::window_camera::WindowCamera> {
+        let l = &scene.latency;
+        let keep = Duration::from_secs_f64(0.25 + (l.delay_frames as f64 + 4.0) / l.fps);
+        let looks = self
+            .record_presented(keep)
+            .into_iter()
+            .map(|log| {
+                move |t| {
+                    log.at(t).map(|p| crate::rig::window_camera::Shown {
+                        index: p.index,
+                        at: p.at,
+                        image: p.image,
+                    })
+                }
+            })
+            .collect();
+        crate::rig::window_camera::WindowCamera::start_set(scene, seed, looks)
+    }
+
+    /// Timing of the shows so far ([`WindowOutput`]'s [`DisplaySink::show`]).
+    pub fn show_timing(&self) -> ShowTiming {
+        self.timing.clone()
+    }
+
+    /// Puts `frame` (projector pixels, the output's size) on output `k` and presents every
+    /// output, the others showing what they showed, at most once per refresh period; a
+    /// refresh an output skipped is tried again, up to a few times.
+    pub fn show(&mut self, k: usize, frame: &PrjImage) -> Result<()> {
+        let Some(o) = self.outputs.get(k) else {
+            return Err(Error::Shape(format!(
+                "a set of {} windows has no output {k}",
+                self.outputs.len()
+            )));
+        };
+        let (w, h) = (o.config.width as usize, o.config.height as usize);
+        if frame.size() != ImageSize::new(w, h) {
+            return Err(Error::Shape(format!(
+                "the window on monitor {} is {w}x{h}, got a {}x{} frame",
+                o.monitor,
+                frame.width(),
+                frame.height()
+            )));
+        }
+        if o.shown.width() as usize != w || o.shown.height() as usize != h {
+            let t = black_texture(&self.ctx, w as u32, h as u32);
+            self.outputs[k].shown = t;
+        }
+        let mut rgba = Vec::with_capacity(w * h * 4);
+        for px in frame.data().chunks_exact(3) {
+            rgba.extend(px.iter().map(|&v| crate::pngio::to_u8(v)));
+            rgba.push(255);
+        }
+        let tex = &self.outputs[k].shown;
+        self.ctx.queue.write_texture(
+            tex.as_image_copy(),
+            &rgba,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(w as u32 * 4),
+                rows_per_image: Some(h as u32),
+            },
+            tex.size(),
+        );
+        if !self.pump() {
+            return Err(Error::Failed(
+                "a projector window was closed (Escape or the window system)".into(),
+            ));
+        }
+        self.timing.shows += 1;
+        let frames: Vec<wgpu::Texture> = self.outputs.iter().map(|o| o.shown.clone()).collect();
+        let frames: Vec<&wgpu::Texture> = frames.iter().collect();
+        for _ in 0..SHOW_TRIES {
+            if self.present(&frames)? {
+                return Ok(());
+            }
+            self.timing.skipped += 1;
+            self.pump();
+        }
+        Err(Error::Failed(format!(
+            "the projector windows presented nothing on every output in {SHOW_TRIES} refreshes              (is one hidden or minimised?)"
+        )))
     }
 
     pub fn context(&self) -> &GpuContext {
@@ -195,29 +327,45 @@ impl ProjectorWindows {
             )?);
         }
         let mut enc = self.ctx.encoder("present a set");
+        let mut pending: Vec<Option<Pending>> = Vec::with_capacity(self.outputs.len());
         for ((o, target), frame) in self.outputs.iter_mut().zip(&targets).zip(frames) {
+            let mut copy = None;
             if let Some(t) = target {
                 let view = t
                     .texture
                     .create_view(&wgpu::TextureViewDescriptor::default());
                 o.blit.draw(&self.ctx, &mut enc, frame, &view);
+                copy = o
+                    .recorder
+                    .as_mut()
+                    .and_then(|r| r.copy(&self.ctx, &mut enc, &t.texture, frame));
             }
+            pending.push(copy);
         }
         self.ctx.queue.submit([enc.finish()]);
         let mut first: Option<Instant> = None;
         let mut last = Instant::now();
         let mut presented = 0;
+        let mut at = vec![last; self.outputs.len()];
         for (k, (o, target)) in self.outputs.iter().zip(targets).enumerate() {
             if let Some(t) = target {
                 o.window.pre_present_notify();
                 self.ctx.queue.present(t);
                 last = Instant::now();
+                at[k] = last;
                 first.get_or_insert(last);
                 self.presents.presented[k] += 1;
                 presented += 1;
             }
         }
-        self.pacer.presented(last);
+        for ((o, p), when) in self.outputs.iter_mut().zip(pending).zip(at) {
+            if let (Some(r), Some(p)) = (o.recorder.as_mut(), p) {
+                r.finish(&self.ctx, p, when, &mut self.timing)?;
+            }
+        }
+        if let Some(d) = self.pacer.presented(last) {
+            self.timing.interval(d);
+        }
         let all = presented == self.outputs.len();
         if all {
             self.presents.together += 1;
@@ -229,5 +377,68 @@ impl ProjectorWindows {
             self.presents.skew_ms_max = self.presents.skew_ms_max.max(skew);
         }
         Ok(all)
+    }
+}
+
+/// A black projector frame texture of `w`×`h` ([`FRAME_FORMAT`]) that can be drawn, written
+/// and read back.
+fn black_texture(ctx: &GpuContext, w: u32, h: u32) -> wgpu::Texture {
+    let size = wgpu::Extent3d {
+        width: w.max(1),
+        height: h.max(1),
+        depth_or_array_layers: 1,
+    };
+    let t = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("shown frame"),
+        size,
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: FRAME_FORMAT,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_DST
+            | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
+    });
+    let black: Vec<u8> = [0u8, 0, 0, 255].repeat((size.width * size.height) as usize);
+    ctx.queue.write_texture(
+        t.as_image_copy(),
+        &black,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(size.width * 4),
+            rows_per_image: Some(size.height),
+        },
+        size,
+    );
+    t
+}
+
+/// One output of a set's windows as a display of its own (for calibrating a set projector by
+/// projector): showing on it presents every output, the others unchanged.
+pub struct WindowOutput {
+    windows: Rc<RefCell<ProjectorWindows>>,
+    k: usize,
+}
+
+impl ProjectorWindows {
+    /// Each output as a display of its own, sharing these windows.
+    pub fn outputs(windows: &Rc<RefCell<ProjectorWindows>>) -> Vec<WindowOutput> {
+        (0..windows.borrow().outputs.len())
+            .map(|k| WindowOutput {
+                windows: windows.clone(),
+                k,
+            })
+            .collect()
+    }
+}
+
+impl DisplaySink for WindowOutput {
+    fn size(&self) -> ImageSize {
+        self.windows.borrow().sizes()[self.k]
+    }
+
+    fn show(&mut self, frame: &PrjImage) -> Result<()> {
+        self.windows.borrow_mut().show(self.k, frame)
     }
 }

@@ -686,6 +686,25 @@ fn a_set_calibrates_from_the_command_line() {
         assert!(!views.join("cam_000003.png").exists());
         set_plays_on_two_monitors(dir.path(), &out);
     }
+    // Two projectors side by side that do not overlap: tiled without a blend, installed, with
+    // no seam to figure.
+    let mut apart = wide.clone();
+    apart.projector.pose =
+        compend::rig::scene::Pose::looking_at([-0.45, -0.05, 0.0], [-0.70, 0.0, 2.2], 0.3);
+    apart.more_projectors[0].pose =
+        compend::rig::scene::Pose::looking_at([0.45, -0.04, 0.0], [0.70, 0.0, 2.2], -0.5);
+    apart.camera.hfov_deg *= 1.05;
+    let apart_file = dir.path().join("apart.json");
+    std::fs::write(&apart_file, serde_json::to_vec(&apart).unwrap()).unwrap();
+    let apart_model = dir.path().join("apart-model");
+    let o = small(&format!("virtual:{}", arg(&apart_file)), &apart_model, &[]);
+    assert_code(&o, 0);
+    assert!(
+        stderr(&o).contains("the projectors do not overlap in the area: no seam figure"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(apart_model.join("set.json").is_file());
     // The second projector turned away from the wall: named, exit 2, nothing installed.
     let mut scene = compend::rig::scene::builtin("tiled").unwrap();
     scene.more_projectors[0].pose =
