@@ -286,7 +286,26 @@ fn gst_pipelines_play_and_bad_media_is_refused_in_words() {
         e.contains("H.264") && e.contains("gstreamer1.0-libav"),
         "{e}"
     );
-    // Outputs: an unknown element or an ending compend does not write, before any frame.
+    // Outputs: one projector takes one; an unknown element or an ending compend does not
+    // write, before any frame.
+    let (o, _) = play_json(&[
+        "--model",
+        m,
+        "--source",
+        film.to_str().unwrap(),
+        "--rig",
+        "virtual:textured-plane",
+        "--to",
+        "gst:fakesink",
+        "--to",
+        "gst:fakesink",
+    ]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("--to given 2 times: one projector's frames go to one output"),
+        "{}",
+        stderr(&o)
+    );
     let (o, _) = play_json(&[
         "--model",
         m,

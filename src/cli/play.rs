@@ -64,9 +64,10 @@ pub struct Args {
     #[arg(long)]
     pub json: bool,
     /// Also send the compensated frames (the projector canvas) to a file or a GStreamer
-    /// pipeline (spellings below).
-    #[arg(long, value_name = "OUT")]
-    pub to: Option<String>,
+    /// pipeline (spellings below). A set of projectors takes one per projector, in the set's
+    /// order: `--to file:left.mp4 --to file:right.mp4`.
+    #[arg(long, value_name = "OUT", action = clap::ArgAction::Append)]
+    pub to: Vec<String>,
     /// With --to: no projector window, only the output (offline rendering of a film with
     /// --pace source).
     #[arg(long, requires = "to", conflicts_with = "rig")]
@@ -124,7 +125,11 @@ pub fn run(args: Args) -> Result<()> {
         .into());
     };
     let spec = SourceSpec::parse(source_text)?;
-    let to = args.to.as_deref().map(OutputSpec::parse).transpose()?;
+    let to = args
+        .to
+        .iter()
+        .map(|t| OutputSpec::parse(t))
+        .collect::<compend::Result<Vec<_>>>()?;
     if !(args.audio_delay.is_finite() && args.audio_delay.abs() <= 10_000.0) {
         return Err(compend::Error::Input(format!(
             "--audio-delay {}: expected milliseconds from -10000 to 10000",
@@ -132,6 +137,19 @@ pub fn run(args: Args) -> Result<()> {
         ))
         .into());
     }
+    // Media is probed (its first frame decoded): a bad file fails here, before the GPU, and
+    // an output rendered offline takes the film's frame rate.
+    let probed = match &spec {
+        SourceSpec::Media(m) => Some(source::media::probe(m, source::MEDIA_CHECK_TIMEOUT)?),
+        _ => None,
+    };
+    // The output's frame rate: offline the source's own (a film's, a pattern's), live the
+    // display's.
+    let source_fps = match (&spec, &probed) {
+        (_, Some(p)) => p.fps,
+        (SourceSpec::Pattern { fps, .. }, _) => Some(*fps),
+        _ => None,
+    };
     if compend::model::set::SetModel::is_set(model_dir) {
         let set = super::play_set::SetPlay {
             rig: args.rig.as_deref(),
@@ -139,23 +157,29 @@ pub fn run(args: Args) -> Result<()> {
             out: args.out.as_deref(),
             seed: args.seed,
             json: args.json,
-            single_frame_output: args.to.is_some() || args.no_window,
             monitor: args.monitor.as_deref(),
+            to,
+            no_window: args.no_window,
+            projector: args.projector,
+            output_fps: source_fps.unwrap_or(args.fps),
         };
         return super::play_set::play_set(&set, model_dir, &spec);
     }
+    if to.len() > 1 {
+        return Err(compend::Error::Input(format!(
+            "--to given {} times: one projector's frames go to one output (a set of projectors \
+             takes one per projector)",
+            to.len()
+        ))
+        .into());
+    }
+    let to = to.into_iter().next();
     if let Some(dir) = &args.out {
         check_out(dir)?;
     }
     let model = Model::load(model_dir)?;
     let rig = args.rig.as_deref().map(parse_rig).transpose()?;
     // The source is opened before the GPU (below) so a bad source fails fast.
-    // Media is probed (its first frame decoded): a bad file fails here, and an output
-    // rendered offline takes the film's frame rate.
-    let probed = match &spec {
-        SourceSpec::Media(m) => Some(source::media::probe(m, source::MEDIA_CHECK_TIMEOUT)?),
-        _ => None,
-    };
     let audio = AudioOut {
         sink: (args.audio != "none").then(|| args.audio.clone()),
         delay_ms: args.audio_delay,
@@ -164,13 +188,6 @@ pub fn run(args: Args) -> Result<()> {
     let mode = match args.pace {
         Pace::Display => FeedMode::Latest,
         Pace::Source => FeedMode::Queue,
-    };
-    // The output's frame rate: offline the source's own (a film's, a pattern's), live the
-    // display's.
-    let source_fps = match (&spec, &probed) {
-        (_, Some(p)) => p.fps,
-        (SourceSpec::Pattern { fps, .. }, _) => Some(*fps),
-        _ => None,
     };
     let out = to.map(|spec| Output {
         spec,

@@ -8,13 +8,21 @@
 //! - `--rig virtual[:SCENE]`: each projector's image shown on its output of the set's virtual
 //!   rig, the camera's view of the whole written to `--out` (cam_NNNNNN.png, numbered by source
 //!   frame). Offline: every source frame is shown once.
+//! - `--no-window`: no display, every source frame once, offline.
+//!
+//! `--to OUT`, once per projector in the set's order, sends each projector's compensated frames
+//! (its canvas, projector pixels) to a file or a GStreamer pipeline as well (`--no-window`:
+//! instead): offline at the source's frame rate, live on the windows at their refresh.
 
 use std::path::Path;
 
 use anyhow::{Context, Result};
 use compend::device::{DisplaySink, FrameSource};
 use compend::model::set::SetModel;
-use compend::raster::{CamImage, Rect};
+use std::time::{Duration, Instant};
+
+use compend::output::{MediaOutput, OutputSpec};
+use compend::raster::{CamImage, ImageSize, PrjImage, Rect};
 use compend::record::set::SetRecord;
 use compend::rig::{VirtualRig, scene};
 use compend::source::{self, Next, SourceSpec};
@@ -31,21 +39,119 @@ pub struct SetPlay<'a> {
     pub out: Option<&'a Path>,
     pub seed: Option<u64>,
     pub json: bool,
-    /// `--to` or `--no-window` was given: a projector frame to send, which a set has not.
-    pub single_frame_output: bool,
     /// `--monitor`: the projectors' monitors, comma-separated, in the set's order.
     pub monitor: Option<&'a str>,
+    /// `--to`: one output per projector, in the set's order, or none.
+    pub to: Vec<OutputSpec>,
+    /// `--no-window`: only the outputs.
+    pub no_window: bool,
+    /// `--projector`: the projectors' size with `--no-window`.
+    pub projector: Option<ImageSize>,
+    /// The outputs' frame rate offline (the source's, else `--fps`).
+    pub output_fps: f64,
+}
+
+/// One media output per projector of a set (`--to`), fed each projector's canvas.
+struct SetOutputs {
+    outputs: Vec<MediaOutput>,
+    live: bool,
+    fps: f64,
+    started: Option<Instant>,
+    pushed: u64,
+}
+
+impl SetOutputs {
+    /// Starts `specs` (none: no outputs) for `n` projectors of `size` at `fps`.
+    fn start(
+        specs: &[OutputSpec],
+        n: usize,
+        size: ImageSize,
+        fps: f64,
+        live: bool,
+    ) -> Result<Option<Self>> {
+        if specs.is_empty() {
+            return Ok(None);
+        }
+        if specs.len() != n {
+            return Err(compend::Error::Input(format!(
+                "--to given {} time(s) for a set of {n} projectors: one output per projector, in \
+                 the set's order",
+                specs.len()
+            ))
+            .into());
+        }
+        let outputs = specs
+            .iter()
+            .map(|s| MediaOutput::start(s, size, fps, live))
+            .collect::<compend::Result<Vec<_>>>()?;
+        let list: Vec<String> = specs.iter().map(|s| s.to_string()).collect();
+        eprintln!(
+            "play: each projector's compensated frames to {} at {fps:.3} fps",
+            list.join(", ")
+        );
+        Ok(Some(Self {
+            outputs,
+            live,
+            fps,
+            started: None,
+            pushed: 0,
+        }))
+    }
+
+    /// Pushes one frame per projector (projector pixels, the outputs' size).
+    fn push(&mut self, frames: &[PrjImage]) -> Result<()> {
+        let now = Instant::now();
+        let pts = if self.live {
+            now.saturating_duration_since(*self.started.get_or_insert(now))
+        } else {
+            Duration::from_secs_f64(self.pushed as f64 / self.fps)
+        };
+        for (o, f) in self.outputs.iter_mut().zip(frames) {
+            let mut rgba = Vec::with_capacity(f.width() * f.height() * 4);
+            for px in f.data().chunks_exact(3) {
+                rgba.extend(px.iter().map(|&v| compend::pngio::to_u8(v)));
+                rgba.push(255);
+            }
+            o.push(rgba, pts)?;
+        }
+        self.pushed += 1;
+        Ok(())
+    }
+
+    /// Ends every output's stream (files complete and renamed into place); the frames each
+    /// wrote.
+    fn finish(self) -> Result<Vec<u64>> {
+        Ok(self
+            .outputs
+            .into_iter()
+            .map(MediaOutput::finish)
+            .collect::<compend::Result<Vec<_>>>()?)
+    }
+}
+
+/// Each projector's image of the joint pass (its lattice) on its canvas of `size`.
+fn canvases(
+    pass: &compend::gpu::joint::JointPass,
+    ctx: &compend::gpu::GpuContext,
+    size: ImageSize,
+) -> Result<Vec<PrjImage>> {
+    Ok(pass
+        .read(ctx)?
+        .iter()
+        .map(|net| compend::playback::place_on_canvas(net, Rect::covering(size), size))
+        .collect::<compend::Result<Vec<_>>>()?)
 }
 
 /// Plays `spec` with the set's model in `model_dir` (see the module documentation).
 pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<()> {
     let model = SetModel::load(model_dir)?;
-    if args.single_frame_output {
-        return Err(compend::Error::Input(
-            "--to and --no-window: a set of projectors has no single projector frame to send; \
-             its camera views go to --out"
-                .into(),
-        )
+    if !args.to.is_empty() && args.to.len() != model.models.len() {
+        return Err(compend::Error::Input(format!(
+            "--to given {} time(s) for a set of {} projectors: one output per projector, in the \
+             set's order",
+            args.to.len(),
+            model.models.len()
+        ))
         .into());
     }
     let record = model.meta.calibration.as_ref().ok_or_else(|| {
@@ -56,6 +162,9 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
         ))
     })?;
     let Some(rig_text) = args.rig else {
+        if args.no_window {
+            return play_headless(args, &model, record, spec);
+        }
         return play_on_windows(args, model_dir, &model, record, spec);
     };
     let scene_name = match parse_rig(rig_text)? {
@@ -121,6 +230,13 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
     let delay = scene.latency.delay_frames as u64;
     let range = record.display_range;
     let camera_size = model.meta.camera_size;
+    let mut media = SetOutputs::start(
+        &args.to,
+        outputs.len(),
+        outputs[0].size(),
+        args.output_fps,
+        false,
+    )?;
     let mut shown = 0u64;
     loop {
         if args.frames.is_some_and(|n| shown >= n) {
@@ -137,13 +253,12 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
         let img: compend::raster::Rgb<compend::raster::Unspecified> = frame.to_image();
         let desired = compend::fov::place_in_area(&range.apply(&img), record.area, camera_size)?;
         pass.run(&ctx, &desired)?;
-        for (o, net) in outputs.iter_mut().zip(pass.read(&ctx)?) {
-            let size = o.size();
-            o.show(&compend::playback::place_on_canvas(
-                &net,
-                Rect::covering(size),
-                size,
-            )?)?;
+        let frames = canvases(&pass, &ctx, outputs[0].size())?;
+        for (o, f) in outputs.iter_mut().zip(&frames) {
+            o.show(f)?;
+        }
+        if let Some(m) = &mut media {
+            m.push(&frames)?;
         }
         // The camera sees the shows `delay` exposures later.
         let mut seen: Option<CamImage> = None;
@@ -155,6 +270,7 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
         }
         shown += 1;
     }
+    let written = media.map(SetOutputs::finish).transpose()?;
     if let Some(dir) = out {
         let counts = serde_json::json!({ "shown": shown, "projectors": outputs.len() });
         compend::files::write_atomically(
@@ -165,7 +281,7 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
     if args.json {
         println!(
             "{}",
-            serde_json::json!({ "shown": shown, "projectors": outputs.len() })
+            serde_json::json!({ "shown": shown, "projectors": outputs.len(), "written": written })
         );
     }
     eprintln!("play: {shown} frames shown on {} projectors", outputs.len());
@@ -221,6 +337,8 @@ fn play_on_windows(
     );
     let range = record.display_range;
     let camera_size = model.meta.camera_size;
+    let size = windows.sizes()[0];
+    let mut media = SetOutputs::start(&args.to, n, size, windows.refresh_hz(), true)?;
     let (mut shown, mut refreshes, mut ended) = (0u64, 0u64, false);
     loop {
         if args.frames.is_some_and(|f| refreshes >= f) || !windows.pump() {
@@ -250,11 +368,15 @@ fn play_on_windows(
             continue;
         }
         windows.present(&pass.outputs())?;
+        if let Some(m) = &mut media {
+            m.push(&canvases(&pass, windows.context(), size)?)?;
+        }
         refreshes += 1;
         if refreshes == 1 {
             eprintln!("play: first frame presented on every output");
         }
     }
+    let written = media.map(SetOutputs::finish).transpose()?;
     let p = windows.presents();
     if args.json {
         println!(
@@ -269,6 +391,7 @@ fn play_on_windows(
                 "together": p.together,
                 "out_of_step": p.out_of_step,
                 "skew_ms_max": p.skew_ms_max,
+                "written": written,
             })
         );
     }
@@ -277,5 +400,73 @@ fn play_on_windows(
          with an output a frame behind)",
         p.together, p.out_of_step
     );
+    Ok(())
+}
+
+/// Plays `spec` with no display, only to the outputs (`--no-window`): every source frame once,
+/// as fast as the joint pass goes, at the projectors' size (`--projector`, else the one the
+/// first projector's model was calibrated for).
+fn play_headless(
+    args: &SetPlay,
+    model: &SetModel,
+    record: &SetRecord,
+    spec: &SourceSpec,
+) -> Result<()> {
+    let n = model.models.len();
+    if args.to.is_empty() {
+        return Err(compend::Error::Input(
+            "--no-window: give one --to per projector (where the frames go)".into(),
+        )
+        .into());
+    }
+    if args.out.is_some() {
+        return Err(compend::Error::Input(
+            "--out holds the virtual camera's views: add --rig virtual, or leave --out out".into(),
+        )
+        .into());
+    }
+    let size = super::model_projector(&model.models[0], args.projector)?;
+    let mut src = source::open(spec)?;
+    src.set_live(false);
+    src.prepare()?;
+    let joint = model.joint()?;
+    let ctx = compend::gpu::GpuContext::new().context("opening the GPU for the joint pass")?;
+    let pass = compend::gpu::joint::JointPass::new(&ctx, &joint)?;
+    let mut media = SetOutputs::start(&args.to, n, size, args.output_fps, false)?
+        .ok_or_else(|| compend::Error::Input("--no-window needs --to".into()))?;
+    eprintln!(
+        "play: {} to the outputs only, {n} projector canvases of {size} ({})",
+        src.describe(),
+        ctx.describe()
+    );
+    let range = record.display_range;
+    let camera_size = model.meta.camera_size;
+    let mut shown = 0u64;
+    loop {
+        if args.frames.is_some_and(|f| shown >= f) {
+            break;
+        }
+        let frame = match src.next()? {
+            Next::Frame { frame, .. } => frame,
+            Next::Idle => {
+                std::thread::sleep(Duration::from_millis(5));
+                continue;
+            }
+            Next::End => break,
+        };
+        let img: compend::raster::Rgb<compend::raster::Unspecified> = frame.to_image();
+        let desired = compend::fov::place_in_area(&range.apply(&img), record.area, camera_size)?;
+        pass.run(&ctx, &desired)?;
+        media.push(&canvases(&pass, &ctx, size)?)?;
+        shown += 1;
+    }
+    let written = media.finish()?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({ "shown": shown, "projectors": n, "written": written })
+        );
+    }
+    eprintln!("play: {shown} frames to {n} outputs");
     Ok(())
 }

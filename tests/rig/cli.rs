@@ -684,6 +684,26 @@ fn a_set_calibrates_from_the_command_line() {
         assert_code(&o, 0);
         assert!(views.join("cam_000002.png").is_file(), "{}", stderr(&o));
         assert!(!views.join("cam_000003.png").exists());
+        // Each projector's compensated frames to a file of its own, offline, no display.
+        let (left, right) = (dir.path().join("left.mp4"), dir.path().join("right.mp4"));
+        let (l, r) = (
+            format!("file:{}", left.display()),
+            format!("file:{}", right.display()),
+        );
+        let o = play(&["--no-window", "--to", &l]);
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains("--to given 1 time(s) for a set of 2 projectors"),
+            "{}",
+            stderr(&o)
+        );
+        assert!(!left.exists());
+        let o = play(&["--no-window", "--to", &l, "--to", &r, "--json"]);
+        assert_code(&o, 0);
+        let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+        assert_eq!(v["written"], serde_json::json!([2, 2]), "{v}");
+        assert_eq!(crate::media::decoded_frames(&left), 2);
+        assert_eq!(crate::media::decoded_frames(&right), 2);
         set_plays_on_two_monitors(dir.path(), &out);
     }
     // Two projectors side by side that do not overlap: tiled without a blend, installed, with
