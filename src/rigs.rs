@@ -175,10 +175,16 @@ fn open_set_windows(
 ) -> Result<(Rc<RefCell<ProjectorWindows>>, ImageSize)> {
     let monitors = monitor_list(r);
     if monitors.len() != projectors || monitors.iter().any(String::is_empty) {
+        let named = match r.monitor.as_deref() {
+            Some(m) => given.name("monitor", m),
+            None => match given {
+                Given::Flags => "--monitor is not given".to_string(),
+                Given::File => "[rig] monitor is not set".to_string(),
+            },
+        };
         return Err(Error::Input(format!(
-            "{}: a set of {projectors} projectors needs one monitor per projector, in the set's \
-             order, comma-separated ({})",
-            given.name("monitor", r.monitor.as_deref().unwrap_or("")),
+            "{named}: a set of {projectors} projectors needs one monitor per projector, in the \
+             set's order, comma-separated ({})",
             given.name("monitor", "HDMI-1,HDMI-2")
         )));
     }
