@@ -80,6 +80,20 @@ impl SetOutputs {
             ))
             .into());
         }
+        // Two projectors' frames cannot go into one file (a pipeline may be meant twice).
+        for (i, a) in specs.iter().enumerate() {
+            if let OutputSpec::File(_) = a
+                && let Some(j) = specs[i + 1..].iter().position(|b| b == a)
+            {
+                return Err(compend::Error::Input(format!(
+                    "--to {a} is given for projectors {} and {}: each projector needs an output \
+                     of its own",
+                    i + 1,
+                    i + j + 2
+                ))
+                .into());
+            }
+        }
         let outputs = specs
             .iter()
             .map(|s| MediaOutput::start(s, size, fps, live))
@@ -161,6 +175,12 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
             model_dir.display()
         ))
     })?;
+    if let (Some(rig), Some(m)) = (args.rig, args.monitor) {
+        return Err(compend::Error::Input(format!(
+            "--monitor {m} and --rig {rig}: the virtual rig has its own outputs; leave one out"
+        ))
+        .into());
+    }
     let Some(rig_text) = args.rig else {
         if args.no_window {
             return play_headless(args, &model, record, spec);

@@ -697,6 +697,13 @@ fn a_set_calibrates_from_the_command_line() {
             "{}",
             stderr(&o)
         );
+        let o = play(&["--no-window", "--to", &l, "--to", &l]);
+        assert_code(&o, 2);
+        assert!(
+            stderr(&o).contains("is given for projectors 1 and 2: each projector needs"),
+            "{}",
+            stderr(&o)
+        );
         assert!(!left.exists());
         let o = play(&["--no-window", "--to", &l, "--to", &r, "--json"]);
         assert_code(&o, 0);
