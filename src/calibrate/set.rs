@@ -1,8 +1,9 @@
 //! Calibrating a set of projectors seen by one camera (docs/architecture.md, "Sets of
 //! projectors"): the displays shown side by side as one ([`SideBySide`]), so the exposure is
 //! ranged with every projector white; then each projector calibrated as one projector is
-//! ([`super::calibrate`]: its own latency, captures, `linear` fit, closed-loop pairs and
-//! verification) with the others black and the exposure held; then the joint model
+//! (the phases of [`super::calibrate`]: its own latency, captures, `linear` fit, closed-loop
+//! pairs and verification) with the others black and the exposure held, each projector's fits
+//! running behind the next projector's captures; then the joint model
 //! ([`crate::joint`]) checked as a whole in closed loop, over the displayable area of the whole
 //! set, against each projector compensating alone, with the seam figure along the overlaps.
 
@@ -72,29 +73,87 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
     progress("exposure", 0, 1);
     let exposure = exposure::range_exposure(&mut set, camera)?;
     progress("exposure", 1, 1);
-    let mut done: Vec<Calibrated> = Vec::with_capacity(n);
-    let mut projector_seconds = Vec::with_capacity(n);
+    // Each projector in the phases of `super::calibrate`, one projector at a time on the
+    // display, its fits on a thread of their own behind the next projector's captures: the
+    // sampling captures of every projector (each one's first fit running behind the next's
+    // captures), then the closed-loop pairs of every projector (each one's refit behind the
+    // next's pairs), then each one's verification.
+    let ones: Vec<Options> = (0..n)
+        .map(|k| Options {
+            rig: format!("{} projector {}", opts.rig, k + 1),
+            ..opts.clone()
+        })
+        .collect();
+    let dirs: Vec<std::path::PathBuf> = (0..n).map(|k| data.join(projector_dir(k))).collect();
+    // Seconds each projector held the display.
+    let mut projector_seconds = vec![0.0; n];
+    let mut fits = Vec::with_capacity(n);
     for k in 0..n {
         opts.check_cancelled()?;
         let t = Instant::now();
         show_black(&mut set)?;
-        let one = Options {
-            rig: format!("{} projector {}", opts.rig, k + 1),
-            ..opts.clone()
-        };
         let mut step = |phase: &str, i: usize, total: usize| {
             progress(&format!("projector {}/{n}: {phase}", k + 1), i, total);
         };
-        let display = &mut set.displays()[k];
-        let calibrated = super::calibrate(
-            display,
+        let captured = super::capture(
+            &mut set.displays()[k],
             &mut HeldExposure(&mut *camera),
-            &data.join(projector_dir(k)),
-            &one,
+            &dirs[k],
+            &ones[k],
             &mut step,
         )?;
-        projector_seconds.push(t.elapsed().as_secs_f64());
-        check_in_view(k, &calibrated.model.fov)?;
+        projector_seconds[k] += t.elapsed().as_secs_f64();
+        let one = ones[k].clone();
+        fits.push(Behind::start(k, "fit", move || {
+            let mut captured = captured;
+            let model = super::train(&mut captured, &one, &mut |_, _, _| {})?;
+            Ok((captured, model))
+        })?);
+    }
+    let mut refits = Vec::with_capacity(n);
+    for (k, fit) in fits.into_iter().enumerate() {
+        let (mut captured, model) = fit.join(&mut *progress, n)?;
+        check_in_view(k, &model.fov)?;
+        opts.check_cancelled()?;
+        let t = Instant::now();
+        show_black(&mut set)?;
+        let mut step = |phase: &str, i: usize, total: usize| {
+            progress(&format!("projector {}/{n}: {phase}", k + 1), i, total);
+        };
+        let taken = super::take_loop_pairs(
+            &mut set.displays()[k],
+            &mut HeldExposure(&mut *camera),
+            &mut captured,
+            model,
+            &ones[k],
+            &mut step,
+        )?;
+        projector_seconds[k] += t.elapsed().as_secs_f64();
+        let one = ones[k].clone();
+        refits.push(Behind::start(k, "refit", move || {
+            let mut captured = captured;
+            let model = super::refit(&mut captured, taken, &one, &mut |_, _, _| {})?;
+            Ok((captured, model))
+        })?);
+    }
+    let mut done: Vec<Calibrated> = Vec::with_capacity(n);
+    for (k, refit) in refits.into_iter().enumerate() {
+        let (captured, model) = refit.join(&mut *progress, n)?;
+        opts.check_cancelled()?;
+        let t = Instant::now();
+        show_black(&mut set)?;
+        let mut step = |phase: &str, i: usize, total: usize| {
+            progress(&format!("projector {}/{n}: {phase}", k + 1), i, total);
+        };
+        let calibrated = super::verify_model(
+            &mut set.displays()[k],
+            &mut HeldExposure(&mut *camera),
+            captured,
+            model,
+            &ones[k],
+            &mut step,
+        )?;
+        projector_seconds[k] += t.elapsed().as_secs_f64();
         done.push(calibrated);
     }
     show_black(&mut set)?;
@@ -387,4 +446,53 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
             why: (!why.is_empty()).then(|| why.join("; ")),
         },
     ))
+}
+
+/// A projector's fit running on a thread of its own while the display serves another
+/// projector.
+struct Behind<T> {
+    k: usize,
+    what: &'static str,
+    thread: std::thread::JoinHandle<Result<T>>,
+}
+
+impl<T: Send + 'static> Behind<T> {
+    /// Starts `work` (projector `k`'s `what`) on a thread.
+    fn start(
+        k: usize,
+        what: &'static str,
+        work: impl FnOnce() -> Result<T> + Send + 'static,
+    ) -> Result<Self> {
+        let thread = std::thread::Builder::new()
+            .name(format!("projector {} {what}", k + 1))
+            .spawn(work)
+            .map_err(|e| {
+                Error::Failed(format!(
+                    "cannot start the thread of projector {}'s {what}: {e}",
+                    k + 1
+                ))
+            })?;
+        Ok(Self { k, what, thread })
+    }
+
+    /// Waits for it (saying so as a phase of the `n` projectors' progress) and returns what
+    /// it made; a panic on its thread is an error naming it.
+    fn join(self, progress: Progress, n: usize) -> Result<T> {
+        let phase = format!("projector {}/{n}: {}", self.k + 1, self.what);
+        let waits = !self.thread.is_finished();
+        if waits {
+            progress(&phase, 0, 1);
+        }
+        let out = self.thread.join().map_err(|_| {
+            Error::Failed(format!(
+                "projector {}'s {} stopped on an internal error (its thread panicked)",
+                self.k + 1,
+                self.what
+            ))
+        })?;
+        if waits {
+            progress(&phase, 1, 1);
+        }
+        out
+    }
 }
