@@ -372,8 +372,13 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
     let mut joint_acc = Accumulator::default();
     let mut alone_acc: Vec<Accumulator> = (0..n).map(|_| Accumulator::default()).collect();
     let mut seams: Vec<SeamFigure> = Vec::new();
+    // Every view jointly, then every view by each projector alone: one capture after another
+    // shows another test image, so the camera tells them apart at once. Where two in a row
+    // aim at one view (a single test image), white comes between, as closed-loop pairs do.
+    let steps = verify_n * (1 + n);
+    let mut last_view: Option<usize> = None;
     for (i, view) in views.iter().enumerate() {
-        progress("set verification", i, verify_n);
+        progress("set verification", i, steps);
         opts.check_cancelled()?;
         let want = view.crop(area)?;
         let outputs = joint.apply(view)?;
@@ -383,6 +388,7 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
             .map(|(k, o)| frames_for(k, o))
             .collect::<Result<Vec<_>>>()?;
         let seen = capturer.capture_after_change(&side_by_side(&frames))?;
+        last_view = Some(i);
         // What the set was to show and what it showed, for a person to look at.
         crate::pngio::write_rgb(&shown.join(format!("desired-{:03}.png", i + 1)), view)?;
         crate::pngio::write_rgb(&shown.join(format!("joint-{:03}.png", i + 1)), &seen)?;
@@ -395,17 +401,22 @@ fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
                 away.data(),
             )?);
         }
-        for (k, acc) in alone_acc.iter_mut().enumerate() {
-            // Each projector alone aims at the view the last capture showed: the camera may
-            // not tell them apart, so white first (one frame), as closed-loop pairs do.
-            capturer.capture_averaging(&white_whole, true, 1)?;
+    }
+    for (k, acc) in alone_acc.iter_mut().enumerate() {
+        for (i, view) in views.iter().enumerate() {
+            progress("set verification", verify_n * (1 + k) + i, steps);
+            opts.check_cancelled()?;
+            if last_view == Some(i) {
+                capturer.capture_averaging(&white_whole, true, 1)?;
+            }
             let alone = model.models[k].infer(view)?;
             let frames = one_only(k, frames_for(k, &alone)?);
             let seen = capturer.capture_after_change(&side_by_side(&frames))?;
-            acc.add(&seen.crop(area)?, &want)?;
+            last_view = Some(i);
+            acc.add(&seen.crop(area)?, &view.crop(area)?)?;
         }
     }
-    progress("set verification", verify_n, verify_n);
+    progress("set verification", steps, steps);
     let j = joint_acc.finish()?;
     let alone_psnr = alone_acc
         .into_iter()
