@@ -145,19 +145,7 @@ impl XDummy {
             head: ImageSize::new(w, h),
         };
         let name = format!("{w}x{h}");
-        let xrandr = |args: &[&str]| {
-            let o = Command::new("xrandr")
-                .arg("-display")
-                .arg(&x.display)
-                .args(args)
-                .output()
-                .expect("xrandr runs (x11-xserver-utils)");
-            assert!(
-                o.status.success(),
-                "xrandr {args:?}: {}",
-                String::from_utf8_lossy(&o.stderr)
-            );
-        };
+        let xrandr = |args: &[&str]| x.xrandr(args);
         let timing: Vec<String> = [
             format!("{clock:.4}"),
             w.to_string(),
@@ -189,6 +177,21 @@ impl XDummy {
         xrandr(&set);
         xrandr(&["--fb", &format!("{}x{h}", w * heads)]);
         Some(x)
+    }
+
+    /// Runs xrandr on this server; panics with its error when it fails.
+    pub(crate) fn xrandr(&self, args: &[&str]) {
+        let o = Command::new("xrandr")
+            .arg("-display")
+            .arg(&self.display)
+            .args(args)
+            .output()
+            .expect("xrandr runs (x11-xserver-utils)");
+        assert!(
+            o.status.success(),
+            "xrandr {args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
     }
 
     /// What monitor `k` shows.

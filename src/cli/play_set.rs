@@ -343,7 +343,23 @@ fn play_on_windows(
         .into());
     }
     let joint = model.joint()?;
+    let calibrated = super::model_projector(&model.models[0], None).ok();
     let mut windows = compend::window::ProjectorWindows::open(&names)?;
+    // Each projector's image covers its whole frame: a monitor of another size would stretch
+    // it to another shape than the one calibrated.
+    if let Some(p) = calibrated
+        && let Some((m, s)) = windows
+            .monitors()
+            .into_iter()
+            .zip(windows.sizes())
+            .find(|(_, s)| s.width * p.height != s.height * p.width)
+    {
+        return Err(compend::Error::Input(format!(
+            "--monitor {m}: the monitor is {s}, the set was calibrated for projectors of {p} \
+             (another shape): set the monitors to {p} or calibrate the set on them"
+        ))
+        .into());
+    }
     let pass = compend::gpu::joint::JointPass::new(windows.context(), &joint)?;
     let mut src = source::open(spec)?;
     src.set_live(true);

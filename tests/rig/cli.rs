@@ -866,4 +866,39 @@ fn set_plays_on_two_monitors(dir: &std::path::Path, model: &std::path::Path) {
             "monitor {k}: {mean} mean, {worst} worst"
         );
     }
+    drop(_playing);
+    // The second monitor switched to 50 Hz, then to another shape than the set was calibrated
+    // for: each refused, named.
+    let mode = |name: &str, clock: &str, w: usize, h: usize| {
+        let t: Vec<String> = [w, w + 8, w + 16, w + 24, h, h + 2, h + 4, h + 6]
+            .iter()
+            .map(|v| v.to_string())
+            .collect();
+        let mut args = vec!["--newmode", name, clock];
+        args.extend(t.iter().map(String::as_str));
+        x.xrandr(&args);
+        x.xrandr(&["--addmode", "DUMMY1", name]);
+        x.xrandr(&["--output", "DUMMY1", "--mode", name]);
+    };
+    // 124 × 81 pixels a frame at 50 Hz.
+    mode("100x75_50", "0.5022", 100, 75);
+    let o = on_display("DUMMY0,DUMMY1", &["--frames", "1"]);
+    assert_code(&o, 2);
+    let e = stderr(&o);
+    assert!(
+        e.contains("the monitors refresh at different rates") && e.contains("DUMMY1 at 50.00 Hz"),
+        "{e}"
+    );
+    // 104 × 81 pixels a frame at 60 Hz.
+    mode("80x75", "0.5054", 80, 75);
+    let o = on_display("DUMMY0,DUMMY1", &["--frames", "1"]);
+    assert_code(&o, 2);
+    let e = stderr(&o);
+    assert!(
+        e.contains(
+            "--monitor DUMMY1: the monitor is 80x75, the set was calibrated for projectors of \
+             100x75"
+        ),
+        "{e}"
+    );
 }
