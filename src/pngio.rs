@@ -115,6 +115,17 @@ pub fn to_u8(v: f32) -> u8 {
     (v.clamp(0.0, 1.0) * 255.0).round() as u8
 }
 
+/// An image as 8-bit RGBA bytes, row-major, alpha 255 ([`to_u8`] per value): what a texture
+/// of the projector frame format or a raw RGBA video frame takes.
+pub fn to_rgba8<S: Space>(img: &Rgb<S>) -> Vec<u8> {
+    let mut rgba = Vec::with_capacity(img.width() * img.height() * 4);
+    for px in img.data().chunks_exact(3) {
+        rgba.extend(px.iter().map(|&v| to_u8(v)));
+        rgba.push(255);
+    }
+    rgba
+}
+
 /// Quantises an image to 8 bits (as saving and reloading it would).
 pub fn quantize<S: Space>(img: &Rgb<S>) -> Rgb<S> {
     img.map(|v| to_u8(v) as f32 / 255.0)

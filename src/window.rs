@@ -391,11 +391,7 @@ impl ProjectorWindow {
         scene: &crate::rig::scene::Scene,
         seed: u64,
     ) -> Result<crate::rig::window_camera::WindowCamera> {
-        // The camera looks back the delay; a quarter second more covers a camera rendering late
-        // (one that falls further behind skips the exposures it missed).
-        let l = &scene.latency;
-        let keep = Duration::from_secs_f64(0.25 + (l.delay_frames as f64 + 4.0) / l.fps);
-        let log = self.record_presented(keep);
+        let log = self.record_presented(camera_lookback(scene));
         let look = move |t| {
             log.at(t).map(|p| crate::rig::window_camera::Shown {
                 index: p.index,
@@ -474,26 +470,53 @@ impl ProjectorWindow {
             height: h,
         } = DisplaySink::size(self);
         self.upload
-            .get_or_insert_with(|| {
-                self.ctx.device.create_texture(&wgpu::TextureDescriptor {
-                    label: Some("shown frame"),
-                    size: wgpu::Extent3d {
-                        width: w as u32,
-                        height: h as u32,
-                        depth_or_array_layers: 1,
-                    },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format: FRAME_FORMAT,
-                    usage: wgpu::TextureUsages::TEXTURE_BINDING
-                        | wgpu::TextureUsages::COPY_DST
-                        | wgpu::TextureUsages::COPY_SRC,
-                    view_formats: &[],
-                })
-            })
+            .get_or_insert_with(|| frame_texture(&self.ctx, w as u32, h as u32))
             .clone()
     }
+}
+
+/// Writes `frame` (projector pixels, the texture's size) into `tex` as 8-bit RGBA.
+fn write_frame(ctx: &GpuContext, tex: &wgpu::Texture, frame: &PrjImage) {
+    let rgba = crate::pngio::to_rgba8(frame);
+    ctx.queue.write_texture(
+        tex.as_image_copy(),
+        &rgba,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(tex.width() * 4),
+            rows_per_image: Some(tex.height()),
+        },
+        tex.size(),
+    );
+}
+
+/// How far back a virtual camera watching the windows looks: the scene's delay, and a quarter
+/// second more for a camera rendering late (one that falls further behind skips the exposures
+/// it missed).
+fn camera_lookback(scene: &crate::rig::scene::Scene) -> Duration {
+    let l = &scene.latency;
+    Duration::from_secs_f64(0.25 + (l.delay_frames as f64 + 4.0) / l.fps)
+}
+
+/// A projector frame texture of `w`×`h` ([`FRAME_FORMAT`]) that `show` writes, the blit draws
+/// and a recorder can read back.
+fn frame_texture(ctx: &GpuContext, w: u32, h: u32) -> wgpu::Texture {
+    ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("shown frame"),
+        size: wgpu::Extent3d {
+            width: w.max(1),
+            height: h.max(1),
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: FRAME_FORMAT,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_DST
+            | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
+    })
 }
 
 impl DisplaySink for ProjectorWindow {
@@ -514,21 +537,7 @@ impl DisplaySink for ProjectorWindow {
             )));
         }
         let tex = self.upload_texture();
-        let mut rgba = Vec::with_capacity(w * h * 4);
-        for px in frame.data().chunks_exact(3) {
-            rgba.extend(px.iter().map(|&v| crate::pngio::to_u8(v)));
-            rgba.push(255);
-        }
-        self.ctx.queue.write_texture(
-            tex.as_image_copy(),
-            &rgba,
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(w as u32 * 4),
-                rows_per_image: Some(h as u32),
-            },
-            tex.size(),
-        );
+        write_frame(&self.ctx, &tex, frame);
         if !self.pump() {
             return Err(Error::Failed(
                 "the projector window was closed (Escape or the window system)".into(),

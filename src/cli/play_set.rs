@@ -121,12 +121,7 @@ impl SetOutputs {
             Duration::from_secs_f64(self.pushed as f64 / self.fps)
         };
         for (o, f) in self.outputs.iter_mut().zip(frames) {
-            let mut rgba = Vec::with_capacity(f.width() * f.height() * 4);
-            for px in f.data().chunks_exact(3) {
-                rgba.extend(px.iter().map(|&v| compend::pngio::to_u8(v)));
-                rgba.push(255);
-            }
-            o.push(rgba, pts)?;
+            o.push(compend::pngio::to_rgba8(f), pts)?;
         }
         self.pushed += 1;
         Ok(())

@@ -25,7 +25,7 @@ use super::record::{Pacer, Pending, PresentLog, Recorder, ShowTiming};
 use super::{App, SHOW_TRIES, next_target, open_windows, refresh_of, surface_config};
 use crate::device::DisplaySink;
 use crate::error::{Error, Result};
-use crate::gpu::{FRAME_FORMAT, GpuContext};
+use crate::gpu::GpuContext;
 use crate::raster::{ImageSize, PrjImage};
 
 /// Refresh rates (Hz) that differ by more than this cannot keep outputs in step.
@@ -185,10 +185,8 @@ impl ProjectorWindows {
         scene: &crate::rig::scene::Scene,
         seed: u64,
     ) -> Result<crate::rig::window_camera::WindowCamera> {
-        let l = &scene.latency;
-        let keep = Duration::from_secs_f64(0.25 + (l.delay_frames as f64 + 4.0) / l.fps);
         let looks = self
-            .record_presented(keep)
+            .record_presented(super::camera_lookback(scene))
             .into_iter()
             .map(|log| {
                 move |t| {
@@ -231,22 +229,7 @@ impl ProjectorWindows {
             let t = black_texture(&self.ctx, w as u32, h as u32);
             self.outputs[k].shown = t;
         }
-        let mut rgba = Vec::with_capacity(w * h * 4);
-        for px in frame.data().chunks_exact(3) {
-            rgba.extend(px.iter().map(|&v| crate::pngio::to_u8(v)));
-            rgba.push(255);
-        }
-        let tex = &self.outputs[k].shown;
-        self.ctx.queue.write_texture(
-            tex.as_image_copy(),
-            &rgba,
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(w as u32 * 4),
-                rows_per_image: Some(h as u32),
-            },
-            tex.size(),
-        );
+        super::write_frame(&self.ctx, &self.outputs[k].shown, frame);
         if !self.pump() {
             return Err(Error::Failed(
                 "a projector window was closed (Escape or the window system)".into(),
@@ -263,7 +246,8 @@ impl ProjectorWindows {
             self.pump();
         }
         Err(Error::Failed(format!(
-            "the projector windows presented nothing on every output in {SHOW_TRIES} refreshes              (is one hidden or minimised?)"
+            "the projector windows presented nothing on every output in {SHOW_TRIES} refreshes \
+             (is one hidden or minimised?)"
         )))
     }
 
@@ -380,37 +364,12 @@ impl ProjectorWindows {
     }
 }
 
-/// A black projector frame texture of `w`×`h` ([`FRAME_FORMAT`]) that can be drawn, written
-/// and read back.
+/// A black projector frame texture of `w`×`h` ([`super::frame_texture`]).
 fn black_texture(ctx: &GpuContext, w: u32, h: u32) -> wgpu::Texture {
-    let size = wgpu::Extent3d {
-        width: w.max(1),
-        height: h.max(1),
-        depth_or_array_layers: 1,
-    };
-    let t = ctx.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some("shown frame"),
-        size,
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format: FRAME_FORMAT,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING
-            | wgpu::TextureUsages::COPY_DST
-            | wgpu::TextureUsages::COPY_SRC,
-        view_formats: &[],
-    });
-    let black: Vec<u8> = [0u8, 0, 0, 255].repeat((size.width * size.height) as usize);
-    ctx.queue.write_texture(
-        t.as_image_copy(),
-        &black,
-        wgpu::TexelCopyBufferLayout {
-            offset: 0,
-            bytes_per_row: Some(size.width * 4),
-            rows_per_image: Some(size.height),
-        },
-        size,
-    );
+    let t = super::frame_texture(ctx, w, h);
+    let size = t.size();
+    let black = PrjImage::new(size.width as usize, size.height as usize);
+    super::write_frame(ctx, &t, &black);
     t
 }
 
