@@ -293,7 +293,9 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
         if projectors > 1 {
             return Err(Error::Input(format!(
                 "[rig] scene = {:?} is a set of {} projectors: the service drives one projector \
-                 so far; `compend sim sheet --scene {}` shows the set",
+                 so far; `compend calibrate --config` calibrates the set and `compend play \
+                 --model MODEL --monitor A,B` plays it (`compend sim sheet --scene {}` shows \
+                 it)",
                 r.scene, projectors, r.scene
             )));
         }
@@ -301,7 +303,8 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
     if r.monitor.as_deref().is_some_and(|m| m.contains(',')) {
         return Err(Error::Input(format!(
             "[rig] monitor = {:?} names several monitors: the service drives one projector so \
-             far; a set of projectors is calibrated and played from the command line",
+             far; `compend calibrate --config` calibrates the set and `compend play --model \
+             MODEL --monitor A,B` plays it",
             r.monitor.as_deref().unwrap_or("")
         )));
     }
