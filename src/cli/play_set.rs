@@ -371,6 +371,7 @@ fn play_on_windows(
     let size = windows.sizes()[0];
     let mut media = SetOutputs::start(&args.to, n, size, windows.refresh_hz(), true)?;
     let (mut shown, mut refreshes, mut ended) = (0u64, 0u64, false);
+    let mut held: Option<Vec<PrjImage>> = None;
     loop {
         if args.frames.is_some_and(|f| refreshes >= f) || !windows.pump() {
             break;
@@ -383,6 +384,11 @@ fn play_on_windows(
                         compend::fov::place_in_area(&range.apply(&img), record.area, camera_size)?;
                     pass.run(windows.context(), &desired)?;
                     shown += 1;
+                    // The outputs' canvases, read back once per source frame (a still is
+                    // pushed every refresh from here).
+                    if media.is_some() {
+                        held = Some(canvases(&pass, windows.context(), size)?);
+                    }
                 }
                 Next::Idle => {}
                 Next::End => {
@@ -399,8 +405,8 @@ fn play_on_windows(
             continue;
         }
         windows.present(&pass.outputs())?;
-        if let Some(m) = &mut media {
-            m.push(&canvases(&pass, windows.context(), size)?)?;
+        if let (Some(m), Some(frames)) = (&mut media, &held) {
+            m.push(frames)?;
         }
         refreshes += 1;
         if refreshes == 1 {
