@@ -5,10 +5,54 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::raster::{ImageSize, Mask, Plane, Rgb, Space};
+use crate::raster::{ImageSize, Levels, Mask, Plane, Rgb, Space};
 
 /// Reads a PNG as an RGB f32 image in space `S`.
 pub fn read_rgb<S: Space>(path: &Path) -> Result<Rgb<S>> {
+    let img = decode(path)?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let data: Vec<f32> = if is_sixteen_bit(&img) {
+        img.into_rgb16()
+            .into_raw()
+            .into_iter()
+            .map(|v| v as f32 / 65535.0)
+            .collect()
+    } else {
+        img.into_rgb8()
+            .into_raw()
+            .into_iter()
+            .map(|v| v as f32 / 255.0)
+            .collect()
+    };
+    Rgb::from_vec(w, h, data)
+}
+
+/// Reads a PNG as its RGB levels in space `S` (8 or 16 bits a value, as stored): a quarter or
+/// half of [`read_rgb`]'s memory, and the same values ([`Levels`]).
+pub fn read_levels<S: Space>(path: &Path) -> Result<Levels<S>> {
+    let img = decode(path)?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    if is_sixteen_bit(&img) {
+        Levels::from_u16(w, h, img.into_rgb16().into_raw())
+    } else {
+        Levels::from_u8(w, h, img.into_rgb8().into_raw())
+    }
+}
+
+/// [`read_levels`], checking the size as [`read_rgb_sized`] does.
+pub fn read_levels_sized<S: Space>(
+    path: &Path,
+    expected: ImageSize,
+    why: &str,
+) -> Result<Levels<S>> {
+    let img = read_levels::<S>(path)?;
+    check_size(path, img.size(), expected, why)?;
+    Ok(img)
+}
+
+/// A PNG file decoded (its alpha channel is dropped later, with a warning here when it held
+/// anything).
+fn decode(path: &Path) -> Result<image::DynamicImage> {
     let bytes = crate::files::read_regular(path, "a PNG image", crate::files::MAX_IMAGE_BYTES)?;
     let img =
         image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
@@ -17,26 +61,18 @@ pub fn read_rgb<S: Space>(path: &Path) -> Result<Rgb<S>> {
                 reason: e.to_string(),
             }
         })?;
-    let (w, h) = (img.width() as usize, img.height() as usize);
     warn_if_translucent(path, &img);
-    let data: Vec<f32> = match img {
+    Ok(img)
+}
+
+fn is_sixteen_bit(img: &image::DynamicImage) -> bool {
+    matches!(
+        img,
         image::DynamicImage::ImageLuma16(_)
-        | image::DynamicImage::ImageLumaA16(_)
-        | image::DynamicImage::ImageRgb16(_)
-        | image::DynamicImage::ImageRgba16(_) => img
-            .into_rgb16()
-            .into_raw()
-            .into_iter()
-            .map(|v| v as f32 / 65535.0)
-            .collect(),
-        other => other
-            .into_rgb8()
-            .into_raw()
-            .into_iter()
-            .map(|v| v as f32 / 255.0)
-            .collect(),
-    };
-    Rgb::from_vec(w, h, data)
+            | image::DynamicImage::ImageLumaA16(_)
+            | image::DynamicImage::ImageRgb16(_)
+            | image::DynamicImage::ImageRgba16(_)
+    )
 }
 
 /// The alpha channel is dropped on reading (compend's images are RGB). That loses nothing when
@@ -63,15 +99,20 @@ fn warn_if_translucent(path: &Path, img: &image::DynamicImage) {
 /// Reads a PNG and checks its size, naming `why` (what the size is required for) on mismatch.
 pub fn read_rgb_sized<S: Space>(path: &Path, expected: ImageSize, why: &str) -> Result<Rgb<S>> {
     let img = read_rgb::<S>(path)?;
-    if img.size() != expected {
+    check_size(path, img.size(), expected, why)?;
+    Ok(img)
+}
+
+fn check_size(path: &Path, got: ImageSize, expected: ImageSize, why: &str) -> Result<()> {
+    if got != expected {
         return Err(Error::Size {
             path: path.to_path_buf(),
-            got: img.size(),
+            got,
             expected,
             why: why.to_string(),
         });
     }
-    Ok(img)
+    Ok(())
 }
 
 /// Only the (width, height) of a PNG, from its header.

@@ -107,6 +107,37 @@ pub fn lattice_units(network: usize, lattice: usize) -> Vec<f64> {
         .collect()
 }
 
+/// The TPS control points in unit coordinates, in parameter order.
+fn control_points() -> Vec<(f64, f64)> {
+    (0..TPS_POINTS)
+        .map(|k| {
+            let (i, j) = (k % TPS_SIDE, k / TPS_SIDE);
+            (
+                i as f64 / (TPS_SIDE - 1) as f64,
+                j as f64 / (TPS_SIDE - 1) as f64,
+            )
+        })
+        .collect()
+}
+
+/// The basis row of unit position (u, v): the displacement there on an axis is this row times
+/// that axis's parameters.
+fn basis_row(ctrl: &[(f64, f64)], u: f64, v: f64) -> [f32; TPS_PARAMS] {
+    let k = |t: usize| {
+        let (cu, cv) = ctrl[t];
+        tps_kernel((u - cu).powi(2) + (v - cv).powi(2))
+    };
+    let k0 = k(0);
+    let mut row = [0f32; TPS_PARAMS];
+    for t in 1..TPS_POINTS {
+        row[t - 1] = (k(t) - k0) as f32;
+    }
+    row[TPS_POINTS - 1] = 1.0;
+    row[TPS_POINTS] = u as f32;
+    row[TPS_POINTS + 1] = v as f32;
+    row
+}
+
 impl TpsBasis {
     pub fn new(width: usize, height: usize) -> Self {
         let unit = |n: usize| -> Vec<f64> {
@@ -140,30 +171,11 @@ impl TpsBasis {
     /// coordinates are `xs` × `ys`.
     fn at_units(us: &[f64], vs: &[f64], xs: Vec<f32>, ys: Vec<f32>) -> Self {
         let (width, height) = (us.len(), vs.len());
-        let ctrl: Vec<(f64, f64)> = (0..TPS_POINTS)
-            .map(|k| {
-                let (i, j) = (k % TPS_SIDE, k / TPS_SIDE);
-                (
-                    i as f64 / (TPS_SIDE - 1) as f64,
-                    j as f64 / (TPS_SIDE - 1) as f64,
-                )
-            })
-            .collect();
+        let ctrl = control_points();
         let mut rows = Vec::with_capacity(width * height);
         for &v in vs {
             for &u in us {
-                let k: Vec<f64> = ctrl
-                    .iter()
-                    .map(|&(cu, cv)| tps_kernel((u - cu).powi(2) + (v - cv).powi(2)))
-                    .collect();
-                let mut row = [0f32; TPS_PARAMS];
-                for t in 1..TPS_POINTS {
-                    row[t - 1] = (k[t] - k[0]) as f32;
-                }
-                row[TPS_POINTS - 1] = 1.0;
-                row[TPS_POINTS] = u as f32;
-                row[TPS_POINTS + 1] = v as f32;
-                rows.push(row);
+                rows.push(basis_row(&ctrl, u, v));
             }
         }
         Self {
@@ -177,6 +189,39 @@ impl TpsBasis {
 
     pub fn size(&self) -> ImageSize {
         ImageSize::new(self.width, self.height)
+    }
+
+    /// [`TpsBasis::on_lattice`]`(network, lattice).grid(warp)`, to the bit, made a row of the
+    /// lattice at a time without holding the basis (38 values a pixel: 315 MB at 1920×1080).
+    pub fn lattice_grid(
+        network: ImageSize,
+        lattice: ImageSize,
+        warp: &Warp,
+    ) -> Grid<Network, Camera> {
+        use rayon::prelude::*;
+        let (us, vs) = (
+            lattice_units(network.width, lattice.width),
+            lattice_units(network.height, lattice.height),
+        );
+        let norm = |u: f64| (2.0 * u - 1.0) as f32;
+        let ctrl = control_points();
+        let th = &warp.theta;
+        let mut data = vec![[0f32; 2]; lattice.width * lattice.height];
+        data.par_chunks_mut(lattice.width.max(1))
+            .zip(&vs)
+            .for_each(|(out, &v)| {
+                for (g, &u) in out.iter_mut().zip(&us) {
+                    let row = basis_row(&ctrl, u, v);
+                    let dx: f32 = row.iter().zip(&warp.tps[0]).map(|(a, b)| a * b).sum();
+                    let dy: f32 = row.iter().zip(&warp.tps[1]).map(|(a, b)| a * b).sum();
+                    let (tx, ty) = (norm(u) + 2.0 * dx, norm(v) + 2.0 * dy);
+                    *g = [
+                        th[0][0] * tx + th[0][1] * ty + th[0][2],
+                        th[1][0] * tx + th[1][1] * ty + th[1][2],
+                    ];
+                }
+            });
+        Grid::from_vec(lattice.width, lattice.height, data).expect("one position per pixel")
     }
 
     pub fn rows(&self) -> &[[f32; TPS_PARAMS]] {
@@ -366,6 +411,36 @@ impl OffsetField {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The lattice grid made row by row is the stored basis's grid, to the bit, on lattices
+    /// finer, coarser and as fine as the network.
+    #[test]
+    fn the_lattice_grid_is_the_basis_grid() {
+        let mut warp = Warp::from_affine([[0.8, 0.1, 0.05], [-0.05, 0.9, -0.1]]);
+        let params: Vec<f32> = (0..6 + 2 * TPS_PARAMS)
+            .map(|k| {
+                if k < 6 {
+                    warp.to_params()[k]
+                } else {
+                    ((k * 37 % 11) as f32 - 5.0) * 1e-3
+                }
+            })
+            .collect();
+        warp.set_params(&params);
+        let network = ImageSize::new(16, 12);
+        for lattice in [
+            ImageSize::new(23, 17),
+            ImageSize::new(9, 7),
+            ImageSize::new(16, 12),
+        ] {
+            let want = TpsBasis::on_lattice(network, lattice).grid(&warp);
+            let got = TpsBasis::lattice_grid(network, lattice, &warp);
+            assert_eq!(got.size(), want.size());
+            for (g, w) in got.data().iter().zip(want.data()) {
+                assert_eq!(g.map(f32::to_bits), w.map(f32::to_bits), "{lattice}");
+            }
+        }
+    }
 
     /// `backward` is the adjoint of `apply`: for any field f and grid gradient g,
     /// ⟨apply(f) − base, g⟩ = ⟨f, backward(g)⟩; and the field interpolates its nodes exactly.

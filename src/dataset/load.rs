@@ -50,6 +50,15 @@ pub(super) fn read_all<S: Space>(
     why: &str,
     setter: &Path,
 ) -> Result<Vec<Rgb<S>>> {
+    read_all_with(paths, setter, |p| pngio::read_rgb_sized::<S>(p, size, why))
+}
+
+/// [`read_all`], each image read by `read` (which checks its size).
+pub(super) fn read_all_with<T: Send>(
+    paths: &[PathBuf],
+    setter: &Path,
+    read: impl Fn(&Path) -> Result<T> + Sync + Send,
+) -> Result<Vec<T>> {
     par_map(paths, |p| {
         if !p.is_file() {
             return Err(Error::Missing {
@@ -57,7 +66,7 @@ pub(super) fn read_all<S: Space>(
                 expected: "an image of the set".into(),
             });
         }
-        pngio::read_rgb_sized::<S>(p, size, why)
+        read(p)
     })
     .into_iter()
     .collect::<Result<Vec<_>>>()

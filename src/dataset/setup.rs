@@ -6,12 +6,12 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use super::load::{blame_the_odd_one, read_all, take_count};
+use super::load::{blame_the_odd_one, read_all, read_all_with, take_count};
 use super::names::{absolute, check_index, check_loop_views, check_plain_name, count_dir, scan};
 use super::root::{DataRoot, ProjectorSet};
 use crate::error::{Error, Result};
 use crate::pngio;
-use crate::raster::{CamImage, ImageSize, PrjImage};
+use crate::raster::{CamImage, Camera, ImageSize, Levels, PrjImage};
 
 /// A capture set of a setup, `SETUP/cam/raw/<name>`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -340,17 +340,42 @@ impl Setup {
     /// Loads the first `n` captures of a set (all when `None`) at camera size. For
     /// [`CaptureSet::Ref`] use [`Setup::load_reference`].
     pub fn load_captures(&self, set: CaptureSet, n: Option<usize>) -> Result<Vec<CamImage>> {
+        let size = self.camera_size()?;
+        let why = self.camera_why();
+        self.read_captures(set, n, |p| pngio::read_rgb_sized(p, size, &why))
+    }
+
+    /// [`Setup::load_captures`] as the levels the files store ([`Levels`]: a quarter of the
+    /// memory of f32 values for 8-bit PNGs, the same values), for fits that hold many.
+    pub fn load_capture_levels(
+        &self,
+        set: CaptureSet,
+        n: Option<usize>,
+    ) -> Result<Vec<Levels<Camera>>> {
+        let size = self.camera_size()?;
+        let why = self.camera_why();
+        self.read_captures(set, n, |p| pngio::read_levels_sized(p, size, &why))
+    }
+
+    fn read_captures<T: Send>(
+        &self,
+        set: CaptureSet,
+        n: Option<usize>,
+        read: impl Fn(&Path) -> Result<T> + Sync + Send,
+    ) -> Result<Vec<T>> {
         let dir = self.capture_dir(set);
         let n = take_count(&dir, count_dir(&dir)?, n, "captures")?;
         if n == 0 {
             return Ok(Vec::new());
         }
         let paths: Vec<PathBuf> = (1..=n).map(|i| self.capture_path(set, i)).collect();
-        let images = read_all(
-            &paths,
-            self.camera_size()?,
-            &self.camera_why(),
-            &self.reference_path(Reference::Black),
+        let images = read_all_with(&paths, &self.reference_path(Reference::Black), read).map_err(
+            |e| match e {
+                Error::Size { got, .. } => {
+                    blame_the_odd_one(e, &paths, got, &self.reference_path(Reference::Black))
+                }
+                e => e,
+            },
         )?;
         // Structured light needs only intensity.
         if set != CaptureSet::Sl {
@@ -387,15 +412,34 @@ impl Setup {
     }
 
     fn load_pairs(&self, set: CaptureSet, n: Option<usize>) -> Result<Pairs> {
-        let cap_dir = self.capture_dir(set);
-        let n = take_count(&cap_dir, count_dir(&cap_dir)?, n, "captures")?;
-        let pset = set.projector_set();
-        let prj_dir = self.root.dir(pset);
-        take_count(&prj_dir, count_dir(&prj_dir)?, Some(n), "projector images")?;
+        let n = self.pair_count(set, n)?;
         Ok(Pairs {
             captures: self.load_captures(set, Some(n))?,
-            inputs: self.root.load(pset, Some(n))?,
+            inputs: self.root.load(set.projector_set(), Some(n))?,
         })
+    }
+
+    /// [`Setup::load_train`] with the captures as the levels the files store
+    /// ([`Setup::load_capture_levels`]).
+    pub fn load_train_levels(
+        &self,
+        n: Option<usize>,
+    ) -> Result<(Vec<Levels<Camera>>, Vec<PrjImage>)> {
+        let set = CaptureSet::Train;
+        let n = self.pair_count(set, n)?;
+        Ok((
+            self.load_capture_levels(set, Some(n))?,
+            self.root.load(set.projector_set(), Some(n))?,
+        ))
+    }
+
+    /// How many pairs of `set` to load for `n`, refused when either folder is short.
+    fn pair_count(&self, set: CaptureSet, n: Option<usize>) -> Result<usize> {
+        let cap_dir = self.capture_dir(set);
+        let n = take_count(&cap_dir, count_dir(&cap_dir)?, n, "captures")?;
+        let prj_dir = self.root.dir(set.projector_set());
+        take_count(&prj_dir, count_dir(&prj_dir)?, Some(n), "projector images")?;
+        Ok(n)
     }
 
     /// Writes capture `index` (1-based) of a set, creating folders. Returns the path.

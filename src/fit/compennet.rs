@@ -14,7 +14,7 @@ use crate::linear::FitSettings;
 use crate::metrics::Scores;
 use crate::model::store::{FORMAT_VERSION, ModelMeta};
 use crate::model::{Method, Model};
-use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
+use crate::raster::{CamImage, Camera, ImageSize, Levels, NetImage, Network};
 use crate::record::{
     AutoCandidate, JudgedTraining, LoopCheckpoint, LoopHeldOut, Timings, TrainingRecord,
 };
@@ -37,7 +37,7 @@ pub(super) struct Judge<'a> {
     pub(super) lower_psnr: Option<f64>,
     /// Every pair, the held-out ones included: captures masked by the FOV (camera pixels) and
     /// projector images (network pixels).
-    pub(super) captures: &'a [CamImage],
+    pub(super) captures: &'a [Levels<Camera>],
     pub(super) targets: &'a [NetImage],
     /// The climbing rule: the training stops once the rung cannot reach its margin
     /// ([`ClimbRule::out_of_reach`]) or once its gain has settled past it
@@ -138,7 +138,7 @@ pub(super) fn train_compennet(
                     super::MIN_TRAIN
                 );
             }
-            let base: Vec<NetImage> = captures.iter().map(lin).collect();
+            let base: Vec<NetImage> = captures.iter().map(|c| lin(&c.to_values())).collect();
             prepared.data.base =
                 Some(crate::nn::images_to_tensor(&base)?.to_device(&prepared.device)?);
             correction = Correction::PaperProtocol(captures.len());
@@ -345,7 +345,7 @@ impl HeldOut {
             judge
                 .indices
                 .iter()
-                .map(|&i| pair(i).map(|(c, t)| (c.clone(), t.clone())))
+                .map(|&i| pair(i).map(|(c, t)| (c.to_values(), t.clone())))
                 .collect::<Result<Vec<_>>>()?
                 .into_iter()
                 .unzip()
@@ -449,7 +449,7 @@ fn closed_loop_data(
     setup: &Setup,
     indices: &[usize],
     (fov, grid): (&fov::FovMask, &Grid<Network, Camera>),
-    (captures, targets): (&[CamImage], &[NetImage]),
+    (captures, targets): (&[Levels<Camera>], &[NetImage]),
     lin: impl Fn(&CamImage) -> NetImage,
 ) -> Result<(Vec<CamImage>, Vec<NetImage>, Vec<NetImage>)> {
     let desired: Vec<CamImage> = setup
@@ -463,7 +463,7 @@ fn closed_loop_data(
     let mut goals = Vec::with_capacity(indices.len());
     for (&i, d) in indices.iter().zip(desired) {
         let lin_d = lin(&d);
-        let step = first_order_step(&targets[i - 1], &lin_d, &lin(&captures[i - 1]))?;
+        let step = first_order_step(&targets[i - 1], &lin_d, &lin(&captures[i - 1].to_values()))?;
         goals.push(match &weight {
             Some(w) => blend(&lin_d, &step, w)?,
             None => step,
@@ -542,7 +542,7 @@ fn prepare_compennet_data(
     req: &Request,
     variant: crate::nn::compennetpp::Variant,
     fov: &fov::FovMask,
-    captures: &[CamImage],
+    captures: &[Levels<Camera>],
     full_targets: &[NetImage],
 ) -> Result<CompenNetData> {
     use crate::nn::train::Data;
@@ -587,7 +587,9 @@ fn prepare_compennet_data(
     let on_device = |t: candle_core::Tensor| t.to_device(&device);
     let data = Data {
         captures: on_device(crate::nn::images_to_tensor(captures)?)?,
-        surface: on_device(crate::nn::images_to_tensor(std::slice::from_ref(&surface))?)?,
+        surface: on_device(crate::nn::images_to_tensor::<Camera, _>(
+            std::slice::from_ref(&surface),
+        )?)?,
         targets: on_device(crate::nn::images_to_tensor(targets)?)?,
         base: None,
     };
@@ -610,7 +612,7 @@ fn geometry_start(
     ),
     prepared: &CompenNetData,
     theta: [[f32; 3]; 2],
-    captures: &[CamImage],
+    captures: &[Levels<Camera>],
     full_targets: &[NetImage],
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> Result<(crate::nn::compennetpp::GeometryInit, &'static str)> {

@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use crate::linear::{self, FitSettings};
 use crate::model::store::{FORMAT_VERSION, ModelMeta};
 use crate::model::{Method, Model};
-use crate::raster::{CamImage, NetImage};
+use crate::raster::{Camera, Levels, NetImage};
 use crate::record::{AutoCandidate, AutoEvidence, Timings, TrainingRecord};
 
 /// A linear rung: the fit on the output lattice and its record. `evidence`: how `auto` chose
@@ -98,7 +98,7 @@ pub(super) fn settings(req: &Request, network_size: crate::raster::ImageSize) ->
 fn fit_linear_rung(
     setup: &Setup,
     method: Method,
-    (captures, targets): (&[CamImage], &[NetImage]),
+    (captures, targets): (&[Levels<Camera>], &[NetImage]),
     theta: [[f32; 3]; 2],
     settings: &FitSettings,
     memo: Option<&linear::GeometryMemo>,
@@ -135,8 +135,8 @@ pub(super) fn linear_rungs(setup: &Setup) -> &'static [Method] {
 pub(super) fn score_linear_rungs(
     setup: &Setup,
     req: &Request,
-    (fit_c, fit_t): (&[CamImage], &[NetImage]),
-    (held_c, held_t): (&[CamImage], &[NetImage]),
+    (fit_c, fit_t): (&[Levels<Camera>], &[NetImage]),
+    (held_c, held_t): (&[Levels<Camera>], &[NetImage]),
     theta: [[f32; 3]; 2],
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> Result<Vec<AutoCandidate>> {
@@ -157,7 +157,10 @@ pub(super) fn score_linear_rungs(
         let simplified = model.simplify();
         let mut acc = crate::metrics::Accumulator::default();
         for (c, t) in held_c.iter().zip(held_t) {
-            acc.add(&crate::model::at_size(simplified.apply(c), t.size()), t)?;
+            acc.add(
+                &crate::model::at_size(simplified.apply(&c.to_values()), t.size()),
+                t,
+            )?;
         }
         let scores = acc.finish()?;
         candidates.push(AutoCandidate {

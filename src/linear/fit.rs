@@ -16,7 +16,7 @@ use super::geometry::{fit_warp, refine_geometry};
 use super::model::{Curves, Geometry, LinearModel, learned_grid};
 use super::settings::FitSettings;
 use crate::error::{Error, Result};
-use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network};
+use crate::raster::{Camera, ImageSize, NetImage, Network, ReadRgb};
 use crate::sample::Grid;
 use crate::warp::{OffsetField, TpsBasis, Warp};
 
@@ -35,8 +35,8 @@ pub struct FitReport {
 
 /// Fits a `linear` model on training pairs: captures `x̃_i` (camera space, already masked by the
 /// FOV mask if desired) and projector inputs `x_i` (network space).
-pub fn fit(
-    captures: &[CamImage],
+pub fn fit<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     init: Warp,
     settings: &FitSettings,
@@ -47,8 +47,8 @@ pub fn fit(
 
 /// [`fit`], taking its geometry from `memo` when the memo's last geometry was fitted on the
 /// same things ([`GeometryMemo`]), and leaving its own there otherwise.
-pub fn fit_with_memo(
-    captures: &[CamImage],
+pub fn fit_with_memo<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     init: Warp,
     settings: &FitSettings,
@@ -57,7 +57,7 @@ pub fn fit_with_memo(
 ) -> Result<(LinearModel, FitReport)> {
     let start = Instant::now();
     check_pairs(captures, targets)?;
-    let cam_size = captures[0].size();
+    let cam_size = captures[0].dimensions();
     let key = memo.and_then(|_| geometry_key(captures, targets, &init, settings));
     let remembered = memo.zip(key).and_then(|(m, k)| m.get(k));
     let geometry_reused = remembered.is_some();
@@ -125,8 +125,8 @@ pub fn fit_with_memo(
 /// Fits the geometry that [`fit_with_memo`] on pairs starting with these would fit, and leaves
 /// it in `memo` for that fit to take (nothing to do when the memo already holds it). Inputs as
 /// for [`fit`]; only the first `settings.geometry_images` pairs are used.
-pub fn prefit_geometry(
-    captures: &[CamImage],
+pub fn prefit_geometry<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     init: Warp,
     settings: &FitSettings,
@@ -200,8 +200,8 @@ impl GeometryMemo {
 /// A fingerprint of what a fit's geometry depends on: the first `geometry_images` captures and
 /// projector images (sizes and values), the initial warp, and the settings but the lattice.
 /// `None` if the settings cannot be written out (then nothing is shared).
-fn geometry_key(
-    captures: &[CamImage],
+fn geometry_key<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     init: &Warp,
     settings: &FitSettings,
@@ -214,16 +214,14 @@ fn geometry_key(
     };
     let written = serde_json::to_vec(&geometry_settings).ok()?;
     // One hash per image, in parallel, then the hashes in order.
-    let image = |size: ImageSize, data: &[f32]| {
+    fn image<S: crate::raster::Space>(img: &impl ReadRgb<S>) -> u64 {
         let mut h = DefaultHasher::new();
-        (size.width, size.height).hash(&mut h);
-        let bits: Vec<u32> = data.iter().map(|v| v.to_bits()).collect();
-        bits.hash(&mut h);
+        img.hash_values(&mut h);
         h.finish()
-    };
+    }
     let images: Vec<u64> = (captures[..ng].par_iter())
-        .map(|c| image(c.size(), c.data()))
-        .chain(targets[..ng].par_iter().map(|t| image(t.size(), t.data())))
+        .map(image)
+        .chain(targets[..ng].par_iter().map(image))
         .collect();
     let mut h = DefaultHasher::new();
     (ng, images, written).hash(&mut h);
@@ -233,8 +231,8 @@ fn geometry_key(
 }
 
 /// The geometry stage of [`fit`] on the pairs' first `settings.geometry_images`.
-fn fit_learned_geometry(
-    captures: &[CamImage],
+fn fit_learned_geometry<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     init: Warp,
     settings: &FitSettings,
@@ -282,8 +280,8 @@ fn fit_learned_geometry(
 
 /// The affine + TPS geometry alone, as [`fit`] starts with (no dense refinement, no colour
 /// model): what the CompenNet++ variants start their WarpingNet from. Inputs as for [`fit`].
-pub fn fit_geometry(
-    captures: &[CamImage],
+pub fn fit_geometry<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     init: Warp,
     settings: &FitSettings,
@@ -302,8 +300,8 @@ pub fn fit_geometry(
 
 /// Fits only the colour part on a fixed geometry (the two-step `linear-sl` baseline): the grid
 /// maps network pixels to camera positions, e.g. from decoded structured light.
-pub fn fit_on_grid(
-    captures: &[CamImage],
+pub fn fit_on_grid<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     grid: Grid<Network, Camera>,
     settings: &FitSettings,
@@ -327,7 +325,7 @@ pub fn fit_on_grid(
             geometry: Geometry::Fixed(grid),
             curves,
             coeffs,
-            camera_size: captures[0].size(),
+            camera_size: captures[0].dimensions(),
         },
         FitReport {
             final_loss: loss,
@@ -339,7 +337,7 @@ pub fn fit_on_grid(
 }
 
 /// Checks that captures and projector images pair up and are each of one size.
-fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
+fn check_pairs<C: ReadRgb<Camera>>(captures: &[C], targets: &[NetImage]) -> Result<()> {
     if captures.is_empty() || captures.len() != targets.len() {
         return Err(Error::Input(format!(
             "linear fit needs as many captures as projector images, got {} and {}",
@@ -347,14 +345,14 @@ fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
             targets.len()
         )));
     }
-    let cam_size = captures[0].size();
-    if let Some(c) = captures.iter().find(|c| c.size() != cam_size) {
+    let cam_size = captures[0].dimensions();
+    if let Some(c) = captures.iter().find(|c| c.dimensions() != cam_size) {
         return Err(Error::Shape(format!(
             "captures differ in size: ({}, {}) and ({}, {})",
             cam_size.width,
             cam_size.height,
-            c.size().width,
-            c.size().height
+            c.dimensions().width,
+            c.dimensions().height
         )));
     }
     let net_size = targets[0].size();
@@ -382,6 +380,7 @@ fn check_pairs(captures: &[CamImage], targets: &[NetImage]) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::raster::CamImage;
 
     /// Images with no pixels are refused with an error that names the sizes, not a panic.
     #[test]

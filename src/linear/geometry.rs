@@ -14,7 +14,7 @@ use super::normal::{IDENTITY, Normal, global_solution, targets_linear};
 use super::settings::FitSettings;
 use super::stack::Stack;
 use crate::filter::gaussian_blur;
-use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rgb};
+use crate::raster::{CamImage, Camera, ImageSize, NetImage, Network, Plane, ReadRgb, Rgb};
 use crate::resize::resize_area;
 use crate::sample::Grid;
 use crate::warp::{OffsetField, TpsBasis, Warp};
@@ -22,8 +22,8 @@ use crate::warp::{OffsetField, TpsBasis, Warp};
 /// The coarse-to-fine affine + TPS fit that [`fit`] starts with (when
 /// `settings.learn_geometry`), the global curves fitted on the way at its first level; appends
 /// each step's loss to `history`.
-pub(super) fn fit_warp(
-    captures: &[CamImage],
+pub(super) fn fit_warp<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     init: Warp,
     settings: &FitSettings,
@@ -43,7 +43,9 @@ pub(super) fn fit_warp(
                 height: lh,
             } = level_size(settings.network_size, side);
             // Blurred a few at a time into the stack, never all beside it.
-            let stack = Stack::build(ng, captures[0].size(), |i| blur_rgb(&captures[i], sigma));
+            let stack: Stack<u16> = Stack::build(ng, captures[0].dimensions(), |i| {
+                blur_rgb(&captures[i], sigma)
+            });
             let tgts: Vec<NetImage> = targets[..ng]
                 .iter()
                 .map(|t| resize_area(t, lw, lh))
@@ -53,7 +55,7 @@ pub(super) fn fit_warp(
                 // The curves are global: a coarse fit here, refined once at the end.
                 curves = fit_curves(
                     &stack,
-                    &Stack::new(&tgts),
+                    &Stack::<f32>::new(&tgts),
                     &basis.grid(&warp),
                     curves,
                     settings.ridge,
@@ -100,8 +102,8 @@ pub(super) fn fit_warp(
 /// with Adam on the same per-pixel residual as the TPS levels (full network resolution, no blur).
 /// Pixels that never see the projector get no gradient and keep a zero offset.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn refine_geometry(
-    captures: &[CamImage],
+pub(super) fn refine_geometry<C: ReadRgb<Camera>>(
+    captures: &[C],
     targets: &[NetImage],
     base: &Grid<Network, Camera>,
     curves: &Curves,
@@ -115,7 +117,7 @@ pub(super) fn refine_geometry(
         height: nh,
     } = base.size();
     let ng = settings.geometry_images.clamp(1, captures.len());
-    let caps = Stack::new(&captures[..ng]);
+    let caps: Stack<u16> = Stack::new(&captures[..ng]);
     let lut = PowLut::new(curves.camera_gamma);
     let ylin = linear_targets(&targets[..ng], curves);
     let values = ng * nw * nh;
@@ -166,12 +168,17 @@ fn level_size(
     )
 }
 
-fn blur_rgb(img: &CamImage, sigma: f32) -> CamImage {
+fn blur_rgb<C: ReadRgb<Camera>>(img: &C, sigma: f32) -> CamImage {
     if sigma <= 0.0 {
-        return img.clone();
+        return img.to_rgb().into_owned();
     }
+    let ImageSize { width, height } = img.dimensions();
+    // Each channel read straight from the capture, not from an f32 copy of all three.
     let ch: Vec<_> = (0..3)
-        .map(|c| gaussian_blur(&img.channel(c), sigma as f64))
+        .map(|c| {
+            let plane = Plane::from_fn(width, height, |x, y| img.value((y * width + x) * 3 + c));
+            gaussian_blur(&plane, sigma as f64)
+        })
         .collect();
     Rgb::from_channels(&ch[0], &ch[1], &ch[2]).expect("blurred channels keep the size")
 }
@@ -245,7 +252,7 @@ struct Sample {
 /// squared residual (linear light), the gradient per pixel, and the global normal equations for
 /// the next step's prior. `ylin[p * n + i]` are the targets in linear projector light.
 fn geometry_step(
-    caps: &Stack,
+    caps: &Stack<u16>,
     ylin: &[[f32; 3]],
     grid: &Grid<Network, Camera>,
     lut: &PowLut,

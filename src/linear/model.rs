@@ -144,7 +144,7 @@ pub(super) fn learned_grid(
         }
         grid
     } else {
-        let mut grid = TpsBasis::on_lattice(network, lattice).grid(warp);
+        let mut grid = TpsBasis::lattice_grid(network, lattice, warp);
         if let Some(field) = refine {
             field.apply_on_lattice(&mut grid, network);
         }

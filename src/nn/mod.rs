@@ -28,7 +28,7 @@ pub use warpingnet::WarpingNet;
 
 use candle_core::{Device, Result, Tensor};
 
-use crate::raster::{ImageSize, Rgb, Space};
+use crate::raster::{ImageSize, ReadRgb, Rgb, Space};
 
 /// Images of one size as an (N, 3, H, W) f32 tensor on the CPU.
 /// Bilinear resize of (B, C, H, W) images to `size` (half-pixel centres, as
@@ -56,22 +56,26 @@ pub fn stretch(x: &Tensor, size: ImageSize) -> Result<Tensor> {
     ah.broadcast_matmul(&rows)
 }
 
-pub fn images_to_tensor<S: Space>(imgs: &[Rgb<S>]) -> Result<Tensor> {
+/// Images of one size, however their values are held, as an (N, 3, H, W) f32 tensor.
+pub fn images_to_tensor<S: Space, I: ReadRgb<S>>(imgs: &[I]) -> Result<Tensor> {
     let Some(first) = imgs.first() else {
         candle_core::bail!("images_to_tensor: no images");
     };
     let ImageSize {
         width: w,
         height: h,
-    } = first.size();
-    if let Some(other) = imgs.iter().find(|i| i.size() != first.size()) {
+    } = first.dimensions();
+    if let Some(other) = imgs.iter().find(|i| i.dimensions() != first.dimensions()) {
         candle_core::bail!(
             "images_to_tensor: sizes differ, ({w}, {h}) and ({}, {})",
-            other.size().width,
-            other.size().height
+            other.dimensions().width,
+            other.dimensions().height
         );
     }
-    let data: Vec<f32> = imgs.iter().flat_map(|i| i.data().iter().copied()).collect();
+    let data: Vec<f32> = imgs
+        .iter()
+        .flat_map(|i| (0..w * h * 3).map(|k| i.value(k)))
+        .collect();
     Tensor::from_vec(data, (imgs.len(), h, w, 3), &Device::Cpu)?
         .permute((0, 3, 1, 2))?
         .contiguous()

@@ -10,7 +10,10 @@ use std::marker::PhantomData;
 
 use crate::error::{Error, Result};
 
+mod levels;
+
 pub use crate::size::{ImageSize, as_pair, as_pair_opt};
+pub use levels::{Levels, ReadRgb};
 
 /// A pixel space marker. Images of different spaces cannot be mixed by accident; conversions
 /// between spaces are explicit (a warp, a placement on the canvas, or [`Rgb::into_space`]).
