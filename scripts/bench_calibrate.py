@@ -11,7 +11,7 @@ phase times, the verification figures and the `sim score` figures, one row per r
 
     python3 scripts/bench_calibrate.py [--bin target/release/compend] [--out DIR]
         [--latency-ms 100,250] [--fps 30] [--method linear] [--verify 5] [--average 3]
-        [--loop-images N] [--ntrain N|auto] SCENE:SEED ...
+        [--loop-images N] [--ntrain N|auto] [--json FILE] SCENE:SEED ...
 """
 
 import argparse
@@ -51,6 +51,8 @@ def main():
                     help="closed-loop pairs (calibrate --loop-images; default: calibrate's, as many as sampling pairs)")
     ap.add_argument("--ntrain", default=None,
                     help="sampling images, or auto (calibrate --ntrain; default: calibrate's, 48)")
+    ap.add_argument("--json", default=None, metavar="FILE",
+                    help="also write the rows to FILE as JSON (a list of objects)")
     a = ap.parse_args()
     if not os.access(a.bin, os.X_OK):
         sys.exit(f"bench_calibrate: {a.bin} is not an executable (cargo build --release first)")
@@ -102,6 +104,9 @@ def main():
         r = rows[-1]
         print(f"{r['run']}: latency {latency} ms, total {r['seconds']['total']:.1f} s, verification "
               f"{r['verification']:.2f} dB, sim score {r['sim_score']:.2f} dB", file=sys.stderr)
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(rows, f, indent=1)
     print("| run | sampling + closed-loop pairs | latency ms (frames) | latency s | exposure s | patterns s | captures s | training s "
           "| verification s | total s | capture floor s | total / floor | verification dB / SSIM | "
           "uncompensated dB | sim score dB | difference dB | oracle dB |")

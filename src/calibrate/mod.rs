@@ -1013,15 +1013,71 @@ pub fn install(done: Calibrated, out: &Path) -> Result<Model> {
 /// record does not describe.
 fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
     let (w, h) = (p.network.width, p.network.height);
-    let ours = |r: Result<()>| r.map_err(|e| not_ours(e, p));
-    ours(write_sampling(root, p, (Set::Train, 1..=p.ntrain)))?;
-    ours(write_sampling(root, p, (Set::Test, 1..=p.ntest)))?;
     // The whole colour cube, so the root is a complete one (`inspect` checks that `ref/` is
     // numbered without gaps); only black (1) and white (125) are projected.
-    for i in 1..=patterns::CUBE_COUNT {
-        ours(root.write_new(ProjectorSet::Ref, i, &patterns::color_cube(i, w, h)?))?;
+    let mut images: Vec<PatternImage> = Vec::new();
+    images.extend((1..=p.ntrain).map(|i| PatternImage::Sampling(Set::Train, i)));
+    images.extend((1..=p.ntest).map(|i| PatternImage::Sampling(Set::Test, i)));
+    images.extend((1..=patterns::CUBE_COUNT).map(PatternImage::Cube));
+    images.push(PatternImage::Gray);
+    let write = |image: &PatternImage| -> Result<()> {
+        let written = match *image {
+            PatternImage::Sampling(set, i) => {
+                let pset = match set {
+                    Set::Train => ProjectorSet::Train,
+                    Set::Test => ProjectorSet::Test,
+                };
+                let img = patterns::sampling_image(p.seed, set, i - 1, w, h);
+                root.write_new(pset, i, &img)
+            }
+            PatternImage::Cube(i) => {
+                root.write_new(ProjectorSet::Ref, i, &patterns::color_cube(i, w, h)?)
+            }
+            PatternImage::Gray => {
+                root.write_new_gray_input(&patterns::gray_image(p.gray_level, w, h))
+            }
+        };
+        written.map_err(|e| not_ours(e, p))
+    };
+    // Each file is synced to the disk before it is moved into place: written one at a time,
+    // the waits for the disk (two a file, 184 files by default) came one after another.
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let failed = std::sync::Mutex::new(None::<(usize, Error)>);
+    std::thread::scope(|s| {
+        for _ in 0..PATTERN_WRITERS {
+            s.spawn(|| {
+                loop {
+                    let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some(image) = images.get(k) else { return };
+                    if let Err(e) = write(image) {
+                        let mut first = failed.lock().unwrap_or_else(|e| e.into_inner());
+                        // The first failure in the images' order, as when written in order.
+                        if first.as_ref().is_none_or(|(j, _)| k < *j) {
+                            *first = Some((k, e));
+                        }
+                        next.store(images.len(), std::sync::atomic::Ordering::Relaxed);
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    match failed.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        Some((_, e)) => Err(e),
+        None => Ok(()),
     }
-    ours(root.write_new_gray_input(&patterns::gray_image(p.gray_level, w, h)))
+}
+
+/// Threads writing the patterns: each mostly waits for the disk.
+const PATTERN_WRITERS: usize = 4;
+
+/// One image of the pattern set ([`write_patterns`]).
+enum PatternImage {
+    /// Sampling image `i` (1-based) of a set.
+    Sampling(Set, usize),
+    /// Colour cube image `i` (1-based).
+    Cube(usize),
+    Gray,
 }
 
 /// An image of the data root that is not the one pattern set `p` would write there
