@@ -44,10 +44,10 @@ def main():
     loops = [x.strip() for x in a.loops.split(",") if x.strip()]
     for n in counts:
         if n != "auto" and not n.isdigit():
-            sys.exit(f"bench_time_accuracy: --ntrain {n!r}: expected a count or auto")
+            refuse(f"--ntrain {n!r}: expected a count or auto")
     for l in loops:
         if l not in ("0", "on"):
-            sys.exit(f"bench_time_accuracy: --loops {l!r}: expected 0 or on")
+            refuse(f"--loops {l!r}: expected 0 or on")
     os.makedirs(a.out, exist_ok=True)
     results = []
     for n in counts:
@@ -61,7 +61,7 @@ def main():
                 if subprocess.run(cmd, stdout=subprocess.DEVNULL).returncode != 0:
                     sys.exit(f"bench_time_accuracy: {' '.join(cmd)} failed")
             if not os.path.isfile(path):
-                sys.exit(f"bench_time_accuracy: {path} is missing (run without --chart-only first)")
+                refuse(f"{path} is missing (run without --chart-only first)")
             with open(path) as f:
                 for r in json.load(f):
                     results.append({"ntrain": n, "loops": l, "run": r["run"], "time": r["seconds"]["total"],
@@ -70,6 +70,12 @@ def main():
                                     "oracle": r["oracle"], "installed": r["installed"]})
     write_table(results, os.path.join(a.out, "time-accuracy.md"))
     write_chart(results, counts, os.path.join(a.out, "time-accuracy.svg"))
+
+
+def refuse(why):
+    """Bad input: says why and exits 2."""
+    print(f"bench_time_accuracy: {why}", file=sys.stderr)
+    sys.exit(2)
 
 
 def write_table(results, path):

@@ -10,7 +10,6 @@ use std::borrow::Cow;
 use std::fmt;
 use std::hash::{Hash, Hasher};
 use std::marker::PhantomData;
-use std::sync::OnceLock;
 
 use super::{Mask, Rgb, Space, check_same_size};
 use crate::error::{Error, Result};
@@ -89,11 +88,17 @@ impl<S: Space> fmt::Debug for Levels<S> {
     }
 }
 
-/// The f32 value of every 8-bit level, `v / 255` as [`crate::pngio::read_rgb`] computes it.
-fn eight_bit_values() -> &'static [f32; 256] {
-    static TABLE: OnceLock<[f32; 256]> = OnceLock::new();
-    TABLE.get_or_init(|| std::array::from_fn(|v| v as f32 / 255.0))
-}
+/// The f32 value of every 8-bit level, `v / 255` as [`crate::pngio::read_rgb`] computes it
+/// (IEEE division rounds the same at compile time as at run time).
+static EIGHT_BIT_VALUES: [f32; 256] = {
+    let mut table = [0f32; 256];
+    let mut v = 0;
+    while v < 256 {
+        table[v] = v as f32 / 255.0;
+        v += 1;
+    }
+    table
+};
 
 impl<S: Space> Levels<S> {
     /// 8-bit levels, interleaved RGB; the length must be `width * height * 3`.
@@ -124,10 +129,7 @@ impl<S: Space> Levels<S> {
     /// The image as f32 values.
     pub fn to_values(&self) -> Rgb<S> {
         let values: Vec<f32> = match &self.data {
-            LevelData::Eight(d) => {
-                let table = eight_bit_values();
-                d.iter().map(|&v| table[v as usize]).collect()
-            }
+            LevelData::Eight(d) => d.iter().map(|&v| EIGHT_BIT_VALUES[v as usize]).collect(),
             LevelData::Sixteen(d) => d.iter().map(|&v| v as f32 / 65535.0).collect(),
         };
         Rgb::wrap(self.width, self.height, values)
@@ -174,8 +176,26 @@ impl<S: Space> ReadRgb<S> for Levels<S> {
     #[inline]
     fn value(&self, i: usize) -> f32 {
         match &self.data {
-            LevelData::Eight(d) => eight_bit_values()[d[i] as usize],
+            LevelData::Eight(d) => EIGHT_BIT_VALUES[d[i] as usize],
             LevelData::Sixteen(d) => d[i] as f32 / 65535.0,
+        }
+    }
+    #[inline]
+    fn pixel(&self, p: usize) -> [f32; 3] {
+        let j = p * 3;
+        match &self.data {
+            LevelData::Eight(d) => {
+                let v = &d[j..j + 3];
+                [
+                    EIGHT_BIT_VALUES[v[0] as usize],
+                    EIGHT_BIT_VALUES[v[1] as usize],
+                    EIGHT_BIT_VALUES[v[2] as usize],
+                ]
+            }
+            LevelData::Sixteen(d) => {
+                let v = &d[j..j + 3];
+                [v[0], v[1], v[2]].map(|v| v as f32 / 65535.0)
+            }
         }
     }
     fn to_rgb(&self) -> Cow<'_, Rgb<S>> {
