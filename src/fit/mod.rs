@@ -386,7 +386,7 @@ fn train_count(
 
 /// What every rung starts from. Its pairs are owned as loaded, or borrowed from another's
 /// ([`TrainingData::first`]). The captures are held as the levels their files store
-/// ([`Levels`]): 88 captures at 640×480 hold 81 MB so, 324 MB as f32 values.
+/// ([`Levels`]): 88 captures at 640×480 hold 81 MB that way, against 324 MB as f32 values.
 struct TrainingData<'a> {
     /// The projector FOV mask (camera pixels) from the black and white references.
     fov: fov::FovMask,
