@@ -84,6 +84,10 @@ fn mean_abs_diff(a: &CamImage, b: &CamImage) -> f64 {
         / x.len().max(1) as f64
 }
 
+/// Exposures after a show before [`settled_level`] may take a level: past the delay of most
+/// rigs (8 exposures: 267 ms at 30 fps); [`measure_latency`] waits longer when it was not.
+const SETTLE_FRAMES: u64 = 8;
+
 /// Measures the projector-to-camera latency by alternating black and white frames and counting
 /// the exposures until the camera's mean level crosses half-way. An error when the camera does
 /// not see the projector change (no light reaches it, or it does not look at the surface).
@@ -96,11 +100,33 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let size = display.size();
     let black = PrjImage::new(size.width, size.height);
     let white = PrjImage::filled(size.width, size.height, [1.0; 3]);
-    // Levels: settle on black, then on white, waiting generously.
-    let (black_level, under_black) =
-        settled_level(display, camera, &black, settings.max_wait_frames)?;
-    let (white_level, under_white) =
-        settled_level(display, camera, &white, settings.max_wait_frames)?;
+    // Levels: settle on black, then on white. A level taken before the switch reached the
+    // camera reads the frame before it (black as bright as white, or brighter): then both are
+    // taken again, each waiting three times as long before it may settle, at most twice (a
+    // camera that does not see the projector is told so after 0.1 + 0.8 + 2.4 s at 30 fps).
+    let mut at_least = SETTLE_FRAMES;
+    let (black_level, under_black, white_level, under_white) = loop {
+        let (black_level, under_black) = settled_level(
+            display,
+            camera,
+            &black,
+            (at_least, settings.max_wait_frames),
+        )?;
+        let (white_level, under_white) = settled_level(
+            display,
+            camera,
+            &white,
+            (at_least, settings.max_wait_frames),
+        )?;
+        if white_level - black_level >= 0.02 || at_least >= SETTLE_FRAMES * 9 {
+            break (black_level, under_black, white_level, under_white);
+        }
+        tracing::info!(
+            "latency: black read {black_level:.3} and white {white_level:.3} after {at_least} \
+             exposures; waiting longer in case the switch had not reached the camera"
+        );
+        at_least = (at_least * 3).min(settings.max_wait_frames);
+    };
     check_exposure(black_level, white_level, &under_black, &under_white)?;
     let half = 0.5 * (black_level + white_level);
     let mut trials = Vec::with_capacity(settings.latency_trials);
@@ -197,7 +223,7 @@ fn settled_level<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
     frame: &PrjImage,
-    max_wait: u64,
+    (at_least, max_wait): (u64, u64),
 ) -> Result<(f64, CamImage)> {
     display.show(frame)?;
     let first = camera.grab()?;
@@ -212,8 +238,8 @@ fn settled_level<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             0
         };
         last = level;
-        // Steady for 4 exposures and past any plausible delay of the first show.
-        if (still >= 4 && f.seq - first.seq >= 8) || f.seq - first.seq >= max_wait {
+        // Steady for 4 exposures and past `at_least` exposures after the show.
+        if (still >= 4 && f.seq - first.seq >= at_least) || f.seq - first.seq >= max_wait {
             return Ok((level, f.image));
         }
     }
