@@ -1022,14 +1022,7 @@ fn write_patterns(root: &DataRoot, p: &PatternSet) -> Result<()> {
     images.push(PatternImage::Gray);
     let write = |image: &PatternImage| -> Result<()> {
         let written = match *image {
-            PatternImage::Sampling(set, i) => {
-                let pset = match set {
-                    Set::Train => ProjectorSet::Train,
-                    Set::Test => ProjectorSet::Test,
-                };
-                let img = patterns::sampling_image(p.seed, set, i - 1, w, h);
-                root.write_new(pset, i, &img)
-            }
+            PatternImage::Sampling(set, i) => write_sampling(root, p, (set, i..=i)),
             PatternImage::Cube(i) => {
                 root.write_new(ProjectorSet::Ref, i, &patterns::color_cube(i, w, h)?)
             }

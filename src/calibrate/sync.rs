@@ -103,7 +103,8 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     // Levels: settle on black, then on white. A level taken before the switch reached the
     // camera reads the frame before it (black as bright as white, or brighter): then both are
     // taken again, each waiting three times as long before it may settle, at most twice (a
-    // camera that does not see the projector is told so after 0.1 + 0.8 + 2.4 s at 30 fps).
+    // camera that does not see the projector is told so after 2 × (8 + 24 + 72) exposures,
+    // about 7 s at 30 fps, where one try took about 0.5 s).
     let mut at_least = SETTLE_FRAMES;
     let (black_level, under_black, white_level, under_white) = loop {
         let (black_level, under_black) = settled_level(
