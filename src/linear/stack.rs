@@ -51,10 +51,14 @@ impl Texel for f32 {
 }
 
 impl Texel for u16 {
-    /// Clamped to \[0,1\] (NaN reads as 0).
+    /// Clamped to \[0,1\] (NaN reads as 0), rounded to the nearest step, halves up: what
+    /// `round()` gives, without the call into libm that x86-64's baseline makes of it (the
+    /// stacks' building spent 2 % of a fit there). `x − t` is exact (t ≤ x < t + 1 < 2¹⁶).
     #[inline]
     fn store(v: f32) -> Self {
-        (v.clamp(0.0, 1.0) * 65535.0).round() as u16
+        let x = v.clamp(0.0, 1.0) * 65535.0;
+        let t = x as u16;
+        if x - t as f32 >= 0.5 { t + 1 } else { t }
     }
     #[inline]
     fn load(self) -> f32 {
@@ -471,6 +475,27 @@ mod tests {
 
     /// The geometry's sampler agrees with grid sampling (within rounding: it interpolates in
     /// another order), and its derivatives are those of the sample inside a cell.
+    /// 16-bit fixed point rounds as `round()` does: every step's value, the halves between
+    /// steps and the floats next to them, the ends, out of range and NaN.
+    #[test]
+    fn sixteen_bit_store_rounds_as_round_does() {
+        let want = |v: f32| (v.clamp(0.0, 1.0) * 65535.0).round() as u16;
+        let mut values = vec![-1.0, 0.0, 1.0, 2.0, f32::NAN, f32::INFINITY, -f32::INFINITY];
+        for k in 0..=65535u32 {
+            for at in [k as f32, k as f32 + 0.5] {
+                let v = at / 65535.0;
+                values.extend([
+                    v,
+                    f32::from_bits(v.to_bits() + 1),
+                    f32::from_bits(v.to_bits().saturating_sub(1)),
+                ]);
+            }
+        }
+        for v in values {
+            assert_eq!(<u16 as Texel>::store(v), want(v), "{v:e}");
+        }
+    }
+
     #[test]
     fn the_geometry_sampler_and_its_derivatives_agree_with_the_bilinear_sample() {
         let caps: Vec<CamImage> = random_images(5, 9, 6, 17);
