@@ -50,8 +50,8 @@ pub fn separable_replicate<S: Space>(src: &Plane<S>, kernel: &[f64]) -> Plane<S>
                 }
                 acc
             };
-            let inner = r..w.saturating_sub(r).max(r);
-            for x in (0..w).filter(|x| !inner.contains(x)) {
+            let inner = r.min(w)..w.saturating_sub(r).max(r.min(w));
+            for x in (0..inner.start).chain(inner.end..w) {
                 out[x] = clamped(x);
             }
             for x in inner {

@@ -473,8 +473,6 @@ mod tests {
         }
     }
 
-    /// The geometry's sampler agrees with grid sampling (within rounding: it interpolates in
-    /// another order), and its derivatives are those of the sample inside a cell.
     /// 16-bit fixed point rounds as `round()` does: every step's value, the halves between
     /// steps and the floats next to them, the ends, out of range and NaN.
     #[test]
@@ -496,6 +494,8 @@ mod tests {
         }
     }
 
+    /// The geometry's sampler agrees with grid sampling (within rounding: it interpolates in
+    /// another order), and its derivatives are those of the sample inside a cell.
     #[test]
     fn the_geometry_sampler_and_its_derivatives_agree_with_the_bilinear_sample() {
         let caps: Vec<CamImage> = random_images(5, 9, 6, 17);
