@@ -25,7 +25,7 @@ use gstreamer_app as gst_app;
 use gstreamer_video as gst_video;
 
 use crate::error::{Error, Result};
-use crate::gpu::{CompensationPass, GpuContext};
+use crate::gpu::{FramePass, GpuContext};
 use crate::media::{self, Watch, fault};
 use crate::player::{PlayStats, Refresh, Screen, Show};
 use crate::raster::ImageSize;
@@ -354,7 +354,7 @@ impl Drop for MediaOutput {
 /// A screen whose every new frame also goes to a [`MediaOutput`] (read back from the GPU as
 /// presented), when there is one. With [`crate::player::Headless`] as the inner
 /// screen, the output replaces the window.
-pub struct Teed<'a, S: Screen + ?Sized> {
+pub struct Teed<'a, S: ?Sized> {
     inner: &'a mut S,
     out: Option<MediaOutput>,
     live: bool,
@@ -362,7 +362,7 @@ pub struct Teed<'a, S: Screen + ?Sized> {
     start: Option<Instant>,
 }
 
-impl<'a, S: Screen + ?Sized> Teed<'a, S> {
+impl<'a, S: ?Sized> Teed<'a, S> {
     pub fn new(inner: &'a mut S, out: impl Into<Option<MediaOutput>>) -> Self {
         let out = out.into();
         let fps = out.as_ref().map_or(60.0, |o| o.fps);
@@ -376,7 +376,7 @@ impl<'a, S: Screen + ?Sized> Teed<'a, S> {
     }
 }
 
-impl<S: Screen + ?Sized> Screen for Teed<'_, S> {
+impl<P: FramePass, S: Screen<P> + ?Sized> Screen<P> for Teed<'_, S> {
     fn context(&self) -> &GpuContext {
         self.inner.context()
     }
@@ -390,7 +390,7 @@ impl<S: Screen + ?Sized> Screen for Teed<'_, S> {
     fn keep_going(&mut self) -> bool {
         self.inner.keep_going()
     }
-    fn take_pass(&mut self) -> Option<CompensationPass> {
+    fn take_pass(&mut self) -> Option<P> {
         self.inner.take_pass()
     }
     fn refreshed(&mut self, stats: &PlayStats) {
@@ -399,7 +399,7 @@ impl<S: Screen + ?Sized> Screen for Teed<'_, S> {
     fn display_delay(&self) -> Duration {
         self.inner.display_delay()
     }
-    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
+    fn present(&mut self, pass: &P, show: Show) -> Result<()> {
         self.inner.present(pass, show)?;
         let Show::New { index, .. } = show else {
             return Ok(());
@@ -407,7 +407,7 @@ impl<S: Screen + ?Sized> Screen for Teed<'_, S> {
         let Some(out) = self.out.as_mut() else {
             return Ok(());
         };
-        let rgba = pass.read_output_rgba(self.inner.context())?;
+        let rgba = pass.read_frame_rgba(self.inner.context())?;
         let pts = if self.live {
             self.start.get_or_insert_with(Instant::now).elapsed()
         } else {

@@ -30,7 +30,7 @@ use serde::Serialize;
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
 use crate::fov::DisplayRange;
-use crate::gpu::{CompensationPass, GpuContext};
+use crate::gpu::{CompensationPass, FramePass, GpuContext};
 use crate::model::Model;
 use crate::playback::ContentFrame;
 use crate::raster::{CamImage, ImageSize, PrjImage};
@@ -126,8 +126,9 @@ pub enum Show {
     Again,
 }
 
-/// A display the playback loop drives.
-pub trait Screen {
+/// A display the playback loop drives, presenting the pictures of a pass `P` (one projector's
+/// [`CompensationPass`] by default; a set's [`crate::gpu::joint::SetPass`] on a set's outputs).
+pub trait Screen<P = CompensationPass> {
     /// The GPU device the pass runs on (the window's: one that can present to it).
     fn context(&self) -> &GpuContext;
 
@@ -150,7 +151,7 @@ pub trait Screen {
 
     /// Called before each refresh: a pass to play from the next new frame on (a model swapped in
     /// while playing). Refreshes until that frame present the current pass's output.
-    fn take_pass(&mut self) -> Option<CompensationPass> {
+    fn take_pass(&mut self) -> Option<P> {
         None
     }
 
@@ -162,7 +163,7 @@ pub trait Screen {
     /// Puts the pass's output on the display; for [`Show::New`] the pass was just submitted
     /// with a new frame, and the time from its upload to the end of this call is the frame's
     /// pipeline time.
-    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()>;
+    fn present(&mut self, pass: &P, show: Show) -> Result<()>;
 
     /// How long after `present` returns the picture is seen (a window: about one refresh from
     /// the swap to the scan-out); zero by default.
@@ -276,13 +277,14 @@ enum Step {
     Ended,
 }
 
-/// The compensation pass fed by a source: one playback.
-pub struct Player {
-    pub pass: CompensationPass,
+/// A pass fed by a source: one playback (one projector's [`CompensationPass`] by default, or a
+/// set's joint pass).
+pub struct Player<P = CompensationPass> {
+    pub pass: P,
     pub feed: Feed,
     /// A pass handed over by the screen, in use from the next new frame on (or at once on the
     /// last frame, when the display holds it).
-    next_pass: Option<CompensationPass>,
+    next_pass: Option<P>,
     /// The last frame run through the pass (moved here, not copied).
     last: Option<ContentFrame>,
     stats: PlayStats,
@@ -309,9 +311,11 @@ impl Player {
         let pass = CompensationPass::for_display(ctx, model, display, range)?;
         Ok(Self::new(pass, Feed::spawn(source, mode)?))
     }
+}
 
+impl<P: FramePass> Player<P> {
     /// A player of `pass` fed by `feed`.
-    pub fn new(pass: CompensationPass, feed: Feed) -> Self {
+    pub fn new(pass: P, feed: Feed) -> Self {
         let stats = PlayStats {
             source: feed.describe().to_string(),
             ..PlayStats::default()
@@ -336,7 +340,7 @@ impl Player {
     /// Plays on `screen` until the source ends (a still image on a display without vsync: after
     /// its frame), `refreshes` refreshes were played, or the screen is closed; returns the
     /// counts.
-    pub fn run<S: Screen + ?Sized>(
+    pub fn run<S: Screen<P> + ?Sized>(
         &mut self,
         screen: &mut S,
         refreshes: Option<u64>,
@@ -366,7 +370,7 @@ impl Player {
     }
 
     /// The refreshes.
-    fn play<S: Screen + ?Sized>(
+    fn play<S: Screen<P> + ?Sized>(
         &mut self,
         screen: &mut S,
         refreshes: Option<u64>,
@@ -423,7 +427,7 @@ impl Player {
                 if let Some(pass) = self.next_pass.take() {
                     self.pass = pass;
                 }
-                self.pass.run(ctx, &frame)?;
+                self.pass.run_frame(ctx, &frame)?;
                 self.last = Some(frame);
                 Ok(Step::New(seq, at))
             }
@@ -434,7 +438,7 @@ impl Player {
 
     /// A refresh with no new frame: the last one stays, presented again where the display needs
     /// that. Returns whether anything was presented.
-    fn hold<S: Screen + ?Sized>(&mut self, screen: &mut S) -> Result<bool> {
+    fn hold<S: Screen<P> + ?Sized>(&mut self, screen: &mut S) -> Result<bool> {
         self.stats.refreshes += 1;
         self.stats.held += 1;
         if self.stats.shown == 0 {
@@ -445,7 +449,7 @@ impl Player {
             && let Some(pass) = self.next_pass.take()
         {
             self.pass = pass;
-            self.pass.run(screen.context(), frame)?;
+            self.pass.run_frame(screen.context(), frame)?;
         }
         screen.present(&self.pass, Show::Again)?;
         Ok(true)
@@ -508,7 +512,7 @@ impl<'a> Headless<'a> {
     }
 }
 
-impl Screen for Headless<'_> {
+impl<P> Screen<P> for Headless<'_> {
     fn context(&self) -> &GpuContext {
         self.ctx
     }
@@ -517,7 +521,7 @@ impl Screen for Headless<'_> {
         Refresh::Timer(self.hz)
     }
 
-    fn present(&mut self, _pass: &CompensationPass, show: Show) -> Result<()> {
+    fn present(&mut self, _pass: &P, show: Show) -> Result<()> {
         match show {
             Show::New { .. } => self.ctx.wait(),
             Show::Again => Ok(()),
@@ -597,10 +601,11 @@ fn watch(
     Ok(n)
 }
 
-impl<D, C> Screen for WatchedSink<'_, D, C>
+impl<D, C, P> Screen<P> for WatchedSink<'_, D, C>
 where
     D: DisplaySink + Send + 'static,
     C: FrameSource + Send + 'static,
+    P: FramePass,
 {
     fn context(&self) -> &GpuContext {
         self.ctx
@@ -634,11 +639,11 @@ where
         !self.closed
     }
 
-    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
+    fn present(&mut self, pass: &P, show: Show) -> Result<()> {
         let Show::New { seq, index } = show else {
             return Ok(()); // the sink keeps showing the last frame
         };
-        let frame = pass.read_output(self.ctx)?;
+        let frame = pass.read_frame(self.ctx)?;
         let w = self
             .watcher
             .as_ref()

@@ -126,6 +126,7 @@ pub fn open(r: &RigConfig, clock: RigClock, given: Given) -> Result<Opened> {
     match r.kind {
         RigKind::Virtual => {
             let scene = scene(r, None)?;
+            check_sections(r, &scene)?;
             let rig = VirtualRig::new(&scene, r.seed)?;
             let rig = match clock {
                 RigClock::Wall => rig.on_wall_clock(),
@@ -135,6 +136,7 @@ pub fn open(r: &RigConfig, clock: RigClock, given: Given) -> Result<Opened> {
         }
         RigKind::Window => {
             let named = scene::load(&r.scene)?;
+            check_sections(r, &named)?;
             if !named.more_projectors.is_empty() {
                 return open_window_set(r, given, named.projectors().len());
             }
@@ -156,6 +158,19 @@ pub fn open(r: &RigConfig, clock: RigClock, given: Given) -> Result<Opened> {
         }
         RigKind::Camera => open_camera(r, given),
     }
+}
+
+/// `[[projector]]` sections, where given, are as many as the simulated scene's projectors.
+pub fn check_sections(r: &RigConfig, scene: &Scene) -> Result<()> {
+    let (given, has) = (r.projectors.len(), scene.projectors().len());
+    if given > 0 && given != has {
+        return Err(Error::Input(format!(
+            "[[projector]]: {given} section(s), and scene {:?} has {has} projector(s): one \
+             section per projector of the scene, or none",
+            scene.name
+        )));
+    }
+    Ok(())
 }
 
 /// The monitors `[rig] monitor` names, comma-separated (one per projector of a set).

@@ -936,9 +936,10 @@ fn config_check_refuses_what_serve_would_and_two_calibrations_do_not_share_a_fol
     let socket_line = format!("path = \"{}\"", socket.display());
     let cases = [
         (
-            "a set of projectors as the rig's scene",
-            swap("scene = \"curved\"", "scene = \"tiled\""),
-            "is a set of 2 projectors",
+            "one [[projector]] section for a set of two",
+            swap("scene = \"curved\"", "scene = \"tiled\"")
+                .replace("[paths]\n", "[[projector]]\n\n[paths]\n"),
+            "1 section(s), and scene \"tiled\" has 2 projector(s)",
         ),
         (
             "socket path is a regular file",

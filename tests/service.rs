@@ -816,6 +816,128 @@ fn a_killed_recalibration_keeps_the_model_and_resumes_after_a_restart() {
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }
 
+/// A set of projectors served (`[rig] scene = "tiled"`, two `[[projector]]` sections): with no
+/// model the service calibrates the set as a whole, installs the set's model and plays it
+/// through the joint pass on both projectors; the status gives the whole set's verification
+/// (seam figure included) and each projector's; monitoring scores the camera's view of the
+/// whole set; one projector's model is refused and the set plays on; pause, play and a
+/// restart that serves the installed set; stop.
+#[test]
+fn the_service_calibrates_and_plays_a_set_of_projectors() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), "tiled", 9, "", "");
+    // The virtual rig brings its own outputs: the sections only count them.
+    let text = std::fs::read_to_string(&config)
+        .unwrap()
+        .replace("[paths]\n", "[[projector]]\n[[projector]]\n\n[paths]\n");
+    std::fs::write(&config, text).unwrap();
+    let mut svc = Service::start(&config);
+    let s = svc.wait_for("playback of the set after its calibration", 600, playing);
+    assert_eq!(s["calibrations"], 1, "{s}");
+    assert_eq!(s["model"]["method"], "linear (a set of 2, joint)", "{s}");
+    let set = &s["model"]["set"];
+    assert_eq!(set["passed"], true, "{s}");
+    assert!(set["gain_db"].as_f64().unwrap() >= 0.0, "{s}");
+    assert!(
+        set["seam"]["band_mse"].as_f64().is_some(),
+        "a tiled set overlaps: {s}"
+    );
+    assert!(
+        s["model"]["why"]
+            .as_str()
+            .unwrap()
+            .starts_with("a calibration installed it (verified "),
+        "{s}"
+    );
+    let p = s["projectors"].as_array().unwrap();
+    assert_eq!(p.len(), 2, "{s}");
+    for (k, p) in p.iter().enumerate() {
+        assert_eq!(p["output"], format!("virtual projector {}", k + 1), "{s}");
+        assert_eq!(p["size"], "200x150", "{s}");
+        assert_eq!(p["verification"]["passed"], true, "{s}");
+    }
+    let model = dir.path().join("state/model");
+    assert!(model.join("set.json").is_file());
+    assert!(model.join("projector-2/model.json").is_file());
+    let text = stdout(&client(&["status"], &svc.socket));
+    assert!(
+        text.contains("the whole set verified: ")
+            && text.contains("projector 2: virtual projector 2 (200x150), verified alone "),
+        "{text}"
+    );
+
+    // Monitoring scores the whole set's view against the desired one.
+    let s = svc.wait_for("a monitoring check of the set", 60, |s| {
+        s["monitoring"]["checks"].as_u64().unwrap_or(0) >= 2
+    });
+    let psnr = s["monitoring"]["psnr"].as_f64().unwrap();
+    assert!(psnr > 15.0, "monitoring {psnr} dB: {s}");
+    assert_eq!(s["monitoring"]["drift"], false, "{s}");
+
+    // One projector's model is not a set's: refused, the set plays on.
+    let one = dir.path().join("one");
+    std::fs::create_dir(&one).unwrap();
+    for f in ["model.json", "model.safetensors"] {
+        std::fs::copy(model.join("projector-1").join(f), one.join(f)).unwrap();
+    }
+    let r = svc.ask(&format!(r#"{{"cmd":"model","path":"{}"}}"#, one.display()));
+    assert_eq!(r["ok"], false, "{r}");
+    assert!(
+        r["error"]
+            .as_str()
+            .unwrap()
+            .contains("one projector's model"),
+        "{r}"
+    );
+    svc.wait_for("the set playing on", 30, playing);
+    assert_eq!(
+        svc.status()["model"]["method"],
+        "linear (a set of 2, joint)"
+    );
+
+    // Pause (black on both projectors) and play again.
+    let r = svc.ask(r#"{"cmd":"pause"}"#);
+    assert_eq!(r["ok"], true, "{r}");
+    svc.wait_for("paused", 30, |s| s["state"] == "paused");
+    let r = svc.ask(r#"{"cmd":"play"}"#);
+    assert_eq!(r["ok"], true, "{r}");
+    svc.wait_for("playing again", 30, playing);
+    let r = svc.ask(r#"{"cmd":"stop"}"#);
+    assert_eq!(r["ok"], true, "{r}");
+    assert_eq!(svc.wait_exit(30), Some(0), "log:\n{}", svc.log());
+
+    // Restarted, it serves the installed set at once.
+    let mut svc = Service::start(&config);
+    let s = svc.wait_for("playback of the installed set", 120, playing);
+    assert_eq!(s["calibrations"], 0, "{s}");
+    assert_eq!(s["model"]["method"], "linear (a set of 2, joint)", "{s}");
+    assert!(
+        s["model"]["why"]
+            .as_str()
+            .unwrap()
+            .contains("when the service started"),
+        "{s}"
+    );
+    unsafe { libc::kill(svc.pid(), libc::SIGTERM) };
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+
+    // Sections that do not match the scene's projectors are named before anything opens.
+    let text = std::fs::read_to_string(&config)
+        .unwrap()
+        .replace("[[projector]]\n[[projector]]\n", "[[projector]]\n");
+    std::fs::write(&config, text).unwrap();
+    let o = compend(&["config", "check", config.to_str().unwrap()]);
+    assert_code(&o, 2);
+    assert!(
+        stderr(&o).contains("[[projector]]: 1 section(s), and scene \"tiled\" has 2"),
+        "{}",
+        stderr(&o)
+    );
+}
+
 /// The built-in drift scene moves its projector by 1.5 of 800 pixels, which at the tests'
 /// 200-pixel projector is a third of a pixel: monitoring sees 0.5 dB of it. A bump, here, is 24
 /// of 800 pixels (6 at this size), as a scene file in `dir`.
@@ -969,11 +1091,11 @@ fn bad_configurations_and_sockets_exit_2_and_touch_nothing() {
             &format!("[paths]\ndata = \"{}\"\n", file.display()),
             "[paths] data",
         ),
-        // A set of projectors is calibrated and played from the command line.
+        // The virtual rig's set has its own outputs.
         (
-            "scene = \"curved\"",
-            "scene = \"curved\"\nmonitor = \"DP-1,DP-2\"",
-            "names several monitors: the service drives one projector so far",
+            "[paths]\n",
+            "[[projector]]\nmonitor = \"DP-1\"\n\n[paths]\n",
+            "[[projector]] 1 monitor: the virtual rig has its own outputs",
         ),
     ] {
         assert!(text.contains(from), "{text}");
@@ -1560,6 +1682,63 @@ fn the_service_monitors_through_a_camera_on_its_own_clock_under_xvfb() {
     let o = client(&["status"], &svc.socket);
     assert!(stdout(&o).contains("checks unseen"), "{}", stdout(&o));
 
+    assert_code(&client(&["stop"], &svc.socket), 0);
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+}
+
+/// A set served on windows: two monitors of an X server (Xorg's dummy driver), one
+/// `[[projector]]` section each, watched by the window rig's virtual camera on its own clock.
+/// The service calibrates the set on the windows, installs it and plays it on both outputs in
+/// the same refresh; the status names each projector's monitor; monitoring sees the whole set
+/// through the camera on its own clock (latency measured at the set's calibration).
+#[test]
+fn the_service_serves_a_set_on_two_monitors() {
+    if crate::common::gpu().is_none() {
+        return;
+    }
+    let Some(x) = crate::window::XDummy::start(100, 75, 2) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // A slightly wider view keeps the set in sight at this camera size (as
+    // tests/calibrate_window.rs does).
+    let mut wide = compend::rig::scene::builtin("tiled").unwrap();
+    wide.camera.hfov_deg *= 1.1;
+    let scene = dir.path().join("wide.json");
+    std::fs::write(&scene, serde_json::to_vec(&wide).unwrap()).unwrap();
+    let config = write_config(dir.path(), &scene.display().to_string(), 9, "", "");
+    let text = std::fs::read_to_string(&config)
+        .unwrap()
+        .replace("kind = \"virtual\"", "kind = \"window\"")
+        .replace("camera_size = \"160x120\"", "camera_size = \"96x72\"")
+        .replace("projector = \"200x150\"\n", "")
+        .replace("ntrain = 12", "ntrain = 10\nloop_images = 0")
+        .replace("network = \"64\"", "network = \"32\"")
+        .replace("size=200x150", "size=100x75")
+        .replace(
+            "[paths]\n",
+            "[[projector]]\nmonitor = \"DUMMY0\"\n[[projector]]\nmonitor = \"DUMMY1\"\n\n[paths]\n",
+        );
+    std::fs::write(&config, text).unwrap();
+    let mut svc = Service::start_on(&config, Some(&x.display));
+    let s = svc.wait_for("playback of the set on its windows", 600, playing);
+    assert_eq!(s["model"]["method"], "linear (a set of 2, joint)", "{s}");
+    assert_eq!(s["model"]["set"]["passed"], true, "{s}");
+    let p = s["projectors"].as_array().unwrap();
+    let outputs: Vec<&str> = p.iter().map(|p| p["output"].as_str().unwrap()).collect();
+    assert_eq!(outputs, ["DUMMY0", "DUMMY1"], "{s}");
+    assert!(p.iter().all(|p| p["size"] == "100x75"), "{s}");
+    assert!(
+        svc.log().contains("a set of 2 projector windows"),
+        "{}",
+        svc.log()
+    );
+    // Bars held still: the camera on its own clock sees the whole set alone.
+    let s = svc.wait_for("monitoring checks of the set", 120, |s| {
+        s["monitoring"]["checks"].as_u64().unwrap_or(0) >= 2
+    });
+    let psnr = s["monitoring"]["psnr"].as_f64().unwrap();
+    assert!(psnr > 15.0, "monitoring {psnr} dB: {s}");
     assert_code(&client(&["stop"], &svc.socket), 0);
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }

@@ -278,8 +278,36 @@ fn describe(s: &Status) -> String {
                     v.psnr, v.ssim, v.gain_db
                 );
             }
+            if let Some(v) = &m.set {
+                let alone: Vec<String> = v.alone_psnr.iter().map(|p| format!("{p:.2}")).collect();
+                out += &format!(
+                    "  the whole set verified: {:.2} dB / SSIM {:.3}, {:+.2} dB over its best \
+                     projector alone ({} dB){}\n",
+                    v.psnr,
+                    v.ssim,
+                    v.gain_db,
+                    alone.join(", "),
+                    v.seam.as_ref().map_or(String::new(), |f| format!(
+                        "; seam ratio {:.2} (at most {:.2})",
+                        f.ratio(),
+                        v.seam_limit
+                    ))
+                );
+            }
         }
         None => out += "model: none installed\n",
+    }
+    for (k, p) in s.projectors.iter().enumerate() {
+        out += &format!(
+            "projector {}: {} ({}){}\n",
+            k + 1,
+            p.output,
+            p.size,
+            p.verification.as_ref().map_or(String::new(), |v| format!(
+                ", verified alone {:.2} dB",
+                v.psnr
+            ))
+        );
     }
     if let Some(c) = &s.calibration {
         out += &format!(

@@ -43,7 +43,7 @@ pub use osc::OscConfig;
 pub use output::OutputConfig;
 pub use paths::PathsConfig;
 pub use playback::PlaybackConfig;
-pub use rig::{RigConfig, RigKind};
+pub use rig::{ProjectorConfig, RigConfig, RigKind};
 pub use socket::SocketConfig;
 
 use read::{Table, Walker};
@@ -147,7 +147,8 @@ fn sections<'t>(w: &mut Walker<'t>, root: &mut Table<'t>) -> Config {
         w.finish(t);
         value
     }
-    let rig = section(w, root, "rig", RigConfig::read);
+    let mut rig = section(w, root, "rig", RigConfig::read);
+    rig::ProjectorConfig::read_into(w, root, &mut rig);
     let paths = section(w, root, "paths", PathsConfig::read);
     let calibration = section(w, root, "calibration", CalibrationConfig::read);
     let playback = section(w, root, "playback", |w, t| {
@@ -476,6 +477,44 @@ mod tests {
         assert_eq!(
             c.output.to,
             Some(crate::output::OutputSpec::Pipeline("fakesink".into()))
+        );
+    }
+
+    #[test]
+    fn projector_sections_name_a_sets_monitors() {
+        let c = parse(
+            "[rig]\nkind = \"camera\"\ncamera = \"/dev/video0\"\n[[projector]]\nmonitor = \
+             \"HDMI-1\"\n[[projector]]\nmonitor = \"DP-2\"\n",
+        )
+        .unwrap();
+        assert_eq!(c.rig.projectors.len(), 2);
+        assert_eq!(c.rig.monitor.as_deref(), Some("HDMI-1,DP-2"));
+        // The virtual rig's sections only count its scene's projectors.
+        let c = parse("[rig]\nscene = \"tiled\"\n[[projector]]\n[[projector]]\n").unwrap();
+        assert_eq!((c.rig.projectors.len(), c.rig.monitor), (2, None));
+        let text = "[rig]\nkind = \"window\"\nmonitor = \"HDMI-1\"\n[[projector]]\nmonitor = \
+                    \"A,B\"\n[[projector]]\nmonitr = \"B\"\n[[projector]]\nmonitor = \"C\"\n";
+        let e = parse(text).unwrap_err().to_string();
+        for want in [
+            "t.toml:5: [[projector]] 1 monitor: \"A,B\" is not one monitor's name or index",
+            "t.toml:7: unknown key `monitr` at the [projector]; did you mean `monitor`?",
+            "[[projector]] 2: a window rig needs each projector's monitor",
+        ] {
+            assert!(e.contains(want), "missing {want:?} in:\n{e}");
+        }
+        let e = parse("[[projector]]\nmonitor = \"HDMI-1\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("the virtual rig has its own outputs"), "{e}");
+        let e =
+            parse("[rig]\nkind = \"window\"\nmonitor = \"X\"\n[[projector]]\nmonitor = \"A\"\n")
+                .unwrap_err()
+                .to_string();
+        assert!(e.contains("both name monitors"), "{e}");
+        let e = parse("projector = 3\n").unwrap_err().to_string();
+        assert!(
+            e.contains("`projector` must be sections ([[projector]])"),
+            "{e}"
         );
     }
 

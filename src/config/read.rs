@@ -151,6 +151,48 @@ impl<'t> Walker<'t> {
         }
     }
 
+    /// Takes the array of sections `name` (`[[name]]`) out of `root`, each with where it is;
+    /// none when it is missing.
+    pub(super) fn tables(
+        &mut self,
+        root: &mut Table<'t>,
+        name: &'static str,
+    ) -> Vec<(Range<usize>, Table<'t>)> {
+        let Some(i) = root.entries.iter().position(|(k, _, _)| k == name) else {
+            return Vec::new();
+        };
+        let (_, span, value) = root.entries.remove(i);
+        let wrong = |w: &mut Self, what: &str| {
+            w.error(
+                span.clone(),
+                format!("`{name}` must be sections ([[{name}]]), not {what}"),
+            )
+        };
+        match value.into_inner() {
+            DeValue::Array(items) => {
+                let mut out = Vec::new();
+                for item in items {
+                    let at = item.span();
+                    match item.into_inner() {
+                        DeValue::Table(t) => out.push((
+                            at,
+                            Table {
+                                name,
+                                entries: entries(t),
+                            },
+                        )),
+                        other => wrong(self, &with_article(other.type_str())),
+                    }
+                }
+                out
+            }
+            other => {
+                wrong(self, &with_article(other.type_str()));
+                Vec::new()
+            }
+        }
+    }
+
     /// Takes `key` out of `t` and deserialises it; `None` when absent or wrong (recorded).
     pub(super) fn get<T: DeserializeOwned>(&mut self, t: &mut Table<'t>, key: &str) -> Option<T> {
         self.asked.push(format!("{}.{key}", t.name));
@@ -325,8 +367,9 @@ impl<'t> Walker<'t> {
 }
 
 /// The sections, in the order of the shipped file.
-pub(super) const SECTIONS: [&str; 11] = [
+pub(super) const SECTIONS: [&str; 12] = [
     "rig",
+    "projector",
     "paths",
     "calibration",
     "playback",

@@ -45,6 +45,92 @@ pub struct RigConfig {
     /// simulated projector is moved to the scene's drifted pose (a bump, for testing monitoring
     /// and recalibration).
     pub drift_after_s: Option<f64>,
+    /// `[[projector]]`: a set of projectors, one section per projector in the set's order
+    /// (empty: one projector, or the virtual scene's set). Their monitors are also in
+    /// `monitor`, comma-separated, as a set's monitors are given on the command line.
+    pub projectors: Vec<ProjectorConfig>,
+}
+
+/// `[[projector]]`: one projector of a set.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ProjectorConfig {
+    /// `window`/`camera`: this projector's monitor, by name or index.
+    pub monitor: Option<String>,
+}
+
+impl ProjectorConfig {
+    fn read<'t>(w: &mut Walker<'t>, t: &mut Table<'t>) -> Self {
+        ProjectorConfig {
+            monitor: w.get(t, "monitor"),
+        }
+    }
+
+    /// Reads the `[[projector]]` sections of `root` into `rig`, checked against its kind: a
+    /// window or camera rig needs each projector's monitor (then `rig.monitor` lists them,
+    /// comma-separated), the virtual rig has its own outputs.
+    pub(super) fn read_into<'t>(w: &mut Walker<'t>, root: &mut Table<'t>, rig: &mut RigConfig) {
+        let sections = w.tables(root, "projector");
+        if sections.is_empty() {
+            // The keys a section takes, for the list of known keys.
+            let mut none = Table {
+                name: "projector",
+                entries: Vec::new(),
+            };
+            Self::read(w, &mut none);
+            return;
+        }
+        let mut monitors = Vec::new();
+        for (k, (at, mut t)) in sections.into_iter().enumerate() {
+            let span = super::read::span_of(&t, "monitor");
+            let p = Self::read(w, &mut t);
+            w.finish(t);
+            match (&p.monitor, rig.kind) {
+                (Some(_), RigKind::Virtual) => w.error(
+                    span,
+                    format!(
+                        "[[projector]] {} monitor: the virtual rig has its own outputs (one per \
+                         projector of its scene); leave monitor out",
+                        k + 1
+                    ),
+                ),
+                (Some(m), _) if m.trim().is_empty() || m.contains(',') => w.error(
+                    span,
+                    format!(
+                        "[[projector]] {} monitor: {m:?} is not one monitor's name or index",
+                        k + 1
+                    ),
+                ),
+                (Some(m), _) => monitors.push(m.trim().to_string()),
+                (None, RigKind::Virtual) => {}
+                (None, _) => w.error(
+                    at,
+                    format!(
+                        "[[projector]] {}: a {} rig needs each projector's monitor (monitor = \
+                         \"HDMI-1\")",
+                        k + 1,
+                        if rig.kind == RigKind::Camera {
+                            "camera"
+                        } else {
+                            "window"
+                        }
+                    ),
+                ),
+            }
+            rig.projectors.push(p);
+        }
+        if rig.kind != RigKind::Virtual && monitors.len() == rig.projectors.len() {
+            if let Some(m) = &rig.monitor {
+                w.errors.push((
+                    w.line(0),
+                    format!(
+                        "[rig] monitor = {m:?} and [[projector]] sections both name monitors: \
+                         name each projector's in its own [[projector]] section"
+                    ),
+                ));
+            }
+            rig.monitor = Some(monitors.join(","));
+        }
+    }
 }
 
 impl Default for RigConfig {
@@ -62,6 +148,7 @@ impl Default for RigConfig {
             camera_fps: None,
             latency_ms: None,
             drift_after_s: None,
+            projectors: Vec::new(),
         }
     }
 }
@@ -90,6 +177,7 @@ impl RigConfig {
             camera_fps: w.optional_positive(t, "camera_fps"),
             latency_ms: w.optional_non_negative(t, "latency_ms"),
             drift_after_s: w.optional_non_negative(t, "drift_after_s"),
+            projectors: Vec::new(),
         };
         if kind == RigKind::Camera && rig.camera.is_none() {
             w.errors.push((

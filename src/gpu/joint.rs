@@ -7,10 +7,12 @@ use bytemuck::{Pod, Zeroable};
 
 use super::GpuContext;
 use super::kernel::{Slot, Stage, image_texture, storage, uniform, view};
-use super::pass::read_rgba32f;
+use super::pass::{FramePass, read_rgba32f};
 use crate::error::{Error, Result};
+use crate::fov::DisplayRange;
 use crate::joint::{JointModel, MAX_PROJECTORS, SLOT_FLOATS};
-use crate::raster::{CamImage, ImageSize, NetImage};
+use crate::playback::{ContentFrame, place_on_canvas};
+use crate::raster::{CamImage, ImageSize, NetImage, PrjImage, Rect, Unspecified};
 
 const SHADER: &str = concat!(
     include_str!("../../shaders/common.wgsl"),
@@ -239,5 +241,76 @@ impl JointPass {
     /// The projectors' output textures (rgba32float, each its lattice's size), in set order.
     pub fn outputs(&self) -> Vec<&wgpu::Texture> {
         self.outputs.iter().map(|o| &o.texture).collect()
+    }
+}
+
+/// A set's joint pass fed by content frames, for the playback loop: each frame's values mapped
+/// into the set's display range and placed in its displayable area (camera pixels,
+/// [`crate::fov::place_in_area`]), then the joint pass run on that desired view. The projectors'
+/// images stay on the GPU for windows to present ([`SetPass::outputs`]); read back, each is
+/// stretched over its projector's canvas and the canvases sit side by side.
+pub struct SetPass {
+    pass: JointPass,
+    range: DisplayRange,
+    /// The set's displayable area (camera pixels).
+    area: Rect,
+    /// Each projector's canvas (projector pixels).
+    canvas: ImageSize,
+    /// The desired view of the frame last run (camera pixels, encoded values).
+    desired: Option<CamImage>,
+}
+
+impl SetPass {
+    /// The pass of `joint` with content mapped into `range` and placed in `area` (camera
+    /// pixels), each projector's image read back on a `canvas` (projector pixels).
+    pub fn new(
+        ctx: &GpuContext,
+        joint: &JointModel,
+        (range, area): (DisplayRange, Rect),
+        canvas: ImageSize,
+    ) -> Result<Self> {
+        Ok(Self {
+            pass: JointPass::new(ctx, joint)?,
+            range,
+            area,
+            canvas,
+            desired: None,
+        })
+    }
+
+    /// The projectors' output textures (rgba32float, each its lattice's size), in set order.
+    pub fn outputs(&self) -> Vec<&wgpu::Texture> {
+        self.pass.outputs()
+    }
+
+    /// The desired view of the frame last run (camera pixels, encoded values) and the area it
+    /// fills; `None` before the first frame.
+    pub fn desired(&self) -> Option<(&CamImage, Rect)> {
+        self.desired.as_ref().map(|d| (d, self.area))
+    }
+
+    /// Each projector's image of the frame last run on its canvas (projector pixels), in set
+    /// order.
+    pub fn canvases(&self, ctx: &GpuContext) -> Result<Vec<PrjImage>> {
+        self.pass
+            .read(ctx)?
+            .iter()
+            .map(|net| place_on_canvas(net, Rect::covering(self.canvas), self.canvas))
+            .collect()
+    }
+}
+
+impl FramePass for SetPass {
+    fn run_frame(&mut self, ctx: &GpuContext, frame: &ContentFrame) -> Result<()> {
+        let img: crate::raster::Rgb<Unspecified> = frame.to_image();
+        let camera = self.pass.camera;
+        let desired = crate::fov::place_in_area(&self.range.apply(&img), self.area, camera)?;
+        self.pass.run(ctx, &desired)?;
+        self.desired = Some(desired);
+        Ok(())
+    }
+
+    fn read_frame(&self, ctx: &GpuContext) -> Result<PrjImage> {
+        Ok(crate::device::side_by_side(&self.canvases(ctx)?))
     }
 }

@@ -30,4 +30,4 @@ pub mod synthetic;
 pub mod timing;
 
 pub use context::{ConvKernels, GpuContext, NoAdapter, is_no_adapter};
-pub use pass::{CompensationPass, FRAME_FORMAT, PassStage, Photometric};
+pub use pass::{CompensationPass, FRAME_FORMAT, FramePass, PassStage, Photometric};

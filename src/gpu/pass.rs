@@ -442,6 +442,39 @@ impl CompensationPass {
     }
 }
 
+/// The per-frame work the playback loop ([`crate::player`]) drives: a content frame in, the
+/// display's picture out, left on the GPU for the screen to present, and read back where a
+/// display or an output needs it on the CPU. One projector's [`CompensationPass`], or a set's
+/// [`super::joint::SetPass`] (its projectors' pictures side by side).
+pub trait FramePass {
+    /// Uploads `frame` (content pixels, sRGB-encoded) and submits the pass (no wait).
+    fn run_frame(&mut self, ctx: &GpuContext, frame: &ContentFrame) -> Result<()>;
+
+    /// The picture of the frame last run, read back (projector pixels, values v/255; a set's
+    /// projectors left to right, [`crate::device::side_by_side`]).
+    fn read_frame(&self, ctx: &GpuContext) -> Result<PrjImage>;
+
+    /// [`FramePass::read_frame`] as 8-bit RGBA bytes (row-major, no padding): what a media
+    /// output encodes.
+    fn read_frame_rgba(&self, ctx: &GpuContext) -> Result<Vec<u8>> {
+        Ok(crate::pngio::to_rgba8(&self.read_frame(ctx)?))
+    }
+}
+
+impl FramePass for CompensationPass {
+    fn run_frame(&mut self, ctx: &GpuContext, frame: &ContentFrame) -> Result<()> {
+        self.run(ctx, frame)
+    }
+
+    fn read_frame(&self, ctx: &GpuContext) -> Result<PrjImage> {
+        self.read_output(ctx)
+    }
+
+    fn read_frame_rgba(&self, ctx: &GpuContext) -> Result<Vec<u8>> {
+        self.read_output_rgba(ctx)
+    }
+}
+
 /// An rgba8unorm texture as an f32 image (v/255, alpha dropped).
 pub fn read_rgba8<S: Space>(ctx: &GpuContext, t: &wgpu::Texture) -> Result<Rgb<S>> {
     let bytes = ctx.read_texture(t, 4)?;

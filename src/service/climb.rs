@@ -41,6 +41,15 @@ impl Installer {
     ) -> Result<Model> {
         crate::calibrate::install(done, out)
     }
+
+    /// Installs a verified set's model into `out` ([`crate::calibrate::set::install_set`]).
+    pub(super) fn install_set(
+        &mut self,
+        done: crate::calibrate::set::CalibratedSet,
+        out: &Path,
+    ) -> Result<crate::model::set::SetModel> {
+        crate::calibrate::set::install_set(done, out)
+    }
 }
 
 /// What to climb to, after which calibration.

@@ -4,7 +4,9 @@
 //! window watched by a virtual camera on its own clock, as a V4L2 camera is: the hardware path
 //! without hardware).
 
+use std::cell::RefCell;
 use std::path::Path;
+use std::rc::Rc;
 use std::time::{Duration, Instant};
 
 use crate::config::Config;
@@ -12,10 +14,12 @@ use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::model::Model;
+use crate::model::set::SetModel;
 use crate::raster::{ImageSize, PrjImage};
 use crate::rig::VirtualRig;
 use crate::rig::scene::Scene;
 use crate::rigs::{self, Given, Opened, RigClock};
+use crate::window::ProjectorWindows;
 
 /// A word for the operator when `model` was calibrated on another rig than `rig` (this
 /// service's, [`crate::rigs::rig_name`]: `virtual:SCENE`, `window:SCENE`, `camera:DEVICE`): its geometry and
@@ -114,25 +118,112 @@ pub(super) struct Hardware {
     pub(super) bump: Option<Bump>,
 }
 
-/// The service's answer to a set of projectors (several monitors in `[rig] monitor`).
-fn serves_one_projector() -> crate::error::Error {
-    crate::error::Error::Input(
-        "[rig] monitor names several monitors: the service drives one projector so far; a set \
-         of projectors is calibrated and played from the command line (compend calibrate, \
-         compend play --monitor A,B)"
-            .into(),
-    )
+/// A set of projectors seen by one camera: one output per projector, in the set's order.
+pub(super) enum SetDevices {
+    /// A set's scene on the virtual rig: its outputs and its camera (clones of one rig), and a
+    /// GPU for the joint pass.
+    Virtual {
+        rig: VirtualRig,
+        scene: Box<Scene>,
+        ctx: GpuContext,
+    },
+    /// One fullscreen window per projector's monitor on one GPU device, and a camera on its own
+    /// clock (a V4L2 camera, or the window rig's virtual camera).
+    Windows {
+        windows: Rc<RefCell<ProjectorWindows>>,
+        camera: Box<dyn FrameSource + Send>,
+        /// What the camera is, for the log.
+        camera_name: String,
+    },
+}
+
+impl SetDevices {
+    /// How many projectors.
+    pub(super) fn len(&self) -> usize {
+        match self {
+            SetDevices::Virtual { rig, .. } => rig.outputs(),
+            SetDevices::Windows { windows, .. } => windows.borrow().sizes().len(),
+        }
+    }
+
+    /// Each projector's output as a display of its own, in the set's order.
+    pub(super) fn displays(&self) -> Result<Vec<Box<dyn DisplaySink>>> {
+        Ok(match self {
+            SetDevices::Virtual { rig, .. } => (0..rig.outputs())
+                .map(|k| Ok(Box::new(rig.output(k)?) as Box<dyn DisplaySink>))
+                .collect::<Result<Vec<_>>>()?,
+            SetDevices::Windows { windows, .. } => ProjectorWindows::outputs(windows)
+                .into_iter()
+                .map(|o| Box::new(o) as Box<dyn DisplaySink>)
+                .collect(),
+        })
+    }
+
+    /// What each output is, in the set's order: the monitor's name, or the virtual rig's
+    /// projector.
+    pub(super) fn names(&self) -> Vec<String> {
+        match self {
+            SetDevices::Virtual { rig, .. } => (1..=rig.outputs())
+                .map(|k| format!("virtual projector {k}"))
+                .collect(),
+            SetDevices::Windows { windows, .. } => windows.borrow().monitors(),
+        }
+    }
+
+    /// Shows `image` on every projector, stretched to each one's size.
+    pub(super) fn show_all(&self, image: &PrjImage) -> Result<()> {
+        for mut d in self.displays()? {
+            let size = d.size();
+            if size == image.size() {
+                d.show(image)?;
+            } else {
+                d.show(&crate::resize::resize_bilinear(
+                    image,
+                    size.width,
+                    size.height,
+                ))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The camera that sees the set.
+    pub(super) fn camera(&mut self) -> &mut dyn FrameSource {
+        match self {
+            SetDevices::Virtual { rig, .. } => rig,
+            SetDevices::Windows { camera, .. } => &mut **camera,
+        }
+    }
+
+    /// Each projector's size (projector pixels), in the set's order.
+    pub(super) fn sizes(&self) -> Vec<ImageSize> {
+        match self {
+            SetDevices::Virtual { scene, .. } => {
+                scene.projectors().iter().map(|p| p.size()).collect()
+            }
+            SetDevices::Windows { windows, .. } => windows.borrow().sizes(),
+        }
+    }
 }
 
 pub(super) enum Devices {
     Virtual(Box<VirtualDevices>),
     Hardware(Box<Hardware>),
+    Set(Box<SetDevices>),
 }
 
 impl Devices {
     pub(super) fn open(config: &Config) -> Result<Self> {
         let r = &config.rig;
         Ok(match rigs::open(r, RigClock::Simulated, Given::File)? {
+            Opened::Virtual { rig, scene } if rig.outputs() > 1 => {
+                let ctx = GpuContext::new()?;
+                Devices::Set(Box::new(SetDevices::Virtual {
+                    rig,
+                    scene: Box::new(scene),
+                    ctx,
+                }))
+            }
             Opened::Virtual { rig, scene } => {
                 let bump = Bump::of(rig.clone(), &scene, r.drift_after_s);
                 let ctx = GpuContext::new()?;
@@ -156,9 +247,37 @@ impl Devices {
                     bump,
                 }))
             }
-            Opened::WindowSet { .. } => return Err(serves_one_projector()),
+            Opened::WindowSet {
+                windows,
+                camera,
+                scene,
+            } => {
+                let l = &scene.latency;
+                Devices::Set(Box::new(SetDevices::Windows {
+                    windows,
+                    camera: Box::new(camera),
+                    camera_name: format!(
+                        "virtual, scene {:?} at {} fps, {} frames of delay",
+                        scene.name, l.fps, l.delay_frames
+                    ),
+                }))
+            }
             #[cfg(target_os = "linux")]
-            Opened::CameraSet { .. } => return Err(serves_one_projector()),
+            Opened::CameraSet {
+                windows,
+                camera,
+                device,
+                controls,
+            } => {
+                for line in controls {
+                    tracing::info!("camera {}: {line}", device.display());
+                }
+                Devices::Set(Box::new(SetDevices::Windows {
+                    windows,
+                    camera: Box::new(camera),
+                    camera_name: device.display().to_string(),
+                }))
+            }
             #[cfg(target_os = "linux")]
             Opened::Camera {
                 win,
@@ -179,10 +298,12 @@ impl Devices {
         })
     }
 
+    /// The projector's size (projector pixels; a set's first projector's).
     pub(super) fn display_size(&self) -> ImageSize {
         match self {
             Devices::Virtual(v) => v.scene.projector.size(),
             Devices::Hardware(h) => DisplaySink::size(&h.win),
+            Devices::Set(s) => s.sizes().first().copied().unwrap_or(ImageSize::new(0, 0)),
         }
     }
 
@@ -196,6 +317,8 @@ impl Devices {
         let (ctx, hz) = match self {
             Devices::Virtual(v) => (&v.ctx, refresh_hz?),
             Devices::Hardware(h) => (h.win.context(), refresh_hz.unwrap_or(h.win.refresh_hz())),
+            // A set climbs no rung: it is compensated jointly from `linear` models.
+            Devices::Set(_) => return None,
         };
         let pass = crate::gpu::live::GpuLivePass::new(ctx.clone(), hz).ok()?;
         Some(std::sync::Arc::new(pass))
@@ -205,6 +328,10 @@ impl Devices {
         match self {
             Devices::Virtual(v) => v.scene.camera.size(),
             Devices::Hardware(h) => FrameSource::size(&h.camera),
+            Devices::Set(s) => match &**s {
+                SetDevices::Virtual { scene, .. } => scene.camera.size(),
+                SetDevices::Windows { camera, .. } => FrameSource::size(camera),
+            },
         }
     }
 
@@ -227,16 +354,57 @@ impl Devices {
                 FrameSource::size(&h.camera),
                 h.win.context().describe()
             ),
+            Devices::Set(s) => {
+                let outputs: Vec<String> = s
+                    .names()
+                    .iter()
+                    .zip(s.sizes())
+                    .map(|(n, size)| format!("{n} ({size})"))
+                    .collect();
+                match &**s {
+                    SetDevices::Virtual { scene, ctx, .. } => format!(
+                        "virtual rig {:?}, a set of {} projectors: {}; camera {} at {} fps, {} \
+                         frames of delay; GPU: {}",
+                        scene.name,
+                        outputs.len(),
+                        outputs.join(", "),
+                        scene.camera.size(),
+                        scene.latency.fps,
+                        scene.latency.delay_frames,
+                        ctx.describe()
+                    ),
+                    SetDevices::Windows {
+                        windows,
+                        camera,
+                        camera_name,
+                    } => format!(
+                        "a set of {} projector windows at {:.1} Hz: {}; camera {camera_name} \
+                         ({}); GPU: {}",
+                        outputs.len(),
+                        windows.borrow().refresh_hz(),
+                        outputs.join(", "),
+                        FrameSource::size(camera),
+                        windows.borrow().context().describe()
+                    ),
+                }
+            }
+        }
+    }
+
+    /// Shows `image` on the projector (paused, stopping: black; the setup view's pattern), on
+    /// each of a set's projectors stretched to its size.
+    pub(super) fn show_everywhere(&mut self, image: &PrjImage) -> Result<()> {
+        match self {
+            Devices::Virtual(v) => v.rig.show(image),
+            Devices::Hardware(h) => h.win.show(image),
+            Devices::Set(s) => s.show_all(image),
         }
     }
 
     /// Shows black (paused, stopping).
     pub(super) fn black(&mut self) -> Result<()> {
         let black = PrjImage::new(self.display_size().width, self.display_size().height);
-        match self {
-            Devices::Virtual(v) => v.rig.show(&black),
-            Devices::Hardware(h) => h.win.show(&black),
-        }
+        self.show_everywhere(&black)
     }
 }
 
@@ -251,6 +419,47 @@ pub(super) fn load_model(path: &Path, camera: ImageSize) -> Result<Model> {
             model.camera_size()
         )));
     }
+    Ok(model)
+}
+
+/// Loads the set's model directory `path` for a set of `projectors` seen by a camera of
+/// `camera` pixels: one projector's model, another number of projectors, another camera size,
+/// a set never calibrated as a whole or not compensable jointly is an input error naming it.
+pub(super) fn load_set_model(
+    path: &Path,
+    projectors: usize,
+    camera: ImageSize,
+) -> Result<SetModel> {
+    if !SetModel::is_set(path) && path.join(crate::model::store::META_FILE).is_file() {
+        return Err(Error::Input(format!(
+            "{}: one projector's model; this rig is a set of {projectors} projectors: calibrate \
+             the set (compend recalibrate) or point [paths] model at a set's model",
+            path.display()
+        )));
+    }
+    let model = SetModel::load(path)?;
+    if model.models.len() != projectors {
+        return Err(Error::Input(format!(
+            "{}: the model is for a set of {} projectors, this rig has {projectors}",
+            path.display(),
+            model.models.len()
+        )));
+    }
+    if model.meta.camera_size != camera {
+        return Err(Error::Input(format!(
+            "{}: the model is for {} camera images, this rig's camera gives {camera}",
+            path.display(),
+            model.meta.camera_size
+        )));
+    }
+    if model.meta.calibration.is_none() {
+        return Err(Error::Input(format!(
+            "{}: no calibration record in set.json (where the set's picture goes, in which \
+             range): calibrate the set (compend recalibrate)",
+            path.display()
+        )));
+    }
+    model.joint()?;
     Ok(model)
 }
 

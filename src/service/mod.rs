@@ -112,6 +112,7 @@ impl Shared {
                 http: None,
                 osc: None,
                 setup: None,
+                projectors: Vec::new(),
             }),
             events,
             started: Instant::now(),
@@ -288,25 +289,8 @@ pub fn preflight(config: &Config, for_service: bool) -> Result<()> {
         let scene = crate::rig::scene::load(&r.scene)?;
         let cam = r.camera_size.unwrap_or(scene.camera.size());
         let prj = r.projector.unwrap_or(scene.projector.size());
-        let projectors = scene.projectors().len();
+        crate::rigs::check_sections(r, &scene)?;
         scene.with_resolution(cam, prj).validate()?;
-        if projectors > 1 {
-            return Err(Error::Input(format!(
-                "[rig] scene = {:?} is a set of {} projectors: the service drives one projector \
-                 so far; `compend calibrate --config` calibrates the set and `compend play \
-                 --model MODEL --monitor A,B` plays it (`compend sim sheet --scene {}` shows \
-                 it)",
-                r.scene, projectors, r.scene
-            )));
-        }
-    }
-    if r.monitor.as_deref().is_some_and(|m| m.contains(',')) {
-        return Err(Error::Input(format!(
-            "[rig] monitor = {:?} names several monitors: the service drives one projector so \
-             far; `compend calibrate --config` calibrates the set and `compend play --model \
-             MODEL --monitor A,B` plays it",
-            r.monitor.as_deref().unwrap_or("")
-        )));
     }
     let tokens = [
         (

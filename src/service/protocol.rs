@@ -292,6 +292,23 @@ pub struct ModelStatus {
     /// progressive calibration's climb, or swapped in by a request.
     #[serde(default)]
     pub why: String,
+    /// A set of projectors' model: how the whole set verified (each projector's own figures
+    /// are in the status's `projectors`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub set: Option<crate::record::SetVerification>,
+}
+
+/// One projector of a set, in the status.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ProjectorStatus {
+    /// Its output: the monitor's name, or the virtual rig's projector.
+    pub output: String,
+    /// Its size, projector pixels (`800x600`).
+    pub size: String,
+    /// Its own calibration's verification (with the others black), when the served set's
+    /// model has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verification: Option<Verification>,
 }
 
 impl ModelStatus {
@@ -318,6 +335,34 @@ impl ModelStatus {
             setup: model.meta.training.setup.clone(),
             since_unix_s: now_unix_s(),
             why,
+            set: None,
+        }
+    }
+
+    /// The status of a set's `model`, served from `path` from now on; `why`: for people.
+    pub fn of_set(
+        path: &std::path::Path,
+        model: &crate::model::set::SetModel,
+        why: String,
+    ) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            method: format!(
+                "{} (a set of {}, joint)",
+                crate::model::Method::Linear.name(),
+                model.models.len()
+            ),
+            verification: None,
+            climb: None,
+            unreachable: None,
+            setup: None,
+            since_unix_s: now_unix_s(),
+            why,
+            set: model
+                .meta
+                .calibration
+                .as_ref()
+                .map(|c| c.verification.clone()),
         }
     }
 }
@@ -459,6 +504,10 @@ pub struct Status {
     /// The OSC port (`[osc] listen`, the port chosen when it was 0); None: off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub osc: Option<String>,
+    /// A set of projectors: each projector's output, in the set's order (empty for one
+    /// projector).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub projectors: Vec<ProjectorStatus>,
 }
 
 /// A reply.

@@ -15,10 +15,11 @@ use super::opening::{Allowed, Opening};
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
 use super::{Envelope, Event, Io};
 use crate::error::{Error, Result};
-use crate::gpu::{CompensationPass, GpuContext};
+use crate::gpu::joint::SetPass;
+use crate::gpu::{CompensationPass, FramePass, GpuContext};
 use crate::model::Model;
 use crate::player::{PlayStats, Refresh, Screen, Show};
-use crate::raster::{CamImage, ImageSize};
+use crate::raster::{CamImage, ImageSize, Rect};
 use crate::rig::{Phase, VirtualRig};
 use crate::source::AudioOut;
 
@@ -109,7 +110,50 @@ impl Loading {
 
 /// A display in the service: the playback loop's screen with the engine's checks between
 /// refreshes (events, the watchdog, live counts, monitoring requests, the virtual rig's drift).
-pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
+/// What the service's screen needs of the pass it plays beyond what the loop needs: the
+/// desired view of the frame last run, for monitoring, and whether a `model` request may swap
+/// another model in while it plays.
+pub(super) trait ServedPass: FramePass + Sized {
+    /// Whether a `model` request swaps one projector's model in while this pass plays.
+    const SWAPS: bool;
+
+    /// The desired camera view of the frame last run (camera pixels, encoded values) and the
+    /// displayable area it fills.
+    fn desired_view(&self, ctx: &GpuContext) -> Result<(CamImage, Rect)>;
+
+    /// The pass of a model swapped in while playing (only asked for where [`Self::SWAPS`]).
+    fn swapped(pass: CompensationPass) -> Option<Self>;
+}
+
+impl ServedPass for CompensationPass {
+    const SWAPS: bool = true;
+
+    fn desired_view(&self, ctx: &GpuContext) -> Result<(CamImage, Rect)> {
+        Ok((self.read_desired(ctx)?, self.placement().area))
+    }
+
+    fn swapped(pass: CompensationPass) -> Option<Self> {
+        Some(pass)
+    }
+}
+
+/// A set of projectors' joint pass: its desired view is made on the CPU, and another set's
+/// model is loaded by the engine between two playbacks.
+impl ServedPass for SetPass {
+    const SWAPS: bool = false;
+
+    fn desired_view(&self, _ctx: &GpuContext) -> Result<(CamImage, Rect)> {
+        self.desired()
+            .map(|(d, area)| (d.clone(), area))
+            .ok_or_else(|| Error::Failed("the set's pass has run no frame yet".into()))
+    }
+
+    fn swapped(_pass: CompensationPass) -> Option<Self> {
+        None
+    }
+}
+
+pub(super) struct ServiceScreen<'a, S: ?Sized, P = CompensationPass> {
     inner: &'a mut S,
     io: &'a mut Io,
     /// An event that ended the playback, for the engine.
@@ -162,9 +206,10 @@ pub(super) struct ServiceScreen<'a, S: Screen + ?Sized> {
     pub(super) rig_name: String,
     /// This service's `[rig] seed`: a simulated surface's texture.
     pub(super) rig_seed: u64,
+    pass: std::marker::PhantomData<fn(&P)>,
 }
 
-impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
+impl<'a, S: Screen<P> + ?Sized, P: ServedPass> ServiceScreen<'a, S, P> {
     pub(super) fn new(
         inner: &'a mut S,
         io: &'a mut Io,
@@ -203,6 +248,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             allowed: Allowed::default(),
             rig_name: String::new(),
             rig_seed: 0,
+            pass: std::marker::PhantomData,
         }
     }
 
@@ -324,6 +370,11 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
             self.pending = Some(Event::Request(envelope));
             return false;
         };
+        if !P::SWAPS {
+            // A set's model is loaded by the engine, between two playbacks.
+            self.pending = Some(Event::Request(envelope));
+            return false;
+        }
         if let Err(e) = self.allowed.model(path) {
             envelope.answer(Reply::error(e.to_string()));
             return true;
@@ -485,7 +536,7 @@ impl<'a, S: Screen + ?Sized> ServiceScreen<'a, S> {
     }
 }
 
-impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
+impl<S: Screen<P> + ?Sized, P: ServedPass> Screen<P> for ServiceScreen<'_, S, P> {
     fn context(&self) -> &GpuContext {
         self.inner.context()
     }
@@ -544,9 +595,9 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
         self.inner.keep_going()
     }
 
-    fn take_pass(&mut self) -> Option<CompensationPass> {
+    fn take_pass(&mut self) -> Option<P> {
         self.climbed();
-        self.loaded(false)
+        self.loaded(false).and_then(P::swapped)
     }
 
     fn refreshed(&mut self, stats: &PlayStats) {
@@ -571,7 +622,7 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
         }
     }
 
-    fn present(&mut self, pass: &CompensationPass, show: Show) -> Result<()> {
+    fn present(&mut self, pass: &P, show: Show) -> Result<()> {
         self.inner.present(pass, show)?;
         if let Show::New { seq, .. } = show {
             if !self.io.notify.is_ready() {
@@ -582,8 +633,7 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
             if let Some(tap) = &self.monitor
                 && now >= self.next_check
             {
-                let area = pass.placement().area;
-                let desired = pass.read_desired(self.inner.context())?;
+                let (desired, area) = pass.desired_view(self.inner.context())?;
                 if self.changes.is_some() {
                     self.checked = Some((seq, desired.clone()));
                 }
@@ -603,8 +653,8 @@ impl<S: Screen + ?Sized> Screen for ServiceScreen<'_, S> {
                 let same = !requested
                     && waiting
                     && self.checked.as_ref().is_some_and(|(_, d)| {
-                        pass.read_desired(self.inner.context())
-                            .is_ok_and(|v| v.data() == d.data())
+                        pass.desired_view(self.inner.context())
+                            .is_ok_and(|(v, _)| v.data() == d.data())
                     });
                 if !same {
                     if !requested {

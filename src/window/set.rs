@@ -26,6 +26,8 @@ use super::{App, SHOW_TRIES, next_target, open_windows, refresh_of, surface_conf
 use crate::device::DisplaySink;
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
+use crate::gpu::joint::SetPass;
+use crate::player::{Refresh, Screen, Show};
 use crate::raster::{ImageSize, PrjImage};
 
 /// Refresh rates (Hz) that differ by more than this cannot keep outputs in step.
@@ -371,6 +373,31 @@ fn black_texture(ctx: &GpuContext, w: u32, h: u32) -> wgpu::Texture {
     let black = PrjImage::new(size.width as usize, size.height as usize);
     super::write_frame(ctx, &t, &black);
     t
+}
+
+/// The set's windows in the playback loop: events pumped before each refresh, each projector's
+/// image of the joint pass presented on its window in the same refresh, at the monitors' vsync.
+impl Screen<SetPass> for ProjectorWindows {
+    fn context(&self) -> &GpuContext {
+        ProjectorWindows::context(self)
+    }
+
+    fn refresh(&self) -> Refresh {
+        Refresh::Vsync(self.refresh_hz)
+    }
+
+    fn keep_going(&mut self) -> bool {
+        self.pump()
+    }
+
+    /// Scanned out at the next vertical sync: one refresh later.
+    fn display_delay(&self) -> Duration {
+        Duration::from_secs_f64(1.0 / self.refresh_hz)
+    }
+
+    fn present(&mut self, pass: &SetPass, _show: Show) -> Result<()> {
+        ProjectorWindows::present(self, &pass.outputs()).map(|_| ())
+    }
 }
 
 /// One output of a set's windows as a display of its own (for calibrating a set projector by

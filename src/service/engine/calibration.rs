@@ -31,8 +31,7 @@ use crate::error::{Error, Result};
 use crate::model::Model;
 use crate::service::views::Tapped;
 
-use super::super::devices::Devices;
-use super::super::devices::Hardware;
+use super::super::devices::{Devices, Hardware, SetDevices};
 
 /// What a calibration's training thread does.
 enum Job {
@@ -60,12 +59,12 @@ pub(super) enum Kind {
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Calibrating {
     /// When it began: the status's seconds count from here.
-    started: Instant,
+    pub(super) started: Instant,
     /// It refits the `linear` rung from `[monitoring] refit_ntrain` sampling images (drift's
     /// `on_drift = "refit"`, or the interrupted run it resumes was a refit).
-    refit: bool,
+    pub(super) refit: bool,
     /// The projector was paused when it began: it stays dark after it.
-    stay_paused: bool,
+    pub(super) stay_paused: bool,
 }
 
 impl Calibrating {
@@ -159,7 +158,7 @@ pub(super) fn device_problem(c: &crate::config::CalibrationConfig) -> Option<Str
 impl Engine {
     /// The options ([`crate::rigs::calibration_options`]) of calibration `cal` on this
     /// engine's projector.
-    fn calibration_options(&self, cal: Calibrating, cancel: Arc<AtomicBool>) -> Options {
+    pub(super) fn calibration_options(&self, cal: Calibrating, cancel: Arc<AtomicBool>) -> Options {
         crate::rigs::calibration_options(
             &self.config.rig,
             &self.config.calibration,
@@ -173,6 +172,9 @@ impl Engine {
     /// A calibration: captures, then training (beside playback of the current model when there
     /// is one to play), then verification and install ([`Engine::finish_calibration`]).
     pub(super) fn calibrate(&mut self, kind: Kind) {
+        if matches!(self.devices, Devices::Set(_)) {
+            return self.calibrate_set(kind);
+        }
         let stay_paused = self.io.shared.status().state == State::Paused;
         let cancel = self.io.shared.cancel.clone();
         cancel.store(false, Ordering::Relaxed);
@@ -604,7 +606,12 @@ impl Engine {
 
     /// A calibration that stopped: cancelled (its captures stay for the next run), refused (the
     /// run ends) or failed (the marker stays, so the next calibration resumes it).
-    fn calibration_failed(&mut self, cal: Calibrating, data: &std::path::Path, e: Error) {
+    pub(super) fn calibration_failed(
+        &mut self,
+        cal: Calibrating,
+        data: &std::path::Path,
+        e: Error,
+    ) {
         let message = match &e {
             Error::Cancelled(_) => format!("cancelled; its captures stay in {}", data.display()),
             e => format!("failed: {e}"),
@@ -631,7 +638,7 @@ impl Engine {
 
     /// A calibration has ended, installed or not: counted with its outcome in one update, so
     /// that a client never sees the count without it.
-    fn calibration_ended(&mut self, installed: bool, message: String) {
+    pub(super) fn calibration_ended(&mut self, installed: bool, message: String) {
         self.io.shared.update(|s| {
             s.calibration = None;
             s.calibrations += 1;
@@ -641,14 +648,14 @@ impl Engine {
 
     /// After a calibration: play if there is a model and the configuration says so, unless the
     /// projector was paused before (`stay_paused`) or during the calibration.
-    fn after_calibration(&mut self, stay_paused: bool) -> Mode {
+    pub(super) fn after_calibration(&mut self, stay_paused: bool) -> Mode {
         let paused = stay_paused || self.io.shared.status().state == State::Paused;
-        if paused && self.model.is_some() {
+        if paused && self.serves() {
             Mode::Pause
-        } else if self.model.is_some() && self.config.playback.autoplay {
+        } else if self.serves() && self.config.playback.autoplay {
             Mode::Play
         } else {
-            let line = if self.model.is_some() {
+            let line = if self.serves() {
                 "idle"
             } else {
                 "idle: no model installed"
@@ -671,36 +678,15 @@ impl Engine {
             calibrate::Progress,
         ) -> Result<T>,
     ) -> Result<T> {
-        let started = cal.started;
         // The console sees what the camera captures.
         let shared = self.io.shared.clone();
-        let io = &mut self.io;
-        let mode = &mut self.mode;
-        let reload = &mut self.reload;
-        let mut lines = None;
-        let mut progress = |phase: &str, done: usize, total: usize| {
-            log_progress(&mut lines, phase, done, total);
-            let state = match phase {
-                "verification" => State::Verifying,
-                "exposure" | "latency" | "captures" | "closed-loop pairs" => State::Calibrating,
-                _ => State::Training,
-            };
-            io.shared.update(|s| {
-                s.state = state;
-                s.calibration = Some(CalibrationProgress {
-                    phase: phase.to_string(),
-                    done,
-                    total,
-                    seconds: started.elapsed().as_secs_f64(),
-                });
-            });
-            io.notify
-                .status(&format!("{}: {phase} {done}/{total}", state.name()));
-            io.notify.ping();
-            while let Ok(ev) = io.rx.try_recv() {
-                busy(ev, (phase, work), mode, reload, &io.shared.cancel);
-            }
-        };
+        let mut progress = DeviceProgress::new(
+            (&mut self.io, &mut self.mode, &mut self.reload),
+            cal.started,
+            work,
+        );
+        let mut progress =
+            |phase: &str, done: usize, total: usize| progress.report(phase, done, total);
         tracing::debug!("calibration: {what}");
         match &mut self.devices {
             Devices::Virtual(v) => {
@@ -715,6 +701,108 @@ impl Engine {
                 let mut seen = Tapped::new(&mut **camera, &shared.views);
                 step(win, &mut seen, &mut progress)
             }
+            Devices::Set(_) => Err(Error::Failed(format!(
+                "{what}: a set of projectors is calibrated as a whole (Engine::calibrate_set)"
+            ))),
+        }
+    }
+
+    /// Runs `step` on a set's devices (each projector's output, in the set's order, and the
+    /// camera) with [`Engine::with_devices`]' progress callback.
+    pub(super) fn with_set_devices<T>(
+        &mut self,
+        cal: Calibrating,
+        step: impl FnOnce(
+            Vec<Box<dyn crate::device::DisplaySink>>,
+            &mut dyn crate::device::FrameSource,
+            calibrate::Progress,
+        ) -> Result<T>,
+    ) -> Result<T> {
+        let shared = self.io.shared.clone();
+        let mut progress = DeviceProgress::new(
+            (&mut self.io, &mut self.mode, &mut self.reload),
+            cal.started,
+            Work::Calibration,
+        );
+        let mut progress =
+            |phase: &str, done: usize, total: usize| progress.report(phase, done, total);
+        let Devices::Set(set) = &mut self.devices else {
+            return Err(Error::Failed(
+                "one projector is calibrated step by step (Engine::calibrate)".into(),
+            ));
+        };
+        if let SetDevices::Virtual { rig, scene, .. } = &mut **set {
+            // The scene's delay and drops (playback sets a camera that watches every frame).
+            rig.set_latency(scene.latency.clone())?;
+        }
+        let displays = set.displays()?;
+        let mut seen = Tapped::new(set.camera(), &shared.views);
+        step(displays, &mut seen, &mut progress)
+    }
+}
+
+/// The progress callback of a calibration on the devices: the status, systemd's watchdog and
+/// status line, the log, and the events that come meanwhile ([`busy`]).
+struct DeviceProgress<'a> {
+    io: &'a mut super::super::Io,
+    mode: &'a mut Mode,
+    reload: &'a mut Option<Box<Config>>,
+    started: Instant,
+    work: Work,
+    lines: Option<calibrate::progress::ProgressLines>,
+}
+
+impl<'a> DeviceProgress<'a> {
+    fn new(
+        (io, mode, reload): (
+            &'a mut super::super::Io,
+            &'a mut Mode,
+            &'a mut Option<Box<Config>>,
+        ),
+        started: Instant,
+        work: Work,
+    ) -> Self {
+        Self {
+            io,
+            mode,
+            reload,
+            started,
+            work,
+            lines: None,
+        }
+    }
+
+    fn report(&mut self, phase: &str, done: usize, total: usize) {
+        log_progress(&mut self.lines, phase, done, total);
+        // A set's phases are each projector's (`projector 1/2: captures`) and the whole set's.
+        let step = phase.rsplit(": ").next().unwrap_or(phase);
+        let state = match step {
+            "verification" | "set verification" => State::Verifying,
+            "exposure" | "latency" | "captures" | "closed-loop pairs" => State::Calibrating,
+            _ => State::Training,
+        };
+        let started = self.started;
+        self.io.shared.update(|s| {
+            s.state = state;
+            s.calibration = Some(CalibrationProgress {
+                phase: phase.to_string(),
+                done,
+                total,
+                seconds: started.elapsed().as_secs_f64(),
+            });
+        });
+        self.io
+            .notify
+            .status(&format!("{}: {phase} {done}/{total}", state.name()));
+        self.io.notify.ping();
+        while let Ok(ev) = self.io.rx.try_recv() {
+            busy(
+                ev,
+                (phase, self.work),
+                self.mode,
+                self.reload,
+                &self.io.shared.cancel,
+            );
         }
     }
 }

@@ -24,6 +24,7 @@ use std::time::{Duration, Instant};
 
 use super::climb;
 mod calibration;
+mod set;
 mod setup;
 
 use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure, other_rig};
@@ -122,7 +123,11 @@ pub struct Engine {
     config: Config,
     devices: Devices,
     io: Io,
+    /// One projector's model being served.
     model: Option<Model>,
+    /// A set of projectors' model being served (the devices are a set; `model` is then
+    /// `None`).
+    set_model: Option<crate::model::set::SetModel>,
     /// Where the model being served came from.
     model_path: PathBuf,
     /// What `play` plays: the configured source or playlist, or the source a request named.
@@ -159,6 +164,7 @@ impl Engine {
                 loader: Default::default(),
             },
             model: None,
+            set_model: None,
             mode: Mode::Wait,
             baseline: None,
             reload: None,
@@ -166,8 +172,11 @@ impl Engine {
             installer: climb::Installer::new(),
         };
         let path = engine.model_path.clone();
-        if path.join(crate::model::store::META_FILE).is_file()
-            && let Err(e) = engine.use_model(&path, "the installed model when the service started")
+        let installed = path.join(crate::model::store::META_FILE).is_file()
+            || crate::model::set::SetModel::is_set(&path);
+        if installed
+            && let Err(e) =
+                engine.use_any_model(&path, "the installed model when the service started")
         {
             engine.io.fail("the installed model was not loaded", &e);
         }
@@ -180,16 +189,14 @@ impl Engine {
             env!("CARGO_PKG_VERSION"),
             engine.devices.describe(),
             engine
-                .model
-                .as_ref()
+                .served()
                 .map_or("none installed".to_string(), |m| format!(
-                    "{} from {}",
-                    m.meta.method,
+                    "{m} from {}",
                     path.display()
                 )),
             engine.source.describe()
         );
-        engine.mode = match (&engine.model, runs.interrupted()) {
+        engine.mode = match (engine.served(), runs.interrupted()) {
             (_, Some(run)) => {
                 tracing::info!(
                     "an interrupted calibration is on disk ({}); resuming it",
@@ -206,9 +213,9 @@ impl Engine {
             _ => Mode::Wait,
         };
         if engine.mode == Mode::Wait {
-            let line = match &engine.model {
+            let line = match engine.served() {
                 None => "idle: no model installed; run compend recalibrate".to_string(),
-                Some(m) => format!("idle with model {}; run compend play", m.meta.method),
+                Some(m) => format!("idle with model {m}; run compend play"),
             };
             engine.io.notify.ready(&line);
         }
@@ -353,6 +360,14 @@ impl Engine {
                     self.config.paths.data.display()
                 ))
             }
+            Request::Refit if matches!(self.devices, Devices::Set(_)) => {
+                self.mode = Mode::Calibrate(calibration::Kind::Refit);
+                Reply::ok(format!(
+                    "a set of projectors is refitted by calibrating it again: calibrating into \
+                     a new run in {}; compend status shows the progress",
+                    self.config.paths.data.display()
+                ))
+            }
             Request::Refit => {
                 self.mode = Mode::Calibrate(calibration::Kind::Refit);
                 Reply::ok(format!(
@@ -363,7 +378,7 @@ impl Engine {
                 ))
             }
             Request::Play { source } => {
-                if self.model.is_none() {
+                if !self.serves() {
                     return Reply::error(
                         "no model to play with: calibrate first (compend recalibrate)",
                     );
@@ -406,7 +421,7 @@ impl Engine {
                  plays (compend play starts it)",
             ),
             Request::Model { path } => match Allowed::of(&self.config).model(path).and_then(|()| {
-                self.use_model(
+                self.use_any_model(
                     path,
                     "swapped in by a model request (the event log says who sent it)",
                 )
@@ -463,6 +478,34 @@ impl Engine {
         }
     }
 
+    /// What is served, in words (`linear`, `linear (a set of 2, joint)`); `None`: nothing.
+    fn served(&self) -> Option<String> {
+        match (&self.model, &self.set_model) {
+            (Some(m), _) => Some(m.meta.method.to_string()),
+            (None, Some(s)) => Some(format!(
+                "{} (a set of {}, joint)",
+                crate::model::Method::Linear,
+                s.models.len()
+            )),
+            (None, None) => None,
+        }
+    }
+
+    /// Whether a model is served.
+    fn serves(&self) -> bool {
+        self.model.is_some() || self.set_model.is_some()
+    }
+
+    /// Loads the model directory `path` and serves it from now on: a set's model on a set of
+    /// projectors, one projector's otherwise.
+    fn use_any_model(&mut self, path: &Path, why: &str) -> Result<()> {
+        if matches!(self.devices, Devices::Set(_)) {
+            self.use_set_model(path, why)
+        } else {
+            self.use_model(path, why)
+        }
+    }
+
     /// Loads the model directory `path` and serves it from now on (`why`: for the status); a
     /// model for another camera size is refused.
     fn use_model(&mut self, path: &Path, why: &str) -> Result<()> {
@@ -488,24 +531,18 @@ impl Engine {
     /// Plays the source through the model until an event asks for something else or the
     /// source ends.
     fn play(&mut self) {
-        let Some(model) = &self.model else {
+        if matches!(self.devices, Devices::Set(_)) {
+            return self.play_set();
+        }
+        if self.model.is_none() {
             self.mode = Mode::Wait;
             return;
+        }
+        let Some(source) = self.open_source() else {
+            return;
         };
-        let opened = match self.opened.take() {
-            Some((list, o)) if list == self.source => Ok(o),
-            _ => self.source.open(&self.config.audio.out()),
-        };
-        let source = match opened {
-            Ok(s) => s,
-            Err(e) => {
-                self.io.fail(
-                    &format!("cannot play {}", clipped(&self.source.describe())),
-                    &e,
-                );
-                self.io.state(State::Idle, "idle: the source failed");
-                return;
-            }
+        let Some(model) = &self.model else {
+            return;
         };
         let line = format!(
             "playing {} with {}{}",
@@ -554,46 +591,16 @@ impl Engine {
                 }
             }
         }
-        let src = self.source.describe();
-        let before = self.io.shared.status().frames;
-        self.io.shared.update(|s| {
-            s.source = Some(src);
-            s.media = None;
-            s.frames.refreshes = 0;
-            s.frames.shown = 0;
-            s.frames.held = 0;
-            s.frames.dropped_source = 0;
-            s.frames.dropped_pipeline = 0;
-        });
-        self.io.state(State::Playing, &line);
-        tracing::info!("{line}");
+        let before = begin_playback(&mut self.io, &self.source, &line);
         let range = model.display_range();
         let m = &self.config.monitoring;
         // A camera on its own clock needs the latency measured at calibration on this rig.
         let settle = match &self.devices {
-            Devices::Virtual(_) => None,
+            Devices::Virtual(_) | Devices::Set(_) => None,
             Devices::Hardware(_) => settle_frames(model, &rig_name(&self.config.rig)),
         };
         let watchable = matches!(self.devices, Devices::Virtual(_)) || settle.is_some();
-        if m.enabled && !watchable {
-            tracing::warn!(
-                "monitoring is off for this playback: the model was not calibrated on this rig \
-                 ({}), so the projector-to-camera latency is unknown; `compend recalibrate` \
-                 measures it",
-                rig_name(&self.config.rig)
-            );
-        }
-        let monitor = (m.enabled && watchable).then(|| {
-            // A calibration already under way (training beside this playback) is not started
-            // again: drift is reported only.
-            let recalibrate =
-                m.on_drift != DriftPolicy::Report && self.background.training().is_none();
-            Tap::new(
-                self.baseline_for_source(),
-                m.drift_threshold_db,
-                recalibrate,
-            )
-        });
+        let monitor = self.monitor_tap(watchable);
         let period = Duration::from_secs_f64(m.period_s);
         let stats_every = Duration::from_secs_f64(self.config.log.stats_period_s);
         let fps = self.config.rig.fps;
@@ -645,6 +652,9 @@ impl Engine {
                     },
                 )
             }
+            Devices::Set(_) => Err(crate::error::Error::Failed(
+                "a set of projectors plays its joint model (Engine::play_set)".into(),
+            )),
         };
         if let Some(c) = climb {
             self.background = Background::Climbing(c);
@@ -737,6 +747,52 @@ impl Engine {
         }
     }
 
+    /// The source `play` plays, opened (by a `play` request while the playback before went
+    /// on, or here); `None`, reported and idle, when it cannot be.
+    fn open_source(&mut self) -> Option<Box<dyn source::VideoSource>> {
+        let opened = match self.opened.take() {
+            Some((list, o)) if list == self.source => Ok(o),
+            _ => self.source.open(&self.config.audio.out()),
+        };
+        match opened {
+            Ok(s) => Some(s),
+            Err(e) => {
+                self.io.fail(
+                    &format!("cannot play {}", clipped(&self.source.describe())),
+                    &e,
+                );
+                self.io.state(State::Idle, "idle: the source failed");
+                None
+            }
+        }
+    }
+
+    /// Monitoring for the playback about to start (`[monitoring]`), when it is on and the rig
+    /// can be watched (`watchable`: the virtual rig, or a camera whose latency was measured on
+    /// this rig); otherwise `None`, said in the log.
+    fn monitor_tap(&self, watchable: bool) -> Option<Arc<Tap>> {
+        let m = &self.config.monitoring;
+        if m.enabled && !watchable {
+            tracing::warn!(
+                "monitoring is off for this playback: the model was not calibrated on this rig \
+                 ({}), so the projector-to-camera latency is unknown; `compend recalibrate` \
+                 measures it",
+                rig_name(&self.config.rig)
+            );
+        }
+        (m.enabled && watchable).then(|| {
+            // A calibration already under way (training beside this playback) is not started
+            // again: drift is reported only.
+            let recalibrate =
+                m.on_drift != DriftPolicy::Report && self.background.training().is_none();
+            Tap::new(
+                self.baseline_for_source(),
+                m.drift_threshold_db,
+                recalibrate,
+            )
+        })
+    }
+
     /// The current model's first monitoring score, if it was measured on the source about to
     /// play: scores depend on the content, so another source starts a new baseline.
     fn baseline_for_source(&self) -> Option<f64> {
@@ -765,6 +821,25 @@ impl Engine {
     }
 }
 
+/// A playback of `source` begins: its counts start from zero, the state says `line`. Returns
+/// the totals of the playbacks before it.
+fn begin_playback(io: &mut Io, source: &Playlist, line: &str) -> Frames {
+    let src = source.describe();
+    let before = io.shared.status().frames;
+    io.shared.update(|s| {
+        s.source = Some(src);
+        s.media = None;
+        s.frames.refreshes = 0;
+        s.frames.shown = 0;
+        s.frames.held = 0;
+        s.frames.dropped_source = 0;
+        s.frames.dropped_pipeline = 0;
+    });
+    io.state(State::Playing, line);
+    tracing::info!("{line}");
+    before
+}
+
 /// Plays on the virtual rig: its projector shows the pass's output, its camera (set to one
 /// exposure per shown frame, no delay) watches on a thread of its own and feeds monitoring.
 /// `(range, source, fps)`: content mapped into `range`, from `source`, shown at `fps`;
@@ -776,7 +851,7 @@ fn play_virtual(
     (range, source, fps): (DisplayRange, Box<dyn source::VideoSource>, f64),
     (io, climb): (&mut Io, &mut Option<climb::Climb>),
     (monitor, timing): (Option<Arc<Tap>>, (Duration, Duration)),
-    around: Around<'_>,
+    mut around: Around<'_>,
 ) -> Result<Ended> {
     v.rig.set_latency(Latency {
         fps,
@@ -804,18 +879,12 @@ fn play_virtual(
     };
     let mut sink = WatchedSink::new(&v.ctx, fps, v.rig.clone(), v.rig.clone(), views);
     let sizes = (v.scene.camera.size(), v.scene.projector.size());
-    let output = start_output(around.output, sizes.1, fps, io);
+    let output = start_output(around.output.take(), sizes.1, fps, io);
     let mut teed = Teed::new(&mut sink, output);
     let mut screen = ServiceScreen::new(&mut teed, io, monitor, timing, sizes);
-    screen.before = around.before.clone();
+    around.dress(&mut screen);
     screen.rig = Some(v.rig.clone());
     screen.climb = climb.take();
-    screen.end_when = around.end_when;
-    screen.drift = around.bump;
-    screen.audio = around.audio;
-    screen.allowed = around.allowed;
-    screen.rig_name = around.rig;
-    screen.rig_seed = around.seed;
     screen.media = player.feed.control().cloned();
     let stats = player.run(&mut screen, None);
     screen.settle();
@@ -848,7 +917,7 @@ fn play_hardware(
     (range, source): (DisplayRange, Box<dyn source::VideoSource>),
     (io, climb): (&mut Io, &mut Option<climb::Climb>),
     (monitor, settle, timing): (Option<Arc<Tap>>, Option<u64>, (Duration, Duration)),
-    around: Around<'_>,
+    mut around: Around<'_>,
 ) -> Result<Ended> {
     let Hardware {
         win,
@@ -874,36 +943,19 @@ fn play_hardware(
     let stop = AtomicBool::new(false);
     let shared = io.shared.clone();
     std::thread::scope(|scope| {
-        let watcher = match (&monitor, settle) {
-            (Some(tap), Some(settle)) => {
-                let (camera, stop, shared) = (&mut **camera, &stop, &*shared);
-                let spawned = std::thread::Builder::new()
-                    .name("compend-monitor".into())
-                    .spawn_scoped(scope, move || {
-                        monitor::watch_camera(camera, rx, settle, (tap, shared), stop)
-                    });
-                match spawned {
-                    Ok(w) => Some(w),
-                    Err(e) => {
-                        tracing::warn!("monitoring is off: cannot start its camera thread: {e}");
-                        None
-                    }
-                }
-            }
-            _ => None,
-        };
+        let watcher = start_watcher(
+            scope,
+            &mut **camera,
+            (&monitor, settle),
+            rx,
+            (&stop, &shared),
+        );
         let hz = win.refresh_hz();
-        let output = start_output(around.output, sizes.1, hz, io);
+        let output = start_output(around.output.take(), sizes.1, hz, io);
         let mut teed = Teed::new(&mut *win, output);
         let mut screen = ServiceScreen::new(&mut teed, io, monitor.clone(), timing, sizes);
-        screen.before = around.before.clone();
+        around.dress(&mut screen);
         screen.climb = climb.take();
-        screen.end_when = around.end_when;
-        screen.drift = around.bump;
-        screen.audio = around.audio;
-        screen.allowed = around.allowed;
-        screen.rig_name = around.rig;
-        screen.rig_seed = around.seed;
         if watcher.is_some() {
             screen.changes = Some(tx);
         }
@@ -948,6 +1000,48 @@ struct Around<'a> {
     /// named.
     rig: String,
     seed: u64,
+}
+
+impl Around<'_> {
+    /// Sets what the playback has around it on its `screen` (the output goes separately, to
+    /// [`start_output`]).
+    fn dress<S: ?Sized, P>(self, screen: &mut ServiceScreen<'_, S, P>) {
+        screen.before = self.before.clone();
+        screen.end_when = self.end_when;
+        screen.drift = self.bump;
+        screen.audio = self.audio;
+        screen.allowed = self.allowed;
+        screen.rig_name = self.rig;
+        screen.rig_seed = self.seed;
+    }
+}
+
+/// Starts the thread of a camera on its own clock that feeds monitoring with the views it saw
+/// alone ([`monitor::watch_camera`]; `settle`: exposures of latency), when monitoring is on
+/// and the latency is known; `None` otherwise, or when the thread cannot start (said in the
+/// log). `stop` ends it.
+fn start_watcher<'scope, 'env, C: FrameSource + Send + ?Sized>(
+    scope: &'scope std::thread::Scope<'scope, 'env>,
+    camera: &'env mut C,
+    (monitor, settle): (&'env Option<Arc<Tap>>, Option<u64>),
+    changes: mpsc::Receiver<(u64, Instant)>,
+    (stop, shared): (&'env AtomicBool, &'env Shared),
+) -> Option<std::thread::ScopedJoinHandle<'scope, ()>> {
+    let (Some(tap), Some(settle)) = (monitor, settle) else {
+        return None;
+    };
+    let spawned = std::thread::Builder::new()
+        .name("compend-monitor".into())
+        .spawn_scoped(scope, move || {
+            monitor::watch_camera(camera, changes, settle, (tap, shared), stop)
+        });
+    match spawned {
+        Ok(w) => Some(w),
+        Err(e) => {
+            tracing::warn!("monitoring is off: cannot start its camera thread: {e}");
+            None
+        }
+    }
 }
 
 /// Starts `[output] to` for a playback on a display of `size` at `fps`: a file goes to the

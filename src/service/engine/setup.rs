@@ -73,6 +73,19 @@ impl Engine {
                         Err(e) => Err(e),
                     }
                 }
+                // Every projector of a set shows the pattern.
+                Devices::Set(s) => {
+                    s.show_all(&image)?;
+                    let camera = s.camera();
+                    match camera.grab() {
+                        Ok(f) => Ok(f),
+                        Err(e) if camera.reconnect()? => {
+                            tracing::warn!("setup view: the camera came back after: {e}");
+                            continue;
+                        }
+                        Err(e) => Err(e),
+                    }
+                }
             };
             look(&grabbed?);
             self.io.notify.ping();
