@@ -876,6 +876,13 @@ fn the_service_calibrates_and_plays_a_set_of_projectors() {
     let psnr = s["monitoring"]["psnr"].as_f64().unwrap();
     assert!(psnr > 15.0, "monitoring {psnr} dB: {s}");
     assert_eq!(s["monitoring"]["drift"], false, "{s}");
+    // The tiled pictures overlap: every check gives the seam figure too, against the first.
+    let seam = s["monitoring"]["seam_ratio"].as_f64().unwrap();
+    let first = s["monitoring"]["seam_baseline"].as_f64().unwrap();
+    assert!(seam > 0.0 && first > 0.0, "seam ratio {seam}: {s}");
+    assert!(!svc.log().contains("a seam shows"), "{}", svc.log());
+    let text = stdout(&client(&["status"], &svc.socket));
+    assert!(text.contains("monitoring: seam ratio "), "{text}");
 
     // One projector's model is not a set's: refused, the set plays on.
     let one = dir.path().join("one");
@@ -1683,6 +1690,48 @@ fn the_service_monitors_through_a_camera_on_its_own_clock_under_xvfb() {
     assert!(stdout(&o).contains("checks unseen"), "{}", stdout(&o));
 
     assert_code(&client(&["stop"], &svc.socket), 0);
+    assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
+}
+
+/// Drift in a set: the first projector of a tiled set is bumped while the set plays; monitoring
+/// of the whole set sees it, and the service calibrates the set again and serves the new one.
+#[test]
+fn a_set_whose_projector_moves_is_calibrated_again() {
+    if !gpu_or_skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let o = compend(&["sim", "show", "tiled"]);
+    assert_code(&o, 0);
+    let mut scene: Value = serde_json::from_str(&stdout(&o)).unwrap();
+    scene["drift"] = serde_json::json!({ "shift_px": [24.0, -16.0] });
+    let scene_file = dir.path().join("bumped-set.json");
+    std::fs::write(&scene_file, scene.to_string()).unwrap();
+    let config = write_config(
+        dir.path(),
+        scene_file.to_str().unwrap(),
+        4,
+        "drift_after_s = 2.0",
+        "drift_threshold_db = 2.0\non_drift = \"refit\"",
+    );
+    let mut svc = Service::start(&config);
+    let s = svc.wait_for("a second calibration of the set after drift", 600, |s| {
+        s["calibrations"].as_u64() >= Some(2) && playing(s)
+    });
+    assert!(s["monitoring"]["drifts"].as_u64() >= Some(1), "{s}");
+    assert_eq!(s["model"]["set"]["passed"], true, "{s}");
+    let log = svc.log();
+    assert!(
+        log.contains("virtual rig: the projector was moved")
+            && log.contains("a set of projectors is refitted by calibrating it again"),
+        "{log}"
+    );
+    // The new set's model scores near its own baseline after the move.
+    let s = svc.wait_for("monitoring of the new set", 60, |s| {
+        s["monitoring"]["checks"].as_u64() >= Some(2)
+    });
+    assert_eq!(s["monitoring"]["drift"], false, "{s}");
+    unsafe { libc::kill(svc.pid(), libc::SIGTERM) };
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 }
 

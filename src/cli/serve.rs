@@ -338,6 +338,15 @@ fn describe(s: &Status) -> String {
             if m.drift { ", DRIFT" } else { "" }
         );
     }
+    if let Some(r) = m.seam_ratio {
+        out += &format!(
+            "monitoring: seam ratio {r:.2} (baseline {:.2}): the error along the projectors' \
+             overlap edges over the error away from them; a seam shows when it rises past {:.2} \
+             from under it\n",
+            m.seam_baseline.unwrap_or(f64::NAN),
+            compend::calibrate::set::SEAM_LIMIT
+        );
+    }
     if m.unseen > 0 {
         out += &format!(
             "monitoring: {} checks unseen (the content changed within the projector-to-camera \

@@ -126,6 +126,8 @@ pub(super) enum SetDevices {
         rig: VirtualRig,
         scene: Box<Scene>,
         ctx: GpuContext,
+        /// The first projector's bump, for a scene with drift.
+        bump: Option<Bump>,
     },
     /// One fullscreen window per projector's monitor on one GPU device, and a camera on its own
     /// clock (a V4L2 camera, or the window rig's virtual camera).
@@ -217,11 +219,13 @@ impl Devices {
         let r = &config.rig;
         Ok(match rigs::open(r, RigClock::Simulated, Given::File)? {
             Opened::Virtual { rig, scene } if rig.outputs() > 1 => {
+                let bump = Bump::of(rig.clone(), &scene, r.drift_after_s);
                 let ctx = GpuContext::new()?;
                 Devices::Set(Box::new(SetDevices::Virtual {
                     rig,
                     scene: Box::new(scene),
                     ctx,
+                    bump,
                 }))
             }
             Opened::Virtual { rig, scene } => {

@@ -19,7 +19,33 @@ use crate::calibrate::clock::{CameraClock, ClockFinder};
 use crate::device::{Frame, FrameSource};
 use crate::error::Result;
 use crate::metrics::Accumulator;
-use crate::raster::{CamImage, Rect};
+use crate::raster::{CamImage, Camera, Mask, Rect};
+
+/// Where a seam between a set's pictures would show in the camera's view (camera pixels): the
+/// band along the projectors' overlap edges and the pixels away from them, inside the set's
+/// displayable area ([`crate::joint::seam_regions`]). Each check's seam figure
+/// ([`crate::metrics::seam_figure`]) compares the camera's error in the one with the other.
+pub(super) struct SeamBands {
+    band: Mask<Camera>,
+    away: Mask<Camera>,
+    /// The largest ratio that passes ([`crate::calibrate::set::SEAM_LIMIT`]).
+    limit: f64,
+}
+
+impl SeamBands {
+    /// The bands of the projectors lighting `covers` (camera pixels) inside `area`; `None`
+    /// where no two overlap (a tiled set without a blend, or nothing away from the edges).
+    pub(super) fn of(covers: &[Mask<Camera>], area: Rect, limit: f64) -> Option<Self> {
+        let size = covers.first()?.size();
+        let inside = Mask::from_fn(size.width, size.height, |x, y| {
+            x >= area.x && x < area.x + area.width && y >= area.y && y < area.y + area.height
+        });
+        let (band, away) =
+            crate::joint::seam_regions(covers, &inside, crate::joint::seam::band_px(size));
+        let some = |m: &Mask<Camera>| m.data().iter().any(|&b| b);
+        (some(&band) && some(&away)).then_some(Self { band, away, limit })
+    }
+}
 
 /// Monitoring: the desired view of one presented frame waits here for the camera's view of it;
 /// the two are scored in the displayable area (camera pixels, encoded values).
@@ -33,6 +59,12 @@ pub(super) struct Tap {
     /// Consecutive checks below the baseline by more than the threshold.
     below: AtomicU32,
     drift: AtomicBool,
+    /// A set's seam bands: each check's seam figure too.
+    seam: Option<SeamBands>,
+    /// The first check's seam ratio.
+    seam_baseline: Mutex<Option<f64>>,
+    /// A seam was said in the log (and is said again when it is gone).
+    seam_said: AtomicBool,
 }
 
 /// Consecutive checks past the threshold that make drift: one hard frame of content is not a
@@ -53,7 +85,13 @@ fn judge(baseline: f64, psnr: f64, threshold_db: f64, run: u32) -> (u32, bool) {
 impl Tap {
     /// `ends_playback`: drift ends the playback (the engine recalibrates); otherwise it is
     /// reported and playback goes on.
-    pub(super) fn new(baseline: Option<f64>, threshold_db: f64, ends_playback: bool) -> Arc<Self> {
+    /// `seam`: a set's seam bands, whose figure each check gives as well.
+    pub(super) fn new(
+        baseline: Option<f64>,
+        threshold_db: f64,
+        ends_playback: bool,
+        seam: Option<SeamBands>,
+    ) -> Arc<Self> {
         Arc::new(Self {
             want: Mutex::new(None),
             baseline: Mutex::new(baseline),
@@ -61,7 +99,45 @@ impl Tap {
             ends_playback,
             below: AtomicU32::new(0),
             drift: AtomicBool::new(false),
+            seam,
+            seam_baseline: Mutex::new(None),
+            seam_said: AtomicBool::new(false),
         })
+    }
+
+    /// The seam ratio of the camera's `view` against `desired` ([`crate::metrics::SeamFigure::ratio`])
+    /// for a set whose pictures overlap, and its baseline (the first check's: the figure depends
+    /// on the content, whose own edges may lie along the overlap). A seam that was not there at
+    /// the baseline and passes the verification's limit is said in the log, and when it is
+    /// gone again.
+    fn seam_ratio(&self, seq: u64, view: &CamImage, desired: &CamImage) -> Option<(f64, f64)> {
+        let b = self.seam.as_ref()?;
+        let ratio = match crate::metrics::seam_figure(view, desired, b.band.data(), b.away.data()) {
+            Ok(f) => f.ratio(),
+            Err(e) => {
+                tracing::warn!("monitoring: frame {seq}: no seam figure: {e}");
+                return None;
+            }
+        };
+        let baseline = *self
+            .seam_baseline
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get_or_insert(ratio);
+        let shows = ratio > b.limit && baseline <= b.limit;
+        if shows != self.seam_said.swap(shows, Ordering::Relaxed) {
+            if shows {
+                tracing::warn!(
+                    "monitoring: a seam shows: the error along the overlap edges is {ratio:.2} \
+                     times the error away from them, {baseline:.2} when this playback began (at \
+                     most {:.2} passes verification); a projector may have moved or dimmed",
+                    b.limit
+                );
+            } else {
+                tracing::info!("monitoring: the seam is gone (ratio {ratio:.2})");
+            }
+        }
+        Some((ratio, baseline))
     }
 
     pub(super) fn baseline(&self) -> Option<f64> {
@@ -135,6 +211,7 @@ impl Tap {
             }
         };
         shared.views.set_pair(&desired, view, area);
+        let seam = self.seam_ratio(seq, view, &desired);
         let baseline = {
             let mut b = self.baseline.lock().unwrap_or_else(|e| e.into_inner());
             *b.get_or_insert(s.psnr)
@@ -144,9 +221,12 @@ impl Tap {
         self.below.store(run, Ordering::Relaxed);
         tracing::info!(
             "monitoring: frame {seq}: {:.2} dB / SSIM {:.3} in the displayable area (baseline \
-             {baseline:.2} dB){}",
+             {baseline:.2} dB){}{}",
             s.psnr,
             s.ssim,
+            seam.map_or(String::new(), |(r, b)| format!(
+                ", seam ratio {r:.2} (baseline {b:.2})"
+            )),
             match (drift, run) {
                 (true, _) => "; DRIFT".to_string(),
                 (false, 0) => String::new(),
@@ -171,6 +251,8 @@ impl Tap {
             m.psnr = Some(s.psnr);
             m.ssim = Some(s.ssim);
             m.baseline_psnr = Some(baseline);
+            m.seam_ratio = seam.map(|(r, _)| r);
+            m.seam_baseline = seam.map(|(_, b)| b);
             m.age_s = Some(0.0);
             if drift && !m.drift {
                 m.drifts += 1;

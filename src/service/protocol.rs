@@ -398,6 +398,16 @@ pub struct Monitoring {
     pub ssim: Option<f64>,
     /// The first score of this model's playback: what drift is measured against, dB.
     pub baseline_psnr: Option<f64>,
+    /// A set of projectors whose pictures overlap: the last check's seam figure (the error in
+    /// a band along the overlap edges over the error away from them; above the set's limit, a
+    /// seam shows).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seam_ratio: Option<f64>,
+    /// The first check's seam ratio in this playback: the figure depends on the content (its
+    /// own edges may lie along an overlap), so a seam that appears is one that rises past the
+    /// limit from under it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seam_baseline: Option<f64>,
     /// Seconds since the last check.
     pub age_s: Option<f64>,
     /// The last check fell more than the threshold below the baseline.

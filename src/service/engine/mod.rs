@@ -28,7 +28,7 @@ mod set;
 mod setup;
 
 use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure, other_rig};
-use super::monitor::{self, Tap};
+use super::monitor::{self, SeamBands, Tap};
 use super::notify::Notifier;
 use super::opening::{Allowed, Opened, Opening};
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
@@ -600,7 +600,7 @@ impl Engine {
             Devices::Hardware(_) => settle_frames(model, &rig_name(&self.config.rig)),
         };
         let watchable = matches!(self.devices, Devices::Virtual(_)) || settle.is_some();
-        let monitor = self.monitor_tap(watchable);
+        let monitor = self.monitor_tap(watchable, None);
         let period = Duration::from_secs_f64(m.period_s);
         let stats_every = Duration::from_secs_f64(self.config.log.stats_period_s);
         let fps = self.config.rig.fps;
@@ -769,8 +769,8 @@ impl Engine {
 
     /// Monitoring for the playback about to start (`[monitoring]`), when it is on and the rig
     /// can be watched (`watchable`: the virtual rig, or a camera whose latency was measured on
-    /// this rig); otherwise `None`, said in the log.
-    fn monitor_tap(&self, watchable: bool) -> Option<Arc<Tap>> {
+    /// this rig); otherwise `None`, said in the log. `seam`: a set's seam bands.
+    fn monitor_tap(&self, watchable: bool, seam: Option<SeamBands>) -> Option<Arc<Tap>> {
         let m = &self.config.monitoring;
         if m.enabled && !watchable {
             tracing::warn!(
@@ -789,6 +789,7 @@ impl Engine {
                 self.baseline_for_source(),
                 m.drift_threshold_db,
                 recalibrate,
+                seam,
             )
         })
     }

@@ -11,8 +11,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant, SystemTime};
 
-use super::super::devices::{Devices, SetDevices, load_set_model};
-use super::super::monitor::Tap;
+use super::super::devices::{Bump, Devices, SetDevices, load_set_model};
+use super::super::monitor::{SeamBands, Tap};
 use super::super::protocol::{CalibrationOutcome, ModelStatus, Monitoring, ProjectorStatus, State};
 use super::super::screen::{ServiceScreen, set_frames};
 use super::super::{Io, clipped};
@@ -119,11 +119,24 @@ impl Engine {
         };
         let watchable = matches!(&self.devices, Devices::Set(s) if matches!(**s, SetDevices::Virtual { .. }))
             || settle.is_some();
-        let monitor = self.monitor_tap(watchable);
+        let joint = match model.joint() {
+            Ok(j) => j,
+            Err(e) => {
+                self.io.fail("the set's joint model", &e);
+                self.io.state(State::Idle, "idle: playback failed");
+                return;
+            }
+        };
+        let covers: Vec<_> = (0..joint.projectors())
+            .filter_map(|k| joint.cover(k).map(|c| c.mask()))
+            .collect();
+        let seam = SeamBands::of(&covers, record.area, crate::calibrate::set::SEAM_LIMIT);
+        let monitor = self.monitor_tap(watchable, seam);
         let timing = (
             Duration::from_secs_f64(m.period_s),
             Duration::from_secs_f64(self.config.log.stats_period_s),
         );
+        let drift_after = self.config.rig.drift_after_s;
         let around = Around {
             before: &before,
             end_when: None,
@@ -135,11 +148,15 @@ impl Engine {
             seed: self.config.rig.seed,
         };
         let fps = self.config.rig.fps;
-        let joint = model.joint();
         let exposure = record.exposure.as_ref().map(|e| e.chosen);
-        let result = joint.and_then(|joint| match &mut self.devices {
+        let result = (|| match &mut self.devices {
             Devices::Set(s) => match &mut **s {
-                SetDevices::Virtual { rig, scene, ctx } => {
+                SetDevices::Virtual {
+                    rig,
+                    scene,
+                    ctx,
+                    bump,
+                } => {
                     let pass = SetPass::new(
                         ctx,
                         &joint,
@@ -147,11 +164,11 @@ impl Engine {
                         scene.projector.size(),
                     )?;
                     play_set_virtual(
-                        (rig, scene, ctx),
+                        (rig, scene, ctx, bump),
                         (pass, source, fps),
                         &mut self.io,
                         (monitor.clone(), timing),
-                        around,
+                        (around, drift_after),
                     )
                 }
                 SetDevices::Windows {
@@ -186,7 +203,7 @@ impl Engine {
             _ => Err(Error::Failed(
                 "one projector plays its own model (Engine::play)".into(),
             )),
-        });
+        })();
         if let Some(tap) = &monitor {
             self.baseline = tap.baseline().map(|b| (self.source.clone(), b));
         }
@@ -376,16 +393,18 @@ fn set_settle_frames(model: &SetModel, rig: &str) -> Option<u64> {
 /// side as one display), the rig's camera (one exposure per shown frame, no delay) watching on
 /// a thread of its own and feeding monitoring and the console.
 fn play_set_virtual(
-    (rig, scene, ctx): (
+    (rig, scene, ctx, bump): (
         &mut crate::rig::VirtualRig,
         &crate::rig::scene::Scene,
         &crate::gpu::GpuContext,
+        &mut Option<Bump>,
     ),
     (pass, source, fps): (SetPass, Box<dyn source::VideoSource>, f64),
     io: &mut Io,
     (monitor, timing): (Option<Arc<Tap>>, (Duration, Duration)),
-    mut around: Around<'_>,
+    (mut around, drift_after): (Around<'_>, Option<f64>),
 ) -> Result<Ended> {
+    around.bump = bump.as_mut().and_then(|b| b.arm(drift_after));
     rig.set_latency(Latency {
         fps,
         delay_frames: 0,
@@ -417,6 +436,9 @@ fn play_set_virtual(
     screen.media = player.feed.control().cloned();
     let stats = player.run(&mut screen, None);
     screen.settle();
+    if let Some(b) = bump {
+        b.played(&screen.drift);
+    }
     Ok(Ended {
         stats,
         pending: screen.pending.take(),
