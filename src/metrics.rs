@@ -45,6 +45,31 @@ pub fn mse<S: Space>(a: &Rgb<S>, b: &Rgb<S>) -> Result<f64> {
     Ok(sum / a.data().len().max(1) as f64)
 }
 
+/// Mean squared error over the channels of the pixels of one pair that `mask` holds (pixel
+/// (x, y) at `y·width + x`); `None` when it holds none. A mask of another size than the images
+/// is an input error.
+pub fn masked_mse<S: Space>(a: &Rgb<S>, b: &Rgb<S>, mask: &[bool]) -> Result<Option<f64>> {
+    check(a, b)?;
+    let pixels = a.width() * a.height();
+    if mask.len() != pixels {
+        return Err(Error::Shape(format!(
+            "a mask of {} pixels for {}x{} images",
+            mask.len(),
+            a.width(),
+            a.height()
+        )));
+    }
+    let (mut sum, mut n) = (0.0f64, 0usize);
+    for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        for c in 0..3 {
+            let d = a.data()[3 * i + c] as f64 - b.data()[3 * i + c] as f64;
+            sum += d * d;
+        }
+        n += 3;
+    }
+    Ok((n > 0).then(|| sum / n as f64))
+}
+
 /// PSNR in dB for a mean squared error with peak value 1.
 pub fn psnr_from_mse(mse: f64) -> f64 {
     if mse <= 0.0 {

@@ -251,3 +251,22 @@ fn sharpness_falls_as_an_image_blurs_and_clipping_counts_the_ends() {
     });
     assert_eq!(compend::metrics::clipping(&img), (0.25, 0.25));
 }
+
+/// The error over the pixels a mask holds (a projector's part of a set's picture, in
+/// monitoring): the whole image's with a full mask, the hand-computed mean over the masked
+/// pixels otherwise, none for an empty mask, and a mask of another size is refused.
+#[test]
+fn masked_mse_counts_only_the_masked_pixels() {
+    let a: Rgb<Unspecified> = Rgb::from_fn(2, 2, |x, y| [0.1 * (x + 2 * y) as f32; 3]);
+    let b: Rgb<Unspecified> = Rgb::from_fn(2, 2, |_, _| [0.0; 3]);
+    let all = metrics::masked_mse(&a, &b, &[true; 4]).unwrap().unwrap();
+    assert!((all - metrics::mse(&a, &b).unwrap()).abs() < 1e-12);
+    // Pixels (1, 0) and (1, 1): 0.1 and 0.3 in every channel.
+    let right = metrics::masked_mse(&a, &b, &[false, true, false, true])
+        .unwrap()
+        .unwrap();
+    let want = (0.1f64 * 0.1 + 0.3 * 0.3) / 2.0;
+    assert!((right - want).abs() < 1e-7, "{right} against {want}");
+    assert_eq!(metrics::masked_mse(&a, &b, &[false; 4]).unwrap(), None);
+    assert!(metrics::masked_mse(&a, &b, &[true; 3]).is_err());
+}

@@ -881,8 +881,21 @@ fn the_service_calibrates_and_plays_a_set_of_projectors() {
     let first = s["monitoring"]["seam_baseline"].as_f64().unwrap();
     assert!(seam > 0.0 && first > 0.0, "seam ratio {seam}: {s}");
     assert!(!svc.log().contains("a seam shows"), "{}", svc.log());
+    // And each projector's part of the area, scored on its own.
+    let parts: Vec<f64> = s["monitoring"]["projectors_psnr"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_f64().unwrap())
+        .collect();
+    assert_eq!(parts.len(), 2, "{s}");
+    assert!(parts.iter().all(|&p| p > 15.0), "{s}");
     let text = stdout(&client(&["status"], &svc.socket));
-    assert!(text.contains("monitoring: seam ratio "), "{text}");
+    assert!(
+        text.contains("monitoring: seam ratio ")
+            && text.contains("monitoring: each projector's part of the area: "),
+        "{text}"
+    );
 
     // One projector's model is not a set's: refused, the set plays on.
     let one = dir.path().join("one");

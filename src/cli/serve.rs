@@ -338,6 +338,17 @@ fn describe(s: &Status) -> String {
             if m.drift { ", DRIFT" } else { "" }
         );
     }
+    if !m.projectors_psnr.is_empty() {
+        let each: Vec<String> = m
+            .projectors_psnr
+            .iter()
+            .map(|p| p.map_or("-".to_string(), |p| format!("{p:.2} dB")))
+            .collect();
+        out += &format!(
+            "monitoring: each projector's part of the area: {}\n",
+            each.join(", ")
+        );
+    }
     if let Some(r) = m.seam_ratio {
         out += &format!(
             "monitoring: seam ratio {r:.2} (baseline {:.2}): the error along the projectors' \

@@ -32,6 +32,37 @@ pub(super) struct SeamBands {
     limit: f64,
 }
 
+/// What monitoring watches of a set of projectors beyond the whole: the seam bands where its
+/// pictures overlap, and each projector's part of the displayable area (camera pixels: where it
+/// lights inside the area), scored on its own.
+pub(super) struct SetWatch {
+    pub(super) seam: Option<SeamBands>,
+    pub(super) parts: Vec<Mask<Camera>>,
+}
+
+impl SetWatch {
+    /// The set whose projectors light `covers` (camera pixels), in its displayable `area`.
+    pub(super) fn of(covers: &[Mask<Camera>], area: Rect, seam_limit: f64) -> Self {
+        let parts = covers
+            .iter()
+            .map(|c| {
+                let size = c.size();
+                Mask::from_fn(size.width, size.height, |x, y| {
+                    c.get(x, y)
+                        && x >= area.x
+                        && x < area.x + area.width
+                        && y >= area.y
+                        && y < area.y + area.height
+                })
+            })
+            .collect();
+        Self {
+            seam: SeamBands::of(covers, area, seam_limit),
+            parts,
+        }
+    }
+}
+
 impl SeamBands {
     /// The bands of the projectors lighting `covers` (camera pixels) inside `area`; `None`
     /// where no two overlap (a tiled set without a blend, or nothing away from the edges).
@@ -59,8 +90,8 @@ pub(super) struct Tap {
     /// Consecutive checks below the baseline by more than the threshold.
     below: AtomicU32,
     drift: AtomicBool,
-    /// A set's seam bands: each check's seam figure too.
-    seam: Option<SeamBands>,
+    /// A set's seam bands and parts: each check's seam figure and each projector's score too.
+    set: Option<SetWatch>,
     /// The first check's seam ratio.
     seam_baseline: Mutex<Option<f64>>,
     /// A seam was said in the log (and is said again when it is gone).
@@ -85,12 +116,12 @@ fn judge(baseline: f64, psnr: f64, threshold_db: f64, run: u32) -> (u32, bool) {
 impl Tap {
     /// `ends_playback`: drift ends the playback (the engine recalibrates); otherwise it is
     /// reported and playback goes on.
-    /// `seam`: a set's seam bands, whose figure each check gives as well.
+    /// `set`: a set's seam bands and parts, whose figures each check gives as well.
     pub(super) fn new(
         baseline: Option<f64>,
         threshold_db: f64,
         ends_playback: bool,
-        seam: Option<SeamBands>,
+        set: Option<SetWatch>,
     ) -> Arc<Self> {
         Arc::new(Self {
             want: Mutex::new(None),
@@ -99,7 +130,7 @@ impl Tap {
             ends_playback,
             below: AtomicU32::new(0),
             drift: AtomicBool::new(false),
-            seam,
+            set,
             seam_baseline: Mutex::new(None),
             seam_said: AtomicBool::new(false),
         })
@@ -111,7 +142,7 @@ impl Tap {
     /// the baseline and passes the verification's limit is said in the log, and when it is
     /// gone again.
     fn seam_ratio(&self, seq: u64, view: &CamImage, desired: &CamImage) -> Option<(f64, f64)> {
-        let b = self.seam.as_ref()?;
+        let b = self.set.as_ref()?.seam.as_ref()?;
         let ratio = match crate::metrics::seam_figure(view, desired, b.band.data(), b.away.data()) {
             Ok(f) => f.ratio(),
             Err(e) => {
@@ -138,6 +169,28 @@ impl Tap {
             }
         }
         Some((ratio, baseline))
+    }
+
+    /// Each projector's score in its own part of a set's area, dB (`None` for a part it does
+    /// not light); empty for one projector.
+    fn parts_psnr(&self, seq: u64, view: &CamImage, desired: &CamImage) -> Vec<Option<f64>> {
+        let Some(set) = &self.set else {
+            return Vec::new();
+        };
+        set.parts
+            .iter()
+            .map(
+                |p| match crate::metrics::masked_mse(view, desired, p.data()) {
+                    Ok(mse) => mse.map(crate::metrics::psnr_from_mse),
+                    Err(e) => {
+                        tracing::warn!(
+                            "monitoring: frame {seq}: a projector's part not scored: {e}"
+                        );
+                        None
+                    }
+                },
+            )
+            .collect()
     }
 
     pub(super) fn baseline(&self) -> Option<f64> {
@@ -212,6 +265,7 @@ impl Tap {
         };
         shared.views.set_pair(&desired, view, area);
         let seam = self.seam_ratio(seq, view, &desired);
+        let parts = self.parts_psnr(seq, view, &desired);
         let baseline = {
             let mut b = self.baseline.lock().unwrap_or_else(|e| e.into_inner());
             *b.get_or_insert(s.psnr)
@@ -221,9 +275,18 @@ impl Tap {
         self.below.store(run, Ordering::Relaxed);
         tracing::info!(
             "monitoring: frame {seq}: {:.2} dB / SSIM {:.3} in the displayable area (baseline \
-             {baseline:.2} dB){}{}",
+             {baseline:.2} dB){}{}{}",
             s.psnr,
             s.ssim,
+            if parts.is_empty() {
+                String::new()
+            } else {
+                let each: Vec<String> = parts
+                    .iter()
+                    .map(|p| p.map_or("-".to_string(), |p| format!("{p:.2}")))
+                    .collect();
+                format!(", each projector's part {} dB", each.join(" / "))
+            },
             seam.map_or(String::new(), |(r, b)| format!(
                 ", seam ratio {r:.2} (baseline {b:.2})"
             )),
@@ -252,6 +315,7 @@ impl Tap {
             m.ssim = Some(s.ssim);
             m.baseline_psnr = Some(baseline);
             m.seam_ratio = seam.map(|(r, _)| r);
+            m.projectors_psnr = parts;
             m.seam_baseline = seam.map(|(_, b)| b);
             m.age_s = Some(0.0);
             if drift && !m.drift {

@@ -408,6 +408,10 @@ pub struct Monitoring {
     /// limit from under it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seam_baseline: Option<f64>,
+    /// A set of projectors: the last check's PSNR in each projector's own part of the area (where
+    /// it lights), dB, in the set's order; `null` for a part it does not light.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub projectors_psnr: Vec<Option<f64>>,
     /// Seconds since the last check.
     pub age_s: Option<f64>,
     /// The last check fell more than the threshold below the baseline.

@@ -28,7 +28,7 @@ mod set;
 mod setup;
 
 use super::devices::{Devices, Hardware, VirtualDevices, load_model, match_exposure, other_rig};
-use super::monitor::{self, SeamBands, Tap};
+use super::monitor::{self, SetWatch, Tap};
 use super::notify::Notifier;
 use super::opening::{Allowed, Opened, Opening};
 use super::protocol::{Frames, ModelStatus, Monitoring, Reply, Request, State};
@@ -769,8 +769,8 @@ impl Engine {
 
     /// Monitoring for the playback about to start (`[monitoring]`), when it is on and the rig
     /// can be watched (`watchable`: the virtual rig, or a camera whose latency was measured on
-    /// this rig); otherwise `None`, said in the log. `seam`: a set's seam bands.
-    fn monitor_tap(&self, watchable: bool, seam: Option<SeamBands>) -> Option<Arc<Tap>> {
+    /// this rig); otherwise `None`, said in the log. `set`: what it watches of a set.
+    fn monitor_tap(&self, watchable: bool, set: Option<SetWatch>) -> Option<Arc<Tap>> {
         let m = &self.config.monitoring;
         if m.enabled && !watchable {
             tracing::warn!(
@@ -789,7 +789,7 @@ impl Engine {
                 self.baseline_for_source(),
                 m.drift_threshold_db,
                 recalibrate,
-                seam,
+                set,
             )
         })
     }

@@ -12,7 +12,7 @@ use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant, SystemTime};
 
 use super::super::devices::{Bump, Devices, SetDevices, load_set_model};
-use super::super::monitor::{SeamBands, Tap};
+use super::super::monitor::{SetWatch, Tap};
 use super::super::protocol::{CalibrationOutcome, ModelStatus, Monitoring, ProjectorStatus, State};
 use super::super::screen::{ServiceScreen, set_frames};
 use super::super::{Io, clipped};
@@ -130,8 +130,8 @@ impl Engine {
         let covers: Vec<_> = (0..joint.projectors())
             .filter_map(|k| joint.cover(k).map(|c| c.mask()))
             .collect();
-        let seam = SeamBands::of(&covers, record.area, crate::calibrate::set::SEAM_LIMIT);
-        let monitor = self.monitor_tap(watchable, seam);
+        let set = SetWatch::of(&covers, record.area, crate::calibrate::set::SEAM_LIMIT);
+        let monitor = self.monitor_tap(watchable, Some(set));
         let timing = (
             Duration::from_secs_f64(m.period_s),
             Duration::from_secs_f64(self.config.log.stats_period_s),
