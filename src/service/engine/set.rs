@@ -94,6 +94,15 @@ impl Engine {
             return;
         };
         let Some(record) = model.meta.calibration.as_ref() else {
+            // A set's model is loaded only with its record (`load_set_model`).
+            self.io.fail(
+                "the set's model",
+                &Error::Input(format!(
+                    "{}: no calibration record in set.json",
+                    self.model_path.display()
+                )),
+            );
+            self.io.state(State::Idle, "idle: playback failed");
             return;
         };
         let v = &record.verification;
