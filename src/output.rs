@@ -25,10 +25,11 @@ use gstreamer_app as gst_app;
 use gstreamer_video as gst_video;
 
 use crate::error::{Error, Result};
+use crate::gpu::joint::SetPass;
 use crate::gpu::{FramePass, GpuContext};
 use crate::media::{self, Watch, fault};
 use crate::player::{PlayStats, Refresh, Screen, Show};
-use crate::raster::ImageSize;
+use crate::raster::{ImageSize, PrjImage};
 
 /// The spellings of `--to`, as `compend play --help` shows them.
 pub const HELP: &str = "\
@@ -348,6 +349,140 @@ impl Drop for MediaOutput {
         {
             tracing::warn!("{e}");
         }
+    }
+}
+
+/// One media output per projector of a set (`play --to` once per projector, `[[projector]] to`),
+/// fed each projector's canvas (projector pixels).
+pub struct SetOutputs {
+    outputs: Vec<MediaOutput>,
+    live: bool,
+    fps: f64,
+    started: Option<Instant>,
+    pushed: u64,
+}
+
+impl SetOutputs {
+    /// Starts `specs` (none: no outputs) for `n` projectors of `size` at `fps`.
+    pub fn start(
+        specs: &[OutputSpec],
+        n: usize,
+        size: ImageSize,
+        fps: f64,
+        live: bool,
+    ) -> Result<Option<Self>> {
+        if specs.is_empty() {
+            return Ok(None);
+        }
+        if specs.len() != n {
+            return Err(Error::Input(format!(
+                "{} output(s) for a set of {n} projectors: one output per projector, in the \
+                 set's order",
+                specs.len()
+            )));
+        }
+        // Two projectors' frames cannot go into one file (a pipeline may be meant twice).
+        for (i, a) in specs.iter().enumerate() {
+            if let OutputSpec::File(_) = a
+                && let Some(j) = specs[i + 1..].iter().position(|b| b == a)
+            {
+                return Err(Error::Input(format!(
+                    "{a} is given for projectors {} and {}: each projector needs an output of its \
+                     own",
+                    i + 1,
+                    i + j + 2
+                )));
+            }
+        }
+        let outputs = specs
+            .iter()
+            .map(|s| MediaOutput::start(s, size, fps, live))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Some(Self {
+            outputs,
+            live,
+            fps,
+            started: None,
+            pushed: 0,
+        }))
+    }
+
+    /// Pushes one frame per projector (projector pixels, the outputs' size).
+    pub fn push(&mut self, frames: &[PrjImage]) -> Result<()> {
+        let now = Instant::now();
+        let pts = if self.live {
+            now.saturating_duration_since(*self.started.get_or_insert(now))
+        } else {
+            Duration::from_secs_f64(self.pushed as f64 / self.fps)
+        };
+        for (o, f) in self.outputs.iter_mut().zip(frames) {
+            o.push(crate::pngio::to_rgba8(f), pts)?;
+        }
+        self.pushed += 1;
+        Ok(())
+    }
+
+    /// Ends every output's stream (files complete and renamed into place); the frames each
+    /// wrote.
+    pub fn finish(self) -> Result<Vec<u64>> {
+        self.outputs.into_iter().map(MediaOutput::finish).collect()
+    }
+}
+
+/// A set's screen whose every new frame also goes to one output per projector
+/// ([`SetOutputs`]: each projector's canvas, read back from the GPU as presented).
+pub struct SetTeed<'a, S: ?Sized> {
+    inner: &'a mut S,
+    out: Option<SetOutputs>,
+}
+
+impl<'a, S: ?Sized> SetTeed<'a, S> {
+    pub fn new(inner: &'a mut S, out: Option<SetOutputs>) -> Self {
+        Self { inner, out }
+    }
+
+    /// Ends the outputs' streams (files complete and renamed into place); the frames each
+    /// wrote, none without outputs.
+    pub fn finish_outputs(&mut self) -> Result<Option<Vec<u64>>> {
+        self.out.take().map(SetOutputs::finish).transpose()
+    }
+}
+
+impl<S: Screen<SetPass> + ?Sized> Screen<SetPass> for SetTeed<'_, S> {
+    fn context(&self) -> &GpuContext {
+        self.inner.context()
+    }
+    fn refresh(&self) -> Refresh {
+        self.inner.refresh()
+    }
+    fn begin(&mut self, live: bool) -> Result<()> {
+        self.inner.begin(live)
+    }
+    fn keep_going(&mut self) -> bool {
+        self.inner.keep_going()
+    }
+    fn take_pass(&mut self) -> Option<SetPass> {
+        self.inner.take_pass()
+    }
+    fn refreshed(&mut self, stats: &PlayStats) {
+        self.inner.refreshed(stats)
+    }
+    fn display_delay(&self) -> Duration {
+        self.inner.display_delay()
+    }
+    fn present(&mut self, pass: &SetPass, show: Show) -> Result<()> {
+        self.inner.present(pass, show)?;
+        let (Show::New { .. }, Some(out)) = (show, self.out.as_mut()) else {
+            return Ok(());
+        };
+        out.push(&pass.canvases(self.inner.context())?)
+    }
+    fn finish(&mut self, stats: &mut PlayStats) -> Result<()> {
+        let inner = self.inner.finish(stats);
+        // The outputs' files are completed even when the display failed.
+        let outputs = self.finish_outputs();
+        inner?;
+        outputs.map(drop)
     }
 }
 

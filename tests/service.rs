@@ -829,10 +829,16 @@ fn the_service_calibrates_and_plays_a_set_of_projectors() {
     }
     let dir = tempfile::tempdir().unwrap();
     let config = write_config(dir.path(), "tiled", 9, "", "");
-    // The virtual rig brings its own outputs: the sections only count them.
+    // The virtual rig brings its own outputs: the sections count them, and send each
+    // projector's frames to a file of its own too.
+    let sections = format!(
+        "[[projector]]\nto = \"file:{}\"\n[[projector]]\nto = \"file:{}\"\n\n[paths]\n",
+        dir.path().join("left.mkv").display(),
+        dir.path().join("right.mkv").display()
+    );
     let text = std::fs::read_to_string(&config)
         .unwrap()
-        .replace("[paths]\n", "[[projector]]\n[[projector]]\n\n[paths]\n");
+        .replace("[paths]\n", &sections);
     std::fs::write(&config, text).unwrap();
     let mut svc = Service::start(&config);
     let s = svc.wait_for("playback of the set after its calibration", 600, playing);
@@ -928,6 +934,17 @@ fn the_service_calibrates_and_plays_a_set_of_projectors() {
     let r = svc.ask(r#"{"cmd":"stop"}"#);
     assert_eq!(r["ok"], true, "{r}");
     assert_eq!(svc.wait_exit(30), Some(0), "log:\n{}", svc.log());
+    // Each playback wrote each projector's file, complete once it ended.
+    for side in ["left", "right"] {
+        let first = dir.path().join(format!("{side}-0001.mkv"));
+        let len = std::fs::metadata(&first).map_or(0, |m| m.len());
+        assert!(
+            len > 1000,
+            "{}: {len} bytes; log:\n{}",
+            first.display(),
+            svc.log()
+        );
+    }
 
     // Restarted, it serves the installed set at once.
     let mut svc = Service::start(&config);
@@ -945,9 +962,13 @@ fn the_service_calibrates_and_plays_a_set_of_projectors() {
     assert_eq!(svc.wait_exit(20), Some(0), "log:\n{}", svc.log());
 
     // Sections that do not match the scene's projectors are named before anything opens.
-    let text = std::fs::read_to_string(&config)
-        .unwrap()
-        .replace("[[projector]]\n[[projector]]\n", "[[projector]]\n");
+    let second = format!(
+        "[[projector]]\nto = \"file:{}\"\n",
+        dir.path().join("right.mkv").display()
+    );
+    let text = std::fs::read_to_string(&config).unwrap();
+    assert!(text.contains(&second));
+    let text = text.replace(&second, "");
     std::fs::write(&config, text).unwrap();
     let o = compend(&["config", "check", config.to_str().unwrap()]);
     assert_code(&o, 2);

@@ -19,9 +19,9 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use compend::device::{DisplaySink, FrameSource};
 use compend::model::set::SetModel;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use compend::output::{MediaOutput, OutputSpec};
+use compend::output::{OutputSpec, SetOutputs};
 use compend::raster::{CamImage, ImageSize, PrjImage, Rect};
 use compend::record::set::SetRecord;
 use compend::rig::{VirtualRig, scene};
@@ -51,91 +51,23 @@ pub struct SetPlay<'a> {
     pub output_fps: f64,
 }
 
-/// One media output per projector of a set (`--to`), fed each projector's canvas.
-struct SetOutputs {
-    outputs: Vec<MediaOutput>,
-    live: bool,
+/// Starts one output per projector ([`SetOutputs::start`]) and says where they go.
+fn start_outputs(
+    specs: &[OutputSpec],
+    n: usize,
+    size: ImageSize,
     fps: f64,
-    started: Option<Instant>,
-    pushed: u64,
-}
-
-impl SetOutputs {
-    /// Starts `specs` (none: no outputs) for `n` projectors of `size` at `fps`.
-    fn start(
-        specs: &[OutputSpec],
-        n: usize,
-        size: ImageSize,
-        fps: f64,
-        live: bool,
-    ) -> Result<Option<Self>> {
-        if specs.is_empty() {
-            return Ok(None);
-        }
-        if specs.len() != n {
-            return Err(compend::Error::Input(format!(
-                "--to given {} time(s) for a set of {n} projectors: one output per projector, in \
-                 the set's order",
-                specs.len()
-            ))
-            .into());
-        }
-        // Two projectors' frames cannot go into one file (a pipeline may be meant twice).
-        for (i, a) in specs.iter().enumerate() {
-            if let OutputSpec::File(_) = a
-                && let Some(j) = specs[i + 1..].iter().position(|b| b == a)
-            {
-                return Err(compend::Error::Input(format!(
-                    "--to {a} is given for projectors {} and {}: each projector needs an output \
-                     of its own",
-                    i + 1,
-                    i + j + 2
-                ))
-                .into());
-            }
-        }
-        let outputs = specs
-            .iter()
-            .map(|s| MediaOutput::start(s, size, fps, live))
-            .collect::<compend::Result<Vec<_>>>()?;
+    live: bool,
+) -> Result<Option<SetOutputs>> {
+    let outputs = SetOutputs::start(specs, n, size, fps, live)?;
+    if outputs.is_some() {
         let list: Vec<String> = specs.iter().map(|s| s.to_string()).collect();
         eprintln!(
             "play: each projector's compensated frames to {} at {fps:.3} fps",
             list.join(", ")
         );
-        Ok(Some(Self {
-            outputs,
-            live,
-            fps,
-            started: None,
-            pushed: 0,
-        }))
     }
-
-    /// Pushes one frame per projector (projector pixels, the outputs' size).
-    fn push(&mut self, frames: &[PrjImage]) -> Result<()> {
-        let now = Instant::now();
-        let pts = if self.live {
-            now.saturating_duration_since(*self.started.get_or_insert(now))
-        } else {
-            Duration::from_secs_f64(self.pushed as f64 / self.fps)
-        };
-        for (o, f) in self.outputs.iter_mut().zip(frames) {
-            o.push(compend::pngio::to_rgba8(f), pts)?;
-        }
-        self.pushed += 1;
-        Ok(())
-    }
-
-    /// Ends every output's stream (files complete and renamed into place); the frames each
-    /// wrote.
-    fn finish(self) -> Result<Vec<u64>> {
-        Ok(self
-            .outputs
-            .into_iter()
-            .map(MediaOutput::finish)
-            .collect::<compend::Result<Vec<_>>>()?)
-    }
+    Ok(outputs)
 }
 
 /// Each projector's image of the joint pass (its lattice) on its canvas of `size`.
@@ -245,7 +177,7 @@ pub fn play_set(args: &SetPlay, model_dir: &Path, spec: &SourceSpec) -> Result<(
     let delay = scene.latency.delay_frames as u64;
     let range = record.display_range;
     let camera_size = model.meta.camera_size;
-    let mut media = SetOutputs::start(
+    let mut media = start_outputs(
         &args.to,
         outputs.len(),
         outputs[0].size(),
@@ -369,7 +301,7 @@ fn play_on_windows(
     let range = record.display_range;
     let camera_size = model.meta.camera_size;
     let size = windows.sizes()[0];
-    let mut media = SetOutputs::start(&args.to, n, size, windows.refresh_hz(), true)?;
+    let mut media = start_outputs(&args.to, n, size, windows.refresh_hz(), true)?;
     let (mut shown, mut refreshes, mut ended) = (0u64, 0u64, false);
     let mut held: Option<Vec<PrjImage>> = None;
     loop {
@@ -469,7 +401,7 @@ fn play_headless(
     let joint = model.joint()?;
     let ctx = compend::gpu::GpuContext::new().context("opening the GPU for the joint pass")?;
     let pass = compend::gpu::joint::JointPass::new(&ctx, &joint)?;
-    let mut media = SetOutputs::start(&args.to, n, size, args.output_fps, false)?
+    let mut media = start_outputs(&args.to, n, size, args.output_fps, false)?
         .ok_or_else(|| compend::Error::Input("--no-window needs --to".into()))?;
     eprintln!(
         "play: {} to the outputs only, {n} projector canvases of {size} ({})",

@@ -511,6 +511,16 @@ mod tests {
                 .unwrap_err()
                 .to_string();
         assert!(e.contains("both name monitors"), "{e}");
+        let e = parse("[[projector]]\nto = \"file:a.mkv\"\n[[projector]]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("[[projector]] to: given for 1 of 2 projectors"),
+            "{e}"
+        );
+        let c = parse("[[projector]]\nto = \"file:a.mkv\"\n[[projector]]\nto = \"gst:fakesink\"\n")
+            .unwrap();
+        assert!(c.rig.projectors.iter().all(|p| p.to.is_some()));
         let e = parse("projector = 3\n").unwrap_err().to_string();
         assert!(
             e.contains("`projector` must be sections ([[projector]])"),

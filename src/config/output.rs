@@ -12,7 +12,7 @@ pub struct OutputConfig {
     pub to: Option<crate::output::OutputSpec>,
 }
 
-fn output_or_none<S: serde::Serializer>(
+pub(super) fn output_or_none<S: serde::Serializer>(
     v: &Option<crate::output::OutputSpec>,
     s: S,
 ) -> std::result::Result<S::Ok, S::Error> {

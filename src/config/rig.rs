@@ -56,12 +56,20 @@ pub struct RigConfig {
 pub struct ProjectorConfig {
     /// `window`/`camera`: this projector's monitor, by name or index.
     pub monitor: Option<String>,
+    /// This projector's compensated frames to other software as well (`file:PATH`, each
+    /// playback to `NAME-NNNN.EXT` beside it, or `gst:PIPELINE`): given for every projector of
+    /// the set or for none.
+    #[serde(serialize_with = "super::output::output_or_none")]
+    pub to: Option<crate::output::OutputSpec>,
 }
 
 impl ProjectorConfig {
     fn read<'t>(w: &mut Walker<'t>, t: &mut Table<'t>) -> Self {
         ProjectorConfig {
             monitor: w.get(t, "monitor"),
+            to: w.parsed_with(t, "to", |s| {
+                crate::output::OutputSpec::parse(s).map_err(|e| e.to_string())
+            }),
         }
     }
 
@@ -117,6 +125,17 @@ impl ProjectorConfig {
                 ),
             }
             rig.projectors.push(p);
+        }
+        let outputs = rig.projectors.iter().filter(|p| p.to.is_some()).count();
+        if outputs > 0 && outputs < rig.projectors.len() {
+            w.errors.push((
+                w.line(0),
+                format!(
+                    "[[projector]] to: given for {outputs} of {} projectors; give each \
+                     projector's output, or none",
+                    rig.projectors.len()
+                ),
+            ));
         }
         if rig.kind != RigKind::Virtual && monitors.len() == rig.projectors.len() {
             if let Some(m) = &rig.monitor {

@@ -625,6 +625,7 @@ impl Engine {
                         end_when,
                         bump,
                         output: output.clone(),
+                        projector_outputs: Vec::new(),
                         audio: audio.clone(),
                         allowed: Allowed::of(&self.config),
                         rig: rig_name(&self.config.rig),
@@ -645,6 +646,7 @@ impl Engine {
                         end_when,
                         bump,
                         output: output.clone(),
+                        projector_outputs: Vec::new(),
                         audio: audio.clone(),
                         allowed: Allowed::of(&self.config),
                         rig: rig_name(&self.config.rig),
@@ -993,6 +995,9 @@ struct Around<'a> {
     bump: Option<(VirtualRig, Instant)>,
     /// `[output] to`: the compensated frames to a file or a pipeline as well.
     output: Option<OutputSpec>,
+    /// `[[projector]] to`: a set's projectors' frames each to its own output (one per
+    /// projector, or none).
+    projector_outputs: Vec<OutputSpec>,
     /// Where a source asked for while playing plays its sound.
     audio: source::AudioOut,
     /// The folders requests may name files in.

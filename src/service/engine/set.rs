@@ -26,6 +26,7 @@ use crate::error::{Error, Result};
 use crate::gpu::joint::SetPass;
 use crate::model::set::SetModel;
 use crate::model::{Method, MethodChoice};
+use crate::output::{SetOutputs, SetTeed};
 use crate::player::{Player, ViewSink, WatchedSink};
 use crate::raster::{Camera, Mask};
 use crate::rig::scene::Latency;
@@ -151,6 +152,13 @@ impl Engine {
             end_when: None,
             bump: None,
             output: self.config.output.to.clone(),
+            projector_outputs: self
+                .config
+                .rig
+                .projectors
+                .iter()
+                .filter_map(|p| p.to.clone())
+                .collect(),
             audio: self.config.audio.out(),
             allowed: crate::service::opening::Allowed::of(&self.config),
             rig,
@@ -359,6 +367,36 @@ impl Engine {
     }
 }
 
+/// Starts `[[projector]] to` (`specs`: one per projector, or none) for a playback of
+/// projectors of `size` at `fps`: each file to its next free `NAME-NNNN.EXT`. Outputs that
+/// cannot start are logged and left out: the show goes on without them.
+fn start_set_outputs(
+    specs: &[crate::output::OutputSpec],
+    size: crate::raster::ImageSize,
+    fps: f64,
+    io: &Io,
+) -> Option<SetOutputs> {
+    let specs: Vec<_> = specs.iter().map(|s| s.numbered()).collect();
+    match SetOutputs::start(&specs, specs.len(), size, fps, true) {
+        Ok(Some(o)) => {
+            let list: Vec<String> = specs.iter().map(|s| s.to_string()).collect();
+            tracing::info!(
+                "output: each projector's compensated frames also to {}",
+                list.join(", ")
+            );
+            Some(o)
+        }
+        Ok(None) => None,
+        Err(e) => {
+            io.fail(
+                "[[projector]] to: the outputs could not start; playing without them",
+                &e,
+            );
+            None
+        }
+    }
+}
+
 /// Each projector of `set` in the status, with its own verification from `model`.
 fn projector_statuses(set: &SetDevices, model: &SetModel) -> Vec<ProjectorStatus> {
     set.names()
@@ -439,6 +477,8 @@ fn play_set_virtual(
     let mut sink = WatchedSink::new(ctx, fps, display, rig.clone(), views);
     let output = start_output(around.output.take(), whole, fps, io);
     let mut teed = crate::output::Teed::new(&mut sink, output);
+    let each = start_set_outputs(&around.projector_outputs, scene.projector.size(), fps, io);
+    let mut teed = SetTeed::new(&mut teed, each);
     let sizes = (scene.camera.size(), scene.projector.size());
     let mut screen = ServiceScreen::new(&mut teed, io, monitor, timing, sizes);
     around.dress(&mut screen);
@@ -486,7 +526,9 @@ fn play_set_windows(
         let watcher = start_watcher(scope, camera, (&monitor, settle), rx, (&stop, &shared));
         let hz = windows.refresh_hz();
         let output = start_output(around.output.take(), whole, hz, io);
+        let each = start_set_outputs(&around.projector_outputs, display, hz, io);
         let mut teed = crate::output::Teed::new(&mut *windows, output);
+        let mut teed = SetTeed::new(&mut teed, each);
         let mut screen = ServiceScreen::new(
             &mut teed,
             io,
