@@ -371,14 +371,23 @@ fn the_console_shows_the_running_service_and_drives_it() {
         osc.send_to(&rosc::encoder::encode(&p).unwrap(), &osc_addr)
             .unwrap();
     };
+    // The reply (sent by the request's task) and the peers' events (sent by theirs) may come
+    // in either order: a message looked for later is kept, not dropped.
+    let kept = std::cell::RefCell::new(Vec::<rosc::OscMessage>::new());
     let heard = |want: &dyn Fn(&rosc::OscMessage) -> bool| -> rosc::OscMessage {
+        let found = kept.borrow().iter().position(want);
+        if let Some(i) = found {
+            return kept.borrow_mut().remove(i);
+        }
         let mut buf = [0u8; 65536];
         loop {
             let (n, _) = osc.recv_from(&mut buf).expect("an OSC message within 30 s");
             if let (_, rosc::OscPacket::Message(m)) = rosc::decoder::decode_udp(&buf[..n]).unwrap()
-                && want(&m)
             {
-                return m;
+                if want(&m) {
+                    return m;
+                }
+                kept.borrow_mut().push(m);
             }
         }
     };

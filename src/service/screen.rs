@@ -108,8 +108,6 @@ impl Loading {
     }
 }
 
-/// A display in the service: the playback loop's screen with the engine's checks between
-/// refreshes (events, the watchdog, live counts, monitoring requests, the virtual rig's drift).
 /// What the service's screen needs of the pass it plays beyond what the loop needs: the
 /// desired view of the frame last run, for monitoring, and whether a `model` request may swap
 /// another model in while it plays.
@@ -153,6 +151,9 @@ impl ServedPass for SetPass {
     }
 }
 
+/// A display in the service: the playback loop's screen with the engine's checks between
+/// refreshes (events, the watchdog, live counts, monitoring requests, the virtual rig's drift),
+/// playing a pass `P` (one projector's, or a set's).
 pub(super) struct ServiceScreen<'a, S: ?Sized, P = CompensationPass> {
     inner: &'a mut S,
     io: &'a mut Io,
@@ -206,6 +207,7 @@ pub(super) struct ServiceScreen<'a, S: ?Sized, P = CompensationPass> {
     pub(super) rig_name: String,
     /// This service's `[rig] seed`: a simulated surface's texture.
     pub(super) rig_seed: u64,
+    /// The pass it plays, a type only.
     pass: std::marker::PhantomData<fn(&P)>,
 }
 
