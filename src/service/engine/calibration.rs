@@ -169,12 +169,16 @@ impl Engine {
         )
     }
 
-    /// A calibration: captures, then training (beside playback of the current model when there
-    /// is one to play), then verification and install ([`Engine::finish_calibration`]).
-    pub(super) fn calibrate(&mut self, kind: Kind) {
-        if matches!(self.devices, Devices::Set(_)) {
-            return self.calibrate_set(kind);
-        }
+    /// A calibration's run begins: the cancel flag reset, what ran beside the last calibration
+    /// dropped, a run folder begun under `[paths] data` (an interrupted run resumed for
+    /// [`Kind::Resume`]; `refit` recorded in a new one). Its folder, its [`Calibrating`] and its
+    /// cancel flag; `None` when it could not begin, counted and reported as a calibration that
+    /// failed, and the next mode set.
+    pub(super) fn begin_run(
+        &mut self,
+        kind: Kind,
+        refit: bool,
+    ) -> Option<(PathBuf, Calibrating, Arc<AtomicBool>)> {
         let stay_paused = self.io.shared.status().state == State::Paused;
         let cancel = self.io.shared.cancel.clone();
         cancel.store(false, Ordering::Relaxed);
@@ -182,13 +186,20 @@ impl Engine {
         // over this one).
         self.background = Background::None;
         let runs = Runs::new(&self.config.paths.data);
-        let refit = kind == Kind::Refit;
         if kind != Kind::Resume {
             runs.end();
         }
         let started = Instant::now();
-        let run = match runs.begin_with(&rig_name(&self.config.rig), SystemTime::now(), refit) {
-            Ok(r) => r,
+        match runs.begin_with(&rig_name(&self.config.rig), SystemTime::now(), refit) {
+            Ok(run) => Some((
+                run.data,
+                Calibrating {
+                    started,
+                    refit: run.refit,
+                    stay_paused,
+                },
+                cancel,
+            )),
             Err(e) => {
                 // It ends before its first capture (the data folder unwritable, a full disk):
                 // counted and reported as any calibration that failed, so that a client
@@ -196,16 +207,21 @@ impl Engine {
                 self.io.fail("calibration failed", &e);
                 self.calibration_ended(false, format!("failed before its first capture: {e}"));
                 self.mode = self.after_calibration(stay_paused);
-                return;
+                None
             }
+        }
+    }
+
+    /// A calibration: captures, then training (beside playback of the current model when there
+    /// is one to play), then verification and install ([`Engine::finish_calibration`]).
+    pub(super) fn calibrate(&mut self, kind: Kind) {
+        if matches!(self.devices, Devices::Set(_)) {
+            return self.calibrate_set(kind);
+        }
+        let Some((data, cal, cancel)) = self.begin_run(kind, kind == Kind::Refit) else {
+            return;
         };
-        let data = run.data;
-        let cal = Calibrating {
-            started,
-            refit: run.refit,
-            stay_paused,
-        };
-        let what = if run.refit {
+        let what = if cal.refit {
             "refitting"
         } else {
             "calibrating"

@@ -9,7 +9,7 @@
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::Duration;
 
 use super::super::devices::{Bump, Devices, SetDevices, load_set_model};
 use super::super::monitor::{SetWatch, Tap};
@@ -261,33 +261,19 @@ impl Engine {
     /// installs the set's model if it verified. The set's `linear` models are compensated
     /// jointly: another `[calibration] method` is said and `linear` calibrated.
     pub(super) fn calibrate_set(&mut self, kind: Kind) {
-        let stay_paused = self.io.shared.status().state == State::Paused;
-        let cancel = self.io.shared.cancel.clone();
-        cancel.store(false, Ordering::Relaxed);
-        self.background = Background::None;
         if kind == Kind::Refit {
             tracing::info!("a set of projectors is refitted by calibrating it again");
         }
-        let runs = Runs::new(&self.config.paths.data);
-        if kind != Kind::Resume {
-            runs.end();
-        }
-        let started = Instant::now();
-        let run = match runs.begin_with(&rig_name(&self.config.rig), SystemTime::now(), false) {
-            Ok(r) => r,
-            Err(e) => {
-                self.io.fail("calibration failed", &e);
-                self.calibration_ended(false, format!("failed before its first capture: {e}"));
-                self.mode = self.after_calibration(stay_paused);
-                return;
-            }
+        // Each projector's whole calibration, never a refit's few sampling images.
+        let Some((data, cal, cancel)) = self.begin_run(kind, false) else {
+            return;
         };
-        let data = run.data;
+        // An interrupted refit it resumes is a whole calibration too.
         let cal = Calibrating {
-            started,
             refit: false,
-            stay_paused,
+            ..cal
         };
+        let runs = Runs::new(&self.config.paths.data);
         self.io.state(State::Calibrating, "calibrating");
         tracing::info!("calibrating the set of projectors into {}", data.display());
         let mut opts = self.calibration_options(cal, cancel);
