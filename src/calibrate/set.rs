@@ -3,9 +3,11 @@
 //! ranged with every projector white; then each projector calibrated as one projector is
 //! (the phases of [`super::calibrate`]: its own latency, captures, `linear` fit, closed-loop
 //! pairs and verification) with the others black and the exposure held, each projector's fits
-//! running behind the next projector's captures; then the joint model
-//! ([`crate::joint`]) checked as a whole in closed loop, over the displayable area of the whole
-//! set, against each projector compensating alone, with the seam figure along the overlaps.
+//! running behind the next projector's captures; then the joint model ([`crate::joint`])
+//! checked as a whole in closed loop, over the displayable area of the whole set, against each
+//! projector compensating alone, with the seam figure along the overlaps. The parts of that
+//! check that need no later projector's model (the set's views, each projector alone) are
+//! taken as soon as each projector is verified, while the later projectors' refits run.
 
 use std::path::Path;
 use std::time::Instant;
@@ -88,11 +90,20 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
     // Seconds each projector held the display.
     let mut projector_seconds = vec![0.0; n];
     let mut fits = Vec::with_capacity(n);
+    // A projector's fit waits for the next projector's latency to be measured: on the virtual
+    // rig, whose camera is simulated on this machine's cores, a fit beside the measurement
+    // would slow the camera and the latency measured (and every capture's wait) would grow.
+    let mut waiting: Option<Box<dyn FnOnce() -> Result<Behind<Fitted>>>> = None;
     for k in 0..n {
         opts.check_cancelled()?;
         let t = Instant::now();
         show_black(&mut set)?;
         let mut step = |phase: &str, i: usize, total: usize| {
+            if phase == "captures"
+                && let Some(start) = waiting.take()
+            {
+                fits.push(start());
+            }
             progress(&format!("projector {}/{n}: {phase}", k + 1), i, total);
         };
         let captured = super::capture(
@@ -103,16 +114,27 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
             &mut step,
         )?;
         projector_seconds[k] += t.elapsed().as_secs_f64();
+        if let Some(start) = waiting.take() {
+            fits.push(start());
+        }
         let one = ones[k].clone();
-        fits.push(Behind::start(k, "fit", move || {
-            let mut captured = captured;
-            let model = super::train(&mut captured, &one, &mut |_, _, _| {})?;
-            Ok((captured, model))
-        })?);
+        waiting = Some(Box::new(move || {
+            Behind::start(k, "fit", move || {
+                let mut captured = captured;
+                let model = super::train(&mut captured, &one, &mut |_, _, _| {})?;
+                Ok((captured, model))
+            })
+        }));
     }
+    if let Some(start) = waiting.take() {
+        fits.push(start());
+    }
+    // Each projector's latency as its last phase left it: the set's own captures wait for the
+    // slowest projector.
+    let mut latencies = Vec::with_capacity(n);
     let mut refits = Vec::with_capacity(n);
     for (k, fit) in fits.into_iter().enumerate() {
-        let (mut captured, model) = fit.join(&mut *progress, n)?;
+        let (mut captured, model) = fit?.join(&mut *progress, n)?;
         check_in_view(k, &model.fov)?;
         opts.check_cancelled()?;
         let t = Instant::now();
@@ -129,6 +151,7 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
             &mut step,
         )?;
         projector_seconds[k] += t.elapsed().as_secs_f64();
+        latencies.push(captured.latency.clone());
         let one = ones[k].clone();
         refits.push(Behind::start(k, "refit", move || {
             let mut captured = captured;
@@ -136,6 +159,13 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
             Ok((captured, model))
         })?);
     }
+    // Each projector's verification as soon as its refit is in, then the parts of the set's
+    // verification that need no later projector's model (the set's views, then this
+    // projector compensating them alone), all while the later projectors' refits run; the
+    // joint projection last.
+    let root = DataRoot::open(&data.join(projector_dir(0)))?;
+    let mut check: Option<SetCheck> = None;
+    let mut verification_seconds = 0.0;
     let mut done: Vec<Calibrated> = Vec::with_capacity(n);
     for (k, refit) in refits.into_iter().enumerate() {
         let (captured, model) = refit.join(&mut *progress, n)?;
@@ -154,10 +184,30 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
             &mut step,
         )?;
         projector_seconds[k] += t.elapsed().as_secs_f64();
+        latencies[k] = calibrated.record.latency.clone();
+        let t = Instant::now();
+        let latency = worst_latency(&latencies)?;
+        let check = match &mut check {
+            Some(c) => c,
+            None => check.insert(SetCheck::views(&mut set, camera, &root, &latency, opts)?),
+        };
+        check.alone(
+            &mut set,
+            camera,
+            (k, &calibrated.model),
+            &latency,
+            opts,
+            progress,
+        )?;
+        verification_seconds += t.elapsed().as_secs_f64();
         done.push(calibrated);
     }
-    show_black(&mut set)?;
-    let latency = worst_latency(&done)?;
+    let Some(check) = check else {
+        return Err(Error::Failed(
+            "a set of no projectors was calibrated".into(),
+        ));
+    };
+    let latency = worst_latency(&latencies)?;
     let models: Vec<_> = done
         .into_iter()
         .map(|c| {
@@ -168,17 +218,18 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
         .collect();
     let camera_gamma_spread = gamma_spread(&models);
     let model = SetModel::new(models, None)?;
-    let joint = model.joint()?;
     let t = Instant::now();
-    let root = DataRoot::open(&data.join(projector_dir(0)))?;
-    let (area, display_range, verification) = verify_set(
+    let joint = model.joint()?;
+    let (area, display_range, verification) = check.joint(
         &mut set,
         camera,
-        (&model, &joint),
-        (data, &root, &latency),
+        (&joint, &data.join(SET_DIR)),
+        &latency,
         opts,
         progress,
     )?;
+    verification_seconds += t.elapsed().as_secs_f64();
+    show_black(&mut set)?;
     let record = SetRecord {
         rig: opts.rig.clone(),
         exposure,
@@ -187,7 +238,7 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
         display_range,
         verification,
         projector_seconds,
-        verification_seconds: t.elapsed().as_secs_f64(),
+        verification_seconds,
         total_seconds: started.elapsed().as_secs_f64(),
     };
     let mut model = model;
@@ -277,9 +328,9 @@ fn show_black<D: DisplaySink>(set: &mut SideBySide<D>) -> Result<()> {
 
 /// The latency record of the projector that took longest to show a change: the set's
 /// captures wait for the slowest.
-fn worst_latency(done: &[Calibrated]) -> Result<Latency> {
-    done.iter()
-        .map(|c| &c.record.latency)
+fn worst_latency(latencies: &[Latency]) -> Result<Latency> {
+    latencies
+        .iter()
         .max_by_key(|l| l.settle_frames)
         .cloned()
         .ok_or_else(|| Error::Failed("a set of no projectors was calibrated".into()))
@@ -304,160 +355,235 @@ fn gamma_spread(models: &[crate::model::Model]) -> f64 {
     }
 }
 
-/// The whole set's closed-loop check (module documentation): the displayable area of the set
-/// from its black and white, the first `opts.verify_images` test images of the first
-/// projector's data root placed there, each projected compensated jointly and by each
-/// projector alone, captured and scored inside the area; the seam figure of the joint
-/// projection along the overlap edges.
-fn verify_set<D: DisplaySink, C: FrameSource + ?Sized>(
-    set: &mut SideBySide<D>,
-    camera: &mut C,
-    (model, joint): (&SetModel, &JointModel),
-    (data, root, latency): (&Path, &DataRoot, &Latency),
-    opts: &Options,
-    progress: Progress,
-) -> Result<(Rect, fov::DisplayRange, SetVerification)> {
-    let n = joint.projectors();
-    let sizes: Vec<_> = set.displays().iter().map(|d| d.size()).collect();
-    let black_frames: Vec<PrjImage> = sizes
-        .iter()
-        .map(|s| PrjImage::new(s.width, s.height))
-        .collect();
-    let whole = side_by_side(&black_frames);
-    let white_whole = PrjImage::filled(whole.width(), whole.height(), [1.0; 3]);
-    let one_only = |k: usize, img: PrjImage| -> Vec<PrjImage> {
-        let mut f = black_frames.clone();
-        f[k] = img;
-        f
-    };
-    let frames_for = |k: usize, img: &crate::raster::NetImage| -> Result<PrjImage> {
-        place_on_canvas(img, Rect::covering(sizes[k]), sizes[k])
-    };
-    let verify_n = opts.verify_images.min(opts.patterns.ntest);
-    if verify_n == 0 {
-        return Err(Error::Input(
-            "verification needs at least one test image (--ntest)".into(),
-        ));
-    }
-    // The views: every projector black, then white.
-    let mut capturer = Capturer::new(set, camera, latency, opts.sync);
-    let black = capturer.capture(&whole, true)?;
-    let white = capturer.capture(&white_whole, true)?;
-    let label = format!("the set {}", opts.rig);
-    let fov = fov::fov_mask(&black, &white, &label)?;
-    let aspect = fov
-        .mask
-        .bounding_box()
-        .map_or(4.0 / 3.0, |b| b.width as f64 / b.height.max(1) as f64);
-    let area = fov::displayable_area(&fov.mask, aspect)?;
-    let range = fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?;
-    let views: Vec<CamImage> = (1..=verify_n)
-        .map(|i| {
-            let img: PrjImage = crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i))?;
-            fov::place_in_area(&range.apply(&img), area, black.size())
-        })
-        .collect::<Result<_>>()?;
-    let camera_size = black.size();
-    let inside = crate::raster::Mask::from_fn(camera_size.width, camera_size.height, |x, y| {
-        x >= area.x && x < area.x + area.width && y >= area.y && y < area.y + area.height
-    });
-    let covers: Vec<_> = (0..n)
-        .filter_map(|k| joint.cover(k).map(|c| c.mask()))
-        .collect();
-    let (band, away) =
-        crate::joint::seam_regions(&covers, &inside, crate::joint::seam::band_px(camera_size));
-    let overlapping = band.data().iter().any(|&b| b) && away.data().iter().any(|&b| b);
-    let shown = data.join(SET_DIR);
-    std::fs::create_dir_all(&shown).map_err(|e| Error::io(&shown, "create folder", e))?;
-    let mut joint_acc = Accumulator::default();
-    let mut alone_acc: Vec<Accumulator> = (0..n).map(|_| Accumulator::default()).collect();
-    let mut seams: Vec<SeamFigure> = Vec::new();
-    // Every view jointly, then every view by each projector alone: one capture after another
-    // shows another test image, so the camera tells them apart at once. Where two in a row
-    // aim at one view (a single test image), white comes between, as closed-loop pairs do.
-    let steps = verify_n * (1 + n);
-    let mut last_view: Option<usize> = None;
-    for (i, view) in views.iter().enumerate() {
-        progress("set verification", i, steps);
-        opts.check_cancelled()?;
-        let want = view.crop(area)?;
-        let outputs = joint.apply(view)?;
-        let frames = outputs
-            .iter()
-            .enumerate()
-            .map(|(k, o)| frames_for(k, o))
-            .collect::<Result<Vec<_>>>()?;
-        let seen = capturer.capture_after_change(&side_by_side(&frames))?;
-        last_view = Some(i);
-        // What the set was to show and what it showed, for a person to look at.
-        crate::pngio::write_rgb(&shown.join(format!("desired-{:03}.png", i + 1)), view)?;
-        crate::pngio::write_rgb(&shown.join(format!("joint-{:03}.png", i + 1)), &seen)?;
-        joint_acc.add(&seen.crop(area)?, &want)?;
-        if overlapping {
-            seams.push(crate::metrics::seam_figure(
-                &seen,
-                view,
-                band.data(),
-                away.data(),
-            )?);
+/// The whole set's closed-loop check (module documentation), taken in parts so that most of
+/// it runs while later projectors' refits do: the displayable area of the set from its black
+/// and white and the first `opts.verify_images` test images of the first projector's data root
+/// placed there ([`SetCheck::views`]); each view compensated by each projector alone, as soon
+/// as that projector's model is final ([`SetCheck::alone`]); then each view compensated
+/// jointly, with the seam figure along the overlap edges ([`SetCheck::joint`]). Every part is
+/// captured and scored inside the area.
+struct SetCheck {
+    area: Rect,
+    range: fov::DisplayRange,
+    /// The desired views (camera pixels, encoded values), the whole camera image.
+    views: Vec<CamImage>,
+    /// Each projector's score compensating the views alone, in projector order.
+    alone: Vec<Accumulator>,
+    /// The view the last capture of the set aimed at: two captures in a row that aim at one
+    /// view have white between them, as closed-loop pairs do.
+    last_view: Option<usize>,
+}
+
+impl SetCheck {
+    /// The set's black and white captured, its displayable area and display range found, and
+    /// the desired views placed in that area.
+    fn views<D: DisplaySink, C: FrameSource + ?Sized>(
+        set: &mut SideBySide<D>,
+        camera: &mut C,
+        root: &DataRoot,
+        latency: &Latency,
+        opts: &Options,
+    ) -> Result<Self> {
+        let verify_n = opts.verify_images.min(opts.patterns.ntest);
+        if verify_n == 0 {
+            return Err(Error::Input(
+                "verification needs at least one test image (--ntest)".into(),
+            ));
         }
+        let size = set.size();
+        let black_whole = PrjImage::new(size.width, size.height);
+        let white_whole = PrjImage::filled(size.width, size.height, [1.0; 3]);
+        let mut capturer = Capturer::new(set, camera, latency, opts.sync);
+        let black = capturer.capture(&black_whole, true)?;
+        let white = capturer.capture(&white_whole, true)?;
+        let label = format!("the set {}", opts.rig);
+        let fov = fov::fov_mask(&black, &white, &label)?;
+        let aspect = fov
+            .mask
+            .bounding_box()
+            .map_or(4.0 / 3.0, |b| b.width as f64 / b.height.max(1) as f64);
+        let area = fov::displayable_area(&fov.mask, aspect)?;
+        let range = fov::display_range(&black, &white, area, fov::DESIRED_RANGE_QUANTILE)?;
+        let views: Vec<CamImage> = (1..=verify_n)
+            .map(|i| {
+                let img: PrjImage =
+                    crate::pngio::read_rgb(&root.image_path(ProjectorSet::Test, i))?;
+                fov::place_in_area(&range.apply(&img), area, black.size())
+            })
+            .collect::<Result<_>>()?;
+        Ok(Self {
+            area,
+            range,
+            views,
+            alone: Vec::new(),
+            last_view: None,
+        })
     }
-    for (k, acc) in alone_acc.iter_mut().enumerate() {
-        for (i, view) in views.iter().enumerate() {
-            progress("set verification", verify_n * (1 + k) + i, steps);
+
+    /// Progress steps of the whole check: each view by each projector alone, then jointly.
+    fn steps(&self, n: usize) -> usize {
+        self.views.len() * (1 + n)
+    }
+
+    /// Projector `k` (the next one: projectors are checked in order), with its final `model`,
+    /// compensating each view alone, the other projectors black.
+    fn alone<D: DisplaySink, C: FrameSource + ?Sized>(
+        &mut self,
+        set: &mut SideBySide<D>,
+        camera: &mut C,
+        (k, model): (usize, &crate::model::Model),
+        latency: &Latency,
+        opts: &Options,
+        progress: Progress,
+    ) -> Result<()> {
+        let n = set.displays().len();
+        if k != self.alone.len() || k >= n {
+            return Err(Error::Failed(format!(
+                "the set's check took projector {} alone after {} of {n}",
+                k + 1,
+                self.alone.len()
+            )));
+        }
+        let sizes: Vec<_> = set.displays().iter().map(|d| d.size()).collect();
+        let size = set.size();
+        let white_whole = PrjImage::filled(size.width, size.height, [1.0; 3]);
+        let steps = self.steps(n);
+        let mut capturer = Capturer::new(set, camera, latency, opts.sync);
+        let mut acc = Accumulator::default();
+        for (i, view) in self.views.iter().enumerate() {
+            progress("set verification", self.views.len() * k + i, steps);
             opts.check_cancelled()?;
-            if last_view == Some(i) {
+            if self.last_view == Some(i) {
                 capturer.capture_averaging(&white_whole, true, 1)?;
             }
-            let alone = model.models[k].infer(view)?;
-            let frames = one_only(k, frames_for(k, &alone)?);
+            let alone = model.infer(view)?;
+            let mut frames: Vec<PrjImage> = sizes
+                .iter()
+                .map(|s| PrjImage::new(s.width, s.height))
+                .collect();
+            frames[k] = place_on_canvas(&alone, Rect::covering(sizes[k]), sizes[k])?;
             let seen = capturer.capture_after_change(&side_by_side(&frames))?;
-            last_view = Some(i);
-            acc.add(&seen.crop(area)?, &view.crop(area)?)?;
+            self.last_view = Some(i);
+            acc.add(&seen.crop(self.area)?, &view.crop(self.area)?)?;
         }
+        self.alone.push(acc);
+        Ok(())
     }
-    progress("set verification", steps, steps);
-    let j = joint_acc.finish()?;
-    let alone_psnr = alone_acc
-        .into_iter()
-        .map(|a| a.finish().map(|s| s.psnr))
-        .collect::<Result<Vec<_>>>()?;
-    let best = alone_psnr.iter().copied().fold(f64::MIN, f64::max);
-    let gain_db = j.psnr - best;
-    let seam = SeamFigure::mean(&seams);
-    let mut why = Vec::new();
-    if !(gain_db.is_finite() && gain_db >= REQUIRED_GAIN_DB) {
-        why.push(format!(
-            "{:.2} dB jointly against {best:.2} dB for the best projector alone",
-            j.psnr
-        ));
+
+    /// Each view compensated jointly by the set's `joint` model, what it showed written into
+    /// `shown` for a person to look at; then the verdict: the joint score against the best
+    /// projector alone, and the seam figure along the overlap edges.
+    fn joint<D: DisplaySink, C: FrameSource + ?Sized>(
+        mut self,
+        set: &mut SideBySide<D>,
+        camera: &mut C,
+        (joint, shown): (&JointModel, &Path),
+        latency: &Latency,
+        opts: &Options,
+        progress: Progress,
+    ) -> Result<(Rect, fov::DisplayRange, SetVerification)> {
+        let n = joint.projectors();
+        if self.alone.len() != n {
+            return Err(Error::Failed(format!(
+                "the set's check has {} projectors alone of {n}",
+                self.alone.len()
+            )));
+        }
+        let sizes: Vec<_> = set.displays().iter().map(|d| d.size()).collect();
+        let size = set.size();
+        let white_whole = PrjImage::filled(size.width, size.height, [1.0; 3]);
+        let area = self.area;
+        let camera_size = self.views[0].size();
+        let inside = crate::raster::Mask::from_fn(camera_size.width, camera_size.height, |x, y| {
+            x >= area.x && x < area.x + area.width && y >= area.y && y < area.y + area.height
+        });
+        let covers: Vec<_> = (0..n)
+            .filter_map(|k| joint.cover(k).map(|c| c.mask()))
+            .collect();
+        let (band, away) =
+            crate::joint::seam_regions(&covers, &inside, crate::joint::seam::band_px(camera_size));
+        let overlapping = band.data().iter().any(|&b| b) && away.data().iter().any(|&b| b);
+        std::fs::create_dir_all(shown).map_err(|e| Error::io(shown, "create folder", e))?;
+        let steps = self.steps(n);
+        let verify_n = self.views.len();
+        let mut capturer = Capturer::new(set, camera, latency, opts.sync);
+        let mut joint_acc = Accumulator::default();
+        let mut seams: Vec<SeamFigure> = Vec::new();
+        for (i, view) in self.views.iter().enumerate() {
+            progress("set verification", verify_n * n + i, steps);
+            opts.check_cancelled()?;
+            if self.last_view == Some(i) {
+                capturer.capture_averaging(&white_whole, true, 1)?;
+            }
+            let want = view.crop(area)?;
+            let frames = joint
+                .apply(view)?
+                .iter()
+                .enumerate()
+                .map(|(k, o)| place_on_canvas(o, Rect::covering(sizes[k]), sizes[k]))
+                .collect::<Result<Vec<_>>>()?;
+            let seen = capturer.capture_after_change(&side_by_side(&frames))?;
+            self.last_view = Some(i);
+            // What the set was to show and what it showed, for a person to look at.
+            crate::pngio::write_rgb(&shown.join(format!("desired-{:03}.png", i + 1)), view)?;
+            crate::pngio::write_rgb(&shown.join(format!("joint-{:03}.png", i + 1)), &seen)?;
+            joint_acc.add(&seen.crop(area)?, &want)?;
+            if overlapping {
+                seams.push(crate::metrics::seam_figure(
+                    &seen,
+                    view,
+                    band.data(),
+                    away.data(),
+                )?);
+            }
+        }
+        progress("set verification", steps, steps);
+        let j = joint_acc.finish()?;
+        let alone_psnr = self
+            .alone
+            .into_iter()
+            .map(|a| a.finish().map(|s| s.psnr))
+            .collect::<Result<Vec<_>>>()?;
+        let best = alone_psnr.iter().copied().fold(f64::MIN, f64::max);
+        let gain_db = j.psnr - best;
+        let seam = SeamFigure::mean(&seams);
+        let mut why = Vec::new();
+        if !(gain_db.is_finite() && gain_db >= REQUIRED_GAIN_DB) {
+            why.push(format!(
+                "{:.2} dB jointly against {best:.2} dB for the best projector alone",
+                j.psnr
+            ));
+        }
+        if let Some(s) = seam
+            && s.ratio() > SEAM_LIMIT
+        {
+            why.push(format!(
+                "a seam shows: {:.2}× the error along the overlap edges as away from them, at \
+                 most {SEAM_LIMIT} passes",
+                s.ratio()
+            ));
+        }
+        Ok((
+            area,
+            self.range,
+            SetVerification {
+                images: verify_n,
+                psnr: j.psnr,
+                ssim: j.ssim,
+                alone_psnr,
+                gain_db,
+                required_gain_db: REQUIRED_GAIN_DB,
+                seam,
+                seam_limit: SEAM_LIMIT,
+                passed: why.is_empty(),
+                why: (!why.is_empty()).then(|| why.join("; ")),
+            },
+        ))
     }
-    if let Some(s) = seam
-        && s.ratio() > SEAM_LIMIT
-    {
-        why.push(format!(
-            "a seam shows: {:.2}× the error along the overlap edges as away from them, at most \
-             {SEAM_LIMIT} passes",
-            s.ratio()
-        ));
-    }
-    Ok((
-        area,
-        range,
-        SetVerification {
-            images: verify_n,
-            psnr: j.psnr,
-            ssim: j.ssim,
-            alone_psnr,
-            gain_db,
-            required_gain_db: REQUIRED_GAIN_DB,
-            seam,
-            seam_limit: SEAM_LIMIT,
-            passed: why.is_empty(),
-            why: (!why.is_empty()).then(|| why.join("; ")),
-        },
-    ))
 }
+
+/// A projector's captures and the model fitted on them.
+type Fitted = (super::Captured, crate::model::Model);
 
 /// A projector's fit running on a thread of its own while the display serves another
 /// projector.

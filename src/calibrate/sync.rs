@@ -138,8 +138,21 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         } else {
             (&white, true)
         };
+        // Counted as a capture waits (`Capturer::capture_once`): from the first frame not
+        // certainly exposed before the show. Frames that waited in the camera's buffers while
+        // this machine was busy (writing the patterns, a fit beside it) would add the
+        // reader's lag to the latency, and every capture would then wait that much longer
+        // after skipping such frames itself.
+        let clock = camera.clock();
+        let shown_at = Instant::now();
         display.show(frame)?;
-        let first = camera.grab()?;
+        let mut first = camera.grab()?;
+        let mut stale = 0;
+        while stale < MAX_STALE_FRAMES && clock.is_some_and(|c| c.exposed_before(&first, shown_at))
+        {
+            first = camera.grab()?;
+            stale += 1;
+        }
         let mut f = first.clone();
         loop {
             let level = mean_level(&f.image);
@@ -155,6 +168,12 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             }
             f = camera.grab()?;
         }
+        tracing::debug!(
+            "latency trial {t}: {stale} stale frames skipped (clock {}), change after {} \
+             exposures",
+            if clock.is_some() { "found" } else { "none" },
+            f.seq - first.seq
+        );
         trials.push(f.seq - first.seq);
     }
     let worst = trials.iter().copied().max().unwrap_or(0);

@@ -31,7 +31,7 @@ use super::physics::{Phase, SetSimulator, Simulator, mix64};
 use super::scene::{Latency, Scene};
 use crate::device::{DisplaySink, Frame, FrameSource};
 use crate::error::{Error, Result};
-use crate::raster::{ImageSize, PrjImage};
+use crate::raster::{CamImage, ImageSize, PrjImage};
 
 /// Range of the virtual camera's manual exposure, factors of the scene's exposure.
 const MIN_EXPOSURE: f64 = 1.0 / 16.0;
@@ -84,6 +84,11 @@ struct State {
     exposure: f64,
     /// When exposure 0 started, on a wall clock ([`VirtualRig::on_wall_clock`]).
     epoch: Option<Instant>,
+    /// On the wall clock, the threads that simulate the camera's exposures: its own, as a real
+    /// camera's are its own hardware, so a fit or a writer busy on rayon's global threads does
+    /// not hold back the frames (the reader would fall behind, and the latency measured and
+    /// every capture's wait would grow with this machine's load instead of the rig's delay).
+    camera_threads: Option<Arc<rayon::ThreadPool>>,
 }
 
 impl VirtualRig {
@@ -145,6 +150,7 @@ impl VirtualRig {
                 next: 0,
                 exposure: 1.0,
                 epoch: None,
+                camera_threads: None,
             })),
         }
     }
@@ -152,7 +158,11 @@ impl VirtualRig {
     /// The same rig with its camera on the wall clock: frames no faster than the scene's frame
     /// rate, counted from now (see the module documentation).
     pub fn on_wall_clock(self) -> Self {
-        self.state().epoch = Some(Instant::now());
+        let threads = camera_threads();
+        let mut st = self.state();
+        st.epoch = Some(Instant::now());
+        st.camera_threads = threads;
+        drop(st);
         self
     }
 
@@ -220,6 +230,25 @@ impl VirtualRig {
 
     pub fn latency(&self) -> Latency {
         self.state().latency.clone()
+    }
+}
+
+/// The wall-clock camera's own threads (as many as the machine has cores, at most 4); `None`,
+/// with a warning, when they cannot be started: the camera then shares rayon's global threads.
+fn camera_threads() -> Option<Arc<rayon::ThreadPool>> {
+    let n = std::thread::available_parallelism().map_or(2, |n| n.get().min(4));
+    match rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .thread_name(|i| format!("virtual camera {i}"))
+        .build()
+    {
+        Ok(pool) => Some(Arc::new(pool)),
+        Err(e) => {
+            tracing::warn!(
+                "the virtual camera's threads did not start ({e}); it shares the machine's"
+            );
+            None
+        }
     }
 }
 
@@ -393,15 +422,24 @@ impl FrameSource for VirtualRig {
                 st = self.state();
             }
         }
-        let signal = st.signal_at(k)?;
-        let sim = st.current();
-        let image = if st.exposure == 1.0 {
-            sim.finish(&signal, Some(k))
-        } else {
-            // Exposure time scales all light reaching the sensor, ambient included.
-            let e = st.exposure as f32;
-            let scaled: Vec<f32> = signal.iter().map(|&v| v * e).collect();
-            sim.finish(&scaled, Some(k))
+        let expose = |st: &mut State| -> Result<CamImage> {
+            let signal = st.signal_at(k)?;
+            let sim = st.current();
+            Ok(if st.exposure == 1.0 {
+                sim.finish(&signal, Some(k))
+            } else {
+                // Exposure time scales all light reaching the sensor, ambient included.
+                let e = st.exposure as f32;
+                let scaled: Vec<f32> = signal.iter().map(|&v| v * e).collect();
+                sim.finish(&scaled, Some(k))
+            })
+        };
+        let image = match st.camera_threads.clone() {
+            Some(threads) => {
+                let st: &mut State = &mut st;
+                threads.install(|| expose(st))?
+            }
+            None => expose(&mut st)?,
         };
         let timestamp = Duration::from_secs_f64(k as f64 / st.latency.fps);
         Ok(Frame {

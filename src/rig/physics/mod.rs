@@ -114,13 +114,17 @@ pub struct Simulator {
     subsurface: Option<Subsurface>,
     /// Sensor signal at which the encoded output reaches level k + ½, k = 0..254.
     thresholds: Vec<f32>,
-    /// For a signal bucket floor(s·QUANT_BUCKETS), the level at its lower edge.
+    /// For a signal bucket (the f32 bits of a signal above `thresholds[0]`, shifted right by
+    /// [`QUANT_SHIFT`]: 1024 buckets an octave, each narrower than the gap between two
+    /// thresholds), the level at its lower edge.
     bucket_level: Vec<u8>,
     noise: (f32, f32),
     prj_to_cam: OnceLock<Vec<[f32; 2]>>,
 }
 
-const QUANT_BUCKETS: usize = 4096;
+/// Bits of a signal's f32 below its quantisation bucket: 1024 buckets an octave, about 0.1 %
+/// wide, where two levels' thresholds lie at least 0.39 % × γ apart.
+const QUANT_SHIFT: u32 = 13;
 
 impl Simulator {
     /// Prepares `scene` (validated) with texture seed `seed` and the projector pose of `phase`.
@@ -262,12 +266,19 @@ impl Simulator {
         sim.thresholds = (0..255)
             .map(|k| ((k as f64 + 0.5) / 255.0).powf(c.gamma) as f32)
             .collect();
-        sim.bucket_level = (0..QUANT_BUCKETS)
+        // The thresholds rise with the level, so one pass finds every bucket's.
+        let (low, high) = quant_buckets(&sim.thresholds);
+        let mut level = 0;
+        let bucket_level = (low..=high)
             .map(|b| {
-                let s = b as f32 / QUANT_BUCKETS as f32;
-                sim.thresholds.iter().take_while(|&&t| t <= s).count() as u8
+                let s = f32::from_bits(b << QUANT_SHIFT);
+                while level < sim.thresholds.len() && sim.thresholds[level] <= s {
+                    level += 1;
+                }
+                level as u8
             })
             .collect();
+        sim.bucket_level = bucket_level;
     }
 
     pub fn scene(&self) -> &Scene {
@@ -438,19 +449,39 @@ impl Simulator {
 
     #[inline]
     fn quantise(&self, s: f32) -> u8 {
-        if s.is_nan() || s <= 0.0 {
+        let th = &self.thresholds;
+        // NaN, and every signal below the first threshold, is level 0.
+        if !th.first().is_some_and(|&t| s >= t) {
             return 0;
         }
         if s >= 1.0 {
             return 255;
         }
-        let b = ((s * QUANT_BUCKETS as f32) as i32 as usize).min(QUANT_BUCKETS - 1);
-        let mut q = self.bucket_level[b] as usize;
-        while q < 255 && self.thresholds[q] <= s {
+        let (low, _) = quant_buckets(th);
+        let b = ((s.to_bits() >> QUANT_SHIFT) - low) as usize;
+        let mut q = self.bucket_level[b.min(self.bucket_level.len() - 1)] as usize;
+        // At most one threshold lies in a bucket: one comparison, without a branch to guess
+        // (the noise makes it a coin toss); the loop only for a response steep enough to put
+        // more there (γ under 0.26).
+        q += usize::from(th.get(q).is_some_and(|&t| t <= s));
+        while q < th.len() && th[q] <= s {
             q += 1;
         }
         q as u8
     }
+}
+
+/// The first and last quantisation bucket of signals from `thresholds[0]` to 1.
+fn quant_buckets(thresholds: &[f32]) -> (u32, u32) {
+    let first = thresholds
+        .first()
+        .copied()
+        .unwrap_or(1.0)
+        .max(f32::MIN_POSITIVE);
+    (
+        first.to_bits() >> QUANT_SHIFT,
+        1f32.to_bits() >> QUANT_SHIFT,
+    )
 }
 
 /// The projector pose of `phase`: the calibrated one, or for [`Phase::AfterDrift`] turned by the

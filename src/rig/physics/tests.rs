@@ -332,3 +332,38 @@ fn approx_normal_has_unit_variance() {
     assert!(mean.abs() < 0.01, "mean {mean}");
     assert!((var - 1.0).abs() < 0.02, "var {var}");
 }
+
+#[test]
+fn quantisation_finds_the_level_every_threshold_below_gives() {
+    // The bucket table only starts the search: the level is the count of thresholds at or
+    // below the signal, near black (where levels crowd), across the range and at its ends.
+    let scene = crate::rig::builtin("curved")
+        .expect("built-in")
+        .with_resolution(ImageSize::new(16, 12), ImageSize::new(16, 12));
+    let sim = Simulator::new(&scene, 1, Phase::Calibration).expect("builds");
+    let level = |s: f32| sim.thresholds.iter().take_while(|&&t| t <= s).count();
+    let mut checked = 0;
+    for i in 0..=200_000u32 {
+        // Dense near black, then evenly to a little past white.
+        let s = if i < 100_000 {
+            (i as f32 / 100_000.0).powi(4) * 0.01
+        } else {
+            (i - 100_000) as f32 / 100_000.0 * 1.01
+        };
+        for s in [s, f32::from_bits(s.to_bits() + 1)] {
+            let want = if s <= 0.0 { 0 } else { level(s).min(255) };
+            assert_eq!(usize::from(sim.quantise(s)), want, "signal {s}");
+            checked += 1;
+        }
+        // Each threshold itself and the float below it.
+        if let Some(&t) = sim.thresholds.get(i as usize) {
+            assert_eq!(usize::from(sim.quantise(t)), level(t), "threshold {t}");
+            let below = f32::from_bits(t.to_bits() - 1);
+            assert_eq!(usize::from(sim.quantise(below)), level(below), "below {t}");
+        }
+    }
+    assert!(checked > 400_000);
+    assert_eq!(sim.quantise(f32::NAN), 0);
+    assert_eq!(sim.quantise(-1.0), 0);
+    assert_eq!(sim.quantise(1.0), 255);
+}
