@@ -424,15 +424,9 @@ impl FrameSource for VirtualRig {
         }
         let expose = |st: &mut State| -> Result<CamImage> {
             let signal = st.signal_at(k)?;
-            let sim = st.current();
-            Ok(if st.exposure == 1.0 {
-                sim.finish(&signal, Some(k))
-            } else {
-                // Exposure time scales all light reaching the sensor, ambient included.
-                let e = st.exposure as f32;
-                let scaled: Vec<f32> = signal.iter().map(|&v| v * e).collect();
-                sim.finish(&scaled, Some(k))
-            })
+            Ok(st
+                .current()
+                .finish_exposed(&signal, st.exposure as f32, Some(k)))
         };
         let image = match st.camera_threads.clone() {
             Some(threads) => {

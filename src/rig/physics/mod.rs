@@ -337,6 +337,13 @@ impl Simulator {
     /// The camera's output for a sensor signal: noise for `frame` (none for `None`), clipping,
     /// response curve and 8-bit quantisation.
     pub fn finish(&self, signal: &[f32], frame: Option<u64>) -> CamImage {
+        self.finish_exposed(signal, 1.0, frame)
+    }
+
+    /// [`Simulator::finish`] of the signal times `exposure` (a factor of the scene's exposure
+    /// time: it scales all light reaching the sensor, ambient included), without a scaled copy
+    /// of the signal. Exposure 1 gives `finish`'s image to the bit (`x · 1 = x` in f32).
+    pub fn finish_exposed(&self, signal: &[f32], exposure: f32, frame: Option<u64>) -> CamImage {
         let (shot, read) = self.noise;
         let key = frame.map(|f| mix64(self.seed ^ mix64(f.wrapping_add(0x5eed_f4a3))));
         let read2 = read * read;
@@ -346,6 +353,7 @@ impl Simulator {
             .enumerate()
             .for_each(|(c, (out, sig))| {
                 for (j, (o, &s)) in out.iter_mut().zip(sig).enumerate() {
+                    let s = s * exposure;
                     let s = match key {
                         Some(k) => {
                             let i = (c * CHUNK + j) as u64;
