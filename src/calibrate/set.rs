@@ -23,7 +23,7 @@ use crate::model::set::SetModel;
 use crate::model::store::projector_dir;
 use crate::model::{Method, MethodChoice};
 use crate::playback::place_on_canvas;
-use crate::raster::{CamImage, PrjImage, Rect};
+use crate::raster::{CamImage, ImageSize, PrjImage, Rect};
 use crate::record::{Latency, SetRecord, SetVerification};
 
 /// The PSNR gain (dB) the joint compensation needs over the best projector compensating
@@ -445,25 +445,24 @@ impl SetCheck {
             )));
         }
         let sizes: Vec<_> = set.displays().iter().map(|d| d.size()).collect();
-        let size = set.size();
-        let white_whole = PrjImage::filled(size.width, size.height, [1.0; 3]);
         let steps = self.steps(n);
         let mut capturer = Capturer::new(set, camera, latency, opts.sync);
         let mut acc = Accumulator::default();
         for (i, view) in self.views.iter().enumerate() {
             progress("set verification", self.views.len() * k + i, steps);
             opts.check_cancelled()?;
-            if self.last_view == Some(i) {
-                capturer.capture_averaging(&white_whole, true, 1)?;
-            }
             let alone = model.infer(view)?;
             let mut frames: Vec<PrjImage> = sizes
                 .iter()
                 .map(|s| PrjImage::new(s.width, s.height))
                 .collect();
             frames[k] = place_on_canvas(&alone, Rect::covering(sizes[k]), sizes[k])?;
-            let seen = capturer.capture_after_change(&side_by_side(&frames))?;
-            self.last_view = Some(i);
+            let seen = aim(
+                &mut capturer,
+                &mut self.last_view,
+                i,
+                &side_by_side(&frames),
+            )?;
             acc.add(&seen.crop(self.area)?, &view.crop(self.area)?)?;
         }
         self.alone.push(acc);
@@ -490,19 +489,11 @@ impl SetCheck {
             )));
         }
         let sizes: Vec<_> = set.displays().iter().map(|d| d.size()).collect();
-        let size = set.size();
-        let white_whole = PrjImage::filled(size.width, size.height, [1.0; 3]);
         let area = self.area;
-        let camera_size = self.views[0].size();
-        let inside = crate::raster::Mask::from_fn(camera_size.width, camera_size.height, |x, y| {
-            x >= area.x && x < area.x + area.width && y >= area.y && y < area.y + area.height
-        });
         let covers: Vec<_> = (0..n)
             .filter_map(|k| joint.cover(k).map(|c| c.mask()))
             .collect();
-        let (band, away) =
-            crate::joint::seam_regions(&covers, &inside, crate::joint::seam::band_px(camera_size));
-        let overlapping = band.data().iter().any(|&b| b) && away.data().iter().any(|&b| b);
+        let bands = crate::joint::seam::seam_bands(&covers, area, self.views[0].size());
         std::fs::create_dir_all(shown).map_err(|e| Error::io(shown, "create folder", e))?;
         let steps = self.steps(n);
         let verify_n = self.views.len();
@@ -512,9 +503,6 @@ impl SetCheck {
         for (i, view) in self.views.iter().enumerate() {
             progress("set verification", verify_n * n + i, steps);
             opts.check_cancelled()?;
-            if self.last_view == Some(i) {
-                capturer.capture_averaging(&white_whole, true, 1)?;
-            }
             let want = view.crop(area)?;
             let frames = joint
                 .apply(view)?
@@ -522,13 +510,17 @@ impl SetCheck {
                 .enumerate()
                 .map(|(k, o)| place_on_canvas(o, Rect::covering(sizes[k]), sizes[k]))
                 .collect::<Result<Vec<_>>>()?;
-            let seen = capturer.capture_after_change(&side_by_side(&frames))?;
-            self.last_view = Some(i);
+            let seen = aim(
+                &mut capturer,
+                &mut self.last_view,
+                i,
+                &side_by_side(&frames),
+            )?;
             // What the set was to show and what it showed, for a person to look at.
             crate::pngio::write_rgb(&shown.join(format!("desired-{:03}.png", i + 1)), view)?;
             crate::pngio::write_rgb(&shown.join(format!("joint-{:03}.png", i + 1)), &seen)?;
             joint_acc.add(&seen.crop(area)?, &want)?;
-            if overlapping {
+            if let Some((band, away)) = &bands {
                 seams.push(crate::metrics::seam_figure(
                     &seen,
                     view,
@@ -580,6 +572,23 @@ impl SetCheck {
             },
         ))
     }
+}
+
+/// Captures `frame`, which aims at view `i` of the set's check: when the last capture (`last`)
+/// aimed at the same view, white comes first, so the camera sees the change.
+fn aim<D: DisplaySink, C: FrameSource + ?Sized>(
+    capturer: &mut Capturer<'_, SideBySide<D>, C>,
+    last: &mut Option<usize>,
+    i: usize,
+    frame: &PrjImage,
+) -> Result<CamImage> {
+    if *last == Some(i) {
+        let ImageSize { width, height } = frame.size();
+        capturer.capture_averaging(&PrjImage::filled(width, height, [1.0; 3]), true, 1)?;
+    }
+    let seen = capturer.capture_after_change(frame)?;
+    *last = Some(i);
+    Ok(seen)
 }
 
 /// A projector's captures and the model fitted on them.

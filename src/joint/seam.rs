@@ -2,11 +2,25 @@
 //! the pixels well away from any, for [`crate::metrics::seam_figure`].
 
 use crate::morph::{Element, dilate};
-use crate::raster::{Camera, ImageSize, Mask};
+use crate::raster::{Camera, ImageSize, Mask, Rect};
 
 /// The band's half-width for a camera of `camera` pixels: 1 % of its width, at least 2.
 pub fn band_px(camera: ImageSize) -> usize {
     (camera.width / 100).max(2)
+}
+
+/// [`seam_regions`] inside the rectangle `area` of a camera of `camera` pixels, at
+/// [`band_px`]: the band and the pixels away from it, or `None` where either is empty (no two
+/// projectors overlap there: a tiled set without a blend).
+pub fn seam_bands(
+    masks: &[Mask<Camera>],
+    area: Rect,
+    camera: ImageSize,
+) -> Option<(Mask<Camera>, Mask<Camera>)> {
+    let inside = Mask::from_fn(camera.width, camera.height, |x, y| area.contains(x, y));
+    let (band, away) = seam_regions(masks, &inside, band_px(camera));
+    let some = |m: &Mask<Camera>| m.data().iter().any(|&b| b);
+    (some(&band) && some(&away)).then_some((band, away))
 }
 
 /// Inside `region` (camera pixels): the pixels within `band_px` of an overlap edge (a pixel at

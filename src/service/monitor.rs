@@ -67,14 +67,8 @@ impl SeamBands {
     /// The bands of the projectors lighting `covers` (camera pixels) inside `area`; `None`
     /// where no two overlap (a tiled set without a blend, or nothing away from the edges).
     pub(super) fn of(covers: &[Mask<Camera>], area: Rect, limit: f64) -> Option<Self> {
-        let size = covers.first()?.size();
-        let inside = Mask::from_fn(size.width, size.height, |x, y| {
-            x >= area.x && x < area.x + area.width && y >= area.y && y < area.y + area.height
-        });
-        let (band, away) =
-            crate::joint::seam_regions(covers, &inside, crate::joint::seam::band_px(size));
-        let some = |m: &Mask<Camera>| m.data().iter().any(|&b| b);
-        (some(&band) && some(&away)).then_some(Self { band, away, limit })
+        let (band, away) = crate::joint::seam::seam_bands(covers, area, covers.first()?.size())?;
+        Some(Self { band, away, limit })
     }
 }
 
