@@ -6,9 +6,10 @@
 //! **Pure core** (no device I/O; file I/O only where a file format is the job), in layers, each
 //! using only its own and those above it in this list:
 //! - foundations: [`size`] (`ImageSize`, the one size type), [`error`], [`files`] (atomic
-//!   writes), [`raster`] (typed images), [`pngio`], [`resize`], [`sample`], [`filter`],
-//!   [`metrics`], [`morph`], [`device`] (the display and camera traits), [`tensors`] (named f32
-//!   arrays and their safetensors encoding);
+//!   writes), [`background`] (work behind the show, at a lower priority), [`raster`] (typed
+//!   images), [`pngio`], [`resize`], [`sample`], [`filter`], [`metrics`], [`morph`], [`device`]
+//!   (the display and camera traits), [`tensors`] (named f32 arrays and their safetensors
+//!   encoding);
 //! - geometry and data: [`fov`], [`warp`], [`patterns`], [`slgrid`], [`dataset`] (the
 //!   CompenNet++ layout and the capture manifest);
 //! - models: [`linear`], [`joint`] (a set of projectors compensated together, from each
@@ -35,6 +36,7 @@
 //! each other in a circle, and that no module uses one of a higher layer or closes a circle of
 //! modules.
 
+pub mod background;
 pub mod calibrate;
 pub mod camera;
 pub mod config;

@@ -627,13 +627,16 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let patterns = manifest.patterns.clone();
 
     // The patterns are written while the exposure and the latency are measured: those show
-    // only black and white.
+    // only black and white. The writing runs behind the measurement (`background`): a
+    // measurement held back by it would count the lag as latency.
     let (exposure, (latency, clock), root) = std::thread::scope(|s| -> Result<_> {
         let writing = s.spawn(|| -> Result<(DataRoot, f64)> {
-            let t = Instant::now();
-            let root = DataRoot::create(data)?;
-            write_patterns(&root, &patterns)?;
-            Ok((root, t.elapsed().as_secs_f64()))
+            crate::background::run(|| {
+                let t = Instant::now();
+                let root = DataRoot::create(data)?;
+                write_patterns(&root, &patterns)?;
+                Ok((root, t.elapsed().as_secs_f64()))
+            })
         });
         let measured = (|| -> Result<_> {
             let t = Instant::now();
@@ -1236,8 +1239,10 @@ fn start_prefit(
             if rx.recv().is_err() {
                 return;
             }
-            let fitted = Setup::open(&setup, Some(&root))
-                .and_then(|setup| fit::prefit_geometry(&setup, &req, pairs));
+            let fitted = crate::background::run(|| {
+                Setup::open(&setup, Some(&root))
+                    .and_then(|setup| fit::prefit_geometry(&setup, &req, pairs))
+            });
             if let Err(e) = fitted {
                 tracing::warn!("fitting the geometry ahead: {e}; the fit makes its own");
             }

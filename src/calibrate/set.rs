@@ -12,6 +12,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use super::clock::CameraClock;
 use super::{Calibrated, Capturer, Options, Progress, exposure};
 use crate::dataset::{DataRoot, ProjectorSet};
 use crate::device::{DisplaySink, FrameSource, HeldExposure, SideBySide, side_by_side};
@@ -175,6 +176,9 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
         let mut step = |phase: &str, i: usize, total: usize| {
             progress(&format!("projector {}/{n}: {phase}", k + 1), i, total);
         };
+        // The camera's clock as this projector's latency measurement last mapped it: the set's
+        // captures skip frames exposed before each show by it, as the projector's own do.
+        let clock = captured.clock;
         let calibrated = super::verify_model(
             &mut set.displays()[k],
             &mut HeldExposure(&mut *camera),
@@ -189,13 +193,19 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
         let latency = worst_latency(&latencies)?;
         let check = match &mut check {
             Some(c) => c,
-            None => check.insert(SetCheck::views(&mut set, camera, &root, &latency, opts)?),
+            None => check.insert(SetCheck::views(
+                &mut set,
+                camera,
+                &root,
+                (&latency, clock),
+                opts,
+            )?),
         };
         check.alone(
             &mut set,
             camera,
             (k, &calibrated.model),
-            &latency,
+            (&latency, clock),
             opts,
             progress,
         )?;
@@ -372,6 +382,9 @@ struct SetCheck {
     /// The view the last capture of the set aimed at: two captures in a row that aim at one
     /// view have white between them, as closed-loop pairs do.
     last_view: Option<usize>,
+    /// The camera's clock as the last projector's latency measurement mapped it: every
+    /// capture skips the frames exposed before its show ([`Capturer::with_clock`]).
+    clock: Option<CameraClock>,
 }
 
 impl SetCheck {
@@ -381,7 +394,7 @@ impl SetCheck {
         set: &mut SideBySide<D>,
         camera: &mut C,
         root: &DataRoot,
-        latency: &Latency,
+        (latency, clock): (&Latency, Option<CameraClock>),
         opts: &Options,
     ) -> Result<Self> {
         let verify_n = opts.verify_images.min(opts.patterns.ntest);
@@ -393,7 +406,7 @@ impl SetCheck {
         let size = set.size();
         let black_whole = PrjImage::new(size.width, size.height);
         let white_whole = PrjImage::filled(size.width, size.height, [1.0; 3]);
-        let mut capturer = Capturer::new(set, camera, latency, opts.sync);
+        let mut capturer = Capturer::new(set, camera, latency, opts.sync).with_clock(clock);
         let black = capturer.capture(&black_whole, true)?;
         let white = capturer.capture(&white_whole, true)?;
         let label = format!("the set {}", opts.rig);
@@ -417,6 +430,7 @@ impl SetCheck {
             views,
             alone: Vec::new(),
             last_view: None,
+            clock,
         })
     }
 
@@ -432,7 +446,7 @@ impl SetCheck {
         set: &mut SideBySide<D>,
         camera: &mut C,
         (k, model): (usize, &crate::model::Model),
-        latency: &Latency,
+        (latency, clock): (&Latency, Option<CameraClock>),
         opts: &Options,
         progress: Progress,
     ) -> Result<()> {
@@ -444,9 +458,10 @@ impl SetCheck {
                 self.alone.len()
             )));
         }
+        self.clock = clock.or(self.clock);
         let sizes: Vec<_> = set.displays().iter().map(|d| d.size()).collect();
         let steps = self.steps(n);
-        let mut capturer = Capturer::new(set, camera, latency, opts.sync);
+        let mut capturer = Capturer::new(set, camera, latency, opts.sync).with_clock(self.clock);
         let mut acc = Accumulator::default();
         for (i, view) in self.views.iter().enumerate() {
             progress("set verification", self.views.len() * k + i, steps);
@@ -497,7 +512,7 @@ impl SetCheck {
         std::fs::create_dir_all(shown).map_err(|e| Error::io(shown, "create folder", e))?;
         let steps = self.steps(n);
         let verify_n = self.views.len();
-        let mut capturer = Capturer::new(set, camera, latency, opts.sync);
+        let mut capturer = Capturer::new(set, camera, latency, opts.sync).with_clock(self.clock);
         let mut joint_acc = Accumulator::default();
         let mut seams: Vec<SeamFigure> = Vec::new();
         for (i, view) in self.views.iter().enumerate() {
@@ -595,7 +610,7 @@ fn aim<D: DisplaySink, C: FrameSource + ?Sized>(
 type Fitted = (super::Captured, crate::model::Model);
 
 /// A projector's fit running on a thread of its own while the display serves another
-/// projector.
+/// projector, behind the captures ([`crate::background`]).
 struct Behind<T> {
     k: usize,
     what: &'static str,
@@ -611,7 +626,7 @@ impl<T: Send + 'static> Behind<T> {
     ) -> Result<Self> {
         let thread = std::thread::Builder::new()
             .name(format!("projector {} {what}", k + 1))
-            .spawn(work)
+            .spawn(move || crate::background::run(work))
             .map_err(|e| {
                 Error::Failed(format!(
                     "cannot start the thread of projector {}'s {what}: {e}",

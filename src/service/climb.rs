@@ -144,7 +144,8 @@ impl Climb {
         std::thread::Builder::new()
             .name("compend-climb".into())
             .spawn(move || {
-                let _ = tx.send(climb(p, &flag));
+                // Behind the show: playback keeps its pace on a busy machine.
+                let _ = tx.send(crate::background::run(|| climb(p, &flag)));
             })
             .map_err(|e| Error::Failed(format!("cannot start the climb's thread: {e}")))?;
         tracing::info!(

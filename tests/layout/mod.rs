@@ -430,8 +430,19 @@ const LAYERS: &[(&str, &[&str])] = &[
     (
         "foundations",
         &[
-            "size", "error", "files", "raster", "pngio", "resize", "sample", "filter", "metrics",
-            "morph", "device", "tensors",
+            "size",
+            "error",
+            "files",
+            "background",
+            "raster",
+            "pngio",
+            "resize",
+            "sample",
+            "filter",
+            "metrics",
+            "morph",
+            "device",
+            "tensors",
         ],
     ),
     (

@@ -300,12 +300,13 @@ impl Engine {
                 // and the engine finds the answer, or its absence.
                 let _done = SetOnDrop(finished);
                 let mut progress = training_progress(shared, started);
-                let model = match job {
+                // Behind the show: the playback beside it keeps its pace on a busy machine.
+                let model = crate::background::run(|| match job {
                     Job::Fit => calibrate::train(&mut captured, &opts, &mut progress),
                     Job::Refit(taken) => {
                         calibrate::refit(&mut captured, *taken, &opts, &mut progress)
                     }
-                };
+                });
                 let _ = tx.send((captured, model));
             });
         if let Err(e) = spawned {
