@@ -115,6 +115,24 @@ impl ClockFinder {
     }
 }
 
+/// Most frames [`learn`] grabs: a second at 30 fps.
+pub const LEARN_FRAMES: usize = 30;
+
+/// The camera's clock learned afresh from its frames, where no measurement mapped it lately
+/// (a check long after the calibration): frames are grabbed until the clock is known, at most
+/// [`LEARN_FRAMES`]; `None` for a camera whose clock does not run in real time. The clock keeps
+/// refining itself from the frames of the captures that use it ([`CameraClock::observe`]).
+pub fn learn<C: FrameSource + ?Sized>(camera: &mut C) -> Result<Option<CameraClock>> {
+    let mut timed = Timed::new(camera);
+    for _ in 0..LEARN_FRAMES {
+        timed.grab()?;
+        if let Some(clock) = timed.clock() {
+            return Ok(Some(clock));
+        }
+    }
+    Ok(None)
+}
+
 /// A camera whose grabs are timed, to find its clock.
 pub struct Timed<'c, C: ?Sized> {
     camera: &'c mut C,
@@ -236,5 +254,64 @@ mod tests {
             ..virtual_rig
         };
         assert_eq!(timed_frames(&mut slow_virtual_rig, 12), None);
+    }
+
+    #[test]
+    fn a_clock_learned_afresh_stops_once_known_and_is_none_for_a_virtual_camera() {
+        let ms = Duration::from_millis;
+        // 4 frames exposed before the first grab, waiting in buffers, then one every 30 ms
+        // (at least: a loaded machine wakes the sleeper late), each stamped with the time it
+        // really began, as a camera's clock does: known after about 0.2 s of frames, well
+        // before LEARN_FRAMES.
+        struct RealTime {
+            start: Instant,
+            k: u64,
+        }
+        impl FrameSource for RealTime {
+            fn size(&self) -> ImageSize {
+                ImageSize::new(2, 2)
+            }
+            fn grab(&mut self) -> Result<Frame> {
+                const BUFFERED: u64 = 4;
+                let timestamp = if self.k < BUFFERED {
+                    Duration::from_secs(1) - Duration::from_millis(30 * (BUFFERED - self.k))
+                } else {
+                    std::thread::sleep(Duration::from_millis(30));
+                    Duration::from_secs(1) + self.start.elapsed()
+                };
+                self.k += 1;
+                Ok(Frame {
+                    image: CamImage::new(2, 2),
+                    seq: self.k,
+                    timestamp,
+                })
+            }
+        }
+        let mut real = RealTime {
+            start: Instant::now(),
+            k: 0,
+        };
+        let clock = learn(&mut real).expect("grabs").expect("a real-time clock");
+        assert!(real.k < LEARN_FRAMES as u64, "grabbed {}", real.k);
+        let buffered = Frame {
+            image: CamImage::new(2, 2),
+            seq: 1,
+            timestamp: ms(1000 - 120),
+        };
+        assert!(clock.exposed_before(&buffered, real.start));
+        let next = Frame {
+            timestamp: ms(1000) + real.start.elapsed() + ms(30),
+            ..buffered
+        };
+        assert!(!clock.exposed_before(&next, Instant::now()));
+        // A frame period per grab whatever the grab takes: no clock, after LEARN_FRAMES.
+        let mut virtual_rig = Stepping {
+            k: 0,
+            step: ms(33),
+            takes: ms(1),
+            burst: 0,
+        };
+        assert_eq!(learn(&mut virtual_rig).expect("grabs"), None);
+        assert_eq!(virtual_rig.k, LEARN_FRAMES as u64);
     }
 }

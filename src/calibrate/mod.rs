@@ -960,7 +960,11 @@ pub fn verify_after<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let fov = fov::fov_mask(&black, &white, &label)?;
     let area = fov::displayable_area(&fov.mask, display.size().aspect())?;
     let views = setup.load_desired(Some(opts.verify_images))?;
-    let mut capturer = Capturer::new(display, camera, latency, opts.sync);
+    // The calibration's mapping of the camera's clock is long gone (the camera may have been
+    // reopened since): learned again, so that frames waiting in its buffers from before a
+    // show are skipped, not taken for the show.
+    let clock = clock::learn(camera)?;
+    let mut capturer = Capturer::new(display, camera, latency, opts.sync).with_clock(clock);
     verify(&mut capturer, models, &root, (area, &views), opts, progress)
 }
 
