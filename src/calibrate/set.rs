@@ -17,6 +17,7 @@ use super::{Calibrated, Capturer, Options, Progress, exposure};
 use crate::dataset::{DataRoot, ProjectorSet};
 use crate::device::{DisplaySink, FrameSource, HeldExposure, SideBySide, side_by_side};
 use crate::error::{Error, Result};
+use crate::fit::DEFAULT_RIG_GAIN_DB;
 use crate::fov;
 use crate::joint::JointModel;
 use crate::metrics::{Accumulator, SeamFigure};
@@ -28,9 +29,14 @@ use crate::raster::{CamImage, ImageSize, PrjImage, Rect};
 use crate::record::{Latency, SetRecord, SetVerification};
 
 /// The PSNR gain (dB) the joint compensation needs over the best projector compensating
-/// alone: none, but never less: a set that does worse than one of its projectors is not worth
-/// installing.
-pub const REQUIRED_GAIN_DB: f64 = 0.0;
+/// alone: at most the ladder's closed-loop margin below it ([`DEFAULT_RIG_GAIN_DB`], 0.2 dB).
+/// A set that does clearly worse than one of its projectors is not worth installing; a
+/// difference smaller than the margin at which the rig calls one model better than another
+/// is not counted as a loss either. A stacked set on a dark texture scores within a tenth of
+/// a decibel of its better projector alone (−0.09 to +0.33 dB over six seeds,
+/// docs/bench/sets.md) while leaving a quarter of its unreachable share: at 0 dB it passed or
+/// failed by the seed.
+pub const REQUIRED_GAIN_DB: f64 = -DEFAULT_RIG_GAIN_DB;
 
 /// The largest seam ratio ([`SeamFigure::ratio`]) that passes. The joint physical ceiling of
 /// the virtual rig's sets has 1.37 (`tiled`) and 1.44 (`stacked`), seed 0, 640×480: the band
