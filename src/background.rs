@@ -1,18 +1,23 @@
 //! Work that runs behind the show: fits, refits and pattern writing while the camera captures,
 //! a climb or a training while a film plays. It runs on threads of their own at a lower
-//! scheduling priority ([`NICE`]), so that when the machine's cores are all busy the threads
-//! that keep time (the camera's reader, the display, the playback loop, the virtual rig's
-//! camera) go first and the work behind them takes what is left. On an idle machine the
+//! scheduling priority ([`LOWER_BY`] nice values lower), so that when the machine's cores are
+//! all busy the threads that keep time (the camera's reader, the display, the playback loop,
+//! the virtual rig's camera) go first and the work behind them takes what is left. On an idle machine the
 //! priority changes nothing: the work runs as fast as it would anyway.
 //!
 //! Without this, on a machine of few cores a fit behind the captures held the capture loop's
 //! reader back: frames came late, the measured latency grew by the lag, and every capture
 //! waited for it (docs/bench/sets.md, 2026-12-02).
 
-/// The nice value of the threads behind the show (Linux: −20 highest, 19 lowest, 0 the
-/// default). At 10 a busy thread of it gets about a tenth of a core that a busy thread at 0
-/// shares with it (the kernel's weights 110 against 1024).
-pub const NICE: i32 = 10;
+/// How far the threads behind the show sit below the thread that starts them, in nice values
+/// (Linux: −20 highest, 19 lowest, 0 the default; never past 19). At 10 below, a busy thread
+/// of them gets about a tenth of a core that a busy thread above shares with it (the kernel's
+/// weights 110 against 1024 for nice 10 against 0). Relative, so a service started at a
+/// nice value of its own keeps its work behind it, never above.
+pub const LOWER_BY: i32 = 10;
+
+/// The lowest priority there is (the highest nice value).
+const LOWEST: i32 = 19;
 
 /// Runs `work` on threads behind the show and returns what it returns; the calling thread
 /// waits. Rayon work inside it (`par_iter` and the like) runs on the same threads, and threads
@@ -24,10 +29,11 @@ pub const NICE: i32 = 10;
 /// call's work beneath it and never return. Where the threads cannot be had (the system
 /// refuses threads), `work` runs on the calling thread at its own priority, with a warning.
 pub fn run<T: Send>(work: impl FnOnce() -> T + Send) -> T {
+    let nice = (current_nice() + LOWER_BY).min(LOWEST);
     let built = rayon::ThreadPoolBuilder::new()
         .num_threads(std::thread::available_parallelism().map_or(2, |n| n.get()))
         .thread_name(|i| format!("compend behind {i}"))
-        .start_handler(|_| lower_this_thread())
+        .start_handler(move |_| set_this_thread(nice))
         .build();
     match built {
         Ok(pool) => pool.install(work),
@@ -47,21 +53,21 @@ pub fn priority() -> i32 {
     run(current_nice)
 }
 
-/// Lowers the calling thread (not its process) to [`NICE`]; a refusal is logged and the
-/// thread keeps its priority (it only ever costs time, never a result).
-fn lower_this_thread() {
+/// Sets the calling thread's (not its process's) nice value to `nice`; a refusal is logged
+/// and the thread keeps its priority (it only ever costs time, never a result).
+fn set_this_thread(nice: i32) {
     // SAFETY: gettid and setpriority take and return plain integers; on Linux, PRIO_PROCESS
     // with a thread ID sets that one thread's nice value.
     let (tid, rc) = unsafe {
         let tid = libc::gettid();
         (
             tid,
-            libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, NICE),
+            libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, nice),
         )
     };
     if rc != 0 {
         tracing::debug!(
-            "thread {tid} behind the show keeps its priority: setpriority({NICE}) failed: {}",
+            "thread {tid} behind the show keeps its priority: setpriority({nice}) failed: {}",
             std::io::Error::last_os_error()
         );
     }
@@ -69,7 +75,7 @@ fn lower_this_thread() {
 
 /// The calling thread's nice value.
 fn current_nice() -> i32 {
-    // SAFETY: as in lower_this_thread; for one's own thread getpriority cannot fail, and its
+    // SAFETY: as in set_this_thread; for one's own thread getpriority cannot fail, and its
     // result is the nice value itself (−1 included).
     unsafe { libc::getpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t) }
 }
@@ -80,14 +86,16 @@ mod tests {
 
     #[test]
     fn work_behind_the_show_runs_at_the_lower_priority_and_returns_its_result() {
-        // The test's own thread is at the process's priority; the work's threads below it
-        // (unless this process already runs at or past NICE, where nothing can be lowered).
+        // The work's threads sit LOWER_BY below the thread that starts them, never past the
+        // lowest priority.
         let mine = current_nice();
         let behind = run(current_nice);
         assert_eq!(priority(), behind);
-        if mine < NICE {
-            assert_eq!(behind, NICE, "own thread at {mine}");
-        }
+        assert_eq!(
+            behind,
+            (mine + LOWER_BY).min(LOWEST),
+            "own thread at {mine}"
+        );
         // Rayon work inside runs on the same threads, at the same priority.
         use rayon::prelude::*;
         let inner: Vec<i32> = run(|| (0..64).into_par_iter().map(|_| current_nice()).collect());
