@@ -2,8 +2,8 @@
 //! a climb or a training while a film plays. It runs on threads of their own at a lower
 //! scheduling priority ([`LOWER_BY`] nice values lower), so that when the machine's cores are
 //! all busy the threads that keep time (the camera's reader, the display, the playback loop,
-//! the virtual rig's camera) go first and the work behind them takes what is left. On an idle machine the
-//! priority changes nothing: the work runs as fast as it would anyway.
+//! the virtual rig's camera) go first and the work behind them takes what is left. On an idle
+//! machine the priority changes nothing: the work runs as fast as it would anyway.
 //!
 //! Without this, on a machine of few cores a fit behind the captures held the capture loop's
 //! reader back: frames came late, the measured latency grew by the lag, and every capture
@@ -47,12 +47,6 @@ pub fn run<T: Send>(work: impl FnOnce() -> T + Send) -> T {
     }
 }
 
-/// The priority of threads of [`run`] (what the kernel reports for one of them), for tests
-/// and logs.
-pub fn priority() -> i32 {
-    run(current_nice)
-}
-
 /// Sets the calling thread's (not its process's) nice value to `nice`; a refusal is logged
 /// and the thread keeps its priority (it only ever costs time, never a result).
 fn set_this_thread(nice: i32) {
@@ -90,7 +84,6 @@ mod tests {
         // lowest priority.
         let mine = current_nice();
         let behind = run(current_nice);
-        assert_eq!(priority(), behind);
         assert_eq!(
             behind,
             (mine + LOWER_BY).min(LOWEST),
@@ -101,8 +94,7 @@ mod tests {
         let inner: Vec<i32> = run(|| (0..64).into_par_iter().map(|_| current_nice()).collect());
         assert!(inner.iter().all(|&n| n == behind), "{inner:?}");
         assert_eq!(run(|| 6 * 7), 42);
-        // Calls nest and wait on each other without holding each other up: the outer call's
-        // threads are its own.
+        // Calls nest, and one call's work may wait for another's.
         let (tx, rx) = std::sync::mpsc::channel();
         let waited = std::thread::spawn(move || run(move || rx.recv().expect("sent")));
         let sent = run(move || run(move || tx.send(7)));
