@@ -512,6 +512,26 @@ fn closed_loop_pairs_refit_the_linear_rung_on_every_pair() {
         serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap()).unwrap();
     assert_eq!(m["training"]["ntrain"], 17, "{m}");
     assert_eq!(m["calibration"]["loop_pairs"], 5, "{m}");
+    // The fit on every pair grew while the closed-loop pairs were captured: its response
+    // curves are those of the first fit, on the 12 sampling pairs, which `train` finds again.
+    assert_eq!(m["training"]["curves_searched_on"], 12, "{m}");
+    let first = dir.path().join("first");
+    let o = compend(&[
+        "train",
+        "--setup",
+        data.join("capture").to_str().unwrap(),
+        "--method",
+        "linear",
+        "--ntrain",
+        "12",
+        "--out",
+        first.to_str().unwrap(),
+    ]);
+    assert_code(&o, 0);
+    let f: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(first.join("model.json")).unwrap()).unwrap();
+    assert_eq!(f["training"]["curves"], m["training"]["curves"], "{f}");
+    assert!(f["training"].get("curves_searched_on").is_none(), "{f}");
     // A closed-loop image is the compensation of a sampling image, not the image itself: it
     // lies within the projector's range and differs from its content.
     let first = image::open(data.join("train/img_0001.png"))

@@ -233,6 +233,9 @@ pub struct LoopPairs {
     climbed: Option<Model>,
     /// Closed-loop pairs taken.
     n: usize,
+    /// The linear rung's fit on every pair, grown as the pairs were captured ([`growing_fit`]);
+    /// `None` when [`refit`] fits something else, or when it could not start.
+    growing: Option<std::thread::JoinHandle<Result<crate::fit::GrowingFit>>>,
 }
 
 impl LoopPairs {
@@ -266,6 +269,7 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         model,
         climbed: None,
         n: 0,
+        growing: None,
     };
     if n == 0 {
         return Ok(untouched(model));
@@ -333,6 +337,11 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         );
     }
     let mut flashes = 0;
+    // The fit on every pair grows behind the captures when it is a linear rung's.
+    let (grown, growing) = match refits_linear(opts, &model, climbed.is_some(), n) {
+        true => growing_fit(&model, &setup, (ntrain, resumed)),
+        false => (None, None),
+    };
     // Compensated ahead on a helper thread, stored behind on another ([`pipeline`]): the
     // manifest claims each training image before it is written, so a later run knows it
     // for this calibration's.
@@ -376,9 +385,14 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             root.write(ProjectorSet::Train, ntrain + i, &shown)?;
             setup.write_loop_desired(ntrain + i, &desired)?;
             setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
+            if let Some(tx) = &grown {
+                // A fit that stopped has logged why; the refit makes its own.
+                let _ = tx.send(ntrain + i);
+            }
             Ok(())
         },
     )?;
+    drop(grown);
     progress("closed-loop pairs", n, n);
     captured.retakes += capturer.retakes;
     captured.reconnects += capturer.reconnects;
@@ -395,7 +409,67 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         "closed-loop pairs: {} captured in {capturing:.1} s",
         n - resumed
     );
-    Ok(LoopPairs { model, climbed, n })
+    Ok(LoopPairs {
+        model,
+        climbed,
+        n,
+        growing,
+    })
+}
+
+/// Whether [`refit`] fits a linear rung on every pair (and may take the fit grown during the
+/// captures, [`growing_fit`]): the rung asked for is a linear one, or `auto` refits the linear
+/// rung it chose (or the one beside its climb) rather than climbing on these pairs.
+fn refits_linear(opts: &Options, model: &Model, climbed: bool, n: usize) -> bool {
+    model.meta.method.is_linear()
+        && match opts.method {
+            MethodChoice::Rung(m) => m.is_linear(),
+            MethodChoice::Auto => climbed || !climbs_on_loop_pairs(opts, n),
+        }
+}
+
+/// Starts a thread, behind the captures ([`crate::background`]), that grows `model`'s fit on
+/// the setup's pairs ([`crate::fit::GrowingFit`]): the `ntrain` sampling pairs and the first
+/// `resumed` closed-loop pairs at once, then each training pair whose index is sent, until the
+/// sender is dropped. Returns the sender and the thread; neither when `model` is not a linear
+/// rung or no thread could start (the refit then fits on every pair itself).
+fn growing_fit(
+    model: &Model,
+    setup: &Setup,
+    (ntrain, resumed): (usize, usize),
+) -> (
+    Option<std::sync::mpsc::Sender<usize>>,
+    Option<std::thread::JoinHandle<Result<crate::fit::GrowingFit>>>,
+) {
+    let Some(mut fit) = crate::fit::GrowingFit::new(model) else {
+        return (None, None);
+    };
+    let (tx, rx) = std::sync::mpsc::channel::<usize>();
+    let (setup, root) = (
+        setup.path().to_path_buf(),
+        setup.root().path().to_path_buf(),
+    );
+    let thread = std::thread::Builder::new()
+        .name("growing fit".into())
+        .spawn(move || {
+            crate::background::run(move || {
+                let setup = Setup::open(&setup, Some(&root))?;
+                fit.add(&setup, 1..=ntrain + resumed)?;
+                // The pairs stored since the last add, in one add.
+                while let Ok(first) = rx.recv() {
+                    let last = rx.try_iter().fold(first, usize::max);
+                    fit.add(&setup, first..=last)?;
+                }
+                Ok(fit)
+            })
+        });
+    match thread {
+        Ok(t) => (Some(tx), Some(t)),
+        Err(e) => {
+            tracing::warn!("could not start the thread that grows the fit on every pair: {e}");
+            (None, None)
+        }
+    }
 }
 
 /// How many closed-loop pairs, from the first, an interrupted run of this calibration left
@@ -460,7 +534,12 @@ pub fn refit(
     opts: &Options,
     progress: Progress,
 ) -> Result<Model> {
-    let LoopPairs { model, climbed, n } = taken;
+    let LoopPairs {
+        model,
+        climbed,
+        n,
+        growing,
+    } = taken;
     if n == 0 {
         return Ok(climbed.unwrap_or(model));
     }
@@ -491,9 +570,26 @@ pub fn refit(
         ..refit
     };
     let evidence = model.meta.training.auto.clone().filter(|_| !judges);
-    let (mut model, _) = fit::fit(&setup, &req, |stage, done, total| {
-        progress(stage, done, total)
-    })?;
+    let all = captured.patterns.ntrain + n;
+    let mut model = match growing.map(|g| grown_fit(g, all)) {
+        Some(Ok(model)) => {
+            tracing::info!(
+                "closed-loop pairs: the fit on every pair grew during the captures (the \
+                 curves of the first {} pairs kept)",
+                captured.patterns.ntrain
+            );
+            model
+        }
+        grown => {
+            if let Some(Err(why)) = grown {
+                tracing::warn!("the fit grown during the captures: {why}; fitting afresh");
+            }
+            fit::fit(&setup, &req, |stage, done, total| {
+                progress(stage, done, total)
+            })?
+            .0
+        }
+    };
     // `auto`'s choice and its evidence stay on the rung it chose.
     if evidence.is_some() {
         model.meta.training.auto = evidence;
@@ -520,6 +616,24 @@ pub fn refit(
         }
         None => model,
     })
+}
+
+/// The model of a fit grown during the captures ([`growing_fit`]) once its thread has added
+/// the last pair, when it holds all `pairs`; otherwise why not.
+fn grown_fit(
+    growing: std::thread::JoinHandle<Result<crate::fit::GrowingFit>>,
+    pairs: usize,
+) -> Result<Model> {
+    let fit = growing
+        .join()
+        .map_err(|_| Error::Failed("its thread panicked".into()))??;
+    if fit.pairs() != pairs {
+        return Err(Error::Failed(format!(
+            "it holds {} of the {pairs} pairs",
+            fit.pairs()
+        )));
+    }
+    fit.finish()
 }
 
 /// Closed-loop pair `i` of a data root `root` with `ntrain` sampling images: sampling image

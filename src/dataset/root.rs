@@ -209,6 +209,14 @@ impl DataRoot {
         read_all(&paths, size, &why, &setter)
     }
 
+    /// Image `index` (1-based) of a set, checked against the network size (the projector size
+    /// for [`ProjectorSet::Sl`]).
+    pub fn load_one(&self, set: ProjectorSet, index: usize) -> Result<PrjImage> {
+        check_index(index)?;
+        let (size, why, _) = self.expected_size(set)?;
+        pngio::read_rgb_sized(&self.image_path(set, index), size, &why)
+    }
+
     /// Loads the gray projector image x0 (`ref/img_gray.png`) at network size.
     pub fn load_gray_input(&self) -> Result<PrjImage> {
         let p = self.gray_input_path();

@@ -433,6 +433,19 @@ impl Setup {
         ))
     }
 
+    /// Training pair `index` (1-based): the capture as the levels its file stores, of the
+    /// camera's size, and the projector image shown, of the network size. For a fit that takes
+    /// its pairs as they arrive ([`crate::fit::GrowingFit`]).
+    pub fn load_train_pair(&self, index: usize) -> Result<(Levels<Camera>, PrjImage)> {
+        check_index(index)?;
+        let capture = pngio::read_levels_sized(
+            &self.capture_path(CaptureSet::Train, index),
+            self.camera_size()?,
+            &self.camera_why(),
+        )?;
+        Ok((capture, self.root.load_one(ProjectorSet::Train, index)?))
+    }
+
     /// How many pairs of `set` to load for `n`, refused when either folder is short.
     fn pair_count(&self, set: CaptureSet, n: Option<usize>) -> Result<usize> {
         let cap_dir = self.capture_dir(set);

@@ -5,18 +5,21 @@
 //! Files by step: this file checks the request, loads the references, FOV and training pairs
 //! and dispatches; `linear_rungs.rs` fits the linear rungs (and `auto`'s choice among them);
 //! `compennet.rs` prepares the data of a CompenNet++ rung, starts its geometry, trains it and
-//! brings its weights to the CPU. Each writes the model's record (docs/architecture.md, "Model
+//! brings its weights to the CPU; `growing.rs` grows a linear rung's fit pair by pair as a
+//! calibration's closed-loop pairs arrive. Each writes the model's record (docs/architecture.md, "Model
 //! directory"). `rule.rs` holds the climbing rule `auto` and the service share; `live.rs` the
 //! frame budget a climb's live pass must fit. The training device is [`crate::nn::device`]'s.
 
 mod auto;
 mod compennet;
+mod growing;
 mod linear_rungs;
 mod live;
 mod rule;
 
 pub use crate::nn::device::TrainDevice;
 pub use auto::{climb_rung, evidence_lines, judges_on_loop_pairs, lower_rung, settle_climb};
+pub use growing::GrowingFit;
 pub use live::{LIVE_SHARE, LiveCost, LivePass, PassShape, budgeted, refresh_rate_problem};
 pub use rule::{ClimbRule, DEFAULT_CLIMB_GAIN_DB, DEFAULT_RIG_GAIN_DB};
 

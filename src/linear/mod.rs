@@ -44,6 +44,7 @@ mod settings;
 mod stack;
 mod tensors;
 
+pub use colour::ColourSums;
 pub use fit::{
     FitReport, GeometryMemo, fit, fit_geometry, fit_on_grid, fit_with_memo, prefit_geometry,
 };

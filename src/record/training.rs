@@ -72,6 +72,11 @@ pub struct TrainingRecord {
     /// ([`crate::linear::GeometryMemo`]), so its fit time leaves the geometry out.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub geometry_reused: bool,
+    /// A linear rung fitted on pairs as they arrived (a calibration's closed-loop pairs,
+    /// [`crate::fit::GrowingFit`]): its geometry and response curves are those of the fit on
+    /// the first this many pairs; its coefficients are on all `ntrain`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub curves_searched_on: Option<usize>,
 }
 
 /// The evidence of `--method auto`.
