@@ -1,6 +1,6 @@
 //! The `linear` model on a synthetic projector-camera system with a known answer.
 
-use compend::linear::{FitSettings, GeometryMemo, fit, fit_with_memo};
+use compend::linear::{ColourSums, FitSettings, GeometryMemo, fit, fit_with_memo};
 use compend::metrics;
 use compend::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rgb};
 use compend::sample::{Grid, grid_sample, pixel_to_norm};
@@ -268,6 +268,46 @@ fn fits_on_the_same_first_pairs_share_their_geometry() {
     assert!(!fit_on(&caps, &train, &ridge).1.geometry_reused);
     // The memo keeps the last geometry fitted: the reversed pairs' is gone.
     assert!(!fit_on(&rc, &rt, &settings).1.geometry_reused);
+}
+
+/// A linear fit searches its response curves on its first `geometry_images` pairs: the fit on
+/// those pairs, its colour sums grown with every pair ([`ColourSums`], as a calibration grows
+/// them behind its captures), is the fit on all the pairs, to the bit.
+#[test]
+fn a_fit_grown_from_the_geometrys_pairs_is_the_fit_on_all_of_them() {
+    let [tr, _] = pairs(&System::new(), 11);
+    let (train, caps): (Vec<NetImage>, Vec<CamImage>) = tr.into_iter().unzip();
+    let init = Warp::from_affine([[0.8, 0.0, 0.02], [0.0, 0.83, 0.0]]);
+    let settings = FitSettings {
+        geometry_images: 12,
+        ..settings()
+    };
+    let no_progress = |_: &str, _: usize, _: usize| {};
+    let (first, _) = fit(
+        &caps[..12],
+        &train[..12],
+        init.clone(),
+        &settings,
+        no_progress,
+    )
+    .unwrap();
+    let (all, _) = fit(&caps, &train, init, &settings, no_progress).unwrap();
+    assert_eq!(first.curves, all.curves, "the curves of the first 12 pairs");
+    let mut sums = ColourSums::new(first.grid(), first.curves, settings.ridge);
+    // In the steps a calibration's captures might come in.
+    for range in [0..12, 12..13, 13..20, 20..24] {
+        sums.add(&caps[range.clone()], &train[range]).unwrap();
+    }
+    let (grown, _) = sums.solve();
+    assert_eq!(grown.data.len(), all.coeffs.data.len());
+    let differ = (grown
+        .data
+        .iter()
+        .flatten()
+        .zip(all.coeffs.data.iter().flatten()))
+    .filter(|(a, b)| a.to_bits() != b.to_bits())
+    .count();
+    assert_eq!(differ, 0, "of {} coefficients", 12 * grown.data.len());
 }
 
 /// Structured-light geometry: a known affine camera→projector map must come back as its inverse.

@@ -30,6 +30,7 @@
 
 pub mod clock;
 pub mod exposure;
+mod grow;
 mod pipeline;
 pub mod progress;
 pub mod rounds;
@@ -233,9 +234,9 @@ pub struct LoopPairs {
     climbed: Option<Model>,
     /// Closed-loop pairs taken.
     n: usize,
-    /// The linear rung's fit on every pair, grown as the pairs were captured ([`growing_fit`]);
+    /// The linear rung's fit on every pair, grown as the pairs were captured ([`grow`]);
     /// `None` when [`refit`] fits something else, or when it could not start.
-    growing: Option<std::thread::JoinHandle<Result<crate::fit::GrowingFit>>>,
+    growing: Option<grow::Grower>,
 }
 
 impl LoopPairs {
@@ -337,11 +338,20 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         );
     }
     let mut flashes = 0;
-    // The fit on every pair grows behind the captures when it is a linear rung's.
-    let (grown, growing) = match refits_linear(opts, &model, climbed.is_some(), n) {
-        true => growing_fit(&model, &setup, (ntrain, resumed)),
-        false => (None, None),
+    // The fit on every pair grows behind the captures when it is a linear rung's: the one
+    // that grew behind the sampling pairs and gave `model`, or one from `model`.
+    let grown_before = captured.grower.take();
+    let growing = match refits_linear(opts, &model, climbed.is_some(), n) {
+        true => grown_before.or_else(|| {
+            let g = grow::Grower::from_model(&setup, &model)?;
+            (1..=ntrain).for_each(|i| g.stored(i));
+            Some(g)
+        }),
+        false => None,
     };
+    if let Some(g) = &growing {
+        (ntrain + 1..=ntrain + resumed).for_each(|i| g.stored(i));
+    }
     // Compensated ahead on a helper thread, stored behind on another ([`pipeline`]): the
     // manifest claims each training image before it is written, so a later run knows it
     // for this calibration's.
@@ -385,14 +395,12 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             root.write(ProjectorSet::Train, ntrain + i, &shown)?;
             setup.write_loop_desired(ntrain + i, &desired)?;
             setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
-            if let Some(tx) = &grown {
-                // A fit that stopped has logged why; the refit makes its own.
-                let _ = tx.send(ntrain + i);
+            if let Some(g) = &growing {
+                g.stored(ntrain + i);
             }
             Ok(())
         },
     )?;
-    drop(grown);
     progress("closed-loop pairs", n, n);
     captured.retakes += capturer.retakes;
     captured.reconnects += capturer.reconnects;
@@ -418,7 +426,7 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 }
 
 /// Whether [`refit`] fits a linear rung on every pair (and may take the fit grown during the
-/// captures, [`growing_fit`]): the rung asked for is a linear one, or `auto` refits the linear
+/// captures, [`grow`]): the rung asked for is a linear one, or `auto` refits the linear
 /// rung it chose (or the one beside its climb) rather than climbing on these pairs.
 fn refits_linear(opts: &Options, model: &Model, climbed: bool, n: usize) -> bool {
     model.meta.method.is_linear()
@@ -426,50 +434,6 @@ fn refits_linear(opts: &Options, model: &Model, climbed: bool, n: usize) -> bool
             MethodChoice::Rung(m) => m.is_linear(),
             MethodChoice::Auto => climbed || !climbs_on_loop_pairs(opts, n),
         }
-}
-
-/// Starts a thread, behind the captures ([`crate::background`]), that grows `model`'s fit on
-/// the setup's pairs ([`crate::fit::GrowingFit`]): the `ntrain` sampling pairs and the first
-/// `resumed` closed-loop pairs at once, then each training pair whose index is sent, until the
-/// sender is dropped. Returns the sender and the thread; neither when `model` is not a linear
-/// rung or no thread could start (the refit then fits on every pair itself).
-fn growing_fit(
-    model: &Model,
-    setup: &Setup,
-    (ntrain, resumed): (usize, usize),
-) -> (
-    Option<std::sync::mpsc::Sender<usize>>,
-    Option<std::thread::JoinHandle<Result<crate::fit::GrowingFit>>>,
-) {
-    let Some(mut fit) = crate::fit::GrowingFit::new(model) else {
-        return (None, None);
-    };
-    let (tx, rx) = std::sync::mpsc::channel::<usize>();
-    let (setup, root) = (
-        setup.path().to_path_buf(),
-        setup.root().path().to_path_buf(),
-    );
-    let thread = std::thread::Builder::new()
-        .name("growing fit".into())
-        .spawn(move || {
-            crate::background::run(move || {
-                let setup = Setup::open(&setup, Some(&root))?;
-                fit.add(&setup, 1..=ntrain + resumed)?;
-                // The pairs stored since the last add, in one add.
-                while let Ok(first) = rx.recv() {
-                    let last = rx.try_iter().fold(first, usize::max);
-                    fit.add(&setup, first..=last)?;
-                }
-                Ok(fit)
-            })
-        });
-    match thread {
-        Ok(t) => (Some(tx), Some(t)),
-        Err(e) => {
-            tracing::warn!("could not start the thread that grows the fit on every pair: {e}");
-            (None, None)
-        }
-    }
 }
 
 /// How many closed-loop pairs, from the first, an interrupted run of this calibration left
@@ -571,12 +535,12 @@ pub fn refit(
     };
     let evidence = model.meta.training.auto.clone().filter(|_| !judges);
     let all = captured.patterns.ntrain + n;
-    let mut model = match growing.map(|g| grown_fit(g, all)) {
+    let mut model = match growing.map(|g| g.finish(all)) {
         Some(Ok(model)) => {
             tracing::info!(
                 "closed-loop pairs: the fit on every pair grew during the captures (the \
-                 curves of the first {} pairs kept)",
-                captured.patterns.ntrain
+                 geometry and curves of the fit on the first {} pairs kept)",
+                model.meta.training.curves_searched_on.unwrap_or(0)
             );
             model
         }
@@ -616,24 +580,6 @@ pub fn refit(
         }
         None => model,
     })
-}
-
-/// The model of a fit grown during the captures ([`growing_fit`]) once its thread has added
-/// the last pair, when it holds all `pairs`; otherwise why not.
-fn grown_fit(
-    growing: std::thread::JoinHandle<Result<crate::fit::GrowingFit>>,
-    pairs: usize,
-) -> Result<Model> {
-    let fit = growing
-        .join()
-        .map_err(|_| Error::Failed("its thread panicked".into()))??;
-    if fit.pairs() != pairs {
-        return Err(Error::Failed(format!(
-            "it holds {} of the {pairs} pairs",
-            fit.pairs()
-        )));
-    }
-    fit.finish()
 }
 
 /// Closed-loop pair `i` of a data root `root` with `ntrain` sampling images: sampling image
@@ -699,6 +645,9 @@ pub struct Captured {
     /// The thread fitting that geometry ahead, from the first sampling pairs, while the rest
     /// were captured ([`start_prefit`]); [`train`] waits for it.
     prefit: Option<std::thread::JoinHandle<()>>,
+    /// When the first fit is `linear`: the fit grown behind the captures ([`grow`]), which
+    /// [`train`] takes its model from and [`take_loop_pairs`] goes on growing.
+    grower: Option<grow::Grower>,
 }
 
 impl Captured {
@@ -791,17 +740,23 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 
     let t = Instant::now();
     let geometry: Arc<crate::linear::GeometryMemo> = Default::default();
-    // Rounds fit as they go, and share the geometry among their fits.
-    let (ready, prefit) = match rounds {
-        None => start_prefit(&root, &setup, opts, &geometry),
-        Some(_) => (None, None),
+    // Rounds fit as they go, and share the geometry among their fits. Otherwise a `linear`
+    // first fit grows behind the captures, and another rung's geometry is fitted ahead.
+    let grower = match rounds {
+        None => first_grows(opts, &geometry)
+            .and_then(|(req, pairs)| grow::Grower::fit_first(&setup, req, pairs)),
+        Some(_) => None,
+    };
+    let (ready, prefit) = match (rounds, &grower) {
+        (None, None) => start_prefit(&root, &setup, opts, &geometry),
+        _ => (None, None),
     };
     let mut capturer = Capturer::new(display, camera, &latency, opts.sync).with_clock(clock);
     let (mut captured, mut resumed) = capture_all(
         &mut capturer,
         (&root, &setup),
         &mut manifest,
-        ready,
+        (ready, grower.as_ref()),
         opts,
         progress,
     )?;
@@ -868,6 +823,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         floor,
         geometry,
         prefit,
+        grower,
     })
 }
 
@@ -888,19 +844,43 @@ pub fn train(captured: &mut Captured, opts: &Options, progress: Progress) -> Res
     let req = request(opts, captured);
     // The residual rung's closed-loop pairs are `linear`'s compensations: `linear` first, and
     // the rung itself once [`refine`] has them.
-    let first = match opts.method {
-        MethodChoice::Rung(m) if captured.loop_images > 0 && !m.is_linear() => Request {
-            method: MethodChoice::Rung(crate::model::Method::Linear),
-            iters: None,
-            batch: None,
-            ..req.clone()
-        },
-        _ => req.clone(),
+    let first = first_request(opts, captured.loop_images, &req);
+    let linear = first.method == MethodChoice::Rung(crate::model::Method::Linear);
+    // The last sampling round fitted `linear` on these very pairs with this very request; or
+    // the fit grew behind the captures.
+    let grown = match (&captured.grower, linear) {
+        (Some(g), true) => {
+            progress("colour", 0, 1);
+            let ntrain = captured.patterns.ntrain;
+            let model = g.model().and_then(|m| match m.meta.training.ntrain {
+                n if n == ntrain => Ok(m),
+                n => Err(Error::Failed(format!(
+                    "it holds {n} of the {ntrain} sampling pairs"
+                ))),
+            });
+            match model {
+                Ok(model) => Some(model),
+                Err(e) => {
+                    tracing::warn!("the linear fit grown behind the captures: {e}; fitting afresh");
+                    captured.grower = None;
+                    None
+                }
+            }
+        }
+        _ => None,
     };
-    // The last sampling round fitted `linear` on these very pairs with this very request.
-    let model = match captured.round_model.take() {
-        Some(model) if first.method == MethodChoice::Rung(crate::model::Method::Linear) => {
+    let model = match (captured.round_model.take(), grown) {
+        (Some(model), _) if linear => {
             tracing::info!("training: the last sampling round's linear fit is the first fit");
+            model
+        }
+        (_, Some(model)) => {
+            tracing::info!(
+                "training: the linear fit grew behind the captures (the geometry and curves of \
+                 the first {} pairs, the colour on all {})",
+                model.meta.training.curves_searched_on.unwrap_or(0),
+                model.meta.training.ntrain
+            );
             model
         }
         _ => fit::fit(&setup, &first, |stage, done, n| progress(stage, done, n))?.0,
@@ -954,6 +934,46 @@ fn sampling_request(
     }
 }
 
+/// The first fit [`train`] makes of `req`: a residual rung that takes closed-loop pairs
+/// (`loops` > 0) fits its `linear` part first, whose compensations they are; any other rung
+/// fits itself.
+fn first_request(opts: &Options, loops: usize, req: &Request) -> Request {
+    match opts.method {
+        MethodChoice::Rung(m) if loops > 0 && !m.is_linear() => Request {
+            method: MethodChoice::Rung(crate::model::Method::Linear),
+            iters: None,
+            batch: None,
+            ..req.clone()
+        },
+        _ => req.clone(),
+    }
+}
+
+/// When a calibration's first fit is `linear` (on all its sampling pairs, sampling rounds
+/// aside): the request that fits it on the first pairs behind the captures ([`grow`]) and how
+/// many pairs that is (the geometry's, [`crate::linear::FitSettings::geometry_images`]).
+fn first_grows(
+    opts: &Options,
+    geometry: &Arc<crate::linear::GeometryMemo>,
+) -> Option<(Request, usize)> {
+    let ntrain = opts.patterns.ntrain;
+    let req = sampling_request(opts, (ntrain, opts.loop_images), geometry);
+    let first = first_request(opts, opts.loop_images, &req);
+    if first.method != MethodChoice::Rung(crate::model::Method::Linear) {
+        return None;
+    }
+    let pairs = crate::linear::FitSettings::default()
+        .geometry_images
+        .min(ntrain);
+    Some((
+        Request {
+            ntrain: Some(pairs),
+            ..first
+        },
+        pairs,
+    ))
+}
+
 /// Whether `auto`'s climb waits for the closed-loop pairs: `auto` with enough of them for the
 /// residual rung's correction to train on ([`fit::judges_on_loop_pairs`], the count offline
 /// `auto` needs to judge it on some held out). [`train`] then chooses among the
@@ -994,6 +1014,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         mut floor,
         geometry: _,
         prefit: _,
+        grower: _,
         patterns: _,
         loop_images: _,
         sampling,
@@ -1260,7 +1281,14 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             write_sampling(root, &manifest.patterns, (Set::Train, from..=pairs))
                 .map_err(|e| not_ours(e, &manifest.patterns))?;
             // Every capture of the earlier rounds is counted again as found on disk.
-            let (c, r) = capture_all(capturer, (root, setup), manifest, None, opts, progress)?;
+            let (c, r) = capture_all(
+                capturer,
+                (root, setup),
+                manifest,
+                (None, None),
+                opts,
+                progress,
+            )?;
             captured += c;
             resumed += r.saturating_sub(on_disk);
             on_disk = c + r;
@@ -1389,7 +1417,7 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
     (root, setup): (&DataRoot, &Setup),
     manifest: &mut Manifest,
-    ready: Option<PrefitReady>,
+    (ready, grower): (Option<PrefitReady>, Option<&grow::Grower>),
     opts: &Options,
     progress: Progress,
 ) -> Result<(usize, usize)> {
@@ -1437,6 +1465,11 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         .partition(|shot| !manifest.has(setup.path(), &shot.rel));
     let resumed = done.len();
     let captured = todo.len();
+    if let Some(g) = grower {
+        (done.iter())
+            .filter(|s| s.set == CaptureSet::Train)
+            .for_each(|s| g.stored(s.index));
+    }
     // The references come first, then the sampling pairs in order: once sampling capture k is
     // stored, every capture the geometry needs is.
     let mut ready = ready;
@@ -1466,6 +1499,11 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             let shot = &todo[k];
             setup.write_capture(shot.set, shot.index, &cap)?;
             manifest.record(setup.path(), shot.rel.clone())?;
+            if let Some(g) = grower
+                && shot.set == CaptureSet::Train
+            {
+                g.stored(shot.index);
+            }
             if ready
                 .as_ref()
                 .is_some_and(|(n, _)| shot.set == CaptureSet::Train && shot.index == *n)

@@ -1,8 +1,10 @@
-//! A linear rung's fit on pairs that arrive one at a time, as a calibration's closed-loop pairs
-//! do: the geometry and the response curves of the fit on the first pairs are kept, and each
-//! lattice pixel's colour sums grow pair by pair ([`crate::linear::ColourSums`]), so that the
-//! fit on every pair is one solve once the last has arrived. Measured in docs/bench/calibrate.md
-//! ("The fit on every pair, grown during the captures").
+//! A linear rung's fit on pairs that arrive one at a time, as a calibration's captures do: the
+//! geometry and the response curves of the fit on the first pairs are kept, and each lattice
+//! pixel's colour sums grow pair by pair ([`crate::linear::ColourSums`]), so that the fit on
+//! every pair is one solve once the last has arrived. Once the first pairs are the geometry's
+//! (24), that is the fit [`super::fit`] makes on all the pairs: a linear fit searches its
+//! curves on those pairs too. Measured in docs/bench/calibrate.md ("The linear fit grown behind
+//! the captures").
 
 use std::ops::RangeInclusive;
 use std::time::Instant;
@@ -11,7 +13,7 @@ use rayon::prelude::*;
 
 use crate::dataset::Setup;
 use crate::error::{Error, Result};
-use crate::linear::{ColourSums, FitSettings, LinearModel};
+use crate::linear::{Coefficients, ColourSums, FitSettings, LinearModel};
 use crate::model::store::ModelMeta;
 use crate::model::{Kind, Model};
 use crate::raster::{Camera, Levels, Mask, NetImage};
@@ -22,10 +24,10 @@ pub struct GrowingFit {
     meta: ModelMeta,
     /// The projector FOV in camera space: captures are masked by it, as the fit masks them.
     fov: Mask<Camera>,
-    /// The first fit: its geometry and curves are the grown model's.
+    /// The first fit's geometry and curves, which are the grown model's (no coefficients).
     first: LinearModel,
-    /// The pairs the first fit was fitted on (its curves were searched on them).
-    first_pairs: usize,
+    /// The pairs the first fit's curves were searched on.
+    curves_searched_on: usize,
     sums: ColourSums,
     /// Time spent adding pairs and solving, seconds.
     seconds: f64,
@@ -45,8 +47,18 @@ impl GrowingFit {
         Some(Self {
             meta: model.meta.clone(),
             fov: model.fov.clone(),
-            first: (**linear).clone(),
-            first_pairs: model.meta.training.ntrain,
+            // Its coefficients are replaced by the grown ones: not kept.
+            first: LinearModel {
+                coeffs: Coefficients {
+                    width: 0,
+                    height: 0,
+                    data: Vec::new(),
+                },
+                geometry: linear.geometry.clone(),
+                ..**linear
+            },
+            curves_searched_on: (model.meta.training.curves_searched_on)
+                .unwrap_or(model.meta.training.ntrain),
             sums,
             seconds: 0.0,
         })
@@ -79,14 +91,20 @@ impl GrowingFit {
             .collect::<Result<_>>()?;
         let (captures, shown): (Vec<_>, Vec<_>) = loaded.into_iter().unzip();
         self.sums.add(&captures, &shown)?;
-        self.seconds += t.elapsed().as_secs_f64();
+        let seconds = t.elapsed().as_secs_f64();
+        tracing::debug!(
+            "growing fit: pairs {}..={} added in {seconds:.2} s",
+            next,
+            next + captures.len() - 1
+        );
+        self.seconds += seconds;
         Ok(())
     }
 
     /// The model on every pair added: the first fit's geometry and curves, the coefficients
     /// solved on all pairs. Its record says how many pairs the curves were searched on
     /// (`training.curves_searched_on`). Fails when the solve diverged (no model).
-    pub fn finish(self) -> Result<Model> {
+    pub fn model(&self) -> Result<Model> {
         let t = Instant::now();
         let pairs = self.pairs();
         let (coeffs, loss) = self.sums.solve();
@@ -97,17 +115,17 @@ impl GrowingFit {
             )));
         }
         let seconds = self.seconds + t.elapsed().as_secs_f64();
-        let mut meta = self.meta;
+        let mut meta = self.meta.clone();
         meta.training.ntrain = pairs;
         meta.training.final_loss = Some(loss);
-        meta.training.curves_searched_on = Some(self.first_pairs);
+        meta.training.curves_searched_on = Some(self.curves_searched_on);
         meta.timings.fit_seconds = seconds;
         meta.timings.train_seconds = seconds;
         meta.weights_sha256 = None;
         let model = LinearModel {
             coeffs,
-            ..self.first
+            ..self.first.clone()
         };
-        Ok(Model::linear(meta, self.fov, model))
+        Ok(Model::linear(meta, self.fov.clone(), model))
     }
 }

@@ -61,6 +61,7 @@ pub(super) fn fit_linear(
             curves: Some(fitted.curves),
             auto: evidence,
             geometry_reused: report.geometry_reused,
+            curves_searched_on: Some(settings.geometry_images.clamp(1, captures.len())),
             ..common_record(setup, ntrain, req.seed, &fov, &settings, report.final_loss)?
         },
         metrics: serde_json::Value::Null,

@@ -16,8 +16,8 @@ use super::stack::{Captures, Frames, Resize, Stack};
 use crate::raster::{Camera, ImageSize, NetImage, Network, ReadRgb};
 use crate::sample::Grid;
 
-/// Curves and per-pixel coefficients at full resolution on all images, for a fixed grid: the
-/// model's lattice is the grid's size. The projector images (network size, or already the
+/// Curves (searched on the first `curve_pairs` pairs) and per-pixel coefficients at full
+/// resolution on all pairs, for a fixed grid: the model's lattice is the grid's size. The projector images (network size, or already the
 /// lattice's) are resampled bilinearly onto the lattice where it differs: the projector shows an
 /// image stretched bilinearly over the canvas (half-pixel centres), so that gives, at each
 /// lattice pixel, close to the value the projector showed there. Captures are sampled at the
@@ -28,6 +28,7 @@ pub(super) fn fit_colour<C: ReadRgb<Camera>>(
     grid: &Grid<Network, Camera>,
     start: Curves,
     ridge: f32,
+    curve_pairs: usize,
 ) -> (Curves, Coefficients, f64) {
     let stride = grid
         .size()
@@ -36,12 +37,25 @@ pub(super) fn fit_colour<C: ReadRgb<Camera>>(
         .div_ceil(CURVE_SAMPLES)
         .max(1);
     let t = std::time::Instant::now();
-    let (caps, shown) = (Frames::new(captures), Stack::<f32>::new(targets));
-    let curves = fit_curves(&caps, &shown, grid, start, ridge, stride, CURVE_SWEEPS);
+    // The curves are a handful of global exponents: the first pairs fix them (24 pairs at 32
+    // samples a side are 18 432 samples a channel), and a fit on more pairs that starts with
+    // these keeps them, which lets pairs added later grow its sums ([`ColourSums`]).
+    let k = curve_pairs.clamp(1, captures.len());
+    let curves = fit_curves(
+        &Frames::new(&captures[..k]),
+        &Stack::<f32>::new(&targets[..k]),
+        grid,
+        start,
+        ridge,
+        stride,
+        CURVE_SWEEPS,
+    );
     let curves_s = t.elapsed().as_secs_f64();
+    let (caps, shown) = (Frames::new(captures), Stack::<f32>::new(targets));
     let (coeffs, loss) = solve_colour(&caps, &shown, grid, &curves, ridge);
     tracing::debug!(
-        "colour on {} pairs at {}: curves {curves_s:.1} s, coefficients {:.1} s",
+        "colour on {} pairs at {}: curves {curves_s:.1} s (on the first {k}), coefficients \
+         {:.1} s",
         captures.len(),
         grid.size(),
         t.elapsed().as_secs_f64() - curves_s
@@ -261,16 +275,10 @@ impl ColourSums {
 
 #[cfg(test)]
 mod tests {
+    use super::super::stack::tests::random_images;
     use super::*;
-    use crate::raster::{CamImage, Rgb, Space};
+    use crate::raster::CamImage;
     use rand::{RngExt, SeedableRng};
-
-    fn random_images<S: Space>(n: usize, w: usize, h: usize, seed: u64) -> Vec<Rgb<S>> {
-        let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(seed);
-        (0..n)
-            .map(|_| Rgb::from_fn(w, h, |_, _| [0, 1, 2].map(|_| rng.random_range(0.0..1.0))))
-            .collect()
-    }
 
     /// Pairs added to the sums a few at a time solve to the coefficients and loss of the solve
     /// on all of them at once, to the bit, on a lattice finer than the projector images (so

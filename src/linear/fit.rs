@@ -89,11 +89,25 @@ pub fn fit_with_memo<C: ReadRgb<Camera>>(
                 settings.network_size,
                 lattice,
             );
-            fit_colour(captures, targets, &fine, geometry.curves, settings.ridge)
+            fit_colour(
+                captures,
+                targets,
+                &fine,
+                geometry.curves,
+                settings.ridge,
+                settings.geometry_images,
+            )
         }
         _ => {
             let grid = geometry.grid(settings.network_size);
-            fit_colour(captures, targets, &grid, geometry.curves, settings.ridge)
+            fit_colour(
+                captures,
+                targets,
+                &grid,
+                geometry.curves,
+                settings.ridge,
+                settings.geometry_images,
+            )
         }
     };
     progress("colour", 1, 1);
@@ -317,8 +331,14 @@ pub fn fit_on_grid<C: ReadRgb<Camera>>(
     }
     // The grid's size is the model's lattice; finer than the projector images, they are
     // resampled onto it (see [`fit_colour`]).
-    let (curves, coeffs, loss) =
-        fit_colour(captures, targets, &grid, Curves::default(), settings.ridge);
+    let (curves, coeffs, loss) = fit_colour(
+        captures,
+        targets,
+        &grid,
+        Curves::default(),
+        settings.ridge,
+        settings.geometry_images,
+    );
     Ok((
         LinearModel {
             geometry_size: grid.size(),

@@ -29,7 +29,8 @@ pub struct FitSettings {
     /// model. With 12 images the result moves by about ±0.4 dB with this weight, through the
     /// geometry's convergence rather than the colour fit.
     pub ridge: f32,
-    /// Images used for the geometry (the colour fit always uses all of them).
+    /// Images used for the geometry and the response curves (the first ones; the per-pixel
+    /// colour solve always uses all of them).
     pub geometry_images: usize,
     /// The residual refinement after affine + TPS: (node spacing in network pixels, Adam
     /// iterations) of a dense offset field ([`OffsetField`](crate::warp::OffsetField)); `None`

@@ -384,13 +384,19 @@ impl<T: Texel> Stack<T> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::raster::{CamImage, Levels, NetImage, Network};
     use crate::sample::Grid;
     use rand::{RngExt, SeedableRng};
 
-    fn random_images<S: Space>(n: usize, w: usize, h: usize, seed: u64) -> Vec<Rgb<S>> {
+    /// `n` images of `w`×`h` with values uniform on [0, 1), from `seed`.
+    pub(in crate::linear) fn random_images<S: Space>(
+        n: usize,
+        w: usize,
+        h: usize,
+        seed: u64,
+    ) -> Vec<Rgb<S>> {
         let mut rng = rand::rngs::ChaCha8Rng::seed_from_u64(seed);
         (0..n)
             .map(|_| Rgb::from_fn(w, h, |_, _| [0, 1, 2].map(|_| rng.random_range(0.0..1.0))))

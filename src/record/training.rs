@@ -72,9 +72,11 @@ pub struct TrainingRecord {
     /// ([`crate::linear::GeometryMemo`]), so its fit time leaves the geometry out.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub geometry_reused: bool,
-    /// A linear rung fitted on pairs as they arrived (a calibration's closed-loop pairs,
-    /// [`crate::fit::GrowingFit`]): its geometry and response curves are those of the fit on
-    /// the first this many pairs; its coefficients are on all `ntrain`.
+    /// A linear rung: its response curves were searched on the first this many pairs (those of
+    /// the geometry, [`crate::linear::FitSettings::geometry_images`]), its coefficients on all
+    /// `ntrain`, so that a fit grown pair by pair as a calibration's captures arrive
+    /// ([`crate::fit::GrowingFit`]) is the fit on all of them. Absent in records written
+    /// before 2026-12-03, whose curves were searched on every pair.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub curves_searched_on: Option<usize>,
 }
