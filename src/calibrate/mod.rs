@@ -1465,10 +1465,18 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         .partition(|shot| !manifest.has(setup.path(), &shot.rel));
     let resumed = done.len();
     let captured = todo.len();
-    if let Some(g) = grower {
-        (done.iter())
-            .filter(|s| s.set == CaptureSet::Train)
-            .for_each(|s| g.stored(s.index));
+    // The grower's first fit reads the references too: the sampling pairs found on disk are
+    // told once every reference still to take is stored (they come first).
+    let mut refs_todo = todo.iter().filter(|s| s.set == CaptureSet::Ref).count();
+    let tell_done = || {
+        if let Some(g) = grower {
+            (done.iter())
+                .filter(|s| s.set == CaptureSet::Train)
+                .for_each(|s| g.stored(s.index));
+        }
+    };
+    if refs_todo == 0 {
+        tell_done();
     }
     // The references come first, then the sampling pairs in order: once sampling capture k is
     // stored, every capture the geometry needs is.
@@ -1499,6 +1507,12 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             let shot = &todo[k];
             setup.write_capture(shot.set, shot.index, &cap)?;
             manifest.record(setup.path(), shot.rel.clone())?;
+            if shot.set == CaptureSet::Ref {
+                refs_todo -= 1;
+                if refs_todo == 0 {
+                    tell_done();
+                }
+            }
             if let Some(g) = grower
                 && shot.set == CaptureSet::Train
             {
