@@ -737,6 +737,8 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         Ok((exposure, (latency, clock), root))
     })?;
     let setup = Setup::create(&root, Path::new(SETUP_NAME))?;
+    // Before the first capture: a run killed after it has no capture without its manifest.
+    manifest.save(setup.path())?;
 
     let t = Instant::now();
     let geometry: Arc<crate::linear::GeometryMemo> = Default::default();

@@ -200,7 +200,9 @@ impl Manifest {
                 Ok(m)
             }
             Err(Error::Missing { .. }) => {
-                if setup.join("cam").exists() {
+                // A run creates `cam/raw` before it writes its manifest: empty folders are not
+                // captures (a run killed in between left them).
+                if holds_files(&setup.join("cam")) {
                     return Err(Error::Input(format!(
                         "{}: holds captures but no {MANIFEST_FILE}, so they cannot be matched \
                          to this calibration's patterns; choose another --data folder or move \
@@ -296,13 +298,26 @@ impl Manifest {
         self.save(setup)
     }
 
-    /// Writes the manifest atomically.
-    fn save(&self, setup: &Path) -> Result<()> {
+    /// Writes the manifest atomically: a run calls it before its first capture, so no capture
+    /// is ever on disk without the manifest that says which pattern set it belongs to.
+    pub fn save(&self, setup: &Path) -> Result<()> {
         let path = setup.join(MANIFEST_FILE);
         let json = serde_json::to_vec_pretty(self)
             .map_err(|e| Error::Failed(format!("{}: {e}", path.display())))?;
         crate::files::write_atomically(&path, &json)
     }
+}
+
+/// Whether `dir` or a folder under it holds anything but folders (false where it is missing
+/// or cannot be read: the caller's reading of the folder reports those).
+fn holds_files(dir: &Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    entries.flatten().any(|e| match e.file_type() {
+        Ok(t) if t.is_dir() => holds_files(&e.path()),
+        _ => true,
+    })
 }
 
 #[cfg(test)]
@@ -355,6 +370,32 @@ mod tests {
         m.record_loop(setup, 2).unwrap();
         let e = m.grow(setup, 32).unwrap_err();
         assert!(e.to_string().contains("closed-loop pairs follow"), "{e}");
+    }
+
+    #[test]
+    fn empty_capture_folders_without_a_manifest_are_not_captures() {
+        let dir = tempfile::tempdir().unwrap();
+        let setup = dir.path();
+        let patterns = PatternSet {
+            seed: 2,
+            ntrain: 8,
+            ntest: 2,
+            network: ImageSize::new(64, 64),
+            projector: ImageSize::new(200, 150),
+            gray_level: 128,
+        };
+        // A run killed after it created `cam/raw`, before its manifest: a new manifest.
+        std::fs::create_dir_all(setup.join("cam/raw")).unwrap();
+        let m = Manifest::open(setup, &patterns).unwrap();
+        assert!(m.captured.is_empty());
+        // A capture without a manifest cannot be matched to a pattern set.
+        std::fs::write(setup.join("cam/raw/img_0001.png"), b"png").unwrap();
+        let e = Manifest::open(setup, &patterns).unwrap_err();
+        assert_eq!(e.exit_code(), 2, "{e}");
+        assert!(e.to_string().contains("holds captures but no"), "{e}");
+        // Once saved, the same folder opens as this pattern set's.
+        m.save(setup).unwrap();
+        assert_eq!(Manifest::open(setup, &patterns).unwrap().patterns, patterns);
     }
 
     #[test]
