@@ -287,6 +287,117 @@ impl TpsBasis {
     }
 }
 
+/// The Gauss–Newton normal equations of a warp's parameters, laid out as [`Warp::to_params`]:
+/// `Σ_p Bₚᵀ Hₚ Bₚ` and `Σ_p Bₚᵀ dₚ`, with `Bₚ = ∂g/∂params` (2 × 82) at pixel p, `Hₚ` the
+/// pixel's 2×2 curvature and `dₚ` its gradient of a loss w.r.t. the normalised camera position
+/// `g`. Row-major dense, [`Warp::param_count`]² entries.
+pub struct WarpNormal {
+    pub hessian: Vec<f64>,
+    pub gradient: Vec<f64>,
+}
+
+/// Features of a pixel that the parameters' derivatives are linear in: `[tx, ty, 1, row…]`.
+const FEATURES: usize = 3 + TPS_PARAMS;
+
+impl TpsBasis {
+    /// [`WarpNormal`] over `pixels` (row-major indices on this basis's lattice), from `curvature`
+    /// (`[hxx, hxy, hyy]`) and `dl_dg` per pixel of the lattice.
+    ///
+    /// `∂g/∂params` is linear in the pixel's features `f = [tx, ty, 1, row]` (`t` the TPS
+    /// position): `∂gx = Ax f`, `∂gy = Ay f` with fixed maps `Ax`, `Ay` (82 × 41, from θ), so
+    /// the sums are three 41×41 moment matrices `Σ h f fᵀ` and two `Σ d f` mapped once, not an
+    /// 82×82 product per pixel.
+    pub fn gauss_newton(
+        &self,
+        warp: &Warp,
+        pixels: &[usize],
+        curvature: &[[f32; 3]],
+        dl_dg: &[[f32; 2]],
+    ) -> WarpNormal {
+        use rayon::prelude::*;
+        const F: usize = FEATURES;
+        let w = self.width;
+        // Moments, upper triangles: [xx, xy, yy] (F×F each), then Σ dx f and Σ dy f.
+        let zero = || (vec![0f64; 3 * F * F], vec![0f64; 2 * F]);
+        let (m, v) = pixels
+            .par_chunks(256)
+            .fold(zero, |(mut m, mut v), chunk| {
+                for &p in chunk {
+                    let row = &self.rows[p];
+                    let dx: f32 = row.iter().zip(&warp.tps[0]).map(|(a, b)| a * b).sum();
+                    let dy: f32 = row.iter().zip(&warp.tps[1]).map(|(a, b)| a * b).sum();
+                    let mut f = [0f64; F];
+                    f[0] = (self.xs[p % w] + 2.0 * dx) as f64;
+                    f[1] = (self.ys[p / w] + 2.0 * dy) as f64;
+                    f[2] = 1.0;
+                    for (fk, &r) in f[3..].iter_mut().zip(row) {
+                        *fk = r as f64;
+                    }
+                    let [hxx, hxy, hyy] = curvature[p].map(f64::from);
+                    let [gx, gy] = dl_dg[p].map(f64::from);
+                    for i in 0..F {
+                        let (a, b, c) = (hxx * f[i], hxy * f[i], hyy * f[i]);
+                        for j in i..F {
+                            m[i * F + j] += a * f[j];
+                            m[F * F + i * F + j] += b * f[j];
+                            m[2 * F * F + i * F + j] += c * f[j];
+                        }
+                        v[i] += gx * f[i];
+                        v[F + i] += gy * f[i];
+                    }
+                }
+                (m, v)
+            })
+            .reduce(zero, |(mut m, mut v), (m2, v2)| {
+                m.iter_mut().zip(&m2).for_each(|(a, b)| *a += b);
+                v.iter_mut().zip(&v2).for_each(|(a, b)| *a += b);
+                (m, v)
+            });
+        let moment = |k: usize, i: usize, j: usize| {
+            let (i, j) = if i <= j { (i, j) } else { (j, i) };
+            m[k * F * F + i * F + j]
+        };
+        // Ax, Ay as (parameter, feature, weight) lists: each parameter reads one feature.
+        let th = &warp.theta;
+        let n = warp.param_count();
+        let mut ax: Vec<Option<(usize, f64)>> = vec![None; n];
+        let mut ay: Vec<Option<(usize, f64)>> = vec![None; n];
+        for c in 0..3 {
+            ax[c] = Some((c, 1.0));
+            ay[3 + c] = Some((c, 1.0));
+        }
+        for k in 0..TPS_PARAMS {
+            ax[6 + k] = Some((3 + k, 2.0 * th[0][0] as f64));
+            ax[6 + TPS_PARAMS + k] = Some((3 + k, 2.0 * th[0][1] as f64));
+            ay[6 + k] = Some((3 + k, 2.0 * th[1][0] as f64));
+            ay[6 + TPS_PARAMS + k] = Some((3 + k, 2.0 * th[1][1] as f64));
+        }
+        let mut hessian = vec![0f64; n * n];
+        let mut gradient = vec![0f64; n];
+        for a in 0..n {
+            for (maps, k) in [(&ax, 0), (&ay, 1)] {
+                if let Some((fa, wa)) = maps[a] {
+                    gradient[a] += wa * v[k * F + fa];
+                }
+            }
+            for b in 0..n {
+                let mut sum = 0.0;
+                // Bᵀ H B = Σ over (x|y, x|y) of A_row(a) M A_row(b).
+                for (ma, ka) in [(&ax, 0usize), (&ay, 1usize)] {
+                    let Some((fa, wa)) = ma[a] else { continue };
+                    for (mb, kb) in [(&ax, 0usize), (&ay, 1usize)] {
+                        let Some((fb, wb)) = mb[b] else { continue };
+                        // xx, xy (= yx: each moment is symmetric), yy.
+                        sum += wa * wb * moment(ka + kb, fa, fb);
+                    }
+                }
+                hessian[a * n + b] = sum;
+            }
+        }
+        WarpNormal { hessian, gradient }
+    }
+}
+
 /// A smooth residual displacement added to a sampling grid: offsets in normalised camera
 /// coordinates on a coarse lattice of `width`×`height` nodes whose corners sit on the corner
 /// pixels of the network image (align-corners), interpolated bilinearly to every network pixel.
@@ -439,6 +550,81 @@ mod tests {
             for (g, w) in got.data().iter().zip(want.data()) {
                 assert_eq!(g.map(f32::to_bits), w.map(f32::to_bits), "{lattice}");
             }
+        }
+    }
+
+    /// The Gauss–Newton sums are `Σ Bᵀ H B` and `Σ Bᵀ d` with `B = ∂g/∂params` taken from the
+    /// grid itself by central differences (g is linear in each parameter, so the differences
+    /// are exact up to f32 rounding): within 1e-3 of the largest entry, on a subset of pixels,
+    /// and the gradient is `backward`'s on that subset.
+    #[test]
+    fn the_gauss_newton_sums_are_the_jacobians_products() {
+        let mut warp = Warp::from_affine([[0.8, 0.1, 0.05], [-0.05, 0.9, -0.1]]);
+        let params: Vec<f32> = (0..warp.param_count())
+            .map(|k| {
+                if k < 6 {
+                    warp.to_params()[k]
+                } else {
+                    ((k * 37 % 11) as f32 - 5.0) * 1e-3
+                }
+            })
+            .collect();
+        warp.set_params(&params);
+        let basis = TpsBasis::new(11, 8);
+        let px = 11 * 8;
+        let pixels: Vec<usize> = (0..px).filter(|p| p % 3 != 1).collect();
+        let unit = |p: usize, k: usize| ((p * 7 + k * 13) % 17) as f32 / 17.0 - 0.3;
+        // Positive definite 2×2 curvatures and arbitrary gradients; zero off the subset.
+        let mut curvature = vec![[0f32; 3]; px];
+        let mut dl_dg = vec![[0f32; 2]; px];
+        for &p in &pixels {
+            let (a, b) = (1.0 + unit(p, 1), unit(p, 2));
+            curvature[p] = [a, 0.5 * b, 1.2 - 0.5 * unit(p, 3)];
+            dl_dg[p] = [unit(p, 4), unit(p, 5)];
+        }
+        let got = basis.gauss_newton(&warp, &pixels, &curvature, &dl_dg);
+        let n = warp.param_count();
+        let h = 1e-2f32;
+        let columns: Vec<Vec<[f64; 2]>> = (0..n)
+            .map(|k| {
+                let at = |d: f32| {
+                    let mut p = params.clone();
+                    p[k] += d;
+                    let mut w = warp.clone();
+                    w.set_params(&p);
+                    basis.grid(&w)
+                };
+                let (plus, minus) = (at(h), at(-h));
+                (plus.data().iter().zip(minus.data()))
+                    .map(|(a, b)| [0, 1].map(|c| (a[c] - b[c]) as f64 / (2.0 * h as f64)))
+                    .collect()
+            })
+            .collect();
+        let mut want = vec![0f64; n * n];
+        let mut grad = vec![0f64; n];
+        for &p in &pixels {
+            let [hxx, hxy, hyy] = curvature[p].map(f64::from);
+            for a in 0..n {
+                let [ax, ay] = columns[a][p];
+                grad[a] += ax * dl_dg[p][0] as f64 + ay * dl_dg[p][1] as f64;
+                for b in 0..n {
+                    let [bx, by] = columns[b][p];
+                    want[a * n + b] += ax * (hxx * bx + hxy * by) + ay * (hxy * bx + hyy * by);
+                }
+            }
+        }
+        let largest = want.iter().fold(0f64, |m, v| m.max(v.abs()));
+        for (i, (g, w)) in got.hessian.iter().zip(&want).enumerate() {
+            assert!((g - w).abs() <= 1e-3 * largest, "H[{i}]: {g} against {w}");
+        }
+        let adjoint = basis.backward(&warp, &dl_dg);
+        let largest = grad.iter().fold(0f64, |m, v| m.max(v.abs()));
+        for (k, ((g, w), b)) in got.gradient.iter().zip(&grad).zip(&adjoint).enumerate() {
+            assert!((g - w).abs() <= 1e-3 * largest, "g[{k}]: {g} against {w}");
+            assert!(
+                (g - *b as f64).abs() <= 1e-4 * largest,
+                "g[{k}]: {g} against {b}"
+            );
         }
     }
 

@@ -268,6 +268,7 @@ fn fit_learned_geometry<C: ReadRgb<Camera>>(
         &mut *progress,
     );
     let mut refine = None;
+    tracing::debug!("affine + TPS in {:.2} s", start.elapsed().as_secs_f64());
     if let (true, Some((spacing, iters))) = (settings.learn_geometry, settings.refine) {
         let grid = TpsBasis::new(nw, nh).grid(&warp);
         refine = Some(refine_geometry(

@@ -1,6 +1,9 @@
-//! The geometry fit of the `linear` rung: the coarse-to-fine affine + TPS warp ([`fit_warp`])
-//! and the dense residual refinement ([`refine_geometry`]), both by Adam on the fused per-pixel
-//! residual ([`geometry_step`]).
+//! The geometry fit of the `linear` rung: the coarse-to-fine affine + TPS warp ([`fit_warp`]),
+//! by damped Gauss–Newton (Levenberg–Marquardt) on its 82 parameters, and the dense residual
+//! refinement ([`refine_geometry`]), by Adam on its offsets; both on the fused per-pixel
+//! residual ([`geometry_step`]), each pixel's colour coefficients solved in closed form at
+//! every step (variable projection, their dependence on the position left out of the
+//! Gauss–Newton curvature).
 //!
 //! Spaces: captures are camera images (camera pixels); targets are network images at each
 //! level's size; grids and gradients are in normalised camera coordinates (align-corners,
@@ -36,12 +39,12 @@ pub(super) fn fit_warp<C: ReadRgb<Camera>>(
         let ng = settings.geometry_images.clamp(1, captures.len());
         let total: usize = settings.levels.iter().map(|l| l.1).sum();
         let mut done = 0;
-        let mut adam = Adam::new(warp.param_count());
         for (level, &(side, iters, sigma)) in settings.levels.iter().enumerate() {
             let ImageSize {
                 width: lw,
                 height: lh,
             } = level_size(settings.network_size, side);
+            let started = std::time::Instant::now();
             // Blurred a few at a time into the stack, never all beside it.
             let stack: Stack<u16> = Stack::build(ng, captures[0].dimensions(), |i| {
                 blur_rgb(&captures[i], sigma)
@@ -51,6 +54,7 @@ pub(super) fn fit_warp<C: ReadRgb<Camera>>(
                 .map(|t| resize_area(t, lw, lh))
                 .collect();
             let basis = TpsBasis::new(lw, lh);
+            let prepared = started.elapsed().as_secs_f64();
             if level == 0 {
                 // The curves are global: a coarse fit here, refined once at the end.
                 curves = fit_curves(
@@ -66,7 +70,7 @@ pub(super) fn fit_warp<C: ReadRgb<Camera>>(
             let lut = PowLut::new(curves.camera_gamma);
             let ylin = linear_targets(&tgts, &curves);
             let values = ng * lw * lh;
-            let (_, _, global) = geometry_step(
+            let first = geometry_step(
                 &stack,
                 &ylin,
                 &basis.grid(&warp),
@@ -74,28 +78,99 @@ pub(super) fn fit_warp<C: ReadRgb<Camera>>(
                 &IDENTITY,
                 settings.ridge,
                 Subset::ALL,
+                false,
             );
-            let mut prior = global_solution(&global, values);
-            let stride = settings.geometry_stride(lw * lh);
+            let mut prior = global_solution(&first.global, values);
+            // One fixed subset per level, so that the steps' losses compare.
+            let subset = Subset::rotating(settings.geometry_stride(lw * lh), 0);
+            let pixels = subset.pixels(basis.size());
+            let step = |warp: &Warp, prior: &[f32; 12]| {
+                geometry_step(
+                    &stack,
+                    &ylin,
+                    &basis.grid(warp),
+                    &lut,
+                    prior,
+                    settings.ridge,
+                    subset,
+                    true,
+                )
+            };
+            let mut current = step(&warp, &prior);
+            prior = global_solution(&current.global, values);
+            history.push(current.loss);
+            let mut damping = LM_DAMPING;
+            let (start, mut steps) = (current.loss, 0);
             for it in 0..iters {
-                let grid = basis.grid(&warp);
-                let subset = Subset::rotating(stride, it);
-                let (loss, dl_dg, global) =
-                    geometry_step(&stack, &ylin, &grid, &lut, &prior, settings.ridge, subset);
-                prior = global_solution(&global, values);
-                history.push(loss);
-                let grad = basis.backward(&warp, &dl_dg);
-                let mut params = warp.to_params();
-                // Step size decays within a level so each level settles.
-                let lr = settings.learning_rate * (1.0 - 0.7 * it as f32 / iters.max(1) as f32);
-                adam.step(&mut params, &grad, lr);
-                warp.set_params(&params);
+                steps += 1;
+                let normal = basis.gauss_newton(&warp, &pixels, &current.curvature, &current.grad);
+                let Some(delta) = damped_step(&normal, damping) else {
+                    damping *= 10.0;
+                    done += 1;
+                    progress("geometry", done, total);
+                    continue;
+                };
+                let mut trial = warp.clone();
+                let params: Vec<f32> = (warp.to_params().iter().zip(&delta))
+                    .map(|(&p, &d)| p + d as f32)
+                    .collect();
+                trial.set_params(&params);
+                let next = step(&trial, &prior);
                 done += 1;
                 progress("geometry", done, total);
+                if next.loss.is_finite() && next.loss < current.loss {
+                    let gain = (current.loss - next.loss) / current.loss.max(f64::MIN_POSITIVE);
+                    warp = trial;
+                    prior = global_solution(&next.global, values);
+                    history.push(next.loss);
+                    current = next;
+                    damping = (damping / 3.0).max(LM_DAMPING * 1e-3);
+                    if gain < LM_SETTLED {
+                        done += iters - it - 1;
+                        progress("geometry", done, total);
+                        break;
+                    }
+                } else {
+                    damping *= 4.0;
+                }
             }
+            tracing::debug!(
+                "geometry at {lw}x{lh}: {steps} Gauss-Newton steps, loss {start:.4e} -> {:.4e}, \
+                 in {:.2} s ({prepared:.2} s blurring the captures)",
+                current.loss,
+                started.elapsed().as_secs_f64()
+            );
         }
     }
     (warp, curves)
+}
+
+/// The Levenberg–Marquardt damping a level starts with, relative to each parameter's own
+/// curvature (Marquardt's scaling: `(H + μ·diag H) δ = −g`).
+const LM_DAMPING: f64 = 1e-3;
+
+/// A level is settled when an accepted step lowers its loss by less than this fraction.
+const LM_SETTLED: f64 = 1e-4;
+
+/// The damped Gauss–Newton step `δ` solving `(H + μ·(diag H + ε)) δ = −g` (ε a millionth of the
+/// largest curvature, for parameters the pixels barely constrain: the TPS's own affine terms
+/// repeat θ's); `None` when the system cannot be factorised.
+fn damped_step(normal: &crate::warp::WarpNormal, damping: f64) -> Option<Vec<f64>> {
+    let n = normal.gradient.len();
+    let mut h = nalgebra::DMatrix::from_row_slice(n, n, &normal.hessian);
+    let largest = (0..n).map(|i| h[(i, i)]).fold(0.0f64, f64::max);
+    if !(largest > 0.0 && largest.is_finite()) {
+        return None;
+    }
+    for i in 0..n {
+        h[(i, i)] += damping * (h[(i, i)] + 1e-6 * largest);
+    }
+    let g = nalgebra::DVector::from_iterator(n, normal.gradient.iter().map(|g| -g));
+    let delta = h.cholesky()?.solve(&g);
+    delta
+        .iter()
+        .all(|d| d.is_finite())
+        .then(|| delta.iter().copied().collect())
 }
 
 /// The residual refinement: a dense offset field on top of the affine + TPS grid `base`, fitted
@@ -124,7 +199,7 @@ pub(super) fn refine_geometry<C: ReadRgb<Camera>>(
     let spacing = spacing.max(1);
     let mut field = OffsetField::zeros((nw - 1) / spacing + 2, (nh - 1) / spacing + 2);
     let mut adam = Adam::new(2 * field.offsets.len());
-    let (_, _, global) = geometry_step(
+    let first = geometry_step(
         &caps,
         &ylin,
         base,
@@ -132,18 +207,27 @@ pub(super) fn refine_geometry<C: ReadRgb<Camera>>(
         &IDENTITY,
         settings.ridge,
         Subset::ALL,
+        false,
     );
-    let mut prior = global_solution(&global, values);
+    let mut prior = global_solution(&first.global, values);
     let stride = settings.geometry_stride(nw * nh);
     for it in 0..iters {
         let mut grid = base.clone();
         field.apply(&mut grid);
         let subset = Subset::rotating(stride, it);
-        let (loss, dl_dg, global) =
-            geometry_step(&caps, &ylin, &grid, &lut, &prior, settings.ridge, subset);
-        prior = global_solution(&global, values);
-        history.push(loss);
-        let grad = field.backward(&dl_dg, nw, nh);
+        let step = geometry_step(
+            &caps,
+            &ylin,
+            &grid,
+            &lut,
+            &prior,
+            settings.ridge,
+            subset,
+            false,
+        );
+        prior = global_solution(&step.global, values);
+        history.push(step.loss);
+        let grad = field.backward(&step.grad, nw, nh);
         let mut params = field.to_params();
         let lr = settings.learning_rate * (1.0 - 0.7 * it as f32 / iters.max(1) as f32);
         adam.step(&mut params, &grad, lr);
@@ -246,11 +330,25 @@ struct Sample {
     dgy: [f32; 3],
 }
 
+/// What one [`geometry_step`] returns.
+struct Step {
+    /// Mean squared residual (linear light) over the subset.
+    loss: f64,
+    /// The loss gradient w.r.t. each pixel's normalised camera position (zero off the subset).
+    grad: Vec<[f32; 2]>,
+    /// The Gauss–Newton curvature of the loss w.r.t. each pixel's position, `[xx, xy, yy]`,
+    /// in the gradient's scale (empty unless asked for).
+    curvature: Vec<[f32; 3]>,
+    /// The global normal equations, for the next step's prior.
+    global: Normal,
+}
+
 /// One geometry step, fused per pixel: sample every capture with its spatial derivative, solve the
 /// pixel's coefficients against `prior` (the previous step's global model), and accumulate the
-/// residual and the loss gradient w.r.t. the pixel's normalised camera position. Returns the mean
-/// squared residual (linear light), the gradient per pixel, and the global normal equations for
-/// the next step's prior. `ylin[p * n + i]` are the targets in linear projector light.
+/// residual and the loss gradient w.r.t. the pixel's normalised camera position (and, with
+/// `curvature`, its Gauss–Newton curvature: the pixel's coefficients held fixed). `ylin[p * n +
+/// i]` are the targets in linear projector light.
+#[allow(clippy::too_many_arguments)]
 fn geometry_step(
     caps: &Stack<u16>,
     ylin: &[[f32; 3]],
@@ -259,7 +357,8 @@ fn geometry_step(
     prior: &[f32; 12],
     ridge: f32,
     subset: Subset,
-) -> (f64, Vec<[f32; 2]>, Normal) {
+    curvature: bool,
+) -> Step {
     let n = caps.images();
     let ImageSize {
         width: cw,
@@ -269,7 +368,8 @@ fn geometry_step(
     let lambda = ridge as f64;
     let pixels = subset.pixels(grid.size());
     let count = (n * pixels.len() * 3).max(1) as f32;
-    let results: Vec<(f64, [f32; 2], Normal)> = pixels
+    type PixelStep = (f64, [f32; 2], [f32; 3], Normal);
+    let results: Vec<PixelStep> = pixels
         .par_iter()
         .map_init(
             || vec![Sample::default(); n],
@@ -290,10 +390,13 @@ fn geometry_step(
                     ne.add(&s.a, &ylin[p * n + i]);
                 }
                 let k = ne.solve(lambda, prior);
-                let (mut loss, mut g) = (0f64, [0f32; 2]);
+                let (mut loss, mut g, mut h) = (0f64, [0f32; 2], [0f32; 3]);
                 for (i, s) in buf.iter().enumerate() {
                     let y = &ylin[p * n + i];
                     let mut dw = [0f32; 3];
+                    // d w_c / d position, through the camera curve.
+                    let jx = [0, 1, 2].map(|c| s.slope[c] * s.dgx[c]);
+                    let jy = [0, 1, 2].map(|c| s.slope[c] * s.dgy[c]);
                     for o in 0..3 {
                         let r = k[o * 3] * s.a[0]
                             + k[o * 3 + 1] * s.a[1]
@@ -304,26 +407,48 @@ fn geometry_step(
                         for (c, d) in dw.iter_mut().enumerate() {
                             *d += 2.0 * r * k[o * 3 + c];
                         }
+                        if curvature {
+                            let (mut rx, mut ry) = (0f32, 0f32);
+                            for c in 0..3 {
+                                rx += k[o * 3 + c] * jx[c];
+                                ry += k[o * 3 + c] * jy[c];
+                            }
+                            h[0] += 2.0 * rx * rx;
+                            h[1] += 2.0 * rx * ry;
+                            h[2] += 2.0 * ry * ry;
+                        }
                     }
                     for (c, &dwc) in dw.iter().enumerate() {
-                        let d = dwc * s.slope[c];
-                        g[0] += d * s.dgx[c];
-                        g[1] += d * s.dgy[c];
+                        g[0] += dwc * jx[c];
+                        g[1] += dwc * jy[c];
                     }
                 }
-                (loss, [g[0] / count, g[1] / count], ne)
+                (loss, [g[0] / count, g[1] / count], h.map(|v| v / count), ne)
             },
         )
         .collect();
     let mut global = Normal::default();
     let mut loss = 0f64;
     let mut grad = vec![[0f32; 2]; grid.data().len()];
-    for (&p, (l, g, ne)) in pixels.iter().zip(&results) {
+    let mut curv = if curvature {
+        vec![[0f32; 3]; grid.data().len()]
+    } else {
+        Vec::new()
+    };
+    for (&p, (l, g, h, ne)) in pixels.iter().zip(&results) {
         loss += l;
         grad[p] = *g;
+        if curvature {
+            curv[p] = *h;
+        }
         global.merge(ne);
     }
-    (loss / count as f64, grad, global)
+    Step {
+        loss: loss / count as f64,
+        grad,
+        curvature: curv,
+        global,
+    }
 }
 
 /// The network pixels a [`geometry_step`] evaluates: every `stride`-th pixel in each direction,
