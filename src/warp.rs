@@ -317,11 +317,14 @@ impl TpsBasis {
         use rayon::prelude::*;
         const F: usize = FEATURES;
         let w = self.width;
-        // Moments, upper triangles: [xx, xy, yy] (F×F each), then Σ dx f and Σ dy f.
+        // Moments, upper triangles: [xx, xy, yy] (F×F each), then Σ dx f and Σ dy f. Summed
+        // per fixed chunk, then the chunks in order: the same sums to the bit on every run (a
+        // calibration that resumes relies on refitting the same model).
         let zero = || (vec![0f64; 3 * F * F], vec![0f64; 2 * F]);
-        let (m, v) = pixels
-            .par_chunks(256)
-            .fold(zero, |(mut m, mut v), chunk| {
+        let chunks: Vec<(Vec<f64>, Vec<f64>)> = pixels
+            .par_chunks(1024)
+            .map(|chunk| {
+                let (mut m, mut v) = zero();
                 for &p in chunk {
                     let row = &self.rows[p];
                     let dx: f32 = row.iter().zip(&warp.tps[0]).map(|(a, b)| a * b).sum();
@@ -348,11 +351,12 @@ impl TpsBasis {
                 }
                 (m, v)
             })
-            .reduce(zero, |(mut m, mut v), (m2, v2)| {
-                m.iter_mut().zip(&m2).for_each(|(a, b)| *a += b);
-                v.iter_mut().zip(&v2).for_each(|(a, b)| *a += b);
-                (m, v)
-            });
+            .collect();
+        let (mut m, mut v) = zero();
+        for (m2, v2) in &chunks {
+            m.iter_mut().zip(m2).for_each(|(a, b)| *a += b);
+            v.iter_mut().zip(v2).for_each(|(a, b)| *a += b);
+        }
         let moment = |k: usize, i: usize, j: usize| {
             let (i, j) = if i <= j { (i, j) } else { (j, i) };
             m[k * F * F + i * F + j]
