@@ -527,12 +527,10 @@ impl OffsetField {
 mod tests {
     use super::*;
 
-    /// The lattice grid made row by row is the stored basis's grid, to the bit, on lattices
-    /// finer, coarser and as fine as the network.
-    #[test]
-    fn the_lattice_grid_is_the_basis_grid() {
+    /// A skewed affine with a small, uneven TPS displacement.
+    fn a_warp() -> Warp {
         let mut warp = Warp::from_affine([[0.8, 0.1, 0.05], [-0.05, 0.9, -0.1]]);
-        let params: Vec<f32> = (0..6 + 2 * TPS_PARAMS)
+        let params: Vec<f32> = (0..warp.param_count())
             .map(|k| {
                 if k < 6 {
                     warp.to_params()[k]
@@ -542,6 +540,14 @@ mod tests {
             })
             .collect();
         warp.set_params(&params);
+        warp
+    }
+
+    /// The lattice grid made row by row is the stored basis's grid, to the bit, on lattices
+    /// finer, coarser and as fine as the network.
+    #[test]
+    fn the_lattice_grid_is_the_basis_grid() {
+        let warp = a_warp();
         let network = ImageSize::new(16, 12);
         for lattice in [
             ImageSize::new(23, 17),
@@ -563,17 +569,8 @@ mod tests {
     /// and the gradient is `backward`'s on that subset.
     #[test]
     fn the_gauss_newton_sums_are_the_jacobians_products() {
-        let mut warp = Warp::from_affine([[0.8, 0.1, 0.05], [-0.05, 0.9, -0.1]]);
-        let params: Vec<f32> = (0..warp.param_count())
-            .map(|k| {
-                if k < 6 {
-                    warp.to_params()[k]
-                } else {
-                    ((k * 37 % 11) as f32 - 5.0) * 1e-3
-                }
-            })
-            .collect();
-        warp.set_params(&params);
+        let warp = a_warp();
+        let params = warp.to_params();
         let basis = TpsBasis::new(11, 8);
         let px = 11 * 8;
         let pixels: Vec<usize> = (0..px).filter(|p| p % 3 != 1).collect();
