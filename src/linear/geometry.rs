@@ -136,7 +136,7 @@ pub(super) fn fit_warp<C: ReadRgb<Camera>>(
             }
             tracing::debug!(
                 "geometry at {lw}x{lh}: {steps} Gauss-Newton steps, loss {start:.4e} -> {:.4e}, \
-                 in {:.2} s ({prepared:.2} s blurring the captures)",
+                 in {:.2} s ({prepared:.2} s blurring the captures and resampling the targets)",
                 current.loss,
                 started.elapsed().as_secs_f64()
             );
