@@ -147,9 +147,20 @@ impl<'c, C: FrameSource + ?Sized> Timed<'c, C> {
         }
     }
 
+    /// Goes on from the frames another `Timed` saw of the same camera ([`Timed::into_finder`]),
+    /// so that the clock found there is known from the first grab.
+    pub fn resume(camera: &'c mut C, finder: ClockFinder) -> Self {
+        Self { camera, finder }
+    }
+
     /// The camera's clock from the frames grabbed so far ([`ClockFinder::clock`]).
     pub fn clock(&self) -> Option<CameraClock> {
         self.finder.clock()
+    }
+
+    /// The frames seen, for a [`Timed::resume`] of the same camera.
+    pub fn into_finder(self) -> ClockFinder {
+        self.finder
     }
 }
 

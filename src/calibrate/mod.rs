@@ -704,7 +704,10 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         let measured = (|| -> Result<_> {
             let t = Instant::now();
             progress("exposure", 0, 1);
-            let exposure = exposure::range_exposure(display, camera)?;
+            let exposure::Ranged {
+                report: exposure,
+                levels,
+            } = exposure::range_exposure(display, camera)?;
             if let Some(e) = &exposure {
                 tracing::info!(
                     "exposure: {} → {} (camera units) in {} steps; brightest lit pixels at {:.3}",
@@ -718,7 +721,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             opts.check_cancelled()?;
             let t = Instant::now();
             progress("latency", 0, 1);
-            let (latency, clock) = sync::measure_latency(display, camera, &opts.sync)?;
+            let (latency, clock) = sync::measure_latency(display, camera, &opts.sync, levels)?;
             seconds.latency = t.elapsed().as_secs_f64();
             tracing::info!(
                 "latency: {:?} camera exposures over {} switches; skipping {} per capture",

@@ -80,7 +80,7 @@ pub fn calibrate_set<D: DisplaySink, C: FrameSource + ?Sized>(
     let mut set = SideBySide::new(displays)?;
     show_black(&mut set)?;
     progress("exposure", 0, 1);
-    let exposure = exposure::range_exposure(&mut set, camera)?;
+    let exposure = exposure::range_exposure(&mut set, camera)?.report;
     progress("exposure", 1, 1);
     // Each projector in the phases of `super::calibrate`, one projector at a time on the
     // display, its fits on a thread of their own behind the next projector's captures: the

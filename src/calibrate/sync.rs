@@ -17,7 +17,7 @@
 
 use std::time::Instant;
 
-use super::clock::{CameraClock, Timed};
+use super::clock::{CameraClock, ClockFinder, Timed};
 use crate::device::{DisplaySink, FrameSource};
 use crate::error::{Error, Result};
 use crate::raster::{CamImage, ImageSize, PrjImage};
@@ -86,17 +86,40 @@ fn mean_abs_diff(a: &CamImage, b: &CamImage) -> f64 {
 
 /// Exposures after a show before [`settled_level`] may take a level: past the delay of most
 /// rigs (8 exposures: 267 ms at 30 fps); [`measure_latency`] waits longer when it was not.
-const SETTLE_FRAMES: u64 = 8;
+pub(super) const SETTLE_FRAMES: u64 = 8;
+
+/// The camera's mean levels (encoded units) and a frame under the projector's black and under
+/// its white, each settled ([`settled_level`]): how [`measure_latency`] starts, and what
+/// exposure ranging ends with when its last pair was taken at the exposure it chose.
+#[derive(Clone, Debug)]
+pub struct SettledLevels {
+    pub black_level: f64,
+    pub under_black: CamImage,
+    pub white_level: f64,
+    pub under_white: CamImage,
+    /// The frames the camera delivered while they were taken (arrival times and timestamps),
+    /// so that the camera's clock is known from the next grab on.
+    pub frames: ClockFinder,
+}
 
 /// Measures the projector-to-camera latency by alternating black and white frames and counting
 /// the exposures until the camera's mean level crosses half-way. An error when the camera does
 /// not see the projector change (no light reaches it, or it does not look at the surface).
+///
+/// `known`: levels just taken at the camera's present exposure with white showing last (exposure
+/// ranging's last pair), used instead of settling on black and white again when they show the
+/// projector's switch.
 pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
     settings: &SyncSettings,
+    known: Option<SettledLevels>,
 ) -> Result<(Latency, Option<CameraClock>)> {
-    let camera = &mut Timed::new(camera);
+    let mut known = known.filter(|k| k.white_level - k.black_level >= 0.02);
+    let camera = &mut match &mut known {
+        Some(k) => Timed::resume(camera, std::mem::take(&mut k.frames)),
+        None => Timed::new(camera),
+    };
     let size = display.size();
     let black = PrjImage::new(size.width, size.height);
     let white = PrjImage::filled(size.width, size.height, [1.0; 3]);
@@ -106,7 +129,13 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     // camera that does not see the projector is told so after 2 × (8 + 24 + 72) exposures,
     // about 7 s at 30 fps, where one try took about 0.5 s).
     let mut at_least = SETTLE_FRAMES;
+    if known.is_some() {
+        tracing::debug!("latency: the exposure ranging's last black and white levels taken");
+    }
     let (black_level, under_black, white_level, under_white) = loop {
+        if let Some(k) = known.take() {
+            break (k.black_level, k.under_black, k.white_level, k.under_white);
+        }
         let (black_level, under_black) = settled_level(
             display,
             camera,
@@ -237,9 +266,10 @@ fn check_exposure(
     Ok(())
 }
 
-/// Shows `frame` and waits until the camera's mean level stops changing; returns it and the
-/// last frame.
-fn settled_level<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
+/// Shows `frame` and waits until the camera's mean level stops changing (steady for 4
+/// exposures, and at least `at_least` exposures after the show, at most `max_wait`); returns it
+/// and the last frame.
+pub(super) fn settled_level<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     display: &mut D,
     camera: &mut C,
     frame: &PrjImage,
