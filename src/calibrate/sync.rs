@@ -88,6 +88,10 @@ fn mean_abs_diff(a: &CamImage, b: &CamImage) -> f64 {
 /// rigs (8 exposures: 267 ms at 30 fps); [`measure_latency`] waits longer when it was not.
 pub(super) const SETTLE_FRAMES: u64 = 8;
 
+/// How much brighter than under black the camera's mean level must be under white (encoded
+/// units) for a pair of levels to show the projector's switch.
+const SWITCH_SEEN: f64 = 0.02;
+
 /// The camera's mean levels (encoded units) and a frame under the projector's black and under
 /// its white, each settled ([`settled_level`]): how [`measure_latency`] starts, and what
 /// exposure ranging ends with when its last pair was taken at the exposure it chose.
@@ -115,7 +119,7 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     settings: &SyncSettings,
     known: Option<SettledLevels>,
 ) -> Result<(Latency, Option<CameraClock>)> {
-    let mut known = known.filter(|k| k.white_level - k.black_level >= 0.02);
+    let mut known = known.filter(|k| k.white_level - k.black_level >= SWITCH_SEEN);
     let camera = &mut match &mut known {
         Some(k) => Timed::resume(camera, std::mem::take(&mut k.frames)),
         None => Timed::new(camera),
@@ -148,7 +152,7 @@ pub fn measure_latency<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             &white,
             (at_least, settings.max_wait_frames),
         )?;
-        if white_level - black_level >= 0.02 || at_least >= SETTLE_FRAMES * 9 {
+        if white_level - black_level >= SWITCH_SEEN || at_least >= SETTLE_FRAMES * 9 {
             break (black_level, under_black, white_level, under_white);
         }
         tracing::info!(
@@ -226,7 +230,7 @@ fn check_exposure(
     under_white: &CamImage,
 ) -> Result<()> {
     let contrast = white_level - black_level;
-    if contrast < 0.02 {
+    if contrast < SWITCH_SEEN {
         return Err(Error::Input(format!(
             "the camera does not see the projector: its mean level is {black_level:.3} under \
              black and {white_level:.3} under white (encoded units); point the camera at the \
