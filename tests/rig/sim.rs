@@ -166,6 +166,54 @@ fn frames_lag_behind_the_projector_and_drops_skip_numbers() {
     assert!(prj.show(&PrjImage::new(10, 10)).is_err());
 }
 
+/// On the wall clock the virtual camera makes a frame's picture as soon as it is asked for and
+/// the exposure has started, then holds it until its delivery time, as a real camera's sensor
+/// is read out while the frame travels: the time this machine takes to simulate a frame hides
+/// in the camera's delay instead of adding to it. A setting changed while a frame waits for
+/// its delivery therefore reaches the next frame, not that one.
+#[test]
+fn on_the_wall_clock_a_frame_is_made_before_its_delivery() {
+    let scene = rig::builtin("white-plane")
+        .expect("built-in")
+        .with_resolution(CAM, PRJ);
+    let rig = rig::VirtualRig::new(&scene, 5).expect("rig");
+    let latency = |delay_frames| rig::scene::Latency {
+        fps: 10.0,
+        delay_frames,
+        drop_rate: 0.0,
+    };
+    // White from the first exposure on (no delay yet, no clock yet), then 3 frames of delay
+    // on the wall clock: frame 0 is delivered 0.3 s after the clock starts.
+    rig.set_latency(latency(0)).expect("latency");
+    let mut prj = rig.clone();
+    prj.show(&PrjImage::filled(PRJ.width, PRJ.height, [1.0; 3]))
+        .expect("show");
+    rig.set_latency(latency(3)).expect("latency");
+    let rig = rig.on_wall_clock();
+    let started = std::time::Instant::now();
+    let mut cam = rig.clone();
+    let reader = std::thread::spawn(move || {
+        let first = cam.grab().expect("grab");
+        let at = started.elapsed();
+        (first, at, cam.grab().expect("grab"))
+    });
+    // Halfway through frame 0's delay: a shorter exposure.
+    std::thread::sleep(std::time::Duration::from_millis(150));
+    let mut camera = rig.clone();
+    camera.set_exposure(1.0 / 16.0).expect("exposure");
+    let (first, at, second) = reader.join().expect("reader");
+    assert_eq!((first.seq, second.seq), (0, 1));
+    assert!(
+        at >= std::time::Duration::from_millis(290),
+        "frame 0 came after {at:?}, before its delivery time (0.3 s)"
+    );
+    let (a, b) = (mean(&first.image, None), mean(&second.image, None));
+    assert!(
+        a > 2.0 * b,
+        "frame 0 was made before the exposure changed ({a:.3}), frame 1 after ({b:.3})"
+    );
+}
+
 #[test]
 fn step_scene_has_a_shadow_the_projector_cannot_reach() {
     let sim = tiny("step", 1);
