@@ -1,6 +1,6 @@
 //! The `linear` model on a synthetic projector-camera system with a known answer.
 
-use compend::linear::{ColourSums, FitSettings, GeometryMemo, fit, fit_with_memo};
+use compend::linear::{ColourSolve, ColourSums, FitSettings, GeometryMemo, fit, fit_with_memo};
 use compend::metrics;
 use compend::raster::{CamImage, Camera, ImageSize, NetImage, Network, Rgb};
 use compend::sample::{Grid, grid_sample, pixel_to_norm};
@@ -272,7 +272,9 @@ fn fits_on_the_same_first_pairs_share_their_geometry() {
 
 /// A linear fit searches its response curves on its first `geometry_images` pairs: the fit on
 /// those pairs, its colour sums grown with every pair ([`ColourSums`], as a calibration grows
-/// them behind its captures), is the fit on all the pairs, to the bit.
+/// them behind its captures), is the fit on all the pairs, to the bit. The first fit need not
+/// solve each pixel ([`ColourSolve::Global`], as a calibration's does): its geometry and curves
+/// are the same, its coefficients one global model.
 #[test]
 fn a_fit_grown_from_the_geometrys_pairs_is_the_fit_on_all_of_them() {
     let [tr, _] = pairs(&System::new(), 11);
@@ -283,14 +285,26 @@ fn a_fit_grown_from_the_geometrys_pairs_is_the_fit_on_all_of_them() {
         ..settings()
     };
     let no_progress = |_: &str, _: usize, _: usize| {};
-    let (first, _) = fit(
-        &caps[..12],
-        &train[..12],
-        init.clone(),
-        &settings,
-        no_progress,
-    )
-    .unwrap();
+    let first_fit = |colour| {
+        let s = FitSettings {
+            colour,
+            ..settings.clone()
+        };
+        fit(&caps[..12], &train[..12], init.clone(), &s, no_progress).unwrap()
+    };
+    let ((first, global_report), (per_pixel, _)) = (
+        first_fit(ColourSolve::Global),
+        first_fit(ColourSolve::PerPixel),
+    );
+    assert_eq!(first.curves, per_pixel.curves);
+    assert_eq!(first.grid(), per_pixel.grid());
+    let one = first.coeffs.data[0];
+    assert!(
+        first.coeffs.data.iter().all(|k| *k == one),
+        "one global model"
+    );
+    assert!(per_pixel.coeffs.data.iter().any(|k| *k != one));
+    assert!(global_report.final_loss.is_finite() && global_report.final_loss > 0.0);
     let (all, _) = fit(&caps, &train, init, &settings, no_progress).unwrap();
     assert_eq!(first.curves, all.curves, "the curves of the first 12 pairs");
     let mut sums = ColourSums::new(first.grid(), first.curves, settings.ridge);

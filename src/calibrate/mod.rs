@@ -973,6 +973,9 @@ fn first_grows(
     Some((
         Request {
             ntrain: Some(pairs),
+            // The grown fit solves every pixel from its own sums: the first fit's per-pixel
+            // solve would be thrown away.
+            colour: crate::linear::ColourSolve::Global,
             ..first
         },
         pairs,

@@ -90,6 +90,7 @@ pub(super) fn settings(req: &Request, network_size: crate::raster::ImageSize) ->
     FitSettings {
         network_size,
         lattice: req.lattice,
+        colour: req.colour,
         ..FitSettings::default()
     }
 }

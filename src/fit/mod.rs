@@ -90,6 +90,10 @@ pub struct Request {
     /// pass does not fit the display's frame budget is not climbed to ([`LivePass`]). `None`:
     /// the live pass is not weighed (the model may play elsewhere).
     pub live: Option<std::sync::Arc<dyn LivePass>>,
+    /// The `linear` rungs only: how their colour solve ends ([`crate::linear::ColourSolve`]):
+    /// per pixel, or one global model for a fit that grows its own coefficients
+    /// ([`GrowingFit`]).
+    pub colour: crate::linear::ColourSolve,
 }
 
 impl Request {
@@ -115,6 +119,7 @@ impl Request {
             rig_judges: false,
             geometry_memo: None,
             live: None,
+            colour: Default::default(),
         }
     }
 }

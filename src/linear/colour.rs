@@ -12,6 +12,7 @@ use rayon::prelude::*;
 use super::curve::{CURVE_SAMPLES, CURVE_SWEEPS, fit_curves};
 use super::model::{Coefficients, Curves};
 use super::normal::{Normal, PowTable, global_solution};
+use super::settings::ColourSolve;
 use super::stack::{Captures, Frames, Resize, Stack};
 use crate::raster::{Camera, ImageSize, NetImage, Network, ReadRgb};
 use crate::sample::Grid;
@@ -28,7 +29,7 @@ pub(super) fn fit_colour<C: ReadRgb<Camera>>(
     grid: &Grid<Network, Camera>,
     start: Curves,
     ridge: f32,
-    curve_pairs: usize,
+    (curve_pairs, solve): (usize, ColourSolve),
 ) -> (Curves, Coefficients, f64) {
     let stride = grid
         .size()
@@ -52,7 +53,7 @@ pub(super) fn fit_colour<C: ReadRgb<Camera>>(
     );
     let curves_s = t.elapsed().as_secs_f64();
     let (caps, shown) = (Frames::new(captures), Stack::<f32>::new(targets));
-    let (coeffs, loss) = solve_colour(&caps, &shown, grid, &curves, ridge);
+    let (coeffs, loss) = solve_colour(&caps, &shown, grid, &curves, (ridge, solve));
     tracing::debug!(
         "colour on {} pairs at {}: curves {curves_s:.1} s (on the first {k}), coefficients \
          {:.1} s",
@@ -78,7 +79,7 @@ fn solve_colour<C: Captures>(
     shown: &Stack,
     grid: &Grid<Network, Camera>,
     curves: &Curves,
-    ridge: f32,
+    (ridge, solve): (f32, ColourSolve),
 ) -> (Coefficients, f64) {
     let n = caps.images();
     let resize = shown.resize_to(grid.size());
@@ -91,7 +92,7 @@ fn solve_colour<C: Captures>(
         add_pairs(&mut ne, (caps, shown, &resize), grid, &tables, p);
         ne
     };
-    solve_normals(grid.size(), n, normal_at, ridge)
+    solve_normals(grid.size(), n, normal_at, (ridge, solve))
 }
 
 /// Adds every pair of `caps` and `shown` at lattice pixel `p` to `ne`, in pair order: features
@@ -117,12 +118,13 @@ fn add_pairs<C: Captures>(
 /// Solves the coefficients of a `size` lattice from each pixel's normal equations over `n`
 /// pairs (`normal_at`), with the ridge pull towards one global model; returns them and the
 /// mean squared residual (linear light). Two passes: the prior on a subsample
-/// ([`PRIOR_STRIDE`]), then each pixel solved and scored.
+/// ([`PRIOR_STRIDE`]), then each pixel solved and scored; [`ColourSolve::Global`] stops after
+/// the first, with the prior at every pixel and its residual on the subsample.
 fn solve_normals(
     size: ImageSize,
     n: usize,
     normal_at: impl Fn(usize) -> Normal + Sync,
-    ridge: f32,
+    (ridge, solve): (f32, ColourSolve),
 ) -> (Coefficients, f64) {
     let ImageSize {
         width: w,
@@ -147,6 +149,18 @@ fn solve_normals(
     }
     let sampled = h.div_ceil(PRIOR_STRIDE) * w.div_ceil(PRIOR_STRIDE);
     let global_beta = global_solution(&global, n * sampled);
+    if solve == ColourSolve::Global {
+        let loss = global.sse(&global_beta) / (n.max(1) * sampled.max(1) * 3) as f64;
+        let data = vec![global_beta; w * h];
+        return (
+            Coefficients {
+                width: w,
+                height: h,
+                data,
+            },
+            loss,
+        );
+    }
     let lambda = ridge as f64;
     let (data, sse): (Vec<[f32; 12]>, Vec<f64>) = (0..w * h)
         .into_par_iter()
@@ -268,7 +282,7 @@ impl ColourSums {
             self.grid.size(),
             self.pairs,
             |p| self.normals[p],
-            self.ridge,
+            (self.ridge, ColourSolve::PerPixel),
         )
     }
 }
@@ -302,7 +316,7 @@ mod tests {
             &Stack::<f32>::new(&shown),
             &grid,
             &curves,
-            ridge,
+            (ridge, ColourSolve::PerPixel),
         );
         let mut sums = ColourSums::new(grid.clone(), curves, ridge);
         let mut partial = None;

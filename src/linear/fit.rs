@@ -95,7 +95,7 @@ pub fn fit_with_memo<C: ReadRgb<Camera>>(
                 &fine,
                 geometry.curves,
                 settings.ridge,
-                settings.geometry_images,
+                (settings.geometry_images, settings.colour),
             )
         }
         _ => {
@@ -106,7 +106,7 @@ pub fn fit_with_memo<C: ReadRgb<Camera>>(
                 &grid,
                 geometry.curves,
                 settings.ridge,
-                settings.geometry_images,
+                (settings.geometry_images, settings.colour),
             )
         }
     };
@@ -338,7 +338,7 @@ pub fn fit_on_grid<C: ReadRgb<Camera>>(
         &grid,
         Curves::default(),
         settings.ridge,
-        settings.geometry_images,
+        (settings.geometry_images, settings.colour),
     );
     Ok((
         LinearModel {

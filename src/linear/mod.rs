@@ -50,7 +50,7 @@ pub use fit::{
 };
 pub use gamut::inverse as gamut_inverse;
 pub use model::{Coefficients, Curves, Geometry, LinearModel, SimplifiedLinear, apply_colour};
-pub use settings::FitSettings;
+pub use settings::{ColourSolve, FitSettings};
 
 use crate::error::Result;
 use crate::raster::{CamImage, Camera, Mask};

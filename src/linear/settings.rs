@@ -61,6 +61,23 @@ pub struct FitSettings {
     /// pixel counts over k² steps ([`Self::geometry_stride`]).
     #[serde(default)]
     pub geometry_pixels: Option<usize>,
+    /// How the colour solve ends. Not recorded: a model's coefficients are always per pixel
+    /// ([`ColourSolve::Global`] only seeds a fit that solves its own).
+    #[serde(skip)]
+    pub colour: ColourSolve,
+}
+
+/// How the colour solve of a `linear` fit ends.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ColourSolve {
+    /// Each lattice pixel's coefficients, pulled towards one global model: the rung's model.
+    #[default]
+    PerPixel,
+    /// The global model at every pixel, as the per-pixel solve estimates its prior: for a fit
+    /// whose per-pixel coefficients a [`ColourSums`](super::ColourSums) solves from sums of its
+    /// own (a calibration's fit grown behind the captures), where the per-pixel solve (0.5–0.6 s
+    /// for 24 pairs at 800×600) would be thrown away.
+    Global,
 }
 
 impl FitSettings {
@@ -92,6 +109,7 @@ impl Default for FitSettings {
             refine: Some((4, 60)),
             lattice: None,
             geometry_pixels: Some(GEOMETRY_PIXELS),
+            colour: ColourSolve::PerPixel,
         }
     }
 }
