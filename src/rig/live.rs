@@ -21,9 +21,9 @@
 //! started, as a real camera's would be; a reader that falls behind finds only the last
 //! [`CAMERA_BUFFERS`] exposures waiting (older ones were overwritten, their sequence numbers
 //! skipped), and a show takes effect from the first exposure that starts after it. Exposure k's
-//! picture is simulated from when it starts and delivered at its due time, so the simulation's
-//! time (tens of milliseconds on a busy 2-core machine) does not add to the camera's delay
-//! unless it exceeds it. Without the wall clock (tests, the fit's benches) frames come as fast
+//! picture is simulated as soon as it is asked for, but not before the exposure starts, and
+//! delivered at its due time, so the simulation's time (tens of milliseconds on a busy 2-core
+//! machine) does not add to the camera's delay unless it exceeds what is left of it. Without the wall clock (tests, the fit's benches) frames come as fast
 //! as they are simulated.
 
 use std::collections::VecDeque;
