@@ -777,9 +777,9 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         )?;
         captured += done.captured;
         resumed += done.resumed;
-        round_seconds = done.curve.rounds.iter().map(|r| r.seconds).sum();
+        round_seconds = done.held;
         tracing::info!(
-            "sampling rounds: {} pairs ({}), fits {:.1} s",
+            "sampling rounds: {} pairs ({}), the captures held {:.1} s for the fits",
             done.curve.chosen,
             done.curve.why,
             round_seconds
@@ -1262,6 +1262,9 @@ struct RoundsDone {
     /// Captures taken, and found on disk, by the rounds after the first.
     captured: usize,
     resumed: usize,
+    /// Seconds the captures waited for the rounds' fits (the first round's fit runs behind the
+    /// next round's captures: only what outlasted them).
+    held: f64,
 }
 
 /// `ntrain = auto` ([`rounds`]): with the references, the test pairs and the first round's
@@ -1269,7 +1272,8 @@ struct RoundsDone {
 /// scores it on the test pairs in camera space, and captures the next round's while
 /// [`Rounds::next`] asks for one, growing the manifest's pattern set first (a killed run
 /// resumes from it, and scores its rounds again from the first; the pairs it had taken are all
-/// used). The projector holds the last pattern while a round is fitted.
+/// used). The projector holds the last pattern while a round is fitted, except the first
+/// round's, which is fitted behind the next round's captures (one score cannot end the rounds).
 fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
     (root, setup): (&DataRoot, &Setup),
@@ -1280,29 +1284,39 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 ) -> Result<RoundsDone> {
     let tests = setup.load_test(Some(manifest.patterns.ntest))?;
     let mut curve: Vec<RoundScore> = Vec::new();
-    let (mut captured, mut resumed) = (0, 0);
-    let mut pairs = rounds.first;
-    loop {
-        if pairs > manifest.patterns.ntrain {
-            let from = manifest.patterns.ntrain + 1;
-            manifest.grow(setup.path(), pairs)?;
-            write_sampling(root, &manifest.patterns, (Set::Train, from..=pairs))
-                .map_err(|e| not_ours(e, &manifest.patterns))?;
-            // Every capture of the earlier rounds is counted again as found on disk.
-            let (c, r) = capture_all(
-                capturer,
-                (root, setup),
-                manifest,
-                (None, None),
-                opts,
-                progress,
-            )?;
-            captured += c;
-            resumed += r.saturating_sub(on_disk);
-            on_disk = c + r;
+    let (mut captured, mut resumed, mut held) = (0, 0, 0.0);
+    // The sampling pairs up to `pairs`, captured where not on disk yet, the manifest's pattern
+    // set grown first.
+    let mut take_round = |pairs: usize,
+                          manifest: &mut Manifest,
+                          capturer: &mut Capturer<'_, D, C>,
+                          progress: Progress|
+     -> Result<()> {
+        if pairs <= manifest.patterns.ntrain {
+            return Ok(());
         }
-        opts.check_cancelled()?;
-        progress("sampling round", pairs, rounds.most);
+        let from = manifest.patterns.ntrain + 1;
+        manifest.grow(setup.path(), pairs)?;
+        write_sampling(root, &manifest.patterns, (Set::Train, from..=pairs))
+            .map_err(|e| not_ours(e, &manifest.patterns))?;
+        // Every capture of the earlier rounds is counted again as found on disk.
+        let (c, r) = capture_all(
+            capturer,
+            (root, setup),
+            manifest,
+            (None, None),
+            opts,
+            progress,
+        )?;
+        captured += c;
+        resumed += r.saturating_sub(on_disk);
+        on_disk = c + r;
+        Ok(())
+    };
+    // The `linear` rung on the first `pairs` sampling pairs, scored on the test pairs.
+    let score_round = |pairs: usize,
+                       progress: &mut dyn FnMut(&str, usize, usize)|
+     -> Result<(Model, RoundScore)> {
         let t = Instant::now();
         let loops = match rounds.loops_follow {
             true => loop_images(opts.method, pairs, None),
@@ -1314,7 +1328,7 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             batch: None,
             ..sampling_request(opts, (pairs, loops), geometry)
         };
-        let (model, _) = fit::fit(setup, &req, |stage, done, n| progress(stage, done, n))?;
+        let (model, _) = fit::fit(setup, &req, progress)?;
         let mse = crate::model::forward_mse(&model, &tests)?.ok_or_else(|| {
             Error::Failed("the sampling round's linear fit has no forward model".into())
         })?;
@@ -1331,7 +1345,44 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             score.psnr,
             score.seconds
         );
-        curve.push(score);
+        Ok((model, score))
+    };
+    let mut pairs = rounds.first;
+    loop {
+        take_round(pairs, manifest, capturer, &mut *progress)?;
+        opts.check_cancelled()?;
+        progress("sampling round", pairs, rounds.most);
+        // The first round's score cannot end the rounds (a gain needs two): its fit runs
+        // behind the next round's captures instead of holding the projector.
+        let certain = (curve.is_empty() && pairs < rounds.most)
+            .then(|| (pairs + rounds.step).min(rounds.most))
+            .filter(|&next| next > manifest.patterns.ntrain);
+        let model = match certain {
+            Some(next) => {
+                let (scored, taken) = std::thread::scope(|s| {
+                    let behind = s
+                        .spawn(|| crate::background::run(|| score_round(pairs, &mut |_, _, _| {})));
+                    let taken = take_round(next, manifest, capturer, &mut *progress);
+                    let waited = Instant::now();
+                    let scored = behind.join().unwrap_or_else(|_| {
+                        Err(Error::Failed("the sampling round's fit panicked".into()))
+                    });
+                    held += waited.elapsed().as_secs_f64();
+                    (scored, taken)
+                });
+                taken?;
+                let (_, score) = scored?;
+                curve.push(score);
+                pairs = next;
+                continue;
+            }
+            None => {
+                let (model, score) = score_round(pairs, &mut *progress)?;
+                held += score.seconds;
+                curve.push(score);
+                model
+            }
+        };
         match rounds.next(&curve) {
             Ok(next) => pairs = next,
             // An interrupted run had taken more rounds (the rule, scored afresh, may land
@@ -1348,6 +1399,7 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
                     model,
                     captured,
                     resumed,
+                    held,
                 });
             }
         }
