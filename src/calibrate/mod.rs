@@ -1352,37 +1352,31 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         take_round(pairs, manifest, capturer, &mut *progress)?;
         opts.check_cancelled()?;
         progress("sampling round", pairs, rounds.most);
-        // The first round's score cannot end the rounds (a gain needs two): its fit runs
-        // behind the next round's captures instead of holding the projector.
-        let certain = (curve.is_empty() && pairs < rounds.most)
-            .then(|| (pairs + rounds.step).min(rounds.most))
-            .filter(|&next| next > manifest.patterns.ntrain);
-        let model = match certain {
-            Some(next) => {
-                let (scored, taken) = std::thread::scope(|s| {
-                    let behind = s
-                        .spawn(|| crate::background::run(|| score_round(pairs, &mut |_, _, _| {})));
-                    let taken = take_round(next, manifest, capturer, &mut *progress);
-                    let waited = Instant::now();
-                    let scored = behind.join().unwrap_or_else(|_| {
-                        Err(Error::Failed("the sampling round's fit panicked".into()))
-                    });
-                    held += waited.elapsed().as_secs_f64();
-                    (scored, taken)
+        // A round whose score cannot end the rounds is fitted behind the next round's
+        // captures instead of holding the projector.
+        if let Some(next) = rounds
+            .next_regardless(&curve, pairs)
+            .filter(|&next| next > manifest.patterns.ntrain)
+        {
+            let (scored, taken) = std::thread::scope(|s| {
+                let behind =
+                    s.spawn(|| crate::background::run(|| score_round(pairs, &mut |_, _, _| {})));
+                let taken = take_round(next, manifest, capturer, &mut *progress);
+                let waited = Instant::now();
+                let scored = behind.join().unwrap_or_else(|_| {
+                    Err(Error::Failed("the sampling round's fit panicked".into()))
                 });
-                taken?;
-                let (_, score) = scored?;
-                curve.push(score);
-                pairs = next;
-                continue;
-            }
-            None => {
-                let (model, score) = score_round(pairs, &mut *progress)?;
-                held += score.seconds;
-                curve.push(score);
-                model
-            }
-        };
+                held += waited.elapsed().as_secs_f64();
+                (scored, taken)
+            });
+            taken?;
+            curve.push(scored?.1);
+            pairs = next;
+            continue;
+        }
+        let (model, score) = score_round(pairs, &mut *progress)?;
+        held += score.seconds;
+        curve.push(score);
         match rounds.next(&curve) {
             Ok(next) => pairs = next,
             // An interrupted run had taken more rounds (the rule, scored afresh, may land

@@ -162,6 +162,13 @@ impl Rounds {
         Ok((last.pairs + self.step).min(self.most))
     }
 
+    /// The next round's sampling pairs when the round of `pairs` being scored cannot end the
+    /// rounds, whatever its score: it is the first (a gain needs two scores) and not already
+    /// the most. `None` when its score decides ([`Rounds::next`]).
+    pub fn next_regardless(&self, curve: &[RoundScore], pairs: usize) -> Option<usize> {
+        (curve.is_empty() && pairs < self.most).then(|| (pairs + self.step).min(self.most))
+    }
+
     /// The rule in words, for the record.
     pub fn describe(&self) -> String {
         format!(
@@ -220,6 +227,20 @@ mod tests {
         let small = Rounds::new(10, true);
         assert_eq!(small.next(&[]), Ok(10));
         assert!(small.next(&[round(10, 1e-2)]).is_err());
+    }
+
+    /// What the first round's fit may run behind is what any score of it leads to.
+    #[test]
+    fn the_round_after_the_first_does_not_depend_on_its_score() {
+        for (most, pairs) in [(48, 16), (20, 16), (16, 16), (10, 10)] {
+            let r = Rounds::new(most, true);
+            for mse in [1e-1, 1e-6, f64::NAN] {
+                let after = r.next(&[round(pairs, mse)]).ok();
+                assert_eq!(r.next_regardless(&[], pairs), after, "{most} {pairs} {mse}");
+            }
+            // Once a round is scored, the next one depends on the score.
+            assert_eq!(r.next_regardless(&[round(pairs, 1e-3)], pairs + 8), None);
+        }
     }
 
     #[test]
