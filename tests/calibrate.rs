@@ -1085,9 +1085,10 @@ fn bad_rigs_and_paths_exit_2_and_keep_the_installed_model() {
 }
 
 /// `--ntrain auto` on the tiny rig: the sampling pairs are taken in rounds (16, then 8 more)
-/// until one no longer gains, the closed-loop pairs follow the count chosen, and the curve is
-/// recorded; a white plane needs no more pairs than a dark texture. A rerun resumes every
-/// capture. A method the rounds cannot score, or a count that is not one, exits 2.
+/// until one no longer gains, the closed-loop pairs follow the count chosen unless the first 8
+/// show that more would not pay, and both choices are recorded with why; a white plane takes
+/// fewer captures than a dark texture. A rerun resumes every capture. A method the rounds
+/// cannot score, or a count that is not one, exits 2.
 #[test]
 fn ntrain_auto_takes_sampling_pairs_in_rounds_until_one_no_longer_gains() {
     let dir = tempfile::tempdir().unwrap();
@@ -1123,36 +1124,63 @@ fn ntrain_auto_takes_sampling_pairs_in_rounds_until_one_no_longer_gains() {
             "{}",
             stderr(&o)
         );
-        // The closed-loop pairs follow; everything is on disk and in the manifest.
-        assert_eq!(r["loop_pairs"].as_u64(), Some(n), "{r}");
-        assert_eq!(r["captured"].as_u64(), Some(3 + 4 + 2 * n), "{r}");
+        // The closed-loop pairs: the first 8, then as many as the sampling pairs or no more,
+        // with the figures that decided; everything is on disk and in the manifest.
+        let c = &r["closed_loop"];
+        let loops = c["chosen"]
+            .as_u64()
+            .unwrap_or_else(|| panic!("no choice: {r}"));
+        assert_eq!(r["loop_pairs"].as_u64(), Some(loops), "{r}");
+        assert_eq!(c["judged"].as_u64(), Some(8), "{c}");
+        let (share, why) = (c["share"].as_f64().unwrap(), c["why"].as_str().unwrap());
+        let (model_mse, closed) = (
+            c["model_mse"].as_f64().unwrap(),
+            c["closed_loop_mse"].as_f64().unwrap(),
+        );
+        assert!(model_mse > 0.0 && closed > 0.0, "{c}");
+        assert!((share - model_mse / closed).abs() < 1e-9, "{c}");
+        if share < 0.15 {
+            assert!(loops == 8 && why.contains("less than the 15 %"), "{c}");
+        } else {
+            assert!(loops == n && why.contains("not less than"), "{c}");
+        }
+        assert!(
+            stderr(&o).contains(&format!("calibrate: closed-loop pairs: {loops} taken")),
+            "{}",
+            stderr(&o)
+        );
+        let pairs = n + loops;
+        assert_eq!(r["captured"].as_u64(), Some(3 + 4 + pairs), "{r}");
         assert_eq!(r["resumed"].as_u64(), Some(0), "{r}");
         let manifest: serde_json::Value =
             serde_json::from_slice(&std::fs::read(data.join("capture/calibration.json")).unwrap())
                 .unwrap();
         assert_eq!(manifest["patterns"]["ntrain"].as_u64(), Some(n));
         let listed = |p: &Path| std::fs::read_dir(p).unwrap().count() as u64;
-        assert_eq!(listed(&data.join("train")), 2 * n);
-        assert_eq!(listed(&data.join("capture/cam/raw/train")), 2 * n);
+        assert_eq!(listed(&data.join("train")), pairs);
+        assert_eq!(listed(&data.join("capture/cam/raw/train")), pairs);
         assert_eq!(r["verification"]["passed"], true, "{r}");
         let model: serde_json::Value =
             serde_json::from_slice(&std::fs::read(data.join("model/model.json")).unwrap()).unwrap();
         assert_eq!(model["calibration"]["sampling"], *s);
-        assert_eq!(model["training"]["ntrain"].as_u64(), Some(2 * n));
-        chosen.push(n);
-        // A rerun finds every capture on disk: the counts were settled by the closed-loop
-        // pairs.
+        assert_eq!(model["calibration"]["closed_loop"], *c);
+        assert_eq!(model["training"]["ntrain"].as_u64(), Some(pairs));
+        chosen.push((n, loops, r["captured"].as_u64().unwrap()));
+        // A rerun finds every capture on disk (the counts were settled by the closed-loop
+        // pairs) and judges the closed-loop pairs as the first run did.
         if scene == "white-plane" {
             let o = compend(&args);
             assert_code(&o, 0);
             let again = record(&o);
             assert_eq!(again["captured"].as_u64(), Some(0), "{again}");
-            assert_eq!(again["resumed"].as_u64(), Some(3 + 4 + 2 * n), "{again}");
-            assert_eq!(again["loop_pairs"].as_u64(), Some(n), "{again}");
+            assert_eq!(again["resumed"].as_u64(), Some(3 + 4 + pairs), "{again}");
+            assert_eq!(again["loop_pairs"].as_u64(), Some(loops), "{again}");
+            assert_eq!(again["closed_loop"]["chosen"], c["chosen"], "{again}");
         }
     }
+    // (sampling pairs, closed-loop pairs, captures) of the white plane, then the dark texture.
     assert!(
-        chosen[0] < chosen[1],
+        chosen[0].0 < chosen[1].0 && chosen[0].1 < chosen[1].1 && chosen[0].2 < chosen[1].2,
         "white plane, dark texture: {chosen:?}"
     );
 

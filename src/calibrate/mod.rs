@@ -54,12 +54,12 @@ use crate::patterns::{self, Set};
 use crate::playback::place_on_canvas;
 use crate::raster::{CamImage, PrjImage, Rect};
 use crate::record::{
-    CalibrationRecord, CaptureFloor, ClosedLoopScore, ExposureReport, Latency, PhaseSeconds,
-    RoundScore, SamplingCurve, Verification,
+    CalibrationRecord, CaptureFloor, ClosedLoopScore, ExposureReport, Latency, LoopChoice,
+    PhaseSeconds, RoundScore, SamplingCurve, Verification,
 };
 
 pub use crate::dataset::manifest::{Manifest, PatternSet};
-pub use rounds::{Rounds, SamplingCount};
+pub use rounds::{LoopScore, Rounds, SamplingCount};
 pub use sync::{Capturer, SyncSettings};
 
 /// The setup folder's name under the data root.
@@ -101,7 +101,9 @@ pub struct Options {
     /// its display's refresh ([`crate::fit::LivePass`]); `None`: not weighed.
     pub live: Option<Arc<dyn crate::fit::LivePass>>,
     /// Closed-loop pairs taken with the linear rung ([`refine`]); 0: none. With `rounds` whose
-    /// closed-loop pairs follow the sampling pairs, as many as the rounds chose instead.
+    /// closed-loop pairs follow the sampling pairs, as many as the rounds chose instead, or
+    /// only the first [`Rounds::loop_first`] when those show that more would not pay
+    /// ([`Rounds::loops`]).
     pub loop_images: usize,
     /// `ntrain = auto`: the sampling images captured in rounds, up to `patterns.ntrain`, until
     /// one no longer gains ([`rounds`]); `None`: all `patterns.ntrain` of them.
@@ -349,58 +351,95 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         }),
         false => None,
     };
-    if let Some(g) = &growing {
-        (ntrain + 1..=ntrain + resumed).for_each(|i| g.stored(i));
-    }
-    // Compensated ahead on a helper thread, stored behind on another ([`pipeline`]): the
-    // manifest claims each training image before it is written, so a later run knows it
-    // for this calibration's.
-    pipeline::run(
-        n - resumed,
-        |k| {
-            let (desired, shown) = loop_image(root, (ntrain, resumed + k + 1), placement, &model)?;
-            let frame = place_on_canvas(&shown, canvas, psize)?;
-            Ok((desired, shown, frame))
-        },
-        |k, (desired, shown, frame)| {
-            progress("closed-loop pairs", resumed + k, n);
-            opts.check_cancelled()?;
-            // White between two views the camera could not tell apart (one frame, not
-            // averaged).
-            if !previous
-                .as_ref()
-                .is_some_and(|p| capturer.tells_apart(p, &desired))
-            {
-                capturer.capture_averaging(&white, true, 1)?;
-                flashes += 1;
-            }
-            let cap = match capturer.capture(&frame, true) {
-                Ok(cap) => cap,
-                // The camera did not see it change after all (the compensation could not
-                // give the difference the two views have): white, then once more.
-                Err(Error::Input(why)) if previous.is_some() => {
-                    tracing::info!("closed-loop pair {}: {why}; white first, once more", k + 1);
+    // Under `ntrain = auto`, where they follow the sampling pairs, the first ones judge
+    // whether more pay ([`Rounds::loops`]).
+    let rule = opts.rounds.filter(|r| r.loops_follow && n > r.loop_first);
+    let first = rule.map_or(n, |r| r.loop_first);
+    let tell = |from: usize, to: usize| {
+        if let Some(g) = &growing {
+            (ntrain + from + 1..=ntrain + to).for_each(|i| g.stored(i));
+        }
+    };
+    tell(0, resumed.min(first));
+    // Pairs `from + 1..=to` of `total`: compensated ahead on a helper thread, stored behind on
+    // another ([`pipeline`]): the manifest claims each training image before it is written,
+    // so a later run knows it for this calibration's.
+    let mut take = |from: usize, to: usize, total: usize| -> Result<()> {
+        pipeline::run(
+            to.saturating_sub(from),
+            |k| {
+                let (desired, shown) = loop_image(root, (ntrain, from + k + 1), placement, &model)?;
+                let frame = place_on_canvas(&shown, canvas, psize)?;
+                Ok((desired, shown, frame))
+            },
+            |k, (desired, shown, frame)| {
+                progress("closed-loop pairs", from + k, total);
+                opts.check_cancelled()?;
+                // White between two views the camera could not tell apart (one frame, not
+                // averaged).
+                if !previous
+                    .as_ref()
+                    .is_some_and(|p| capturer.tells_apart(p, &desired))
+                {
                     capturer.capture_averaging(&white, true, 1)?;
                     flashes += 1;
-                    capturer.capture(&frame, true)?
                 }
-                Err(e) => return Err(e),
-            };
-            previous = Some(desired.clone());
-            Ok((desired, shown, cap))
-        },
-        |k, (desired, shown, cap)| {
-            let i = resumed + k + 1;
-            manifest.record_loop(setup.path(), i)?;
-            root.write(ProjectorSet::Train, ntrain + i, &shown)?;
-            setup.write_loop_desired(ntrain + i, &desired)?;
-            setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
-            if let Some(g) = &growing {
-                g.stored(ntrain + i);
+                let cap = match capturer.capture(&frame, true) {
+                    Ok(cap) => cap,
+                    // The camera did not see it change after all (the compensation could not
+                    // give the difference the two views have): white, then once more.
+                    Err(Error::Input(why)) if previous.is_some() => {
+                        tracing::info!(
+                            "closed-loop pair {}: {why}; white first, once more",
+                            from + k + 1
+                        );
+                        capturer.capture_averaging(&white, true, 1)?;
+                        flashes += 1;
+                        capturer.capture(&frame, true)?
+                    }
+                    Err(e) => return Err(e),
+                };
+                previous = Some(desired.clone());
+                Ok((desired, shown, cap))
+            },
+            |k, (desired, shown, cap)| {
+                let i = from + k + 1;
+                manifest.record_loop(setup.path(), i)?;
+                root.write(ProjectorSet::Train, ntrain + i, &shown)?;
+                setup.write_loop_desired(ntrain + i, &desired)?;
+                setup.write_capture(CaptureSet::Train, ntrain + i, &cap)?;
+                if let Some(g) = &growing {
+                    g.stored(ntrain + i);
+                }
+                Ok(())
+            },
+        )
+    };
+    take(resumed, first, n)?;
+    // Judged from the pairs on disk, so that a resumed run judges as the run that took them.
+    let (n, choice) = match rule {
+        None => (n, None),
+        Some(r) => match loop_score(&setup, (ntrain, first), &model, captured.desired.area)? {
+            None => (n, None),
+            Some(score) => {
+                let (chosen, why) = r.loops(&score, n);
+                tracing::info!("closed-loop pairs: {chosen} of {n}: {why}");
+                let choice = LoopChoice {
+                    rule: r.describe_loops(),
+                    judged: score.pairs,
+                    model_mse: score.model_mse,
+                    closed_loop_mse: score.closed_loop_mse,
+                    share: score.model_mse / score.closed_loop_mse,
+                    chosen,
+                    why,
+                };
+                (chosen, Some(choice))
             }
-            Ok(())
         },
-    )?;
+    };
+    tell(first, resumed.min(n));
+    take(resumed.max(first), n, n)?;
+    let resumed = resumed.min(n);
     progress("closed-loop pairs", n, n);
     captured.retakes += capturer.retakes;
     captured.reconnects += capturer.reconnects;
@@ -411,6 +450,8 @@ pub fn take_loop_pairs<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     captured.captured += n - resumed;
     captured.resumed += resumed;
     captured.loop_pairs = n;
+    captured.loop_images = n;
+    captured.loop_choice = choice;
     let capturing = t.elapsed().as_secs_f64();
     captured.seconds.captures += capturing;
     tracing::info!(
@@ -484,6 +525,45 @@ fn resumable_loop_pairs(
         done = (i, Some(desired));
     }
     Ok(done)
+}
+
+/// The figures [`Rounds::loops`] judges the first `k` closed-loop pairs by, read back from the
+/// setup (training pairs `ntrain + 1..=ntrain + k`, their desired views beside): in the
+/// displayable `area` (camera pixels), each capture against its desired view (the closed
+/// loop's error), and `model`'s forward prediction of each capture from its projector image
+/// against the capture (the model's own). `None` for a model without a forward model.
+fn loop_score(
+    setup: &Setup,
+    (ntrain, k): (usize, usize),
+    model: &Model,
+    area: Rect,
+) -> Result<Option<LoopScore>> {
+    let indices: Vec<usize> = (ntrain + 1..=ntrain + k).collect();
+    let views = setup.load_loop_desired(&indices)?;
+    let mut pairs = crate::dataset::Pairs {
+        captures: Vec::with_capacity(k),
+        inputs: Vec::with_capacity(k),
+    };
+    let (mut sq, mut values) = (0f64, 0usize);
+    for (&i, view) in indices.iter().zip(&views) {
+        let (capture, shown) = setup.load_train_pair(i)?;
+        let capture = crate::raster::ReadRgb::to_rgb(&capture).into_owned();
+        let (seen, want) = (capture.crop(area)?, view.crop(area)?);
+        for (a, b) in seen.data().iter().zip(want.data()) {
+            sq += f64::from(a - b).powi(2);
+        }
+        values += seen.data().len();
+        pairs.captures.push(capture);
+        pairs.inputs.push(shown);
+    }
+    let Some(model_mse) = crate::model::forward_mse_in(model, &pairs, Some(area))? else {
+        return Ok(None);
+    };
+    Ok(Some(LoopScore {
+        pairs: k,
+        model_mse,
+        closed_loop_mse: sq / values.max(1) as f64,
+    }))
 }
 
 /// The second step of [`refine`], which needs no device: the requested rung fitted on all
@@ -634,6 +714,8 @@ pub struct Captured {
     loop_images: usize,
     /// `ntrain = auto`: how the sampling pairs were chosen.
     sampling: Option<SamplingCurve>,
+    /// `ntrain = auto`: how the closed-loop pairs were chosen ([`take_loop_pairs`]).
+    loop_choice: Option<LoopChoice>,
     /// `ntrain = auto`: the `linear` rung of the last round, on every sampling pair; [`train`]
     /// takes it when its first fit is that very fit.
     round_model: Option<Model>,
@@ -810,6 +892,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         patterns,
         loop_images,
         sampling,
+        loop_choice: None,
         round_model,
         setup: setup.path().to_path_buf(),
         root,
@@ -1026,6 +1109,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         patterns: _,
         loop_images: _,
         sampling,
+        loop_choice,
         round_model: _,
     } = captured;
     opts.check_cancelled()?;
@@ -1073,6 +1157,7 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         loop_pairs,
         capture_floor: Some(floor),
         sampling,
+        closed_loop: loop_choice,
     };
     Ok(Calibrated {
         model,

@@ -12,6 +12,16 @@
 //! model's own error, which is small beside what limits a white plane's closed loop. The error
 //! removed is what adds to the closed loop's: 3 × 10⁻⁵ on the white plane, 4 × 10⁻⁴ on the dark
 //! texture for those 8 pairs.
+//!
+//! The closed-loop pairs that follow are no more than the scene needs either: the first 8 are
+//! judged ([`Rounds::loops`]) by how much of their closed-loop error (capture against desired
+//! view) the model that compensated them leaves in its own prediction of the captures. Why
+//! not by rounds scored on held-out pairs like the sampling pairs: on closed-loop pairs held
+//! out, a refit's error fell as much on a white plane as on a dark texture in absolute terms
+//! (1.3 × 10⁻⁵ and 7.5 × 10⁻⁵ for 8 pairs; 0.46 and 1.45 dB), while
+//! the closed loop gained 0.01 against 0.6 dB: what a white plane's closed loop misses is
+//! light the projector cannot give, which no refit changes, and it takes 16 pairs to see any
+//! gain; the share tells them apart from the first 8 (docs/bench/calibrate.md).
 
 use std::str::FromStr;
 
@@ -33,6 +43,19 @@ pub const MOST_PAIRS: usize = 48;
 /// scenes, so a round that removes less gains at most about 0.05 dB on a surface with a closed
 /// loop near 26 dB and 0.2 dB near 33 dB.
 pub const DEFAULT_MARGIN_MSE: f64 = 1e-4;
+/// Closed-loop pairs taken before `auto` judges whether more pay (when they follow the
+/// sampling pairs): as many as a sampling round adds.
+pub const LOOP_FIRST: usize = ROUND_STEP;
+/// The share of the first closed-loop pairs' error (capture against desired view, in the
+/// displayable area) that the compensating model's own error on them (its forward model's
+/// prediction against the capture) must reach for more closed-loop pairs to be taken. On eleven
+/// calibrations of ten scenes (docs/bench/calibrate.md, "Closed-loop pairs: as many as the
+/// scene needs"), all the closed-loop pairs gained 0.01–0.03 dB in closed loop over the first
+/// 8 where the share was 0.03–0.12 (a white plane, a textured plane, a curved wall twice),
+/// 0.00–0.07 dB at 0.19–0.35, and 0.14–0.57 dB at 0.55–0.62 (camera noise with defocus, a
+/// dark texture): more are taken from 0.15 on, so that stopping costs at most a few
+/// hundredths of a decibel.
+pub const DEFAULT_LOOP_SHARE: f64 = 0.15;
 
 /// How many sampling images a calibration projects: a count, or `auto` ([`Rounds`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -119,9 +142,27 @@ pub struct Rounds {
     pub most: usize,
     /// The held-out camera-space mean squared error a round of `step` pairs must remove.
     pub margin_mse: f64,
-    /// The closed-loop pairs follow the sampling pairs chosen (as many), rather than a count
-    /// asked for.
+    /// The closed-loop pairs follow the sampling pairs chosen (as many, or only the first
+    /// `loop_first` when those show that more would not pay, [`Rounds::loops`]), rather than a
+    /// count asked for.
     pub loops_follow: bool,
+    /// Closed-loop pairs judged before more are taken.
+    pub loop_first: usize,
+    /// The share of the closed-loop error the model's own error must reach for more.
+    pub loop_share: f64,
+}
+
+/// The first closed-loop pairs' figures that [`Rounds::loops`] judges by, in the displayable
+/// area, camera values (encoded, in \[0, 1\]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LoopScore {
+    /// Closed-loop pairs scored.
+    pub pairs: usize,
+    /// The compensating model's forward prediction of each capture against the capture: mean
+    /// squared error.
+    pub model_mse: f64,
+    /// Each capture against its desired view: mean squared error.
+    pub closed_loop_mse: f64,
 }
 
 impl Rounds {
@@ -133,7 +174,59 @@ impl Rounds {
             most,
             margin_mse: DEFAULT_MARGIN_MSE,
             loops_follow,
+            loop_first: LOOP_FIRST,
+            loop_share: DEFAULT_LOOP_SHARE,
         }
+    }
+
+    /// How many closed-loop pairs to take in all, of `follow` (as many as the sampling pairs),
+    /// after the first ones scored `score`, and why. A closed loop's error is the model's,
+    /// propagated through the compensation, plus what no model removes (light the projector
+    /// cannot give, camera noise); closed-loop pairs refit the model where the compensation
+    /// drives the projector, so they pay only where the model's own error there is a good part
+    /// of the closed loop's. A figure that is not a number takes them all.
+    pub fn loops(&self, score: &LoopScore, follow: usize) -> (usize, String) {
+        let share = score.model_mse / score.closed_loop_mse;
+        let figures = format!(
+            "on the first {} the model's own camera-space error ({:.1e}) is {:.1} % of the \
+             closed loop's ({:.1e})",
+            score.pairs,
+            score.model_mse,
+            100.0 * share,
+            score.closed_loop_mse
+        );
+        let limit = 100.0 * self.loop_share;
+        if follow <= score.pairs {
+            (follow, format!("{figures}; all {follow} taken"))
+        } else if share < self.loop_share {
+            (
+                score.pairs,
+                format!(
+                    "{figures}, less than the {limit:.0} % at which more pay: what the closed \
+                     loop misses is beyond the model (light the projector cannot give, camera \
+                     noise)"
+                ),
+            )
+        } else {
+            (
+                follow,
+                format!(
+                    "{figures}, not less than the {limit:.0} % at which more pay: the model \
+                     limits the closed loop there, so as many as the sampling pairs"
+                ),
+            )
+        }
+    }
+
+    /// [`Rounds::loops`]'s rule in words, for the record.
+    pub fn describe_loops(&self) -> String {
+        format!(
+            "closed-loop pairs: {} first; then as many as the sampling pairs when the \
+             compensating linear rung's camera-space error on them is at least {:.0} % of \
+             their closed-loop error (both in the displayable area)",
+            self.loop_first,
+            100.0 * self.loop_share
+        )
     }
 
     /// After the rounds scored so far (in order), the sampling pairs of the next round, or why
@@ -227,6 +320,38 @@ mod tests {
         let small = Rounds::new(10, true);
         assert_eq!(small.next(&[]), Ok(10));
         assert!(small.next(&[round(10, 1e-2)]).is_err());
+    }
+
+    fn loop_score(model_mse: f64, closed_loop_mse: f64) -> LoopScore {
+        LoopScore {
+            pairs: 8,
+            model_mse,
+            closed_loop_mse,
+        }
+    }
+
+    /// The figures measured on the rig's scenes (docs/bench/calibrate.md): a white plane and a
+    /// curved wall stop at the first 8, a dark texture and a depth step take them all.
+    #[test]
+    fn closed_loop_pairs_go_on_where_the_model_limits_the_closed_loop() {
+        let r = Rounds::new(48, true);
+        for (model, closed) in [(8.42e-5, 3.40e-3), (7.46e-5, 6.01e-4)] {
+            let (n, why) = r.loops(&loop_score(model, closed), 24);
+            assert_eq!(n, 8, "{why}");
+            assert!(why.contains("less than the 15 %"), "{why}");
+        }
+        for (model, closed) in [(2.19e-4, 3.56e-4), (2.70e-4, 1.21e-3)] {
+            let (n, why) = r.loops(&loop_score(model, closed), 48);
+            assert_eq!(n, 48, "{why}");
+            assert!(why.contains("not less than the 15 %"), "{why}");
+        }
+        // Not a number (or no closed-loop error to compare with): all of them; as many as the
+        // first: nothing to judge.
+        assert_eq!(r.loops(&loop_score(f64::NAN, 1e-3), 24).0, 24);
+        assert_eq!(r.loops(&loop_score(1e-4, 0.0), 24).0, 24);
+        let (n, why) = r.loops(&loop_score(1e-3, 1e-3), 8);
+        assert!(n == 8 && why.contains("all 8 taken"), "{why}");
+        assert!(r.describe_loops().contains("8 first"));
     }
 
     /// What the first round's fit may run behind is what any score of it leads to.

@@ -72,8 +72,10 @@ pub struct Args {
     pub method: Option<MethodChoice>,
     /// Sampling images to project for training, or `auto`: in rounds (16, then 8 more at a
     /// time, up to 48), the linear rung fitted after each and scored on the held-out test
-    /// pairs, until a round no longer gains; the closed-loop pairs then follow the count
-    /// chosen, and model.json records the curve [default: the configuration's `ntrain`, 48].
+    /// pairs, until a round no longer gains; then 8 closed-loop pairs, and as many more as the
+    /// sampling pairs where the model's own error on those is at least 15 % of their
+    /// closed-loop error. model.json records both choices and why [default: the
+    /// configuration's `ntrain`, 48].
     #[arg(long, value_name = "N|auto")]
     pub ntrain: Option<compend::calibrate::SamplingCount>,
     /// Test images to project: captured for `eval`, and the first few for the verification
@@ -931,6 +933,9 @@ fn print_record(done: &Calibrated, json: bool) -> Result<()> {
     }
     if let Some(curve) = &r.sampling {
         eprintln!("calibrate: {}", curve.line());
+    }
+    if let Some(choice) = &r.closed_loop {
+        eprintln!("calibrate: {}", choice.line());
     }
     for line in done
         .model

@@ -360,10 +360,36 @@ pub fn paper_protocol(
 /// compares what the camera sees, as a closed-loop score does. `None` for a CompenNet++ model,
 /// which has no forward model.
 pub fn forward_mse(model: &Model, pairs: &crate::dataset::Pairs) -> Result<Option<f64>> {
+    forward_mse_in(model, pairs, None)
+}
+
+/// [`forward_mse`] over the lattice pixels whose camera position (nearest camera pixel) also
+/// lies inside `area` (camera pixels), when given: a closed-loop pair's desired view fills
+/// only the displayable area, and around it the camera sees the projector's black, which any
+/// model predicts.
+pub fn forward_mse_in(
+    model: &Model,
+    pairs: &crate::dataset::Pairs,
+    area: Option<crate::raster::Rect>,
+) -> Result<Option<f64>> {
     let Kind::Linear { simplified, .. } = &model.kind else {
         return Ok(None);
     };
     let lattice = simplified.grid.size();
+    let camera = model.fov.size();
+    // Normalised camera coordinates (align-corners) to the nearest camera pixel.
+    let to_pixel = |g: f32, n: usize| ((g + 1.0) * 0.5 * (n.max(2) - 1) as f32).round();
+    let in_area: Vec<bool> = simplified
+        .grid
+        .data()
+        .iter()
+        .map(|&[gx, gy]| {
+            area.is_none_or(|a| {
+                let (x, y) = (to_pixel(gx, camera.width), to_pixel(gy, camera.height));
+                x >= 0.0 && y >= 0.0 && a.contains(x as usize, y as usize)
+            })
+        })
+        .collect();
     let fov = CamImage::from_vec(
         model.fov.width(),
         model.fov.height(),
@@ -381,13 +407,14 @@ pub fn forward_mse(model: &Model, pairs: &crate::dataset::Pairs) -> Result<Optio
         let shown: NetImage = input.clone().into_space();
         let shown = crate::resize::resize_bilinear(&shown, lattice.width, lattice.height);
         let predicted = simplified.predict_capture(&shown)?;
-        for ((p, s), w) in predicted
+        for (((p, s), w), &kept) in predicted
             .data()
             .chunks_exact(3)
             .zip(seen.data().chunks_exact(3))
             .zip(inside.data().chunks_exact(3))
+            .zip(&in_area)
         {
-            if w[0] < 0.999 || p.iter().any(|v| !v.is_finite()) {
+            if !kept || w[0] < 0.999 || p.iter().any(|v| !v.is_finite()) {
                 continue;
             }
             for c in 0..3 {
@@ -397,9 +424,15 @@ pub fn forward_mse(model: &Model, pairs: &crate::dataset::Pairs) -> Result<Optio
         }
     }
     if values == 0 {
-        return Err(Error::Input(
-            "no lattice pixel of the model falls inside its projector FOV: nothing to score".into(),
-        ));
+        return Err(Error::Input(match area {
+            None => "no lattice pixel of the model falls inside its projector FOV: nothing to \
+                     score"
+                .into(),
+            Some(a) => format!(
+                "no lattice pixel of the model falls inside its projector FOV and the area {a} \
+                 (camera pixels): nothing to score"
+            ),
+        }));
     }
     Ok(Some(sq / values as f64))
 }

@@ -57,6 +57,10 @@ pub struct CalibrationRecord {
     /// score); absent for a count asked for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sampling: Option<SamplingCurve>,
+    /// `ntrain = auto` with the closed-loop pairs following the sampling pairs: how many were
+    /// taken and why; absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub closed_loop: Option<LoopChoice>,
 }
 
 /// Progressive calibration's evidence: the climbed rung and the model it replaced, scored on the
@@ -244,5 +248,35 @@ impl SamplingCurve {
             self.chosen,
             self.why
         )
+    }
+}
+
+/// How `ntrain = auto` chose the closed-loop pairs (`model.json`, `calibration.closed_loop`):
+/// the first ones judged, in the displayable area, by how much of their closed-loop error the
+/// model that compensated them leaves in its own prediction of what the camera saw.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LoopChoice {
+    pub rule: String,
+    /// The closed-loop pairs judged on (the first ones).
+    pub judged: usize,
+    /// The compensating model's camera-space error on them: how far its forward model's
+    /// prediction of each capture is from the capture (mean squared, encoded values in
+    /// \[0, 1\]).
+    pub model_mse: f64,
+    /// Their closed-loop error: each capture against its desired view (mean squared, encoded
+    /// values).
+    pub closed_loop_mse: f64,
+    /// `model_mse / closed_loop_mse`.
+    pub share: f64,
+    /// Closed-loop pairs taken.
+    pub chosen: usize,
+    /// Why no more, or why all.
+    pub why: String,
+}
+
+impl LoopChoice {
+    /// One line for people.
+    pub fn line(&self) -> String {
+        format!("closed-loop pairs: {} taken: {}", self.chosen, self.why)
     }
 }

@@ -11,7 +11,7 @@ pub mod training;
 
 pub use calibration::{
     CalibrationRecord, CaptureFloor, ClimbClosedLoop, ClimbRecord, ExposureReport, Latency,
-    PhaseSeconds, RoundScore, SamplingCurve, Verification,
+    LoopChoice, PhaseSeconds, RoundScore, SamplingCurve, Verification,
 };
 pub use set::{SetRecord, SetVerification};
 pub use training::{
