@@ -834,8 +834,21 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             .and_then(|(req, pairs)| grow::Grower::fit_first(&setup, req, pairs)),
         Some(_) => None,
     };
-    let (ready, prefit) = match (rounds, &grower) {
-        (None, None) => start_prefit(&root, &setup, opts, &geometry),
+    // Under rounds, the first round's geometry is fitted while the test pairs are captured
+    // (they come after its sampling pairs), so that its fit behind the second round's
+    // captures is mostly the colour solve.
+    let geometry_images = crate::linear::FitSettings::default().geometry_images;
+    let (ready, mut prefit) = match (rounds, &grower) {
+        (None, None) => {
+            let pairs = geometry_images.min(opts.patterns.ntrain);
+            start_prefit(&root, &setup, (opts, pairs), &geometry)
+        }
+        (Some(r), _) => start_prefit(
+            &root,
+            &setup,
+            (opts, geometry_images.min(r.first)),
+            &geometry,
+        ),
         _ => (None, None),
     };
     let mut capturer = Capturer::new(display, camera, &latency, opts.sync).with_clock(clock);
@@ -853,7 +866,7 @@ pub fn capture<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
             &mut capturer,
             (&root, &setup),
             (&mut manifest, captured + resumed),
-            (r, &geometry),
+            (r, &geometry, prefit.take()),
             opts,
             progress,
         )?;
@@ -1363,10 +1376,17 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
     (root, setup): (&DataRoot, &Setup),
     (manifest, mut on_disk): (&mut Manifest, usize),
-    (rounds, geometry): (Rounds, &Arc<crate::linear::GeometryMemo>),
+    (rounds, geometry, prefit): (
+        Rounds,
+        &Arc<crate::linear::GeometryMemo>,
+        Option<std::thread::JoinHandle<()>>,
+    ),
     opts: &Options,
     progress: Progress,
 ) -> Result<RoundsDone> {
+    // The first round's geometry, fitted ahead ([`start_prefit`]): the first fit waits for it
+    // rather than fitting the same geometry beside it.
+    let prefit = std::sync::Mutex::new(prefit);
     let tests = setup.load_test(Some(manifest.patterns.ntest))?;
     let mut curve: Vec<RoundScore> = Vec::new();
     let (mut captured, mut resumed, mut held) = (0, 0, 0.0);
@@ -1403,6 +1423,10 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
                        progress: &mut dyn FnMut(&str, usize, usize)|
      -> Result<(Model, RoundScore)> {
         let t = Instant::now();
+        let ahead = prefit.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if ahead.is_some_and(|h| h.join().is_err()) {
+            tracing::warn!("the thread fitting the geometry ahead panicked; the fit makes its own");
+        }
         let loops = match rounds.loops_follow {
             true => loop_images(opts.method, pairs, None),
             false => opts.loop_images,
@@ -1489,16 +1513,16 @@ fn sampling_rounds<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
 /// thread they are on disk ([`start_prefit`]).
 type PrefitReady = (usize, std::sync::mpsc::Sender<()>);
 
-/// Starts a thread that fits the `linear` geometry into `memo` ([`fit::prefit_geometry`]) once
-/// told that the references and the first sampling pairs it needs are on disk, so that the fit
-/// after the captures finds it done. Returns the sender to tell it with (and how many sampling
+/// Starts a thread that fits the `linear` geometry of the first `pairs` sampling pairs into
+/// `memo` ([`fit::prefit_geometry`]) once told that the references and those pairs are on
+/// disk, so that the fit after the captures (or the first sampling round's) finds it done. Returns the sender to tell it with (and how many sampling
 /// pairs it needs) and the thread; neither for a method whose first fit is not `linear`. The
 /// thread ends without fitting when the sender is dropped untold (the captures failed); a
 /// failed fit is logged, and the fit then makes its own.
 fn start_prefit(
     root: &DataRoot,
     setup: &Setup,
-    opts: &Options,
+    (opts, pairs): (&Options, usize),
     memo: &Arc<crate::linear::GeometryMemo>,
 ) -> (Option<PrefitReady>, Option<std::thread::JoinHandle<()>>) {
     let linear_first = match opts.method {
@@ -1508,9 +1532,6 @@ fn start_prefit(
     if !linear_first {
         return (None, None);
     }
-    let pairs = crate::linear::FitSettings::default()
-        .geometry_images
-        .min(opts.patterns.ntrain);
     let (tx, rx) = std::sync::mpsc::channel::<()>();
     let (root, setup) = (root.path().to_path_buf(), setup.path().to_path_buf());
     let req = Request {
@@ -1569,14 +1590,13 @@ fn capture_all<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
         shots.push((CaptureSet::Ref, r.index(), source));
     }
     let (ntrain, ntest) = (manifest.patterns.ntrain, manifest.patterns.ntest);
-    let mut sets = [
+    let sets = [
         (CaptureSet::Train, ProjectorSet::Train, ntrain),
         (CaptureSet::Test, ProjectorSet::Test, ntest),
     ];
-    // Sampling rounds score each round on the test pairs: those first.
-    if opts.rounds.is_some() {
-        sets.reverse();
-    }
+    // Sampling rounds score each round on the test pairs, after the first round's sampling
+    // pairs: the first round's geometry is fitted ahead while the test pairs are captured
+    // ([`start_prefit`]).
     for (set, pset, n) in sets {
         shots.extend((1..=n).map(|i| (set, i, root.image_path(pset, i))));
     }
