@@ -99,6 +99,9 @@ fn calibrate_installs_a_verified_model_and_records_it() {
     // sampling pairs (the default for a linear rung).
     assert_eq!(r["captured"], 3 + 12 + 4 + 12);
     assert_eq!(r["loop_pairs"], 12, "{r}");
+    // The test images as they are were captured by this run: the verification scores those
+    // captures as the uncompensated projection instead of projecting them again.
+    assert_eq!(v["uncompensated_from_test_pairs"], true, "{r}");
     // The virtual camera has a manual exposure: ranging put the brightest lit pixels just below
     // saturation.
     let bright = r["exposure"]["bright_level"].as_f64().unwrap();
@@ -1174,6 +1177,25 @@ fn ntrain_auto_takes_sampling_pairs_in_rounds_until_one_no_longer_gains() {
             let again = record(&o);
             assert_eq!(again["captured"].as_u64(), Some(0), "{again}");
             assert_eq!(again["resumed"].as_u64(), Some(3 + 4 + pairs), "{again}");
+            // Captures found on disk may be of other light: the test images are projected
+            // again, 3 of them beside the 3 compensated ones (the only captures of this run),
+            // and score close to the first run's captures of them.
+            let (v0, v1) = (&r["verification"], &again["verification"]);
+            assert_eq!(v0["uncompensated_from_test_pairs"], true, "{r}");
+            assert_eq!(v1["uncompensated_from_test_pairs"], false, "{again}");
+            assert_eq!(
+                again["capture_floor"]["captures"].as_u64(),
+                Some(6),
+                "{again}"
+            );
+            let (u0, u1) = (
+                v0["uncompensated_psnr"].as_f64().unwrap(),
+                v1["uncompensated_psnr"].as_f64().unwrap(),
+            );
+            assert!(
+                (u0 - u1).abs() < 0.3,
+                "{u0} dB from the test pairs, {u1} projected again"
+            );
             assert_eq!(again["loop_pairs"].as_u64(), Some(loops), "{again}");
             assert_eq!(again["closed_loop"]["chosen"], c["chosen"], "{again}");
         }

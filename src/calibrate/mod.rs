@@ -1130,11 +1130,22 @@ pub fn verify_model<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let mut capturer = Capturer::new(display, camera, &latency, opts.sync).with_clock(clock);
     let models: Vec<&Model> = std::iter::once(&model).chain(lower_rung.as_ref()).collect();
     let views = &desired.views;
+    // The test images as they are were captured by this very run with the pairs: those
+    // captures are the uncompensated projection, not taken again. Not where any capture was
+    // found on disk (it may be of another day's light), nor with two models to compare,
+    // whose compensations of one image may look alike and are kept apart by it.
+    let plain = match (resumed, models.len()) {
+        (0, 1) => Some(
+            Setup::open(&setup, Some(root.path()))?
+                .load_captures(CaptureSet::Test, Some(opts.verify_images.min(views.len())))?,
+        ),
+        _ => None,
+    };
     let mut verifications = verify(
         &mut capturer,
         &models,
         &root,
-        (desired.area, views),
+        (desired.area, views, plain.as_deref()),
         opts,
         progress,
     )?;
@@ -1206,7 +1217,14 @@ pub fn verify_after<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     // show are skipped, not taken for the show.
     let clock = clock::learn(camera)?;
     let mut capturer = Capturer::new(display, camera, latency, opts.sync).with_clock(clock);
-    verify(&mut capturer, models, &root, (area, &views), opts, progress)
+    verify(
+        &mut capturer,
+        models,
+        &root,
+        (area, &views, None),
+        opts,
+        progress,
+    )
 }
 
 /// The rig's verdict on a climb ([`fit::settle_climb`]) from the verifications of the climbed
@@ -1733,12 +1751,14 @@ fn write_desired(root: &DataRoot, setup: &Setup, opts: &Options) -> Result<Desir
 /// Projects the first test images as they are and compensated by each of `models` (in turn,
 /// image by image, so a slow drift of the rig weighs on all alike), captures them and scores
 /// each inside the displayable area against their desired views: one verification per model,
-/// in order, sharing the uncompensated figures.
+/// in order, sharing the uncompensated figures. With `plain`, the captures of the test images
+/// as they are (as many as are verified, taken by this calibration), those are scored as the
+/// uncompensated projection instead of projecting them again.
 fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     capturer: &mut Capturer<'_, D, C>,
     models: &[&Model],
     root: &DataRoot,
-    (area, views): (Rect, &[CamImage]),
+    (area, views, plain): (Rect, &[CamImage], Option<&[CamImage]>),
     opts: &Options,
     progress: Progress,
 ) -> Result<Vec<Verification>> {
@@ -1757,19 +1777,25 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
     let mut outputs: Vec<Vec<crate::raster::NetImage>> =
         models.iter().map(|_| Vec::with_capacity(n)).collect();
     let mut unc = Accumulator::default();
-    // Per test image: the first model, the image as it is, then the other models. Each capture
-    // follows a frame that differs from it (two rungs' compensations of one image may look
-    // alike, and the capturer checks that the camera saw the change). Compensated ahead and
-    // scored behind ([`pipeline`]).
+    let plain = plain.filter(|p| p.len() >= n);
+    if let Some(seen) = plain {
+        for (seen, want) in seen.iter().zip(views).take(n) {
+            unc.add(&seen.crop(area)?, &want.crop(area)?)?;
+        }
+    }
+    // Per test image: the first model, the image as it is (unless captured already), then the
+    // other models. Each capture follows a frame that differs from it (two rungs'
+    // compensations of one image may look alike, and the capturer checks that the camera saw
+    // the change). Compensated ahead and scored behind ([`pipeline`]).
     let shots: Vec<(usize, Option<usize>)> = (0..n)
         .flat_map(|i| {
             std::iter::once(Some(0))
-                .chain(std::iter::once(None))
+                .chain(plain.is_none().then_some(None))
                 .chain((1..models.len()).map(Some))
                 .map(move |shot| (i, shot))
         })
         .collect();
-    let per_image = models.len() + 1;
+    let per_image = shots.len() / n;
     pipeline::run(
         shots.len(),
         |j| {
@@ -1821,6 +1847,7 @@ fn verify<D: DisplaySink + ?Sized, C: FrameSource + ?Sized>(
                 ssim: c.ssim,
                 uncompensated_psnr: u.psnr,
                 uncompensated_ssim: u.ssim,
+                uncompensated_from_test_pairs: plain.is_some(),
                 gain_db: gain,
                 required_gain_db: opts.required_gain_db,
                 failure,

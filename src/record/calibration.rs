@@ -141,6 +141,10 @@ pub struct Verification {
     /// The same for the test images projected as they are.
     pub uncompensated_psnr: f64,
     pub uncompensated_ssim: f64,
+    /// The uncompensated figures are of the test pairs' captures the calibration took itself,
+    /// not of the test images projected again (absent in records before it: projected again).
+    #[serde(default)]
+    pub uncompensated_from_test_pairs: bool,
     /// PSNR gain over the uncompensated projection, dB.
     pub gain_db: f64,
     /// The gain a model needs to be installed, dB.
