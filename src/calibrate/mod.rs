@@ -1533,8 +1533,9 @@ type PrefitReady = (usize, std::sync::mpsc::Sender<()>);
 
 /// Starts a thread that fits the `linear` geometry of the first `pairs` sampling pairs into
 /// `memo` ([`fit::prefit_geometry`]) once told that the references and those pairs are on
-/// disk, so that the fit after the captures (or the first sampling round's) finds it done. Returns the sender to tell it with (and how many sampling
-/// pairs it needs) and the thread; neither for a method whose first fit is not `linear`. The
+/// disk, so that the fit after the captures (or the first sampling round's) finds it done.
+/// Returns the sender to tell it with (and how many sampling pairs it needs) and the thread;
+/// neither for a method whose first fit is not `linear`. The
 /// thread ends without fitting when the sender is dropped untold (the captures failed); a
 /// failed fit is logged, and the fit then makes its own.
 fn start_prefit(
